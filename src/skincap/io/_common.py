@@ -1,0 +1,115 @@
+"""Shared plumbing of the readers and writers: atomic output, units, axes, input checks."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from skincap.errors import FormatError, OutputExistsError, ValidationError
+
+__all__ = [
+    "UNIT_TO_METRES",
+    "unit_scale",
+    "atomic_output",
+    "check_readable",
+    "to_y_up",
+    "from_y_up",
+    "UP_AXES",
+    "up_rotation",
+]
+
+#: Length units skincap reads and writes, as metres per unit.
+UNIT_TO_METRES: dict[str, float] = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+
+#: Up axes a source file may use; skincap is Y-up inside.
+UP_AXES = ("y", "z")
+
+
+def unit_scale(unit: str, *, argument: str = "units") -> float:
+    """Metres per ``unit``; ValidationError naming ``argument`` for an unknown unit."""
+    key = unit.strip().lower()
+    if key not in UNIT_TO_METRES:
+        raise ValidationError(f"{argument}: unknown length unit {unit!r}, expected one of {sorted(UNIT_TO_METRES)}")
+    return UNIT_TO_METRES[key]
+
+
+# A Z-up right-handed frame becomes Y-up by a -90 degree turn about X:
+# (x, y, z) -> (x, z, -y). Its inverse is (x, y, z) -> (x, -z, y).
+_Z_UP_TO_Y_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])
+
+
+def _check_up(up: str) -> str:
+    key = up.strip().lower().lstrip("+")
+    if key not in UP_AXES:
+        raise ValidationError(f"up: expected one of {UP_AXES}, got {up!r}")
+    return key
+
+
+def up_rotation(up: str) -> np.ndarray:
+    """(3, 3) rotation taking coordinates with ``up`` as up axis to skincap's Y-up."""
+    return _Z_UP_TO_Y_UP.copy() if _check_up(up) == "z" else np.eye(3)
+
+
+def to_y_up(points: np.ndarray, up: str) -> np.ndarray:
+    """(..., 3) points in a frame with ``up`` as up axis -> Y-up (NaN preserved)."""
+    if _check_up(up) == "y":
+        return np.array(points, dtype=np.float64, copy=True)
+    p = np.asarray(points, dtype=np.float64)
+    return np.stack([p[..., 0], p[..., 2], -p[..., 1]], axis=-1)
+
+
+def from_y_up(points: np.ndarray, up: str) -> np.ndarray:
+    """(..., 3) Y-up points -> a frame with ``up`` as up axis (inverse of :func:`to_y_up`)."""
+    if _check_up(up) == "y":
+        return np.array(points, dtype=np.float64, copy=True)
+    p = np.asarray(points, dtype=np.float64)
+    return np.stack([p[..., 0], -p[..., 2], p[..., 1]], axis=-1)
+
+
+def check_readable(path: str | os.PathLike[str]) -> Path:
+    """Return ``path`` as a Path after checking it is an existing, non-empty file."""
+    p = Path(path)
+    if not p.exists():
+        raise FormatError(p, "no such file")
+    if p.is_dir():
+        raise FormatError(p, "is a directory, expected a file")
+    if p.stat().st_size == 0:
+        raise FormatError(p, "file is empty")
+    return p
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | os.PathLike[str], *, force: bool = False) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
+
+    On any exception the temporary file is removed and ``path`` is left untouched,
+    so a failed write never leaves a partial or corrupted output.
+
+    Raises
+    ------
+    OutputExistsError
+        ``path`` exists and ``force`` is False.
+    FormatError
+        The target folder does not exist.
+    """
+    target = Path(path)
+    if target.exists() and not force:
+        raise OutputExistsError(target)
+    folder = target.parent if str(target.parent) else Path(".")
+    if not folder.is_dir():
+        raise FormatError(target, f"cannot write: folder {str(folder)!r} does not exist")
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part" + target.suffix, dir=folder)
+    os.close(fd)
+    tmp = Path(tmp_name)
+    try:
+        yield tmp
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink()
+        raise
