@@ -232,6 +232,36 @@ class PointCloud:
         """(n_t, 3) float64: the points of frame ``t`` (a view)."""
         return self.points[self.offsets[t] : self.offsets[t + 1]]
 
+    def to_markerset(self) -> MarkerSet:
+        """Columns by point id: the inverse of :meth:`from_markerset`.
+
+        Every distinct id becomes one column, labelled from ``meta["id_labels"]`` when
+        present and ``*<id>`` otherwise; frames where an id has no point are NaN.
+
+        Raises
+        ------
+        ValidationError
+            The cloud has no ids, or an id appears twice in one frame.
+        """
+        if self.ids is None:
+            raise ValidationError("ids: an un-indexed point cloud has no trajectories; track it first (skincap track)")
+        frame = self.frame_index
+        uniq, column = np.unique(self.ids, return_inverse=True)
+        positions = np.full((self.n_frames, uniq.size, 3), np.nan)
+        taken = np.zeros((self.n_frames, uniq.size), dtype=np.int64)
+        np.add.at(taken, (frame, column), 1)
+        if (taken > 1).any():
+            t, c = np.argwhere(taken > 1)[0]
+            raise ValidationError(f"ids: id {int(uniq[c])} appears {int(taken[t, c])} times in frame {int(t)}")
+        positions[frame, column] = self.points
+        names = self.meta.get("id_labels")
+        if names is not None and uniq.size and uniq.min() >= 0 and uniq.max() < len(names):
+            labels = [str(names[i]) for i in uniq]
+        else:
+            labels = [f"*{int(i)}" for i in uniq]
+        meta = {k: v for k, v in self.meta.items() if k != "id_labels"}
+        return MarkerSet(positions=positions, labels=labels, rate=self.rate, meta=meta)
+
     @classmethod
     def from_markerset(cls, markers: MarkerSet, *, keep_ids: bool = True) -> PointCloud:
         """Drop the labels of ``markers``: every present sample becomes a point.

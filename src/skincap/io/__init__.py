@@ -1,0 +1,154 @@
+"""Readers and writers of every format skincap uses, and a dispatcher by file extension.
+
+=============  =================================  ======================================
+extension      read                               write
+=============  =================================  ======================================
+``.c3d``       :func:`skincap.io.c3d.read_c3d`    :func:`skincap.io.c3d.write_c3d`
+``.trc``       :func:`skincap.io.trc.read_trc`    :func:`skincap.io.trc.write_trc`
+``.csv``       :func:`skincap.io.csv.read_csv`    Vicon trajectories (markers) or long
+               (Vicon, OptiTrack or long points)  point format (point clouds)
+``.bvh``       :func:`skincap.io.bvh.read_bvh`    :func:`skincap.io.bvh.write_bvh`
+``.obj``       :func:`skincap.io.mesh.read_obj`   :func:`skincap.io.mesh.write_obj`
+``.ply``       :func:`skincap.io.mesh.read_ply`   :func:`skincap.io.mesh.write_ply`
+``.gltf/.glb`` :func:`skincap.io.gltf.read_gltf`  (export issue)
+``.mhskel``    :func:`skincap.io.makehuman.read_mhskel`
+``.mhw``       :func:`skincap.io.makehuman.read_mhw`
+=============  =================================  ======================================
+
+The modules are imported on first use, so importing :mod:`skincap.io` stays cheap.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+from skincap.errors import FormatError
+
+__all__ = ["read", "write", "READ_EXTENSIONS", "WRITE_EXTENSIONS", "kind_of_extension"]
+
+READ_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply", ".gltf", ".glb", ".mhskel", ".mhw")
+WRITE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply")
+
+_KIND = {
+    ".c3d": "markers",
+    ".trc": "markers",
+    ".csv": "markers",
+    ".bvh": "motion",
+    ".obj": "mesh",
+    ".ply": "mesh",
+    ".gltf": "mesh",
+    ".glb": "mesh",
+    ".mhskel": "rig",
+    ".mhw": "weights",
+}
+
+
+def kind_of_extension(path: str | os.PathLike[str]) -> str:
+    """The kind of data a file's extension promises (``markers``, ``motion``, ``mesh``…)."""
+    ext = Path(path).suffix.lower()
+    if ext not in _KIND:
+        raise FormatError(path, f"unknown file type {ext or '(no extension)'!r}; skincap reads {', '.join(READ_EXTENSIONS)}")
+    return _KIND[ext]
+
+
+def read(path: str | os.PathLike[str], **options: Any) -> Any:
+    """Read any supported file into its skincap type, chosen by the extension.
+
+    Parameters
+    ----------
+    path : path-like
+        The input file. Its content is checked too: a BVH named ``.c3d`` fails with a
+        :class:`~skincap.errors.FormatError` naming the file.
+    **options
+        Passed to the format's reader (``units=``, ``up=``…).
+
+    Returns
+    -------
+    MarkerSet, PointCloud, Motion, Mesh, or a dict for MakeHuman rig/weight files.
+    """
+    ext = Path(path).suffix.lower()
+    kind_of_extension(path)
+    if ext == ".c3d":
+        from skincap.io.c3d import read_c3d
+
+        return read_c3d(path, **options)
+    if ext == ".trc":
+        from skincap.io.trc import read_trc
+
+        return read_trc(path, **options)
+    if ext == ".csv":
+        from skincap.io.csv import read_csv
+
+        return read_csv(path, **options)
+    if ext == ".bvh":
+        from skincap.io.bvh import read_bvh
+
+        return read_bvh(path, **options)
+    if ext == ".obj":
+        from skincap.io.mesh import read_obj
+
+        return read_obj(path, **options)
+    if ext == ".ply":
+        from skincap.io.mesh import read_ply
+
+        return read_ply(path, **options)
+    if ext in (".gltf", ".glb"):
+        from skincap.io.gltf import read_gltf
+
+        return read_gltf(path, **options)
+    if ext == ".mhskel":
+        from skincap.io.makehuman import read_mhskel
+
+        return read_mhskel(path, **options)
+    from skincap.io.makehuman import read_mhw
+
+    return read_mhw(path, **options)
+
+
+def write(obj: Any, path: str | os.PathLike[str], *, force: bool = False, **options: Any) -> None:
+    """Write ``obj`` to ``path`` in the format its extension names.
+
+    The file is written to a temporary file beside ``path`` and renamed into place,
+    so a failure never leaves a partial output; an existing ``path`` is replaced only
+    with ``force=True``.
+    """
+    from skincap.types import MarkerSet, Mesh, Motion, PointCloud
+
+    ext = Path(path).suffix.lower()
+    if ext not in WRITE_EXTENSIONS:
+        raise FormatError(path, f"cannot write {ext or '(no extension)'!r} files; skincap writes {', '.join(WRITE_EXTENSIONS)}")
+    if isinstance(obj, MarkerSet):
+        if ext == ".c3d":
+            from skincap.io.c3d import write_c3d
+
+            return write_c3d(obj, path, force=force, **options)
+        if ext == ".trc":
+            from skincap.io.trc import write_trc
+
+            return write_trc(obj, path, force=force, **options)
+        if ext == ".csv":
+            from skincap.io.csv import write_vicon_csv
+
+            return write_vicon_csv(obj, path, force=force, **options)
+    elif isinstance(obj, PointCloud):
+        if ext == ".csv":
+            from skincap.io.csv import write_points_csv
+
+            return write_points_csv(obj, path, force=force, **options)
+    elif isinstance(obj, Motion):
+        if ext == ".bvh":
+            from skincap.io.bvh import write_bvh
+
+            return write_bvh(obj, path, force=force, **options)
+    elif isinstance(obj, Mesh):
+        if ext == ".obj":
+            from skincap.io.mesh import write_obj
+
+            return write_obj(obj, path, force=force, **options)
+        if ext == ".ply":
+            from skincap.io.mesh import write_ply
+
+            return write_ply(obj, path, force=force, **options)
+    raise FormatError(path, f"cannot write a {type(obj).__name__} as {ext}")

@@ -1,0 +1,263 @@
+"""The ``skincap`` command line: ``info``, ``convert``, ``demo`` and ``bench``.
+
+Errors the user can fix (bad input, an existing output) print one line,
+``skincap: error: <file>: <what is wrong>``, and exit with status 2. Warnings
+(a guessed unit) print ``skincap: warning: …`` and the command goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import sys
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from skincap.errors import FormatError, SkincapError, SkincapWarning
+
+app = typer.Typer(
+    name="skincap",
+    help="Optical motion capture to moving human skin. Run 'skincap demo' to see it work.",
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+bench_app = typer.Typer(help="Benchmarks that print speed ratios against a peer measured in the same run.", no_args_is_help=True)
+app.add_typer(bench_app, name="bench")
+
+out = Console(highlight=False)
+err = Console(stderr=True, highlight=False)
+
+
+@contextlib.contextmanager
+def _user_errors() -> Iterator[None]:
+    """Turn skincap errors into one line and status 2; show warnings as one line each."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", SkincapWarning)
+        try:
+            yield
+        except SkincapError as exc:
+            _flush_warnings(caught)
+            err.print(f"skincap: error: {exc}", markup=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+        except OSError as exc:
+            _flush_warnings(caught)
+            name = exc.filename if exc.filename is not None else ""
+            err.print(f"skincap: error: {name}: {exc.strerror or exc}", markup=False, soft_wrap=True)
+            raise typer.Exit(2) from None
+        _flush_warnings(caught)
+
+
+def _flush_warnings(caught: list[warnings.WarningMessage]) -> None:
+    for w in caught:
+        if issubclass(w.category, SkincapWarning):
+            err.print(f"skincap: warning: {w.message}", markup=False, soft_wrap=True)
+        else:
+            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+
+
+def _read(path: Path, **options: Any) -> Any:
+    from skincap import io
+
+    return io.read(path, **options)
+
+
+def _print_summary(path: Path, summary: dict[str, Any]) -> None:
+    table = Table(title=str(path), title_justify="left", show_header=False, box=None, pad_edge=False)
+    table.add_column(style="bold")
+    table.add_column()
+    for key, value in summary.items():
+        if isinstance(value, float):
+            text = f"{value:.6g}"
+        elif isinstance(value, list) and value and isinstance(value[0], float):
+            text = "[" + ", ".join(f"{v:.4g}" for v in value) + "]"
+        else:
+            text = str(value)
+        table.add_row(key, text)
+    out.print(table)
+
+
+def _summary_of(obj: Any) -> dict[str, Any]:
+    from skincap.summary import summarize
+
+    if isinstance(obj, dict):  # MakeHuman rig and weight files read as summaries
+        return obj
+    return summarize(obj)
+
+
+# --------------------------------------------------------------------------- info
+@app.command()
+def info(
+    files: Annotated[list[Path], typer.Argument(help="C3D, TRC, CSV, BVH, OBJ, PLY, glTF/GLB or MakeHuman rig files.")],
+    json_output: Annotated[bool, typer.Option("--json", help="Print JSON (one object, or a list for several files).")] = False,
+    units: Annotated[str | None, typer.Option(help="BVH/OBJ length unit (m, cm, mm, in); guessed for BVH when omitted.")] = None,
+) -> None:
+    """Summarise capture, motion and mesh files.
+
+    Markers: frames, rate, duration, labelled/unlabelled counts, missing fraction,
+    interior gaps and the longest. BVH: joints, frames, rate, units, channel orders.
+    Mesh: vertices, faces, bounds, skin joints.
+
+    Example: skincap info walk.c3d run.bvh --json
+    """
+    summaries = []
+    with _user_errors():
+        for path in files:
+            options: dict[str, Any] = {}
+            if units is not None and path.suffix.lower() in (".bvh", ".obj"):
+                options["units"] = units
+            summary = {"file": str(path), **_summary_of(_read(path, **options))}
+            summaries.append(summary)
+            if not json_output:
+                _print_summary(path, summary)
+    if json_output:
+        print(json.dumps(summaries[0] if len(summaries) == 1 else summaries, indent=2))
+
+
+# ------------------------------------------------------------------------ convert
+_MARKER_OUT = (".c3d", ".trc", ".csv")
+_MESH_OUT = (".obj", ".ply")
+
+
+def convert_file(
+    src: Path,
+    dst: Path,
+    *,
+    force: bool = False,
+    units: str | None = None,
+    points: bool = False,
+) -> str:
+    """Convert ``src`` to ``dst`` by their extensions; return a one-line summary.
+
+    Markers go C3D <-> TRC <-> CSV (Vicon trajectories CSV; the long point format
+    with ``points=True``), BVH -> BVH (``units`` rescales the written file), BVH ->
+    CSV of joint world positions, and meshes between OBJ and PLY (glTF read).
+    """
+    from skincap import io
+    from skincap.types import MarkerSet, Mesh, Motion, PointCloud
+
+    in_kind = io.kind_of_extension(src)
+    out_ext = dst.suffix.lower()
+    if src.resolve() == dst.resolve():
+        raise FormatError(dst, "output is the input file; inputs are never modified")
+    read_options: dict[str, Any] = {}
+    if units is not None and in_kind in ("motion", "mesh") and src.suffix.lower() in (".bvh", ".obj"):
+        read_options["units"] = units
+    if in_kind in ("markers", "motion", "mesh") and out_ext not in _MARKER_OUT + _MESH_OUT + (".bvh",):
+        raise FormatError(dst, f"cannot write {out_ext or '(no extension)'!r}; convert writes {', '.join(_MARKER_OUT + ('.bvh',) + _MESH_OUT)}")
+    obj = io.read(src, **read_options)
+
+    if isinstance(obj, MarkerSet | PointCloud):
+        if out_ext not in _MARKER_OUT:
+            raise FormatError(dst, f"markers convert to {', '.join(_MARKER_OUT)}, not {out_ext}")
+        if isinstance(obj, MarkerSet) and points:
+            if out_ext != ".csv":
+                raise FormatError(dst, "--points writes the long point CSV format: give a .csv output")
+            obj = PointCloud.from_markerset(obj)
+        elif isinstance(obj, PointCloud) and out_ext != ".csv":
+            obj = obj.to_markerset()
+        io.write(obj, dst, force=force)
+        return f"{src} -> {dst}: {obj.n_frames} frames"
+    if isinstance(obj, Motion):
+        if out_ext == ".bvh":
+            io.write(obj, dst, force=force)
+        elif out_ext == ".csv":
+            from skincap.io.joints_csv import write_joint_positions_csv
+
+            write_joint_positions_csv(obj, dst, force=force)
+        else:
+            raise FormatError(dst, f"a BVH converts to .bvh or .csv (joint positions), not {out_ext}")
+        return f"{src} -> {dst}: {obj.n_frames} frames, {obj.skeleton.n_joints} joints"
+    if isinstance(obj, Mesh):
+        if out_ext not in _MESH_OUT:
+            raise FormatError(dst, f"a mesh converts to {', '.join(_MESH_OUT)}, not {out_ext}")
+        io.write(obj, dst, force=force)
+        return f"{src} -> {dst}: {obj.n_vertices} vertices, {obj.n_faces} triangles"
+    raise FormatError(src, "this file type cannot be converted")
+
+
+@app.command()
+def convert(
+    src: Annotated[Path, typer.Argument(help="Input file.")],
+    dst: Annotated[Path, typer.Argument(help="Output file; its extension picks the format.")],
+    force: Annotated[bool, typer.Option("--force", help="Replace an existing output.")] = False,
+    units: Annotated[str | None, typer.Option(help="Length unit of a BVH/OBJ input (m, cm, mm, in).")] = None,
+    points: Annotated[bool, typer.Option("--points", help="Markers to the long point CSV (frame,time,x,y,z,id).")] = False,
+) -> None:
+    """Convert between formats: C3D <-> TRC <-> CSV, BVH -> BVH, BVH -> CSV joint positions, OBJ <-> PLY.
+
+    Example: skincap convert walk.c3d walk.trc
+    """
+    with _user_errors():
+        message = convert_file(src, dst, force=force, units=units, points=points)
+    out.print(message, markup=False)
+
+
+# --------------------------------------------------------------------------- demo
+@app.command()
+def demo(
+    output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the demo's outputs.")] = Path("skincap-demo"),
+    force: Annotated[bool, typer.Option("--force", help="Replace outputs from an earlier run.")] = False,
+) -> None:
+    """Run skincap on the real captures it ships: read, summarise, convert.
+
+    Reads a real OptiTrack C3D and a real BVH, prints their summaries and writes
+    converted copies (TRC, CSV, C3D, BVH, joint positions) into the output folder.
+
+    Example: skincap demo -o demo-out
+    """
+    from skincap.demo import run_demo
+
+    with _user_errors():
+        from rich.progress import Progress
+
+        with Progress(console=err, transient=True) as progress:
+            task = progress.add_task("demo", total=1.0)
+
+            def report(fraction: float, label: str) -> None:
+                progress.update(task, completed=fraction, description=label)
+
+            result = run_demo(output, force=force, progress=report)
+    for path, summary in result["summaries"].items():
+        _print_summary(Path(path), summary)
+    out.print(f"demo: wrote {len(result['outputs'])} files to {output}", markup=False)
+
+
+# -------------------------------------------------------------------------- bench
+@bench_app.command("io")
+def bench_io(
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the measurements as JSON.")] = False,
+) -> None:
+    """BVH read and FK against bvhio, our C3D read against raw ezc3d, as ratios.
+
+    Example: skincap bench io --repeat 3
+    """
+    from skincap.benchmarks import run_io_benchmarks
+
+    with _user_errors():
+        results = run_io_benchmarks(repeat=repeat)
+    if json_output:
+        print(json.dumps(results, indent=2))
+        return
+    for line in results["lines"]:
+        out.print(line, markup=False)
+
+
+def main() -> None:
+    """Console-script entry point."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        err.print("skincap: interrupted")
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()
