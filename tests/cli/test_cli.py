@@ -1,0 +1,237 @@
+"""The command line as a user runs it: info, convert, demo, and bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skincap.cli import app
+
+DATA = Path(__file__).parents[1] / "data"
+DATA_FILES = sorted(p for p in DATA.iterdir() if p.suffix in {".c3d", ".csv", ".bvh", ".obj", ".mhskel", ".mhw"})
+
+
+def run(*args: str):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+def info_json(path: Path) -> dict:
+    result = run("info", path, "--json")
+    assert result.exit_code == 0, result.output
+    return json.loads(result.stdout)
+
+
+@pytest.mark.parametrize("path", DATA_FILES, ids=lambda p: p.name)
+def test_info_json_succeeds_on_every_real_file(path):
+    summary = info_json(path)
+    assert summary["kind"] in {"markers", "points", "motion", "mesh", "rig", "weights"}
+    if summary["kind"] == "markers":
+        for key in ("frames", "rate", "markers", "labelled", "unlabelled", "missing_fraction", "gaps", "longest_gap"):
+            assert key in summary
+    elif summary["kind"] == "motion":
+        assert summary["joints"] > 0 and summary["frames"] > 0 and summary["rate"] > 0
+    elif summary["kind"] == "mesh":
+        assert summary["vertices"] > 0 and summary["faces"] > 0
+
+
+_MODEL_GROUPS = ("ANGLES", "FORCES", "POWERS", "MOMENTS", "SCALARS", "REACTIONS")
+
+
+@pytest.mark.parametrize("path", sorted(DATA.glob("*.c3d")), ids=lambda p: p.name)
+def test_info_counts_match_ezc3d(path):
+    summary = info_json(path)
+    raw = ezc3d.c3d(str(path))
+    header = raw["header"]["points"]
+    assert summary["frames"] == header["last_frame"] - header["first_frame"] + 1
+    assert summary["rate"] == pytest.approx(header["frame_rate"], rel=1e-12)
+    params = raw["parameters"]["POINT"]
+    used = int(params["USED"]["value"][0])
+    labels = []
+    for key in ["LABELS"] + [f"LABELS{i}" for i in range(2, 10)]:
+        if key in params:
+            labels += [s.strip() for s in params[key]["value"]]
+    labels = labels[:used]
+    model = {s.strip() for g in _MODEL_GROUPS if g in params for s in params[g]["value"]}
+    marker_cols = [i for i, s in enumerate(labels) if s not in model]
+    assert summary["markers"] == len(marker_cols)
+    assert summary["unlabelled"] == sum(labels[i].startswith("*") for i in marker_cols)
+    points = raw["data"]["points"][:3, marker_cols]  # (3, N, T)
+    residuals = raw["data"]["meta_points"]["residuals"][0, marker_cols]
+    missing = (residuals < 0) | np.isnan(points).any(axis=0) | (points == 0).all(axis=0)
+    assert summary["missing_fraction"] == pytest.approx(missing.mean(), abs=1e-12)
+
+
+def test_info_bvh_reports_joints_frames_rate(data_dir):
+    s = info_json(data_dir / "cmu_131_01_bvh11.bvh")
+    assert (s["kind"], s["joints"], s["frames"]) == ("motion", 31, 994)
+    assert s["rate"] == pytest.approx(120.0, rel=1e-4)
+
+
+def test_info_human_readable(data_dir):
+    result = run("info", data_dir / "cmu_85_02.c3d")
+    assert result.exit_code == 0
+    assert "frames" in result.stdout and "810" in result.stdout
+
+
+@pytest.mark.parametrize("ext", [".trc", ".csv", ".c3d"])
+def test_convert_markers_round_trip(tmp_path, data_dir, ext):
+    from skincap import io
+
+    src = data_dir / "pyomeca_markers_analogs.c3d"
+    dst = tmp_path / f"out{ext}"
+    result = run("convert", src, dst)
+    assert result.exit_code == 0, result.output
+    a, b = io.read(src), io.read(dst)
+    assert a.labels == b.labels
+    assert a.rate == pytest.approx(b.rate, rel=1e-9)
+    np.testing.assert_array_equal(np.isnan(a.positions), np.isnan(b.positions))
+    np.testing.assert_allclose(a.positions, b.positions, atol=1e-6, equal_nan=True)
+
+
+def test_convert_refuses_to_overwrite_without_force(tmp_path, data_dir):
+    dst = tmp_path / "out.trc"
+    dst.write_text("keep me")
+    result = run("convert", data_dir / "cmu_85_02.c3d", dst)
+    assert result.exit_code == 2
+    assert "--force" in result.stderr
+    assert dst.read_text() == "keep me"
+    assert run("convert", data_dir / "cmu_85_02.c3d", dst, "--force").exit_code == 0
+    assert dst.read_text().startswith("PathFileType")
+
+
+def test_convert_bvh_to_joint_positions_csv(tmp_path, data_dir):
+    from skincap.geometry.kinematics import joint_positions
+    from skincap.io.bvh import read_bvh
+
+    src = data_dir / "cmu_131_01_bvh11.bvh"
+    dst = tmp_path / "joints.csv"
+    result = run("convert", src, dst, "--units", "in")
+    assert result.exit_code == 0, result.output
+    header = dst.read_text().splitlines()[0].split(",")
+    table = np.loadtxt(dst, delimiter=",", skiprows=1)
+    motion = read_bvh(src, units="in")
+    assert table.shape == (994, 2 + 3 * motion.skeleton.n_joints)
+    assert header[2:5] == [f"{motion.skeleton.names[0]}_{a}" for a in "xyz"]
+    np.testing.assert_allclose(table[:, 2:].reshape(994, -1, 3), joint_positions(motion), atol=1e-6)
+
+
+def test_convert_mesh_obj_to_ply(tmp_path, data_dir):
+    dst = tmp_path / "body.ply"
+    result = run("convert", data_dir / "makehuman_base.obj", dst)
+    assert result.exit_code == 0, result.output
+    assert info_json(dst)["vertices"] == info_json(data_dir / "makehuman_base.obj")["vertices"]
+
+
+def test_convert_markers_to_points_and_back(tmp_path, data_dir):
+    from skincap import io
+
+    pts = tmp_path / "points.csv"
+    assert run("convert", data_dir / "kt_optitrack_walking.c3d", pts, "--points").exit_code == 0
+    assert info_json(pts)["kind"] == "points"
+    back = tmp_path / "back.c3d"
+    assert run("convert", pts, back).exit_code == 0
+    a, b = io.read(data_dir / "kt_optitrack_walking.c3d"), io.read(back)
+    present = ~a.missing.all(axis=0)
+    np.testing.assert_allclose(a.positions[:, present], b.positions, atol=1e-6, equal_nan=True)
+
+
+# ------------------------------------------------------------------ bad input
+def _bad_files(tmp: Path, data: Path) -> dict[str, Path]:
+    files: dict[str, Path] = {}
+
+    def put(name: str, content: bytes) -> None:
+        (tmp / name).write_bytes(content)
+        files[name] = tmp / name
+
+    c3d = (data / "cmu_85_02.c3d").read_bytes()
+    bvh = (data / "bvhtoolbox_test_mocapbank.bvh").read_bytes()
+    put("empty.c3d", b"")
+    put("empty.bvh", b"")
+    put("truncated.c3d", c3d[:2000])
+    put("garbage.c3d", bytes(np.random.default_rng(0).integers(0, 256, 4096, dtype=np.uint8)))
+    broken = bytearray(c3d)
+    broken[512:1024] = b"\xff" * 512  # the parameter section
+    put("broken_params.c3d", bytes(broken))
+    put("really_a_bvh.c3d", bvh)
+    put("truncated.bvh", bvh[: len(bvh) // 2 - 7])
+    lines = bvh.decode().splitlines()
+    motion_at = next(i for i, s in enumerate(lines) if s.startswith("Frame Time")) + 1
+    lines[motion_at + 3] = " ".join(lines[motion_at + 3].split()[:-2])
+    put("short_row.bvh", "\n".join(lines).encode())
+    put("garbage.bvh", b"HIERARCHY\nROOT Hips\n{\n OFFSET a b c\n")
+    csv = (data / "pyomeca_vicon_nexus_trajectories.csv").read_text().splitlines()
+    csv[10] = csv[10] + ",1,2,3,4"
+    put("ragged.csv", "\n".join(csv).encode())
+    put("garbage.csv", b"hello,world\n1,2\n")
+    put("not_a_mesh.obj", b"v 1 2\nf 1 2 3\n")
+    put("no_such_ext.xyz", b"123")
+    return files
+
+
+def test_every_bad_input_gives_one_line_and_status_2(tmp_path, data_dir):
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    files = _bad_files(inputs, data_dir)
+    for name, path in files.items():
+        before = path.read_bytes()
+        result = run("info", path)
+        assert result.exit_code == 2, (name, result.output)
+        lines = result.stderr.strip().splitlines()
+        assert len(lines) == 1, (name, result.stderr)
+        assert lines[0].startswith(f"skincap: error: {path}"), (name, lines[0])
+        assert path.read_bytes() == before
+        out_dir = tmp_path / f"out_{name}"
+        out_dir.mkdir()
+        target = out_dir / ("x.bvh" if path.suffix == ".bvh" else "x.trc")
+        result = run("convert", path, target)
+        assert result.exit_code == 2, (name, result.output)
+        assert list(out_dir.iterdir()) == [], name  # no partial or temporary output
+
+
+def test_missing_input_file(tmp_path):
+    result = run("info", tmp_path / "nope.c3d")
+    assert result.exit_code == 2
+    assert "no such file" in result.stderr
+
+
+def test_console_script_exit_status(tmp_path):
+    bad = tmp_path / "bad.c3d"
+    bad.write_bytes(b"\x00" * 10)
+    proc = subprocess.run(
+        [sys.executable, "-m", "skincap.cli", "info", str(bad)],
+        capture_output=True,
+        text=True,
+        env={**os.environ, "COLUMNS": "200"},
+        check=False,
+    )
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert "Traceback" not in proc.stderr
+
+
+def test_demo_writes_readable_outputs(tmp_path):
+    from skincap import io
+
+    result = run("demo", "-o", tmp_path / "demo")
+    assert result.exit_code == 0, result.output
+    written = sorted(p.name for p in (tmp_path / "demo").iterdir())
+    assert written == ["motion.bvh", "motion_joints.csv", "walking.c3d", "walking.csv", "walking.trc"]
+    markers = io.read(tmp_path / "demo" / "walking.c3d")
+    assert markers.n_markers == 12 and markers.rate == 160.0
+    assert run("demo", "-o", tmp_path / "demo").exit_code == 2  # outputs exist
+    assert run("demo", "-o", tmp_path / "demo", "--force").exit_code == 0
+
+
+def test_every_verb_has_help_with_an_example():
+    for verb in (["info"], ["convert"], ["demo"], ["bench", "io"]):
+        result = run(*verb, "--help")
+        assert result.exit_code == 0
+        assert "Example: skincap" in result.stdout
