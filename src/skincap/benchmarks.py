@@ -1,0 +1,149 @@
+"""Benchmarks behind ``skincap bench``: speed ratios against a peer measured in the same run.
+
+Never part of the pass/fail test suite. Every figure is the best of ``repeat`` runs
+(``time.perf_counter``) and is printed as a ratio against a baseline timed in the same
+process, so the numbers mean the same on a slow or a fast machine.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skincap.errors import MissingDependencyError
+
+__all__ = ["best_time", "run_io_benchmarks", "fk_per_frame_reference"]
+
+_DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
+
+
+def best_time(fn: Callable[[], Any], repeat: int) -> float:
+    """Smallest wall-clock seconds of ``repeat`` calls of ``fn``."""
+    best = float("inf")
+    for _ in range(max(1, repeat)):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def fk_per_frame_reference(parents: np.ndarray, rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
+    """Plain forward kinematics, one frame and one joint at a time (the baseline).
+
+    Parameters
+    ----------
+    parents : (J,) int; rotations : (T, J, 4) x,y,z,w; translations : (T, J, 3) m.
+
+    Returns
+    -------
+    (T, J, 3) world joint positions, metres.
+    """
+    from scipy.spatial.transform import Rotation
+
+    t_count, j_count = rotations.shape[:2]
+    out = np.zeros((t_count, j_count, 3))
+    for t in range(t_count):
+        world_r = [None] * j_count
+        for j in range(j_count):
+            local = Rotation.from_quat(rotations[t, j])
+            p = parents[j]
+            if p < 0:
+                world_r[j] = local
+                out[t, j] = translations[t, j]
+            else:
+                world_r[j] = world_r[p] * local
+                out[t, j] = out[t, p] + world_r[p].apply(translations[t, j])
+    return out
+
+
+def _data_file(name: str) -> Path:
+    path = _DATA / name
+    if not path.is_file():
+        from skincap.demo import demo_data_path
+
+        return demo_data_path(name)
+    return path
+
+
+def run_io_benchmarks(*, repeat: int = 5) -> dict[str, Any]:
+    """Time BVH read + FK against bvhio and the C3D reader against raw ezc3d.
+
+    Uses the 994-frame CMU BVH and the C3D files of ``tests/data`` (from a source
+    checkout; an installed package falls back to its shipped demo files).
+
+    Returns
+    -------
+    dict with the measured seconds, the ratios and ``lines`` of text to print.
+    """
+    try:
+        import bvhio
+    except ImportError:
+        raise MissingDependencyError("bvhio", "dev", "the BVH benchmark") from None
+    import ezc3d
+
+    from skincap.geometry.kinematics import joint_positions
+    from skincap.io.bvh import read_bvh
+    from skincap.io.c3d import read_c3d
+
+    lines: list[str] = []
+    results: dict[str, Any] = {"repeat": repeat}
+
+    # --- BVH read: ours vs bvhio's parser ------------------------------------
+    bvh = _data_file("cmu_131_01_bvh11.bvh") if (_DATA / "cmu_131_01_bvh11.bvh").is_file() else _data_file("bvhtoolbox_test_mocapbank.bvh")
+    ours = best_time(lambda: read_bvh(bvh, units="in"), repeat)
+    peer = best_time(lambda: bvhio.readAsBvh(str(bvh)), max(1, repeat // 2))
+    results["bvh_read"] = {"file": bvh.name, "skincap_s": ours, "bvhio_s": peer, "speedup": peer / ours}
+    lines.append(f"BVH read  {bvh.name}: skincap is {peer / ours:.1f}x faster than bvhio.readAsBvh (goal >= 5x)")
+
+    # --- FK: vectorised vs a per-frame loop and vs bvhio's hierarchy ----------
+    motion = read_bvh(bvh, units="in")
+    t_count, j_count = motion.n_frames, motion.skeleton.n_joints
+    fk = best_time(lambda: joint_positions(motion), repeat)
+    n_ref = min(t_count, 100)
+    ref = best_time(
+        lambda: fk_per_frame_reference(motion.skeleton.parents, motion.rotations[:n_ref], motion.translations[:n_ref]), 1
+    ) * (t_count / n_ref)
+    root = bvhio.readAsHierarchy(str(bvh))
+    layout = root.layout()
+    n_peer = min(t_count, 200)
+
+    def bvhio_fk() -> None:
+        for frame in range(n_peer):
+            root.loadPose(frame)
+            [joint.PositionWorld for joint, _, _ in layout]
+
+    peer_fk = best_time(bvhio_fk, 1) * (t_count / n_peer)
+    rate = t_count * j_count / fk
+    results["fk"] = {
+        "joint_frames": t_count * j_count,
+        "skincap_s": fk,
+        "joint_frames_per_s": rate,
+        "per_frame_loop_s": ref,
+        "bvhio_s": peer_fk,
+        "speedup_vs_loop": ref / fk,
+        "speedup_vs_bvhio": peer_fk / fk,
+    }
+    lines.append(
+        f"FK        {t_count} frames x {j_count} joints: {rate:.3g} joint-frames/s (goal >= 1e6); "
+        f"{ref / fk:.0f}x the per-frame loop, {peer_fk / fk:.0f}x bvhio's hierarchy"
+    )
+
+    # --- C3D read: ours vs raw ezc3d --------------------------------------------
+    c3d_files = sorted(_DATA.glob("*.c3d")) or [_data_file("kt_optitrack_walking.c3d")]
+    ratios = {}
+    for path in c3d_files:
+        raw = best_time(lambda p=path: ezc3d.c3d(str(p)), repeat)
+        ours_c3d = best_time(lambda p=path: read_c3d(p), repeat)
+        ratios[path.name] = ours_c3d / raw
+    worst = max(ratios, key=ratios.get)
+    results["c3d_read"] = {"time_ratio_vs_ezc3d": ratios}
+    lines.append(
+        f"C3D read  {len(ratios)} files: skincap takes {min(ratios.values()):.2f}x..{ratios[worst]:.2f}x "
+        f"raw ezc3d's time (worst {worst}; goal <= 1.2x)"
+    )
+    results["lines"] = lines
+    return results
