@@ -31,7 +31,9 @@ def _gaps_reference(missing):
 @given(arrays(bool, st.tuples(st.integers(0, 30), st.integers(0, 5))))
 def test_find_gaps_matches_scan(missing):
     m, s, length = find_gaps(missing)
-    assert sorted(zip(m.tolist(), s.tolist(), length.tolist(), strict=True)) == _gaps_reference(missing)
+    assert sorted(zip(m.tolist(), s.tolist(), length.tolist(), strict=True)) == _gaps_reference(
+        missing
+    )
 
 
 def test_marker_summary_counts():

@@ -13,7 +13,9 @@ def _markers(t=5, n=3, seed=0):
 
 
 def test_markerset_shape_error_names_field_and_shapes():
-    with pytest.raises(ValidationError, match=r"positions: expected shape \(\*, \*, 3\), got \(4, 2\)"):
+    with pytest.raises(
+        ValidationError, match=r"positions: expected shape \(\*, \*, 3\), got \(4, 2\)"
+    ):
         MarkerSet(np.zeros((4, 2)), ["a", "b"], 100)
 
 

@@ -6,7 +6,7 @@ The core types live in :mod:`skincap.types`; readers and writers in :mod:`skinca
 from __future__ import annotations
 
 from skincap.errors import FormatError, SkincapError, SkincapWarning, ValidationError
-from skincap.types import Mesh, MeshAnimation, MarkerSet, Motion, PointCloud, Skeleton, Skin
+from skincap.types import MarkerSet, Mesh, MeshAnimation, Motion, PointCloud, Skeleton, Skin
 
 __version__ = "0.1.0"
 

@@ -31,7 +31,9 @@ def best_time(fn: Callable[[], Any], repeat: int) -> float:
     return best
 
 
-def fk_per_frame_reference(parents: np.ndarray, rotations: np.ndarray, translations: np.ndarray) -> np.ndarray:
+def fk_per_frame_reference(
+    parents: np.ndarray, rotations: np.ndarray, translations: np.ndarray
+) -> np.ndarray:
     """Plain forward kinematics, one frame and one joint at a time (the baseline).
 
     Parameters
@@ -93,11 +95,22 @@ def run_io_benchmarks(*, repeat: int = 5) -> dict[str, Any]:
     results: dict[str, Any] = {"repeat": repeat}
 
     # --- BVH read: ours vs bvhio's parser ------------------------------------
-    bvh = _data_file("cmu_131_01_bvh11.bvh") if (_DATA / "cmu_131_01_bvh11.bvh").is_file() else _data_file("bvhtoolbox_test_mocapbank.bvh")
+    bvh = (
+        _data_file("cmu_131_01_bvh11.bvh")
+        if (_DATA / "cmu_131_01_bvh11.bvh").is_file()
+        else _data_file("bvhtoolbox_test_mocapbank.bvh")
+    )
     ours = best_time(lambda: read_bvh(bvh, units="in"), repeat)
     peer = best_time(lambda: bvhio.readAsBvh(str(bvh)), max(1, repeat // 2))
-    results["bvh_read"] = {"file": bvh.name, "skincap_s": ours, "bvhio_s": peer, "speedup": peer / ours}
-    lines.append(f"BVH read  {bvh.name}: skincap is {peer / ours:.1f}x faster than bvhio.readAsBvh (goal >= 5x)")
+    results["bvh_read"] = {
+        "file": bvh.name,
+        "skincap_s": ours,
+        "bvhio_s": peer,
+        "speedup": peer / ours,
+    }
+    lines.append(
+        f"BVH read  {bvh.name}: skincap is {peer / ours:.1f}x faster than bvhio.readAsBvh (goal >= 5x)"
+    )
 
     # --- FK: vectorised vs a per-frame loop and vs bvhio's hierarchy ----------
     motion = read_bvh(bvh, units="in")
@@ -105,7 +118,10 @@ def run_io_benchmarks(*, repeat: int = 5) -> dict[str, Any]:
     fk = best_time(lambda: joint_positions(motion), repeat)
     n_ref = min(t_count, 100)
     ref = best_time(
-        lambda: fk_per_frame_reference(motion.skeleton.parents, motion.rotations[:n_ref], motion.translations[:n_ref]), 1
+        lambda: fk_per_frame_reference(
+            motion.skeleton.parents, motion.rotations[:n_ref], motion.translations[:n_ref]
+        ),
+        1,
     ) * (t_count / n_ref)
     root = bvhio.readAsHierarchy(str(bvh))
     layout = root.layout()

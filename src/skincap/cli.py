@@ -28,7 +28,10 @@ app = typer.Typer(
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-bench_app = typer.Typer(help="Benchmarks that print speed ratios against a peer measured in the same run.", no_args_is_help=True)
+bench_app = typer.Typer(
+    help="Benchmarks that print speed ratios against a peer measured in the same run.",
+    no_args_is_help=True,
+)
 app.add_typer(bench_app, name="bench")
 
 out = Console(highlight=False)
@@ -49,7 +52,9 @@ def _user_errors() -> Iterator[None]:
         except OSError as exc:
             _flush_warnings(caught)
             name = exc.filename if exc.filename is not None else ""
-            err.print(f"skincap: error: {name}: {exc.strerror or exc}", markup=False, soft_wrap=True)
+            err.print(
+                f"skincap: error: {name}: {exc.strerror or exc}", markup=False, soft_wrap=True
+            )
             raise typer.Exit(2) from None
         _flush_warnings(caught)
 
@@ -69,7 +74,9 @@ def _read(path: Path, **options: Any) -> Any:
 
 
 def _print_summary(path: Path, summary: dict[str, Any]) -> None:
-    table = Table(title=str(path), title_justify="left", show_header=False, box=None, pad_edge=False)
+    table = Table(
+        title=str(path), title_justify="left", show_header=False, box=None, pad_edge=False
+    )
     table.add_column(style="bold")
     table.add_column()
     for key, value in summary.items():
@@ -94,9 +101,17 @@ def _summary_of(obj: Any) -> dict[str, Any]:
 # --------------------------------------------------------------------------- info
 @app.command()
 def info(
-    files: Annotated[list[Path], typer.Argument(help="C3D, TRC, CSV, BVH, OBJ, PLY, glTF/GLB or MakeHuman rig files.")],
-    json_output: Annotated[bool, typer.Option("--json", help="Print JSON (one object, or a list for several files).")] = False,
-    units: Annotated[str | None, typer.Option(help="BVH/OBJ length unit (m, cm, mm, in); guessed for BVH when omitted.")] = None,
+    files: Annotated[
+        list[Path],
+        typer.Argument(help="C3D, TRC, CSV, BVH, OBJ, PLY, glTF/GLB or MakeHuman rig files."),
+    ],
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print JSON (one object, or a list for several files).")
+    ] = False,
+    units: Annotated[
+        str | None,
+        typer.Option(help="BVH/OBJ length unit (m, cm, mm, in); guessed for BVH when omitted."),
+    ] = None,
 ) -> None:
     """Summarise capture, motion and mesh files.
 
@@ -147,10 +162,19 @@ def convert_file(
     if src.resolve() == dst.resolve():
         raise FormatError(dst, "output is the input file; inputs are never modified")
     read_options: dict[str, Any] = {}
-    if units is not None and in_kind in ("motion", "mesh") and src.suffix.lower() in (".bvh", ".obj"):
+    if (
+        units is not None
+        and in_kind in ("motion", "mesh")
+        and src.suffix.lower() in (".bvh", ".obj")
+    ):
         read_options["units"] = units
-    if in_kind in ("markers", "motion", "mesh") and out_ext not in _MARKER_OUT + _MESH_OUT + (".bvh",):
-        raise FormatError(dst, f"cannot write {out_ext or '(no extension)'!r}; convert writes {', '.join(_MARKER_OUT + ('.bvh',) + _MESH_OUT)}")
+    if in_kind in ("markers", "motion", "mesh") and out_ext not in _MARKER_OUT + _MESH_OUT + (
+        ".bvh",
+    ):
+        raise FormatError(
+            dst,
+            f"cannot write {out_ext or '(no extension)'!r}; convert writes {', '.join(_MARKER_OUT + ('.bvh',) + _MESH_OUT)}",
+        )
     obj = io.read(src, **read_options)
 
     if isinstance(obj, MarkerSet | PointCloud):
@@ -158,7 +182,9 @@ def convert_file(
             raise FormatError(dst, f"markers convert to {', '.join(_MARKER_OUT)}, not {out_ext}")
         if isinstance(obj, MarkerSet) and points:
             if out_ext != ".csv":
-                raise FormatError(dst, "--points writes the long point CSV format: give a .csv output")
+                raise FormatError(
+                    dst, "--points writes the long point CSV format: give a .csv output"
+                )
             obj = PointCloud.from_markerset(obj)
         elif isinstance(obj, PointCloud) and out_ext != ".csv":
             obj = obj.to_markerset()
@@ -172,7 +198,9 @@ def convert_file(
 
             write_joint_positions_csv(obj, dst, force=force)
         else:
-            raise FormatError(dst, f"a BVH converts to .bvh or .csv (joint positions), not {out_ext}")
+            raise FormatError(
+                dst, f"a BVH converts to .bvh or .csv (joint positions), not {out_ext}"
+            )
         return f"{src} -> {dst}: {obj.n_frames} frames, {obj.skeleton.n_joints} joints"
     if isinstance(obj, Mesh):
         if out_ext not in _MESH_OUT:
@@ -187,8 +215,12 @@ def convert(
     src: Annotated[Path, typer.Argument(help="Input file.")],
     dst: Annotated[Path, typer.Argument(help="Output file; its extension picks the format.")],
     force: Annotated[bool, typer.Option("--force", help="Replace an existing output.")] = False,
-    units: Annotated[str | None, typer.Option(help="Length unit of a BVH/OBJ input (m, cm, mm, in).")] = None,
-    points: Annotated[bool, typer.Option("--points", help="Markers to the long point CSV (frame,time,x,y,z,id).")] = False,
+    units: Annotated[
+        str | None, typer.Option(help="Length unit of a BVH/OBJ input (m, cm, mm, in).")
+    ] = None,
+    points: Annotated[
+        bool, typer.Option("--points", help="Markers to the long point CSV (frame,time,x,y,z,id).")
+    ] = False,
 ) -> None:
     """Convert between formats: C3D <-> TRC <-> CSV, BVH -> BVH, BVH -> CSV joint positions, OBJ <-> PLY.
 
@@ -202,8 +234,12 @@ def convert(
 # --------------------------------------------------------------------------- demo
 @app.command()
 def demo(
-    output: Annotated[Path, typer.Option("-o", "--output", help="Folder for the demo's outputs.")] = Path("skincap-demo"),
-    force: Annotated[bool, typer.Option("--force", help="Replace outputs from an earlier run.")] = False,
+    output: Annotated[
+        Path, typer.Option("-o", "--output", help="Folder for the demo's outputs.")
+    ] = Path("skincap-demo"),
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace outputs from an earlier run.")
+    ] = False,
 ) -> None:
     """Run skincap on the real captures it ships: read, summarise, convert.
 
@@ -233,7 +269,9 @@ def demo(
 @bench_app.command("io")
 def bench_io(
     repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
-    json_output: Annotated[bool, typer.Option("--json", help="Print the measurements as JSON.")] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
 ) -> None:
     """BVH read and FK against bvhio, our C3D read against raw ezc3d, as ratios.
 

@@ -78,9 +78,7 @@ class MissingDependencyError(SkincapError, ImportError):
     """An optional dependency is needed for this feature and is not installed."""
 
     def __init__(self, package: str, extra: str, feature: str) -> None:
-        super().__init__(
-            f"{feature} needs the '{package}' package: pip install 'skincap[{extra}]'"
-        )
+        super().__init__(f"{feature} needs the '{package}' package: pip install 'skincap[{extra}]'")
 
 
 class SkincapWarning(UserWarning):

@@ -58,7 +58,11 @@ def find_gaps(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     marker, starts = np.nonzero(edges.T == 1)
     _, ends = np.nonzero(edges.T == -1)
     interior = (starts > 0) & (ends < t)
-    return marker[interior].astype(np.int64), starts[interior].astype(np.int64), (ends - starts)[interior].astype(np.int64)
+    return (
+        marker[interior].astype(np.int64),
+        starts[interior].astype(np.int64),
+        (ends - starts)[interior].astype(np.int64),
+    )
 
 
 def summarize_markers(markers: MarkerSet) -> dict[str, Any]:

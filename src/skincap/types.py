@@ -40,7 +40,9 @@ def _float_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.nda
     try:
         arr = np.asarray(value, dtype=np.float64)
     except (TypeError, ValueError) as exc:
-        raise ValidationError(f"{name}: expected a float array of shape {_fmt(shape)}: {exc}") from None
+        raise ValidationError(
+            f"{name}: expected a float array of shape {_fmt(shape)}: {exc}"
+        ) from None
     _check_shape(name, arr, shape)
     return arr
 
@@ -50,7 +52,11 @@ def _int_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarr
     if arr.size == 0:
         arr = arr.astype(np.int64)
     if not np.issubdtype(arr.dtype, np.integer):
-        if np.issubdtype(arr.dtype, np.floating) and np.all(np.isfinite(arr)) and np.all(arr == np.round(arr)):
+        if (
+            np.issubdtype(arr.dtype, np.floating)
+            and np.all(np.isfinite(arr))
+            and np.all(arr == np.round(arr))
+        ):
             arr = arr.astype(np.int64)
         else:
             raise ValidationError(f"{name}: expected an integer array, got dtype {arr.dtype}")
@@ -60,11 +66,18 @@ def _int_array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarr
 
 
 def _fmt(shape: tuple[int | None, ...]) -> str:
-    return "(" + ", ".join("*" if s is None else str(s) for s in shape) + ("," if len(shape) == 1 else "") + ")"
+    return (
+        "("
+        + ", ".join("*" if s is None else str(s) for s in shape)
+        + ("," if len(shape) == 1 else "")
+        + ")"
+    )
 
 
 def _check_shape(name: str, arr: np.ndarray, shape: tuple[int | None, ...]) -> None:
-    ok = arr.ndim == len(shape) and all(s is None or s == a for s, a in zip(shape, arr.shape, strict=False))
+    ok = arr.ndim == len(shape) and all(
+        s is None or s == a for s, a in zip(shape, arr.shape, strict=False)
+    )
     if not ok:
         raise ValidationError(f"{name}: expected shape {_fmt(shape)}, got {arr.shape}")
 
@@ -73,7 +86,9 @@ def _check_rate(rate: Any) -> float:
     try:
         r = float(rate)
     except (TypeError, ValueError):
-        raise ValidationError(f"rate: expected a positive number of frames per second, got {rate!r}") from None
+        raise ValidationError(
+            f"rate: expected a positive number of frames per second, got {rate!r}"
+        ) from None
     if not np.isfinite(r) or r <= 0:
         raise ValidationError(f"rate: expected a positive finite frame rate in Hz, got {rate!r}")
     return r
@@ -112,13 +127,17 @@ class MarkerSet:
         t, n, _ = self.positions.shape
         self.labels = [str(s) for s in self.labels]
         if len(self.labels) != n:
-            raise ValidationError(f"labels: expected {n} labels (one per marker column), got {len(self.labels)}")
+            raise ValidationError(
+                f"labels: expected {n} labels (one per marker column), got {len(self.labels)}"
+            )
         if len(set(self.labels)) != n:
             dup = sorted({s for s in self.labels if self.labels.count(s) > 1})
             raise ValidationError(f"labels: must be unique, duplicated: {dup[:5]}")
         self.rate = _check_rate(self.rate)
         if np.isinf(self.positions).any():
-            raise ValidationError("positions: contains infinite values (use NaN for missing samples)")
+            raise ValidationError(
+                "positions: contains infinite values (use NaN for missing samples)"
+            )
         # A marker is missing as a whole: one NaN coordinate makes the sample missing.
         missing = np.isnan(self.positions).any(axis=2)
         if missing.any():
@@ -206,7 +225,9 @@ class PointCloud:
         if self.offsets.size < 1 or self.offsets[0] != 0:
             raise ValidationError("offsets: expected (T + 1,) starting at 0")
         if self.offsets[-1] != m:
-            raise ValidationError(f"offsets: last entry must equal the number of points {m}, got {int(self.offsets[-1])}")
+            raise ValidationError(
+                f"offsets: last entry must equal the number of points {m}, got {int(self.offsets[-1])}"
+            )
         if np.any(np.diff(self.offsets) < 0):
             raise ValidationError("offsets: must be non-decreasing")
         if self.ids is not None:
@@ -244,7 +265,9 @@ class PointCloud:
             The cloud has no ids, or an id appears twice in one frame.
         """
         if self.ids is None:
-            raise ValidationError("ids: an un-indexed point cloud has no trajectories; track it first (skincap track)")
+            raise ValidationError(
+                "ids: an un-indexed point cloud has no trajectories; track it first (skincap track)"
+            )
         frame = self.frame_index
         uniq, column = np.unique(self.ids, return_inverse=True)
         positions = np.full((self.n_frames, uniq.size, 3), np.nan)
@@ -252,7 +275,9 @@ class PointCloud:
         np.add.at(taken, (frame, column), 1)
         if (taken > 1).any():
             t, c = np.argwhere(taken > 1)[0]
-            raise ValidationError(f"ids: id {int(uniq[c])} appears {int(taken[t, c])} times in frame {int(t)}")
+            raise ValidationError(
+                f"ids: id {int(uniq[c])} appears {int(taken[t, c])} times in frame {int(t)}"
+            )
         positions[frame, column] = self.points
         names = self.meta.get("id_labels")
         if names is not None and uniq.size and uniq.min() >= 0 and uniq.max() < len(names):
@@ -276,7 +301,9 @@ class PointCloud:
             offsets=offsets,
             rate=markers.rate,
             ids=n_idx if keep_ids else None,
-            meta={**markers.meta, "id_labels": list(markers.labels)} if keep_ids else dict(markers.meta),
+            meta={**markers.meta, "id_labels": list(markers.labels)}
+            if keep_ids
+            else dict(markers.meta),
         )
 
 
@@ -388,15 +415,22 @@ class Motion:
         self.rate = _check_rate(self.rate)
         if self.channels is None:
             self.channels = [
-                (POSITION_CHANNELS + ("Zrotation", "Yrotation", "Xrotation")) if p < 0 else ("Zrotation", "Yrotation", "Xrotation")
+                (POSITION_CHANNELS + ("Zrotation", "Yrotation", "Xrotation"))
+                if p < 0
+                else ("Zrotation", "Yrotation", "Xrotation")
                 for p in self.skeleton.parents
             ]
             # joints without children are end sites unless they are roots
             leaves = self.skeleton.is_leaf
-            self.channels = [() if leaves[k] and self.skeleton.parents[k] >= 0 else c for k, c in enumerate(self.channels)]
+            self.channels = [
+                () if leaves[k] and self.skeleton.parents[k] >= 0 else c
+                for k, c in enumerate(self.channels)
+            ]
         self.channels = [tuple(str(c) for c in ch) for ch in self.channels]
         if len(self.channels) != j:
-            raise ValidationError(f"channels: expected {j} channel tuples (one per joint), got {len(self.channels)}")
+            raise ValidationError(
+                f"channels: expected {j} channel tuples (one per joint), got {len(self.channels)}"
+            )
         known = set(POSITION_CHANNELS) | set(ROTATION_CHANNELS)
         for name, ch in zip(self.skeleton.names, self.channels, strict=True):
             unknown = [c for c in ch if c not in known]
@@ -445,14 +479,20 @@ class Skin:
         v, k = self.joint_weights.shape
         self.joint_indices = _int_array("joint_indices", self.joint_indices, (v, k))
         self.inverse_bind = _float_array("inverse_bind", self.inverse_bind, (j, 4, 4))
-        if self.joint_indices.size and (self.joint_indices.min() < 0 or self.joint_indices.max() >= j):
-            raise ValidationError(f"joint_indices: must index the {j} joints, range is {self.joint_indices.min()}..{self.joint_indices.max()}")
+        if self.joint_indices.size and (
+            self.joint_indices.min() < 0 or self.joint_indices.max() >= j
+        ):
+            raise ValidationError(
+                f"joint_indices: must index the {j} joints, range is {self.joint_indices.min()}..{self.joint_indices.max()}"
+            )
         if not np.isfinite(self.joint_weights).all() or (self.joint_weights < 0).any():
             raise ValidationError("joint_weights: must be finite and non-negative")
         sums = self.joint_weights.sum(axis=1)
         if v and np.abs(sums - 1.0).max() > 1e-6:
             bad = int(np.argmax(np.abs(sums - 1.0)))
-            raise ValidationError(f"joint_weights: rows must sum to 1; vertex {bad} sums to {sums[bad]:.6g}")
+            raise ValidationError(
+                f"joint_weights: rows must sum to 1; vertex {bad} sums to {sums[bad]:.6g}"
+            )
 
     @property
     def bind_matrices(self) -> np.ndarray:
@@ -499,25 +539,47 @@ class Mesh:
         if not np.isfinite(self.vertices).all():
             raise ValidationError("vertices: must be finite")
         v = self.vertices.shape[0]
-        self.faces = _int_array("faces", np.asarray(self.faces).reshape(-1, 3) if np.asarray(self.faces).size == 0 else self.faces, (None, 3))
+        self.faces = _int_array(
+            "faces",
+            np.asarray(self.faces).reshape(-1, 3)
+            if np.asarray(self.faces).size == 0
+            else self.faces,
+            (None, 3),
+        )
         if self.faces.size and (self.faces.min() < 0 or self.faces.max() >= v):
-            raise ValidationError(f"faces: vertex indices must be in 0..{v - 1}, range is {self.faces.min()}..{self.faces.max()}")
+            raise ValidationError(
+                f"faces: vertex indices must be in 0..{v - 1}, range is {self.faces.min()}..{self.faces.max()}"
+            )
         if (self.polygon_indices is None) != (self.polygon_offsets is None):
             raise ValidationError("polygon_indices and polygon_offsets: give both or neither")
         if self.polygon_indices is not None:
             self.polygon_indices = _int_array("polygon_indices", self.polygon_indices, (None,))
             self.polygon_offsets = _int_array("polygon_offsets", self.polygon_offsets, (None,))
-            if self.polygon_offsets[0] != 0 or self.polygon_offsets[-1] != self.polygon_indices.size or np.any(np.diff(self.polygon_offsets) < 3):
-                raise ValidationError("polygon_offsets: expected CSR offsets from 0 to len(polygon_indices), 3+ vertices a polygon")
-            if self.polygon_indices.size and (self.polygon_indices.min() < 0 or self.polygon_indices.max() >= v):
+            if (
+                self.polygon_offsets[0] != 0
+                or self.polygon_offsets[-1] != self.polygon_indices.size
+                or np.any(np.diff(self.polygon_offsets) < 3)
+            ):
+                raise ValidationError(
+                    "polygon_offsets: expected CSR offsets from 0 to len(polygon_indices), 3+ vertices a polygon"
+                )
+            if self.polygon_indices.size and (
+                self.polygon_indices.min() < 0 or self.polygon_indices.max() >= v
+            ):
                 raise ValidationError("polygon_indices: vertex index out of range")
         if self.face_polygon is not None:
-            self.face_polygon = _int_array("face_polygon", self.face_polygon, (self.faces.shape[0],))
-        self.groups = {str(k): _int_array(f"groups[{k!r}]", g, (None,)) for k, g in self.groups.items()}
+            self.face_polygon = _int_array(
+                "face_polygon", self.face_polygon, (self.faces.shape[0],)
+            )
+        self.groups = {
+            str(k): _int_array(f"groups[{k!r}]", g, (None,)) for k, g in self.groups.items()
+        }
         if self.uv is not None:
             self.uv = _float_array("uv", self.uv, (v, 2))
         if self.skin is not None and self.skin.joint_weights.shape[0] != v:
-            raise ValidationError(f"skin: weights cover {self.skin.joint_weights.shape[0]} vertices, the mesh has {v}")
+            raise ValidationError(
+                f"skin: weights cover {self.skin.joint_weights.shape[0]} vertices, the mesh has {v}"
+            )
         self.meta = dict(self.meta)
 
     @property
@@ -569,7 +631,9 @@ class MeshAnimation:
         if isinstance(self.frames, np.ndarray) or isinstance(self.frames, list):
             self.frames = _float_array("frames", self.frames, (None, v, 3))
             if self.n_frames is not None and self.n_frames != self.frames.shape[0]:
-                raise ValidationError(f"n_frames: {self.n_frames} given but frames has {self.frames.shape[0]}")
+                raise ValidationError(
+                    f"n_frames: {self.n_frames} given but frames has {self.frames.shape[0]}"
+                )
             self.n_frames = int(self.frames.shape[0])
         elif self.n_frames is None:
             raise ValidationError("n_frames: required when frames is an iterator of chunks")
@@ -592,4 +656,6 @@ class MeshAnimation:
             seen += arr.shape[0]
             yield arr
         if seen != self.n_frames:
-            raise ValidationError(f"frames: iterator gave {seen} frames, n_frames says {self.n_frames}")
+            raise ValidationError(
+                f"frames: iterator gave {seen} frames, n_frames says {self.n_frames}"
+            )

@@ -16,7 +16,9 @@ from typer.testing import CliRunner
 from skincap.cli import app
 
 DATA = Path(__file__).parents[1] / "data"
-DATA_FILES = sorted(p for p in DATA.iterdir() if p.suffix in {".c3d", ".csv", ".bvh", ".obj", ".mhskel", ".mhw"})
+DATA_FILES = sorted(
+    p for p in DATA.iterdir() if p.suffix in {".c3d", ".csv", ".bvh", ".obj", ".mhskel", ".mhw"}
+)
 
 
 def run(*args: str):
@@ -34,7 +36,16 @@ def test_info_json_succeeds_on_every_real_file(path):
     summary = info_json(path)
     assert summary["kind"] in {"markers", "points", "motion", "mesh", "rig", "weights"}
     if summary["kind"] == "markers":
-        for key in ("frames", "rate", "markers", "labelled", "unlabelled", "missing_fraction", "gaps", "longest_gap"):
+        for key in (
+            "frames",
+            "rate",
+            "markers",
+            "labelled",
+            "unlabelled",
+            "missing_fraction",
+            "gaps",
+            "longest_gap",
+        ):
             assert key in summary
     elif summary["kind"] == "motion":
         assert summary["joints"] > 0 and summary["frames"] > 0 and summary["rate"] > 0
@@ -223,7 +234,13 @@ def test_demo_writes_readable_outputs(tmp_path):
     result = run("demo", "-o", tmp_path / "demo")
     assert result.exit_code == 0, result.output
     written = sorted(p.name for p in (tmp_path / "demo").iterdir())
-    assert written == ["motion.bvh", "motion_joints.csv", "walking.c3d", "walking.csv", "walking.trc"]
+    assert written == [
+        "motion.bvh",
+        "motion_joints.csv",
+        "walking.c3d",
+        "walking.csv",
+        "walking.trc",
+    ]
     markers = io.read(tmp_path / "demo" / "walking.c3d")
     assert markers.n_markers == 12 and markers.rate == 160.0
     assert run("demo", "-o", tmp_path / "demo").exit_code == 2  # outputs exist

@@ -28,7 +28,18 @@ from skincap.errors import FormatError
 
 __all__ = ["read", "write", "READ_EXTENSIONS", "WRITE_EXTENSIONS", "kind_of_extension"]
 
-READ_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply", ".gltf", ".glb", ".mhskel", ".mhw")
+READ_EXTENSIONS = (
+    ".c3d",
+    ".trc",
+    ".csv",
+    ".bvh",
+    ".obj",
+    ".ply",
+    ".gltf",
+    ".glb",
+    ".mhskel",
+    ".mhw",
+)
 WRITE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply")
 
 _KIND = {
@@ -49,7 +60,10 @@ def kind_of_extension(path: str | os.PathLike[str]) -> str:
     """The kind of data a file's extension promises (``markers``, ``motion``, ``mesh``…)."""
     ext = Path(path).suffix.lower()
     if ext not in _KIND:
-        raise FormatError(path, f"unknown file type {ext or '(no extension)'!r}; skincap reads {', '.join(READ_EXTENSIONS)}")
+        raise FormatError(
+            path,
+            f"unknown file type {ext or '(no extension)'!r}; skincap reads {', '.join(READ_EXTENSIONS)}",
+        )
     return _KIND[ext]
 
 
@@ -118,7 +132,10 @@ def write(obj: Any, path: str | os.PathLike[str], *, force: bool = False, **opti
 
     ext = Path(path).suffix.lower()
     if ext not in WRITE_EXTENSIONS:
-        raise FormatError(path, f"cannot write {ext or '(no extension)'!r} files; skincap writes {', '.join(WRITE_EXTENSIONS)}")
+        raise FormatError(
+            path,
+            f"cannot write {ext or '(no extension)'!r} files; skincap writes {', '.join(WRITE_EXTENSIONS)}",
+        )
     if isinstance(obj, MarkerSet):
         if ext == ".c3d":
             from skincap.io.c3d import write_c3d

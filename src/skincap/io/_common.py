@@ -34,7 +34,9 @@ def unit_scale(unit: str, *, argument: str = "units") -> float:
     """Metres per ``unit``; ValidationError naming ``argument`` for an unknown unit."""
     key = unit.strip().lower()
     if key not in UNIT_TO_METRES:
-        raise ValidationError(f"{argument}: unknown length unit {unit!r}, expected one of {sorted(UNIT_TO_METRES)}")
+        raise ValidationError(
+            f"{argument}: unknown length unit {unit!r}, expected one of {sorted(UNIT_TO_METRES)}"
+        )
     return UNIT_TO_METRES[key]
 
 
@@ -103,7 +105,9 @@ def atomic_output(path: str | os.PathLike[str], *, force: bool = False) -> Itera
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise FormatError(target, f"cannot write: folder {str(folder)!r} does not exist")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part" + target.suffix, dir=folder)
+    fd, tmp_name = tempfile.mkstemp(
+        prefix=f".{target.name}.", suffix=".part" + target.suffix, dir=folder
+    )
     os.close(fd)
     tmp = Path(tmp_name)
     try:

@@ -35,7 +35,9 @@ def write_joint_positions_csv(
     """
     positions = joint_positions(motion)  # (T, J, 3) metres
     t = positions.shape[0]
-    header = ["frame", "time"] + [f"{name}_{axis}" for name in motion.skeleton.names for axis in "xyz"]
+    header = ["frame", "time"] + [
+        f"{name}_{axis}" for name in motion.skeleton.names for axis in "xyz"
+    ]
     table = np.column_stack([np.arange(t), np.arange(t) / motion.rate, positions.reshape(t, -1)])
     fmt = ["%d", f"%.{precision}g"] + [f"%.{precision}g"] * (table.shape[1] - 2)
     with atomic_output(path, force=force) as tmp:
