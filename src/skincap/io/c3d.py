@@ -1,0 +1,652 @@
+"""C3D marker files, read and written through ezc3d.
+
+skincap validates the whole C3D structure in Python before ezc3d sees a file
+(header, every parameter record, the size of the data section): ezc3d can crash the
+interpreter or loop forever on a corrupted parameter section, so only files whose
+structure is consistent reach it, and every problem is a :class:`FormatError` with the
+byte offset at fault.
+
+What the reader keeps
+---------------------
+* Marker columns: every POINT that is not a model output; labels from ``POINT:LABELS``,
+  ``LABELS2``, ``LABELS3``… (the first ``POINT:USED`` of them, old files list more).
+  Empty labels become ``point_<column>`` and duplicates ``name_2``, ``name_3``… in
+  column order; ``meta["renamed_labels"]`` maps each new label to the file's label.
+* Missing samples: residual < 0 (the C3D rule) and samples exactly at (0, 0, 0), which
+  many exporters write for a missing marker (a real marker exactly on the lab origin to
+  float precision does not happen); both are NaN. ``meta["zeros_as_missing"]`` counts
+  the (0, 0, 0) samples.
+* Model outputs stored as POINTs (labels listed in ``POINT:ANGLES``, ``FORCES``,
+  ``MOMENTS``, ``POWERS``, ``SCALARS``, ``REACTIONS`` or in a parameter named by
+  ``POINT:TYPE_GROUPS``, plus Plug-in Gait segment axes: four labels ``XO XA XL XP``
+  sharing a prefix, group ``"bones"``) go to ``meta["model_outputs"]`` in their own
+  units, neither scaled nor rotated.
+* Invented samples: files written by skincap mark them with camera mask 0b1111111
+  and declare it in ``SKINCAP:INVENTED_CAMERA_MASK``; without that parameter
+  ``invented`` is None.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from skincap.errors import FormatError, MissingDependencyError, UnitWarning, ValidationError
+from skincap.io._common import (
+    UNIT_TO_METRES,
+    atomic_output,
+    check_readable,
+    from_y_up,
+    to_y_up,
+    unit_scale,
+)
+from skincap.types import MarkerSet
+
+__all__ = ["read_c3d", "write_c3d", "MODEL_OUTPUT_GROUPS"]
+
+#: POINT parameters that list labels of model outputs, and their units parameter.
+MODEL_OUTPUT_GROUPS: dict[str, str] = {
+    "ANGLES": "ANGLE_UNITS",
+    "FORCES": "FORCE_UNITS",
+    "MOMENTS": "MOMENT_UNITS",
+    "POWERS": "POWER_UNITS",
+    "SCALARS": "SCALAR_UNITS",
+    "REACTIONS": "REACTION_UNITS",
+}
+_BONE_SUFFIXES = ("O", "A", "L", "P")
+#: Camera mask (all seven camera bits) marking invented samples in files skincap writes.
+_INVENTED_MASK = 0b1111111
+_PROCESSORS = {84: "intel", 85: "dec", 86: "mips"}
+_TYPE_SIZES = {-1: 1, 1: 1, 2: 2, 4: 4}
+
+
+# ------------------------------------------------------------------ structure scan
+@dataclass
+class _C3dLayout:
+    """What the Python scan of a C3D learnt: header words and decoded parameters."""
+
+    processor: str
+    n_points: int
+    n_analog_per_frame: int
+    first_frame: int
+    last_frame: int
+    scale: float
+    data_offset: int
+    header_rate: float
+    params: dict[tuple[str, str], Any]
+
+
+def _decode_floats(raw: bytes, processor: str) -> np.ndarray:
+    """float32 values stored by ``processor`` -> float64 array."""
+    b = np.frombuffer(raw, dtype=np.uint8)
+    if processor == "intel":
+        return b.view("<f4").astype(np.float64)
+    if processor == "mips":
+        return b.view(">f4").astype(np.float64)
+    # DEC F-float: 16-bit words swapped relative to IEEE, exponent bias 128 vs 127.
+    sw = b.reshape(-1, 4)[:, [2, 3, 0, 1]].copy().reshape(-1).view("<f4")
+    return sw.astype(np.float64) / 4.0
+
+
+def _decode_ints(raw: bytes, processor: str, size: int) -> np.ndarray:
+    if size == 1:
+        return np.frombuffer(raw, dtype=np.int8).astype(np.int64)
+    return np.frombuffer(raw, dtype=">i2" if processor == "mips" else "<i2").astype(np.int64)
+
+
+def _decode_strings(raw: bytes, dims: list[int]) -> list[str]:
+    """A CHAR parameter -> list of strings (trailing blanks and NULs removed)."""
+    if not dims:
+        return [raw.decode("latin-1").rstrip(" \x00")]
+    width = dims[0]
+    count = int(np.prod(dims[1:])) if len(dims) > 1 else 1
+    return [raw[i * width : (i + 1) * width].decode("latin-1").rstrip(" \x00") for i in range(count)]
+
+
+def _s8(byte: int) -> int:
+    """An unsigned byte value read as a signed int8."""
+    return byte - 256 if byte > 127 else byte
+
+
+def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
+    """Validate a C3D's header and parameter section in Python; FormatError on any fault."""
+    size = len(data)
+    if size < 512:
+        raise FormatError(path, f"file is {size} bytes, shorter than the 512-byte C3D header", offset=size)
+    if data[1] != 0x50:
+        raise FormatError(path, f"not a C3D file: byte 1 is 0x{data[1]:02x}, expected 0x50", offset=1)
+    pblock = data[0]
+    if pblock < 2:
+        raise FormatError(path, f"parameter block pointer {pblock} must be >= 2", offset=0)
+    start = (pblock - 1) * 512
+    if start + 4 > size:
+        raise FormatError(path, f"parameter section at byte {start} lies past the end of the file ({size} bytes)", offset=0)
+    nblocks = data[start + 2]
+    proc_code = data[start + 3]
+    if proc_code not in _PROCESSORS:
+        raise FormatError(path, f"unknown processor type {proc_code} (expected 84, 85 or 86)", offset=start + 3)
+    processor = _PROCESSORS[proc_code]
+    end = start + nblocks * 512
+    if nblocks == 0 or end > size:
+        raise FormatError(path, f"parameter section of {nblocks} blocks from byte {start} does not fit in the file ({size} bytes)", offset=start + 2)
+
+    ie = ">" if processor == "mips" else "<"
+    words = np.frombuffer(data[:24], dtype=f"{ie}u2").astype(np.int64)
+    n_points, n_analog = int(words[1]), int(words[2])
+    first, last = int(words[3]), int(words[4])
+    scale = float(_decode_floats(data[12:16], processor)[0])
+    data_block = int(words[8])
+    rate = float(_decode_floats(data[20:24], processor)[0])
+
+    groups: dict[int, str] = {}
+    raw_params: list[tuple[int, str, Any, int]] = []
+    pos = start + 4
+    while True:
+        if pos + 2 > end:
+            raise FormatError(path, "parameter section ends inside a record header", offset=pos)
+        nchars = _s8(data[pos])
+        gid = _s8(data[pos + 1])
+        if nchars == 0:
+            break
+        nlen = abs(nchars)
+        if gid == 0:
+            raise FormatError(path, "parameter record with group id 0", offset=pos + 1)
+        name_end = pos + 2 + nlen
+        if name_end + 2 > end:
+            raise FormatError(path, "parameter record runs past the parameter section", offset=pos)
+        name_raw = data[pos + 2 : name_end]
+        if not all(32 < c < 127 for c in name_raw):
+            raise FormatError(path, f"parameter name {name_raw!r} is not printable ASCII", offset=pos + 2)
+        name = name_raw.decode("ascii").upper()
+        offset_field = name_end
+        nxt = int(np.frombuffer(data[offset_field : offset_field + 2], dtype=f"{ie}i2")[0])
+        last_record = nxt == 0
+        rec_end = end if last_record else offset_field + nxt
+        if not last_record and (nxt < 2 or rec_end > end):
+            raise FormatError(path, f"record {name!r}: pointer to the next record ({nxt}) leaves the parameter section", offset=offset_field)
+        body = offset_field + 2
+        if gid < 0:
+            if body + 1 > rec_end:
+                raise FormatError(path, f"group {name!r}: record too short", offset=body)
+            dlen = data[body]
+            if body + 1 + dlen > rec_end:
+                raise FormatError(path, f"group {name!r}: description of {dlen} bytes overruns its record", offset=body)
+            if -gid in groups and groups[-gid] != name:
+                raise FormatError(path, f"group id {-gid} defined twice ({groups[-gid]!r}, {name!r})", offset=pos)
+            groups[-gid] = name
+        else:
+            if body + 2 > rec_end:
+                raise FormatError(path, f"parameter {name!r}: record too short", offset=body)
+            ptype = _s8(data[body])
+            if ptype not in _TYPE_SIZES:
+                raise FormatError(path, f"parameter {name!r}: unknown data type {ptype}", offset=body)
+            ndims = data[body + 1]
+            if ndims > 7:
+                raise FormatError(path, f"parameter {name!r}: {ndims} dimensions (at most 7)", offset=body + 1)
+            dims = list(data[body + 2 : body + 2 + ndims])
+            vstart = body + 2 + ndims
+            nbytes = int(np.prod(dims, dtype=np.int64)) * _TYPE_SIZES[ptype] if ndims else _TYPE_SIZES[ptype]
+            if vstart + nbytes + 1 > rec_end:
+                raise FormatError(path, f"parameter {name!r}: {nbytes} bytes of values overrun its record", offset=vstart)
+            dlen = data[vstart + nbytes]
+            if vstart + nbytes + 1 + dlen > rec_end:
+                raise FormatError(path, f"parameter {name!r}: description of {dlen} bytes overruns its record", offset=vstart + nbytes)
+            raw = data[vstart : vstart + nbytes]
+            if ptype == -1:
+                value: Any = _decode_strings(raw, dims)
+            elif ptype == 4:
+                value = _decode_floats(raw, processor)
+            else:
+                value = _decode_ints(raw, processor, _TYPE_SIZES[ptype])
+            raw_params.append((gid, name, value, pos))
+        if last_record:
+            break
+        pos = rec_end
+
+    params: dict[tuple[str, str], Any] = {}
+    for gid, name, value, where in raw_params:
+        if gid not in groups:
+            raise FormatError(path, f"parameter {name!r} belongs to group id {gid}, which is not defined", offset=where)
+        key = (groups[gid], name)
+        # a group may appear twice under two ids (Vicon writes PROCESSING so): the
+        # later definition of a parameter wins, as in ezc3d
+        params[key] = value
+
+    used = params.get(("POINT", "USED"))
+    if used is not None and (len(used) < 1 or int(used[0]) & 0xFFFF != n_points):
+        raise FormatError(path, f"POINT:USED ({list(used)[:1]}) disagrees with the header's {n_points} points", offset=2)
+    if data_block < 1:
+        raise FormatError(path, f"data start block {data_block} must be >= 1", offset=16)
+    data_offset = (data_block - 1) * 512
+    if data_offset < start + 4:
+        raise FormatError(path, f"data section (block {data_block}) starts before the parameter section", offset=16)
+    if data_offset > size:
+        raise FormatError(path, f"data section (block {data_block}) starts past the end of the file", offset=16)
+    if n_analog:
+        a_used = params.get(("ANALOG", "USED"))
+        if a_used is None or len(a_used) < 1 or int(a_used[0]) <= 0 or n_analog % int(a_used[0]):
+            raise FormatError(path, f"header says {n_analog} analog samples per frame but ANALOG:USED is {a_used if a_used is None else list(a_used)}", offset=4)
+        for pname in ("SCALE", "OFFSET"):
+            v = params.get(("ANALOG", pname))
+            if v is not None and len(v) and len(v) < int(a_used[0]):
+                raise FormatError(path, f"ANALOG:{pname} has {len(v)} values for {int(a_used[0])} channels")
+    for key, value in params.items():
+        if key[0] in ("POINT", "ANALOG") and key[1] in ("RATE", "SCALE") and isinstance(value, np.ndarray):
+            if value.size and not np.isfinite(value).all():
+                raise FormatError(path, f"{key[0]}:{key[1]} is not finite ({value.tolist()[:3]})")
+    if not np.isfinite(scale) or scale == 0:
+        scale_p = params.get(("POINT", "SCALE"))
+        if scale_p is None or not len(scale_p) or scale_p[0] == 0:
+            raise FormatError(path, f"point scale factor {scale} is zero or not finite", offset=12)
+        scale = float(scale_p[0])
+    return _C3dLayout(processor, n_points, n_analog, first, last, scale, data_offset, rate, params)
+
+
+# ---------------------------------------------------------------------------- read
+def _import_ezc3d() -> Any:
+    try:
+        import ezc3d  # noqa: F401
+        from ezc3d import ezc3d as swig
+    except ImportError:  # pragma: no cover - ezc3d is a core dependency
+        raise MissingDependencyError("ezc3d", "c3d", "reading and writing C3D files") from None
+    return swig
+
+
+def _labels(layout: _C3dLayout, key: str) -> list[str]:
+    """POINT:<key>, <key>2, <key>3… concatenated."""
+    out: list[str] = []
+    first = layout.params.get(("POINT", key))
+    if not isinstance(first, list):
+        return out
+    out.extend(first)
+    k = 2
+    while isinstance(layout.params.get(("POINT", f"{key}{k}")), list):
+        out.extend(layout.params[("POINT", f"{key}{k}")])
+        k += 1
+    return out
+
+
+def _unique_labels(raw: list[str]) -> tuple[list[str], dict[str, str]]:
+    """Deterministic unique labels: empty -> point_<i>, repeats -> name_2, name_3…"""
+    out: list[str] = []
+    renamed: dict[str, str] = {}
+    real = set(raw)
+    taken: set[str] = set()
+    for i, lab in enumerate(raw):
+        base = lab if lab else f"point_{i + 1}"
+        new = base
+        k = 2
+        # never take a label already used, nor one a later column really has
+        while new in taken or (new != lab and new in real):
+            new = f"{base}_{k}"
+            k += 1
+        if new != lab:
+            renamed[new] = lab
+        taken.add(new)
+        out.append(new)
+    return out, renamed
+
+
+def _up_from_screen(layout: _C3dLayout, path: Path) -> tuple[str, bool]:
+    """Source up axis from POINT:Y_SCREEN; (axis, guessed)."""
+    ys = layout.params.get(("POINT", "Y_SCREEN"))
+    if not isinstance(ys, list) or not ys or not ys[0].strip():
+        return "z", True
+    val = ys[0].strip().upper().lstrip("+")
+    if val in ("Z", "Y"):
+        return val.lower(), False
+    warnings.warn(
+        f"{path}: POINT:Y_SCREEN is {ys[0]!r}; skincap handles Y or Z up only, assuming Z up",
+        UnitWarning,
+        stacklevel=3,
+    )
+    return "z", True
+
+
+def _guess_units(pos: np.ndarray) -> str:
+    """'m' when the finite coordinates all sit within 20 units of the origin, else 'mm'."""
+    finite = pos[np.isfinite(pos)]
+    if finite.size and np.abs(finite).max() < 20.0:
+        return "m"
+    return "mm"
+
+
+def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "auto") -> MarkerSet:
+    """Read the labelled marker trajectories of a C3D file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The ``.c3d`` file (Intel, DEC or MIPS; integer or float data).
+    up : {"auto", "y", "z"}
+        The file's up axis. ``"auto"`` reads ``POINT:Y_SCREEN`` (``"+Z"`` means Z up,
+        ``"+Y"`` Y up) and assumes Z up when it is absent (``meta["up_guessed"]``).
+
+    Returns
+    -------
+    MarkerSet
+        ``positions`` (T, N, 3) float64 metres, Y up, NaN where missing (residual < 0
+        or exactly (0, 0, 0)); ``residuals`` (T, N) float64 metres, NaN where missing;
+        ``invented`` (T, N) bool for files written by skincap with invented samples,
+        else None; ``rate`` the exact POINT:RATE (the float32 in the file printed at
+        its shortest round-trip precision, so 59.94 stays 59.94). ``meta`` holds
+        ``source_units``, ``up``, ``first_frame`` (the header's own frame number),
+        ``model_outputs`` ({group: {label: (T, 3) float64}} in the file's units,
+        NaN where missing), ``model_output_units``, ``descriptions``,
+        ``renamed_labels``, ``zeros_as_missing``, ``point_scale``, ``screen_axes``.
+
+    Raises
+    ------
+    FormatError
+        Missing, truncated, corrupted or inconsistent file (with the byte offset).
+
+    Warns
+    -----
+    UnitWarning
+        ``POINT:UNITS`` empty or unknown: the unit is guessed (mm unless every
+        coordinate is within 20 units of the origin, then m).
+    """
+    p = check_readable(path)
+    if up not in ("auto", "y", "z"):
+        raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise FormatError(p, f"cannot read: {exc.strerror}") from None
+    layout = _scan_c3d(p, data)
+    swig = _import_ezc3d()
+    try:
+        c3d = swig.c3d(str(p), swig.Options(False, False))
+        points = c3d.get_points()
+        residuals = c3d.get_point_residuals()
+        n_frames = int(c3d.header().nbFrames())
+        rate_ez = float(c3d.header().frameRate())
+    except (RuntimeError, ValueError, IndexError, MemoryError, TypeError) as exc:
+        raise FormatError(p, f"ezc3d could not read the file: {exc}") from None
+    word = 4 if layout.scale < 0 else 2
+    frame_bytes = (4 * layout.n_points + layout.n_analog_per_frame) * word
+    need = layout.data_offset + n_frames * frame_bytes
+    if need > len(data):
+        raise FormatError(
+            p,
+            f"truncated: {n_frames} frames of {frame_bytes} bytes from byte {layout.data_offset} need {need} bytes, the file has {len(data)}",
+            offset=len(data),
+        )
+    n = layout.n_points
+    if points.shape != (4, n, n_frames) or residuals.shape != (1, n, n_frames):
+        raise FormatError(p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})")
+
+    raw_labels = _labels(layout, "LABELS")
+    if len(raw_labels) < n:
+        raw_labels = raw_labels + [""] * (n - len(raw_labels))
+    raw_labels = [s.strip() for s in raw_labels[:n]]
+    descriptions = _labels(layout, "DESCRIPTIONS")
+    descriptions = (descriptions + [""] * n)[:n]
+
+    pos = points[:3].transpose(2, 1, 0)  # (T, N, 3) file units, view
+    res = residuals[0].T  # (T, N)
+    if not np.isfinite(pos[~np.isnan(pos)]).all():
+        raise FormatError(p, "point data contains infinite coordinates")
+    zero = (pos == 0.0).all(axis=2) & ~np.isnan(res)
+    missing = np.isnan(pos).any(axis=2) | (res < 0) | zero
+    n_zero = int((zero & ~(res < 0)).sum())
+
+    # model outputs -------------------------------------------------------------
+    label_index = {lab: i for i, lab in enumerate(raw_labels) if lab}
+    group_names = list(MODEL_OUTPUT_GROUPS)
+    tg = layout.params.get(("POINT", "TYPE_GROUPS"))
+    if isinstance(tg, list):
+        for g in tg:
+            g = g.strip().upper()
+            if g and g not in group_names and isinstance(layout.params.get(("POINT", g)), list):
+                group_names.append(g)
+    output_cols: dict[str, list[int]] = {}
+    taken: set[int] = set()
+    for g in group_names:
+        listed = layout.params.get(("POINT", g))
+        if not isinstance(listed, list):
+            continue
+        cols = [label_index[s.strip()] for s in listed if s.strip() in label_index and label_index[s.strip()] not in taken]
+        if cols:
+            output_cols[g.lower()] = cols
+            taken.update(cols)
+    bone_cols = []
+    for i, lab in enumerate(raw_labels):
+        if i in taken or len(lab) < 2 or lab.startswith("*") or lab[-1] != "O":
+            continue
+        quad = [label_index.get(lab[:-1] + s) for s in _BONE_SUFFIXES]
+        if all(q is not None and q not in taken for q in quad):
+            bone_cols.extend(quad)  # type: ignore[arg-type]
+    if bone_cols:
+        output_cols["bones"] = bone_cols
+        taken.update(bone_cols)
+
+    units_raw = layout.params.get(("POINT", "UNITS"))
+    units_str = units_raw[0].strip().lower() if isinstance(units_raw, list) and units_raw else ""
+    marker_cols = np.array([i for i in range(n) if i not in taken], dtype=np.int64)
+    units_guessed = units_str not in UNIT_TO_METRES
+    if units_guessed:
+        guess = _guess_units(pos[:, marker_cols][~missing[:, marker_cols]])
+        what = "empty" if not units_str else f"{units_str!r}, not a known length unit"
+        warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=2)
+        units_str = guess
+    scale = unit_scale(units_str)
+
+    up_src, up_guessed = _up_from_screen(layout, p) if up == "auto" else (up, False)
+
+    model_outputs: dict[str, dict[str, np.ndarray]] = {}
+    model_units: dict[str, str] = {}
+    out_missing = np.isnan(pos).any(axis=2) | (res < 0)
+    for g, cols in output_cols.items():
+        arr = pos[:, cols].copy()
+        arr[out_missing[:, cols]] = np.nan
+        model_outputs[g] = {raw_labels[c]: arr[:, k] for k, c in enumerate(cols)}
+        unit_param = MODEL_OUTPUT_GROUPS.get(g.upper(), g.upper().rstrip("S") + "_UNITS")
+        u = layout.params.get(("POINT", unit_param))
+        if g == "bones":
+            model_units[g] = units_str
+        elif isinstance(u, list) and u and u[0].strip():
+            model_units[g] = u[0].strip()
+
+    mpos = pos[:, marker_cols] * scale
+    mmiss = missing[:, marker_cols]
+    mpos[mmiss] = np.nan
+    mres = res[:, marker_cols] * scale
+    mres[mmiss] = np.nan
+    labels, renamed = _unique_labels([raw_labels[i] for i in marker_cols])
+
+    invented = None
+    sk = layout.params.get(("SKINCAP", "INVENTED_CAMERA_MASK"))
+    if sk is not None and len(sk) >= 1:
+        try:
+            masks = c3d.get_point_camera_masks()  # (7, N, T) bool
+        except (RuntimeError, ValueError) as exc:
+            raise FormatError(p, f"ezc3d could not read the camera masks: {exc}") from None
+        bits = (masks.astype(np.int64) << np.arange(7)[:, None, None]).sum(axis=0).T  # (T, N)
+        invented = (bits[:, marker_cols] == int(round(float(sk[0])))) & ~mmiss
+
+    rate_p = layout.params.get(("POINT", "RATE"))
+    rate32 = float(rate_p[0]) if isinstance(rate_p, np.ndarray) and rate_p.size and rate_p[0] > 0 else rate_ez
+    if not (np.isfinite(rate32) and rate32 > 0):
+        raise FormatError(p, f"frame rate {rate32} is not a positive number", offset=20)
+    rate = float(str(np.float32(rate32)))
+
+    xs = layout.params.get(("POINT", "X_SCREEN"))
+    ys = layout.params.get(("POINT", "Y_SCREEN"))
+    meta: dict[str, Any] = {
+        "source_format": "c3d",
+        "source_path": str(p),
+        "source_units": units_str,
+        "units_guessed": units_guessed,
+        "up": up_src,
+        "up_guessed": up_guessed,
+        "first_frame": int(layout.first_frame),
+        "point_scale": abs(float(layout.scale)),
+        "model_outputs": model_outputs,
+        "model_output_units": model_units,
+        "descriptions": [descriptions[i] for i in marker_cols],
+        "renamed_labels": renamed,
+        "zeros_as_missing": n_zero,
+    }
+    if isinstance(xs, list) and xs and isinstance(ys, list) and ys:
+        meta["screen_axes"] = (xs[0].strip(), ys[0].strip())
+    return MarkerSet(
+        positions=to_y_up(mpos, up_src),
+        labels=labels,
+        rate=rate,
+        residuals=mres,
+        invented=invented,
+        meta=meta,
+    )
+
+
+# --------------------------------------------------------------------------- write
+def write_c3d(
+    markers: MarkerSet,
+    path: str | os.PathLike[str],
+    *,
+    force: bool = False,
+    units: str | None = None,
+    up: Literal["y", "z"] | None = None,
+) -> None:
+    """Write a MarkerSet (and its model outputs) as a float C3D through ezc3d.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        ``positions`` (T, N, 3) metres Y up; NaN samples are written as (0, 0, 0)
+        with residual -1 (the C3D "invalid" mark; ezc3d and other readers return
+        them as missing). ``residuals`` (T, N) metres are written back (0 where
+        None); they are stored as a byte times ``POINT:SCALE`` so they are quantised
+        to ``meta["point_scale"]`` (the source file's) or to max residual / 255.
+        ``invented`` samples get camera mask 0b1111111, declared in
+        ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
+        written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
+        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``… (ezc3d does this).
+    path : str or PathLike
+        Output file; refused if it exists unless ``force``.
+    units : str, optional
+        Length unit of the file; default ``meta["source_units"]`` or ``"mm"``.
+    up : {"y", "z"}, optional
+        Up axis of the file; default ``meta["up"]`` or ``"z"``.
+
+    Raises
+    ------
+    OutputExistsError, ValidationError, FormatError
+    """
+    if not isinstance(markers, MarkerSet):
+        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
+    meta = markers.meta
+    units = str(units if units is not None else meta.get("source_units", "mm"))
+    scale = unit_scale(units)
+    up = str(up if up is not None else meta.get("up", "z")).lower()
+    if up not in ("y", "z"):
+        raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
+    t, n = markers.n_frames, markers.n_markers
+    if t == 0:
+        raise ValidationError("markers: a C3D needs at least one frame")
+
+    pos = from_y_up(markers.positions, up) / scale  # (T, N, 3) file units
+    miss = markers.missing
+    res = np.zeros((t, n)) if markers.residuals is None else markers.residuals / scale
+    res = np.where(np.isnan(res), 0.0, res)
+    if (res < 0).any():
+        raise ValidationError("markers.residuals: must be >= 0 (NaN allowed) where present")
+
+    labels = list(markers.labels)
+    out_pos = [pos]
+    out_miss = [miss]
+    out_res = [res]
+    groups: dict[str, list[str]] = {}
+    model_outputs = meta.get("model_outputs") or {}
+    model_units = dict(meta.get("model_output_units") or {})
+    for g, series in model_outputs.items():
+        if not series:
+            continue
+        gname = str(g).upper()
+        names = [str(k) for k in series]
+        arr = np.stack([np.asarray(v, dtype=np.float64) for v in series.values()], axis=1)
+        if arr.shape != (t, len(names), 3):
+            raise ValidationError(f"meta['model_outputs'][{g!r}]: expected arrays of shape ({t}, 3), got {arr.shape[::2]}")
+        gu = model_units.get(g)
+        if gu in UNIT_TO_METRES and gu != units:
+            arr = arr * (UNIT_TO_METRES[gu] / scale)
+            model_units[g] = units
+        clash = set(names) & set(labels)
+        if clash:
+            raise ValidationError(f"meta['model_outputs'][{g!r}]: labels {sorted(clash)[:5]} are also marker labels")
+        labels.extend(names)
+        m = np.isnan(arr).any(axis=2)
+        out_pos.append(arr)
+        out_miss.append(m)
+        out_res.append(np.zeros((t, len(names))))
+        groups[gname] = names
+    all_pos = np.concatenate(out_pos, axis=1)
+    all_miss = np.concatenate(out_miss, axis=1)
+    all_res = np.concatenate(out_res, axis=1)
+    all_pos[all_miss] = 0.0
+    finite_res = all_res[~all_miss]
+    rmax = float(finite_res.max()) if finite_res.size else 0.0
+    pscale = float(meta.get("point_scale", 0.0) or 0.0)
+    if not (np.isfinite(pscale) and pscale > 0 and rmax <= 255 * pscale * (1 + 1e-6)):
+        pscale = max(rmax / 255.0, 1e-3) if rmax > 0 else 1.0
+    all_res = np.clip(all_res, 0.0, 255 * pscale)
+    all_res[all_miss] = -1.0
+    total = len(labels)
+
+    import ezc3d
+
+    c = ezc3d.c3d()
+    c["parameters"]["POINT"]["RATE"]["value"] = [float(markers.rate)]
+    c["parameters"]["POINT"]["LABELS"]["value"] = labels
+    c.add_parameter("POINT", "SCALE", [-pscale])
+    c.add_parameter("POINT", "UNITS", [units])
+    descriptions = meta.get("descriptions")
+    if isinstance(descriptions, list) and len(descriptions) == n:
+        c.add_parameter("POINT", "DESCRIPTIONS", [str(s) for s in descriptions] + [""] * (total - n))
+    screen = meta.get("screen_axes")
+    if not (isinstance(screen, tuple | list) and len(screen) == 2 and str(screen[1]).upper().lstrip("+") == up.upper()):
+        screen = ("+X", "+Z" if up == "z" else "+Y")
+    c.add_parameter("POINT", "X_SCREEN", [str(screen[0])])
+    c.add_parameter("POINT", "Y_SCREEN", [str(screen[1])])
+    type_groups: list[str] = []
+    for gname, names in groups.items():
+        c.add_parameter("POINT", gname, names)
+        type_groups.extend([gname, gname[:-1] if gname.endswith("S") else gname])
+        unit_param = MODEL_OUTPUT_GROUPS.get(gname, gname.rstrip("S") + "_UNITS")
+        gu = model_units.get(gname.lower())
+        if gu and gname != "BONES":
+            c.add_parameter("POINT", unit_param, [str(gu)])
+    if type_groups:
+        c.add_parameter("POINT", "TYPE_GROUPS", type_groups)
+    masks = np.zeros((7, total, t), dtype=bool)
+    if markers.invented is not None:
+        inv = markers.invented & ~miss
+        if inv.any():
+            masks[:, :n, :] = inv.T[None, :, :]
+        c.add_parameter("SKINCAP", "INVENTED_CAMERA_MASK", [_INVENTED_MASK])
+
+    pts = np.ones((4, total, t))
+    pts[:3] = all_pos.transpose(2, 1, 0)
+    c["data"]["points"] = pts
+    c["data"]["meta_points"] = {"residuals": all_res.T[None, :, :].copy(), "camera_masks": masks}
+    first = int(meta.get("first_frame", 1))
+    if first < 0 or first > 65535:
+        raise ValidationError(f"meta['first_frame']: must be in 0..65535, got {first}")
+    c["header"]["points"]["first_frame"] = max(first - 1, 0)
+
+    target = Path(path)
+    with atomic_output(target, force=force) as tmp:
+        out = str(tmp) if str(tmp).endswith(".c3d") else str(tmp) + ".c3d"
+        try:
+            c.write(out, first_frame_as_zero=first == 0)
+        except (RuntimeError, ValueError, TypeError) as exc:
+            raise FormatError(target, f"ezc3d could not write the file: {exc}") from None
+        finally:
+            if out != str(tmp) and Path(out).exists():
+                os.replace(out, tmp)
