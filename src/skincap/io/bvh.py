@@ -52,7 +52,6 @@ from typing import Literal
 import numpy as np
 
 from skincap.errors import FormatError, UnitWarning, ValidationError
-from skincap.geometry.kinematics import rest_positions
 from skincap.geometry.rotations import (
     euler_to_quat,
     matrix_to_quat,
