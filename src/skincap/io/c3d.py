@@ -174,6 +174,8 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
             if body + 1 > rec_end:
                 raise FormatError(path, f"group {name!r}: record too short", offset=body)
             dlen = data[body]
+            if dlen > 127:  # ezc3d reads this byte as signed and crashes on a "negative" length
+                raise FormatError(path, f"group {name!r}: description length {dlen} > 127", offset=body)
             if body + 1 + dlen > rec_end:
                 raise FormatError(path, f"group {name!r}: description of {dlen} bytes overruns its record", offset=body)
             if -gid in groups and groups[-gid] != name:
@@ -194,6 +196,8 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
             if vstart + nbytes + 1 > rec_end:
                 raise FormatError(path, f"parameter {name!r}: {nbytes} bytes of values overrun its record", offset=vstart)
             dlen = data[vstart + nbytes]
+            if dlen > 127:  # read as signed by ezc3d
+                raise FormatError(path, f"parameter {name!r}: description length {dlen} > 127", offset=vstart + nbytes)
             if vstart + nbytes + 1 + dlen > rec_end:
                 raise FormatError(path, f"parameter {name!r}: description of {dlen} bytes overruns its record", offset=vstart + nbytes)
             raw = data[vstart : vstart + nbytes]
@@ -231,10 +235,12 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
         a_used = params.get(("ANALOG", "USED"))
         if a_used is None or len(a_used) < 1 or int(a_used[0]) <= 0 or n_analog % int(a_used[0]):
             raise FormatError(path, f"header says {n_analog} analog samples per frame but ANALOG:USED is {a_used if a_used is None else list(a_used)}", offset=4)
+        # ezc3d dereferences these per channel without checking (a segfault otherwise)
         for pname in ("SCALE", "OFFSET"):
             v = params.get(("ANALOG", pname))
-            if v is not None and len(v) and len(v) < int(a_used[0]):
-                raise FormatError(path, f"ANALOG:{pname} has {len(v)} values for {int(a_used[0])} channels")
+            if not isinstance(v, np.ndarray) or v.size < int(a_used[0]):
+                have = "missing" if v is None else f"{len(v)} values"
+                raise FormatError(path, f"ANALOG:{pname} is {have}, {int(a_used[0])} analog channels need one each")
     for key, value in params.items():
         if key[0] in ("POINT", "ANALOG") and key[1] in ("RATE", "SCALE") and isinstance(value, np.ndarray):
             if value.size and not np.isfinite(value).all():
@@ -366,7 +372,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         residuals = c3d.get_point_residuals()
         n_frames = int(c3d.header().nbFrames())
         rate_ez = float(c3d.header().frameRate())
-    except (RuntimeError, ValueError, IndexError, MemoryError, TypeError) as exc:
+    except (RuntimeError, OSError, ValueError, IndexError, MemoryError, TypeError) as exc:
         raise FormatError(p, f"ezc3d could not read the file: {exc}") from None
     word = 4 if layout.scale < 0 else 2
     frame_bytes = (4 * layout.n_points + layout.n_analog_per_frame) * word
@@ -595,7 +601,9 @@ def write_c3d(
     pscale = float(meta.get("point_scale", 0.0) or 0.0)
     if not (np.isfinite(pscale) and pscale > 0 and rmax <= 255 * pscale * (1 + 1e-6)):
         pscale = max(rmax / 255.0, 1e-3) if rmax > 0 else 1.0
-    all_res = np.clip(all_res, 0.0, 255 * pscale)
+    # stored as a byte k with residual = k * |SCALE|: quantise here, and aim a quarter
+    # step above k so ezc3d's float -> byte conversion gives k whether it rounds or truncates
+    all_res = (np.clip(np.round(all_res / pscale), 0, 255) + 0.25) * pscale
     all_res[all_miss] = -1.0
     total = len(labels)
 
