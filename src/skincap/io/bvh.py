@@ -56,6 +56,7 @@ from skincap.geometry.rotations import (
     euler_to_quat,
     matrix_to_quat,
     quat_angle,
+    quat_apply,
     quat_conjugate,
     quat_multiply,
     quat_to_euler,
@@ -142,7 +143,7 @@ class _Tokens:
         for n, line in enumerate(lines, start=1):
             self.items.extend((tok, n) for tok in line.split())
         self.pos = 0
-        self.last_line = max(len(lines), 1)
+        self.last_line = max(len("\n".join(lines).rstrip().split("\n")), 1)
 
     def error(self, what: str, line: int | None = None) -> FormatError:
         if line is None:
@@ -517,7 +518,9 @@ def _read(
     joints = _parse_hierarchy(_Tokens(p, head_lines))
     if m is None:
         raise FormatError(
-            p, "no MOTION section after the hierarchy (truncated file?)", line=len(head_lines)
+            p,
+            "no MOTION section after the hierarchy (truncated file?)",
+            line=len(text.rstrip().split("\n")),
         )
     motion_line = head.count("\n") + 1
     after = text[m.end() :]
@@ -773,17 +776,17 @@ def write_bvh(
                 )
     for seq, (ks, cols) in rot_groups.items():
         q = rotations[:, ks]  # (T, k, 4)
-        full = seq + "".join(a for a in "XYZ" if a not in seq)
-        angles = quat_to_euler(q, full, degrees=True)  # (T, k, 3)
-        if len(seq) < 3 and t:
-            dropped = np.abs(angles[..., len(seq) :]).max(axis=(0, 2))
-            if (dropped > 1e-6).any():
-                bad = ks[int(np.argmax(dropped))]
+        if len(seq) == 3:
+            angles = quat_to_euler(q, seq, degrees=True)  # (T, k, 3)
+        else:
+            angles, residual = _partial_euler(q, seq)  # (T, k, n), (T, k) radians
+            if t and residual.max() > 1e-8:
+                bad = ks[int(np.argmax(residual.max(axis=0)))]
                 raise ValidationError(
-                    f"rotations: joint {names[bad]!r} rotates by up to {dropped.max():.3g} degrees about an "
-                    f"axis it has no channel for (channels {channels[bad]}); BVH cannot store that"
+                    f"rotations: joint {names[bad]!r} rotates by up to {math.degrees(residual.max()):.3g} degrees "
+                    f"about an axis it has no channel for (channels {channels[bad]}); BVH cannot store that"
                 )
-        data[:, np.asarray(cols)] = angles[..., : len(seq)]
+        data[:, np.asarray(cols)] = angles
 
     frame_time = float(motion.meta.get("frame_time", 1.0 / motion.rate))
     if (
@@ -810,6 +813,45 @@ def write_bvh(
     with atomic_output(path, force=force) as tmp:
         with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
             fh.write(text)
+
+
+_UNIT_AXES = np.eye(3)
+
+
+def _axis_quat(axis: int, angle: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternions turning ``angle`` radians about coordinate axis ``axis``."""
+    q = np.zeros(angle.shape + (4,))
+    q[..., axis] = np.sin(angle / 2)
+    q[..., 3] = np.cos(angle / 2)
+    return q
+
+
+def _partial_euler(q: np.ndarray, seq: str) -> tuple[np.ndarray, np.ndarray]:
+    """Angles (..., n) degrees of ``q`` as ``seq`` (1 or 2 intrinsic axes) and the residual.
+
+    The residual (...,) is the angle in radians of the part of ``q`` the axes cannot
+    express (0 for a rotation that really is ``R_A(a) @ R_B(b)``).
+    """
+    first = _AXIS[seq[0]]
+    if len(seq) == 1:
+        a = 2.0 * np.arctan2(q[..., first], q[..., 3])
+        rest = quat_multiply(quat_conjugate(_axis_quat(first, a)), q)
+        angles = a[..., None]
+    else:
+        second = _AXIS[seq[1]]
+        # R_A(a) R_B(b) e_B = R_A(a) e_B = cos(a) e_B + sin(a) (e_A x e_B)
+        e_b = _UNIT_AXES[second]
+        v = quat_apply(q, e_b)
+        a = np.arctan2(v @ np.cross(_UNIT_AXES[first], e_b), v @ e_b)
+        rest_b = quat_multiply(quat_conjugate(_axis_quat(first, a)), q)
+        b = 2.0 * np.arctan2(rest_b[..., second], rest_b[..., 3])
+        rest = quat_multiply(quat_conjugate(_axis_quat(second, b)), rest_b)
+        angles = np.stack([a, b], axis=-1)
+    residual = quat_angle(rest, np.array([0.0, 0.0, 0.0, 1.0]))
+    # wrap to (-180, 180]
+    deg = np.degrees(angles)
+    deg = np.where(deg > 180.0, deg - 360.0, np.where(deg <= -180.0, deg + 360.0, deg))
+    return deg, residual
 
 
 def _float_or_none(text: str) -> float | None:
