@@ -36,7 +36,7 @@ from skincap.io._common import check_readable, unit_scale
 from skincap.io.mesh import read_obj, triangulate_polygons
 from skincap.types import Mesh, Skeleton, Skin
 
-__all__ = ["read_makehuman", "bone_rest_frames"]
+__all__ = ["read_makehuman", "bone_rest_frames", "read_mhskel", "read_mhw"]
 
 #: Name of the group of the base mesh that is the body's skin.
 BODY_GROUP = "body"
@@ -533,3 +533,80 @@ def read_makehuman(
         skin=skin,
         meta=meta,
     )
+
+
+# ------------------------------------------------------------- rig files on their own
+def read_mhskel(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Validate a ``.mhskel`` rig file on its own and summarise it.
+
+    Joint positions need the base mesh (they are centroids of its vertex groups),
+    so a rig alone reads as a summary; :func:`read_makehuman` builds the skinned mesh.
+
+    Returns
+    -------
+    dict with ``kind`` ``"rig"``, ``name``, ``bones``, ``joints`` (vertex groups),
+    ``planes``, ``root`` and ``max_vertex`` (the highest base-mesh vertex it uses).
+    """
+    p = Path(path)
+    data = _load_json(p)
+    joints = data.get("joints")
+    if not isinstance(joints, dict):
+        raise FormatError(p, "'joints' must be an object of joint name -> vertex indices")
+    top = -1
+    for idx in joints.values():
+        if (
+            isinstance(idx, list)
+            and idx
+            and all(isinstance(i, int) and not isinstance(i, bool) for i in idx)
+        ):
+            top = max(top, max(idx))
+    rig = _Rig(p, data, top + 1)
+    return {
+        "kind": "rig",
+        "name": rig.name,
+        "bones": len(rig.bone_names),
+        "joints": len(rig.joint_vertices),
+        "planes": len(rig.planes),
+        "root": rig.bone_names[int(np.nonzero(rig.parents < 0)[0][0])],
+        "max_vertex": top,
+    }
+
+
+def read_mhw(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Validate a ``.mhw`` weights file on its own and summarise it.
+
+    Returns
+    -------
+    dict with ``kind`` ``"weights"``, ``bones``, ``vertices`` (distinct vertices
+    weighted), ``max_vertex``, and the range of per-vertex weight sums (MakeHuman's
+    weights are not normalised; :func:`read_makehuman` normalises them).
+    """
+    p = Path(path)
+    data = _load_json(p)
+    weights = data.get("weights")
+    if not isinstance(weights, dict) or not weights:
+        raise FormatError(
+            p, "'weights' must be a non-empty object of bone name -> [[vertex, weight], ...]"
+        )
+    top = 0
+    for bname, pairs in weights.items():
+        try:
+            arr = np.asarray(pairs, dtype=np.float64).reshape(-1, 2) if pairs else np.zeros((0, 2))
+        except (ValueError, TypeError):
+            raise FormatError(
+                p, f"weights of bone {bname!r}: expected [[vertex, weight], ...]"
+            ) from None
+        if arr.size and np.isfinite(arr[:, 0]).all():
+            top = max(top, int(arr[:, 0].max()))
+    bone_index = {str(b): i for i, b in enumerate(weights)}
+    dense = _dense_weights(p, data, bone_index, top + 1)
+    sums = dense.sum(axis=1)
+    used = sums > 0
+    return {
+        "kind": "weights",
+        "bones": len(bone_index),
+        "vertices": int(used.sum()),
+        "max_vertex": top,
+        "weight_sum_min": float(sums[used].min()) if used.any() else 0.0,
+        "weight_sum_max": float(sums[used].max()) if used.any() else 0.0,
+    }
