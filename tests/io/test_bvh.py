@@ -561,3 +561,20 @@ def test_fuzz_mutated_bytes(tmp_path: Path, edits: list[tuple[str, int, int]]) -
             return
     assert isinstance(m, Motion)
     assert np.isfinite(m.rotations).all() and np.isfinite(m.translations).all()
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    st.lists(st.floats(-1e6, 1e6, allow_nan=False), min_size=3, max_size=30),
+    st.integers(0, 8),
+    st.sampled_from([" ", "\t", "  "]),
+)
+def test_fast_decimal_parser_equals_float(values: list[float], decimals: int, sep: str) -> None:
+    from skincap.io.bvh import _parse_plain_decimals
+
+    n = len(values) - len(values) % 3
+    tokens = [f"{v:.{decimals}f}" for v in values[:n]]
+    body = "\n".join(sep.join(tokens[i : i + 3]) for i in range(0, n, 3)) + "\n"
+    got = _parse_plain_decimals(body, 3)
+    assert got is not None
+    np.testing.assert_array_equal(got.ravel(), [float(t) for t in tokens])

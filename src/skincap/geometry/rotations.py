@@ -330,6 +330,7 @@ def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return 2.0 * np.arctan2(s, np.abs(rel[..., 3]))
 
 
+_AXIS_INDEX = {"X": 0, "Y": 1, "Z": 2}
 _AXES_RE = re.compile(r"^(?:[XYZ]{1,3}|[xyz]{1,3})$")
 
 
@@ -373,12 +374,18 @@ def euler_to_quat(angles: np.ndarray, seq: str, *, degrees: bool = True) -> np.n
         )
     if not np.isfinite(a).all():
         raise ValidationError("angles: must be finite")
-    lead = a.shape[:-1]
-    flat = a.reshape(-1, k)
-    if flat.shape[0] == 0:
-        return quat_identity(lead)
-    q = Rotation.from_euler(seq, flat, degrees=degrees).as_quat()
-    return q.reshape(lead + (4,))
+    half = (np.radians(a) if degrees else a) * 0.5
+    # product of elementary rotations: intrinsic "ABC" is qA * qB * qC, extrinsic
+    # "abc" is qc * qb * qa (scipy's Rotation.from_euler, without its per-call cost)
+    axes = [_AXIS_INDEX[c.upper()] for c in seq]
+    steps = list(range(k)) if seq.isupper() else list(range(k))[::-1]
+    q = None
+    for i in steps:
+        qi = np.zeros(a.shape[:-1] + (4,))
+        qi[..., axes[i]] = np.sin(half[..., i])
+        qi[..., 3] = np.cos(half[..., i])
+        q = qi if q is None else quat_multiply(q, qi)
+    return q
 
 
 def quat_to_euler(q: np.ndarray, seq: str, *, degrees: bool = True) -> np.ndarray:

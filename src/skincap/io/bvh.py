@@ -358,6 +358,73 @@ def _diagnose_rows(
     return FormatError(path, "could not parse the motion rows as numbers", line=first_line)
 
 
+_WHITESPACE = np.zeros(256, dtype=bool)
+_WHITESPACE[[9, 10, 11, 12, 13, 32]] = True
+_PLAIN = _WHITESPACE.copy()
+_PLAIN[[43, 45, 46]] = True  # + - .
+_PLAIN[48:58] = True  # digits
+
+
+def _parse_plain_decimals(body: str, n_columns: int) -> np.ndarray | None:
+    """(rows, n_columns) float64 of a block of plain decimals, vectorised; None if unsure.
+
+    Handles the tokens BVH writers produce (``-12.3456``, ``7``, ``.5``, ``+1.``) with
+    at most 15 significant digits, every non-blank line holding ``n_columns`` of them.
+    Each value is ``integer mantissa / 10**decimals``: two exact numbers and one
+    correctly rounded division, so the result equals ``float(token)``. Anything else
+    (exponents, nan, ragged rows, stray characters) returns None and the caller falls
+    back to the general parser, which reports errors with their line.
+    """
+    try:
+        raw = body.encode("ascii")
+    except UnicodeEncodeError:
+        return None
+    b = np.frombuffer(raw, dtype=np.uint8)
+    if b.size == 0 or not _PLAIN[b].all():
+        return None
+    solid = np.concatenate([[False], ~_WHITESPACE[b], [False]])
+    edges = np.flatnonzero(solid[1:] != solid[:-1])
+    starts, ends = edges[0::2], edges[1::2]  # token i is b[starts[i]:ends[i]]
+    n_tok = starts.size
+    if n_tok == 0 or n_tok % n_columns:
+        return None
+    # tokens per line must all be n_columns
+    line_of = np.searchsorted(np.flatnonzero(b == 10), starts)
+    per_line = np.bincount(line_of)
+    if (per_line[per_line > 0] != n_columns).any():
+        return None
+    lengths = ends - starts
+    width = int(lengths.max())
+    if width > 17:
+        return None
+    mant = np.zeros(n_tok, dtype=np.int64)
+    n_digits = np.zeros(n_tok, dtype=np.int64)
+    decimals = np.zeros(n_tok, dtype=np.int64)
+    seen_dot = np.zeros(n_tok, dtype=bool)
+    negative = np.zeros(n_tok, dtype=bool)
+    ok = True
+    for col in range(width):  # loop over character positions, vectorised over tokens
+        inside = lengths > col
+        c = np.where(inside, b[np.minimum(starts + col, b.size - 1)], 32)
+        digit = (c >= 48) & (c <= 57)
+        dot = c == 46
+        sign = (c == 45) | (c == 43)
+        if col == 0:
+            negative = c == 45
+        else:
+            ok &= not sign.any()
+        ok &= not (dot & seen_dot).any()
+        mant = np.where(digit, mant * 10 + (c.astype(np.int64) - 48), mant)
+        n_digits += digit
+        decimals += digit & seen_dot
+        seen_dot |= dot
+    if not ok or (n_digits == 0).any() or n_digits.max() > 15:
+        return None
+    values = mant / (10.0**decimals)
+    values[negative] *= -1.0
+    return values.reshape(-1, n_columns)
+
+
 def _parse_motion(
     path: os.PathLike[str] | str, lines: list[str], motion_line: int, n_channels: int
 ) -> tuple[np.ndarray, float, str]:
@@ -411,10 +478,12 @@ def _parse_motion(
             path, "motion rows given but the hierarchy has no channels", line=first_line
         )
     else:
-        try:
-            data = np.loadtxt(io.StringIO(body), dtype=np.float64, comments=None, ndmin=2)
-        except (ValueError, TypeError, OverflowError):
-            raise _diagnose_rows(path, rest, first_line, n_frames, n_channels) from None
+        data = _parse_plain_decimals(body, n_channels)
+        if data is None:  # exponents, nan, odd spacing...: the general parser
+            try:
+                data = np.loadtxt(io.StringIO(body), dtype=np.float64, comments=None, ndmin=2)
+            except (ValueError, TypeError, OverflowError):
+                raise _diagnose_rows(path, rest, first_line, n_frames, n_channels) from None
     if n_channels == 0:
         data = np.zeros((n_frames, 0))
     if data.shape != (n_frames, n_channels) or not np.isfinite(data).all():
