@@ -348,7 +348,7 @@ def _check_seq(seq: str) -> str:
 
 
 def euler_to_quat(angles: np.ndarray, seq: str, *, degrees: bool = True) -> np.ndarray:
-    """Quaternions from Euler angles (scipy ``Rotation.from_euler``).
+    """Quaternions from Euler angles, identical to scipy ``Rotation.from_euler`` (vectorised).
 
     Parameters
     ----------
