@@ -285,7 +285,7 @@ def bench_io(
         print(json.dumps(results, indent=2))
         return
     for line in results["lines"]:
-        out.print(line, markup=False)
+        out.print(line, markup=False, soft_wrap=True)
 
 
 def main() -> None:

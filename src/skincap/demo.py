@@ -70,7 +70,7 @@ def run_demo(
         outputs.append(folder / name)
 
     step(0.5, "reading BVH")
-    motion = io.read(bvh_path)
+    motion = io.read(bvh_path, units="cm")  # bvhtoolbox mocapbank file: centimetres
     step(0.7, "writing motion copies")
     io.write(motion, folder / "motion.bvh", force=force)
     outputs.append(folder / "motion.bvh")

@@ -124,11 +124,11 @@ def test_convert_bvh_to_joint_positions_csv(tmp_path, data_dir):
 
     src = data_dir / "cmu_131_01_bvh11.bvh"
     dst = tmp_path / "joints.csv"
-    result = run("convert", src, dst, "--units", "in")
+    result = run("convert", src, dst, "--units", "cmu")
     assert result.exit_code == 0, result.output
     header = dst.read_text().splitlines()[0].split(",")
     table = np.loadtxt(dst, delimiter=",", skiprows=1)
-    motion = read_bvh(src, units="in")
+    motion = read_bvh(src, units="cmu")
     assert table.shape == (994, 2 + 3 * motion.skeleton.n_joints)
     assert header[2:5] == [f"{motion.skeleton.names[0]}_{a}" for a in "xyz"]
     np.testing.assert_allclose(table[:, 2:].reshape(994, -1, 3), joint_positions(motion), atol=1e-6)

@@ -23,8 +23,16 @@ __all__ = [
     "up_rotation",
 ]
 
-#: Length units skincap reads and writes, as metres per unit.
-UNIT_TO_METRES: dict[str, float] = {"m": 1.0, "dm": 0.1, "cm": 0.01, "mm": 0.001, "in": 0.0254}
+#: Length units skincap reads and writes, as metres per unit. ``cmu`` is the length
+#: unit of the Carnegie Mellon ASF/BVH exports (1/0.45 inch), common in the wild.
+UNIT_TO_METRES: dict[str, float] = {
+    "m": 1.0,
+    "dm": 0.1,
+    "cm": 0.01,
+    "mm": 0.001,
+    "in": 0.0254,
+    "cmu": 0.0254 / 0.45,
+}
 
 #: Up axes a source file may use; skincap is Y-up inside.
 UP_AXES = ("y", "z")

@@ -75,7 +75,7 @@ __all__ = ["read_bvh", "write_bvh", "guess_bvh_units", "BVH_UNITS"]
 
 #: Length units of BVH files, metres per unit: the general units plus ``"cmu"``,
 #: the CMU ASF unit (1/0.45 inch) of the cgspeed CMU conversions.
-BVH_UNITS: dict[str, float] = {**UNIT_TO_METRES, "cmu": 0.0254 / 0.45}
+BVH_UNITS: dict[str, float] = dict(UNIT_TO_METRES)
 
 #: The units :func:`guess_bvh_units` chooses from.
 _GUESSABLE = ("m", "dm", "cm", "mm", "in", "cmu")

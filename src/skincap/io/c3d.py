@@ -376,11 +376,13 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         raise FormatError(p, f"ezc3d could not read the file: {exc}") from None
     word = 4 if layout.scale < 0 else 2
     frame_bytes = (4 * layout.n_points + layout.n_analog_per_frame) * word
-    need = layout.data_offset + n_frames * frame_bytes
+    # ezc3d stops quietly at the end of a truncated file: hold it to the header's count
+    declared = max(n_frames, layout.last_frame - layout.first_frame + 1)
+    need = layout.data_offset + declared * frame_bytes
     if need > len(data):
         raise FormatError(
             p,
-            f"truncated: {n_frames} frames of {frame_bytes} bytes from byte {layout.data_offset} need {need} bytes, the file has {len(data)}",
+            f"truncated: {declared} frames of {frame_bytes} bytes from byte {layout.data_offset} need {need} bytes, the file has {len(data)}",
             offset=len(data),
         )
     n = layout.n_points
@@ -600,7 +602,8 @@ def write_c3d(
     rmax = float(finite_res.max()) if finite_res.size else 0.0
     pscale = float(meta.get("point_scale", 0.0) or 0.0)
     if not (np.isfinite(pscale) and pscale > 0 and rmax <= 255 * pscale * (1 + 1e-6)):
-        pscale = max(rmax / 255.0, 1e-3) if rmax > 0 else 1.0
+        # the smallest power of ten whose 255 steps hold the largest residual
+        pscale = 10.0 ** np.ceil(np.log10(rmax / 255.0)) if rmax > 0 else 1.0
     # stored as a byte k with residual = k * |SCALE|: quantise here, and aim a quarter
     # step above k so ezc3d's float -> byte conversion gives k whether it rounds or truncates
     all_res = (np.clip(np.round(all_res / pscale), 0, 255) + 0.25) * pscale
