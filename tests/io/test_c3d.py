@@ -67,7 +67,9 @@ def test_matches_raw_ezc3d(path):
     res = c["data"]["meta_points"]["residuals"][0][cols].T * 0.001
     np.testing.assert_allclose(m.residuals[~m.missing], res[~m.missing], atol=1e-12)
     assert np.isnan(m.residuals[m.missing]).all()
-    assert m.meta["first_frame"] == c["header"]["points"]["first_frame"] + (1 if path.stem != "kt_optitrack_walking" else 0)
+    assert m.meta["first_frame"] == c["header"]["points"]["first_frame"] + (
+        1 if path.stem != "kt_optitrack_walking" else 0
+    )
 
 
 def test_known_counts():
@@ -329,11 +331,17 @@ _SMALL = OLD.read_bytes()
 _STRUCT = 512 * 10  # header + parameter section of the c3d.org sample
 
 
-@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(
+    max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
 @given(
-    edits=st.lists(st.tuples(st.integers(0, _STRUCT - 1), st.integers(0, 255)), min_size=1, max_size=4),
+    edits=st.lists(
+        st.tuples(st.integers(0, _STRUCT - 1), st.integers(0, 255)), min_size=1, max_size=4
+    ),
     cut=st.one_of(st.none(), st.integers(0, len(_SMALL) - 1)),
-    insert=st.one_of(st.none(), st.tuples(st.integers(0, _STRUCT), st.binary(min_size=1, max_size=8))),
+    insert=st.one_of(
+        st.none(), st.tuples(st.integers(0, _STRUCT), st.binary(min_size=1, max_size=8))
+    ),
 )
 def test_fuzz_mutations_give_markers_or_format_error(tmp_path, edits, cut, insert):
     data = bytearray(_SMALL)

@@ -105,7 +105,9 @@ def _decode_strings(raw: bytes, dims: list[int]) -> list[str]:
         return [raw.decode("latin-1").rstrip(" \x00")]
     width = dims[0]
     count = int(np.prod(dims[1:])) if len(dims) > 1 else 1
-    return [raw[i * width : (i + 1) * width].decode("latin-1").rstrip(" \x00") for i in range(count)]
+    return [
+        raw[i * width : (i + 1) * width].decode("latin-1").rstrip(" \x00") for i in range(count)
+    ]
 
 
 def _s8(byte: int) -> int:
@@ -117,23 +119,37 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
     """Validate a C3D's header and parameter section in Python; FormatError on any fault."""
     size = len(data)
     if size < 512:
-        raise FormatError(path, f"file is {size} bytes, shorter than the 512-byte C3D header", offset=size)
+        raise FormatError(
+            path, f"file is {size} bytes, shorter than the 512-byte C3D header", offset=size
+        )
     if data[1] != 0x50:
-        raise FormatError(path, f"not a C3D file: byte 1 is 0x{data[1]:02x}, expected 0x50", offset=1)
+        raise FormatError(
+            path, f"not a C3D file: byte 1 is 0x{data[1]:02x}, expected 0x50", offset=1
+        )
     pblock = data[0]
     if pblock < 2:
         raise FormatError(path, f"parameter block pointer {pblock} must be >= 2", offset=0)
     start = (pblock - 1) * 512
     if start + 4 > size:
-        raise FormatError(path, f"parameter section at byte {start} lies past the end of the file ({size} bytes)", offset=0)
+        raise FormatError(
+            path,
+            f"parameter section at byte {start} lies past the end of the file ({size} bytes)",
+            offset=0,
+        )
     nblocks = data[start + 2]
     proc_code = data[start + 3]
     if proc_code not in _PROCESSORS:
-        raise FormatError(path, f"unknown processor type {proc_code} (expected 84, 85 or 86)", offset=start + 3)
+        raise FormatError(
+            path, f"unknown processor type {proc_code} (expected 84, 85 or 86)", offset=start + 3
+        )
     processor = _PROCESSORS[proc_code]
     end = start + nblocks * 512
     if nblocks == 0 or end > size:
-        raise FormatError(path, f"parameter section of {nblocks} blocks from byte {start} does not fit in the file ({size} bytes)", offset=start + 2)
+        raise FormatError(
+            path,
+            f"parameter section of {nblocks} blocks from byte {start} does not fit in the file ({size} bytes)",
+            offset=start + 2,
+        )
 
     ie = ">" if processor == "mips" else "<"
     words = np.frombuffer(data[:24], dtype=f"{ie}u2").astype(np.int64)
@@ -161,45 +177,79 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
             raise FormatError(path, "parameter record runs past the parameter section", offset=pos)
         name_raw = data[pos + 2 : name_end]
         if not all(32 < c < 127 for c in name_raw):
-            raise FormatError(path, f"parameter name {name_raw!r} is not printable ASCII", offset=pos + 2)
+            raise FormatError(
+                path, f"parameter name {name_raw!r} is not printable ASCII", offset=pos + 2
+            )
         name = name_raw.decode("ascii").upper()
         offset_field = name_end
         nxt = int(np.frombuffer(data[offset_field : offset_field + 2], dtype=f"{ie}i2")[0])
         last_record = nxt == 0
         rec_end = end if last_record else offset_field + nxt
         if not last_record and (nxt < 2 or rec_end > end):
-            raise FormatError(path, f"record {name!r}: pointer to the next record ({nxt}) leaves the parameter section", offset=offset_field)
+            raise FormatError(
+                path,
+                f"record {name!r}: pointer to the next record ({nxt}) leaves the parameter section",
+                offset=offset_field,
+            )
         body = offset_field + 2
         if gid < 0:
             if body + 1 > rec_end:
                 raise FormatError(path, f"group {name!r}: record too short", offset=body)
             dlen = data[body]
             if dlen > 127:  # ezc3d reads this byte as signed and crashes on a "negative" length
-                raise FormatError(path, f"group {name!r}: description length {dlen} > 127", offset=body)
+                raise FormatError(
+                    path, f"group {name!r}: description length {dlen} > 127", offset=body
+                )
             if body + 1 + dlen > rec_end:
-                raise FormatError(path, f"group {name!r}: description of {dlen} bytes overruns its record", offset=body)
+                raise FormatError(
+                    path,
+                    f"group {name!r}: description of {dlen} bytes overruns its record",
+                    offset=body,
+                )
             if -gid in groups and groups[-gid] != name:
-                raise FormatError(path, f"group id {-gid} defined twice ({groups[-gid]!r}, {name!r})", offset=pos)
+                raise FormatError(
+                    path, f"group id {-gid} defined twice ({groups[-gid]!r}, {name!r})", offset=pos
+                )
             groups[-gid] = name
         else:
             if body + 2 > rec_end:
                 raise FormatError(path, f"parameter {name!r}: record too short", offset=body)
             ptype = _s8(data[body])
             if ptype not in _TYPE_SIZES:
-                raise FormatError(path, f"parameter {name!r}: unknown data type {ptype}", offset=body)
+                raise FormatError(
+                    path, f"parameter {name!r}: unknown data type {ptype}", offset=body
+                )
             ndims = data[body + 1]
             if ndims > 7:
-                raise FormatError(path, f"parameter {name!r}: {ndims} dimensions (at most 7)", offset=body + 1)
+                raise FormatError(
+                    path, f"parameter {name!r}: {ndims} dimensions (at most 7)", offset=body + 1
+                )
             dims = list(data[body + 2 : body + 2 + ndims])
             vstart = body + 2 + ndims
-            nbytes = int(np.prod(dims, dtype=np.int64)) * _TYPE_SIZES[ptype] if ndims else _TYPE_SIZES[ptype]
+            nbytes = (
+                int(np.prod(dims, dtype=np.int64)) * _TYPE_SIZES[ptype]
+                if ndims
+                else _TYPE_SIZES[ptype]
+            )
             if vstart + nbytes + 1 > rec_end:
-                raise FormatError(path, f"parameter {name!r}: {nbytes} bytes of values overrun its record", offset=vstart)
+                raise FormatError(
+                    path,
+                    f"parameter {name!r}: {nbytes} bytes of values overrun its record",
+                    offset=vstart,
+                )
             dlen = data[vstart + nbytes]
             if dlen > 127:  # read as signed by ezc3d
-                raise FormatError(path, f"parameter {name!r}: description length {dlen} > 127", offset=vstart + nbytes)
+                raise FormatError(
+                    path,
+                    f"parameter {name!r}: description length {dlen} > 127",
+                    offset=vstart + nbytes,
+                )
             if vstart + nbytes + 1 + dlen > rec_end:
-                raise FormatError(path, f"parameter {name!r}: description of {dlen} bytes overruns its record", offset=vstart + nbytes)
+                raise FormatError(
+                    path,
+                    f"parameter {name!r}: description of {dlen} bytes overruns its record",
+                    offset=vstart + nbytes,
+                )
             raw = data[vstart : vstart + nbytes]
             if ptype == -1:
                 value: Any = _decode_strings(raw, dims)
@@ -215,7 +265,11 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
     params: dict[tuple[str, str], Any] = {}
     for gid, name, value, where in raw_params:
         if gid not in groups:
-            raise FormatError(path, f"parameter {name!r} belongs to group id {gid}, which is not defined", offset=where)
+            raise FormatError(
+                path,
+                f"parameter {name!r} belongs to group id {gid}, which is not defined",
+                offset=where,
+            )
         key = (groups[gid], name)
         # a group may appear twice under two ids (Vicon writes PROCESSING so): the
         # later definition of a parameter wins, as in ezc3d
@@ -223,26 +277,47 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
 
     used = params.get(("POINT", "USED"))
     if used is not None and (len(used) < 1 or int(used[0]) & 0xFFFF != n_points):
-        raise FormatError(path, f"POINT:USED ({list(used)[:1]}) disagrees with the header's {n_points} points", offset=2)
+        raise FormatError(
+            path,
+            f"POINT:USED ({list(used)[:1]}) disagrees with the header's {n_points} points",
+            offset=2,
+        )
     if data_block < 1:
         raise FormatError(path, f"data start block {data_block} must be >= 1", offset=16)
     data_offset = (data_block - 1) * 512
     if data_offset < start + 4:
-        raise FormatError(path, f"data section (block {data_block}) starts before the parameter section", offset=16)
+        raise FormatError(
+            path,
+            f"data section (block {data_block}) starts before the parameter section",
+            offset=16,
+        )
     if data_offset > size:
-        raise FormatError(path, f"data section (block {data_block}) starts past the end of the file", offset=16)
+        raise FormatError(
+            path, f"data section (block {data_block}) starts past the end of the file", offset=16
+        )
     if n_analog:
         a_used = params.get(("ANALOG", "USED"))
         if a_used is None or len(a_used) < 1 or int(a_used[0]) <= 0 or n_analog % int(a_used[0]):
-            raise FormatError(path, f"header says {n_analog} analog samples per frame but ANALOG:USED is {a_used if a_used is None else list(a_used)}", offset=4)
+            raise FormatError(
+                path,
+                f"header says {n_analog} analog samples per frame but ANALOG:USED is {a_used if a_used is None else list(a_used)}",
+                offset=4,
+            )
         # ezc3d dereferences these per channel without checking (a segfault otherwise)
         for pname in ("SCALE", "OFFSET"):
             v = params.get(("ANALOG", pname))
             if not isinstance(v, np.ndarray) or v.size < int(a_used[0]):
                 have = "missing" if v is None else f"{len(v)} values"
-                raise FormatError(path, f"ANALOG:{pname} is {have}, {int(a_used[0])} analog channels need one each")
+                raise FormatError(
+                    path,
+                    f"ANALOG:{pname} is {have}, {int(a_used[0])} analog channels need one each",
+                )
     for key, value in params.items():
-        if key[0] in ("POINT", "ANALOG") and key[1] in ("RATE", "SCALE") and isinstance(value, np.ndarray):
+        if (
+            key[0] in ("POINT", "ANALOG")
+            and key[1] in ("RATE", "SCALE")
+            and isinstance(value, np.ndarray)
+        ):
             if value.size and not np.isfinite(value).all():
                 raise FormatError(path, f"{key[0]}:{key[1]} is not finite ({value.tolist()[:3]})")
     if not np.isfinite(scale) or scale == 0:
@@ -387,7 +462,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         )
     n = layout.n_points
     if points.shape != (4, n, n_frames) or residuals.shape != (1, n, n_frames):
-        raise FormatError(p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})")
+        raise FormatError(
+            p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})"
+        )
 
     raw_labels = _labels(layout, "LABELS")
     if len(raw_labels) < n:
@@ -419,7 +496,11 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         listed = layout.params.get(("POINT", g))
         if not isinstance(listed, list):
             continue
-        cols = [label_index[s.strip()] for s in listed if s.strip() in label_index and label_index[s.strip()] not in taken]
+        cols = [
+            label_index[s.strip()]
+            for s in listed
+            if s.strip() in label_index and label_index[s.strip()] not in taken
+        ]
         if cols:
             output_cols[g.lower()] = cols
             taken.update(cols)
@@ -479,7 +560,11 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         invented = (bits[:, marker_cols] == int(round(float(sk[0])))) & ~mmiss
 
     rate_p = layout.params.get(("POINT", "RATE"))
-    rate32 = float(rate_p[0]) if isinstance(rate_p, np.ndarray) and rate_p.size and rate_p[0] > 0 else rate_ez
+    rate32 = (
+        float(rate_p[0])
+        if isinstance(rate_p, np.ndarray) and rate_p.size and rate_p[0] > 0
+        else rate_ez
+    )
     if not (np.isfinite(rate32) and rate32 > 0):
         raise FormatError(p, f"frame rate {rate32} is not a positive number", offset=20)
     rate = float(str(np.float32(rate32)))
@@ -531,7 +616,9 @@ def write_c3d(
         with residual -1 (the C3D "invalid" mark; ezc3d and other readers return
         them as missing). ``residuals`` (T, N) metres are written back (0 where
         None); they are stored as a byte times ``POINT:SCALE`` so they are quantised
-        to ``meta["point_scale"]`` (the source file's) or to max residual / 255.
+        to ``meta["point_scale"]`` (the source file's, when the residuals fit in its
+        255 steps) or else to the smallest power of ten (file units) whose 255 steps
+        hold the largest residual.
         ``invented`` samples get camera mask 0b1111111, declared in
         ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
         written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
@@ -580,14 +667,18 @@ def write_c3d(
         names = [str(k) for k in series]
         arr = np.stack([np.asarray(v, dtype=np.float64) for v in series.values()], axis=1)
         if arr.shape != (t, len(names), 3):
-            raise ValidationError(f"meta['model_outputs'][{g!r}]: expected arrays of shape ({t}, 3), got {arr.shape[::2]}")
+            raise ValidationError(
+                f"meta['model_outputs'][{g!r}]: expected arrays of shape ({t}, 3), got {arr.shape[::2]}"
+            )
         gu = model_units.get(g)
         if gu in UNIT_TO_METRES and gu != units:
             arr = arr * (UNIT_TO_METRES[gu] / scale)
             model_units[g] = units
         clash = set(names) & set(labels)
         if clash:
-            raise ValidationError(f"meta['model_outputs'][{g!r}]: labels {sorted(clash)[:5]} are also marker labels")
+            raise ValidationError(
+                f"meta['model_outputs'][{g!r}]: labels {sorted(clash)[:5]} are also marker labels"
+            )
         labels.extend(names)
         m = np.isnan(arr).any(axis=2)
         out_pos.append(arr)
@@ -619,9 +710,15 @@ def write_c3d(
     c.add_parameter("POINT", "UNITS", [units])
     descriptions = meta.get("descriptions")
     if isinstance(descriptions, list) and len(descriptions) == n:
-        c.add_parameter("POINT", "DESCRIPTIONS", [str(s) for s in descriptions] + [""] * (total - n))
+        c.add_parameter(
+            "POINT", "DESCRIPTIONS", [str(s) for s in descriptions] + [""] * (total - n)
+        )
     screen = meta.get("screen_axes")
-    if not (isinstance(screen, tuple | list) and len(screen) == 2 and str(screen[1]).upper().lstrip("+") == up.upper()):
+    if not (
+        isinstance(screen, tuple | list)
+        and len(screen) == 2
+        and str(screen[1]).upper().lstrip("+") == up.upper()
+    ):
         screen = ("+X", "+Z" if up == "z" else "+Y")
     c.add_parameter("POINT", "X_SCREEN", [str(screen[0])])
     c.add_parameter("POINT", "Y_SCREEN", [str(screen[1])])

@@ -25,7 +25,6 @@ from skincap.io._common import (
     check_readable,
     from_y_up,
     to_y_up,
-    unit_scale,
 )
 from skincap.io.trc import format_float_fields, parse_float_rows, read_text_lines
 from skincap.types import MarkerSet, PointCloud
@@ -62,7 +61,9 @@ def _cells(line: str) -> list[str]:
     return [c.strip().strip('"').strip() for c in line.split(",")]
 
 
-def _check_times(path: Path, times: np.ndarray, frames: np.ndarray, rate: float, lines: list[int]) -> None:
+def _check_times(
+    path: Path, times: np.ndarray, frames: np.ndarray, rate: float, lines: list[int]
+) -> None:
     """Time column must agree with frame / rate to within half a frame."""
     if times.size == 0:
         return
@@ -70,10 +71,16 @@ def _check_times(path: Path, times: np.ndarray, frames: np.ndarray, rate: float,
     dev = np.abs(times - expect)
     if dev.max() >= 0.5 / rate:
         bad = int(np.argmax(dev))
-        raise FormatError(path, f"time {times[bad]!r} disagrees with frame {int(frames[bad])} at {rate!r} Hz", line=lines[bad])
+        raise FormatError(
+            path,
+            f"time {times[bad]!r} disagrees with frame {int(frames[bad])} at {rate!r} Hz",
+            line=lines[bad],
+        )
 
 
-def _consecutive_frames(path: Path, frames: np.ndarray, lines: list[int], what: str = "Frame") -> None:
+def _consecutive_frames(
+    path: Path, frames: np.ndarray, lines: list[int], what: str = "Frame"
+) -> None:
     if frames.size == 0:
         return
     ok_int = frames == np.round(frames)
@@ -81,11 +88,15 @@ def _consecutive_frames(path: Path, frames: np.ndarray, lines: list[int], what: 
     bad = ~(ok_int & steps)
     if bad.any():
         k = int(np.argmax(bad))
-        raise FormatError(path, f"{what} numbers must be consecutive integers, got {frames[k]!r}", line=lines[k])
+        raise FormatError(
+            path, f"{what} numbers must be consecutive integers, got {frames[k]!r}", line=lines[k]
+        )
 
 
 # --------------------------------------------------------------------------- Vicon
-def read_vicon_csv(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "auto") -> MarkerSet:
+def read_vicon_csv(
+    path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "auto"
+) -> MarkerSet:
     """Read the "Trajectories" section of a Vicon Nexus CSV export.
 
     Layout: a line ``Trajectories``, a line with the rate (Hz), a line with
@@ -122,11 +133,15 @@ def read_vicon_csv(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"
     if start is None:
         raise FormatError(p, "no 'Trajectories' section (is this a Vicon Nexus CSV export?)")
     if start + 5 > len(lines):
-        raise FormatError(p, "the Trajectories section ends inside its 5-line header", line=len(lines))
+        raise FormatError(
+            p, "the Trajectories section ends inside its 5-line header", line=len(lines)
+        )
     try:
         rate = float(_cells(lines[start + 1])[0])
     except ValueError:
-        raise FormatError(p, f"expected the frame rate, got {lines[start + 1][:40]!r}", line=start + 2) from None
+        raise FormatError(
+            p, f"expected the frame rate, got {lines[start + 1][:40]!r}", line=start + 2
+        ) from None
     if not (np.isfinite(rate) and rate > 0):
         raise FormatError(p, f"frame rate {rate!r} is not positive", line=start + 2)
     head = _cells(lines[start + 3])
@@ -149,7 +164,9 @@ def read_vicon_csv(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"
     unit_cells = _cells(lines[start + 4])[2:width]
     units = {u for u in unit_cells if u}
     if len(units) != 1:
-        raise FormatError(p, f"expected one length unit for all coordinates, got {sorted(units)}", line=start + 5)
+        raise FormatError(
+            p, f"expected one length unit for all coordinates, got {sorted(units)}", line=start + 5
+        )
     unit = units.pop()
     if unit.lower() not in UNIT_TO_METRES:
         raise FormatError(p, f"unknown length unit {unit!r}", line=start + 5)
@@ -187,11 +204,17 @@ def read_vicon_csv(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"
         "first_frame": int(table[0, 0]) if len(rows) else 1,
     }
     if len(set(labels)) != n:
-        raise FormatError(p, f"duplicate marker labels {sorted({s for s in labels if labels.count(s) > 1})[:5]}", line=start + 3)
+        raise FormatError(
+            p,
+            f"duplicate marker labels {sorted({s for s in labels if labels.count(s) > 1})[:5]}",
+            line=start + 3,
+        )
     return MarkerSet(positions=to_y_up(pos, up_src), labels=labels, rate=rate, meta=meta)
 
 
-def write_vicon_csv(markers: MarkerSet, path: str | os.PathLike[str], *, force: bool = False) -> None:
+def write_vicon_csv(
+    markers: MarkerSet, path: str | os.PathLike[str], *, force: bool = False
+) -> None:
     """Write a MarkerSet as a Vicon Nexus "Trajectories" CSV that :func:`read_vicon_csv` reads.
 
     Millimetres; the up axis of ``meta["up"]`` (Z by default, Nexus' own), CRLF line
@@ -202,7 +225,9 @@ def write_vicon_csv(markers: MarkerSet, path: str | os.PathLike[str], *, force: 
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
     bad = [s for s in markers.labels if not s or any(c in s for c in ',"\r\n') or s != s.strip()]
     if bad:
-        raise ValidationError(f"markers.labels: CSV labels cannot be empty or hold commas, quotes or line breaks: {bad[:5]}")
+        raise ValidationError(
+            f"markers.labels: CSV labels cannot be empty or hold commas, quotes or line breaks: {bad[:5]}"
+        )
     up = str(markers.meta.get("up", "z"))
     if up not in ("y", "z"):
         up = "z"
@@ -271,7 +296,11 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
         if first[i]:
             header[first[i]] = first[i + 1]
     axis_at = next(
-        (k for k, ln in enumerate(lines) if _cells(ln)[0] == "Frame" and len(_cells(ln)) > 1 and _cells(ln)[1].startswith("Time")),
+        (
+            k
+            for k, ln in enumerate(lines)
+            if _cells(ln)[0] == "Frame" and len(_cells(ln)) > 1 and _cells(ln)[1].startswith("Time")
+        ),
         None,
     )
     if axis_at is None:
@@ -296,16 +325,31 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
         else:
             component = cells
     if "Type" not in rows_by_name or "Name" not in rows_by_name or component is None:
-        raise FormatError(p, "missing the Type, Name or Position/Rotation header row", line=axis_at + 1)
-    types, names, ids = rows_by_name["Type"], rows_by_name["Name"], rows_by_name.get("ID", [""] * width)
+        raise FormatError(
+            p, "missing the Type, Name or Position/Rotation header row", line=axis_at + 1
+        )
+    types, names, ids = (
+        rows_by_name["Type"],
+        rows_by_name["Name"],
+        rows_by_name.get("ID", [""] * width),
+    )
     cols: list[int] = []
     labels: list[str] = []
     id_list: list[str] = []
     c = data_col
     while c < width:
         if types[c] == "Marker" and component[c] == "Position" and axis_row[c] == "X":
-            if c + 2 >= width or axis_row[c + 1 : c + 3] != ["Y", "Z"] or names[c + 1] != names[c] or names[c + 2] != names[c]:
-                raise FormatError(p, f"marker {names[c]!r}: expected X,Y,Z columns {c + 1}..{c + 3}", line=axis_at + 1)
+            if (
+                c + 2 >= width
+                or axis_row[c + 1 : c + 3] != ["Y", "Z"]
+                or names[c + 1] != names[c]
+                or names[c + 2] != names[c]
+            ):
+                raise FormatError(
+                    p,
+                    f"marker {names[c]!r}: expected X,Y,Z columns {c + 1}..{c + 3}",
+                    line=axis_at + 1,
+                )
             name = names[c]
             m = re.fullmatch(r"Unlabeled\s+(\S+)", name)
             labels.append(f"*{m.group(1)}" if m else name)
@@ -320,10 +364,16 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
     except ValueError:
         rate = float("nan")
     if not (np.isfinite(rate) and rate > 0):
-        raise FormatError(p, f"no valid 'Export Frame Rate' or 'Capture Frame Rate' ({rate_s!r})", line=1)
+        raise FormatError(
+            p, f"no valid 'Export Frame Rate' or 'Capture Frame Rate' ({rate_s!r})", line=1
+        )
     unit_name = header.get("Length Units")
     if unit_name is None:
-        warnings.warn(f"{p}: no 'Length Units' in the header; assuming Meters (Motive's default)", UnitWarning, stacklevel=2)
+        warnings.warn(
+            f"{p}: no 'Length Units' in the header; assuming Meters (Motive's default)",
+            UnitWarning,
+            stacklevel=2,
+        )
         unit = "m"
     elif unit_name.lower() in _MOTIVE_UNITS:
         unit = _MOTIVE_UNITS[unit_name.lower()]
@@ -415,7 +465,9 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         raise FormatError(p, "no 'frame,time,x,y,z' header line", line=len(lines))
     head = [c.strip().lower() for c in lines[k].split(",")]
     if head not in _POINTS_HEADERS:
-        raise FormatError(p, f"expected the header 'frame,time,x,y,z[,id]', got {lines[k][:60]!r}", line=k + 1)
+        raise FormatError(
+            p, f"expected the header 'frame,time,x,y,z[,id]', got {lines[k][:60]!r}", line=k + 1
+        )
     width = len(head)
     body = [(i + 1, ln) for i, ln in enumerate(lines[k + 1 :], start=k + 1) if ln.strip()]
     numbers = [i for i, _ in body]
@@ -430,9 +482,13 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
             for i, ln in body:
                 cells = [c.strip() for c in ln.split(",")]
                 if len(cells) != width:
-                    raise FormatError(p, f"row has {len(cells)} fields, expected {width}", line=i) from None
+                    raise FormatError(
+                        p, f"row has {len(cells)} fields, expected {width}", line=i
+                    ) from None
                 if any(c == "" for c in cells):
-                    raise FormatError(p, "empty field (a point cloud has no missing samples)", line=i) from None
+                    raise FormatError(
+                        p, "empty field (a point cloud has no missing samples)", line=i
+                    ) from None
                 rows.append(cells)
             table = parse_float_rows(p, rows, numbers)
         finite = np.isfinite(table)
@@ -445,7 +501,11 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         bad |= np.concatenate([[False], np.diff(frames_f) < 0])
         if bad.any():
             r = int(np.argmax(bad))
-            raise FormatError(p, f"frame {frames_f[r]!r}: frames must be integers >= 0, non-decreasing", line=numbers[r])
+            raise FormatError(
+                p,
+                f"frame {frames_f[r]!r}: frames must be integers >= 0, non-decreasing",
+                line=numbers[r],
+            )
     frames = frames_f.astype(np.int64)
     times = table[:, 1]
     n_frames = int(frames[-1]) + 1 if frames.size else 0
@@ -453,9 +513,15 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         try:
             declared = int(comments["frames"])
         except ValueError:
-            raise FormatError(p, f"'# frames={comments['frames']}' is not an integer", line=1) from None
+            raise FormatError(
+                p, f"'# frames={comments['frames']}' is not an integer", line=1
+            ) from None
         if declared < n_frames:
-            raise FormatError(p, f"'# frames={declared}' but the rows reach frame {n_frames - 1}", line=numbers[-1])
+            raise FormatError(
+                p,
+                f"'# frames={declared}' but the rows reach frame {n_frames - 1}",
+                line=numbers[-1],
+            )
         n_frames = declared
     if "rate" in comments:
         try:
@@ -466,7 +532,11 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
             raise FormatError(p, f"'# rate={comments['rate']}' must be positive", line=1)
     else:
         if frames.size == 0 or frames[-1] == frames[0]:
-            raise FormatError(p, "cannot infer the frame rate from fewer than two distinct frames; add '# rate=<Hz>'", line=k + 1)
+            raise FormatError(
+                p,
+                "cannot infer the frame rate from fewer than two distinct frames; add '# rate=<Hz>'",
+                line=k + 1,
+            )
         dt = times[-1] - times[0]
         if not dt > 0:
             raise FormatError(p, "times do not increase with frames", line=numbers[-1])
@@ -479,7 +549,11 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         tol = 0.5 / rate if "rate" in comments else 0.01 / rate
         if dev.max() > tol:
             r = int(np.argmax(dev))
-            raise FormatError(p, f"time {times[r]!r} of frame {frames[r]} disagrees with {rate!r} Hz", line=numbers[r])
+            raise FormatError(
+                p,
+                f"time {times[r]!r} of frame {frames[r]} disagrees with {rate!r} Hz",
+                line=numbers[r],
+            )
     offsets = np.searchsorted(frames, np.arange(n_frames + 1), side="left").astype(np.int64)
     ids = None
     if width == 6:
@@ -488,11 +562,19 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
             r = int(np.argmax(idf != np.round(idf)))
             raise FormatError(p, f"id {idf[r]!r} is not an integer", line=numbers[r])
         ids = idf.astype(np.int64)
-    meta = {"source_format": "points_csv", "source_path": str(p), "source_units": "m", "up": "y", "start_time": start_time}
+    meta = {
+        "source_format": "points_csv",
+        "source_path": str(p),
+        "source_units": "m",
+        "up": "y",
+        "start_time": start_time,
+    }
     return PointCloud(points=table[:, 2:5].copy(), offsets=offsets, rate=rate, ids=ids, meta=meta)
 
 
-def write_points_csv(cloud: PointCloud, path: str | os.PathLike[str], *, force: bool = False) -> None:
+def write_points_csv(
+    cloud: PointCloud, path: str | os.PathLike[str], *, force: bool = False
+) -> None:
     """Write a PointCloud in the long format of :func:`read_points_csv`.
 
     ``# rate=`` and ``# frames=`` lines first (so empty frames survive), then
@@ -544,4 +626,8 @@ def read_csv(path: str | os.PathLike[str], **kw: Any) -> MarkerSet | PointCloud:
         return read_optitrack_csv(p, **kw)
     if first.startswith("#") or first.lower().replace(" ", "").startswith("frame,time,x,y,z"):
         return read_points_csv(p, **kw)
-    raise FormatError(p, f"unrecognised CSV: line 1 {first[:60]!r} is not a Vicon Nexus, OptiTrack Motive or skincap points header", line=1)
+    raise FormatError(
+        p,
+        f"unrecognised CSV: line 1 {first[:60]!r} is not a Vicon Nexus, OptiTrack Motive or skincap points header",
+        line=1,
+    )

@@ -93,7 +93,11 @@ def parse_float_rows(
                 except ValueError:
                     v = None
                 if v is None or not np.isfinite(v):
-                    raise FormatError(path, f"field {c + 1}: {what} {field[:40]!r} is not a finite number", line=line_numbers[r])
+                    raise FormatError(
+                        path,
+                        f"field {c + 1}: {what} {field[:40]!r} is not a finite number",
+                        line=line_numbers[r],
+                    )
         raise FormatError(path, "unparsable numbers", line=line_numbers[0])  # pragma: no cover
     return out
 
@@ -139,13 +143,17 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
         raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
     lines = read_text_lines(p)
     if len(lines) < 5:
-        raise FormatError(p, f"a TRC file needs 5 header lines, found {len(lines)}", line=len(lines) or 1)
+        raise FormatError(
+            p, f"a TRC file needs 5 header lines, found {len(lines)}", line=len(lines) or 1
+        )
     first = lines[0].split("\t")
     if not first or first[0].strip() != "PathFileType":
         raise FormatError(p, "not a TRC file: line 1 must start with 'PathFileType'", line=1)
     keys = [k.strip() for k in lines[1].split("\t") if k.strip()]
     if keys != _KEYS:
-        raise FormatError(p, f"expected the keys {' '.join(_KEYS)}, got {' '.join(keys)[:120]!r}", line=2)
+        raise FormatError(
+            p, f"expected the keys {' '.join(_KEYS)}, got {' '.join(keys)[:120]!r}", line=2
+        )
     values = [v.strip() for v in lines[2].split("\t") if v.strip()]
     if len(values) != len(_KEYS):
         raise FormatError(p, f"expected {len(_KEYS)} header values, got {len(values)}", line=3)
@@ -157,10 +165,16 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
     except ValueError:
         raise FormatError(p, "DataRate, NumFrames and NumMarkers must be numbers", line=3) from None
     if not (np.isfinite(rate) and rate > 0) or n_frames < 0 or n_markers < 0:
-        raise FormatError(p, f"DataRate {head['DataRate']}, NumFrames {n_frames}, NumMarkers {n_markers} are not valid", line=3)
+        raise FormatError(
+            p,
+            f"DataRate {head['DataRate']}, NumFrames {n_frames}, NumMarkers {n_markers} are not valid",
+            line=3,
+        )
     units = head["Units"].strip()
     if units.lower() not in UNIT_TO_METRES:
-        raise FormatError(p, f"Units {units!r} is not a known length unit ({', '.join(UNIT_TO_METRES)})", line=3)
+        raise FormatError(
+            p, f"Units {units!r} is not a known length unit ({', '.join(UNIT_TO_METRES)})", line=3
+        )
     scale = UNIT_TO_METRES[units.lower()]
 
     names = [s.strip() for s in lines[3].split("\t") if s.strip()]
@@ -168,7 +182,9 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
         raise FormatError(p, "line 4 must start with 'Frame#' and 'Time'", line=4)
     labels = names[2:]
     if len(labels) != n_markers:
-        raise FormatError(p, f"NumMarkers is {n_markers} but line 4 names {len(labels)} markers", line=4)
+        raise FormatError(
+            p, f"NumMarkers is {n_markers} but line 4 names {len(labels)} markers", line=4
+        )
     xyz = [s.strip() for s in lines[4].split("\t") if s.strip()]
     expected_xyz = [f"{a}{i}" for i in range(1, n_markers + 1) for a in "XYZ"]
     if xyz[: 3 * n_markers] != expected_xyz or len(xyz) != 3 * n_markers:
@@ -192,7 +208,9 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
         numbers.append(k + 1)
     if len(rows) != n_frames:
         where = numbers[-1] if numbers else len(lines)
-        raise FormatError(p, f"NumFrames is {n_frames} but the file has {len(rows)} data rows", line=where)
+        raise FormatError(
+            p, f"NumFrames is {n_frames} but the file has {len(rows)} data rows", line=where
+        )
     table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, width))
     if table.size and (np.isnan(table[:, :2]).any()):
         bad = int(np.nonzero(np.isnan(table[:, :2]).any(axis=1))[0][0])
@@ -200,13 +218,17 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
     frames = table[:, 0]
     times = table[:, 1]
     if frames.size and (np.any(frames != np.round(frames)) or np.any(np.diff(frames) != 1)):
-        bad = int(np.argmax(np.concatenate([[frames[0] != np.round(frames[0])], np.diff(frames) != 1])))
+        bad = int(
+            np.argmax(np.concatenate([[frames[0] != np.round(frames[0])], np.diff(frames) != 1]))
+        )
         raise FormatError(p, "Frame# must be consecutive integers", line=numbers[bad])
     if times.size:
         dev = np.abs(times - (times[0] + np.arange(times.size) / rate))
         if dev.max() >= 0.5 / rate:
             bad = int(np.argmax(dev))
-            raise FormatError(p, f"Time {times[bad]!r} disagrees with DataRate {rate!r}", line=numbers[bad])
+            raise FormatError(
+                p, f"Time {times[bad]!r} disagrees with DataRate {rate!r}", line=numbers[bad]
+            )
     pos = table[:, 2:].reshape(len(rows), n_markers, 3) * scale
     try:
         first_frame = int(frames[0]) if frames.size else int(float(head["OrigDataStartFrame"]))
@@ -265,9 +287,13 @@ def write_trc(
         up = markers.meta.get("up", "y") if markers.meta.get("source_format") == "trc" else "y"
     if up not in ("y", "z"):
         raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
-    bad = [s for s in markers.labels if not s or "\t" in s or "\n" in s or "\r" in s or s != s.strip()]
+    bad = [
+        s for s in markers.labels if not s or "\t" in s or "\n" in s or "\r" in s or s != s.strip()
+    ]
     if bad:
-        raise ValidationError(f"markers.labels: TRC names cannot be empty or hold tabs, line breaks or edge blanks: {bad[:5]}")
+        raise ValidationError(
+            f"markers.labels: TRC names cannot be empty or hold tabs, line breaks or edge blanks: {bad[:5]}"
+        )
     t, n = markers.n_frames, markers.n_markers
     first_frame = int(markers.meta.get("first_frame", 1))
     start_time = float(markers.meta.get("start_time", 0.0))
@@ -284,7 +310,11 @@ def write_trc(
     frames = np.char.mod("%d", np.arange(first_frame, first_frame + t))
     times = np.char.mod("%.17g", start_time + np.arange(t) / markers.rate)
     coords = format_float_fields(pos.reshape(t, 3 * n))
-    table = np.concatenate([frames[:, None], times[:, None], coords], axis=1) if t else np.zeros((0, 2 + 3 * n), dtype=str)
+    table = (
+        np.concatenate([frames[:, None], times[:, None], coords], axis=1)
+        if t
+        else np.zeros((0, 2 + 3 * n), dtype=str)
+    )
     body = "\n".join("\t".join(row) + "\t" for row in table.tolist())
     text = "\n".join(header) + "\n" + body + ("\n" if t else "")
     with atomic_output(path, force=force) as tmp:
