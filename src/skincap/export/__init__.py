@@ -1,0 +1,1 @@
+"""Exports other tools open: skinned glTF, point caches (PC2, OBJ sequence), USD."""
