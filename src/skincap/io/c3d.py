@@ -28,6 +28,7 @@ What the reader keeps
 
 from __future__ import annotations
 
+import math
 import os
 import warnings
 from dataclasses import dataclass
@@ -42,8 +43,8 @@ from skincap.io._common import (
     atomic_output,
     check_readable,
     from_y_up,
-    to_y_up,
     unit_scale,
+    up_rotation,
 )
 from skincap.types import MarkerSet
 
@@ -104,7 +105,7 @@ def _decode_strings(raw: bytes, dims: list[int]) -> list[str]:
     if not dims:
         return [raw.decode("latin-1").rstrip(" \x00")]
     width = dims[0]
-    count = int(np.prod(dims[1:])) if len(dims) > 1 else 1
+    count = math.prod(dims[1:])
     return [
         raw[i * width : (i + 1) * width].decode("latin-1").rstrip(" \x00") for i in range(count)
     ]
@@ -226,11 +227,7 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
                 )
             dims = list(data[body + 2 : body + 2 + ndims])
             vstart = body + 2 + ndims
-            nbytes = (
-                int(np.prod(dims, dtype=np.int64)) * _TYPE_SIZES[ptype]
-                if ndims
-                else _TYPE_SIZES[ptype]
-            )
+            nbytes = math.prod(dims) * _TYPE_SIZES[ptype] if ndims else _TYPE_SIZES[ptype]
             if vstart + nbytes + 1 > rec_end:
                 raise FormatError(
                     path,
@@ -389,12 +386,12 @@ def _up_from_screen(layout: _C3dLayout, path: Path) -> tuple[str, bool]:
     return "z", True
 
 
-def _guess_units(pos: np.ndarray) -> str:
-    """'m' when the finite coordinates all sit within 20 units of the origin, else 'mm'."""
-    finite = pos[np.isfinite(pos)]
-    if finite.size and np.abs(finite).max() < 20.0:
-        return "m"
-    return "mm"
+def _guess_units(xyz: np.ndarray) -> str:
+    """'m' when every coordinate (NaN ignored) is within 20 units of the origin, else 'mm'."""
+    if xyz.size == 0:
+        return "mm"
+    biggest = float(np.fmax.reduce(np.abs(xyz).ravel()))  # NaN only when all are NaN
+    return "m" if biggest < 20.0 else "mm"
 
 
 def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "auto") -> MarkerSet:
@@ -473,13 +470,17 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     descriptions = _labels(layout, "DESCRIPTIONS")
     descriptions = (descriptions + [""] * n)[:n]
 
-    pos = points[:3].transpose(2, 1, 0)  # (T, N, 3) file units, view
-    res = residuals[0].T  # (T, N)
-    if not np.isfinite(pos[~np.isnan(pos)]).all():
+    # work on ezc3d's (component, N, T) planes; one transposed copy at the end
+    xyz = points[:3]  # (3, N, T) file units, view
+    res_nt = residuals[0]  # (N, T)
+    if np.isinf(xyz).any():
         raise FormatError(p, "point data contains infinite coordinates")
-    zero = (pos == 0.0).all(axis=2) & ~np.isnan(res)
-    missing = np.isnan(pos).any(axis=2) | (res < 0) | zero
-    n_zero = int((zero & ~(res < 0)).sum())
+    nan_nt = np.isnan(xyz[0]) | np.isnan(xyz[1]) | np.isnan(xyz[2])
+    neg_nt = res_nt < 0
+    zero_nt = (xyz[0] == 0.0) & (xyz[1] == 0.0) & (xyz[2] == 0.0)
+    invalid_nt = nan_nt | neg_nt  # the C3D rule
+    missing_nt = invalid_nt | zero_nt  # plus exporters' (0, 0, 0)
+    n_zero = int((zero_nt & ~invalid_nt).sum())
 
     # model outputs -------------------------------------------------------------
     label_index = {lab: i for i, lab in enumerate(raw_labels) if lab}
@@ -518,9 +519,12 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     units_raw = layout.params.get(("POINT", "UNITS"))
     units_str = units_raw[0].strip().lower() if isinstance(units_raw, list) and units_raw else ""
     marker_cols = np.array([i for i in range(n) if i not in taken], dtype=np.int64)
+    all_markers = marker_cols.size == n
+    m_xyz = xyz if all_markers else xyz[:, marker_cols]  # (3, N', T)
+    m_miss = missing_nt if all_markers else missing_nt[marker_cols]  # (N', T)
     units_guessed = units_str not in UNIT_TO_METRES
     if units_guessed:
-        guess = _guess_units(pos[:, marker_cols][~missing[:, marker_cols]])
+        guess = _guess_units(m_xyz)
         what = "empty" if not units_str else f"{units_str!r}, not a known length unit"
         warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=2)
         units_str = guess
@@ -530,10 +534,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
 
     model_outputs: dict[str, dict[str, np.ndarray]] = {}
     model_units: dict[str, str] = {}
-    out_missing = np.isnan(pos).any(axis=2) | (res < 0)
     for g, cols in output_cols.items():
-        arr = pos[:, cols].copy()
-        arr[out_missing[:, cols]] = np.nan
+        arr = np.ascontiguousarray(xyz[:, cols].transpose(2, 1, 0))  # (T, k, 3)
+        arr[invalid_nt[cols].T] = np.nan
         model_outputs[g] = {raw_labels[c]: arr[:, k] for k, c in enumerate(cols)}
         unit_param = MODEL_OUTPUT_GROUPS.get(g.upper(), g.upper().rstrip("S") + "_UNITS")
         u = layout.params.get(("POINT", unit_param))
@@ -542,10 +545,16 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         elif isinstance(u, list) and u and u[0].strip():
             model_units[g] = u[0].strip()
 
-    mpos = pos[:, marker_cols] * scale
-    mmiss = missing[:, marker_cols]
+    t_n, n_m = n_frames, int(marker_cols.size)
+    rot = up_rotation(up_src)  # each row picks one source axis, with a sign
+    mpos = np.zeros((t_n, n_m, 3))  # (T, N', 3) metres, Y up
+    for k in range(3):  # three coordinates, not a loop over data
+        axis = int(np.argmax(np.abs(rot[k])))
+        np.multiply(m_xyz[axis].T, rot[k, axis] * scale, out=mpos[..., k])
+    mmiss = m_miss.T  # (T, N')
     mpos[mmiss] = np.nan
-    mres = res[:, marker_cols] * scale
+    mres = np.zeros((t_n, n_m))
+    np.multiply((res_nt if all_markers else res_nt[marker_cols]).T, scale, out=mres)
     mres[mmiss] = np.nan
     labels, renamed = _unique_labels([raw_labels[i] for i in marker_cols])
 
@@ -589,7 +598,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     if isinstance(xs, list) and xs and isinstance(ys, list) and ys:
         meta["screen_axes"] = (xs[0].strip(), ys[0].strip())
     return MarkerSet(
-        positions=to_y_up(mpos, up_src),
+        positions=mpos,
         labels=labels,
         rate=rate,
         residuals=mres,
