@@ -361,3 +361,23 @@ def test_fuzz_mutations_give_markers_or_format_error(tmp_path, edits, cut, inser
         return
     assert isinstance(m, MarkerSet)
     assert m.positions.shape[2] == 3
+
+
+def test_descriptions_round_trip_and_many_points(tmp_path):
+    m = _read(DATA / "cmu_85_02.c3d")
+    assert m.meta["descriptions"][0] == "Left front waist"
+    out = tmp_path / "d.c3d"
+    write_c3d(m, out)
+    assert read_c3d(out).meta["descriptions"] == m.meta["descriptions"]
+    n = 300
+    big = MarkerSet(
+        np.ones((3, n, 3)),
+        [f"m{i}" for i in range(n)],
+        100.0,
+        meta={"descriptions": [f"d{i}" for i in range(n)]},
+    )
+    out = tmp_path / "big.c3d"
+    write_c3d(big, out)
+    _, raw_labels = _raw(out)  # ezc3d reads it back
+    assert raw_labels == big.labels
+    assert read_c3d(out).labels == big.labels

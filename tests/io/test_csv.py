@@ -362,3 +362,15 @@ def test_fuzz_parsed_or_format_error(tmp_path, kind, edits, cut, insert, delete)
     except SkincapError:
         return
     assert isinstance(out, MarkerSet | PointCloud)
+
+
+def test_vicon_writer_uses_z_up_for_other_sources(tmp_path):
+    m = read_vicon_csv(VICON)
+    y_src = MarkerSet(m.positions, m.labels, m.rate, meta={"source_format": "trc", "up": "y"})
+    f = tmp_path / "z.csv"
+    write_vicon_csv(y_src, f)
+    r = read_vicon_csv(f)  # "auto" = Z up, as the writer wrote
+    np.testing.assert_allclose(r.positions, m.positions, rtol=1e-15, atol=1e-15)
+    written = np.array(f.read_text().splitlines()[5].split(",")[2:5], dtype=float)
+    source = np.array(VICON.read_text().splitlines()[5].split(",")[2:5], dtype=float)
+    np.testing.assert_allclose(written, source, rtol=1e-15)  # same axes as Nexus wrote

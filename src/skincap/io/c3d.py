@@ -494,8 +494,8 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     output_cols: dict[str, list[int]] = {}
     taken: set[int] = set()
     for g in group_names:
-        listed = layout.params.get(("POINT", g))
-        if not isinstance(listed, list):
+        listed = _labels(layout, g)
+        if not listed:
             continue
         cols = [
             label_index[s.strip()]
@@ -631,7 +631,9 @@ def write_c3d(
         ``invented`` samples get camera mask 0b1111111, declared in
         ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
         written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
-        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``… (ezc3d does this).
+        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``… (ezc3d does this);
+        ``meta["descriptions"]`` are written when there are at most 255 points
+        (beyond that ezc3d writes blank DESCRIPTIONS of its own).
     path : str or PathLike
         Output file; refused if it exists unless ``force``.
     units : str, optional
@@ -718,7 +720,8 @@ def write_c3d(
     c.add_parameter("POINT", "SCALE", [-pscale])
     c.add_parameter("POINT", "UNITS", [units])
     descriptions = meta.get("descriptions")
-    if isinstance(descriptions, list) and len(descriptions) == n:
+    # ezc3d writes DESCRIPTIONS itself beyond 255 points (blank), so ours go only below
+    if isinstance(descriptions, list) and len(descriptions) == n and total <= 255:
         c.add_parameter(
             "POINT", "DESCRIPTIONS", [str(s) for s in descriptions] + [""] * (total - n)
         )
@@ -733,7 +736,8 @@ def write_c3d(
     c.add_parameter("POINT", "Y_SCREEN", [str(screen[1])])
     type_groups: list[str] = []
     for gname, names in groups.items():
-        c.add_parameter("POINT", gname, names)
+        for k in range(0, len(names), 255):  # ANGLES, ANGLES2… like LABELS
+            c.add_parameter("POINT", gname + (str(k // 255 + 1) if k else ""), names[k : k + 255])
         type_groups.extend([gname, gname[:-1] if gname.endswith("S") else gname])
         unit_param = MODEL_OUTPUT_GROUPS.get(gname, gname.rstrip("S") + "_UNITS")
         gu = model_units.get(gname.lower())

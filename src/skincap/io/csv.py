@@ -217,7 +217,8 @@ def write_vicon_csv(
 ) -> None:
     """Write a MarkerSet as a Vicon Nexus "Trajectories" CSV that :func:`read_vicon_csv` reads.
 
-    Millimetres; the up axis of ``meta["up"]`` (Z by default, Nexus' own), CRLF line
+    Millimetres; Z up (Nexus' own) unless the markers came from a Vicon CSV read with
+    another ``up``, which is restored from ``meta["up"]``; CRLF line
     ends as Nexus writes them; coordinates printed with ``%.17g``; missing samples
     are empty fields; Frame counts from ``meta["first_frame"]`` (1 by default).
     """
@@ -228,7 +229,13 @@ def write_vicon_csv(
         raise ValidationError(
             f"markers.labels: CSV labels cannot be empty or hold commas, quotes or line breaks: {bad[:5]}"
         )
-    up = str(markers.meta.get("up", "z"))
+    # a Nexus CSV carries no axis information: write Z up (Nexus' world frame) unless
+    # the markers were read from a Vicon CSV with another up axis, which is restored
+    up = (
+        str(markers.meta.get("up", "z"))
+        if markers.meta.get("source_format") == "vicon_csv"
+        else "z"
+    )
     if up not in ("y", "z"):
         up = "z"
     t, n = markers.n_frames, markers.n_markers
