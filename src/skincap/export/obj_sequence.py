@@ -1,0 +1,166 @@
+"""A mesh animation as a sequence of Wavefront OBJ files, one per frame.
+
+Every file has the rest mesh's topology as :func:`skincap.io.mesh.write_obj` writes it
+(source polygons, so quads stay quads; groups, objects, materials and UVs) and that
+frame's vertex positions. The topology text is produced once and reused; only the
+``v`` lines change from frame to frame, formatted for all vertices of a frame in one
+call. Normals of the rest mesh are not written (they would be wrong once the mesh
+deforms; importers compute their own).
+
+Files are named ``<stem>_<frame>.obj`` with the frame number zero-padded to at least
+four digits (``frame_0000.obj``, ``frame_0001.obj``...), numbered from 0.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from skincap.errors import FormatError, OutputExistsError, ValidationError
+from skincap.io._common import atomic_output, from_y_up, unit_scale
+from skincap.io.mesh import write_obj
+from skincap.types import MeshAnimation
+
+__all__ = ["write_obj_sequence"]
+
+_STEM = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
+
+
+def _topology_text(animation: MeshAnimation, units: str, up: str) -> tuple[str, str]:
+    """(head, tail): the rest mesh's OBJ text before and after its ``v`` lines."""
+    rest = animation.rest
+    meta = {k: v for k, v in rest.meta.items() if k not in ("normal_table", "corner_normal")}
+    bare = replace(rest, meta=meta, skin=None)
+    with tempfile.TemporaryDirectory(prefix="skincap_obj_") as tmp:
+        path = Path(tmp) / "rest.obj"
+        write_obj(bare, path, units=units, up=up)
+        lines = path.read_text(encoding="utf-8").split("\n")
+    first = next(i for i, line in enumerate(lines) if line.startswith("v "))
+    n = rest.n_vertices
+    head = "\n".join(lines[:first]) + "\n"
+    tail = "\n".join(lines[first + n :])
+    return head, tail
+
+
+def write_obj_sequence(
+    animation: MeshAnimation,
+    folder: str | os.PathLike[str],
+    *,
+    force: bool = False,
+    stem: str = "frame",
+    units: str | None = None,
+    up: str | None = None,
+    digits: int | None = 9,
+    chunk: int = 64,
+    progress: Callable[[int, int], None] | None = None,
+) -> list[Path]:
+    """Write one OBJ file per frame of a mesh animation.
+
+    Parameters
+    ----------
+    animation : MeshAnimation
+        ``n_frames`` frames of (V, 3) float64 positions, metres, Y up, streamed from
+        ``animation.iter_chunks(chunk)``; topology from ``animation.rest``. NaN or
+        infinite positions are refused (OBJ has no missing vertices).
+    folder : str or PathLike
+        Output folder, created when missing (its parent must exist). An existing
+        non-empty folder is refused unless ``force``; with ``force``, files of the
+        sequence are replaced and older ``<stem>_<digits>.obj`` files beyond the new
+        frame count are removed (nothing else in the folder is touched).
+    force : bool
+        Write into an existing non-empty folder.
+    stem : str, default "frame"
+        File name stem: letters, digits, ``.``, ``_``, ``-``.
+    units, up : str, optional
+        Unit and up axis of the files; default the rest mesh's
+        ``meta["source_units"]`` and ``meta["up"]`` (metres and Y when absent), as
+        :func:`skincap.io.mesh.write_obj` does.
+    digits : int or None, default 9
+        Significant digits of the vertex coordinates (9 keeps float32 exactly);
+        None writes the shortest text that reads back to the same float64.
+    chunk : int, default 64
+        Frames pulled from the animation at a time.
+    progress : callable, optional
+        Called as ``progress(frames_done, n_frames)`` after each chunk.
+
+    Returns
+    -------
+    list of Path
+        The files written, in frame order.
+
+    Raises
+    ------
+    OutputExistsError
+        ``folder`` exists, is not empty and ``force`` is False.
+    FormatError
+        ``folder`` is a file, or its parent folder does not exist.
+    ValidationError
+        Bad ``stem``/``units``/``up``/``digits``/``chunk``, non-finite positions, or a
+        streamed animation whose frame count differs from ``n_frames``. Each file is
+        written atomically; files of earlier frames stay when a later frame fails.
+    """
+    if not isinstance(animation, MeshAnimation):
+        raise ValidationError(
+            f"animation: expected a skincap MeshAnimation, got {type(animation).__name__}"
+        )
+    if not _STEM.match(stem):
+        raise ValidationError(
+            f"stem: expected letters, digits, '.', '_' or '-' (no path), got {stem!r}"
+        )
+    if digits is not None and not (isinstance(digits, int) and 1 <= digits <= 17):
+        raise ValidationError(f"digits: expected None or an integer in 1..17, got {digits!r}")
+    if int(chunk) < 1:
+        raise ValidationError(f"chunk: expected a positive number of frames, got {chunk!r}")
+    rest = animation.rest
+    units_name = units if units is not None else str(rest.meta.get("source_units", "m"))
+    up_key = up if up is not None else str(rest.meta.get("up", "y"))
+    scale = 1.0 / unit_scale(units_name)
+    from_y_up(np.zeros((1, 3)), up_key)  # validates ``up``
+
+    out = Path(folder)
+    if out.exists() and not out.is_dir():
+        raise FormatError(out, "exists and is not a folder")
+    if out.is_dir() and any(out.iterdir()) and not force:
+        raise OutputExistsError(out)
+    if not out.parent.is_dir():
+        raise FormatError(out, f"cannot create: folder {str(out.parent)!r} does not exist")
+    out.mkdir(exist_ok=True)
+
+    n_frames = int(animation.n_frames or 0)
+    width = max(4, len(str(max(n_frames - 1, 0))))
+    head, tail = _topology_text(animation, units_name, up_key)
+    n = rest.n_vertices
+    line = "v %r %r %r\n" if digits is None else f"v %.{digits}g %.{digits}g %.{digits}g\n"
+    vertex_format = line * n
+    written: list[Path] = []
+    for block in animation.iter_chunks(int(chunk)):
+        if len(written) + block.shape[0] > n_frames:
+            raise ValidationError(
+                f"frames: the animation yields more than its n_frames={n_frames} frames"
+            )
+        if not np.isfinite(block).all():
+            bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
+            raise ValidationError(
+                f"frames: frame {len(written) + bad} has NaN or infinite positions"
+            )
+        coords = from_y_up(block, up_key) * scale  # (t, V, 3) in the file's unit and axes
+        for frame in coords:
+            target = out / f"{stem}_{len(written):0{width}d}.obj"
+            text = head + vertex_format % tuple(frame.reshape(-1).tolist()) + tail
+            with atomic_output(target, force=True) as tmp:
+                tmp.write_text(text, encoding="utf-8")
+            written.append(target)
+        if progress is not None:
+            progress(len(written), n_frames)
+    pattern = re.compile(rf"^{re.escape(stem)}_\d{{4,}}\.obj$")
+    keep = {p.name for p in written}
+    for old in out.iterdir():
+        if old.is_file() and pattern.match(old.name) and old.name not in keep:
+            old.unlink()
+    return written
