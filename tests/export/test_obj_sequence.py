@@ -104,7 +104,7 @@ def test_streaming_progress_and_bad_frames(tmp_path, cylinder, cylinder_animatio
     bad = frames.copy()
     bad[4, 0, 0] = np.inf
     with pytest.raises(ValidationError, match="frame 4"):
-        write_obj_sequence(MeshAnimation(cylinder, bad, 24.0), tmp_path / "bad")
+        write_obj_sequence(MeshAnimation(cylinder, bad, 24.0), tmp_path / "bad", chunk=2)
     assert sorted(p.name for p in (tmp_path / "bad").iterdir()) == [
         f"frame_{k:04d}.obj" for k in range(4)
     ]  # chunks before the bad one were written whole; no temporary files
