@@ -22,7 +22,12 @@ up +Z, i.e. no conversion) on that object plays the cache in place. ``up="z"`` w
 Blender-native Z-up coordinates, ``(x, y, z) -> (x, -z, y)``, for a mesh whose data is
 already Z up (a mesh modelled in Blender, or imported with the axis conversion baked
 into the vertices) -- the same turn Blender's glTF importer applies. Both were checked
-in Blender 3.4 (tests/export/test_blender.py).
+in Blender 3.4 (tests/export/test_blender.py). Do not set the modifier's axes to
+forward -Z / up +Y for a Y-up cache on a default-imported OBJ: the object's rotation
+already turns it, and the mesh ends up turned twice. The vertex order must be the
+OBJ's: Blender's OBJ importer (``wm.obj_import``) keeps it; the legacy Python add-on
+(``import_scene.obj``, still in 3.4) reorders vertices with its default settings,
+which scrambles a point cache.
 
 The Mesh Cache modifier's frame mapping (time mode "Frame", frame start 0, frame scale
 1) shows sample ``f`` at scene frame ``f``; set the modifier's frame start to 1 to show
