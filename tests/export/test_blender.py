@@ -22,6 +22,7 @@ from skinned_cylinder import bend_motion, bind_local, lbs_reference
 
 from skincap.export.gltf import write_glb
 from skincap.export.pc2 import write_pc2
+from skincap.io.bvh import read_bvh
 from skincap.io.makehuman import read_makehuman
 from skincap.io.mesh import write_obj
 from skincap.types import MeshAnimation, Motion
@@ -177,3 +178,27 @@ def test_makehuman_dqs_pc2(blender, tmp_path):
     ref = deformers.skin_motion(mesh, motion, method="dqs").frames
     ref = np.concatenate(list(ref)) if not isinstance(ref, np.ndarray) else ref
     np.testing.assert_allclose(blender_to_y_up(r["positions"]), ref[[0, 9]], atol=1e-5)
+
+
+def test_makehuman_walks_cmu_bvh(blender, tmp_path):
+    """The issue's goal: the MakeHuman body walking the CMU take, as a .glb Blender plays."""
+    retarget = pytest.importorskip(
+        "skincap.skinning.retarget", reason="skincap.skinning.retarget not in the tree yet"
+    )
+    mesh = read_makehuman(DATA / "makehuman_base.obj")
+    walk = retarget.retarget(read_bvh(DATA / "cmu_131_01_bvh11.bvh", units="cmu"), mesh)
+    glb = tmp_path / "walk.glb"
+    write_glb(mesh, walk, glb)
+    out = tmp_path / "report.npz"
+    last = walk.n_frames - 1
+    # the take is 120.0005 Hz: in a 120 fps scene key k sits at frame 120 k / rate, so
+    # compare at the first and last keys' own (fractional) frames
+    run_blender(blender, "import_gltf.py", glb, out, 120, 0, 120.0 * last / walk.rate)
+    r = np.load(out)
+    assert r["vertex_counts"].tolist() == [13380]
+    assert r["key_counts"].tolist() == [walk.n_frames] == [994]
+    np.testing.assert_allclose(r["action_ranges"][0, 1], 120.0 * last / walk.rate, atol=1e-3)
+    pose = Motion(walk.skeleton, walk.rotations[[0, last]], walk.translations[[0, last]], walk.rate)
+    ref = lbs_reference(mesh, pose)
+    assert np.linalg.norm(ref[1].mean(0) - ref[0].mean(0)) > 2.0  # walked over 2 m
+    np.testing.assert_allclose(blender_to_y_up(r["positions"]), ref, atol=2e-5)
