@@ -410,3 +410,16 @@ def test_skin_motion_rejects_other_skeletons(makehuman: Mesh) -> None:
     bare = Mesh(vertices=makehuman.vertices, faces=makehuman.faces)
     with pytest.raises(ValidationError, match="no skin"):
         make_deformer("lbs", bare)
+
+
+def test_without_numba_falls_back_to_numpy(monkeypatch: pytest.MonkeyPatch) -> None:
+    from skincap.errors import MissingDependencyError
+    from skincap.skinning import deformers
+
+    monkeypatch.setattr(deformers, "numba_available", lambda: False)
+    rest, idx, w, matrices = random_rig(12, n_vertices=50)
+    d = DualQuaternionSkinning(rest, idx, w)
+    assert d.backend == "numpy"
+    assert d.deform(matrices).shape == (5, 50, 3)
+    with pytest.raises(MissingDependencyError, match=r"skincap\[fast\]"):
+        LinearBlendSkinning(rest, idx, w, backend="numba")

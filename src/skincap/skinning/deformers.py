@@ -310,9 +310,9 @@ class SkinningDeformer(abc.ABC):
         self.n_joints = n_joints
         self._used_joints = max(max_index + 1, 1)
         self.backend = _resolve_backend(backend)
-        # NumPy kernels work on batches of about 2**17 vertex-frames: the temporaries
-        # stay small (cache-sized, no huge-page faults) and frames are still batched
-        self._numpy_step = max(1, 2**17 // max(1, n_v))
+        # NumPy kernels work on batches of about 2**19 vertex-frames: the temporaries
+        # stay a few MB and the per-call overheads are shared by several frames
+        self._numpy_step = max(1, 2**19 // max(1, n_v))
         self._prepare()
 
     # -- the kernels of a subclass
