@@ -71,6 +71,14 @@ def test_info_counts_match_ezc3d(path):
             labels += [s.strip() for s in params[key]["value"]]
     labels = labels[:used]
     model = {s.strip() for g in _MODEL_GROUPS if g in params for s in params[g]["value"]}
+    # Plug-in Gait segment axes: four virtual points <segment>O/A/L/P (origin,
+    # anterior, lateral, proximal) listed in no parameter; they are model output.
+    names = set(labels)
+    model |= {
+        s
+        for s in labels
+        if len(s) > 1 and s[-1] in "OALP" and all(s[:-1] + c in names for c in "OALP")
+    }
     marker_cols = [i for i, s in enumerate(labels) if s not in model]
     assert summary["markers"] == len(marker_cols)
     assert summary["unlabelled"] == sum(labels[i].startswith("*") for i in marker_cols)
