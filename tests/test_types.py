@@ -128,3 +128,26 @@ def test_mesh_animation_streams_chunks_and_checks_count():
         list(short.iter_chunks())
     with pytest.raises(ValidationError, match="n_frames"):
         MeshAnimation(mesh, iter([]), 30)
+
+
+def test_atomic_output_permissions_and_cleanup(tmp_path):
+    import os
+
+    from skincap.errors import OutputExistsError
+    from skincap.io._common import atomic_output
+
+    target = tmp_path / "out.txt"
+    with atomic_output(target) as tmp:
+        tmp.write_text("x")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert (target.stat().st_mode & 0o777) == (0o666 & ~umask)
+    with pytest.raises(OutputExistsError):
+        with atomic_output(target):
+            pass
+    with pytest.raises(RuntimeError):
+        with atomic_output(target, force=True) as tmp:
+            tmp.write_text("partial")
+            raise RuntimeError("boom")
+    assert target.read_text() == "x"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.txt"]

@@ -231,6 +231,171 @@ def convert(
     out.print(message, markup=False)
 
 
+# --------------------------------------------------------------------------- skin
+def load_skinnable_mesh(path: Path, *, units: str | None = None) -> Any:
+    """Read a mesh for skinning: a MakeHuman OBJ with its rig beside it, a glTF, or a bare OBJ/PLY."""
+    from skincap import io
+    from skincap.types import Mesh
+
+    ext = path.suffix.lower()
+    if ext == ".obj" and any(path.parent.glob("*.mhskel")):
+        from skincap.io.makehuman import read_makehuman
+
+        return read_makehuman(path, units=units or "dm")
+    if ext not in (".obj", ".ply", ".gltf", ".glb"):
+        raise FormatError(
+            path, f"expected a mesh (.obj, .ply, .gltf, .glb), got {ext or 'no extension'!r}"
+        )
+    options = {"units": units} if units is not None and ext in (".obj", ".ply") else {}
+    mesh = io.read(path, **options)
+    if not isinstance(mesh, Mesh):
+        raise FormatError(path, "is not a mesh")
+    return mesh
+
+
+_SKIN_OUTPUTS = (".glb", ".pc2", ".usd", ".usda", ".usdc")
+
+
+@app.command()
+def skin(
+    mesh_path: Annotated[
+        Path,
+        typer.Argument(
+            metavar="MESH",
+            help="MakeHuman .obj (rig beside it), skinned .glb/.gltf, or bare .obj/.ply.",
+        ),
+    ],
+    motion_path: Annotated[Path, typer.Argument(metavar="MOTION", help="A BVH motion.")],
+    output: Annotated[
+        Path,
+        typer.Option(
+            "-o",
+            "--output",
+            help="OUT.glb (skin + joint animation), OUT.pc2 (+ OUT.obj), OUT.usd, or a folder for an OBJ sequence.",
+        ),
+    ],
+    method: Annotated[
+        str,
+        typer.Option(
+            help="Deformer for baked outputs: lbs or dqs (glTF skinning is always linear)."
+        ),
+    ] = "lbs",
+    weights: Annotated[
+        str | None,
+        typer.Option(
+            help="auto (bone heat) or file; default: file for a rigged mesh, auto for a bare one."
+        ),
+    ] = None,
+    name_map: Annotated[
+        Path | None,
+        typer.Option(
+            "--map", help="JSON {bvh_joint: mesh_joint} overriding the built-in name maps."
+        ),
+    ] = None,
+    units: Annotated[
+        str | None,
+        typer.Option(
+            help="BVH length unit (m, dm, cm, mm, in, cmu); guessed from the skeleton when omitted."
+        ),
+    ] = None,
+    mesh_units: Annotated[
+        str | None, typer.Option(help="Mesh length unit (default m; MakeHuman dm).")
+    ] = None,
+    max_influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+) -> None:
+    """Skin a mesh with a BVH motion: bind, retarget, deform, export.
+
+    Example: skincap skin makehuman_base.obj walk.bvh --units cmu --method dqs -o walk.pc2
+    """
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from skincap.io.bvh import read_bvh
+    from skincap.skinning.pipeline import prepare_skinning
+
+    with _user_errors():
+        ext = output.suffix.lower()
+        if method not in ("lbs", "dqs"):
+            raise FormatError(output, f"--method must be lbs or dqs, got {method!r}")
+        if ext and ext not in _SKIN_OUTPUTS:
+            raise FormatError(
+                output,
+                f"cannot write {ext!r}; skin writes {', '.join(_SKIN_OUTPUTS)} or a folder (OBJ sequence)",
+            )
+        if ext == ".glb" and method != "lbs":
+            raise FormatError(
+                output,
+                "glTF skinning is linear blend skinning; write .pc2, .usd or a folder to bake DQS",
+            )
+        if weights not in (None, "auto", "file"):
+            raise FormatError(output, f"--weights must be auto or file, got {weights!r}")
+        mesh = load_skinnable_mesh(mesh_path, units=mesh_units)
+        motion = read_bvh(motion_path, units=units)
+        setup = prepare_skinning(
+            mesh,
+            motion,
+            weights=weights,
+            name_map=name_map,
+            max_influences=max_influences,  # type: ignore[arg-type]
+        )
+        frames = setup.motion.n_frames
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
+            TimeRemainingColumn(),
+            console=err,
+            transient=True,
+        ) as progress:
+            task = progress.add_task(f"skinning ({method})", total=frames)
+
+            def advance(fraction: float) -> None:
+                progress.update(task, completed=fraction * frames)
+
+            written = _write_skinned(setup, output, method=method, force=force, progress=advance)
+    out.print(
+        f"{mesh_path.name} + {motion_path.name} -> {', '.join(str(p) for p in written)}: "
+        f"{setup.mesh.n_vertices} vertices, {frames} frames at {setup.motion.rate:.6g} Hz, "
+        f"{method}, {setup.report['weights']} weights",
+        markup=False,
+        soft_wrap=True,
+    )
+
+
+def _write_skinned(
+    setup: Any, output: Path, *, method: str, force: bool, progress: Any
+) -> list[Path]:
+    """Export a :class:`SkinningSetup` by ``output``'s extension; return the written paths."""
+    from skincap.skinning.deformers import skin_motion
+
+    ext = output.suffix.lower()
+    if ext == ".glb":
+        from skincap.export.gltf import write_glb
+
+        write_glb(setup.mesh, setup.motion, output, force=force)
+        progress(1.0)
+        return [output]
+    animation = skin_motion(setup.mesh, setup.motion, method=method, progress=progress)
+    if ext == ".pc2":
+        from skincap.export.pc2 import write_pc2
+        from skincap.io.mesh import write_obj
+
+        rest_obj = output.with_suffix(".obj")
+        # The mesh Blender's Mesh Cache modifier plays the PC2 on: same metres, Y up.
+        write_obj(setup.mesh, rest_obj, force=force, units="m", up="y")
+        write_pc2(animation, output, force=force)
+        return [output, rest_obj]
+    if ext in (".usd", ".usda", ".usdc"):
+        from skincap.export.usd import write_usd
+
+        write_usd(animation, output, force=force)
+        return [output]
+    from skincap.export.obj_sequence import write_obj_sequence
+
+    write_obj_sequence(animation, output, force=force, units="m", up="y")
+    return [output]
+
+
 # --------------------------------------------------------------------------- demo
 @app.command()
 def demo(
