@@ -453,6 +453,33 @@ def bench_io(
         out.print(line, markup=False, soft_wrap=True)
 
 
+@bench_app.command("skin")
+def bench_skin(
+    vertices: Annotated[int, typer.Option(help="Mesh vertices.")] = 50_000,
+    influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
+    frames: Annotated[int, typer.Option(help="Frames per timed batch.")] = 64,
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """LBS and DQS milliseconds per frame (numba and NumPy) against libigl and UsdSkel, as ratios.
+
+    Example: skincap bench skin --vertices 50000 --influences 4
+    """
+    from skincap.skinning.benchmark import run_skinning_benchmark
+
+    with _user_errors():
+        results = run_skinning_benchmark(
+            n_vertices=vertices, n_influences=influences, n_frames=frames, repeat=repeat
+        )
+    if json_output:
+        print(json.dumps({k: v for k, v in results.items() if k != "lines"}, indent=2, default=str))
+        return
+    for line in results["lines"]:
+        out.print(line, markup=False, soft_wrap=True)
+
+
 def main() -> None:
     """Console-script entry point."""
     try:

@@ -1,0 +1,91 @@
+"""``skincap skin`` as a user runs it, on the shipped MakeHuman body and real BVH files."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skincap.cli import app
+
+DATA = Path(__file__).parents[1] / "data"
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def makehuman_dir(tmp_path_factory) -> Path:
+    """The MakeHuman OBJ with its rig beside it, as a user has it."""
+    folder = tmp_path_factory.mktemp("mh")
+    for name in ("makehuman_base.obj", "makehuman_default.mhskel", "makehuman_default_weights.mhw"):
+        shutil.copy(DATA / name, folder / name)
+    return folder
+
+
+def test_skin_glb_from_makehuman_and_cmu(tmp_path, makehuman_dir):
+    from skincap.io.gltf import read_gltf
+
+    out = tmp_path / "walk.glb"
+    result = run("skin", makehuman_dir / "makehuman_base.obj", DATA / "cmu_131_01_bvh11.bvh", "--units", "cmu", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "994 frames" in result.stdout
+    mesh = read_gltf(out)
+    assert mesh.n_vertices == 13380
+    assert mesh.skin is not None and mesh.skin.skeleton.n_joints == 163
+
+
+def test_skin_dqs_pc2_matches_deformer(tmp_path, makehuman_dir):
+    from skincap.export.pc2 import read_pc2
+    from skincap.io.bvh import read_bvh
+    from skincap.io.makehuman import read_makehuman
+    from skincap.skinning.deformers import make_deformer
+    from skincap.skinning.pipeline import prepare_skinning
+    from skincap.skinning.rig import skinning_matrices
+
+    bvh = DATA / "bvhtoolbox_test_mocapbank.bvh"
+    out = tmp_path / "mocap.pc2"
+    result = run("skin", makehuman_dir / "makehuman_base.obj", bvh, "--units", "cm", "--method", "dqs", "-o", out)
+    assert result.exit_code == 0, result.output
+    cache = read_pc2(out)
+    assert cache.frames.shape == (455, 13380, 3)
+    rest = (tmp_path / "mocap.obj").read_text()
+    assert rest.count("\nv ") == 13380
+    # the same frame computed through the Python API
+    setup = prepare_skinning(read_makehuman(makehuman_dir / "makehuman_base.obj"), read_bvh(bvh, units="cm"))
+    frame = 200
+    matrices = skinning_matrices(setup.motion, setup.mesh.skin)[frame]
+    expected = make_deformer("dqs", setup.mesh).deform(matrices)
+    np.testing.assert_allclose(cache.frames[frame], expected, atol=1e-5)  # PC2 stores float32
+
+
+def test_skin_bare_mesh_gets_automatic_weights(tmp_path):
+    from skincap.export.usd import write_usd  # noqa: F401  (usd-core is a dev dependency)
+
+    bare = tmp_path / "body.obj"
+    assert run("convert", DATA / "makehuman_base.obj", bare).exit_code == 0  # no rig beside it
+    out = tmp_path / "frames"
+    result = run("skin", bare, DATA / "bvhtoolbox_test_mocapbank.bvh", "--units", "cm", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "auto weights" in result.stdout
+    assert len(list(out.glob("*.obj"))) == 455
+
+
+def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
+    mesh = makehuman_dir / "makehuman_base.obj"
+    bvh = DATA / "bvhtoolbox_test_mocapbank.bvh"
+    for extra, message in [
+        (["--method", "dqs", "-o", tmp_path / "x.glb"], "linear blend"),
+        (["--method", "cubic", "-o", tmp_path / "x.pc2"], "lbs or dqs"),
+        (["-o", tmp_path / "x.fbx"], "cannot write"),
+        (["--weights", "file", "-o", tmp_path / "x.glb", "--map", tmp_path / "missing.json"], "missing.json"),
+    ]:
+        result = run("skin", mesh, bvh, "--units", "cm", *extra)
+        assert result.exit_code == 2, (extra, result.output)
+        assert message in result.stderr
+        assert len(result.stderr.strip().splitlines()) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
