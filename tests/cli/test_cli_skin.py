@@ -64,15 +64,23 @@ def test_skin_dqs_pc2_matches_deformer(tmp_path, makehuman_dir):
 
 
 def test_skin_bare_mesh_gets_automatic_weights(tmp_path):
-    from skincap.export.usd import write_usd  # noqa: F401  (usd-core is a dev dependency)
+    from skincap.io.bvh import read_bvh, write_bvh
+    from skincap.io.makehuman import read_makehuman
+    from skincap.io.mesh import write_obj
+    from skincap.types import Mesh, Motion
 
-    bare = tmp_path / "body.obj"
-    assert run("convert", DATA / "makehuman_base.obj", bare).exit_code == 0  # no rig beside it
+    body = read_makehuman(DATA / "makehuman_base.obj")
+    bare = tmp_path / "body.obj"  # the body alone, no rig beside it
+    write_obj(Mesh(body.vertices, body.faces), bare)
+    full = read_bvh(DATA / "bvhtoolbox_test_mocapbank.bvh", units="cm")
+    short = Motion(full.skeleton, full.rotations[:12], full.translations[:12], full.rate, full.channels, full.meta)
+    bvh = tmp_path / "short.bvh"
+    write_bvh(short, bvh)
     out = tmp_path / "frames"
-    result = run("skin", bare, DATA / "bvhtoolbox_test_mocapbank.bvh", "--units", "cm", "-o", out)
+    result = run("skin", bare, bvh, "--units", "cm", "-o", out)
     assert result.exit_code == 0, result.output
     assert "auto weights" in result.stdout
-    assert len(list(out.glob("*.obj"))) == 455
+    assert len(list(out.glob("*.obj"))) == 12
 
 
 def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
