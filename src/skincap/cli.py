@@ -427,7 +427,14 @@ def demo(
             result = run_demo(output, force=force, progress=report)
     for path, summary in result["summaries"].items():
         _print_summary(Path(path), summary)
-    out.print(f"demo: wrote {len(result['outputs'])} files to {output}", markup=False)
+    out.print(f"demo: wrote {len(result['outputs'])} files to {output}:", markup=False)
+    for path in result["outputs"]:
+        out.print(f"  {path}", markup=False, soft_wrap=True)
+    out.print(
+        "Open walk.glb in Blender (File > Import > glTF) or any glTF viewer; walk_dqs.pc2 plays on "
+        "walk_dqs.obj through Blender's Mesh Cache modifier.",
+        markup=False,
+    )
 
 
 # -------------------------------------------------------------------------- bench
