@@ -245,10 +245,18 @@ def test_demo_writes_readable_outputs(tmp_path):
     assert written == [
         "motion.bvh",
         "motion_joints.csv",
+        "walk.glb",
+        "walk_dqs.obj",
+        "walk_dqs.pc2",
         "walking.c3d",
         "walking.csv",
         "walking.trc",
     ]
+    from skincap.export.pc2 import read_pc2
+    from skincap.io.gltf import read_gltf
+
+    assert read_gltf(tmp_path / "demo" / "walk.glb").skin.skeleton.n_joints == 163
+    assert read_pc2(tmp_path / "demo" / "walk_dqs.pc2").frames.shape == (240, 13380, 3)
     markers = io.read(tmp_path / "demo" / "walking.c3d")
     assert markers.n_markers == 12 and markers.rate == 160.0
     assert run("demo", "-o", tmp_path / "demo").exit_code == 2  # outputs exist
