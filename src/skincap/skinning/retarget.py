@@ -54,7 +54,8 @@ paired root joint) is placed at ``s`` times the source's. ``scale="height"`` tak
 ``s`` = the ratio of standing hip heights, measured as leg lengths along the bones
 (hip to ankle, averaged over both sides; pose independent, so a source whose rest pose
 splays the legs is measured correctly). That ratio is what keeps the feet on the
-floor. Without paired legs it falls back to the ratio of rest-pose heights.
+floor. Without paired legs it falls back to the ratio of rest-pose heights (the
+vertical extents of the joints; the largest extent for a skeleton lying flat).
 """
 
 from __future__ import annotations
@@ -605,7 +606,10 @@ def _scale(
             return float(np.mean(ratios_t) / np.mean(ratios_s))
         hs = float(np.ptp(src_rest[:, 1]))
         ht = float(np.ptp(heads[:, 1]))
-        if hs <= 0 or ht <= 0:
+        if hs <= _ZERO_LENGTH or ht <= _ZERO_LENGTH:  # lying flat: the largest extent
+            hs = float(np.ptp(src_rest, axis=0).max())
+            ht = float(np.ptp(heads, axis=0).max())
+        if hs <= _ZERO_LENGTH or ht <= _ZERO_LENGTH:
             raise ValidationError("scale='height': a skeleton has no height; pass a number")
         return ht / hs
     try:
