@@ -483,3 +483,21 @@ def test_explicit_scale_scales_root_motion(makehuman, cmu):
     np.testing.assert_allclose(b[:, legs].mean(1), 0.5 * a[:, legs].mean(1), atol=1e-9)
     # the pose itself does not depend on the scale
     np.testing.assert_allclose(b - b[:, :1], a - a[:, :1], atol=1e-9)
+
+
+def test_retargeted_motion_writes_as_bvh(tmp_path, cmu_on_makehuman):
+    from skincap.io.bvh import write_bvh
+
+    out = cmu_on_makehuman
+    short = Motion(
+        out.skeleton,
+        out.rotations[::25],
+        out.translations[::25],
+        out.rate / 25,
+        channels=out.channels,
+    )
+    path = tmp_path / "mh.bvh"
+    write_bvh(short, path, units="m")
+    back = read_bvh(path, units="m")
+    order = [back.skeleton.names.index(n) for n in short.skeleton.names]
+    np.testing.assert_allclose(joint_positions(back)[:, order], joint_positions(short), atol=1e-5)
