@@ -1,0 +1,653 @@
+"""Built-in motion clips that stress skin-capture algorithms.
+
+Every clip is a :class:`~skincap.types.Motion` on a given skeleton whose zero pose
+(all local rotations identity) is a T-pose: arms along ``+-X`` (the left arm along
+``+X``), facing ``+Z``, ``Y`` up, feet on the floor -- the skeleton of
+:func:`skincap.synth.skeleton.synth_skeleton`. Joints are found by name through the
+built-in naming conventions of :mod:`skincap.skinning.name_maps` (CMU ``bvh11``,
+CMU cgspeed, Biovision, MakeHuman); joints a skeleton lacks are left out of the
+motion (a skeleton without arms gets no arm motion).
+
+Every clip starts in the T-pose (Mazrimas et al., appendix A: takes start in the
+reference pose): the first :data:`HOLD_SECONDS` hold it exactly (identity local
+rotations, root at its rest position), then the action blends in with a minimum-jerk
+(quintic smoothstep) envelope over :data:`BLEND_SECONDS`.
+
+The clips
+---------
+``tpose``
+    The T-pose, still (a reference take).
+``flex``
+    Arms lowered beside the body, then both elbows flex to 150 degrees (the angle
+    between the upper-arm and forearm directions) and back, every 1.5 s: a biceps
+    curl with the forearm in front of the body.
+``twist``
+    Arms held out to the sides; both forearms pronate and supinate about their own
+    long axis from -90 to +90 degrees (180 degrees of range), 0.5 Hz.
+``squat``
+    Knees flex to 105 degrees and back every 1.75 s; the pelvis drops and moves back,
+    the torso leans forward, the arms reach forward. The legs are solved by two-bone
+    inverse kinematics so the ankles stay exactly at their rest positions and the
+    feet flat: the feet are planted.
+``punch``
+    A guard with fists at the chin, then alternating straight punches (shoulder
+    flexion with elbow extension) with the torso rotating into each punch.
+``jumprope``
+    Upper arms down by the sides, forearms pointing out and forward with the hands
+    near hip height; the forearms circle (the wrists draw ~9 cm circles) at 1.75 Hz,
+    and the body hops at the same rate: knees bend on landing and the feet leave the
+    floor by ~7 cm at the top of each hop.
+``breathe``
+    Relaxed standing with the arms lowered; chest and shoulders rise and fall at
+    0.25 Hz (the breathing deformation itself is soft tissue).
+
+``seed`` adds a subtle natural sway of the trunk (random low frequencies and
+phases, below one degree); the prescribed targets (elbow angle, twist range, knee
+angle, planted feet) are not randomised. The same arguments give the same bytes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from skincap.errors import ValidationError
+from skincap.geometry.kinematics import rest_positions
+from skincap.geometry.rotations import quat_apply, quat_conjugate, quat_multiply
+from skincap.skinning.name_maps import CONVENTIONS, detect_convention
+from skincap.types import Motion, Skeleton
+
+__all__ = [
+    "CLIPS",
+    "DEFAULT_SECONDS",
+    "HOLD_SECONDS",
+    "BLEND_SECONDS",
+    "make_clip",
+    "find_landmarks",
+]
+
+#: Names of the built-in clips.
+CLIPS: tuple[str, ...] = ("tpose", "flex", "twist", "squat", "punch", "jumprope", "breathe")
+#: Default clip length, seconds.
+DEFAULT_SECONDS = 4.0
+#: The T-pose is held exactly for this long at the start of every clip, seconds.
+HOLD_SECONDS = 0.5
+#: Duration of the blend from the T-pose into the action, seconds.
+BLEND_SECONDS = 0.6
+
+#: The next landmark down each segment's chain (its segment end).
+_SEGMENT_END = {
+    "hips": "spine",
+    "spine": "chest",
+    "chest": "upper_chest",
+    "upper_chest": "neck",
+    "neck": "neck_upper",
+    "neck_upper": "head",
+    **{
+        f"{a}_{s}": f"{b}_{s}"
+        for s in ("l", "r")
+        for a, b in (
+            ("clavicle", "upperarm"),
+            ("upperarm", "forearm"),
+            ("forearm", "hand"),
+            ("thigh", "shin"),
+            ("shin", "foot"),
+            ("foot", "toe"),
+        )
+    },
+}
+
+_X = np.array([1.0, 0.0, 0.0])
+_Y = np.array([0.0, 1.0, 0.0])
+_Z = np.array([0.0, 0.0, 1.0])
+
+
+# ------------------------------------------------------------------ small maths
+def _unit(v: np.ndarray) -> np.ndarray:
+    """Unit vectors along the last axis (zero vectors stay zero)."""
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.where(n > 0, n, 1.0)
+
+
+def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
+    """Quaternions (..., 4) of rotations by ``angle`` (radians) about unit ``axis`` (..., 3)."""
+    axis = np.asarray(axis, dtype=np.float64)
+    half = 0.5 * np.asarray(angle, dtype=np.float64)[..., None]
+    axis, half = np.broadcast_arrays(axis, half)
+    return np.concatenate([axis * np.sin(half), np.cos(half[..., :1])], axis=-1)
+
+
+def _swing(u: np.ndarray, v: np.ndarray, weight: np.ndarray | float = 1.0) -> np.ndarray:
+    """The shortest rotation carrying direction ``u`` onto ``v``, scaled by ``weight``.
+
+    ``u``, ``v`` (..., 3) need not be unit; ``weight`` (...) in 0..1 turns only that
+    share of the angle (0 gives the exact identity). Antiparallel vectors turn about
+    an axis perpendicular to ``u``.
+    """
+    u = _unit(np.asarray(u, dtype=np.float64))
+    v = _unit(np.asarray(v, dtype=np.float64))
+    u, v = np.broadcast_arrays(u, v)
+    axis = np.cross(u, v)
+    sin = np.linalg.norm(axis, axis=-1)
+    cos = np.sum(u * v, axis=-1)
+    angle = np.arctan2(sin, cos)
+    # antiparallel: any axis perpendicular to u
+    fallback = np.cross(u, np.where(np.abs(u[..., :1]) < 0.9, _X, _Y))
+    axis = np.where((sin < 1e-12)[..., None], fallback, axis)
+    return _axis_angle(_unit(axis), angle * weight)
+
+
+def _quintic(s: np.ndarray) -> np.ndarray:
+    """Minimum-jerk smoothstep ``10 s^3 - 15 s^4 + 6 s^5`` on ``s`` clipped to 0..1."""
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
+
+
+def _nlerp(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Directions from ``a`` to ``b`` (3,) at weights ``w`` (T,): normalised lerp, (T, 3)."""
+    w = np.asarray(w)[..., None]
+    return _unit((1.0 - w) * a + w * b)
+
+
+# ------------------------------------------------------------------ landmarks
+def find_landmarks(skeleton: Skeleton) -> dict[str, int]:
+    """Joint index of each body landmark the skeleton has.
+
+    Parameters
+    ----------
+    skeleton : Skeleton
+
+    Returns
+    -------
+    dict of str to int
+        Keys from :data:`skincap.skinning.name_maps.LANDMARKS` (``hips``, ``spine``,
+        ``chest``, ``upper_chest``, ``neck``, ``neck_upper``, ``head``, and per side
+        ``clavicle_l``, ``upperarm_l``, ``forearm_l``, ``hand_l``, ``thigh_l``,
+        ``shin_l``, ``foot_l``, ``toe_l``...). The skeleton's own convention is tried
+        first, then the others; landmarks found under no convention are absent.
+        ``hips`` falls back to the root joint.
+    """
+    names = skeleton.names
+    index = {n: k for k, n in enumerate(names)}
+    detected = detect_convention(names)
+    order = ([detected] if detected else []) + [c for c in CONVENTIONS if c != detected]
+    found: dict[str, int] = {}
+    for conv in order:
+        for landmark, value in CONVENTIONS[conv].items():
+            if landmark in found:
+                continue
+            for name in (value,) if isinstance(value, str) else value:
+                if name in index:
+                    found[landmark] = index[name]
+                    break
+    if "hips" not in found:
+        found["hips"] = int(np.nonzero(skeleton.parents < 0)[0][0])
+    return found
+
+
+class _Pose:
+    """Local rotations and root position of T frames, built segment by segment.
+
+    All world rotations are identity in the rest pose, so a segment's rest direction
+    in world coordinates is also its direction in its own joint frame.
+    """
+
+    def __init__(self, skeleton: Skeleton, n_frames: int) -> None:
+        self.skeleton = skeleton
+        self.parents = skeleton.parents
+        self.rest = rest_positions(skeleton)  # (J, 3)
+        self.lm = find_landmarks(skeleton)
+        self.n = n_frames
+        self.local = np.zeros((n_frames, skeleton.n_joints, 4))
+        self.local[..., 3] = 1.0
+        self.root = int(np.nonzero(self.parents < 0)[0][0])
+        self.root_offset = np.zeros((n_frames, 3))  # displacement from the rest, metres
+
+    # ---------------------------------------------------------------- queries
+    def has(self, *landmarks: str) -> bool:
+        return all(k in self.lm for k in landmarks)
+
+    def chain(self, j: int) -> list[int]:
+        out = [j]
+        while self.parents[out[-1]] >= 0:
+            out.append(int(self.parents[out[-1]]))
+        return out[::-1]
+
+    def world(self, j: int) -> np.ndarray:
+        """(T, 4) world rotation of joint ``j`` (identity for j = -1)."""
+        w = np.zeros((self.n, 4))
+        w[:, 3] = 1.0
+        if j < 0:
+            return w
+        for k in self.chain(j):
+            w = quat_multiply(w, self.local[:, k])
+        return w
+
+    def position(self, j: int) -> np.ndarray:
+        """(T, 3) world position of joint ``j``, metres."""
+        chain = self.chain(j)
+        p = self.skeleton.offsets[chain[0]] + self.root_offset
+        w = self.local[:, chain[0]]
+        for k in chain[1:]:
+            p = p + quat_apply(w, self.skeleton.offsets[k])
+            w = quat_multiply(w, self.local[:, k])
+        return p
+
+    def segment(self, landmark: str) -> np.ndarray:
+        """(3,) rest vector of a landmark's segment: joint to its segment end, metres."""
+        j = self.lm[landmark]
+        end = _SEGMENT_END.get(landmark)
+        if end is not None and end in self.lm:
+            v = self.rest[self.lm[end]] - self.rest[j]
+            if np.linalg.norm(v) > 1e-6:
+                return v
+        # fall back to the descendants: the first one away from the joint
+        for k in range(j + 1, self.skeleton.n_joints):
+            if j in self.chain(k):
+                v = self.rest[k] - self.rest[j]
+                if np.linalg.norm(v) > 1e-6:
+                    return v
+        return _Y.copy()
+
+    # ---------------------------------------------------------------- setters
+    def turn(self, landmark: str, q: np.ndarray) -> None:
+        """Compose a local rotation ``q`` (T, 4) or (4,) onto a landmark's joint."""
+        if landmark in self.lm:
+            j = self.lm[landmark]
+            self.local[:, j] = quat_multiply(self.local[:, j], q)
+
+    def turn_world(self, landmark: str, q: np.ndarray) -> None:
+        """Turn a landmark's segment by the world rotation ``q`` (T, 4) about its joint."""
+        if landmark not in self.lm:
+            return
+        j = self.lm[landmark]
+        wp = self.world(int(self.parents[j]))
+        # W_new = q W_cur  =>  L_new = Wp* q Wp L_old
+        self.local[:, j] = quat_multiply(
+            quat_multiply(quat_conjugate(wp), quat_multiply(q, wp)), self.local[:, j]
+        )
+
+    def aim(self, landmark: str, target: np.ndarray, weight: np.ndarray | float = 1.0) -> None:
+        """Swing a landmark's segment towards the world direction ``target`` (T, 3) or (3,).
+
+        ``weight`` (T,) in 0..1 turns that share of the way (the minimal swing; the
+        segment's twist is kept).
+        """
+        if landmark not in self.lm:
+            return
+        j = self.lm[landmark]
+        current = quat_apply(self.world(j), self.segment(landmark))  # (T, 3)
+        self.turn_world(landmark, _swing(current, target, weight))
+
+    def leg_ik(self, side: str, ankle: np.ndarray, foot: np.ndarray | None = None) -> None:
+        """Two-bone IK: put the ankle at ``ankle`` (T, 3), knee forward, foot at ``foot``.
+
+        The knee bends about the axis perpendicular to the thigh nearest to the
+        body's left-right axis; the thigh then swings the hip-to-ankle line onto the
+        target. ``foot`` (T, 4) is the foot's world rotation (identity: flat as at
+        rest). Targets beyond reach leave the knee straight (the ankle falls short).
+        """
+        thigh, shin, foot_lm = f"thigh_{side}", f"shin_{side}", f"foot_{side}"
+        if not self.has(thigh, shin, foot_lm):
+            return
+        a0 = self.rest[self.lm[shin]] - self.rest[self.lm[thigh]]  # hip -> knee (3,)
+        b0 = self.rest[self.lm[foot_lm]] - self.rest[self.lm[shin]]  # knee -> ankle
+        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
+        hip = self.position(self.lm[thigh])  # (T, 3)
+        dist = np.linalg.norm(ankle - hip, axis=-1)
+        # interior knee angle now and at rest (law of cosines)
+        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
+        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
+        bend = np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)  # (T,) radians
+        hinge = _unit(_X - np.dot(_X, a0) / (l1 * l1) * a0)  # knee axis, shin goes back
+        self.local[:, self.lm[shin]] = _axis_angle(hinge, bend)
+        reach = a0 + quat_apply(self.local[:, self.lm[shin]], b0)  # (T, 3) thigh frame
+        self.local[:, self.lm[thigh]] = np.array([0.0, 0.0, 0.0, 1.0])
+        wp = self.world(int(self.parents[self.lm[thigh]]))
+        self.turn_world(thigh, _swing(quat_apply(wp, reach), ankle - hip))
+        w_foot = np.array([0.0, 0.0, 0.0, 1.0]) if foot is None else foot
+        w_shin = self.world(int(self.parents[self.lm[foot_lm]]))
+        self.local[:, self.lm[foot_lm]] = quat_multiply(quat_conjugate(w_shin), w_foot)
+
+    # ---------------------------------------------------------------- output
+    def motion(self, rate: float, meta: dict[str, Any]) -> Motion:
+        q = self.local / np.linalg.norm(self.local, axis=-1, keepdims=True)
+        translations = np.broadcast_to(
+            self.skeleton.offsets, (self.n,) + self.skeleton.offsets.shape
+        ).copy()
+        translations[:, self.root] += self.root_offset
+        channels = [
+            (
+                ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
+                if p < 0
+                else ()
+                if leaf
+                else ("Zrotation", "Yrotation", "Xrotation")
+            )
+            for p, leaf in zip(self.parents, self.skeleton.is_leaf, strict=True)
+        ]
+        return Motion(
+            skeleton=self.skeleton,
+            rotations=q,
+            translations=translations,
+            rate=rate,
+            channels=channels,
+            meta=meta,
+        )
+
+
+# ------------------------------------------------------------------ clip parts
+def _sway(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    """Subtle trunk sway (below one degree) from random low frequencies and phases."""
+    freq = rng.uniform(0.12, 0.45, size=(2, 2))  # Hz, (axis, component)
+    phase = rng.uniform(0.0, 2.0 * np.pi, size=(2, 2))
+    amp = np.radians(rng.uniform(0.25, 0.45, size=(2, 2)))
+    waves = (amp[..., None] * np.sin(2 * np.pi * freq[..., None] * t + phase[..., None])).sum(
+        axis=1
+    )  # (2, T)
+    for axis, wave in zip((_X, _Z), waves, strict=True):
+        pose.turn("spine", _axis_angle(axis, env * wave))
+
+
+def _sided_dir(v: tuple[float, float, float], side: str) -> np.ndarray:
+    """A left-side direction (3,), mirrored in X for the right side."""
+    d = np.array(v, dtype=np.float64)
+    if side == "r":
+        d[0] = -d[0]
+    return _unit(d)
+
+
+def _clip_tpose(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    """Nothing moves."""
+
+
+def _clip_flex(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    _sway(pose, t, env, rng)
+    start = HOLD_SECONDS + BLEND_SECONDS
+    period = 1.5  # s per curl
+    angle = np.where(
+        t >= start, np.radians(75.0) * (1.0 - np.cos(2 * np.pi * (t - start) / period)), 0.0
+    )
+    for s in ("l", "r"):
+        if not pose.has(f"upperarm_{s}"):
+            continue
+        pose.aim(f"upperarm_{s}", _sided_dir((0.35, -0.93, 0.2), s), env)
+        if not pose.has(f"forearm_{s}"):
+            continue
+        upper = _unit(
+            quat_apply(pose.world(pose.lm[f"upperarm_{s}"]), pose.segment(f"upperarm_{s}"))
+        )
+        forward = _unit(_Z - np.sum(upper * _Z, axis=-1, keepdims=True) * upper)
+        target = np.cos(angle)[:, None] * upper + np.sin(angle)[:, None] * forward
+        pose.aim(f"forearm_{s}", target)
+
+
+def _clip_twist(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    _sway(pose, t, env, rng)
+    start = HOLD_SECONDS + BLEND_SECONDS
+    ramp = _quintic((t - start) / 0.5)
+    angle = np.radians(90.0) * ramp * np.sin(2 * np.pi * 0.5 * (t - start))
+    for s in ("l", "r"):
+        if not pose.has(f"upperarm_{s}"):
+            continue
+        pose.aim(f"upperarm_{s}", _sided_dir((1.0, -0.15, 0.25), s), env)
+        if pose.has(f"forearm_{s}"):
+            axis = _unit(pose.segment(f"forearm_{s}"))
+            # pronation turns the left palm (down in the T-pose) backwards: about +axis
+            pose.turn(f"forearm_{s}", _axis_angle(axis, angle if s == "l" else -angle))
+
+
+def _legs_planted(
+    pose: _Pose, foot_lift: np.ndarray | None = None, toe_down: np.ndarray | None = None
+) -> None:
+    """Solve both legs so the ankles sit at rest (+ ``foot_lift`` (T,) metres up)."""
+    for s in ("l", "r"):
+        if not pose.has(f"thigh_{s}", f"shin_{s}", f"foot_{s}"):
+            continue
+        ankle = np.broadcast_to(pose.rest[pose.lm[f"foot_{s}"]], (pose.n, 3)).copy()
+        if foot_lift is not None:
+            ankle[:, 1] += foot_lift
+        foot = None if toe_down is None else _axis_angle(_X, toe_down)
+        pose.leg_ik(s, ankle, foot)
+
+
+def _mean_leg(pose: _Pose) -> tuple[float, float, np.ndarray] | None:
+    """Mean thigh and shin lengths and mean rest hip-minus-ankle vector (3,)."""
+    legs = []
+    for s in ("l", "r"):
+        if pose.has(f"thigh_{s}", f"shin_{s}", f"foot_{s}"):
+            h, k, a = (pose.rest[pose.lm[f"{n}_{s}"]] for n in ("thigh", "shin", "foot"))
+            legs.append((np.linalg.norm(k - h), np.linalg.norm(a - k), h - a))
+    if not legs:
+        return None
+    return (
+        float(np.mean([g[0] for g in legs])),
+        float(np.mean([g[1] for g in legs])),
+        np.mean([g[2] for g in legs], axis=0),
+    )
+
+
+def _pelvis_for_knee(pose: _Pose, knee: np.ndarray, back: float) -> np.ndarray:
+    """(T, 3) pelvis displacement giving knee flexion ``knee`` (T,) radians with feet at rest.
+
+    The hip moves back by ``back`` times the shortening of the leg, and down so that
+    the hip-to-ankle distance matches the bent leg.
+    """
+    leg = _mean_leg(pose)
+    out = np.zeros((pose.n, 3))
+    if leg is None:
+        return out
+    l1, l2, v0 = leg
+    dist = np.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * np.cos(knee))  # (T,)
+    dz = -back * (np.linalg.norm(v0) - dist)
+    horizontal2 = v0[0] ** 2 + (v0[2] + dz) ** 2
+    y = np.sqrt(np.maximum(dist * dist - horizontal2, 0.0))
+    out[:, 1] = y - v0[1]
+    out[:, 2] = dz
+    return out
+
+
+def _clip_squat(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    period = 1.75
+    depth = env * 0.5 * (1.0 - np.cos(2 * np.pi * (t - HOLD_SECONDS) / period))
+    depth = np.where(t >= HOLD_SECONDS, depth, 0.0)
+    pose.root_offset = _pelvis_for_knee(pose, np.radians(105.0) * depth, back=0.55)
+    _sway(pose, t, env, rng)
+    pose.turn("spine", _axis_angle(_X, np.radians(20.0) * depth))
+    pose.turn("chest", _axis_angle(_X, np.radians(12.0) * depth))
+    for s in ("l", "r"):
+        pose.aim(f"upperarm_{s}", _sided_dir((0.2, -0.25, 1.0), s), env)
+    _legs_planted(pose)
+
+
+def _pulse(t: np.ndarray, start: float, period: float, width: float) -> np.ndarray:
+    """sin^2 pulses of ``width`` seconds every ``period`` seconds from ``start``, (T,)."""
+    u = np.mod(t - start, period) / width
+    return np.where((t >= start) & (u < 1.0), np.sin(np.pi * np.minimum(u, 1.0)) ** 2, 0.0)
+
+
+def _clip_punch(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    _sway(pose, t, env, rng)
+    start = HOLD_SECONDS + BLEND_SECONDS + 0.15
+    period, width = 1.2, 0.45
+    hit = {"l": _pulse(t, start, period, width), "r": _pulse(t, start + period / 2, period, width)}
+    # torso turns into the punch: a right punch turns the chest to the left (+Y)
+    turn = np.radians(22.0) * (hit["r"] - hit["l"])
+    pose.turn("spine", _axis_angle(_Y, 0.6 * turn))
+    pose.turn("chest", _axis_angle(_Y, 0.4 * turn))
+    trunk = pose.world(pose.lm["upper_chest"]) if pose.has("upper_chest") else pose.world(pose.root)
+    for s in ("l", "r"):
+        upper = _nlerp(_sided_dir((0.3, -0.65, 0.55), s), _sided_dir((0.05, 0.05, 1.0), s), hit[s])
+        fore = _nlerp(_sided_dir((-0.3, 0.75, 0.55), s), _sided_dir((-0.05, 0.05, 1.0), s), hit[s])
+        pose.aim(f"upperarm_{s}", quat_apply(trunk, upper), env)
+        pose.aim(f"forearm_{s}", quat_apply(trunk, fore), env)
+
+
+#: Hop and rope-turn frequency of ``jumprope``, Hz.
+JUMP_HZ = 1.75
+
+
+def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    _sway(pose, t, env, rng)
+    ramp = _quintic((t - HOLD_SECONDS) / (BLEND_SECONDS + 0.4))
+    period = 1.0 / JUMP_HZ
+    flight = 0.22  # s in the air per hop
+    # phase 0 at landing: contact [0, period - flight), flight after it
+    u = np.mod(t - HOLD_SECONDS, period)
+    contact = period - flight
+    s = np.clip((u - contact) / flight, 0.0, 1.0)
+    lift = np.where((t >= HOLD_SECONDS) & (u >= contact), np.sin(np.pi * s) ** 2, 0.0)
+    foot_lift = 0.07 * ramp * lift  # metres
+    # knee compression: deepest mid-contact, none mid-flight (smooth cosine)
+    mid_contact = contact / 2
+    squash = 0.5 * (1.0 + np.cos(2 * np.pi * (u - mid_contact) / period))
+    squash = np.where(t >= HOLD_SECONDS, squash, 0.0)
+    knee = np.radians(8.0) * env + np.radians(30.0) * ramp * squash
+    pose.root_offset = _pelvis_for_knee(pose, knee, back=0.3)
+    pose.root_offset[:, 1] += foot_lift
+    pose.turn("spine", _axis_angle(_X, np.radians(4.0) * env))
+    # arms: upper arms down by the sides, forearms out-forward, circling
+    omega = 2 * np.pi * JUMP_HZ
+    cone = np.radians(20.0) * ramp
+    for side in ("l", "r"):
+        pose.aim(f"upperarm_{side}", _sided_dir((0.22, -0.96, 0.12), side), env)
+        if not pose.has(f"forearm_{side}"):
+            continue
+        f0 = _sided_dir((0.75, -0.3, 0.6), side)
+        e1 = _unit(_Y - np.dot(_Y, f0) * f0)
+        e2 = np.cross(f0, e1) * (1.0 if side == "l" else -1.0)
+        # the wrists are lowest (rope under the feet) at mid-flight
+        ang = omega * (t - HOLD_SECONDS) - omega * (contact + flight / 2) + np.pi
+        ring = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
+        target = np.cos(cone)[:, None] * f0 + np.sin(cone)[:, None] * ring
+        pose.aim(f"forearm_{side}", target, env)
+    _legs_planted(pose, foot_lift, np.radians(8.0) * ramp * lift)
+
+
+def _clip_breathe(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    _sway(pose, t, env, rng)
+    breath = np.where(
+        t >= HOLD_SECONDS, 0.5 * (1.0 - np.cos(2 * np.pi * 0.25 * (t - HOLD_SECONDS))), 0.0
+    )
+    pose.turn("chest", _axis_angle(_X, -np.radians(1.5) * breath))
+    pose.turn("upper_chest", _axis_angle(_X, -np.radians(1.0) * breath))
+    pose.turn("neck", _axis_angle(_X, np.radians(2.5) * breath))
+    pose.turn("clavicle_l", _axis_angle(_Z, np.radians(2.0) * breath))
+    pose.turn("clavicle_r", _axis_angle(_Z, -np.radians(2.0) * breath))
+    for s in ("l", "r"):
+        pose.aim(f"upperarm_{s}", _sided_dir((0.45, -0.9, 0.05), s), env)
+
+
+_CLIP_FUNCS: dict[str, Callable[[_Pose, np.ndarray, np.ndarray, np.random.Generator], None]] = {
+    "tpose": _clip_tpose,
+    "flex": _clip_flex,
+    "twist": _clip_twist,
+    "squat": _clip_squat,
+    "punch": _clip_punch,
+    "jumprope": _clip_jumprope,
+    "breathe": _clip_breathe,
+}
+
+
+# ------------------------------------------------------------------ public
+def _n_frames(frames: Any, seconds: Any, rate: float) -> int:
+    if frames is not None and seconds is not None:
+        raise ValidationError("frames and seconds: give one or neither, not both")
+    if frames is not None:
+        if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
+            raise ValidationError(f"frames: expected a positive integer, got {frames!r}")
+        return int(frames)
+    if seconds is None:
+        seconds = DEFAULT_SECONDS
+    try:
+        sec = float(seconds)
+    except (TypeError, ValueError):
+        raise ValidationError(f"seconds: expected a positive number, got {seconds!r}") from None
+    if not np.isfinite(sec) or sec <= 0:
+        raise ValidationError(f"seconds: expected a positive finite duration, got {seconds!r}")
+    return max(1, int(round(sec * rate)))
+
+
+def make_clip(
+    name: str,
+    skeleton: Skeleton,
+    *,
+    frames: int | None = None,
+    seconds: float | None = None,
+    rate: float = 120.0,
+    seed: int = 0,
+) -> Motion:
+    """A built-in motion clip on ``skeleton``, starting in its T-pose.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`CLIPS` (see the module docstring for what each does).
+    skeleton : Skeleton
+        Its zero pose must be a T-pose (arms along ``+-X``, left on ``+X``, facing
+        ``+Z``, ``Y`` up, offsets in metres), as :func:`skincap.synth.skeleton.synth_skeleton`
+        builds. Joints are found by name (:func:`find_landmarks`); missing limbs stay
+        in their rest pose.
+    frames : int, optional
+        Number of frames. Give ``frames`` or ``seconds`` (or neither: 4 s).
+    seconds : float, optional
+        Duration; ``round(seconds * rate)`` frames (at least one).
+    rate : float, default 120.0
+        Frame rate, Hz.
+    seed : int, default 0
+        Seeds the subtle trunk sway. Same arguments, same bytes.
+
+    Returns
+    -------
+    Motion
+        ``rotations`` (T, J, 4) float64 local unit quaternions ``(x, y, z, w)``
+        (identity for the first ``HOLD_SECONDS``); ``translations`` (T, J, 3) float64
+        metres: the skeleton offsets, except the root's, which is its world position
+        (the rest offset plus the clip's pelvis motion); ``rate`` as given; channels:
+        six for the root, three rotations for the other joints, none for end sites
+        (childless joints). ``meta``: ``clip``, ``seed``, ``source_units`` ``"m"``,
+        ``up`` ``"y"``, ``hold_seconds``. Never NaN.
+
+    Raises
+    ------
+    ValidationError
+        Unknown clip name, bad ``frames``/``seconds``/``rate``/``seed``, or not a
+        Skeleton.
+
+    Examples
+    --------
+    >>> from skincap.synth.skeleton import synth_skeleton
+    >>> motion = make_clip("flex", synth_skeleton(), seconds=2.0)
+    >>> motion.rotations.shape[0]
+    240
+    """
+    if not isinstance(name, str) or name not in _CLIP_FUNCS:
+        raise ValidationError(f"name: expected one of {', '.join(CLIPS)}, got {name!r}")
+    if not isinstance(skeleton, Skeleton):
+        raise ValidationError(f"skeleton: expected a Skeleton, got {type(skeleton).__name__}")
+    try:
+        r = float(rate)
+    except (TypeError, ValueError):
+        raise ValidationError(f"rate: expected a positive number in Hz, got {rate!r}") from None
+    if not np.isfinite(r) or r <= 0:
+        raise ValidationError(f"rate: expected a positive finite frame rate in Hz, got {rate!r}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValidationError(f"seed: expected a non-negative integer, got {seed!r}")
+    n = _n_frames(frames, seconds, r)
+    t = np.arange(n) / r  # (T,) seconds
+    env = _quintic((t - HOLD_SECONDS) / BLEND_SECONDS)  # (T,) 0 during the hold
+    pose = _Pose(skeleton, n)
+    rng = np.random.default_rng(int(seed))
+    _CLIP_FUNCS[name](pose, t, env, rng)
+    return pose.motion(
+        r,
+        {
+            "clip": name,
+            "seed": int(seed),
+            "source_units": "m",
+            "up": "y",
+            "hold_seconds": HOLD_SECONDS,
+        },
+    )
