@@ -413,38 +413,37 @@ def _legs_planted(
         pose.leg_ik(s, ankle, foot)
 
 
-def _mean_leg(pose: _Pose) -> tuple[float, float, np.ndarray] | None:
-    """Mean thigh and shin lengths and mean rest hip-minus-ankle vector (3,)."""
+def _legs(pose: _Pose) -> list[tuple[float, float, np.ndarray]]:
+    """Thigh and shin lengths and the rest hip-minus-ankle vector (3,) of each leg."""
     legs = []
     for s in ("l", "r"):
         if pose.has(f"thigh_{s}", f"shin_{s}", f"foot_{s}"):
             h, k, a = (pose.rest[pose.lm[f"{n}_{s}"]] for n in ("thigh", "shin", "foot"))
-            legs.append((np.linalg.norm(k - h), np.linalg.norm(a - k), h - a))
-    if not legs:
-        return None
-    return (
-        float(np.mean([g[0] for g in legs])),
-        float(np.mean([g[1] for g in legs])),
-        np.mean([g[2] for g in legs], axis=0),
-    )
+            legs.append((float(np.linalg.norm(k - h)), float(np.linalg.norm(a - k)), h - a))
+    return legs
 
 
 def _pelvis_for_knee(pose: _Pose, knee: np.ndarray, back: float) -> np.ndarray:
     """(T, 3) pelvis displacement giving knee flexion ``knee`` (T,) radians with feet at rest.
 
     The hip moves back by ``back`` times the shortening of the leg, and down so that
-    the hip-to-ankle distance matches the bent leg.
+    the hip-to-ankle distance matches the bent leg; with legs of different shapes the
+    lower of their pelvis heights is taken, so both ankles stay reachable.
     """
-    leg = _mean_leg(pose)
     out = np.zeros((pose.n, 3))
-    if leg is None:
+    legs = _legs(pose)
+    if not legs:
         return out
-    l1, l2, v0 = leg
-    dist = np.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * np.cos(knee))  # (T,)
-    dz = -back * (np.linalg.norm(v0) - dist)
-    horizontal2 = v0[0] ** 2 + (v0[2] + dz) ** 2
-    y = np.sqrt(np.maximum(dist * dist - horizontal2, 0.0))
-    out[:, 1] = y - v0[1]
+    l1 = np.mean([g[0] for g in legs])
+    l2 = np.mean([g[1] for g in legs])
+    shortening = l1 + l2 - np.sqrt(l1 * l1 + l2 * l2 + 2 * l1 * l2 * np.cos(knee))  # (T,)
+    dz = -back * shortening
+    drops = []
+    for g1, g2, v0 in legs:
+        dist = np.sqrt(g1 * g1 + g2 * g2 + 2 * g1 * g2 * np.cos(knee))  # (T,)
+        horizontal2 = v0[0] ** 2 + (v0[2] + dz) ** 2
+        drops.append(np.sqrt(np.maximum(dist * dist - horizontal2, 0.0)) - v0[1])
+    out[:, 1] = np.minimum.reduce(drops)
     out[:, 2] = dz
     return out
 
