@@ -68,7 +68,9 @@ def _array(name: str, value: object, shape: tuple[int | None, ...]) -> np.ndarra
         arr = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValidationError(f"{name}: expected a float array of shape {shape}") from None
-    ok = arr.ndim == len(shape) and all(s is None or s == n for s, n in zip(shape, arr.shape))
+    ok = arr.ndim == len(shape) and all(
+        s is None or s == n for s, n in zip(shape, arr.shape, strict=False)
+    )
     if not ok:
         want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
         raise ValidationError(f"{name}: expected shape {want}, got {arr.shape}")
