@@ -8,8 +8,9 @@ with half-axes from adult anthropometry (for a 1.75 m body, scaled with the heig
 chest 32 x 24 cm, waist 28 x 20 cm, hips 33 x 22 cm, upper arm 9 cm, thigh 16 x 18 cm
 at the crotch, head 15 x 20 cm...). The parts are not stitched: each gives an
 approximate signed distance (:meth:`Sweep.signed_distance`); their smooth union
-(:func:`skincap.geometry.sweep.smooth_union`, blend length 1 cm) is one implicit
-body whose zero set has fillets at the shoulders, hips and neck. The field is sampled
+(the log-sum-exp of :func:`skincap.geometry.sweep.smooth_union`, blend length 1 cm,
+accumulated part by part so each part is evaluated only inside its own box) is one
+implicit body whose zero set has fillets at the shoulders, hips and neck. The field is sampled
 on a regular grid (each part only inside its own box) and meshed by marching
 tetrahedra (:func:`skincap.geometry.isosurface.marching_tetrahedra`), welded into one
 closed, oriented, genus-0 surface, then relaxed on the level set to even out the
