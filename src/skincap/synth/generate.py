@@ -1,0 +1,269 @@
+"""One synthetic capture, start to finish, with every piece of its ground truth.
+
+body + motion -> skinned skin (DQS) + soft tissue -> markers on the skin -> rope
+(optional) -> camera model (occlusion, fragments, noise, ghosts, swaps) -> the
+capture as a labelled-first-frame :class:`~skincap.types.MarkerSet` of fragments and
+as an un-indexed :class:`~skincap.types.PointCloud`, plus the truth.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from skincap.errors import ValidationError
+from skincap.geometry.kinematics import forward_kinematics
+from skincap.skinning.deformers import skin_motion
+from skincap.synth.cameras import CameraRig, CaptureResult, simulate_capture
+from skincap.synth.markers import (
+    MarkerLayout,
+    dense_marker_layout,
+    place_markers,
+    sparse_marker_layout,
+)
+from skincap.synth.rope import RopeResult, rope_occluders, simulate_rope
+from skincap.synth.soft_tissue import SoftTissue
+from skincap.types import MarkerSet, Mesh, MeshAnimation, Motion
+
+__all__ = ["SynthCapture", "generate_capture", "hand_joints"]
+
+#: Names of the hand joints in the skeleton conventions skincap knows, per side.
+_HAND_NAMES = {
+    "left": ("LeftHand", "lhand", "LeftWrist", "wrist.L", "hand.L", "LHand"),
+    "right": ("RightHand", "rhand", "RightWrist", "wrist.R", "hand.R", "RHand"),
+}
+
+
+@dataclass
+class SynthCapture:
+    """A generated capture and its ground truth.
+
+    Attributes
+    ----------
+    capture : MarkerSet
+        What capture software would give: first-frame labels, ``*N`` fragments
+        (body markers and rope markers alike), NaN where unseen, noise added.
+    points : PointCloud
+        The same reconstruction un-indexed, one row per point; ``ids`` are fragment
+        column indices of ``capture``.
+    point_truth : (M,) str array
+        True label of every point of ``points`` (a body marker, ``rope_NN``) or ``ghost``.
+    fragment_truth : dict of str to str
+        Fragment label -> true label or ``ghost``.
+    truth : MarkerSet
+        Clean labelled positions of every marker (body then rope), no noise, no gaps.
+    marker_surface : Mesh or None
+        Ground-truth marker surface: vertices are the body markers in frame 0,
+        faces the layout's triangulation (dense layouts).
+    skin : MeshAnimation
+        The moving skin the markers ride on, (T, V, 3) metres.
+    motion : Motion
+        The motion on the body's skeleton.
+    rope : RopeResult or None
+    summary : dict
+        Counts for ``summary.json``: frames, rate, markers, fragments, missing
+        fraction, ghosts, rope markers, …
+    """
+
+    capture: MarkerSet
+    points: Any
+    point_truth: np.ndarray
+    fragment_truth: dict[str, str]
+    truth: MarkerSet
+    marker_surface: Mesh | None
+    skin: MeshAnimation
+    motion: Motion
+    rope: RopeResult | None
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def hand_joints(motion: Motion) -> tuple[int, int]:
+    """Indices of the left and right hand joints of ``motion``'s skeleton."""
+    names = motion.skeleton.names
+    found = []
+    for side in ("left", "right"):
+        idx = next((names.index(n) for n in _HAND_NAMES[side] if n in names), None)
+        if idx is None:
+            raise ValidationError(
+                f"motion: no {side} hand joint (looked for {', '.join(_HAND_NAMES[side])})"
+            )
+        found.append(idx)
+    return found[0], found[1]
+
+
+def generate_capture(
+    body: Mesh,
+    motion: Motion,
+    *,
+    markers: Literal["dense", "sparse"] = "dense",
+    rope: Literal["none", "jump", "whip"] = "none",
+    bulge: float = 1.0,
+    jiggle: float = 1.0,
+    breathing: float = 1.0,
+    noise_mm: float = 0.5,
+    n_cameras: int = 12,
+    n_cameras_up: int = 2,
+    rope_length: float = 2.8,
+    rope_marker_spacing: float = 0.12,
+    seed: int = 0,
+    progress: Callable[[float, str], None] | None = None,
+) -> SynthCapture:
+    """Generate a capture of ``body`` moving with ``motion``.
+
+    Parameters
+    ----------
+    body : Mesh
+        A closed skinned mesh in its bind pose (metres, Y up, facing +Z).
+    motion : Motion
+        On ``body.skin.skeleton`` (same joint names), starting in the bind pose.
+    markers : {"dense", "sparse"}
+        Park & Hodgins' ~350-marker grid with its marker surface, or ~41 markers on
+        bony landmarks (CMU-like labels).
+    rope : {"none", "jump", "whip"}
+        A rope held in both hands (jump rope) or in the right hand (whip); its tape
+        markers join the un-indexed capture and occlude body markers.
+    bulge, jiggle, breathing : float
+        Soft-tissue amplitudes (1 = realistic, 0 = off).
+    noise_mm : float
+        Gaussian noise of reconstructed points, millimetres.
+    n_cameras, n_cameras_up : int
+        The camera ring, and how many of its cameras sit low aimed up.
+    seed : int
+        Every random choice derives from it: the same seed gives the same capture.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    SynthCapture
+    """
+    if body.skin is None:
+        raise ValidationError("body: needs a skin (skinned mesh)")
+    if markers not in ("dense", "sparse"):
+        raise ValidationError(f"markers: expected 'dense' or 'sparse', got {markers!r}")
+    if rope not in ("none", "jump", "whip"):
+        raise ValidationError(f"rope: expected 'none', 'jump' or 'whip', got {rope!r}")
+    rng = np.random.default_rng(seed)
+    seeds = rng.integers(0, 2**31 - 1, size=6)
+
+    def step(fraction: float, label: str) -> None:
+        if progress is not None:
+            progress(fraction, label)
+
+    # --- skin: DQS + soft tissue ---------------------------------------------------
+    step(0.0, "skinning")
+    frames = np.concatenate(list(skin_motion(body, motion, method="dqs").iter_chunks(128)), axis=0)
+    step(0.15, "soft tissue")
+    if bulge or jiggle or breathing:
+        tissue = SoftTissue(
+            body, bulge=bulge, jiggle=jiggle, breathing=breathing, seed=int(seeds[0])
+        )
+        frames += tissue.displacements(motion, frames)
+    skin = MeshAnimation(body, frames, motion.rate, meta={"deformer": "dqs+soft_tissue"})
+
+    # --- markers on the skin --------------------------------------------------------
+    step(0.25, "markers")
+    layout: MarkerLayout
+    if markers == "dense":
+        layout = dense_marker_layout(body, seed=int(seeds[1]))
+    else:
+        layout = sparse_marker_layout(body, body.skin)
+    true_positions, normals = place_markers(layout, frames, body.faces)
+
+    # --- rope ---------------------------------------------------------------------------
+    rope_result: RopeResult | None = None
+    extra_points = extra_labels = extra_segments = None
+    if rope != "none":
+        step(0.35, "rope")
+        left, right = hand_joints(motion)
+        world = forward_kinematics(motion)[:, :, :3, 3]  # (T, J, 3)
+        hands = np.stack(
+            [world[:, right], world[:, left]], axis=1
+        )  # (T, 2, 3), first end right hand
+        rope_result = simulate_rope(
+            hands,
+            motion.rate,
+            mode=rope,
+            length=rope_length,
+            marker_spacing=rope_marker_spacing,
+            seed=int(seeds[2]),
+        )
+        extra_points, extra_labels = rope_result.markers, rope_result.labels
+        a, b, _radius = rope_occluders(rope_result.particles)
+        extra_segments = np.stack([a, b], axis=2)  # (T, P - 1, 2, 3)
+
+    # --- cameras ----------------------------------------------------------------------
+    step(0.45, "camera model")
+    rig = CameraRig.ring(n=n_cameras, n_up=n_cameras_up, seed=int(seeds[3]))
+    result: CaptureResult = simulate_capture(
+        true_positions,
+        normals,
+        layout.labels,
+        rig,
+        frames,
+        body.faces,
+        rate=motion.rate,
+        noise_mm=noise_mm,
+        extra_points=extra_points,
+        extra_labels=extra_labels,
+        extra_segments=extra_segments,
+        seed=int(seeds[4]),
+        progress=lambda f: step(0.45 + 0.5 * f, "camera model"),
+    )
+
+    # --- truth --------------------------------------------------------------------------
+    truth_positions = (
+        true_positions
+        if extra_points is None
+        else np.concatenate([true_positions, extra_points], axis=1)
+    )
+    truth_labels = list(layout.labels) + (list(extra_labels) if extra_labels is not None else [])
+    truth = MarkerSet(
+        truth_positions, truth_labels, motion.rate, meta={"source": "skincap.synth", "seed": seed}
+    )
+    surface = None
+    if layout.surface_faces is not None and len(layout.surface_faces):
+        surface = Mesh(
+            true_positions[0], layout.surface_faces, meta={"labels": list(layout.labels)}
+        )
+
+    capture = result.markers
+    capture.meta.update({"source": "skincap.synth", "seed": seed})
+    stats = dict(result.stats)
+    summary = {
+        "frames": int(motion.n_frames),
+        "rate": float(motion.rate),
+        "markers": int(true_positions.shape[1]),
+        "marker_set": markers,
+        "rope_markers": 0 if rope_result is None else len(rope_result.labels),
+        "rope": rope,
+        "fragments": int(capture.n_markers),
+        "labelled_fragments": int((~capture.unlabelled).sum()),
+        "missing_fraction": float(stats.get("missing_fraction", np.nan)),
+        "ghosts": int(stats.get("n_ghosts", 0)),
+        "swaps": int(stats.get("n_swaps", 0)),
+        "points": int(result.points.points.shape[0]),
+        "mesh_vertices": int(body.n_vertices),
+        "cameras": int(n_cameras),
+        "noise_mm": float(noise_mm),
+        "soft_tissue": {"bulge": bulge, "jiggle": jiggle, "breathing": breathing},
+        "seed": int(seed),
+        "camera_stats": {k: v for k, v in stats.items() if isinstance(v, int | float | str)},
+    }
+    if rope_result is not None:
+        summary["rope_max_length_error"] = float(rope_result.meta.get("max_length_error", np.nan))
+    step(1.0, "done")
+    return SynthCapture(
+        capture=capture,
+        points=result.points,
+        point_truth=np.asarray(result.point_truth),
+        fragment_truth=dict(result.fragment_truth),
+        truth=truth,
+        marker_surface=surface,
+        skin=skin,
+        motion=motion,
+        rope=rope_result,
+        summary=summary,
+    )

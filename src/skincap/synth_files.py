@@ -1,0 +1,198 @@
+"""Build the inputs of ``skincap synth`` and write a generated capture to a folder.
+
+This module composes :mod:`skincap.synth` with :mod:`skincap.io` and
+:mod:`skincap.export` (the algorithms themselves never touch files).
+
+Layout of the output folder::
+
+    capture.c3d             labelled first-frame trajectories plus *N fragments
+    capture_points.csv      the same capture un-indexed (frame,time,x,y,z,id)
+    summary.json            frames, markers, fragments, missing fraction, ghosts, rope…
+    truth/markers.c3d       clean labelled positions (rope markers rope_00… along the rope)
+    truth/fragments.csv     fragment,truth (a marker label or ghost)
+    truth/points.csv        row,frame,truth for every row of capture_points.csv
+    truth/marker_surface.ply   triangulation whose vertices are the markers (frame 0)
+    truth/motion.bvh        the motion on the body's skeleton
+    truth/mesh.obj + truth/mesh.pc2   the skin at rest and animated (metres, Y up)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skincap.errors import OutputExistsError, ValidationError
+from skincap.io._common import atomic_output
+from skincap.synth.generate import SynthCapture
+from skincap.types import Mesh, Motion
+
+__all__ = ["build_body", "build_motion", "write_synth_outputs", "OUTPUT_FILES"]
+
+OUTPUT_FILES = (
+    "capture.c3d",
+    "capture_points.csv",
+    "summary.json",
+    "truth/markers.c3d",
+    "truth/fragments.csv",
+    "truth/points.csv",
+    "truth/marker_surface.ply",
+    "truth/motion.bvh",
+    "truth/mesh.obj",
+    "truth/mesh.pc2",
+)
+
+
+def build_body(kind: str, *, n_vertices: int = 20_000, seed: int = 0) -> Mesh:
+    """The skinned body: ``procedural`` (swept elliptic sections) or ``makehuman`` (shipped CC0 rig)."""
+    if kind == "procedural":
+        from skincap.synth.body import procedural_body
+        from skincap.synth.skeleton import synth_skeleton
+
+        return procedural_body(synth_skeleton(), n_vertices=n_vertices, seed=seed)
+    if kind == "makehuman":
+        from skincap.demo import demo_data_path
+        from skincap.io.makehuman import read_makehuman
+
+        return read_makehuman(demo_data_path("makehuman_base.obj"))
+    raise ValidationError(f"body: expected 'procedural' or 'makehuman', got {kind!r}")
+
+
+def build_motion(
+    body: Mesh,
+    motion: str,
+    *,
+    frames: int | None = None,
+    seconds: float | None = None,
+    rate: float = 120.0,
+    units: str | None = None,
+    seed: int = 0,
+) -> Motion:
+    """A motion on ``body``'s skeleton: a built-in clip name or a BVH file path.
+
+    Clips are made on skincap's T-pose skeleton and retargeted when the body has
+    another rig; a BVH is retargeted onto the body and cut to ``frames``/``seconds``.
+    """
+    from skincap.skinning.retarget import retarget
+    from skincap.synth.clips import CLIPS, make_clip
+    from skincap.synth.skeleton import synth_skeleton
+
+    if body.skin is None:
+        raise ValidationError("body: needs a skin")
+    if motion in CLIPS:
+        clip = make_clip(
+            motion, synth_skeleton(), frames=frames, seconds=seconds, rate=rate, seed=seed
+        )
+        if clip.skeleton.names == body.skin.skeleton.names:
+            return Motion(
+                body.skin.skeleton,
+                clip.rotations,
+                clip.translations,
+                clip.rate,
+                clip.channels,
+                clip.meta,
+            )
+        return retarget(clip, body)
+    path = Path(motion)
+    if path.suffix.lower() != ".bvh":
+        raise ValidationError(
+            f"motion: expected one of {', '.join(CLIPS)} or a .bvh file, got {motion!r}"
+        )
+    from skincap.io.bvh import read_bvh
+
+    source = read_bvh(path, units=units)
+    n = source.n_frames
+    if frames is not None:
+        n = min(n, int(frames))
+    elif seconds is not None:
+        n = min(n, max(1, int(round(seconds * source.rate))))
+    if n < source.n_frames:
+        source = Motion(
+            source.skeleton,
+            source.rotations[:n],
+            source.translations[:n],
+            source.rate,
+            source.channels,
+            source.meta,
+        )
+    return retarget(source, body)
+
+
+def _write_text(path: Path, text: str, force: bool) -> None:
+    with atomic_output(path, force=force) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def write_synth_outputs(
+    result: SynthCapture, folder: str | os.PathLike[str], *, force: bool = False
+) -> list[Path]:
+    """Write every file of a generated capture into ``folder``; return their paths.
+
+    Existing outputs are refused before anything is written unless ``force``.
+    """
+    from skincap.export.pc2 import write_pc2
+    from skincap.io.bvh import write_bvh
+    from skincap.io.c3d import write_c3d
+    from skincap.io.csv import write_points_csv
+    from skincap.io.mesh import write_obj, write_ply
+
+    root = Path(folder)
+    paths = [root / name for name in OUTPUT_FILES]
+    if not force:
+        for p in paths:
+            if p.exists():
+                raise OutputExistsError(p)
+    (root / "truth").mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+
+    def done(p: Path) -> None:
+        written.append(p)
+
+    write_c3d(result.capture, root / "capture.c3d", force=force, units="mm")
+    done(root / "capture.c3d")
+    write_points_csv(result.points, root / "capture_points.csv", force=force)
+    done(root / "capture_points.csv")
+    write_c3d(result.truth, root / "truth" / "markers.c3d", force=force, units="mm")
+    done(root / "truth" / "markers.c3d")
+
+    rows = "".join(f"{label},{truth}\n" for label, truth in result.fragment_truth.items())
+    _write_text(root / "truth" / "fragments.csv", "fragment,truth\n" + rows, force)
+    done(root / "truth" / "fragments.csv")
+
+    frame_of_point = result.points.frame_index
+    lines = [
+        f"{i},{int(f)},{t}\n"
+        for i, (f, t) in enumerate(zip(frame_of_point, result.point_truth, strict=True))
+    ]
+    _write_text(root / "truth" / "points.csv", "row,frame,truth\n" + "".join(lines), force)
+    done(root / "truth" / "points.csv")
+
+    if result.marker_surface is not None:
+        write_ply(result.marker_surface, root / "truth" / "marker_surface.ply", force=force)
+        done(root / "truth" / "marker_surface.ply")
+    write_bvh(result.motion, root / "truth" / "motion.bvh", force=force, units="m")
+    done(root / "truth" / "motion.bvh")
+    write_obj(result.skin.rest, root / "truth" / "mesh.obj", force=force, units="m", up="y")
+    done(root / "truth" / "mesh.obj")
+    write_pc2(result.skin, root / "truth" / "mesh.pc2", force=force)
+    done(root / "truth" / "mesh.pc2")
+    _write_text(
+        root / "summary.json", json.dumps(_jsonable(result.summary), indent=2) + "\n", force
+    )
+    done(root / "summary.json")
+    return written
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
