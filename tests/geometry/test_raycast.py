@@ -1,0 +1,186 @@
+"""Tests of skincap.geometry.raycast against brute force and analytic cases."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from skincap.errors import ValidationError
+from skincap.geometry import raycast
+from skincap.geometry.raycast import (
+    closest_points_on_mesh,
+    first_ray_hits,
+    occluded_from_viewpoints,
+    segments_cross_surface,
+    segments_near_capsules,
+)
+from skincap.skinning import weights
+
+
+def _two_spheres() -> tuple[np.ndarray, np.ndarray]:
+    a = trimesh.creation.icosphere(subdivisions=2, radius=0.3)
+    b = trimesh.creation.icosphere(subdivisions=2, radius=0.2)
+    v = np.concatenate([a.vertices, b.vertices + [0.5, 0.1, 0.0]])
+    f = np.concatenate([a.faces, b.faces + len(a.vertices)]).astype(np.int64)
+    return v.astype(float), f
+
+
+def _brute(v, f, o, t, skip=0.0) -> np.ndarray:
+    """(Q,) bool: segment o -> t meets a triangle at a distance > skip from o."""
+    out = np.zeros(len(o), dtype=bool)
+    tri = v[f]
+    for k in range(len(o)):
+        d = t[k] - o[k]
+        length = np.linalg.norm(d)
+        o2 = o[k] + d / length * skip
+        d2 = t[k] - o2
+        p0, e1, e2 = tri[:, 0], tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        pvec = np.cross(d2, e2)
+        det = (e1 * pvec).sum(1)
+        ok = det != 0
+        inv = np.divide(1.0, det, out=np.zeros_like(det), where=ok)
+        tv = o2 - p0
+        u = (tv * pvec).sum(1) * inv
+        q = np.cross(tv, e1)
+        w = (d2 * q).sum(1) * inv
+        s = (e2 * q).sum(1) * inv
+        out[k] = (ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (s > 1e-9) & (s <= 1)).any()
+    return out
+
+
+def test_moved_from_weights() -> None:
+    # bone-heat weights use the same implementation, now in geometry.raycast
+    assert weights.segments_cross_surface is raycast.segments_cross_surface
+
+
+@pytest.mark.parametrize("cull", [False, True])
+def test_occluded_from_viewpoints_matches_brute_force(cull) -> None:
+    v, f = _two_spheres()
+    rng = np.random.default_rng(3)
+    # points on or just outside the spheres' surfaces, and some in free space
+    s = trimesh.Trimesh(v, f, process=False)
+    pts, fi = trimesh.sample.sample_surface(s, 150, seed=4)
+    pts = pts + 0.004 * s.face_normals[fi]
+    pts = np.concatenate([pts, rng.uniform(-0.6, 0.9, (50, 3))])
+    ang = np.linspace(0, 2 * np.pi, 7, endpoint=False)
+    cams = np.stack([2.0 * np.cos(ang), 0.5 + 0.3 * np.sin(3 * ang), 2.0 * np.sin(ang)], 1)
+    cams = np.concatenate([cams, [[0.0, 0.45, 0.0]]])  # a viewpoint amid the points
+    pairs = rng.random((len(pts), len(cams))) < 0.8
+    got = occluded_from_viewpoints(
+        v, f, pts, cams, pairs=pairs, cull_back_faces=cull, grid=16, max_pairs=500
+    )
+    n, c = np.nonzero(pairs)
+    want = np.zeros_like(pairs)
+    want[n, c] = _brute(v, f, pts[n], cams[c])
+    if cull:
+        # exact for a closed mesh when the points lie outside it
+        outside = np.linalg.norm(pts, axis=1) > 0.3 + 1e-3
+        outside &= np.linalg.norm(pts - [0.5, 0.1, 0.0], axis=1) > 0.2 + 1e-3
+        np.testing.assert_array_equal(got[outside], want[outside])
+    else:
+        np.testing.assert_array_equal(got, want)
+    assert not got[~pairs].any()
+    assert 0.1 < got[pairs].mean() < 0.9
+
+
+def test_start_offset_skips_hits_near_the_point() -> None:
+    v, f = _two_spheres()
+    # a point just inside the big sphere: its own surface is 5 mm away
+    p = np.array([[0.0, 0.0, 0.295]])
+    cam = np.array([[0.0, 0.0, 3.0]])
+    assert occluded_from_viewpoints(v, f, p, cam)[0, 0]
+    assert not occluded_from_viewpoints(v, f, p, cam, start_offset=0.02)[0, 0]
+    np.testing.assert_array_equal(
+        occluded_from_viewpoints(v, f, p, cam, start_offset=0.02)[:, 0],
+        _brute(v, f, p, cam, skip=0.02),
+    )
+
+
+def test_segments_cross_surface_on_long_segments() -> None:
+    v, f = _two_spheres()
+    o = np.array([[-1.0, 0.0, 0.0], [-1.0, 1.0, 0.0], [0.0, 0.0, 0.0]])
+    t = np.array([[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.1, 0.0, 0.0]])
+    np.testing.assert_array_equal(segments_cross_surface(v, f, o, t), [True, False, False])
+
+
+def test_first_ray_hits_sphere() -> None:
+    s = trimesh.creation.icosphere(subdivisions=3, radius=0.5)
+    v, f = np.asarray(s.vertices, float), np.asarray(s.faces, np.int64)
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(40, 3))
+    face, t, bary = first_ray_hits(v, f, np.zeros((40, 3)), d, max_pairs=10_000)
+    assert (face >= 0).all()
+    hit = np.einsum("nk,nkx->nx", bary, v[f[face]])
+    np.testing.assert_allclose(hit, t[:, None] * d, atol=1e-12)
+    assert (np.abs(np.linalg.norm(hit, axis=1) - 0.5) < 0.01).all()
+    np.testing.assert_allclose(bary.sum(1), 1.0)
+    # from outside, pointing away: a miss
+    face, t, bary = first_ray_hits(v, f, [[0, 0, 2.0]], [[0, 0, 1.0]])
+    assert face[0] == -1 and np.isinf(t[0]) and np.isnan(bary).all()
+    # from outside, pointing in: the near side
+    face, t, _ = first_ray_hits(v, f, [[0, 0, 2.0]], [[0, 0, -1.0]])
+    assert abs(t[0] - 1.5) < 0.01
+
+
+def test_closest_points_match_dense_sampling() -> None:
+    rng = np.random.default_rng(5)
+    tri = rng.normal(size=(3, 3))
+    v = tri
+    f = np.array([[0, 1, 2]])
+    # a fine sampling of the triangle
+    a, b = np.meshgrid(np.linspace(0, 1, 301), np.linspace(0, 1, 301))
+    m = a + b <= 1
+    samples = (1 - a[m] - b[m])[:, None] * tri[0] + a[m][:, None] * tri[1] + b[m][:, None] * tri[2]
+    q = rng.normal(scale=2.0, size=(60, 3))
+    dist, face, bary = closest_points_on_mesh(v, f, q)
+    ref = np.min(np.linalg.norm(q[:, None] - samples[None], axis=2), axis=1)
+    assert (dist <= ref + 1e-12).all()
+    assert np.abs(dist - ref).max() < 0.01
+    assert (bary >= -1e-12).all()
+    np.testing.assert_allclose(np.linalg.norm(bary @ tri - q, axis=1), dist, atol=1e-12)
+
+
+def test_segments_near_capsules_matches_sampling() -> None:
+    rng = np.random.default_rng(8)
+    s0, s1 = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))
+    a, b = rng.normal(size=(5, 3)), rng.normal(size=(5, 3))
+    a[0] = b[0]  # a degenerate capsule: a sphere
+    s1[0] = s0[0]  # a degenerate segment: a point
+    r = 0.3
+    got = segments_near_capsules(s0, s1, a, b, r, max_pairs=64)
+    u = np.linspace(0, 1, 201)
+    ps = s0[:, None] + u[None, :, None] * (s1 - s0)[:, None]  # (Q, U, 3)
+    pc = a[:, None] + u[None, :, None] * (b - a)[:, None]  # (K, U, 3)
+    d = np.stack(
+        [
+            np.linalg.norm(ps[:, :, None] - pc[k][None, None], axis=-1).min(axis=(1, 2))
+            for k in range(5)
+        ],
+        axis=1,
+    )
+    dmin = d.min(axis=1)
+    sure = np.abs(dmin - r) > 0.03
+    np.testing.assert_array_equal(got[sure], (dmin < r)[sure])
+    assert got.any() and not got.all()
+
+
+def test_bad_input() -> None:
+    v, f = _two_spheres()
+    with pytest.raises(ValidationError):
+        occluded_from_viewpoints(v, f, np.zeros((3, 2)), np.ones((1, 3)))
+    with pytest.raises(ValidationError):
+        occluded_from_viewpoints(
+            v, f, np.zeros((3, 3)), np.ones((2, 3)), pairs=np.ones((3, 3), bool)
+        )
+    with pytest.raises(ValidationError):
+        occluded_from_viewpoints(v, f, [[np.nan, 0, 0]], np.ones((1, 3)))
+    with pytest.raises(ValidationError):
+        first_ray_hits(v, f, np.zeros((1, 3)), np.zeros((1, 3)))
+    with pytest.raises(ValidationError):
+        closest_points_on_mesh(v, np.zeros((0, 3), np.int64), np.zeros((1, 3)))
+    with pytest.raises(ValidationError):
+        segments_near_capsules(
+            np.zeros((1, 3)), np.zeros((2, 3)), np.zeros((1, 3)), np.ones((1, 3)), 0.1
+        )
+    assert occluded_from_viewpoints(v, f, np.zeros((0, 3)), np.ones((2, 3))).shape == (0, 2)
