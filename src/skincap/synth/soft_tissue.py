@@ -229,10 +229,9 @@ class SoftTissue:
     Attributes
     ----------
     regions : dict of str to (V,) float64
-        Region weights in 0..1: ``belly``, ``chest``, ``thigh_l``, ``thigh_r``,
-        ``upperarm_l``, ``upperarm_r``, and the muscle bulge profiles (without the
-        flexion direction) ``biceps_l``... are not stored; ``segments`` holds each
-        vertex's summed skin weight per body segment.
+        Region weights in 0..1 of the jiggle regions ``belly``, ``chest``,
+        ``thigh_l``, ``thigh_r``, ``upperarm_l``, ``upperarm_r`` (all zero for a
+        region the rig lacks); breathing uses ``chest`` and ``belly``.
     segments : dict of str to (V,) float64
         Skin weight of each vertex on each body segment (rows sum to 1).
 
@@ -360,7 +359,11 @@ class SoftTissue:
         regions: dict[str, np.ndarray] = {}
         above_hips = _smoothstep((v[:, 1] - (np.mean(hip_y) if hip_y else v[:, 1].min())) / 0.08)
         regions["belly"] = np.clip(low * front * above_hips, 0.0, 1.0)
-        regions["chest"] = np.clip(high * front, 0.0, 1.0)
+        neck = lm.get("neck", lm.get("neck_upper", lm.get("head")))
+        below_neck = (
+            _smoothstep((self._bind_pos[neck, 1] - v[:, 1]) / 0.1) if neck is not None else 1.0
+        )
+        regions["chest"] = np.clip(high * front * below_neck, 0.0, 1.0)
         for limb in self._limbs:
             s, _ = self._axial(limb)
             along = np.sin(np.pi * np.clip(s, 0.0, 1.0)) ** 2
