@@ -346,6 +346,7 @@ def skin(
             TimeRemainingColumn(),
             console=err,
             transient=True,
+            disable=not err.is_terminal,
         ) as progress:
             task = progress.add_task(f"skinning ({method})", total=frames)
 
@@ -471,7 +472,7 @@ def synth(
             for name in OUTPUT_FILES:
                 if (output / name).exists():
                     raise OutputExistsError(output / name)
-        with Progress(console=err, transient=True) as progress:
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("body", total=1.0)
 
             def report(fraction: float, label: str) -> None:
@@ -529,7 +530,7 @@ def demo(
     with _user_errors():
         from rich.progress import Progress
 
-        with Progress(console=err, transient=True) as progress:
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("demo", total=1.0)
 
             def report(fraction: float, label: str) -> None:

@@ -1,0 +1,123 @@
+"""The whole synthetic capture: truth consistency, determinism, files that read back."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import ezc3d
+import numpy as np
+import pytest
+
+from skincap.geometry.raycast import closest_points_on_mesh
+from skincap.synth.generate import generate_capture
+from skincap.synth_files import OUTPUT_FILES, build_body, build_motion, write_synth_outputs
+
+
+@pytest.fixture(scope="module")
+def body():
+    return build_body("procedural", n_vertices=6000)
+
+
+@pytest.fixture(scope="module")
+def take(body):
+    motion = build_motion(body, "jumprope", frames=150)
+    return generate_capture(body, motion, markers="dense", rope="jump", seed=3)
+
+
+def test_truth_markers_ride_on_the_skin(take):
+    """Every true body marker is one marker radius (1.5 mm) off the posed skin, within 1 mm."""
+    n_body = take.summary["markers"]
+    faces = take.skin.rest.faces
+    for t in (0, 75, 149):
+        distance, _, _ = closest_points_on_mesh(
+            take.skin.frames[t], faces, take.truth.positions[t, :n_body]
+        )
+        assert np.abs(distance - 0.0015).max() < 1e-3
+
+
+def test_fragments_and_points_map_back_to_truth(take):
+    truth_labels = set(take.truth.labels)
+    capture = take.capture
+    assert set(take.fragment_truth) == set(capture.labels)
+    assert set(take.fragment_truth.values()) <= truth_labels | {"ghost"}
+    for label in capture.labels:
+        if not label.startswith("*"):
+            assert take.fragment_truth[label] == label  # first-frame labels are true
+    # a point's truth is its fragment's truth except around label swaps
+    frag_truth = np.array([take.fragment_truth[label] for label in capture.labels])
+    agree = frag_truth[take.points.ids] == take.point_truth
+    assert agree.mean() > 0.97
+    # non-ghost points lie within a few noise sigmas of the true marker
+    frame = take.points.frame_index
+    real = take.point_truth != "ghost"
+    index = {label: i for i, label in enumerate(take.truth.labels)}
+    cols = np.array([index[s] for s in take.point_truth[real]])
+    err = np.linalg.norm(take.points.points[real] - take.truth.positions[frame[real], cols], axis=1)
+    assert np.median(err) < 0.002 and np.percentile(err, 99) < 0.005
+
+
+def test_capture_is_broken_like_a_real_one(take):
+    s = take.summary
+    assert s["markers"] > 300 and s["rope_markers"] >= 18
+    assert s["fragments"] > s["markers"]  # trajectories break
+    assert 0.01 < s["missing_fraction"] < 0.3
+    assert s["rope_max_length_error"] < 0.02
+
+
+def test_same_seed_same_bytes(body, tmp_path):
+    motion = build_motion(body, "flex", frames=40)
+    digests = []
+    for k in range(2):
+        result = generate_capture(body, motion, markers="sparse", seed=11)
+        folder = tmp_path / f"run{k}"
+        write_synth_outputs(result, folder)
+        digests.append(
+            {
+                name: hashlib.sha256((folder / name).read_bytes()).hexdigest()
+                for name in OUTPUT_FILES
+                if (folder / name).exists()
+            }
+        )
+    assert digests[0] == digests[1]
+    other = generate_capture(body, motion, markers="sparse", seed=12)
+    assert not np.array_equal(
+        np.nan_to_num(other.capture.positions[:5]), np.nan_to_num(result.capture.positions[:5])
+    )
+
+
+def test_outputs_read_back(take, tmp_path):
+    from skincap import io
+    from skincap.export.pc2 import read_pc2
+
+    written = write_synth_outputs(take, tmp_path)
+    assert {p.relative_to(tmp_path).as_posix() for p in written} == set(OUTPUT_FILES)
+    capture = io.read(tmp_path / "capture.c3d")
+    assert capture.labels == take.capture.labels
+    np.testing.assert_allclose(capture.positions, take.capture.positions, atol=1e-5, equal_nan=True)
+    raw = ezc3d.c3d(str(tmp_path / "capture.c3d"))
+    assert raw["data"]["points"].shape[1:] == (take.capture.n_markers, take.capture.n_frames)
+    points = io.read(tmp_path / "capture_points.csv")
+    assert points.points.shape == take.points.points.shape
+    rows = (tmp_path / "truth" / "points.csv").read_text().splitlines()
+    assert len(rows) == 1 + points.points.shape[0]
+    truth = io.read(tmp_path / "truth" / "markers.c3d")
+    assert truth.labels[-1].startswith("rope_") and not truth.missing.any()
+    surface = io.read(tmp_path / "truth" / "marker_surface.ply")
+    assert surface.n_vertices == take.summary["markers"] and surface.n_faces > surface.n_vertices
+    motion = io.read(tmp_path / "truth" / "motion.bvh", units="m")
+    assert motion.n_frames == 150
+    cache = read_pc2(tmp_path / "truth" / "mesh.pc2")
+    np.testing.assert_allclose(cache.frames[100], take.skin.frames[100], atol=1e-5)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["fragments"] == take.capture.n_markers
+
+
+def test_makehuman_body_with_a_real_bvh(tmp_path):
+    data = Path(__file__).parents[1] / "data"
+    body = build_body("makehuman")
+    motion = build_motion(body, str(data / "cmu_131_01_bvh11.bvh"), units="cmu", frames=60)
+    result = generate_capture(body, motion, markers="sparse", seed=0)
+    assert result.capture.n_frames == 60
+    assert result.summary["markers"] == 41
