@@ -230,3 +230,21 @@ def test_bad_input(body, takes):
         tissue.displacements(other, posed)
     with pytest.raises(ValidationError, match="Motion"):
         tissue.displacements("motion", posed)  # type: ignore[arg-type]
+
+
+def test_procedural_body_with_cmu_names():
+    """The sweep body's skin uses CMU names: the same regions and effects appear."""
+    from skincap.synth.body import procedural_body
+
+    sk = synth_skeleton()
+    body = procedural_body(sk, n_vertices=6000)
+    tissue = SoftTissue(body)
+    for name in ("belly", "chest", "thigh_l", "thigh_r", "upperarm_l", "upperarm_r"):
+        assert (tissue.regions[name] > 0.3).sum() > 30, name
+    motion = make_clip("flex", sk, frames=240)
+    posed = _posed(body, motion)
+    bulge = SoftTissue(body, **ONLY["bulge"]).displacements(motion, posed)
+    assert 0.008 < np.linalg.norm(bulge, axis=-1).max() < 0.02
+    d = tissue.displacements(motion, posed)
+    fixed = _fixed_segments(tissue, ("head", "neck", "hand", "forearm", "foot", "toe", "shin"))
+    assert fixed.sum() > 500 and not d[:, fixed].any()

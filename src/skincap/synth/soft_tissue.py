@@ -359,10 +359,9 @@ class SoftTissue:
         regions: dict[str, np.ndarray] = {}
         above_hips = _smoothstep((v[:, 1] - (np.mean(hip_y) if hip_y else v[:, 1].min())) / 0.08)
         regions["belly"] = np.clip(low * front * above_hips, 0.0, 1.0)
-        neck = lm.get("neck", lm.get("neck_upper", lm.get("head")))
-        below_neck = (
-            _smoothstep((self._bind_pos[neck, 1] - v[:, 1]) / 0.1) if neck is not None else 1.0
-        )
+        # the chest ends at the base of the neck or the shoulder line, whichever is higher
+        tops = [self._bind_pos[lm[k], 1] for k in ("neck", "upperarm_l", "upperarm_r") if k in lm]
+        below_neck = _smoothstep((max(tops) - v[:, 1]) / 0.1) if tops else 1.0
         regions["chest"] = np.clip(high * front * below_neck, 0.0, 1.0)
         for limb in self._limbs:
             s, _ = self._axial(limb)
