@@ -102,9 +102,9 @@ def jump_rope_hands(
 
     The hands rest by the hips for ``hang_seconds`` (the rope hangs still, lying behind
     the heels), then wind the rope up with a slow, wide arm circle (0.45 m radius, 0.65
-    turns per second, the hands lifting forward to chest height first) that brings it
-    over the head; within 2 s the circles shrink to the
-    0.12 m wrist circles of steady skipping at ``frequency`` turns per second. The hands
+    turns per second, the hands lifting to chest height first) that brings it
+    over the head; within 2.5 s the circles shrink to the
+    0.15 m wrist circles of steady skipping at ``frequency`` turns per second. The hands
     bob with the hops, once per turn. Circles lie in the body's sagittal (YZ) plane and
     turn forward (over the head from back to front, i.e. positively about +X).
 
@@ -141,11 +141,11 @@ def jump_rope_hands(
     t = np.arange(n_frames, dtype=np.float64) / rate
     tau = np.clip(t - hang_seconds, 0.0, None)  # time since the hands started moving
     # Wind-up: one slow, wide arm circle (0.65 turns/s, 0.45 m) brings the rope from
-    # behind the heels over the head; within 2 s the circles shrink to 0.12 m wrist
+    # behind the heels over the head; within 2.5 s the circles shrink to 0.15 m wrist
     # circles at the skipping rate. Small fast circles alone cannot start a resting
     # rope turning (they drive it far above its pendulum frequency).
-    wind = 2.0
-    ease = _smoothstep(tau / 0.25)  # the circles grow from nothing: no jerk at the start
+    wind = 2.5
+    ease = _smoothstep(tau / 0.4)  # the circles grow from nothing: no jerk at the start
     decay = _smoothstep(tau / wind)
     # Slowly varying irregularity: a few random harmonics.
     wobble_f = rng.uniform(0.15, 0.45, size=3)
@@ -157,12 +157,12 @@ def jump_rope_hands(
     # Phase: the integral of the turn rate, held at zero in the hanging window.
     phase = np.concatenate([[0.0], np.cumsum(0.5 * (freq[1:] + freq[:-1]) / rate)])
     phase = 2.0 * np.pi * np.where(tau > 0.0, phase - phase[np.argmax(tau > 0.0) - 1], 0.0)
-    radius = (0.45 + (0.12 - 0.45) * decay) * ease * (1.0 + 0.08 * wobble[:, 1] * decay)
+    radius = (0.45 + (0.15 - 0.45) * decay) * ease * (1.0 + 0.08 * wobble[:, 1] * decay)
     # The circle's centre sits up and forward of the resting hand (along 45°) by the
-    # radius and the hand enters it at the top (angle 0): the first move lifts the hands
-    # forward and up to about chest height, pulling the rope up from behind the heels.
+    # radius and the hand enters it up and back (angle -45°): the first move lifts the
+    # hands straight up to chest height, pulling the rope up from behind the heels.
     rest_angle = np.deg2rad(225.0)
-    angle = phase
+    angle = np.deg2rad(-45.0) + phase
     bob = 0.03 * decay * np.sin(2.0 * phase) * (1.0 + 0.1 * wobble[:, 2])
     out = np.empty((n_frames, 2, 3))
     half = 0.6 * shoulder_width
@@ -178,7 +178,7 @@ def whip_hand(
     rate: float,
     *,
     height: float = 1.75,
-    frequency: float = 0.8,
+    frequency: float = 1.0,
     hang_seconds: float = 0.5,
     seed: int = 0,
 ) -> np.ndarray:
@@ -215,7 +215,7 @@ def whip_hand(
     ease = _smoothstep(tau / 0.4)
     f = frequency * (1.0 + 0.05 * np.sin(2.0 * np.pi * rng.uniform(0.1, 0.3) * tau))
     phase = 2.0 * np.pi * np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) / rate)])
-    amp = 0.45 * ease
+    amp = 0.6 * ease
     out = np.empty((n_frames, 3))
     out[:, 0] = -0.25 + amp * 0.6 * np.sin(phase)
     out[:, 1] = 0.82 * height + amp * 0.5 * (1.0 - np.cos(phase)) * 0.8
@@ -533,9 +533,13 @@ class _ChainSolver:
         self.floor = floor
         self.mu = floor_friction
         self.iterations = iterations
-        # Bending constraints (i, i+2) in two groups that share no particle.
-        idx = np.arange(p - 2)
-        self.bend_groups = [idx[(idx % 4) < 2], idx[(idx % 4) >= 2]]
+        # Bending springs (k, k+2) are projected together (Jacobi). Each particle feeds
+        # at most two of them, so the denominator 2 (w_k + w_k+2) + α̃ can never
+        # overshoot, even for an infinitely stiff spring; for the soft springs of a rope
+        # α̃ dominates and the step equals the Gauss-Seidel one.
+        self.w_b0 = w[:-2, None]
+        self.w_b2 = w[2:, None]
+        self.w_bsum2 = 2.0 * (w[:-2] + w[2:])
         # Stretch system pieces that do not change.
         self.w_lo = w[:-1]
         self.w_hi = w[1:]
@@ -551,20 +555,17 @@ class _ChainSolver:
         capsules: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
     ) -> tuple[np.ndarray, np.ndarray]:
         w = self.w
-        free = self.free
         v = v * math.exp(-damping * h)
-        v[free, 1] -= self.gravity * h
+        v[:, 1] -= self.gravity * h  # the pinned particles are overwritten below
         p = x + h * v
         p[self.pinned] = target[: len(self.pinned)]
         alpha_s = 0.0 if math.isinf(self.k_stretch) else 1.0 / (self.k_stretch * h * h)
         bend = self.k_bend > 0.0
         alpha_b = 0.0 if (not bend or math.isinf(self.k_bend)) else 1.0 / (self.k_bend * h * h)
         lam_s = np.zeros(len(w) - 1)
-        lam_b = [np.zeros(len(g)) for g in self.bend_groups]
+        if bend:  # soft: once per substep
+            self._project_bend(p, alpha_b)
         for _ in range(self.iterations):
-            if bend:
-                for gi, g in enumerate(self.bend_groups):
-                    self._project_bend(p, g, lam_b[gi], alpha_b)
             if capsules is not None:
                 self._push_out(p, capsules)
             if self.floor is not None:
@@ -575,17 +576,15 @@ class _ChainSolver:
         v = (p - x) / h
         return p, v
 
-    def _project_bend(self, p: np.ndarray, g: np.ndarray, lam: np.ndarray, alpha: float) -> None:
-        i, j = g, g + 2
-        d = p[j] - p[i]  # (K, 3)
-        dist = np.sqrt((d * d).sum(axis=1))
-        n = d / np.maximum(dist, 1e-12)[:, None]
-        c = dist - 2.0 * self.segment  # rest: straight
-        wi, wj = self.w[i], self.w[j]
-        dl = (-c - alpha * lam) / (wi + wj + alpha + 1e-30)
-        lam += dl
-        p[i] -= (wi * dl)[:, None] * n
-        p[j] += (wj * dl)[:, None] * n
+    def _project_bend(self, p: np.ndarray, alpha: float) -> None:
+        # XPBD springs |x_k+2 - x_k| = 2 l (rest: straight), all at once.
+        d = p[2:] - p[:-2]  # (P-2, 3)
+        dist = np.sqrt((d * d).sum(axis=1, keepdims=True))
+        n = d / np.maximum(dist, 1e-12)
+        c = dist[:, 0] - 2.0 * self.segment
+        dl = (-c / (self.w_bsum2 + alpha + 1e-300))[:, None] * n
+        p[:-2] -= self.w_b0 * dl
+        p[2:] += self.w_b2 * dl
 
     def _project_stretch(self, p: np.ndarray, lam: np.ndarray, alpha: float) -> None:
         # One Newton step of the tridiagonal system (J W Jᵀ + α̃ I) Δλ = -C - α̃ λ.
@@ -623,17 +622,22 @@ class _ChainSolver:
 
     def _floor(self, p: np.ndarray, x_old: np.ndarray) -> None:
         level = self.floor + self.rope_radius
-        depth = level - p[:, 1]
-        hit = (depth > 0.0) & self.free
-        if not hit.any():
+        hit = np.flatnonzero((p[:, 1] < level) & self.free)
+        if hit.size == 0:
             return
+        depth = level - p[hit, 1]
         p[hit, 1] = level
         # Coulomb friction on the tangential displacement of this substep.
-        tang = p[hit][:, [0, 2]] - x_old[hit][:, [0, 2]]
+        old = x_old[hit]
+        new = p[hit]
+        tang = new - old
+        tang[:, 1] = 0.0
         slide = np.sqrt((tang * tang).sum(axis=1))
-        limit = self.mu * depth[hit]
+        limit = self.mu * depth
         keep = np.where(slide > limit, 1.0 - limit / np.maximum(slide, 1e-18), 0.0)
-        p[np.flatnonzero(hit)[:, None], [0, 2]] = x_old[hit][:, [0, 2]] + tang * keep[:, None]
+        new[:, 0] = old[:, 0] + tang[:, 0] * keep
+        new[:, 2] = old[:, 2] + tang[:, 2] * keep
+        p[hit] = new
 
 
 # ----------------------------------------------------------------------- helpers
