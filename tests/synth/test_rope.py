@@ -248,9 +248,9 @@ def test_jump_rope_hands_shape_and_stillness() -> None:
     assert hands.shape == (600, 2, 3)
     assert np.ptp(hands[:60], axis=0).max() == 0.0
     assert np.ptp(hands[60:], axis=0).max() > 0.1
-    # by the hips, left hand at +X, apart by 1.2 shoulder widths
+    # by the hips, left hand at +X, apart by 1.7 shoulder widths
     np.testing.assert_allclose(hands[0, :, 1], 0.53 * 1.8)
-    np.testing.assert_allclose(hands[0, 0, 0] - hands[0, 1, 0], 1.2 * 0.42)
+    np.testing.assert_allclose(hands[0, 0, 0] - hands[0, 1, 0], 1.7 * 0.42)
     # No jumps: hand speed stays human (< 4 m/s).
     speed = np.linalg.norm(np.diff(hands, axis=0), axis=2) * RATE
     assert speed.max() < 4.0
@@ -295,6 +295,35 @@ def test_capsule_and_sphere_colliders_push_the_rope_out() -> None:
     assert np.abs(free.particles[:60, :, 2]).max() < 0.05
     assert np.abs(rope.particles[:60, :, 2]).max() > 0.05
     assert _relative_length_error(rope, 2.8).max() < 0.02
+
+
+def test_jump_rope_turns_around_a_capsule_body() -> None:
+    # A standing body (torso, head, legs down to the ankles) inside the turning rope:
+    # the rope keeps turning over the head and never enters the body.
+    hands = jump_rope_hands(700, RATE, seed=2)
+    body = [
+        (np.array([0.1, 0.9, 0.0]), np.array([0.1, 0.17, 0.0]), 0.065),  # left leg
+        (np.array([-0.1, 0.9, 0.0]), np.array([-0.1, 0.17, 0.0]), 0.065),  # right leg
+        (np.array([0.0, 1.0, 0.0]), np.array([0.0, 1.45, 0.0]), 0.14),  # torso
+        (np.array([0.0, 1.62, 0.0]), 0.11),  # head
+    ]
+
+    def clearance(particles: np.ndarray) -> np.ndarray:
+        out = []
+        for col in body:
+            a, b = col[0], col[1] if len(col) == 3 else col[0]
+            ab = b - a
+            t = np.clip(((particles - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+            dist = np.linalg.norm(particles - (a + t[..., None] * ab), axis=2)
+            out.append(dist.min() - col[-1])
+        return np.array(out)
+
+    rope = simulate_rope(hands, RATE, colliders=body)
+    assert _turns(hands, rope) > 8.0
+    assert clearance(rope.particles).min() > 0.004 - 0.01
+    assert _relative_length_error(rope, 2.8).max() < 0.02
+    # Without the body the same rope cuts through the torso.
+    assert clearance(simulate_rope(hands, RATE).particles).min() < -0.03
 
 
 # ---------------------------------------------------------------------- occluders

@@ -117,7 +117,8 @@ def jump_rope_hands(
     height : float
         Body height, metres; the hands turn at 0.53 × height (hip level).
     shoulder_width : float
-        Biacromial width, metres; the hands are 1.2 × that apart.
+        Biacromial width, metres; the hands are 1.7 × that apart (a hand span
+        from the hips).
     frequency : float
         Turns per second in steady skipping.
     hang_seconds : float
@@ -163,9 +164,12 @@ def jump_rope_hands(
     # hands straight up to chest height, pulling the rope up from behind the heels.
     rest_angle = np.deg2rad(225.0)
     angle = np.deg2rad(-45.0) + phase
-    bob = 0.03 * decay * np.sin(2.0 * phase) * (1.0 + 0.1 * wobble[:, 2])
+    # Hops: the body (and the hands with it) is highest as the rope passes under the
+    # feet, which happens when the hands are at about 240° (they lead the rope by ~50°
+    # in steady skipping with these circles).
+    bob = 0.03 * decay * np.cos(angle - np.deg2rad(240.0)) * (1.0 + 0.1 * wobble[:, 2])
     out = np.empty((n_frames, 2, 3))
-    half = 0.6 * shoulder_width
+    half = 0.85 * shoulder_width
     for side, x in enumerate((half, -half)):
         out[:, side, 0] = x
         out[:, side, 1] = 0.53 * height + bob + radius * (np.cos(angle) - np.cos(rest_angle))
