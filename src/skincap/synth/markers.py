@@ -266,9 +266,17 @@ def _hand_end(pos: dict[str, np.ndarray], lm: dict[str, np.ndarray], side: str) 
 
 
 def _perp(direction: np.ndarray, bone: np.ndarray) -> np.ndarray:
-    """``direction`` with its component along ``bone`` removed, normalised."""
+    """``direction`` with its component along ``bone`` removed, normalised.
+
+    When ``direction`` is (nearly) parallel to the bone, up (then forward) is mixed in.
+    """
     b = _unit(bone)
-    return _unit(direction - (direction @ b) * b)
+    for extra in (np.zeros(3), np.array([0.0, 0.5, 0.0]), np.array([0.0, 0.0, 0.5])):
+        d = np.asarray(direction, dtype=np.float64) + extra
+        r = d - (d @ b) * b
+        if np.linalg.norm(r) > 1e-3 * max(np.linalg.norm(d), 1e-12):
+            return _unit(r)
+    return _unit(np.cross(b, [0.0, 0.0, 1.0]))
 
 
 def _head_centre(mesh: Mesh, lm: dict[str, np.ndarray]) -> np.ndarray:
@@ -506,11 +514,11 @@ def _dense_extras(mesh: Mesh) -> tuple[list[str], np.ndarray, np.ndarray]:
         fore, shin = wr - el, an - kn
         for role, o, dvec in (
             (f"{s}_elbow_tip", el, _perp(-z, fore)),
-            (f"{s}_elbow_lateral", el, _perp(side - z, fore)),
-            (f"{s}_elbow_medial", el, _perp(-side - z, fore)),
+            (f"{s}_elbow_lateral", el, _perp(side + y, fore)),
+            (f"{s}_elbow_medial", el, _perp(-side - y, fore)),
             (f"{s}_knee_front", kn, _perp(z, shin)),
-            (f"{s}_knee_lateral", kn, _perp(side + z, shin)),
-            (f"{s}_knee_medial", kn, _perp(-side + z, shin)),
+            (f"{s}_knee_lateral", kn, _perp(side, shin)),
+            (f"{s}_knee_medial", kn, _perp(-side, shin)),
             (
                 f"{s}_scapula_low",
                 pelvis + 0.72 * (neck - pelvis) + 0.5 * (sh - neck) * [1, 0, 0],
