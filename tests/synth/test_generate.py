@@ -27,14 +27,18 @@ def take(body):
 
 
 def test_truth_markers_ride_on_the_skin(take):
-    """Every true body marker is one marker radius (1.5 mm) off the posed skin, within 1 mm."""
+    """Every true body marker is at most its radius (1.5 mm) + 1 mm from the posed skin.
+
+    (Less than the radius happens legitimately in creases, where the other side of
+    the fold is nearer than the marker's own attachment point.)"""
     n_body = take.summary["markers"]
     faces = take.skin.rest.faces
     for t in (0, 75, 149):
         distance, _, _ = closest_points_on_mesh(
             take.skin.frames[t], faces, take.truth.positions[t, :n_body]
         )
-        assert np.abs(distance - 0.0015).max() < 1e-3
+        assert distance.max() < 0.0015 + 1e-3
+        assert np.median(distance) == pytest.approx(0.0015, abs=2e-4)
 
 
 def test_fragments_and_points_map_back_to_truth(take):
