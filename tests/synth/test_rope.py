@@ -83,10 +83,10 @@ def test_still_hanging_window(jump, whip) -> None:
         if hands.ndim == 3:
             assert np.ptp(hands[:hang], axis=0).max() == 0.0  # the caller's hands are still
         speed = np.linalg.norm(np.diff(rope.particles[:hang], axis=0), axis=2) * RATE
-        assert speed.max() < 0.03  # m/s
+        assert speed.max() < 0.01  # m/s (the contract: a few cm/s)
         marker_speed = np.linalg.norm(np.diff(rope.markers[:hang], axis=0), axis=2) * RATE
-        assert marker_speed.max() < 0.03
-        assert rope.meta["max_hang_speed"] < 0.03
+        assert marker_speed.max() < 0.01
+        assert rope.meta["max_hang_speed"] < 0.01
         # Hanging: nothing is above the hands, the lowest point rests on the floor.
         assert rope.particles[:hang, :, 1].max() <= hands[0].reshape(-1, 3)[:, 1].max() + 1e-6
         assert rope.particles[:hang, :, 1].min() == pytest.approx(0.004, abs=1e-3)

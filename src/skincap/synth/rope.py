@@ -29,7 +29,7 @@ from typing import Any, Literal
 import numpy as np
 from scipy.linalg.lapack import dgtsv
 
-from skincap.errors import SkincapWarning, ValidationError
+from skincap.errors import SkincapError, SkincapWarning, ValidationError
 from skincap.types import MarkerSet
 
 __all__ = [
@@ -276,7 +276,7 @@ def simulate_rope(
     floor_friction: float = 0.6,
     colliders: Sequence[tuple[Any, ...]] | None = None,
     settle_seconds: float = 3.0,
-    lay_direction: np.ndarray | None = None,
+    lay_direction: Sequence[float] | np.ndarray | None = None,
     seed: int = 0,
     progress: Callable[[float], object] | None = None,
 ) -> RopeResult:
@@ -296,7 +296,7 @@ def simulate_rope(
     length : float
         Rest length of the rope, metres (2.5–3 for a skipping rope).
     n_particles : int, optional
-        Chain particles P (>= 3); default one per ~4.5 cm (63 for 2.8 m).
+        Chain particles P (>= 3); default one per ~4.5 cm (64 for 2.8 m).
     marker_spacing : float
         Arc length between tape markers, metres (0.10–0.15 in practice). The
         ``floor(length / marker_spacing)`` markers are centred on the rope.
@@ -474,7 +474,7 @@ def simulate_rope(
         progress(1.0)
 
     if not np.isfinite(particles).all():  # pragma: no cover - a solver failure, not input
-        raise ValidationError("rope simulation diverged (non-finite positions); try more substeps")
+        raise SkincapError("rope simulation diverged (non-finite positions); try more substeps")
 
     n_markers = max(1, int(math.floor(length / marker_spacing + 1e-9)))
     offset = 0.5 * (length - (n_markers - 1) * marker_spacing)
@@ -563,6 +563,7 @@ class _ChainSolver:
         v[:, 1] -= self.gravity * h  # the pinned particles are overwritten below
         p = x + h * v
         p[self.pinned] = target[: len(self.pinned)]
+        predicted_y = p[:, 1].copy()
         alpha_s = 0.0 if math.isinf(self.k_stretch) else 1.0 / (self.k_stretch * h * h)
         bend = self.k_bend > 0.0
         alpha_b = 0.0 if (not bend or math.isinf(self.k_bend)) else 1.0 / (self.k_bend * h * h)
@@ -573,10 +574,10 @@ class _ChainSolver:
             if capsules is not None:
                 self._push_out(p, capsules)
             if self.floor is not None:
-                self._floor(p, x)
+                self._floor(p)
             self._project_stretch(p, lam_s, alpha_s)
         if self.floor is not None:
-            self._floor(p, x)
+            self._floor_friction(p, x, predicted_y)
         v = (p - x) / h
         return p, v
 
@@ -624,16 +625,28 @@ class _ChainSolver:
         )
         p += (np.where(hit, depth, 0.0)[..., None] * direction).sum(axis=1)
 
-    def _floor(self, p: np.ndarray, x_old: np.ndarray) -> None:
+    def _floor(self, p: np.ndarray) -> None:
+        """Lift particles that went below the floor (inside the constraint loop)."""
         level = self.floor + self.rope_radius
-        hit = np.flatnonzero((p[:, 1] < level) & self.free)
+        low = (p[:, 1] < level) & self.free
+        if low.any():
+            p[low, 1] = level
+
+    def _floor_friction(self, p: np.ndarray, x_old: np.ndarray, predicted_y: np.ndarray) -> None:
+        """Final floor pass: lift, then Coulomb friction on this substep's sliding.
+
+        The normal displacement is how far the prediction went below the floor; the
+        tangential displacement over the substep is cut by ``mu`` times that (static
+        friction when it is larger than the slide).
+        """
+        level = self.floor + self.rope_radius
+        hit = np.flatnonzero((np.minimum(p[:, 1], predicted_y) < level + 1e-9) & self.free)
         if hit.size == 0:
             return
-        depth = level - p[hit, 1]
-        p[hit, 1] = level
-        # Coulomb friction on the tangential displacement of this substep.
-        old = x_old[hit]
+        depth = np.maximum(level - predicted_y[hit], 0.0)
         new = p[hit]
+        new[:, 1] = np.maximum(new[:, 1], level)
+        old = x_old[hit]
         tang = new - old
         tang[:, 1] = 0.0
         slide = np.sqrt((tang * tang).sum(axis=1))
