@@ -33,6 +33,8 @@ bench_app = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(bench_app, name="bench")
+eval_app = typer.Typer(help="Evaluations against ground truth, as JSON and PNG plots.", no_args_is_help=True)
+app.add_typer(eval_app, name="eval")
 
 out = Console(highlight=False)
 err = Console(stderr=True, highlight=False)
@@ -597,6 +599,12 @@ def bench_skin(
         return
     for line in results["lines"]:
         out.print(line, markup=False, soft_wrap=True)
+
+
+# Verbs of the cleanup and tracking stages live in their own modules; importing them
+# registers their commands on ``app`` and ``eval_app`` (they import nothing heavy).
+from skincap import cli_cleanup as _cli_cleanup  # noqa: E402,F401
+from skincap import cli_tracking as _cli_tracking  # noqa: E402,F401
 
 
 def main() -> None:

@@ -1,0 +1,3 @@
+"""Marker cleanup after Park & Hodgins (2006) §4: marker surface, local reference
+frames, merging broken trajectories, local-PCA hole filling, smoothing in local frames,
+with the baselines they are measured against."""
