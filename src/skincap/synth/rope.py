@@ -7,8 +7,9 @@ the floor, and the stretch constraints between neighbours are projected. The str
 constraints of a chain couple only neighbours, so their linearised system
 ``J W Jᵀ Δλ = -C - α̃λ`` is tridiagonal and is solved exactly (a direct, O(P) LAPACK
 ``gtsv`` solve per iteration, the "fast projection" of Goldenthal et al. 2007): the rope
-keeps its length to well under a per cent even when it is whipped. Bending constraints
-are projected in two vectorised red-black passes (constraints that share no particle).
+keeps its length to well under a per cent even when it is whipped. The soft bending
+springs are projected once per substep, all at once (Jacobi, with a denominator that
+cannot overshoot).
 
 Held ends are pinned to the hand positions, interpolated linearly between frames within
 the substeps. Before frame 0 the rope is settled at the first frame's hand positions so
@@ -354,6 +355,15 @@ def simulate_rope(
     ValidationError
         On a bad argument: wrong shape, NaN/inf hands, hands further apart than the
         rope is long, non-positive sizes, an unknown mode.
+
+    Notes
+    -----
+    The ends are pinned in position only (no handle torque), so what turns the rope is
+    the hands' own circling. A resting rope needs a wind-up — one slow, wide arm circle
+    (about 0.45 m radius at 0.65 turns/s) — and steady skipping needs hand circles of
+    about 0.12–0.15 m radius at 1.5–2.2 turns/s with the hands ~0.6–0.7 m apart;
+    smaller circles let a turning rope die out within a few turns. :func:`jump_rope_hands`
+    makes such paths. The rope is a chain, so it does not collide with itself.
 
     Examples
     --------
