@@ -33,7 +33,9 @@ bench_app = typer.Typer(
     no_args_is_help=True,
 )
 app.add_typer(bench_app, name="bench")
-eval_app = typer.Typer(help="Evaluations against ground truth, as JSON and PNG plots.", no_args_is_help=True)
+eval_app = typer.Typer(
+    help="Evaluations against ground truth, as JSON and PNG plots.", no_args_is_help=True
+)
 app.add_typer(eval_app, name="eval")
 
 out = Console(highlight=False)
@@ -597,6 +599,23 @@ def bench_skin(
     if json_output:
         print(json.dumps({k: v for k, v in results.items() if k != "lines"}, indent=2, default=str))
         return
+    for line in results["lines"]:
+        out.print(line, markup=False, soft_wrap=True)
+
+
+@bench_app.command("synth")
+def bench_synth(
+    frames: Annotated[int, typer.Option(help="Frames of the take (120 Hz).")] = 1000,
+    vertices: Annotated[int, typer.Option(help="Procedural body vertices.")] = 20_000,
+) -> None:
+    """Time a dense jump-rope synthetic take stage by stage, against the take's duration.
+
+    Example: skincap bench synth --frames 1000
+    """
+    from skincap.synth.benchmark import run_synth_benchmark
+
+    with _user_errors():
+        results = run_synth_benchmark(frames=frames, vertices=vertices)
     for line in results["lines"]:
         out.print(line, markup=False, soft_wrap=True)
 

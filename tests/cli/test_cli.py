@@ -263,8 +263,23 @@ def test_demo_writes_readable_outputs(tmp_path):
     assert run("demo", "-o", tmp_path / "demo", "--force").exit_code == 0
 
 
+def _all_verbs():
+    import typer
+
+    def walk(command, prefix):
+        if hasattr(command, "commands"):  # a group of sub-commands
+            for name, sub in command.commands.items():
+                yield from walk(sub, [*prefix, name])
+        else:
+            yield prefix
+
+    return list(walk(typer.main.get_command(app), []))
+
+
 def test_every_verb_has_help_with_an_example():
-    for verb in (["info"], ["convert"], ["demo"], ["bench", "io"]):
+    verbs = _all_verbs()
+    assert ["info"] in verbs and ["skin"] in verbs and ["bench", "io"] in verbs
+    for verb in verbs:
         result = run(*verb, "--help")
-        assert result.exit_code == 0
-        assert "Example: skincap" in result.stdout
+        assert result.exit_code == 0, verb
+        assert "Example: skincap" in result.stdout, verb
