@@ -1,0 +1,224 @@
+"""A rope as a smooth curve through its markers, parameterised by rest arc length.
+
+Beyond Porter (2012): the thesis invents a missing rope marker from the velocities of
+its neighbours and by extrapolating the chain (eqs. 3.3-3.6). When the missing marker
+has measured markers on *both* sides, a smooth curve through the measured markers,
+evaluated at the missing marker's position along the rope, is both simpler and more
+accurate, and it keeps the neighbour spacings near their rest values ``l_j``. This
+module holds that curve: a non-uniform Catmull-Rom (cubic Hermite) spline whose
+parameter is the rest arc length ``s_j = l_0 + … + l_{j-1}`` of each marker.
+
+Everything is vectorised over leading (frame) axes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skincap.errors import ValidationError
+
+__all__ = [
+    "rest_arclength",
+    "fill_interior_on_curve",
+    "polyline_length",
+    "resample_by_arclength",
+]
+
+
+def rest_arclength(spacing: np.ndarray) -> np.ndarray:
+    """Rest arc length of every marker along the rope.
+
+    Parameters
+    ----------
+    spacing : (M - 1,) float, metres
+        Rest distance ``l_j`` between markers ``j`` and ``j + 1``; finite, > 0.
+
+    Returns
+    -------
+    (M,) float64, metres
+        ``s_0 = 0`` and ``s_j = l_0 + … + l_{j-1}``.
+    """
+    spacing = np.asarray(spacing, dtype=np.float64)
+    if spacing.ndim != 1 or not np.all(np.isfinite(spacing)) or np.any(spacing <= 0):
+        raise ValidationError("spacing: expected (M - 1,) finite positive distances in metres")
+    return np.concatenate([[0.0], np.cumsum(spacing)])
+
+
+def _prev_known(known: np.ndarray) -> np.ndarray:
+    """(..., M) int: index of the last known marker at or before j, -1 if none."""
+    m = known.shape[-1]
+    idx = np.where(known, np.arange(m), -1)
+    return np.maximum.accumulate(idx, axis=-1)
+
+
+def _next_known(known: np.ndarray) -> np.ndarray:
+    """(..., M) int: index of the first known marker at or after j, M if none."""
+    m = known.shape[-1]
+    idx = np.where(known, np.arange(m), m)
+    return np.flip(np.minimum.accumulate(np.flip(idx, axis=-1), axis=-1), axis=-1)
+
+
+def fill_interior_on_curve(
+    positions: np.ndarray, known: np.ndarray, s: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Place unknown markers that lie between known ones on a smooth curve.
+
+    Each unknown marker ``j`` with a known marker ``a < j`` before it and ``b > j``
+    after it is put at ``C(s_j)``, where ``C`` is the cubic Hermite segment from
+    ``x_a`` to ``x_b`` whose tangents are the non-uniform Catmull-Rom finite
+    differences over the neighbouring known markers (``(x_b - x_pa) / (s_b - s_pa)``
+    at ``a``, ``pa`` the known marker before ``a`` or ``a`` itself; likewise at ``b``).
+    With one marker missing between two straight neighbours it lands on the straight
+    line at its rest fraction; on a bent rope it follows the bend.
+
+    Parameters
+    ----------
+    positions : (..., M, 3) float, metres
+        Marker positions; entries where ``known`` is False are ignored (may be NaN).
+    known : (..., M) bool
+        True where the position is measured (trusted).
+    s : (M,) float, metres
+        Rest arc length of each marker (:func:`rest_arclength`), increasing.
+
+    Returns
+    -------
+    filled : (..., M, 3) float64, metres
+        ``positions`` with the interior unknown markers replaced; others untouched
+        (end runs of unknown markers keep their input values, NaN stays NaN).
+    interior : (..., M) bool
+        True where a marker was placed on the curve.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    known = np.asarray(known, dtype=bool)
+    s = np.asarray(s, dtype=np.float64)
+    m = positions.shape[-2]
+    if positions.shape[-1] != 3 or known.shape != positions.shape[:-1] or s.shape != (m,):
+        raise ValidationError(
+            f"positions/known/s: expected (..., M, 3), (..., M), (M,), got "
+            f"{positions.shape}, {known.shape}, {s.shape}"
+        )
+    filled = positions.copy()
+    prev = _prev_known(known)
+    nxt = _next_known(known)
+    interior = (~known) & (prev >= 0) & (nxt < m)
+    if not interior.any():
+        return filled, interior
+    lead = np.nonzero(interior)  # tuple of index arrays over (..., M)
+    batch, j = lead[:-1], lead[-1]
+    a = prev[lead]  # (K,) known before
+    b = nxt[lead]  # (K,) known after
+    # the known markers beyond a and b (or a, b themselves at the ends)
+    a_m1 = np.maximum(a - 1, 0)
+    pa = np.where(a > 0, prev[(*batch, a_m1)], a)
+    pa = np.where(pa < 0, a, pa)
+    b_p1 = np.minimum(b + 1, m - 1)
+    nb = np.where(b < m - 1, nxt[(*batch, b_p1)], b)
+    nb = np.where(nb >= m, b, nb)
+    xa = positions[(*batch, a)]  # (K, 3)
+    xb = positions[(*batch, b)]
+    xpa = positions[(*batch, pa)]
+    xnb = positions[(*batch, nb)]
+    sa, sb, spa, snb = s[a], s[b], s[pa], s[nb]
+    h = sb - sa  # (K,) segment length in s
+    ta = (xb - xpa) / (sb - spa)[:, None]  # tangent dx/ds at a
+    tb = (xnb - xa) / (snb - sa)[:, None]  # tangent dx/ds at b
+    u = ((s[j] - sa) / h)[:, None]  # (K, 1) in (0, 1)
+    u2, u3 = u * u, u * u * u
+    h00 = 2 * u3 - 3 * u2 + 1
+    h10 = u3 - 2 * u2 + u
+    h01 = -2 * u3 + 3 * u2
+    h11 = u3 - u2
+    filled[lead] = h00 * xa + h10 * h[:, None] * ta + h01 * xb + h11 * h[:, None] * tb
+    return filled, interior
+
+
+def polyline_length(positions: np.ndarray) -> np.ndarray:
+    """Length of the polyline through the markers of each frame.
+
+    Parameters
+    ----------
+    positions : (..., M, 3) float, metres; NaN propagates.
+
+    Returns
+    -------
+    (...,) float64, metres
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    return np.linalg.norm(np.diff(positions, axis=-2), axis=-1).sum(axis=-1)
+
+
+def resample_by_arclength(
+    positions: np.ndarray, n_samples: int = 50, *, subdivisions: int = 8
+) -> tuple[np.ndarray, np.ndarray]:
+    """Resample each frame's rope at uniformly spaced arc length.
+
+    The curve through the M markers is the uniform Catmull-Rom spline (it passes
+    through every marker; the end segments use mirrored phantom points), sampled
+    ``subdivisions`` times per segment; its arc length is measured on that dense
+    polyline and ``n_samples`` points are placed at equal arc length from the first
+    marker to the last.
+
+    Parameters
+    ----------
+    positions : (T, M, 3) float, metres
+        Finite marker positions in order along the rope, M >= 2.
+    n_samples : int
+        Samples per frame, >= 2.
+    subdivisions : int
+        Dense samples per segment used to measure the arc length, >= 1.
+
+    Returns
+    -------
+    s : (T, n_samples) float64, metres
+        Arc length of each sample from the first marker (``s[:, -1]`` is the curve's
+        length in that frame).
+    points : (T, n_samples, 3) float64, metres
+        The samples; ``points[:, 0]`` and ``points[:, -1]`` are the end markers.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    if positions.ndim != 3 or positions.shape[2] != 3 or positions.shape[1] < 2:
+        raise ValidationError(f"positions: expected (T, M, 3) with M >= 2, got {positions.shape}")
+    if not np.all(np.isfinite(positions)):
+        raise ValidationError("positions: must be finite to resample the rope curve")
+    n_samples = int(n_samples)
+    subdivisions = int(subdivisions)
+    if n_samples < 2 or subdivisions < 1:
+        raise ValidationError("n_samples must be >= 2 and subdivisions >= 1")
+    t_frames, m, _ = positions.shape
+    # phantom end points mirror the end segments: p_-1 = 2 p_0 - p_1
+    ext = np.concatenate(
+        [
+            2 * positions[:, :1] - positions[:, 1:2],
+            positions,
+            2 * positions[:, -1:] - positions[:, -2:-1],
+        ],
+        axis=1,
+    )  # (T, M + 2, 3)
+    p0, p1, p2, p3 = ext[:, :-3], ext[:, 1:-2], ext[:, 2:-1], ext[:, 3:]  # (T, M-1, 3)
+    u = np.arange(subdivisions) / subdivisions  # (S,)
+    u2, u3 = u * u, u * u * u
+    # uniform Catmull-Rom basis, (S, 4)
+    basis = 0.5 * np.stack(
+        [-u3 + 2 * u2 - u, 3 * u3 - 5 * u2 + 2, -3 * u3 + 4 * u2 + u, u3 - u2], axis=1
+    )
+    ctrl = np.stack([p0, p1, p2, p3], axis=2)  # (T, M-1, 4, 3)
+    dense = np.einsum("sk,tmkc->tmsc", basis, ctrl).reshape(t_frames, -1, 3)
+    dense = np.concatenate([dense, positions[:, -1:]], axis=1)  # (T, D, 3)
+    seg = np.linalg.norm(np.diff(dense, axis=1), axis=2)  # (T, D-1)
+    cum = np.concatenate([np.zeros((t_frames, 1)), np.cumsum(seg, axis=1)], axis=1)  # (T, D)
+    total = cum[:, -1]
+    target = total[:, None] * np.linspace(0.0, 1.0, n_samples)[None, :]  # (T, n)
+    # index of the dense segment holding each target, per frame
+    d = dense.shape[1]
+    flat_cum = cum + (np.arange(t_frames) * (total.max() + 1.0))[:, None]
+    flat_target = target + (np.arange(t_frames) * (total.max() + 1.0))[:, None]
+    k = np.searchsorted(flat_cum.ravel(), flat_target.ravel(), side="right") - 1
+    k = k.reshape(t_frames, n_samples) - (np.arange(t_frames) * d)[:, None]
+    k = np.clip(k, 0, d - 2)
+    rows = np.arange(t_frames)[:, None]
+    c0 = cum[rows, k]
+    length = seg[rows, k]
+    w = np.divide(target - c0, length, out=np.zeros_like(target), where=length > 0)
+    w = np.clip(w, 0.0, 1.0)[..., None]
+    points = (1 - w) * dense[rows, k] + w * dense[rows, k + 1]
+    return target, points

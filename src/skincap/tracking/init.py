@@ -1,0 +1,502 @@
+"""Initialisation of the rope traces (Porter 2012, §3.4).
+
+The user identifies the rope in a short window at the start of the take where it
+hangs still: by a box in space, by the indices of its points among the first frame's
+points, or (beyond the thesis) automatically, as the longest chain of still points
+with near-uniform spacing that behaves as a 1-D curve. The selected points start one
+trace each; the traces are followed through the window (each takes the point nearest
+its average position within γ, else a temporary marker at that average), traces with
+too many temporary markers are discarded, the rest are ordered along the rope, and
+the mean distance between neighbouring traces gives the spacings ``l_j``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+from scipy.spatial import cKDTree
+
+from skincap.errors import ValidationError
+from skincap.types import PointCloud
+
+__all__ = ["RopeInit", "init_rope", "find_rope_chain", "gated_assignment"]
+
+#: Default γ as a fraction of the median neighbour spacing of the selected points.
+GAMMA_FRACTION = 0.25
+
+
+@dataclass(eq=False)
+class RopeInit:
+    """The rope traces after initialisation, ordered along the rope.
+
+    Attributes
+    ----------
+    indices : (M,) int64
+        Index of each rope marker's point among frame 0's points (file order of that
+        frame, ``cloud.frame(0)[indices]``), in order along the rope: ``indices[0]`` is
+        the end that hangs highest (the thesis orders by height; along a chain it is
+        the same for a rope hanging from one end).
+    positions : (M, 3) float64, metres
+        Average position of each trace over the initialisation window.
+    spacing : (M - 1,) float64, metres
+        ``l_j``: mean distance between traces ``j`` and ``j + 1`` over the window.
+    gamma : float, metres
+        γ: the largest distance between a trace's predicted position and a point it
+        may take.
+    max_temp_markers : int
+        maxTempMarkers: consecutive temporary markers after which a trace is lost.
+    window : (int, int)
+        First and one-past-last frame of the initialisation window.
+    meta : dict
+        How the rope was selected (``method``), discarded traces, ….
+    """
+
+    indices: np.ndarray
+    positions: np.ndarray
+    spacing: np.ndarray
+    gamma: float
+    max_temp_markers: int
+    window: tuple[int, int] = (0, 1)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.indices = np.asarray(self.indices, dtype=np.int64).reshape(-1)
+        m = self.indices.size
+        if m < 3:
+            raise ValidationError(f"rope: need at least 3 rope markers, got {m}")
+        self.positions = np.asarray(self.positions, dtype=np.float64)
+        self.spacing = np.asarray(self.spacing, dtype=np.float64)
+        if self.positions.shape != (m, 3) or self.spacing.shape != (m - 1,):
+            raise ValidationError(
+                f"RopeInit: expected positions ({m}, 3) and spacing ({m - 1},), got "
+                f"{self.positions.shape} and {self.spacing.shape}"
+            )
+        if not (np.all(np.isfinite(self.spacing)) and np.all(self.spacing > 0)):
+            raise ValidationError("RopeInit: spacing must be finite and positive")
+        self.gamma = float(self.gamma)
+        if not (np.isfinite(self.gamma) and self.gamma > 0):
+            raise ValidationError(f"gamma: expected a positive distance, got {self.gamma}")
+        self.max_temp_markers = int(self.max_temp_markers)
+        if self.max_temp_markers < 1:
+            raise ValidationError("max_temp_markers: expected >= 1")
+        self.window = (int(self.window[0]), int(self.window[1]))
+        self.meta = dict(self.meta)
+
+    @property
+    def n_markers(self) -> int:
+        return int(self.indices.size)
+
+    @property
+    def labels(self) -> list[str]:
+        """``rope_00``, ``rope_01``… in order along the rope."""
+        width = max(2, len(str(self.n_markers - 1)))
+        return [f"rope_{j:0{width}d}" for j in range(self.n_markers)]
+
+
+# --------------------------------------------------------------------------- helpers
+def gated_assignment(
+    dist: np.ndarray, cand: np.ndarray, gate: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Match rows to candidate points one-to-one, minimising the summed distance.
+
+    Parameters
+    ----------
+    dist : (R, K) float, metres
+        Distance from row ``r`` to its ``k``-th candidate; ``inf`` for none.
+    cand : (R, K) int
+        Candidate point index (any integer id); ignored where ``dist`` is inf.
+    gate : float, metres
+        Pairs at or beyond this distance are never made.
+
+    Returns
+    -------
+    rows : (P,) int64
+        Matched rows.
+    points : (P,) int64
+        The point each matched row takes; all distinct.
+    """
+    ok = dist < gate
+    if not ok.any():
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    first = np.where(ok[:, 0], cand[:, 0], -1)
+    taken = first[first >= 0]
+    # fast path: every row's nearest candidate is free of conflicts
+    if taken.size == np.unique(taken).size and ok[:, 0].sum() == ok.any(axis=1).sum():
+        rows = np.nonzero(first >= 0)[0]
+        return rows.astype(np.int64), first[rows].astype(np.int64)
+    r_idx, k_idx = np.nonzero(ok)
+    pts, col = np.unique(cand[r_idx, k_idx], return_inverse=True)
+    rows_u, row = np.unique(r_idx, return_inverse=True)
+    big = 1e6 * max(gate, 1.0)
+    cost = np.full((rows_u.size, pts.size), big)
+    cost[row, col] = dist[r_idx, k_idx]
+    ri, ci = linear_sum_assignment(cost)
+    keep = cost[ri, ci] < gate
+    return rows_u[ri[keep]].astype(np.int64), pts[ci[keep]].astype(np.int64)
+
+
+def _window_frames(cloud: PointCloud, window_seconds: float) -> int:
+    if not (np.isfinite(window_seconds) and window_seconds > 0):
+        raise ValidationError(f"window_seconds: expected > 0, got {window_seconds}")
+    return int(max(2, min(cloud.n_frames, round(window_seconds * cloud.rate))))
+
+
+def _follow_window(
+    cloud: PointCloud, start: np.ndarray, n_window: int, gamma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Thesis window tracking: each trace takes the point nearest its average position.
+
+    Returns the (W, S, 3) trace positions and the (W, S) temporary-marker flags.
+    """
+    s = start.shape[0]
+    pos = np.empty((n_window, s, 3))
+    temp = np.zeros((n_window, s), dtype=bool)
+    pos[0] = start
+    total = start.copy()
+    for t in range(1, n_window):
+        avg = total / t
+        frame = cloud.frame(t)
+        if frame.shape[0] == 0:
+            pos[t] = avg
+            temp[t] = True
+        else:
+            k = min(3, frame.shape[0])
+            d, i = cKDTree(frame).query(avg, k=k, distance_upper_bound=gamma)
+            d = d.reshape(s, k)
+            i = i.reshape(s, k)
+            rows, pts = gated_assignment(d, i, gamma)
+            pos[t] = avg
+            temp[t] = True
+            pos[t, rows] = frame[pts]
+            temp[t, rows] = False
+        total += pos[t]
+    return pos, temp
+
+
+def _chain_order(points: np.ndarray) -> np.ndarray:
+    """Order points along the chain they form: the longest path of their spanning tree.
+
+    Points off that path (a branch) are placed by their tree distance from the
+    path's first end. The first end is the higher one (largest y).
+    """
+    n = points.shape[0]
+    d = np.linalg.norm(points[:, None] - points[None, :], axis=2)
+    d = np.where(d > 0, d, 1e-12)  # coincident points still connect
+    np.fill_diagonal(d, 0.0)
+    tree = minimum_spanning_tree(d)
+    tree = tree + tree.T
+
+    def farthest(src: int) -> tuple[int, np.ndarray]:
+        order, pred = breadth_first_order(tree, src, directed=False)
+        depth = np.zeros(n, dtype=np.int64)
+        for node in order[1:]:  # BFS order: a parent comes before its children
+            depth[node] = depth[pred[node]] + 1
+        return int(np.argmax(depth)), depth
+
+    end_a, _ = farthest(int(np.argmax(points[:, 1])))
+    end_b, depth = farthest(end_a)
+    order = np.lexsort((np.arange(n), depth))
+    if points[end_b, 1] > points[end_a, 1]:
+        order = order[::-1]
+    return order.astype(np.int64)
+
+
+# ------------------------------------------------------------------------- auto find
+def find_rope_chain(
+    cloud: PointCloud,
+    *,
+    window_seconds: float = 0.5,
+    still_tolerance: float = 0.01,
+    min_spacing: float = 0.05,
+    max_spacing: float = 0.30,
+    uniformity: float = 0.25,
+    min_markers: int = 5,
+) -> np.ndarray:
+    """Find the rope automatically: the longest still chain of near-uniform spacing.
+
+    1. Still points: a frame-0 point is still if every frame of the window has a
+       point within ``still_tolerance`` of it.
+    2. Chain links: two still points are linked if each is among the other's two
+       nearest still neighbours and their distance is within
+       ``[min_spacing, max_spacing]``. Every point then has at most two links, so the
+       links form paths (and rings, which are opened at their longest link).
+    3. Each path is cut where a link differs from the path's median link by more than
+       ``uniformity`` (relative); the longest piece with at least ``min_markers``
+       points is the rope.
+    4. The rope is extended at each end while a still point lies within
+       ``uniformity`` × spacing of the chain extrapolated by one spacing (the end
+       markers near the hands often fail the mutual-neighbour test).
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        The take; frame 0 must be in the still window.
+    window_seconds : float
+        Length of the still window, seconds.
+    still_tolerance : float, metres
+    min_spacing, max_spacing : float, metres
+        Range of plausible rope-marker spacings.
+    uniformity : float
+        Allowed relative deviation of a spacing from the chain's median.
+    min_markers : int
+
+    Returns
+    -------
+    (M,) int64
+        Indices among frame 0's points, in chain order.
+
+    Raises
+    ------
+    ValidationError
+        No chain of ``min_markers`` points is found.
+    """
+    p0 = cloud.frame(0)
+    n0 = p0.shape[0]
+    if n0 < min_markers:
+        raise ValidationError(
+            f"rope auto: frame 0 has {n0} points, fewer than min_markers={min_markers}"
+        )
+    n_window = _window_frames(cloud, window_seconds)
+    still = np.ones(n0, dtype=bool)
+    for t in range(1, n_window):
+        frame = cloud.frame(t)
+        if frame.shape[0] == 0:
+            continue
+        d, _ = cKDTree(frame).query(p0, k=1)
+        still &= d <= still_tolerance
+    cand = np.nonzero(still)[0]
+    if cand.size < min_markers:
+        raise ValidationError(
+            f"rope auto: only {cand.size} points of frame 0 stay still over the first "
+            f"{n_window} frames; select the rope with a box or point indices"
+        )
+    pc = p0[cand]
+    k = min(3, cand.size)
+    dist, nn = cKDTree(pc).query(pc, k=k)  # nn[:, 0] is the point itself
+    a_idx = np.arange(cand.size)
+    links_a, links_b = [], []
+    for col in range(1, k):  # the first and second nearest neighbour
+        b_idx = nn[:, col]
+        mutual = (nn[b_idx, 1:k] == a_idx[:, None]).any(axis=1)
+        ok = mutual & (dist[:, col] >= min_spacing) & (dist[:, col] <= max_spacing)
+        links_a.append(np.minimum(a_idx, b_idx)[ok])
+        links_b.append(np.maximum(a_idx, b_idx)[ok])
+    e = np.unique(np.stack([np.concatenate(links_a), np.concatenate(links_b)], axis=1), axis=0)
+    best: np.ndarray = np.zeros(0, np.int64)
+    if e.shape[0]:
+        n = cand.size
+        adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
+        adj = adj + adj.T
+        degree = np.asarray(adj.sum(axis=1)).ravel()
+        seen = np.zeros(n, dtype=bool)
+        for startnode in np.nonzero(degree > 0)[0]:
+            if seen[startnode]:
+                continue
+            order, _ = breadth_first_order(adj, startnode, directed=False)
+            seen[order] = True
+            comp = order
+            ends = comp[degree[comp] == 1]
+            path = _walk_path(adj, int(ends[0]) if ends.size else int(comp[0]), comp.size)
+            links = np.linalg.norm(np.diff(pc[path], axis=0), axis=1)
+            if ends.size == 0 and links.size:  # a ring: open it at its longest link
+                cut = int(np.argmax(links))
+                path = np.roll(path, -(cut + 1))
+                links = np.linalg.norm(np.diff(pc[path], axis=0), axis=1)
+            piece = _longest_uniform_piece(links, uniformity)
+            seg = path[piece[0] : piece[1] + 1]
+            if seg.size > best.size:
+                best = seg
+    if best.size < min(min_markers, 3) or best.size < min_markers - 2:
+        raise ValidationError(
+            "rope auto: no chain of still points with near-uniform spacing found; "
+            "select the rope with a box or point indices"
+        )
+    chain = [int(i) for i in best]
+    spacing = float(np.median(np.linalg.norm(np.diff(pc[best], axis=0), axis=1)))
+    tree = cKDTree(pc)
+    for _ in range(2):  # extend the tail, then (reversed) the head
+        while len(chain) >= 2:
+            guess = 2 * pc[chain[-1]] - pc[chain[-2]]
+            d, i = tree.query(guess, k=1)
+            link = float(np.linalg.norm(pc[i] - pc[chain[-1]]))
+            if (
+                d <= uniformity * spacing
+                and int(i) not in chain
+                and abs(link - spacing) <= uniformity * spacing
+            ):
+                chain.append(int(i))
+            else:
+                break
+        chain.reverse()
+    if len(chain) < min_markers:
+        raise ValidationError(
+            f"rope auto: the longest chain has {len(chain)} points, fewer than "
+            f"min_markers={min_markers}; select the rope with a box or point indices"
+        )
+    return cand[np.asarray(chain, dtype=np.int64)]
+
+
+def _walk_path(adj: Any, start: int, size: int) -> np.ndarray:
+    """Nodes of a path (or ring) component in walking order from ``start``."""
+    path = [start]
+    prev = -1
+    cur = start
+    for _ in range(size - 1):
+        nbrs = adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]]
+        nxt = [int(v) for v in nbrs if v != prev and v != cur]
+        if not nxt or nxt[0] in path:
+            break
+        prev, cur = cur, nxt[0]
+        path.append(cur)
+    return np.asarray(path, dtype=np.int64)
+
+
+def _longest_uniform_piece(links: np.ndarray, uniformity: float) -> tuple[int, int]:
+    """First and last node of the longest run of links within ``uniformity`` of the median."""
+    if links.size == 0:
+        return 0, 0
+    med = np.median(links)
+    good = np.abs(links - med) <= uniformity * med
+    best = (0, 0)
+    start = None
+    for i, g in enumerate(np.append(good, False)):
+        if g and start is None:
+            start = i
+        elif not g and start is not None:
+            if i - start > best[1] - best[0]:
+                best = (start, i)
+            start = None
+    return best
+
+
+# ------------------------------------------------------------------------------ init
+def init_rope(
+    cloud: PointCloud,
+    *,
+    box: Sequence[float] | np.ndarray | None = None,
+    markers: Sequence[int] | np.ndarray | None = None,
+    auto: bool = False,
+    window_seconds: float = 0.5,
+    gamma: float | None = None,
+    max_temp_markers: int | None = None,
+) -> RopeInit:
+    """Identify the rope in the still window at the start and set up its traces.
+
+    Exactly one of ``box``, ``markers`` or ``auto`` selects the rope's points in
+    frame 0. Then (thesis §3.4) every selected point starts a trace; through the
+    window each trace takes the point nearest its running average position within γ
+    (conflicts resolved one-to-one, :func:`gated_assignment`), else a temporary
+    marker at the average. Traces with more than ``min(max_temp_markers, W // 2)``
+    temporary markers in the W-frame window are discarded. The rest are ordered
+    along the rope (the longest path of the spanning tree of their average
+    positions, starting at the higher end; for a rope hanging from one end this is
+    the thesis' ordering by height) and ``l_j`` is the mean distance between
+    neighbouring traces over the window.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        The take; its first ``window_seconds`` should show the rope hanging still.
+    box : (6,) float, metres, optional
+        ``x0, y0, z0, x1, y1, z1`` (Y up, skincap's frame): frame-0 points inside the
+        axis-aligned box (bounds in either order, inclusive) are the rope.
+    markers : sequence of int, optional
+        Indices of the rope's points among frame 0's points (file order).
+    auto : bool
+        Find the rope automatically (:func:`find_rope_chain`).
+    window_seconds : float
+        Length of the still window, seconds (0.5 s: 60 frames at 120 Hz).
+    gamma : float, metres, optional
+        γ. Default ``0.25 × median`` nearest-neighbour distance of the selected points
+        (3 cm for tape every 12 cm).
+    max_temp_markers : int, optional
+        maxTempMarkers. Default one second of frames (``round(rate)``).
+
+    Returns
+    -------
+    RopeInit
+
+    Raises
+    ------
+    ValidationError
+        Not exactly one selection given, a bad box or index, fewer than 3 rope points
+        selected or surviving the window.
+    """
+    chosen = sum([box is not None, markers is not None, bool(auto)])
+    if chosen != 1:
+        raise ValidationError(
+            "rope: give exactly one of box=, markers= or auto=True to select the rope"
+        )
+    if cloud.n_frames < 2:
+        raise ValidationError(f"cloud: need at least 2 frames to track, got {cloud.n_frames}")
+    p0 = cloud.frame(0)
+    n0 = p0.shape[0]
+    if box is not None:
+        b = np.asarray(box, dtype=np.float64).reshape(-1)
+        if b.shape != (6,) or not np.all(np.isfinite(b)):
+            raise ValidationError(
+                f"box: expected 6 finite numbers x0,y0,z0,x1,y1,z1 (metres), got {b.tolist()}"
+            )
+        lo = np.minimum(b[:3], b[3:])
+        hi = np.maximum(b[:3], b[3:])
+        sel = np.nonzero(np.all((p0 >= lo) & (p0 <= hi), axis=1))[0]
+        method = "box"
+    elif markers is not None:
+        sel = np.asarray(markers).reshape(-1)
+        if sel.size and not np.issubdtype(sel.dtype, np.integer):
+            raise ValidationError("markers: expected integer point indices")
+        sel = sel.astype(np.int64)
+        bad = (sel < 0) | (sel >= n0)
+        if bad.any():
+            raise ValidationError(
+                f"markers: index {int(sel[bad][0])} is out of range: frame 0 has {n0} points"
+            )
+        if np.unique(sel).size != sel.size:
+            raise ValidationError("markers: an index is given twice")
+        method = "markers"
+    else:
+        sel = find_rope_chain(cloud, window_seconds=window_seconds)
+        method = "auto"
+    if sel.size < 3:
+        raise ValidationError(
+            f"rope: {sel.size} points selected in frame 0 ({method}); need at least 3"
+        )
+    start = p0[sel]
+    if gamma is None:
+        nn, _ = cKDTree(start).query(start, k=2)
+        gamma = GAMMA_FRACTION * float(np.median(nn[:, 1]))
+        if not gamma > 0:
+            raise ValidationError("rope: the selected points coincide; cannot derive γ")
+    n_window = _window_frames(cloud, window_seconds)
+    if max_temp_markers is None:
+        max_temp_markers = max(1, int(round(cloud.rate)))
+    pos, temp = _follow_window(cloud, start, n_window, float(gamma))
+    limit = min(int(max_temp_markers), n_window // 2)
+    keep = temp.sum(axis=0) <= limit
+    if keep.sum() < 3:
+        raise ValidationError(
+            f"rope: only {int(keep.sum())} of {sel.size} selected points could be followed "
+            f"through the first {n_window} frames; is the rope still there?"
+        )
+    sel, pos = sel[keep], pos[:, keep]
+    mean = pos.mean(axis=0)
+    order = _chain_order(mean)
+    sel, pos, mean = sel[order], pos[:, order], mean[order]
+    spacing = np.linalg.norm(np.diff(pos, axis=1), axis=2).mean(axis=0)
+    if np.any(spacing <= 0):
+        raise ValidationError("rope: two selected traces coincide")
+    return RopeInit(
+        indices=sel,
+        positions=mean,
+        spacing=spacing,
+        gamma=float(gamma),
+        max_temp_markers=int(max_temp_markers),
+        window=(0, n_window),
+        meta={"method": method, "discarded": int((~keep).sum())},
+    )
