@@ -44,7 +44,12 @@ import scipy.sparse.linalg as spla
 from skincap.errors import ValidationError
 from skincap.geometry.laplacian import connected_components, cotangent_laplacian, vertex_areas
 from skincap.geometry.raycast import TriangleGrid as _TriangleGrid
-from skincap.geometry.raycast import segments_cross_surface
+from skincap.geometry.raycast import (  # shared argument checks
+    _mesh_arrays,
+    _parents,
+    _points,
+    segments_cross_surface,
+)
 from skincap.types import Mesh
 
 __all__ = [
@@ -58,57 +63,6 @@ __all__ = [
 
 #: Relative distance tolerance under which two bones are equally near (Blender's).
 TIE_TOLERANCE = 1e-4
-
-
-# ------------------------------------------------------------------------- checks
-def _points(name: str, value: object, n: int | None = None) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(f"{name}: expected a float array of shape (N, 3): {exc}") from None
-    if arr.ndim != 2 or arr.shape[1] != 3 or (n is not None and arr.shape[0] != n):
-        want = f"({n}, 3)" if n is not None else "(N, 3)"
-        raise ValidationError(f"{name}: expected shape {want}, got {arr.shape}")
-    return arr
-
-
-def _parents(value: object, n: int) -> np.ndarray:
-    p = np.asarray(value)
-    if p.shape != (n,):
-        raise ValidationError(f"parents: expected shape ({n},) (one per joint), got {p.shape}")
-    if p.size and not np.issubdtype(p.dtype, np.integer):
-        raise ValidationError(f"parents: expected an integer array, got dtype {p.dtype}")
-    p = p.astype(np.int64)
-    bad = np.nonzero((p >= np.arange(n)) | (p < -1))[0]
-    if bad.size:
-        k = int(bad[0])
-        raise ValidationError(
-            f"parents: each joint's parent must come before it (-1 for a root); joint {k} has parent {int(p[k])}"
-        )
-    return p
-
-
-def _mesh_arrays(mesh: Mesh | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
-    if isinstance(mesh, Mesh):
-        return mesh.vertices, mesh.faces
-    try:
-        vertices, faces = mesh
-    except (TypeError, ValueError):
-        raise ValidationError(
-            "mesh: expected a Mesh or a (vertices (V, 3), faces (F, 3)) pair"
-        ) from None
-    v = _points("vertices", vertices)
-    if not np.isfinite(v).all():
-        raise ValidationError("vertices: must be finite")
-    f = np.asarray(faces)
-    if f.size == 0:
-        f = f.reshape(0, 3).astype(np.int64)
-    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
-        raise ValidationError(f"faces: expected an (F, 3) integer array, got {f.shape} {f.dtype}")
-    f = f.astype(np.int64)
-    if f.size and (f.min() < 0 or f.max() >= v.shape[0]):
-        raise ValidationError(f"faces: vertex indices must be in 0..{v.shape[0] - 1}")
-    return v, f
 
 
 # -------------------------------------------------------------------------- bones
