@@ -5,3 +5,313 @@ Registered on :data:`skincap.cli.app` / :data:`skincap.cli.eval_app` when
 """
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from skincap.cli import _user_errors, bench_app, err, eval_app, out
+from skincap.errors import FormatError, OutputExistsError, ValidationError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from skincap.types import MarkerSet, PointCloud
+
+
+# -------------------------------------------------------------------- eval track
+_EVAL_OUTPUTS = ("track_eval.json", "track_eval.png")
+_DEFAULT_GAPS = "10,20,30,40,50,60,70,80,90,100,110,120"
+
+
+def _parse_gaps(text: str) -> list[int]:
+    try:
+        gaps = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ValidationError(
+            f"--gaps: expected frame counts like 10,20,30, got {text!r}"
+        ) from None
+    if not gaps or min(gaps) < 1:
+        raise ValidationError(f"--gaps: expected positive frame counts, got {text!r}")
+    return gaps
+
+
+def _read_point_truth(path: Path, cloud: PointCloud) -> np.ndarray:
+    """Read ``truth/points.csv`` (``row,frame,truth``) and check it against the cloud."""
+    import numpy as np
+
+    from skincap.io._common import check_readable
+
+    check_readable(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 text (byte {exc.start})") from None
+    lines = text.splitlines()
+    if not lines or lines[0].strip() != "row,frame,truth":
+        raise FormatError(path, "expected the header 'row,frame,truth'", line=1)
+    body = lines[1:]
+    if len(body) != cloud.points.shape[0]:
+        raise FormatError(
+            path,
+            f"has {len(body)} rows, capture_points.csv has {cloud.points.shape[0]} points",
+        )
+    fields = [line.split(",") for line in body]
+    bad = next((i for i, f in enumerate(fields) if len(f) != 3), None)
+    if bad is not None:
+        raise FormatError(path, "expected 3 fields: row,frame,truth", line=bad + 2)
+    cols = np.array(fields, dtype=str).reshape(-1, 3)
+    try:
+        rows = cols[:, 0].astype(np.int64)
+        frames = cols[:, 1].astype(np.int64)
+    except ValueError:
+        num = np.char.isdigit(cols[:, 0]) & np.char.isdigit(cols[:, 1])
+        first = int(np.flatnonzero(~num)[0]) if (~num).any() else 0
+        raise FormatError(path, "row and frame must be integers", line=first + 2) from None
+    wrong = (rows != np.arange(rows.size)) | (frames != cloud.frame_index)
+    if wrong.any():
+        i = int(np.flatnonzero(wrong)[0])
+        raise FormatError(
+            path, f"row {i} does not match capture_points.csv (row or frame differs)", line=i + 2
+        )
+    return cols[:, 2]
+
+
+def _read_synth_folder(folder: Path) -> tuple[PointCloud, np.ndarray, MarkerSet]:
+    """The un-indexed cloud, per-point truth and clean markers of a ``skincap synth`` folder."""
+    import numpy as np
+
+    from skincap.io.c3d import read_c3d
+    from skincap.io.csv import read_points_csv
+
+    if not folder.is_dir():
+        raise FormatError(folder, "not a folder (expected one written by skincap synth)")
+    cloud = read_points_csv(folder / "capture_points.csv")
+    truth_path = folder / "truth" / "markers.c3d"
+    truth = read_c3d(truth_path)
+    point_truth = _read_point_truth(folder / "truth" / "points.csv", cloud)
+    if truth.n_frames != cloud.n_frames:
+        raise FormatError(
+            truth_path, f"has {truth.n_frames} frames, capture_points.csv {cloud.n_frames}"
+        )
+    # The truth must describe these points: rope points lie on their true markers.
+    rope = np.char.startswith(point_truth, "rope_")
+    if not rope.any():
+        raise FormatError(
+            folder / "truth" / "points.csv",
+            "no rope_NN points: make the take with --rope jump|whip",
+        )
+    index = {label: i for i, label in enumerate(truth.labels)}
+    labels = point_truth[rope]
+    unknown = sorted(set(labels.tolist()) - set(index))
+    if unknown:
+        raise FormatError(truth_path, f"has no marker {unknown[0]!r} named in truth/points.csv")
+    col = np.array([index[label] for label in labels.tolist()], dtype=np.int64)
+    dist = np.linalg.norm(
+        cloud.points[rope] - truth.positions[cloud.frame_index[rope], col], axis=1
+    )
+    median = float(np.nanmedian(dist)) if np.isfinite(dist).any() else float("inf")
+    if median > 0.01:
+        raise FormatError(
+            truth_path,
+            f"rope points lie {median * 1000:.0f} mm (median) from their true markers: "
+            "not the truth of capture_points.csv",
+        )
+    return cloud, point_truth, truth
+
+
+def _synth_take(rope: str, frames: int, markers: str, vertices: int, seed: int, report: Any) -> Any:
+    from skincap.synth.generate import generate_capture
+    from skincap.synth_files import build_body, build_motion
+
+    body = build_body("procedural", n_vertices=vertices, seed=seed)
+    motion = build_motion(body, "jumprope", frames=frames, seed=seed)
+    return generate_capture(body, motion, markers=markers, rope=rope, seed=seed, progress=report)
+
+
+def _cm(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.2f}"
+
+
+def _print_eval_table(result: dict[str, Any]) -> None:
+    from rich.table import Table
+
+    rows = result["gap_repair"]
+    single = {r["gap"]: r for r in rows.get("single", [])}
+    adjacent = {r["gap"]: r for r in rows.get("adjacent", [])}
+    table = Table(
+        title="gap repair (mean error over the gap, cm; lost/trials)", title_justify="left"
+    )
+    table.add_column("gap (frames)", justify="right")
+    table.add_column("one marker", justify="right")
+    table.add_column("lost", justify="right")
+    table.add_column("two adjacent", justify="right")
+    table.add_column("lost", justify="right")
+    for gap in sorted(set(single) | set(adjacent)):
+        s, a = single.get(gap), adjacent.get(gap)
+        table.add_row(
+            str(gap),
+            _cm(s["mean_error_m"]) if s else "",
+            f"{s['lost']}/{s['trials']}" if s else "",
+            _cm(a["mean_error_m"]) if a else "",
+            f"{a['lost']}/{a['trials']}" if a else "",
+        )
+    out.print(table)
+    c = result["classification"]
+    out.print(
+        f"rope/body classification: precision {c['precision']:.4f}, recall {c['recall']:.4f}, "
+        f"F1 {c['f1']:.4f} ({c['false_positive']} body points taken, "
+        f"{c['false_negative']} rope points missed; {result['followed']} of "
+        f"{result['rope_markers']} rope markers tracked)",
+        markup=False,
+        soft_wrap=True,
+    )
+    for name, t in result["targets"].items():
+        mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
+        value = t["value"]
+        shown = "-" if value is None else f"{value:.4g}"
+        thesis = f"; thesis {t['thesis']}" if t["thesis"] else ""
+        out.print(f"target {name}: {shown} ({t['target']}{thesis}): {mark}", markup=False)
+
+
+@eval_app.command("track")
+def eval_track(
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    input_dir: Annotated[
+        Path | None,
+        typer.Argument(help="A folder written by 'skincap synth --rope jump|whip'."),
+    ] = None,
+    synth: Annotated[
+        str | None,
+        typer.Option("--synth", help="jump or whip: generate a jump-rope take in memory instead."),
+    ] = None,
+    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
+    markers: Annotated[
+        str, typer.Option(help="Body markers of a --synth take: dense or sparse.")
+    ] = "dense",
+    vertices: Annotated[
+        int, typer.Option(help="Procedural body vertices of a --synth take.")
+    ] = 6000,
+    gaps: Annotated[
+        str,
+        typer.Option(
+            help="Gap sizes in frames, evaluated in order until the tracker loses the marker."
+        ),
+    ] = _DEFAULT_GAPS,
+    starts: Annotated[int, typer.Option(help="Start frames (trials) per gap size and case.")] = 8,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the start frames (and of a --synth take).")
+    ] = 0,
+    all_gaps: Annotated[
+        bool, typer.Option("--all-gaps", help="Run every gap size, even after the tracker lost it.")
+    ] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace outputs of an earlier run.")
+    ] = False,
+) -> None:
+    """Measure rope tracking against ground truth as the thesis does (Fig. 4.4).
+
+    Holds back one rope marker's points, and separately two adjacent markers', for
+    gaps of 10, 20, 30, ... frames at seeded start frames until the tracker loses
+    them (> 0.5 m off), and measures the repaired positions over the gap; classifies
+    every point as rope or body against the truth (precision, recall, F1). Writes
+    OUTPUT/track_eval.json and OUTPUT/track_eval.png and prints a table with the
+    targets beside the thesis' figures.
+
+    Example: skincap eval track --synth jump --frames 600 --starts 8 -o eval_jump
+    """
+    from rich.progress import Progress
+
+    from skincap.io._common import atomic_output
+    from skincap.tracking.evaluate import evaluate_tracking, plot_gap_repair
+
+    with _user_errors():
+        if (input_dir is None) == (synth is None):
+            raise ValidationError(
+                "give a folder made by skincap synth or --synth jump|whip (one of them)"
+            )
+        if synth is not None and synth not in ("jump", "whip"):
+            raise ValidationError(f"--synth: expected jump or whip, got {synth!r}")
+        if markers not in ("dense", "sparse"):
+            raise ValidationError(f"--markers: expected dense or sparse, got {markers!r}")
+        if frames < 2 or starts < 1:
+            raise ValidationError("--frames must be at least 2 and --starts at least 1")
+        gap_sizes = _parse_gaps(gaps)
+        paths = [output / name for name in _EVAL_OUTPUTS]
+        if not force:
+            for p in paths:
+                if p.exists():
+                    raise OutputExistsError(p)
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
+            task = progress.add_task("reading", total=1.0)
+            if input_dir is not None:
+                cloud, point_truth, truth = _read_synth_folder(input_dir)
+                source = str(input_dir)
+            else:
+
+                def made(fraction: float, label: str) -> None:
+                    progress.update(task, completed=0.3 * fraction, description=f"synth: {label}")
+
+                take = _synth_take(synth, frames, markers, vertices, seed, made)
+                cloud, point_truth, truth = take.points, take.point_truth, take.truth
+                source = f"synth {synth} ({markers} markers, {frames} frames, seed {seed})"
+            lo = 0.3 if input_dir is None else 0.05
+
+            def evaluated(fraction: float, label: str) -> None:
+                progress.update(task, completed=lo + (1 - lo) * fraction, description=label)
+
+            result = evaluate_tracking(
+                cloud,
+                point_truth,
+                truth,
+                gaps=gap_sizes,
+                starts=starts,
+                seed=seed,
+                stop_when_lost=not all_gaps,
+                progress=evaluated,
+            )
+        result = {"source": source, **result}
+        output.mkdir(parents=True, exist_ok=True)
+        with atomic_output(paths[0], force=force) as tmp:
+            tmp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        plot_gap_repair(result, paths[1], force=force, title=f"Gap repair: {source}")
+    if json_output:
+        print(json.dumps(result, indent=2, allow_nan=False))
+        return
+    _print_eval_table(result)
+    out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
+
+
+# ------------------------------------------------------------------- bench track
+@bench_app.command("track")
+def bench_track(
+    frames: Annotated[int, typer.Option(help="Frames of the scene (120 Hz).")] = 1200,
+    points: Annotated[int, typer.Option(help="Points per frame (rope and body).")] = 400,
+    rope_markers: Annotated[int, typer.Option(help="Tape markers on the rope.")] = 24,
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 3,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """track_rope's frames per second against real time and a naive nearest-neighbour tracker.
+
+    Example: skincap bench track --frames 1200 --points 400
+    """
+    from skincap.tracking.benchmark import run_track_benchmark
+
+    with _user_errors():
+        if frames < 2 or rope_markers < 3 or points <= rope_markers or repeat < 1:
+            raise ValidationError(
+                "bench track: need --frames >= 2, --rope-markers >= 3, --points > --rope-markers, --repeat >= 1"
+            )
+        results = run_track_benchmark(
+            frames=frames, points_per_frame=points, rope_markers=rope_markers, repeat=repeat
+        )
+    if json_output:
+        print(json.dumps({k: v for k, v in results.items() if k != "lines"}, indent=2))
+        return
+    for line in results["lines"]:
+        out.print(line, markup=False, soft_wrap=True)
