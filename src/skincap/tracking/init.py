@@ -18,15 +18,21 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
-from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
+from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
 from skincap.types import PointCloud
 
 __all__ = ["RopeInit", "init_rope", "find_rope_chain", "gated_assignment"]
 
+#: A rope point's third-nearest neighbour lies beyond this many spacings (1-D test).
+_ISOLATION = 1.35
+#: A rope point's nearest neighbour lies at least this many spacings away.
+_ISOLATION_NEAREST = 0.5
+#: How far (in spacings per step) the next chain point may lie from the extrapolation.
+_GUESS_TOLERANCE = 1.5
 #: Default γ as a fraction of the median neighbour spacing of the selected points.
 GAMMA_FRACTION = 0.25
 
@@ -41,7 +47,8 @@ class RopeInit:
         Index of each rope marker's point among frame 0's points (file order of that
         frame, ``cloud.frame(0)[indices]``), in order along the rope: ``indices[0]`` is
         the end that hangs highest (the thesis orders by height; along a chain it is
-        the same for a rope hanging from one end).
+        the same for a rope hanging from one end). -1 for a trace added where a
+        marker was unseen in frame 0 (a link of twice the spacing, beyond the thesis).
     positions : (M, 3) float64, metres
         Average position of each trace over the initialisation window.
     spacing : (M - 1,) float64, metres
@@ -68,6 +75,8 @@ class RopeInit:
     def __post_init__(self) -> None:
         self.indices = np.asarray(self.indices, dtype=np.int64).reshape(-1)
         m = self.indices.size
+        if np.any(self.indices < -1):
+            raise ValidationError("RopeInit: indices must be >= -1 (-1: unseen in frame 0)")
         if m < 3:
             raise ValidationError(f"rope: need at least 3 rope markers, got {m}")
         self.positions = np.asarray(self.positions, dtype=np.float64)
@@ -213,25 +222,28 @@ def find_rope_chain(
     *,
     window_seconds: float = 0.5,
     still_tolerance: float = 0.01,
-    min_spacing: float = 0.05,
+    min_spacing: float = 0.08,
     max_spacing: float = 0.30,
-    uniformity: float = 0.25,
+    uniformity: float = 0.15,
     min_markers: int = 5,
 ) -> np.ndarray:
     """Find the rope automatically: the longest still chain of near-uniform spacing.
 
     1. Still points: a frame-0 point is still if every frame of the window has a
        point within ``still_tolerance`` of it.
-    2. Chain links: two still points are linked if each is among the other's two
-       nearest still neighbours and their distance is within
-       ``[min_spacing, max_spacing]``. Every point then has at most two links, so the
-       links form paths (and rings, which are opened at their longest link).
-    3. Each path is cut where a link differs from the path's median link by more than
-       ``uniformity`` (relative); the longest piece with at least ``min_markers``
-       points is the rope.
-    4. The rope is extended at each end while a still point lies within
-       ``uniformity`` × spacing of the chain extrapolated by one spacing (the end
-       markers near the hands often fail the mutual-neighbour test).
+    2. Seeds: every pair of still points that are mutual nearest-or-second-nearest
+       neighbours at a distance within ``[min_spacing, max_spacing]``, both ways.
+    3. Each seed grows a chain as a 1-D curve (all seeds at once): the next point is
+       still point nearest the second-order extrapolation
+       ``x_j + 2 (x_j - x_{j-1}) - (x_{j-1} - x_{j-2})`` among those whose link differs
+       from the seed's by at most ``uniformity`` (relative) and turns by at most 100°
+       from the last link (a rope lying down on the floor bends sharply); when there is none, one marker may be skipped (a point near two
+       steps ahead, as when a tape marker is unseen). A seed's chain is its growth
+       backwards joined with its growth forwards.
+    4. The chain with the largest total length is the rope (a rope of tape markers
+       every 10-15 cm is far longer than any straight row of body markers); other
+       chains of the same spacing whose ends lie within 5 spacings of its ends are
+       joined to it (where the rope passes close to the body it fails the 1-D test).
 
     Parameters
     ----------
@@ -243,13 +255,14 @@ def find_rope_chain(
     min_spacing, max_spacing : float, metres
         Range of plausible rope-marker spacings.
     uniformity : float
-        Allowed relative deviation of a spacing from the chain's median.
+        Allowed relative deviation of a link from the seed's.
     min_markers : int
 
     Returns
     -------
     (M,) int64
-        Indices among frame 0's points, in chain order.
+        Indices among frame 0's points, in chain order (a skipped marker leaves a
+        link of twice the spacing; :func:`init_rope` inserts a trace there).
 
     Raises
     ------
@@ -277,105 +290,204 @@ def find_rope_chain(
             f"{n_window} frames; select the rope with a box or point indices"
         )
     pc = p0[cand]
-    k = min(3, cand.size)
-    dist, nn = cKDTree(pc).query(pc, k=k)  # nn[:, 0] is the point itself
-    a_idx = np.arange(cand.size)
-    links_a, links_b = [], []
+    n = cand.size
+    k = min(3, n)
+    tree = cKDTree(pc)
+    dist, nn = tree.query(pc, k=k)  # nn[:, 0] is the point itself
+    # 1-D: a rope point has only its two chain neighbours near it
+    third = tree.query(pc, k=min(4, n))[0].reshape(n, -1)[:, -1] if n >= 4 else np.full(n, np.inf)
+    a_idx = np.arange(n)
+    seeds_a, seeds_b = [], []
     for col in range(1, k):  # the first and second nearest neighbour
         b_idx = nn[:, col]
         mutual = (nn[b_idx, 1:k] == a_idx[:, None]).any(axis=1)
         ok = mutual & (dist[:, col] >= min_spacing) & (dist[:, col] <= max_spacing)
-        links_a.append(np.minimum(a_idx, b_idx)[ok])
-        links_b.append(np.maximum(a_idx, b_idx)[ok])
-    e = np.unique(np.stack([np.concatenate(links_a), np.concatenate(links_b)], axis=1), axis=0)
-    best: np.ndarray = np.zeros(0, np.int64)
-    if e.shape[0]:
-        n = cand.size
-        adj = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-        adj = adj + adj.T
-        degree = np.asarray(adj.sum(axis=1)).ravel()
-        seen = np.zeros(n, dtype=bool)
-        for startnode in np.nonzero(degree > 0)[0]:
-            if seen[startnode]:
-                continue
-            order, _ = breadth_first_order(adj, startnode, directed=False)
-            seen[order] = True
-            comp = order
-            ends = comp[degree[comp] == 1]
-            path = _walk_path(adj, int(ends[0]) if ends.size else int(comp[0]), comp.size)
-            links = np.linalg.norm(np.diff(pc[path], axis=0), axis=1)
-            if ends.size == 0 and links.size:  # a ring: open it at its longest link
-                cut = int(np.argmax(links))
-                path = np.roll(path, -(cut + 1))
-                links = np.linalg.norm(np.diff(pc[path], axis=0), axis=1)
-            piece = _longest_uniform_piece(links, uniformity)
-            seg = path[piece[0] : piece[1] + 1]
-            if seg.size > best.size:
-                best = seg
-    if best.size < min(min_markers, 3) or best.size < min_markers - 2:
+        ok &= (third > _ISOLATION * dist[:, col]) & (third[b_idx] > _ISOLATION * dist[:, col])
+        seeds_a.append(a_idx[ok])
+        seeds_b.append(b_idx[ok])
+    sa = np.concatenate(seeds_a)
+    sb = np.concatenate(seeds_b)
+    if sa.size == 0:
         raise ValidationError(
-            "rope auto: no chain of still points with near-uniform spacing found; "
+            "rope auto: no still points at rope-marker spacing found; "
             "select the rope with a box or point indices"
         )
-    chain = [int(i) for i in best]
-    spacing = float(np.median(np.linalg.norm(np.diff(pc[best], axis=0), axis=1)))
-    tree = cKDTree(pc)
-    for _ in range(2):  # extend the tail, then (reversed) the head
-        while len(chain) >= 2:
-            guess = 2 * pc[chain[-1]] - pc[chain[-2]]
-            d, i = tree.query(guess, k=1)
-            link = float(np.linalg.norm(pc[i] - pc[chain[-1]]))
-            if (
-                d <= uniformity * spacing
-                and int(i) not in chain
-                and abs(link - spacing) <= uniformity * spacing
-            ):
-                chain.append(int(i))
-            else:
-                break
-        chain.reverse()
-    if len(chain) < min_markers:
+    # directed seeds a -> b; each grows forward from b
+    chains = _grow_chains(
+        pc, tree, sa, sb, uniformity, dist[:, 1] if k > 1 else np.full(n, np.inf)
+    )  # (S, L) int, -1 padded
+    lengths = (chains >= 0).sum(axis=1)
+    # pair each directed seed with its reverse: chain = reverse(grow(b->a)) + grow(a->b)
+    key = {(int(x), int(y)): r for r, (x, y) in enumerate(zip(sa, sb, strict=True))}
+    found: list[tuple[float, np.ndarray]] = []
+    for r in range(sa.size):
+        back = key.get((int(sb[r]), int(sa[r])))
+        fwd = chains[r, : lengths[r]]
+        if back is not None:
+            bwd = chains[back, : lengths[back]][::-1]  # ends ... a, b
+            chain = np.concatenate([bwd, fwd[2:]])
+        else:
+            chain = fwd
+        if np.unique(chain).size != chain.size:
+            continue
+        found.append((float(np.linalg.norm(np.diff(pc[chain], axis=0), axis=1).sum()), chain))
+    found.sort(key=lambda item: -item[0])
+    best = found[0][1] if found else np.zeros(0, np.int64)
+    best = _bridge_chains(pc, best, [c for _, c in found[1:]], min_markers, uniformity)
+    if best.size < min_markers:
         raise ValidationError(
-            f"rope auto: the longest chain has {len(chain)} points, fewer than "
+            f"rope auto: the longest chain has {best.size} points, fewer than "
             f"min_markers={min_markers}; select the rope with a box or point indices"
         )
-    return cand[np.asarray(chain, dtype=np.int64)]
+    return cand[best.astype(np.int64)]
 
 
-def _walk_path(adj: Any, start: int, size: int) -> np.ndarray:
-    """Nodes of a path (or ring) component in walking order from ``start``."""
-    path = [start]
-    prev = -1
-    cur = start
-    for _ in range(size - 1):
-        nbrs = adj.indices[adj.indptr[cur] : adj.indptr[cur + 1]]
-        nxt = [int(v) for v in nbrs if v != prev and v != cur]
-        if not nxt or nxt[0] in path:
+def _bridge_chains(
+    pts: np.ndarray,
+    best: np.ndarray,
+    others: list[np.ndarray],
+    min_markers: int,
+    uniformity: float,
+    max_bridge: float = 5.0,
+) -> np.ndarray:
+    """Join the best chain with other chains of the same spacing across short breaks.
+
+    Where the rope passes close to the body (its middle between the legs) its
+    markers fail the 1-D test and the chain breaks; a disjoint chain of at least
+    ``min_markers`` points with the same spacing whose end lies within
+    ``max_bridge`` spacings of an end of the best chain continues it (the missing
+    markers between become traces in :func:`init_rope`).
+    """
+    if best.size < 2:
+        return best
+    spacing = float(np.median(np.linalg.norm(np.diff(pts[best], axis=0), axis=1)))
+    for _ in range(4):
+        joined = False
+        for other in others:
+            if other.size < min_markers or np.intersect1d(other, best).size:
+                continue
+            sp = float(np.median(np.linalg.norm(np.diff(pts[other], axis=0), axis=1)))
+            if abs(sp - spacing) > uniformity * spacing:
+                continue
+            ends = [
+                (best[-1], other[0], False, False),
+                (best[-1], other[-1], False, True),
+                (best[0], other[0], True, False),
+                (best[0], other[-1], True, True),
+            ]
+            gaps = [float(np.linalg.norm(pts[a] - pts[b])) for a, b, _, _ in ends]
+            g = int(np.argmin(gaps))
+            if gaps[g] > max_bridge * spacing:
+                continue
+            _, _, at_head, flip = ends[g]
+            piece = other[::-1] if flip else other
+            best = np.concatenate([piece[::-1], best]) if at_head else np.concatenate([best, piece])
+            joined = True
             break
-        prev, cur = cur, nxt[0]
-        path.append(cur)
-    return np.asarray(path, dtype=np.int64)
-
-
-def _longest_uniform_piece(links: np.ndarray, uniformity: float) -> tuple[int, int]:
-    """First and last node of the longest run of links within ``uniformity`` of the median."""
-    if links.size == 0:
-        return 0, 0
-    med = np.median(links)
-    good = np.abs(links - med) <= uniformity * med
-    best = (0, 0)
-    start = None
-    for i, g in enumerate(np.append(good, False)):
-        if g and start is None:
-            start = i
-        elif not g and start is not None:
-            if i - start > best[1] - best[0]:
-                best = (start, i)
-            start = None
+        if not joined:
+            break
     return best
 
 
+def _grow_chains(
+    pts: np.ndarray,
+    tree: cKDTree,
+    sa: np.ndarray,
+    sb: np.ndarray,
+    uniformity: float,
+    nearest: np.ndarray,
+    max_turn_degrees: float = 100.0,
+) -> np.ndarray:
+    """Grow every directed seed ``sa -> sb`` forward as a smooth chain (all at once).
+
+    Returns (S, L) int64 point indices in order (``sa``, ``sb``, …), -1 padded.
+    """
+    s = sa.size
+    n = pts.shape[0]
+    out = np.full((s, n + 2), -1, dtype=np.int64)
+    out[:, 0], out[:, 1] = sa, sb
+    last = pts[sb].copy()
+    step = pts[sb] - pts[sa]
+    prev_step = step.copy()
+    link = np.linalg.norm(step, axis=1)  # (S,) the seed's spacing
+    visited = np.zeros((s, n), dtype=bool)
+    visited[np.arange(s), sa] = True
+    visited[np.arange(s), sb] = True
+    alive = np.ones(s, dtype=bool)
+    length = np.full(s, 2)
+    for _ in range(n):
+        rows = np.nonzero(alive)[0]
+        if rows.size == 0:
+            break
+        found = np.full(rows.size, -1, dtype=np.int64)
+        new_step = np.zeros((rows.size, 3))
+        for skip in (1, 2):  # the next marker, else the one after (one unseen)
+            todo = found < 0
+            if not todo.any():
+                break
+            r = rows[todo]
+            guess = last[r] + skip * (2 * step[r] - prev_step[r])
+            kq = min(8, n)
+            d, i = tree.query(guess, k=kq)
+            d, i = d.reshape(r.size, kq), i.reshape(r.size, kq)
+            vec = pts[i] - last[r][:, None]  # (R, kq, 3)
+            hop = np.linalg.norm(vec, axis=2) / skip
+            cos = np.einsum("rkc,rc->rk", vec, step[r]) / np.maximum(
+                hop * skip * link[r][:, None], 1e-12
+            )
+            ok = (
+                (cos >= np.cos(np.radians(max_turn_degrees)))
+                & (d <= _GUESS_TOLERANCE * skip * link[r][:, None])
+                & (np.abs(hop - link[r][:, None]) <= uniformity * link[r][:, None])
+                & ~visited[r[:, None], i]
+                & (nearest[i] >= _ISOLATION_NEAREST * link[r][:, None])
+            )
+            first = np.where(ok.any(axis=1), np.argmax(ok, axis=1), -1)
+            got = first >= 0
+            pick = i[np.arange(r.size), np.maximum(first, 0)]
+            idx_todo = np.nonzero(todo)[0]
+            found[idx_todo[got]] = pick[got]
+            new_step[idx_todo[got]] = (pts[pick[got]] - last[r[got]]) / skip
+        ok_rows = rows[found >= 0]
+        alive[rows[found < 0]] = False
+        f = found[found >= 0]
+        prev_step[ok_rows] = step[ok_rows]
+        step[ok_rows] = new_step[found >= 0]
+        last[ok_rows] = pts[f]
+        visited[ok_rows, f] = True
+        out[ok_rows, length[ok_rows]] = f
+        length[ok_rows] += 1
+    return out
+
+
 # ------------------------------------------------------------------------------ init
+def _insert_unseen(
+    sel: np.ndarray, mean: np.ndarray, spacing: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Add traces for markers unseen in frame 0 (beyond the thesis).
+
+    A link about ``k >= 2`` times the median spacing (within 30 %) holds ``k - 1``
+    unseen markers: they get traces with index -1, placed on the curve through the
+    traces at their rest arc length, and the link is split into ``k`` equal spacings.
+    """
+    med = float(np.median(spacing))
+    ratio = spacing / med
+    k = np.rint(ratio).astype(np.int64)
+    split = (k >= 2) & (np.abs(ratio - k) <= 0.3)
+    if not split.any():
+        return sel, mean, spacing, 0
+    reps = np.where(split, k, 1)  # each link becomes reps[j] links
+    new_spacing = np.repeat(spacing / reps, reps)
+    seen = np.zeros(new_spacing.size + 1, dtype=bool)
+    seen[np.concatenate([[0], np.cumsum(reps)])] = True
+    new_sel = np.full(seen.size, -1, dtype=np.int64)
+    new_sel[seen] = sel
+    pos = np.zeros((seen.size, 3))
+    pos[seen] = mean
+    pos, _ = fill_interior_on_curve(pos, seen, rest_arclength(new_spacing))
+    return new_sel, pos, new_spacing, int((~seen).sum())
+
+
 def init_rope(
     cloud: PointCloud,
     *,
@@ -491,6 +603,7 @@ def init_rope(
     spacing = np.linalg.norm(np.diff(pos, axis=1), axis=2).mean(axis=0)
     if np.any(spacing <= 0):
         raise ValidationError("rope: two selected traces coincide")
+    sel, mean, spacing, inserted = _insert_unseen(sel, mean, spacing)
     return RopeInit(
         indices=sel,
         positions=mean,
@@ -498,5 +611,5 @@ def init_rope(
         gamma=float(gamma),
         max_temp_markers=int(max_temp_markers),
         window=(0, n_window),
-        meta={"method": method, "discarded": int((~keep).sum())},
+        meta={"method": method, "discarded": int((~keep).sum()), "inserted": inserted},
     )

@@ -260,7 +260,7 @@ def track_rope(
     if not isinstance(init, RopeInit):
         raise ValidationError(f"init: expected a RopeInit, got {type(init).__name__}")
     n0 = int(cloud.counts[0]) if cloud.n_frames else 0
-    if cloud.n_frames < 1 or init.indices.max() >= n0:
+    if cloud.n_frames < 1 or init.indices.max() >= n0 or init.n_markers < 3:
         raise ValidationError(
             f"init: rope index {int(init.indices.max())} is beyond frame 0's {n0} points"
         )
@@ -274,10 +274,13 @@ def track_rope(
     invented = np.zeros((t_frames, m), dtype=bool)
     point_index = np.full((t_frames, m), -1, dtype=np.int64)
     lost_frames = np.zeros((t_frames, m), dtype=bool)
-    positions[0] = points[init.indices]
-    point_index[0] = init.indices
+    seen0 = init.indices >= 0
+    positions[0] = init.positions
+    positions[0, seen0] = points[cloud.offsets[0] + init.indices[seen0]]
+    point_index[0, seen0] = init.indices[seen0]
+    invented[0] = ~seen0
     velocity = np.zeros((m, 3))  # v^{i-1} Δt: last per-frame displacement (eq. 3.2)
-    temp_count = np.zeros(m, dtype=np.int64)  # consecutive temporary markers
+    temp_count = (~seen0).astype(np.int64)  # consecutive temporary markers
     tree = _FrameTree(cloud)
     every = max(1, t_frames // 100)
     k_cand = _CANDIDATES
