@@ -50,6 +50,8 @@ __all__ = ["RopeTrack", "track_rope"]
 _FRAME_SEPARATION = 1000.0
 #: Frames per KD-tree chunk.
 _CHUNK_FRAMES = 4096
+#: Largest chord between neighbouring markers, in rest spacings (plus γ).
+_STRETCH = 1.1
 #: Candidates per trace considered by the assignment.
 _CANDIDATES = 3
 
@@ -159,6 +161,30 @@ def _side_neighbours(known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     after = np.minimum.accumulate(np.where(known, ar, m)[::-1])[::-1]
     after = np.concatenate([after[1:], [m]])
     return before, after
+
+
+def _reject_overstretched(
+    cur: np.ndarray, known: np.ndarray, taken: np.ndarray, spacing: np.ndarray, gamma: float
+) -> None:
+    """Refuse taken points that would stretch the rope (beyond the thesis), in place.
+
+    A rope does not stretch: the chord between neighbouring markers is at most
+    their rest spacing. A link longer than ``1.1 l_j + γ`` is broken; a marker all of
+    whose measured links are broken (at least one) is un-taken — it follows
+    something else, typically a body marker it was confused with.
+    """
+    link_ok = np.ones(known.size + 1, dtype=bool)  # link j joins j-1 and j; ends open
+    both = known[:-1] & known[1:]
+    chord = np.linalg.norm(cur[1:] - cur[:-1], axis=1)
+    link_ok[1:-1] = ~both | (chord <= _STRETCH * spacing + gamma)
+    has_left = np.concatenate([[False], both])
+    has_right = np.concatenate([both, [False]])
+    bad_left = has_left & ~link_ok[:-1]
+    bad_right = has_right & ~link_ok[1:]
+    bad = known & (bad_left | bad_right) & (bad_left | ~has_left) & (bad_right | ~has_right)
+    if bad.any():
+        known[bad] = False
+        taken[bad] = -1
 
 
 def _neighbour_velocity(
@@ -302,6 +328,7 @@ def track_rope(
             known[hit] = True
             taken[hit] = pts
             cur[hit] = points[pts]
+        _reject_overstretched(cur, known, taken, spacing, gamma)
         if not known.all():
             # ---- pass 2: the rest at the curve (interior) or F (ends)
             missing = ~known
@@ -324,6 +351,7 @@ def track_rope(
                 known[hit] = True
                 taken[hit] = pts
                 cur[hit] = points[pts]
+                _reject_overstretched(cur, known, taken, spacing, gamma)
             still = ~known
             if still.any() and known.any():
                 # re-place the interior invented markers on the curve through every
