@@ -1,0 +1,284 @@
+"""Merging broken trajectories into labelled markers (Park & Hodgins 2006, §4.2).
+
+Labelled columns (the markers of the marker surface) carry the capture's first-frame
+labels; the other trajectories are unlabelled fragments (``*N`` columns). In every frame
+where a labelled marker is missing, its position is estimated from its neighbours
+(eq. 2, :func:`~skincap.cleanup.local_frames.estimate_missing`). A fragment becomes
+part of marker ``i`` when
+
+* it does not overlap in time with what marker ``i`` already has,
+* in its first frame it lies within ``ε¹_i = α¹ · d̄_i`` of the estimate (eq. 3, ``d̄_i``
+  the mean reference-pose distance from ``i`` to its neighbours), and
+* in **every** frame it spans where an estimate exists, it lies within ``ε²_i = α² · d̄_i``
+  (this rejects markers of another body part passing close by), with estimates in at
+  least half of its frames.
+
+A fragment with two such markers is merged into the closer only when it is clearly
+closer (mean distance below ``ambiguity_ratio`` times the other's); otherwise it waits.
+Several fragments may join one marker in the same pass (a chain) when they do not
+overlap each other. After each pass the estimates are recomputed with the merged data,
+and passes repeat until nothing changes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from skincap.cleanup.local_frames import estimate_missing
+from skincap.cleanup.surface import MarkerSurface
+from skincap.errors import ValidationError
+from skincap.types import MarkerSet
+
+__all__ = ["MergeReport", "merge_fragments"]
+
+
+@dataclass
+class MergeReport:
+    """Table 1's columns for one merge, plus what was merged where.
+
+    Attributes
+    ----------
+    trajectories_before, trajectories_after : int
+        Columns before and after merging (Table 1, "# of trajectories").
+    fragments_before, fragments_after : int
+        Unlabelled (non-anchor) columns before and after.
+    merged : int
+        Fragments merged into a marker.
+    wrongly_merged : int or None
+        Merged fragments whose true label differs from the marker's (needs truth).
+    wrong_rate : float or None
+        ``wrongly_merged / merged`` (Table 1's "error rate"; 0 when nothing merged).
+    left_unmerged : int
+        Fragments left over. With truth: only those whose true label is one of the
+        markers (they should have been merged); ghosts and other objects do not count.
+    left_unmerged_frames : int or None
+        Samples in those fragments (with truth).
+    passes : int
+        Estimate-and-merge passes run.
+    alpha1, alpha2 : float
+        Tolerances of eq. 3.
+    assignments : dict of str to str
+        Fragment label -> marker label it joined.
+    """
+
+    trajectories_before: int
+    trajectories_after: int
+    fragments_before: int
+    fragments_after: int
+    merged: int
+    wrongly_merged: int | None
+    wrong_rate: float | None
+    left_unmerged: int
+    left_unmerged_frames: int | None
+    passes: int
+    alpha1: float
+    alpha2: float
+    assignments: dict[str, str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        return asdict(self)
+
+
+def _overlaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(P,) bool: whether presence columns ``a[:, p]`` and ``b[:, p]`` share a frame."""
+    return np.any(a & b, axis=0)
+
+
+def merge_fragments(
+    markers: MarkerSet,
+    surface: MarkerSurface,
+    anchors: np.ndarray | None = None,
+    *,
+    alpha1: float = 0.5,
+    alpha2: float = 0.6,
+    ambiguity_ratio: float = 0.7,
+    max_passes: int = 10,
+    temporal: bool = True,
+    fragment_truth: dict[str, str] | None = None,
+    progress: Callable[[float, str], None] | None = None,
+) -> tuple[MarkerSet, MergeReport]:
+    """Merge unlabelled fragments into the markers of the marker surface.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Capture with labelled columns and fragment columns, positions (T, C, 3) metres,
+        NaN where missing.
+    surface : MarkerSurface
+        Neighbourhoods over the anchor columns, in ``anchors`` order, with its
+        ``reference`` pose and ``mean_neighbour_distance``.
+    anchors : (N,) int, optional
+        Columns of ``markers`` that are the surface's vertices. Default: every column
+        whose label does not start with ``*``.
+    alpha1, alpha2 : float, default 0.5, 0.6
+        Tolerances α¹ (first frame) and α² (every frame) of eq. 3.
+    ambiguity_ratio : float, default 0.7
+        A fragment matching two markers joins the closer only when its mean distance
+        is below this fraction of the other's.
+    max_passes : int, default 10
+    temporal : bool, default True
+        Estimate from the neighbourhood shape in the frames bracketing each gap
+        (see :func:`~skincap.cleanup.local_frames.estimate_missing`) instead of the
+        reference pose alone; fewer wrong merges around creases (elbow, armpit).
+    fragment_truth : dict of str to str, optional
+        True label per fragment (and anchor) label, e.g. ``take.fragment_truth``;
+        used only to count wrong merges in the report.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    merged : MarkerSet
+        Anchor columns (with the fragments merged in) followed by the fragments left
+        over, same frames and rate; residuals and invented flags follow their samples.
+    report : MergeReport
+    """
+    pos = markers.positions
+    t_count, c_count, _ = pos.shape
+    labels = list(markers.labels)
+    if anchors is None:
+        anchors = np.flatnonzero([not str(lab).startswith("*") for lab in labels])
+    anchors = np.asarray(anchors, dtype=np.int64)
+    n = anchors.size
+    if surface.n_markers != n:
+        raise ValidationError(
+            f"surface has {surface.n_markers} markers but {n} anchor columns were given"
+        )
+    if n and (anchors.min() < 0 or anchors.max() >= c_count or np.unique(anchors).size != n):
+        raise ValidationError(f"anchors must be distinct columns in 0..{c_count - 1}")
+    if not (0 < alpha1 and 0 < alpha2 and 0 < ambiguity_ratio <= 1 and max_passes >= 1):
+        raise ValidationError(
+            "need alpha1 > 0, alpha2 > 0, 0 < ambiguity_ratio <= 1, max_passes >= 1"
+        )
+    is_anchor = np.zeros(c_count, dtype=bool)
+    is_anchor[anchors] = True
+    frags = np.flatnonzero(~is_anchor)
+
+    cur = pos[:, anchors].copy()  # (T, N, 3)
+    res = None if markers.residuals is None else markers.residuals[:, anchors].copy()
+    inv = None if markers.invented is None else markers.invented[:, anchors].copy()
+    frag_pos = pos[:, frags]  # (T, F, 3)
+    frag_present = np.isfinite(frag_pos).all(axis=2)  # (T, F)
+    has_data = frag_present.any(axis=0)
+    first = np.argmax(frag_present, axis=0)  # (F,)
+    length = frag_present.sum(axis=0)
+    target = np.full(frags.size, -1, dtype=np.int64)  # anchor index each fragment joined
+
+    mnd = surface.mean_neighbour_distance
+    eps1 = alpha1 * mnd  # ε¹, eq. 3 (NaN for markers without neighbours: never matched)
+    eps2 = alpha2 * mnd  # ε²
+    passes = 0
+    for passes in range(1, max_passes + 1):
+        open_f = np.flatnonzero((target < 0) & has_data)
+        if open_f.size == 0 or n == 0:
+            break
+        est, _ = estimate_missing(cur, surface, surface.reference, temporal=temporal)
+        anchor_present = np.isfinite(cur).all(axis=2)  # (T, N)
+        # ε¹ at each open fragment's first frame, against every missing marker
+        f0 = first[open_f]
+        p0 = frag_pos[f0, open_f]  # (Fo, 3)
+        d0 = np.linalg.norm(est[f0] - p0[:, None, :], axis=2)  # (Fo, N), NaN if no estimate
+        # loose candidates (within ε²) compete; strict ones (ε¹, then ε² everywhere) win
+        cand = (d0 < np.maximum(eps1, eps2)[None, :]) & ~anchor_present[f0]
+        cf, ci = np.nonzero(cand)
+        fi = open_f[cf]
+        if fi.size == 0:
+            break
+        strict = d0[cf, ci] < eps1[ci]
+        # no temporal overlap with the marker's current trajectory
+        free = ~_overlaps(frag_present[:, fi], anchor_present[:, ci])
+        fi, ci, strict = fi[free], ci[free], strict[free]
+        # ε² in every frame the fragment spans
+        dist = np.linalg.norm(est[:, ci] - frag_pos[:, fi], axis=2)  # (T, P)
+        checked = np.isfinite(dist)
+        within = np.where(checked, dist < eps2[ci][None, :], True).all(axis=0)
+        enough = 2 * checked.sum(axis=0) >= length[fi]
+        ok = strict & within & enough
+        mean_d = np.where(checked, dist, 0.0).sum(axis=0) / np.maximum(checked.sum(axis=0), 1)
+        mean_d = np.where(checked.any(axis=0), mean_d, np.inf)
+        # per fragment: the best valid match must be clearly closer than any other
+        # marker whose estimate comes near (valid or not)
+        order = np.lexsort((mean_d, fi))
+        fi, ci, mean_d, ok = fi[order], ci[order], mean_d[order], ok[order]
+        head = np.ones(fi.size, dtype=bool)
+        head[1:] = fi[1:] != fi[:-1]
+        same_next = np.zeros(fi.size, dtype=bool)
+        same_next[:-1] = fi[1:] == fi[:-1]
+        second = np.full(fi.size, np.inf)
+        second[:-1] = np.where(same_next[:-1], mean_d[1:], np.inf)
+        clear = head & ok & (mean_d < ambiguity_ratio * second)
+        fi, ci, mean_d = fi[clear], ci[clear], mean_d[clear]
+        # chains: per marker, closest first, keep fragments that do not overlap
+        order = np.argsort(mean_d, kind="stable")
+        taken = anchor_present.copy()
+        merged_now = 0
+        for f, i in zip(fi[order].tolist(), ci[order].tolist(), strict=True):
+            frames = frag_present[:, f]
+            if np.any(taken[frames, i]):
+                continue
+            taken[frames, i] = True
+            target[f] = i
+            cur[frames, i] = frag_pos[frames, f]
+            col = frags[f]
+            if res is not None:
+                res[frames, i] = markers.residuals[frames, col]
+            if inv is not None:
+                inv[frames, i] = markers.invented[frames, col]
+            merged_now += 1
+        if progress is not None:
+            progress(passes / max_passes, "merging fragments")
+        if merged_now == 0:
+            break
+
+    left = frags[(target < 0) & has_data]  # all-NaN fragments are dropped
+    keep_cols = np.concatenate([anchors, left])
+    out_pos = np.concatenate([cur, pos[:, left]], axis=1)
+    out_res = None if res is None else np.concatenate([res, markers.residuals[:, left]], axis=1)
+    out_inv = None if inv is None else np.concatenate([inv, markers.invented[:, left]], axis=1)
+    out = MarkerSet(
+        positions=out_pos,
+        labels=[labels[c] for c in keep_cols],
+        rate=markers.rate,
+        meta=dict(markers.meta),
+        residuals=out_res,
+        invented=out_inv,
+    )
+
+    assignments = {
+        labels[frags[f]]: labels[anchors[target[f]]] for f in np.flatnonzero(target >= 0).tolist()
+    }
+    wrong: int | None = None
+    left_count = int(left.size)
+    left_frames: int | None = None
+    if fragment_truth is not None:
+        anchor_truth = {fragment_truth.get(labels[a], labels[a]) for a in anchors.tolist()}
+        wrong = sum(
+            fragment_truth.get(f, f) != fragment_truth.get(a, a) for f, a in assignments.items()
+        )
+        should = np.array(
+            [fragment_truth.get(labels[c], labels[c]) in anchor_truth for c in left.tolist()],
+            dtype=bool,
+        )
+        left_count = int(should.sum())
+        left_frames = int(np.isfinite(pos[:, left[should], 0]).sum())
+    merged_count = len(assignments)
+    report = MergeReport(
+        trajectories_before=int(c_count),
+        trajectories_after=int(keep_cols.size),
+        fragments_before=int(frags.size),
+        fragments_after=int(left.size),
+        merged=merged_count,
+        wrongly_merged=wrong,
+        wrong_rate=None if wrong is None else (wrong / merged_count if merged_count else 0.0),
+        left_unmerged=left_count,
+        left_unmerged_frames=left_frames,
+        passes=passes,
+        alpha1=float(alpha1),
+        alpha2=float(alpha2),
+        assignments=assignments,
+    )
+    return out, report
