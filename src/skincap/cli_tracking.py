@@ -12,13 +12,127 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from skincap.cli import _user_errors, bench_app, err, eval_app, out
+from skincap.cli import _user_errors, app, bench_app, err, eval_app, out
 from skincap.errors import FormatError, OutputExistsError, ValidationError
 
 if TYPE_CHECKING:
     import numpy as np
 
     from skincap.types import MarkerSet, PointCloud
+
+
+# ------------------------------------------------------------------------- track
+def _read_cloud(path: Path) -> PointCloud:
+    """The input as an un-indexed PointCloud: long point CSV, OptiTrack CSV or C3D.
+
+    A MarkerSet (OptiTrack CSV, C3D) must hold only unlabelled ``*N`` points; its
+    labels are dropped (the tracker sees points, not trajectories).
+    """
+    from skincap import io
+    from skincap.types import MarkerSet, PointCloud
+
+    obj = io.read(path)
+    if isinstance(obj, PointCloud):
+        return obj
+    if isinstance(obj, MarkerSet):
+        labelled = [label for label in obj.labels if not label.startswith("*")]
+        if labelled:
+            raise FormatError(
+                path,
+                f"track reads un-indexed points, but {len(labelled)} markers are labelled "
+                f"(e.g. {labelled[0]!r}); give a points CSV or a file of '*N' points",
+            )
+        return PointCloud.from_markerset(obj, keep_ids=False)
+    raise FormatError(path, "track reads a points CSV, an OptiTrack CSV or a C3D of '*N' points")
+
+
+def _parse_numbers(text: str, option: str, *, count: int | None, kind: type) -> list[Any]:
+    try:
+        values = [kind(v) for v in text.replace(" ", "").split(",") if v != ""]
+    except ValueError:
+        raise ValidationError(f"{option}: expected comma-separated numbers, got {text!r}") from None
+    if count is not None and len(values) != count:
+        raise ValidationError(f"{option}: expected {count} numbers, got {len(values)}")
+    return values
+
+
+@app.command()
+def track(
+    input_file: Annotated[
+        Path, typer.Argument(help="Long points CSV, OptiTrack CSV, or C3D of '*N' points.")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    rope_box: Annotated[
+        str | None,
+        typer.Option(help="x0,y0,z0,x1,y1,z1 (metres, Y up): frame-0 points in the box."),
+    ] = None,
+    rope_markers: Annotated[
+        str | None, typer.Option(help="Indices of the rope's points among frame 0's points.")
+    ] = None,
+    rope: Annotated[
+        str | None, typer.Option(help="'auto': find the rope as a still chain of points.")
+    ] = None,
+    window: Annotated[
+        float, typer.Option(help="Seconds at the start where the rope hangs still.")
+    ] = 0.5,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+) -> None:
+    """Separate a rope from the body in un-indexed points and track it (Porter 2012).
+
+    Writes DIR/rope.c3d (rope_00… in order, invented samples flagged),
+    DIR/body_points.csv (the points the rope did not take), DIR/rope_curve.csv
+    (the rope resampled per frame) and DIR/report.json. Select the rope in frame 0
+    with exactly one of --rope-box, --rope-markers or --rope auto.
+
+    Example: skincap track capture_points.csv --rope auto -o tracked
+    """
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from skincap.tracking.init import init_rope
+    from skincap.tracking.outputs import OUTPUT_NAMES, write_track_outputs
+    from skincap.tracking.tracker import track_rope
+
+    with _user_errors():
+        given = [rope_box is not None, rope_markers is not None, rope is not None]
+        if sum(given) != 1:
+            raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")
+        if rope is not None and rope != "auto":
+            raise ValidationError(f"--rope: the only choice is 'auto', got {rope!r}")
+        if not force:
+            for name in OUTPUT_NAMES:
+                if (output / name).exists():
+                    raise OutputExistsError(output / name)
+        cloud = _read_cloud(input_file)
+        if rope_box is not None:
+            box = _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
+            init = init_rope(cloud, box=box, window_seconds=window)
+        elif rope_markers is not None:
+            idx = _parse_numbers(rope_markers, "--rope-markers", count=None, kind=int)
+            init = init_rope(cloud, markers=idx, window_seconds=window)
+        else:
+            init = init_rope(cloud, auto=True, window_seconds=window)
+        frames = cloud.n_frames
+        with Progress(
+            TextColumn("{task.description}"),
+            BarColumn(),
+            TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
+            TimeRemainingColumn(),
+            console=err,
+            transient=True,
+            disable=not err.is_terminal,
+        ) as progress:
+            task = progress.add_task("tracking the rope", total=frames)
+
+            def advance(fraction: float) -> None:
+                progress.update(task, completed=fraction * frames)
+
+            result = track_rope(cloud, init, progress=advance)
+        report = write_track_outputs(cloud, result, output, force=force)
+    out.print(
+        f"{input_file} -> {output}: {report['frames']} frames, "
+        f"{len(report['rope_markers'])} rope markers, {report['rope_points']} rope points, "
+        f"{report['invented_samples']} invented samples, {len(report['lost_traces'])} lost traces"
+    )
 
 
 # -------------------------------------------------------------------- eval track

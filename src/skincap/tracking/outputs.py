@@ -1,0 +1,150 @@
+"""Files of ``skincap track``: the rope, the body points, the rope curve, a report.
+
+This is the composition layer between the tracker and :mod:`skincap.io` (the CLI
+calls it); the tracking algorithms themselves never import io.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skincap.errors import ValidationError
+from skincap.io._common import atomic_output
+from skincap.tracking.curve import resample_by_arclength
+from skincap.tracking.tracker import RopeTrack
+from skincap.types import PointCloud
+
+__all__ = ["OUTPUT_NAMES", "track_report", "write_track_outputs"]
+
+#: The files written into the output folder.
+OUTPUT_NAMES = ("rope.c3d", "body_points.csv", "rope_curve.csv", "report.json")
+
+
+def _body_cloud(cloud: PointCloud, track: RopeTrack) -> PointCloud:
+    """Every point the rope did not take, frames kept (ids kept when present)."""
+    keep = ~track.rope_points_mask(cloud)
+    frame = cloud.frame_index[keep]
+    offsets = np.concatenate([[0], np.cumsum(np.bincount(frame, minlength=cloud.n_frames))])
+    return PointCloud(
+        points=cloud.points[keep],
+        offsets=offsets,
+        rate=cloud.rate,
+        ids=None if cloud.ids is None else cloud.ids[keep],
+        meta=dict(cloud.meta),
+    )
+
+
+def track_report(cloud: PointCloud, track: RopeTrack) -> dict[str, Any]:
+    """Summary of a tracking run as JSON-ready values.
+
+    Points per frame (min, mean, max), rope markers and their spacings, invented
+    samples (total, per marker, fraction), lost traces with their lost frame counts,
+    points taken by the rope and left to the body, γ, maxTempMarkers, how the rope
+    was selected.
+    """
+    counts = cloud.counts
+    taken = int((track.point_index >= 0).sum())
+    lost_counts = track.lost_frames.sum(axis=0)
+    return {
+        "frames": int(cloud.n_frames),
+        "rate": float(cloud.rate),
+        "points": int(cloud.points.shape[0]),
+        "points_per_frame": {
+            "min": int(counts.min()) if counts.size else 0,
+            "mean": float(counts.mean()) if counts.size else 0.0,
+            "max": int(counts.max()) if counts.size else 0,
+        },
+        "rope_markers": list(track.labels),
+        "rope_selection": str(track.init.meta.get("method", "")),
+        "rope_first_frame_indices": [int(i) for i in track.init.indices],
+        "spacing_m": [float(v) for v in track.init.spacing],
+        "gamma_m": float(track.init.gamma),
+        "max_temp_markers": int(track.init.max_temp_markers),
+        "rope_points": taken,
+        "body_points": int(cloud.points.shape[0]) - taken,
+        "invented_samples": int(track.invented.sum()),
+        "invented_fraction": float(track.invented.mean()) if track.invented.size else 0.0,
+        "invented_per_marker": {
+            label: int(n) for label, n in zip(track.labels, track.invented.sum(axis=0), strict=True)
+        },
+        "lost_traces": [
+            {"marker": label, "lost_frames": int(n)}
+            for label, n in zip(track.labels, lost_counts, strict=True)
+            if n > 0
+        ],
+    }
+
+
+def write_track_outputs(
+    cloud: PointCloud,
+    track: RopeTrack,
+    folder: str | os.PathLike[str],
+    *,
+    force: bool = False,
+    curve_samples: int = 50,
+) -> dict[str, Any]:
+    """Write the results of :func:`~skincap.tracking.tracker.track_rope` into ``folder``.
+
+    ``rope.c3d``
+        The rope markers ``rope_00…`` in order along the rope, invented samples
+        flagged (C3D camera mask, read back as ``MarkerSet.invented``).
+    ``body_points.csv``
+        Every point the rope did not take, in skincap's long point format (with the
+        input's ids when it had them), ready for body labelling.
+    ``rope_curve.csv``
+        ``frame,s,x,y,z``: the rope resampled at ``curve_samples`` points of equal
+        arc length per frame (``s`` metres from the first marker), Y up, metres.
+    ``report.json``
+        :func:`track_report`.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        The tracked take.
+    track : RopeTrack
+    folder : path-like
+        Created if missing.
+    force : bool
+        Replace existing outputs; otherwise an existing one raises
+        :class:`~skincap.errors.OutputExistsError` before anything is written.
+    curve_samples : int
+        Samples per frame of the resampled curve, >= 2.
+
+    Returns
+    -------
+    dict
+        The report.
+    """
+    from skincap.errors import OutputExistsError
+    from skincap.io.c3d import write_c3d
+    from skincap.io.csv import write_points_csv
+
+    if track.n_frames != cloud.n_frames:
+        raise ValidationError(f"track: {track.n_frames} frames but the cloud has {cloud.n_frames}")
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    if not force:
+        for name in OUTPUT_NAMES:
+            if (out / name).exists():
+                raise OutputExistsError(out / name)
+    write_c3d(track.to_markerset(), out / "rope.c3d", force=force)
+    write_points_csv(_body_cloud(cloud, track), out / "body_points.csv", force=force)
+    s, pts = resample_by_arclength(track.positions, curve_samples)
+    t_frames, n = s.shape
+    table = np.column_stack([np.repeat(np.arange(t_frames), n), s.ravel(), pts.reshape(-1, 3)])
+    lines = ["frame,s,x,y,z"]
+    if table.size:
+        cols = [np.char.mod("%d", table[:, 0].astype(np.int64))]
+        cols += [np.char.mod("%.9g", table[:, c]) for c in range(1, 5)]
+        lines.extend(",".join(r) for r in np.stack(cols, axis=1).tolist())
+    with atomic_output(out / "rope_curve.csv", force=force) as tmp:
+        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8", newline="\n")
+    report = track_report(cloud, track)
+    with atomic_output(out / "report.json", force=force) as tmp:
+        tmp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    return report
