@@ -1,0 +1,823 @@
+"""Gap filling: local-PCA hole filling after Park & Hodgins (2006) §4.3, the two
+improvements their discussion proposes, and the baselines it is measured against.
+
+Every method has the same interface (:func:`fill_gaps`) and the same contract: it
+returns the filled positions and a mask of the samples it invented; measured samples
+are never changed.
+
+Methods
+-------
+``local_pca`` (eqs. 4-5)
+    For every marker ``i`` a *group* made of ``i`` and its neighbours. In every frame
+    the group is expressed in a local frame: the rigid transform (Kabsch/Horn, eq. 5)
+    that carries the group's reference shape (its Procrustes mean shape) onto the
+    present members. A PCA of the local coordinates over the frames where the whole
+    group is present keeps 99% of the variance. A missing member is estimated by
+    choosing the PCA coefficients that best reproduce the present members (a least
+    squares fit with a small PPCA prior on the coefficients so that few observations
+    never make it ill-posed), mapped back through the local frame; the local frame is
+    then refitted with the estimate and the fit repeated. Every group that contains a
+    missing marker (its own and its neighbours') gives an estimate; they are averaged,
+    as the paper does.
+``local_pca_weighted``
+    As ``local_pca``, but the estimates are averaged with weights: the inverse of the
+    PCA model's predictive variance for the sample (which grows when few members were
+    measured) and, following the paper's discussion, a lower weight for groups whose
+    centre marker was itself estimated rather than measured.
+``local_pca_missing``
+    Both improvements of the discussion: the weighting above, and a PCA that tolerates
+    missing data (EM / iterative least-squares imputation, after Shum et al. 1995), so
+    the frames where a member is missing still train the model, and the reference
+    shape is a Procrustes mean computed with missing members.
+``linear``, ``pchip``, ``spline``
+    Interpolation in time of each trajectory (linear; scipy's PCHIP; scipy's not-a-knot
+    cubic spline). Interior gaps only.
+``rigid``
+    Vicon-style rigid-body fill from >= 3 donor markers: the donors' rigid motion from
+    the last frame before the gap to each gap frame carries the marker along; the same
+    from the first frame after the gap, the two blended linearly across the gap.
+``pca``
+    Whole-body PCA fill (Gløersen & Federolf 2016): PCA of all markers' normalised
+    coordinates over the take, missing values reconstructed iteratively.
+
+The local methods fall back to the ``rigid`` fill for samples no group could estimate
+(fewer than three present members); samples no method can reach stay NaN.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from typing import Any, Literal
+
+import numpy as np
+
+from skincap.errors import SkincapWarning, ValidationError
+from skincap.geometry.rigid import apply_rigid, fit_rigid
+from skincap.types import MarkerSet
+
+__all__ = [
+    "FILL_METHODS",
+    "fill_gaps",
+    "fill_local_pca",
+    "fill_linear",
+    "fill_pchip",
+    "fill_spline",
+    "fill_rigid",
+    "fill_pca",
+    "motion_neighbours",
+    "as_csr",
+    "mean_neighbour_distance",
+]
+
+FillMethod = Literal[
+    "local_pca",
+    "local_pca_weighted",
+    "local_pca_missing",
+    "linear",
+    "pchip",
+    "spline",
+    "rigid",
+    "pca",
+]
+#: Every method :func:`fill_gaps` accepts.
+FILL_METHODS: tuple[str, ...] = (
+    "local_pca",
+    "local_pca_weighted",
+    "local_pca_missing",
+    "linear",
+    "pchip",
+    "spline",
+    "rigid",
+    "pca",
+)
+
+Progress = Callable[[float, str], None]
+CSR = tuple[np.ndarray, np.ndarray]
+
+
+# ------------------------------------------------------------------ neighbourhoods
+def as_csr(neighbours: Any, n_markers: int) -> CSR:
+    """Normalise a neighbour structure to CSR ``(offsets, indices)``.
+
+    Parameters
+    ----------
+    neighbours : (offsets, indices) or an object with a ``neighbours`` attribute holding
+        one (such as :class:`skincap.cleanup.surface.MarkerSurface`)
+        ``offsets`` (N + 1,) int, non-decreasing from 0; marker ``i``'s neighbours are
+        ``indices[offsets[i]:offsets[i + 1]]``, each in ``[0, N)`` and not ``i``.
+    n_markers : int
+        N.
+
+    Returns
+    -------
+    offsets : (N + 1,) int64
+    indices : (E,) int64
+    """
+    if hasattr(neighbours, "neighbours"):
+        neighbours = neighbours.neighbours
+    try:
+        offsets, indices = neighbours
+    except (TypeError, ValueError):
+        raise ValidationError(
+            "neighbours: expected a CSR pair (offsets, indices) or a MarkerSurface"
+        ) from None
+    offsets = np.asarray(offsets)
+    indices = np.asarray(indices)
+    if offsets.ndim != 1 or offsets.shape[0] != n_markers + 1:
+        raise ValidationError(
+            f"neighbours: offsets must have shape ({n_markers + 1},), got {offsets.shape}"
+        )
+    if not (np.issubdtype(offsets.dtype, np.integer) or offsets.size == 0):
+        raise ValidationError(f"neighbours: offsets must be integers, got {offsets.dtype}")
+    if indices.size and not np.issubdtype(indices.dtype, np.integer):
+        raise ValidationError(f"neighbours: indices must be integers, got {indices.dtype}")
+    offsets = offsets.astype(np.int64)
+    indices = indices.astype(np.int64).reshape(-1)
+    if offsets[0] != 0 or np.any(np.diff(offsets) < 0) or offsets[-1] != indices.size:
+        raise ValidationError(
+            "neighbours: offsets must start at 0, not decrease and end at len(indices)"
+        )
+    if indices.size and (indices.min() < 0 or indices.max() >= n_markers):
+        raise ValidationError(f"neighbours: indices must lie in [0, {n_markers})")
+    owner = np.repeat(np.arange(n_markers), np.diff(offsets))
+    if np.any(owner == indices):
+        raise ValidationError("neighbours: a marker cannot be its own neighbour")
+    return offsets, indices
+
+
+def motion_neighbours(positions: np.ndarray, k: int = 6, *, max_frames: int = 200) -> CSR:
+    """Motion-consistent neighbours: for each marker the ``k`` markers whose distance
+    to it stays most nearly constant through the take (skin and segment neighbours
+    keep it; markers on other limbs do not), ties broken by closeness.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    k : int
+        Neighbours per marker (capped at N - 1).
+    max_frames : int
+        Frames sampled evenly to measure the distances (bounds memory and time).
+
+    Returns
+    -------
+    offsets : (N + 1,) int64
+    indices : (N * k,) int64
+        Each marker's neighbours, most consistent first. Pairs never seen together
+        are never neighbours unless nothing else is left.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    t, n, _ = p.shape
+    k = int(min(k, n - 1))
+    if k < 1:
+        return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    frames = np.unique(np.linspace(0, t - 1, min(t, max_frames)).round().astype(np.int64))
+    q = p[frames]  # (F, N, 3)
+    d = np.linalg.norm(q[:, :, None, :] - q[:, None, :, :], axis=-1)  # (F, N, N)
+    seen = np.isfinite(d)
+    count = seen.sum(axis=0)  # (N, N)
+    dz = np.where(seen, d, 0.0)
+    safe = np.maximum(count, 1)
+    mean = dz.sum(axis=0) / safe
+    var = np.maximum((dz**2).sum(axis=0) / safe - mean**2, 0.0)
+    # score: distance variation plus a little of the distance itself (nearer preferred)
+    score = np.sqrt(var) + 0.1 * mean
+    score = np.where(count >= max(3, len(frames) // 10), score, np.inf)
+    np.fill_diagonal(score, np.inf)
+    order = np.argsort(score, axis=1, kind="stable")[:, :k]  # (N, k)
+    offsets = np.arange(n + 1, dtype=np.int64) * k
+    return offsets, order.reshape(-1).astype(np.int64)
+
+
+def mean_neighbour_distance(positions: np.ndarray, neighbours: CSR) -> np.ndarray:
+    """Each marker's mean distance to its neighbours, averaged over the take.
+
+    Table 2's unit of Park & Hodgins (their "average distance to the neighbors").
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    neighbours : CSR (offsets (N + 1,), indices (E,))
+
+    Returns
+    -------
+    (N,) float64, metres
+        NaN for a marker without neighbours or never seen with one.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    offsets, indices = neighbours
+    n = p.shape[1]
+    owner = np.repeat(np.arange(n), np.diff(offsets))
+    d = np.linalg.norm(p[:, owner] - p[:, indices], axis=-1)  # (T, E)
+    ok = np.isfinite(d)
+    cnt = ok.sum(axis=0)
+    edge = np.where(cnt > 0, np.where(ok, d, 0.0).sum(axis=0) / np.maximum(cnt, 1), np.nan)
+    good = np.isfinite(edge)
+    total = np.bincount(owner[good], weights=edge[good], minlength=n)
+    num = np.bincount(owner[good], minlength=n)
+    return np.where(num > 0, total / np.maximum(num, 1), np.nan)
+
+
+# ----------------------------------------------------------------------- targets
+def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All maximal missing runs (edge runs included): (marker, start, length)."""
+    t, n = missing.shape
+    padded = np.zeros((t + 2, n), dtype=np.int8)
+    padded[1:-1] = missing
+    edges = np.diff(padded, axis=0)
+    marker, starts = np.nonzero(edges.T == 1)
+    _, ends = np.nonzero(edges.T == -1)
+    return marker.astype(np.int64), starts.astype(np.int64), (ends - starts).astype(np.int64)
+
+
+def _targets(missing: np.ndarray, max_gap: int | None, *, interior_only: bool) -> np.ndarray:
+    """(T, N) bool: the missing samples a method should fill."""
+    t, n = missing.shape
+    marker, start, length = _runs(missing)
+    keep = np.ones(marker.shape, dtype=bool)
+    if interior_only:
+        keep &= (start > 0) & (start + length < t)
+    if max_gap is not None:
+        keep &= length <= max_gap
+    # a marker never seen cannot be filled by anything
+    keep &= length < t
+    marker, start, length = marker[keep], start[keep], length[keep]
+    target = np.zeros((t + 1, n), dtype=np.int32)
+    np.add.at(target, (start, marker), 1)
+    np.add.at(target, (start + length, marker), -1)
+    return np.cumsum(target, axis=0)[:t] > 0
+
+
+# ------------------------------------------------------------------ temporal fills
+def _prev_next(present: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the last present frame <= t and the first present frame >= t (-1 / T)."""
+    t, n = present.shape
+    frame = np.arange(t)[:, None]
+    prev = np.maximum.accumulate(np.where(present, frame, -1), axis=0)
+    nxt = np.minimum.accumulate(np.where(present, frame, t)[::-1], axis=0)[::-1]
+    return prev, nxt
+
+
+def fill_linear(positions: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Linear interpolation in time across ``target`` samples (interior gaps).
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    target : (T, N) bool
+        Missing samples to fill; a target without a present sample on both sides
+        stays NaN.
+
+    Returns
+    -------
+    (T, N, 3) float64 : a filled copy.
+    """
+    p = np.array(positions, dtype=np.float64)
+    present = ~np.isnan(p[..., 0])
+    prev, nxt = _prev_next(present)
+    t = p.shape[0]
+    ok = target & (prev >= 0) & (nxt < t)
+    tt, nn = np.nonzero(ok)
+    a, b = prev[tt, nn], nxt[tt, nn]
+    w = ((tt - a) / (b - a))[:, None]
+    p[tt, nn] = (1 - w) * p[a, nn] + w * p[b, nn]
+    return p
+
+
+def _fill_scipy(positions: np.ndarray, target: np.ndarray, kind: str) -> np.ndarray:
+    from scipy.interpolate import CubicSpline, PchipInterpolator
+
+    p = np.array(positions, dtype=np.float64)
+    present = ~np.isnan(p[..., 0])
+    prev, nxt = _prev_next(present)
+    t = p.shape[0]
+    ok = target & (prev >= 0) & (nxt < t)
+    frames = np.arange(t)
+    for n in np.nonzero(ok.any(axis=0))[0]:  # loop over markers; work over frames
+        known = present[:, n]
+        if known.sum() < 2:
+            continue
+        if kind == "pchip":
+            f = PchipInterpolator(frames[known], p[known, n], axis=0)
+        else:
+            f = CubicSpline(frames[known], p[known, n], axis=0)
+        rows = np.nonzero(ok[:, n])[0]
+        p[rows, n] = f(rows)
+    return p
+
+
+def fill_pchip(positions: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Monotone cubic (scipy PCHIP) interpolation in time; same contract as
+    :func:`fill_linear`."""
+    return _fill_scipy(positions, target, "pchip")
+
+
+def fill_spline(positions: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Not-a-knot cubic spline through all present samples of each trajectory (scipy
+    ``CubicSpline``); same contract as :func:`fill_linear`."""
+    return _fill_scipy(positions, target, "spline")
+
+
+# --------------------------------------------------------------------- rigid fill
+def fill_rigid(
+    positions: np.ndarray,
+    target: np.ndarray,
+    neighbours: CSR,
+    *,
+    max_donors: int = 6,
+) -> np.ndarray:
+    """Vicon-style rigid-body fill from >= 3 donor markers.
+
+    For a missing run ``[s, e)`` of marker ``i`` the donors are up to ``max_donors``
+    of its neighbours present in frame ``s - 1``, in frame ``e`` and throughout the run.
+    The donors' rigid motion (Kabsch) from frame ``s - 1`` to gap frame ``t`` carries
+    ``x_i(s - 1)``; the same from frame ``e``; the two are blended linearly in time. A
+    run at the start or end of the take uses its one side. All runs and frames are
+    solved in one batched fit.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    target : (T, N) bool
+        Samples to fill.
+    neighbours : CSR (offsets (N + 1,), indices (E,))
+        Donor candidates per marker, preferred first.
+    max_donors : int
+
+    Returns
+    -------
+    (T, N, 3) float64 : a filled copy; targets without three donors stay NaN.
+    """
+    p = np.array(positions, dtype=np.float64)
+    t, n, _ = p.shape
+    present = ~np.isnan(p[..., 0])
+    offsets, indices = neighbours
+    marker, start, length = _runs(~present)
+    end = start + length  # one past the run
+    has_target = target[start, marker] if marker.size else np.zeros(0, dtype=bool)
+    marker, start, end = marker[has_target], start[has_target], end[has_target]
+    if marker.size == 0:
+        return p
+    g = marker.size
+    # candidate donors per run, padded to K
+    deg = np.diff(offsets)
+    kmax = int(deg.max()) if deg.size else 0
+    if kmax == 0:
+        return p
+    slot = np.arange(kmax)
+    cand_ok = slot[None, :] < deg[marker][:, None]  # (G, K)
+    cand = np.where(
+        cand_ok, indices[np.minimum(offsets[marker][:, None] + slot, len(indices) - 1)], 0
+    )
+    # presence counts over [s-1, e] via cumulative sums
+    cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])  # (T+1, N)
+    lo = np.maximum(start - 1, 0)
+    hi = np.minimum(end + 1, t)  # exclusive
+    need = hi - lo
+    seen = cs[hi[:, None], cand] - cs[lo[:, None], cand]  # (G, K)
+    donor = cand_ok & (seen == need[:, None])
+    # keep the first max_donors donors
+    donor &= np.cumsum(donor, axis=1) <= max_donors
+    enough = donor.sum(axis=1) >= 3
+    before_ok = (start > 0) & enough
+    after_ok = (end < t) & enough
+    # one row per (run, gap frame)
+    rep = np.repeat(np.arange(g), end - start)
+    frame = np.concatenate([np.arange(a, b) for a, b in zip(start, end, strict=True)])
+    keep = target[frame, marker[rep]] & (before_ok | after_ok)[rep]
+    rep, frame = rep[keep], frame[keep]
+    if rep.size == 0:
+        return p
+    donors = cand[rep]  # (S, K)
+    dmask = donor[rep]
+    cur = p[frame[:, None], donors]  # (S, K, 3)
+    est = np.zeros((rep.size, 3))
+    wsum = np.zeros(rep.size)
+    sides = []
+    span = (end - start + 1).astype(np.float64)
+    w_before = (end[rep] - frame) / span[rep]  # 1 next to the frame before, ->0 at the end
+    for ref_frame, ok, w in ((start - 1, before_ok, w_before), (end, after_ok, 1.0 - w_before)):
+        okr = ok[rep]
+        if not okr.any():
+            continue
+        rf = np.clip(ref_frame[rep], 0, t - 1)
+        ref = p[rf[:, None], donors]  # (S, K, 3)
+        rot, tr = fit_rigid(ref, cur, mask=dmask & okr[:, None])
+        moved = apply_rigid(rot, tr, p[rf, marker[rep]][:, None, :])[:, 0]
+        sides.append((okr, np.where(okr, w, 0.0), moved))
+    n_sides = sum(side[0].astype(np.int64) for side in sides)
+    for okr, w, moved in sides:
+        # a run with one usable side takes that side in full
+        w = np.where(n_sides == 1, okr.astype(np.float64), w)
+        est += np.where(okr[:, None], moved, 0.0) * w[:, None]
+        wsum += w
+    good = wsum > 0
+    p[frame[good], marker[rep][good]] = est[good] / wsum[good][:, None]
+    return p
+
+
+# ------------------------------------------------------------- whole-body PCA fill
+def fill_pca(
+    positions: np.ndarray,
+    target: np.ndarray,
+    *,
+    variance: float = 0.99,
+    max_iterations: int = 40,
+    tol: float = 1e-4,
+) -> np.ndarray:
+    """Whole-body PCA fill (Gløersen & Federolf 2016).
+
+    The take is a (T, 3N) matrix; columns are centred and scaled to unit variance
+    over their present samples, missing entries are initialised by linear
+    interpolation in time (nearest present sample at the ends), then repeatedly
+    replaced by their reconstruction from the principal components that keep
+    ``variance`` of the variance, until they move less than ``tol`` (in normalised
+    units) or ``max_iterations`` is reached.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    target : (T, N) bool
+        Samples to fill. Markers never present stay NaN.
+    variance : float in (0, 1]
+    max_iterations : int
+    tol : float
+
+    Returns
+    -------
+    (T, N, 3) float64 : a filled copy.
+    """
+    p = np.array(positions, dtype=np.float64)
+    t, n, _ = p.shape
+    present = ~np.isnan(p[..., 0])
+    usable = present.sum(axis=0) >= 2
+    if t < 3 or usable.sum() < 2:
+        return p
+    cols = np.nonzero(usable)[0]
+    x = p[:, cols].reshape(t, -1)  # (T, 3M)
+    obs = np.repeat(present[:, cols], 3, axis=1)
+    mean = np.nanmean(np.where(obs, x, np.nan), axis=0)
+    std = np.sqrt(np.nanmean(np.where(obs, (x - mean) ** 2, np.nan), axis=0))
+    std = np.where(std > 1e-9, std, 1.0)
+    z = (x - mean) / std
+    # initialise: linear in time, then nearest sample at the ends
+    zi = fill_linear(z.reshape(t, -1, 3), ~present[:, cols]).reshape(t, -1)
+    prev, nxt = _prev_next(np.repeat(present[:, cols], 3, axis=1))
+    col = np.arange(zi.shape[1])[None, :].repeat(t, 0)
+    still = np.isnan(zi)
+    src = np.where(prev >= 0, prev, nxt)
+    zi[still] = z[src[still], col[still]]
+    miss = ~obs
+    for _ in range(max_iterations):
+        mu = zi.mean(axis=0)
+        c = zi - mu
+        if c.shape[1] <= c.shape[0]:  # principal axes from the (3M, 3M) covariance
+            ev, vec = np.linalg.eigh(c.T @ c)
+        else:  # or from the (T, T) Gram matrix: axes c^T u / |c^T u|
+            ev, u = np.linalg.eigh(c @ c.T)
+            vec = c.T @ u
+            vec /= np.maximum(np.linalg.norm(vec, axis=0), 1e-300)
+        ev, vec = np.maximum(ev[::-1], 0.0), vec[:, ::-1]
+        frac = np.cumsum(ev) / max(float(ev.sum()), 1e-300)
+        q = int(min(np.searchsorted(frac, variance) + 1, len(ev)))
+        v = vec[:, :q]  # (3M, q)
+        recon = mu + (c @ v) @ v.T
+        change = np.abs(recon[miss] - zi[miss]).max() if miss.any() else 0.0
+        zi[miss] = recon[miss]
+        if change < tol:
+            break
+    filled = (zi * std + mean).reshape(t, -1, 3)
+    sub = target[:, cols]
+    block = p[:, cols]
+    block[sub] = filled[sub]
+    p[:, cols] = block
+    return p
+
+
+# ---------------------------------------------------------------- local PCA fill
+def _reference_shape(pos: np.ndarray, present: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """Procrustes mean shape (m, 3) of a group over ``rows``, tolerating missing members.
+
+    pos (T, m, 3), present (T, m). Starts from the row with most members present and
+    alternates rigid alignment to the current mean with re-averaging (members absent
+    in the start row are added when aligned rows see them). NaN for never-seen members.
+    """
+    m = pos.shape[1]
+    sub = pos[rows]
+    ok = present[rows]
+    start = int(np.argmax(ok.sum(axis=1)))
+    ref = np.where(ok[start][:, None], sub[start], np.nan)
+    for _ in range(3):
+        known = ~np.isnan(ref[:, 0])
+        use = ok & known[None, :]
+        rot, tr = fit_rigid(sub, np.where(known[:, None], ref, 0.0)[None], mask=use)
+        # align every row onto the reference: inverse map current -> reference
+        fine = ~np.isnan(tr[:, 0])
+        if not fine.any():
+            break
+        aligned = apply_rigid(rot[fine], tr[fine], sub[fine])  # rows in the reference pose
+        w = ok[fine]
+        cnt = w.sum(axis=0)
+        total = np.where(w[..., None], aligned, 0.0).sum(axis=0)
+        ref = np.where(cnt[:, None] > 0, total / np.maximum(cnt, 1)[:, None], np.nan)
+        ref = ref - np.nanmean(ref, axis=0) if np.isfinite(ref).any() else ref
+    del m
+    return ref
+
+
+def _pca(y: np.ndarray, variance: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """PCA of complete rows y (F, D): mean (D,), basis (D, q), eigenvalues (q,), noise σ²."""
+    mu = y.mean(axis=0)
+    c = y - mu
+    # eigen-decomposition of the small (D, D) covariance: far cheaper than an SVD of
+    # the (F, D) data for the few-dozen-dimensional neighbourhoods
+    ev, vec = np.linalg.eigh(c.T @ c / max(y.shape[0] - 1, 1))
+    ev, vec = np.maximum(ev[::-1], 0.0), vec[:, ::-1]
+    total = ev.sum()
+    if total <= 0:
+        return mu, np.zeros((y.shape[1], 0)), np.zeros(0), 1e-10
+    frac = np.cumsum(ev) / total
+    q = int(min(np.searchsorted(frac, variance) + 1, len(ev)))
+    rest = ev[q:]
+    noise = float(rest.mean()) if rest.size else float(ev[-1]) * 0.01
+    return mu, vec[:, :q], np.maximum(ev[:q], 1e-12), max(noise, 1e-10)
+
+
+def _pca_solve(
+    basis: np.ndarray, evals: np.ndarray, noise: float, resid: np.ndarray, obs: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Coefficients fitting the observed entries with a PPCA prior, batched.
+
+    basis (D, q), resid (F, D) (NaN-free where obs), obs (F, D) bool.
+    Returns coefficients (F, q) and the posterior covariance (F, q, q) / noise.
+    """
+    q = basis.shape[1]
+    ow = obs.astype(np.float64)
+    a = np.einsum("dq,fd,dr->fqr", basis, ow, basis)  # (F, q, q)
+    a += np.diag(noise / evals)[None]
+    b = np.einsum("dq,fd->fq", basis, np.where(obs, resid, 0.0))
+    ainv = np.linalg.inv(a)
+    coef = np.einsum("fqr,fr->fq", ainv, b)
+    del q
+    return coef, ainv
+
+
+def _group_estimates(
+    pos: np.ndarray,
+    present: np.ndarray,
+    want: np.ndarray,
+    *,
+    variance: float,
+    missing_data: bool,
+    refits: int = 2,
+    em_iterations: int = 15,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Estimates of the missing members of one group.
+
+    pos (T, m, 3) with NaN, present (T, m), want (T, m) targets. Returns
+    (rows (F,), estimates (F, m, 3) NaN where not estimated, variance (F, m)), or None
+    when the group has no model.
+    """
+    t, m, _ = pos.shape
+    count = present.sum(axis=1)
+    complete = count == m
+    if missing_data:
+        train = count >= max(3, m // 2 + 1)
+    else:
+        train = complete
+    if train.sum() < 4:
+        return None
+    ref = _reference_shape(pos, present, np.nonzero(train)[0])
+    if np.isnan(ref).any():
+        return None
+    d = 3 * m
+    # local coordinates of training rows (eqs. 4-5)
+    rows_tr = np.nonzero(train)[0]
+    rot, tr = fit_rigid(ref[None], pos[rows_tr], mask=present[rows_tr])
+    local = np.einsum("fji,fkj->fki", rot, pos[rows_tr] - tr[:, None, :])  # R^T (x - t)
+    y = local.reshape(len(rows_tr), d)
+    yobs = np.repeat(present[rows_tr], 3, axis=1)
+    if missing_data and not yobs.all():
+        y = _em_pca_impute(y, yobs, variance, em_iterations)
+    mu, basis, evals, noise = _pca(y, variance)
+    if basis.shape[1] == 0:
+        return None
+    # rows to estimate: a wanted member missing and >= 3 members present
+    rows = np.nonzero(want.any(axis=1) & (count >= 3))[0]
+    if rows.size == 0:
+        return None
+    cur = pos[rows]  # (F, m, 3)
+    obs = present[rows]
+    fit_pts = cur.copy()
+    fit_mask = obs.copy()
+    est = cur.copy()
+    for _ in range(refits + 1):
+        rot, tr = fit_rigid(ref[None], fit_pts, mask=fit_mask)
+        yl = np.einsum("fji,fkj->fki", rot, cur - tr[:, None, :]).reshape(len(rows), d)
+        o = np.repeat(obs, 3, axis=1)
+        coef, ainv = _pca_solve(basis, evals, noise, yl - mu, o)
+        yhat = (mu + coef @ basis.T).reshape(len(rows), m, 3)
+        est = apply_rigid(rot, tr, yhat)  # (F, m, 3)
+        fit_pts = np.where(obs[..., None], cur, est)
+        fit_mask = np.ones_like(obs)
+    # predictive variance per member: noise * (1 + trace(U_j A^-1 U_j^T))
+    bj = basis.reshape(m, 3, -1)
+    var = noise * (3.0 + np.einsum("jcq,fqr,jcr->fj", bj, ainv, bj))
+    est = np.where(obs[..., None], np.nan, est)
+    return rows, est, var
+
+
+def _em_pca_impute(y: np.ndarray, obs: np.ndarray, variance: float, iterations: int) -> np.ndarray:
+    """Missing-data PCA (EM / alternating least squares): fill the unobserved entries
+    of y (F, D) by repeated PCA and per-row least-squares fits of the observed entries."""
+    mu = np.nanmean(np.where(obs, y, np.nan), axis=0)
+    z = np.where(obs, y, mu)
+    complete = obs.all(axis=1)
+    for _ in range(iterations):
+        mu_i, basis, evals, noise = _pca(z, variance)
+        if basis.shape[1] == 0:
+            break
+        part = ~complete
+        coef, _ = _pca_solve(basis, evals, noise, z[part] - mu_i, obs[part])
+        recon = mu_i + coef @ basis.T
+        zp = z[part]
+        new = np.where(obs[part], zp, recon)
+        change = float(np.abs(new - zp).max()) if new.size else 0.0
+        z[part] = new
+        if change < 1e-7:
+            break
+    return z
+
+
+def fill_local_pca(
+    positions: np.ndarray,
+    target: np.ndarray,
+    neighbours: CSR,
+    *,
+    weighted: bool = False,
+    missing_data: bool = False,
+    variance: float = 0.99,
+    estimated_centre_weight: float = 0.5,
+    progress: Progress | None = None,
+) -> np.ndarray:
+    """Local-PCA hole filling (Park & Hodgins 2006, §4.3, eqs. 4-5).
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    target : (T, N) bool
+        Missing samples to fill.
+    neighbours : CSR (offsets (N + 1,), indices (E,))
+        Each marker's neighbourhood (one-ring on a dense surface, motion-consistent
+        cluster on a sparse set).
+    weighted : bool
+        Average the group estimates with inverse-predictive-variance weights, and
+        ``estimated_centre_weight`` times less for groups whose centre marker is
+        missing in that frame (the discussion's first improvement).
+    missing_data : bool
+        Train each group's PCA with its partial frames too (EM PCA; the discussion's
+        second improvement).
+    variance : float
+        Fraction of the variance each model keeps (the paper: 0.99).
+    estimated_centre_weight : float
+        See ``weighted``.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    (T, N, 3) float64
+        A filled copy; targets no group can estimate stay NaN (see :func:`fill_gaps`
+        for the rigid fallback).
+    """
+    p = np.array(positions, dtype=np.float64)
+    t, n, _ = p.shape
+    present = ~np.isnan(p[..., 0])
+    offsets, indices = neighbours
+    acc = np.zeros((t, n, 3))
+    wacc = np.zeros((t, n))
+    # groups worth modelling: those containing a target
+    has_target = target.any(axis=0)
+    groups = []
+    for i in range(n):
+        members = np.concatenate([[i], indices[offsets[i] : offsets[i + 1]]])
+        if members.size >= 4 and has_target[members].any():
+            groups.append(members)
+    for gi, members in enumerate(groups):
+        res = _group_estimates(
+            p[:, members],
+            present[:, members],
+            target[:, members],
+            variance=variance,
+            missing_data=missing_data,
+        )
+        if progress is not None:
+            progress((gi + 1) / len(groups), "local PCA")
+        if res is None:
+            continue
+        rows, est, var = res
+        sel = target[rows][:, members] & ~np.isnan(est[..., 0])  # (F, m)
+        if weighted:
+            w = 1.0 / var
+            centre_present = present[rows, members[0]]
+            w = w * np.where(centre_present, 1.0, estimated_centre_weight)[:, None]
+        else:
+            w = np.ones(var.shape)
+        fr, mj = np.nonzero(sel)
+        tt, nn = rows[fr], members[mj]
+        np.add.at(acc, (tt, nn), est[fr, mj] * w[fr, mj][:, None])
+        np.add.at(wacc, (tt, nn), w[fr, mj])
+    done = wacc > 0
+    p[done] = acc[done] / wacc[done][:, None]
+    return p
+
+
+# ------------------------------------------------------------------------ facade
+def fill_gaps(
+    markers: MarkerSet,
+    *,
+    method: FillMethod = "local_pca",
+    neighbours: Any = None,
+    max_gap: int | None = None,
+    progress: Progress | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Fill the missing samples of ``markers`` with one of :data:`FILL_METHODS`.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        ``positions`` (T, N, 3) metres, NaN where missing. Usually labelled markers
+        after merging (fragment columns are filled like any other column).
+    method : str
+        ``local_pca`` (the paper), ``local_pca_weighted``, ``local_pca_missing`` (the
+        discussion's improvements), or a baseline: ``linear``, ``pchip``, ``spline``,
+        ``rigid``, ``pca``. See the module docstring.
+    neighbours : (offsets, indices) CSR, a MarkerSurface, or None
+        Each marker's neighbourhood (used by the local methods and as rigid-fill
+        donors). None: :func:`motion_neighbours` with 6 neighbours per marker.
+    max_gap : int, optional
+        Leave missing runs longer than this many frames unfilled.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    positions : (T, N, 3) float64, metres
+        Measured samples unchanged; filled samples added; NaN where nothing could be
+        filled (interpolation methods leave runs at the start or end of the take; the
+        spatial methods need three present neighbours).
+    invented : (T, N) bool
+        True exactly where a sample was missing and is now filled.
+
+    Warns
+    -----
+    SkincapWarning
+        When some targeted samples could not be filled.
+    """
+    if not isinstance(markers, MarkerSet):
+        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
+    if method not in FILL_METHODS:
+        raise ValidationError(f"method: expected one of {', '.join(FILL_METHODS)}, got {method!r}")
+    if max_gap is not None and (not isinstance(max_gap, int | np.integer) or max_gap < 1):
+        raise ValidationError(f"max_gap: expected a positive integer, got {max_gap!r}")
+    p = markers.positions
+    t, n, _ = p.shape
+    missing = np.isnan(p[..., 0])
+    interior = method in ("linear", "pchip", "spline")
+    target = _targets(missing, max_gap, interior_only=interior)
+    if not target.any():
+        return p.copy(), np.zeros((t, n), dtype=bool)
+    csr = motion_neighbours(p) if neighbours is None else as_csr(neighbours, n)
+    if method == "linear":
+        out = fill_linear(p, target)
+    elif method == "pchip":
+        out = fill_pchip(p, target)
+    elif method == "spline":
+        out = fill_spline(p, target)
+    elif method == "rigid":
+        out = fill_rigid(p, target, csr)
+    elif method == "pca":
+        out = fill_pca(p, target)
+    else:
+        out = fill_local_pca(
+            p,
+            target,
+            csr,
+            weighted=method in ("local_pca_weighted", "local_pca_missing"),
+            missing_data=method == "local_pca_missing",
+            progress=progress,
+        )
+        left = target & np.isnan(out[..., 0])
+        if left.any():
+            back = fill_rigid(p, left, csr)
+            out[left] = back[left]
+    out[~missing] = p[~missing]  # measured samples never change
+    invented = missing & ~np.isnan(out[..., 0])
+    unfilled = int((target & ~invented).sum())
+    if unfilled:
+        warnings.warn(
+            f"fill_gaps({method}): {unfilled} of {int(target.sum())} missing samples left unfilled",
+            SkincapWarning,
+            stacklevel=2,
+        )
+    if progress is not None:
+        progress(1.0, method)
+    return out, invented
