@@ -440,7 +440,8 @@ def evaluate_gap_repair(
         evaluated; errors are None when every trial was lost or no start fitted.
         ``invented_fraction`` is the share of gap samples the tracker flagged as
         invented (below 1 means it took some other point in the held-back marker's
-        place).
+        place). ``flagged_lost`` (when the track has ``lost_frames``) counts trials
+        in which the tracker itself flagged the trace lost in the gap or after it.
     """
     truth_arr = np.asarray(truth, dtype=np.float64)
     labels = [str(x) for x in truth_labels]
@@ -480,6 +481,7 @@ def evaluate_gap_repair(
             lost: list[bool] = []
             invented_share: list[float] = []
             base_err: list[float] = []
+            flagged: list[float] = []
             if last_start >= first_start and candidates[case].size:
                 rng = np.random.default_rng([seed, case_index, n])
                 trial_starts = rng.integers(first_start, last_start + 1, size=starts)
@@ -499,6 +501,10 @@ def evaluate_gap_repair(
                     is_lost = bool(~np.isfinite(err).all() or np.nanmax(err) > lost_distance)
                     lost.append(is_lost)
                     errors.append(float(gap_part.mean()) if np.isfinite(gap_part).all() else np.nan)
+                    flags = getattr(result, "lost_frames", None)
+                    if flags is not None:
+                        window = np.asarray(flags, dtype=bool)[s : s + n + after][:, traces]
+                        flagged.append(float(window.any()))
                     inv = np.asarray(result.invented, dtype=bool)[s : s + n][:, traces]
                     invented_share.append(float(inv.mean()) if inv.size else np.nan)
                     if baseline is not None:
@@ -516,6 +522,8 @@ def evaluate_gap_repair(
             if baseline is not None:
                 extra["baseline_error_m"] = base_err
             row = {"gap": n, **_summary_of_trials(errors, lost, extra)}
+            if flagged:
+                row["flagged_lost"] = int(sum(flagged))
             rows.append(row)
             if stop_when_lost and (row["trials"] == 0 or 2 * row["lost"] >= row["trials"]):
                 break
@@ -676,7 +684,8 @@ def evaluate_tracking(
     dict (JSON-ready)
         ``frames``, ``rate``, ``points``, ``points_per_frame``, ``rope_markers``,
         ``traces``, ``followed`` (traces paired with a true marker),
-        ``classification``, ``baseline`` (``mean_error_m`` of the followed traces over
+        ``classification`` (with ``followed_markers_recall``: recall over the points
+        of the rope markers that have a trace), ``baseline`` (``mean_error_m`` of the followed traces over
         their real samples and all samples, ``invented_fraction``), ``gap_repair`` (see
         :func:`evaluate_gap_repair`), ``settings``, ``thesis``, ``targets``.
     """
@@ -715,6 +724,14 @@ def evaluate_tracking(
     )
     classification = classify_points(base, cloud, truth_text)
     followed = truth_of_trace >= 0
+    # Recall over the rope markers that have a trace: markers the tracker never had
+    # (e.g. unseen in the initialisation window) are what separates it from recall.
+    of_followed = np.isin(truth_text, [truth_labels[c] for c in truth_of_trace[followed]])
+    taken = np.asarray(base.rope_points_mask(cloud), dtype=bool)
+    n_of = int(np.count_nonzero(of_followed))
+    classification["followed_markers_recall"] = (
+        float(np.count_nonzero(taken & of_followed) / n_of) if n_of else None
+    )
     if followed.any():
         d = np.linalg.norm(positions[:, followed] - rope_truth[:, truth_of_trace[followed]], axis=2)
         finite = np.isfinite(d)
