@@ -180,8 +180,9 @@ def _read_point_truth(path: Path, cloud: PointCloud) -> np.ndarray:
     try:
         rows = cols[:, 0].astype(np.int64)
         frames = cols[:, 1].astype(np.int64)
-    except ValueError:
+    except (ValueError, OverflowError):
         num = np.char.isdigit(cols[:, 0]) & np.char.isdigit(cols[:, 1])
+        num &= (np.char.str_len(cols[:, 0]) < 19) & (np.char.str_len(cols[:, 1]) < 19)
         first = int(np.flatnonzero(~num)[0]) if (~num).any() else 0
         raise FormatError(path, "row and frame must be integers", line=first + 2) from None
     wrong = (rows != np.arange(rows.size)) | (frames != cloud.frame_index)
@@ -222,7 +223,8 @@ def _read_synth_folder(folder: Path) -> tuple[PointCloud, np.ndarray, MarkerSet]
     unknown = sorted(set(labels.tolist()) - set(index))
     if unknown:
         raise FormatError(truth_path, f"has no marker {unknown[0]!r} named in truth/points.csv")
-    col = np.array([index[label] for label in labels.tolist()], dtype=np.int64)
+    names, which = np.unique(labels, return_inverse=True)
+    col = np.array([index[name] for name in names.tolist()], dtype=np.int64)[which]
     dist = np.linalg.norm(
         cloud.points[rope] - truth.positions[cloud.frame_index[rope], col], axis=1
     )
