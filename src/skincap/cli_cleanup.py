@@ -8,12 +8,18 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from skincap.cli import _user_errors, err, eval_app, out
+from skincap.cli import _user_errors, app, err, eval_app, out
 from skincap.errors import FormatError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from skincap.cleanup.surface import MarkerSurface
+    from skincap.types import MarkerSet
 
 _CLEAN_METHODS = (
     "local_pca",
@@ -27,11 +33,188 @@ _CLEAN_METHODS = (
 )
 
 
+# -------------------------------------------------------------------------- clean
+def _read_edge_csv(path: Path, labels: list[str]) -> np.ndarray:
+    """Edge list CSV: one ``label_a,label_b`` pair per line (an optional header line)."""
+    import numpy as np
+
+    from skincap.io._common import check_readable
+
+    check_readable(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    index = {lab: i for i, lab in enumerate(labels)}
+    pairs: list[tuple[int, int]] = []
+    for number, line in enumerate(text.splitlines(), start=1):
+        cells = [c.strip() for c in line.split(",")]
+        if not line.strip():
+            continue
+        if len(cells) != 2:
+            raise FormatError(path, f"expected two labels per line, got {len(cells)}", line=number)
+        if cells[0] not in index or cells[1] not in index:
+            if number == 1 and not pairs:
+                continue  # a header line
+            unknown = cells[0] if cells[0] not in index else cells[1]
+            raise FormatError(path, f"unknown marker label {unknown!r}", line=number)
+        pairs.append((index[cells[0]], index[cells[1]]))
+    if not pairs:
+        raise FormatError(path, "no edges")
+    return np.asarray(pairs, dtype=np.int64)
+
+
+def _read_surface(path: Path, markers: MarkerSet, reference_frame: int | None) -> MarkerSurface:
+    """A user marker surface over the labelled columns: PLY/OBJ triangles or an edge CSV.
+
+    Mesh vertices are matched to the labelled markers by order when the counts agree,
+    else each vertex to the nearest labelled marker in the reference frame (each
+    marker at most once, within 5 cm).
+    """
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from skincap import io
+    from skincap.cleanup.surface import (
+        choose_reference_frame,
+        surface_from_edges,
+        surface_from_faces,
+    )
+
+    labelled = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    if not labelled:
+        raise FormatError(path, "the capture has no labelled markers to put a surface on")
+    pos = markers.positions[:, labelled]
+    frame = choose_reference_frame(pos) if reference_frame is None else reference_frame
+    if not 0 <= frame < markers.n_frames:
+        raise FormatError(path, f"--reference-frame {frame} is outside 0..{markers.n_frames - 1}")
+    ref = pos[frame]
+    ext = path.suffix.lower()
+    if ext == ".csv":
+        labels = [str(markers.labels[i]) for i in labelled]
+        return surface_from_edges(_read_edge_csv(path, labels), ref, reference_frame=frame)
+    if ext not in (".ply", ".obj"):
+        raise FormatError(path, f"a surface is a .ply, .obj or edge-list .csv, not {ext!r}")
+    mesh = io.read(path)
+    if not hasattr(mesh, "faces"):
+        raise FormatError(path, "not a mesh")
+    if mesh.n_vertices == len(labelled):
+        vertex_to_marker = np.arange(mesh.n_vertices)
+    else:
+        ok = np.isfinite(ref).all(axis=1)
+        if ok.sum() < mesh.n_vertices:
+            raise FormatError(
+                path,
+                f"{mesh.n_vertices} vertices but only {int(ok.sum())} labelled markers "
+                f"in reference frame {frame}",
+            )
+        rows = np.flatnonzero(ok)
+        dist, near = cKDTree(ref[rows]).query(mesh.vertices)
+        vertex_to_marker = rows[near]
+        if np.unique(vertex_to_marker).size != vertex_to_marker.size or np.any(dist > 0.05):
+            raise FormatError(
+                path,
+                "surface vertices do not match the markers one to one (by order or within "
+                f"5 cm in reference frame {frame})",
+            )
+    faces = vertex_to_marker[mesh.faces]
+    return surface_from_faces(faces, ref, reference_frame=frame)
+
+
 def _write_json(path: Path, data: dict[str, Any], *, force: bool) -> None:
     from skincap.io._common import atomic_output
 
     with atomic_output(path, force=force) as tmp:
         tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
+
+
+@app.command()
+def clean(
+    src: Annotated[Path, typer.Argument(help="Capture (.c3d/.trc/.csv): labels and *N fragments.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Cleaned C3D to write.")],
+    method: Annotated[
+        str, typer.Option(help=f"Hole filling: {', '.join(_CLEAN_METHODS)}.")
+    ] = "local_pca",
+    reference_frame: Annotated[
+        int | None, typer.Option(help="Reference pose frame (default: most markers present).")
+    ] = None,
+    surface: Annotated[
+        Path | None,
+        typer.Option(help="User marker surface: PLY/OBJ over the markers or an edge-list CSV."),
+    ] = None,
+    no_smooth: Annotated[
+        bool, typer.Option("--no-smooth", help="Skip the local-frame smoothing.")
+    ] = False,
+    lam: Annotated[float, typer.Option("--lambda", help="Smoothing damping λ.")] = 0.02,
+    iterations: Annotated[int, typer.Option(help="Smoothing iterations.")] = 10,
+    report: Annotated[
+        Path | None, typer.Option(help="JSON report: counts and invented [start, end) runs.")
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+) -> None:
+    """Clean a capture: marker surface, merge fragments into labels, fill holes, smooth.
+
+    Writes the cleaned C3D with filled samples flagged as invented, and with --report
+    a JSON file with the surface, Table-1 merge counts and the invented runs per marker.
+
+    Example: skincap clean take.c3d -o take_clean.c3d --report take_clean.json
+    """
+    with _user_errors():
+        from rich.progress import Progress
+
+        from skincap import io
+        from skincap.cleanup.pipeline import clean_markers
+        from skincap.errors import OutputExistsError
+        from skincap.types import MarkerSet
+
+        if method not in _CLEAN_METHODS:
+            raise FormatError(output, f"--method must be one of {', '.join(_CLEAN_METHODS)}")
+        if output.suffix.lower() != ".c3d":
+            raise FormatError(output, "the cleaned capture is written as .c3d")
+        if src.exists() and output.exists() and src.resolve() == output.resolve():
+            raise FormatError(output, "output is the input file; inputs are never modified")
+        for target in (output, report):
+            if target is not None and target.exists() and not force:
+                raise OutputExistsError(target)
+        markers = io.read(src)
+        if not isinstance(markers, MarkerSet):
+            raise FormatError(src, "not a marker capture (labelled trajectories)")
+        if markers.n_frames == 0:
+            raise FormatError(src, "no frames")
+        if reference_frame is not None and not 0 <= reference_frame < markers.n_frames:
+            raise FormatError(
+                src, f"--reference-frame {reference_frame} is outside 0..{markers.n_frames - 1}"
+            )
+        user_surface = None if surface is None else _read_surface(surface, markers, reference_frame)
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
+            task = bar.add_task("cleaning", total=1.0)
+
+            def progress(fraction: float, label: str) -> None:
+                bar.update(task, completed=fraction, description=label)
+
+            cleaned, summary = clean_markers(
+                markers,
+                method=method,
+                reference_frame=reference_frame,
+                surface=user_surface,
+                smooth=not no_smooth,
+                lam=lam,
+                iterations=iterations,
+                progress=progress,
+            )
+        summary["input"] = str(src)
+        summary["output"] = str(output)
+        io.write(cleaned, output, force=force)
+        if report is not None:
+            _write_json(report, summary, force=force)
+    merge = summary["merge"]
+    fill = summary["fill"]
+    out.print(
+        f"{src} -> {output}: {merge['trajectories_before']} -> {merge['trajectories_after']} "
+        f"trajectories, {merge['merged']} fragments merged, "
+        f"{fill['invented_samples']} samples invented, {fill['unfilled_samples']} unfilled",
+        markup=False,
+    )
 
 
 # ---------------------------------------------------------------------- eval fill

@@ -45,7 +45,8 @@ class MergeReport:
     trajectories_before, trajectories_after : int
         Columns before and after merging (Table 1, "# of trajectories").
     fragments_before, fragments_after : int
-        Unlabelled (non-anchor) columns before and after.
+        Unlabelled trajectories before and after: contiguous runs of the non-anchor
+        columns (a gappy ``*N`` column counts once per run).
     merged : int
         Fragments merged into a marker.
     wrongly_merged : int or None
@@ -62,7 +63,8 @@ class MergeReport:
     alpha1, alpha2 : float
         Tolerances of eq. 3.
     assignments : dict of str to str
-        Fragment label -> marker label it joined.
+        Fragment label (``*N[start:end]`` for one run of a gappy column) -> marker
+        label it joined.
     """
 
     trajectories_before: int
@@ -156,17 +158,27 @@ def merge_fragments(
         )
     is_anchor = np.zeros(c_count, dtype=bool)
     is_anchor[anchors] = True
-    frags = np.flatnonzero(~is_anchor)
+    frag_cols = np.flatnonzero(~is_anchor)
+    # every contiguous run of a fragment column is one trajectory (a gappy *N column
+    # holds several)
+    col_present = np.isfinite(pos[:, frag_cols]).all(axis=2)  # (T, Fc)
+    pad = np.zeros((frag_cols.size, 1), dtype=np.int8)
+    step = np.diff(np.concatenate([pad, col_present.T.astype(np.int8), pad], axis=1), axis=1)
+    run_col, run_start = np.nonzero(step == 1)  # sorted by column, then frame
+    _, run_end = np.nonzero(step == -1)
+    frags = frag_cols[run_col]  # (F,) column of each run
+    frames_idx = np.arange(t_count)[:, None]
+    frag_present = (frames_idx >= run_start[None, :]) & (frames_idx < run_end[None, :])  # (T, F)
+    frag_pos = np.where(frag_present[..., None], pos[:, frags], np.nan)  # (T, F, 3)
+    runs_per_col = np.bincount(run_col, minlength=frag_cols.size)
 
     cur = pos[:, anchors].copy()  # (T, N, 3)
     res = None if markers.residuals is None else markers.residuals[:, anchors].copy()
     inv = None if markers.invented is None else markers.invented[:, anchors].copy()
-    frag_pos = pos[:, frags]  # (T, F, 3)
-    frag_present = np.isfinite(frag_pos).all(axis=2)  # (T, F)
-    has_data = frag_present.any(axis=0)
-    first = np.argmax(frag_present, axis=0)  # (F,)
-    length = frag_present.sum(axis=0)
-    target = np.full(frags.size, -1, dtype=np.int64)  # anchor index each fragment joined
+    has_data = np.ones(frags.size, dtype=bool)
+    first = run_start  # (F,)
+    length = run_end - run_start
+    target = np.full(frags.size, -1, dtype=np.int64)  # anchor index each run joined
 
     mnd = surface.mean_neighbour_distance
     eps1 = alpha1 * mnd  # ε¹, eq. 3 (NaN for markers without neighbours: never matched)
@@ -234,11 +246,27 @@ def merge_fragments(
         if merged_now == 0:
             break
 
-    left = frags[(target < 0) & has_data]  # all-NaN fragments are dropped
+    # leftover columns keep their unmerged runs; all-NaN columns are dropped
+    gone = frag_present[:, target >= 0]  # (T, Fm)
+    removed = np.zeros((t_count, c_count), dtype=bool)
+    np.logical_or.at(removed.T, frags[target >= 0], gone.T)
+    left_run = target < 0
+    left = np.unique(frags[left_run])
     keep_cols = np.concatenate([anchors, left])
-    out_pos = np.concatenate([cur, pos[:, left]], axis=1)
-    out_res = None if res is None else np.concatenate([res, markers.residuals[:, left]], axis=1)
-    out_inv = None if inv is None else np.concatenate([inv, markers.invented[:, left]], axis=1)
+    rest = np.where(removed[:, left, None], np.nan, pos[:, left])
+    out_pos = np.concatenate([cur, rest], axis=1)
+    out_res = (
+        None
+        if res is None
+        else np.concatenate(
+            [res, np.where(removed[:, left], np.nan, markers.residuals[:, left])], 1
+        )
+    )
+    out_inv = (
+        None
+        if inv is None
+        else np.concatenate([inv, markers.invented[:, left] & ~removed[:, left]], axis=1)
+    )
     out = MarkerSet(
         positions=out_pos,
         labels=[labels[c] for c in keep_cols],
@@ -248,29 +276,41 @@ def merge_fragments(
         invented=out_inv,
     )
 
-    assignments = {
-        labels[frags[f]]: labels[anchors[target[f]]] for f in np.flatnonzero(target >= 0).tolist()
-    }
+    col_of = {int(c): k for k, c in enumerate(frag_cols.tolist())}
+
+    def run_name(f: int) -> str:
+        col = int(frags[f])
+        if runs_per_col[col_of[col]] == 1:
+            return labels[col]
+        return f"{labels[col]}[{int(run_start[f])}:{int(run_end[f])}]"
+
+    merged_runs = np.flatnonzero(target >= 0).tolist()
+    assignments = {run_name(f): labels[anchors[target[f]]] for f in merged_runs}
     wrong: int | None = None
-    left_count = int(left.size)
+    left_count = int(left_run.sum())
     left_frames: int | None = None
     if fragment_truth is not None:
         anchor_truth = {fragment_truth.get(labels[a], labels[a]) for a in anchors.tolist()}
         wrong = sum(
-            fragment_truth.get(f, f) != fragment_truth.get(a, a) for f, a in assignments.items()
+            fragment_truth.get(labels[frags[f]], labels[frags[f]])
+            != fragment_truth.get(labels[anchors[target[f]]], labels[anchors[target[f]]])
+            for f in merged_runs
         )
         should = np.array(
-            [fragment_truth.get(labels[c], labels[c]) in anchor_truth for c in left.tolist()],
+            [
+                fragment_truth.get(labels[c], labels[c]) in anchor_truth
+                for c in frags[left_run].tolist()
+            ],
             dtype=bool,
         )
         left_count = int(should.sum())
-        left_frames = int(np.isfinite(pos[:, left[should], 0]).sum())
+        left_frames = int(length[left_run][should].sum())
     merged_count = len(assignments)
     report = MergeReport(
         trajectories_before=int(c_count),
         trajectories_after=int(keep_cols.size),
         fragments_before=int(frags.size),
-        fragments_after=int(left.size),
+        fragments_after=int(left_run.sum()),
         merged=merged_count,
         wrongly_merged=wrong,
         wrong_rate=None if wrong is None else (wrong / merged_count if merged_count else 0.0),

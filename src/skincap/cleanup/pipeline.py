@@ -62,7 +62,7 @@ def clean_markers(
     alpha1: float = 0.5,
     alpha2: float = 0.6,
     keep_fragments: bool = True,
-    promote_fragments: bool = False,
+    promote_fragments: bool | None = None,
     fragment_truth: dict[str, str] | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> tuple[MarkerSet, dict[str, Any]]:
@@ -88,7 +88,8 @@ def clean_markers(
         Merge tolerances of eq. 3.
     keep_fragments : bool, default True
         Keep the fragments left unmerged (unfilled, after the markers) in the output.
-    promote_fragments : bool, default False
+    promote_fragments : bool, optional
+        Default: only when the capture has no labelled column (an unlabelled file).
         Let fragments present in the reference frame that move with at least three
         skin neighbours (distance CV <= 0.2 over >= 10 shared frames) become marker
         columns. Off: only the labelled columns are markers. Beware: the tape markers
@@ -134,8 +135,10 @@ def clean_markers(
             )
         anchors = labelled
     else:
+        if promote_fragments is None:
+            promote_fragments = labelled.size == 0
         if reference_frame is None:
-            reference_frame = choose_reference_frame(pos[:, labelled]) if labelled.size else 0
+            reference_frame = choose_reference_frame(pos[:, labelled] if labelled.size else pos)
         if not 0 <= reference_frame < t_count:
             raise ValidationError(f"reference_frame {reference_frame} is outside 0..{t_count - 1}")
         seen = np.isfinite(pos[reference_frame]).all(axis=1)

@@ -291,6 +291,8 @@ def pair_distance_cv(positions: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarr
 def _pca_normals(ref: np.ndarray, edges: np.ndarray) -> np.ndarray:
     """(N, 3) unit normals: least-variance direction of each marker's kept neighbourhood."""
     n = ref.shape[0]
+    known = np.isfinite(ref).all(axis=1)
+    ref = np.where(known[:, None], ref, 0.0)
     src = np.concatenate([edges[:, 0], edges[:, 1], np.arange(n)])
     dst = np.concatenate([edges[:, 1], edges[:, 0], np.arange(n)])
     cnt = np.bincount(src, minlength=n).astype(float)
@@ -302,7 +304,7 @@ def _pca_normals(ref: np.ndarray, edges: np.ndarray) -> np.ndarray:
     np.add.at(cov, src, d[:, :, None] * d[:, None, :])
     _, vec = np.linalg.eigh(cov)
     normal = vec[:, :, 0]
-    normal[cnt < 3] = np.nan  # too few points to define a plane
+    normal[(cnt < 3) | ~known] = np.nan  # too few points to define a plane
     return normal
 
 
