@@ -31,6 +31,9 @@ __all__ = ["RopeInit", "init_rope", "find_rope_chain", "gated_assignment"]
 _ISOLATION = 1.35
 #: A rope point's nearest neighbour lies at least this many spacings away.
 _ISOLATION_NEAREST = 0.5
+#: A sharp turn (beyond 45°, up to ``max_turn_degrees``) needs a point this isolated.
+_ISOLATION_SHARP_TURN = 0.8
+_COS_SOFT_TURN = float(np.cos(np.radians(45.0)))
 #: How far (in spacings per step) the next chain point may lie from the extrapolation.
 _GUESS_TOLERANCE = 1.5
 #: Default γ as a fraction of the median neighbour spacing of the selected points.
@@ -237,7 +240,8 @@ def find_rope_chain(
        still point nearest the second-order extrapolation
        ``x_j + 2 (x_j - x_{j-1}) - (x_{j-1} - x_{j-2})`` among those whose link differs
        from the seed's by at most ``uniformity`` (relative) and turns by at most 100°
-       from the last link (a rope lying down on the floor bends sharply); when there is none, one marker may be skipped (a point near two
+       from the last link (a rope lying down on the floor bends sharply; beyond 45° only
+       onto a point with no other within 0.8 spacings); when there is none, one marker may be skipped (a point near two
        steps ahead, as when a tape marker is unseen). A seed's chain is its growth
        backwards joined with its growth forwards.
     4. The chain with the largest total length is the rope (a rope of tape markers
@@ -435,8 +439,9 @@ def _grow_chains(
             cos = np.einsum("rkc,rc->rk", vec, step[r]) / np.maximum(
                 hop * skip * link[r][:, None], 1e-12
             )
+            lonely = nearest[i] >= _ISOLATION_SHARP_TURN * link[r][:, None]
             ok = (
-                (cos >= np.cos(np.radians(max_turn_degrees)))
+                (cos >= np.where(lonely, np.cos(np.radians(max_turn_degrees)), _COS_SOFT_TURN))
                 & (d <= _GUESS_TOLERANCE * skip * link[r][:, None])
                 & (np.abs(hop - link[r][:, None]) <= uniformity * link[r][:, None])
                 & ~visited[r[:, None], i]
