@@ -187,6 +187,27 @@ def _reject_overstretched(
         taken[bad] = -1
 
 
+def _reject_odd_motion(
+    cur: np.ndarray, prev: np.ndarray, known: np.ndarray, taken: np.ndarray, limit: float
+) -> None:
+    """Refuse taken points that do not move with the rope (beyond the thesis), in place.
+
+    A marker whose two neighbours are measured moves, frame to frame, within
+    ``limit`` of the mean of their moves (the rope is smooth); a point that does not
+    belongs to something else (a body marker sitting on the rope's path).
+    """
+    inner = known[1:-1] & known[:-2] & known[2:]
+    if not inner.any():
+        return
+    move = cur - prev
+    expected = 0.5 * (move[:-2] + move[2:])
+    odd = inner & (np.linalg.norm(move[1:-1] - expected, axis=1) > limit)
+    if odd.any():
+        idx = np.nonzero(odd)[0] + 1
+        known[idx] = False
+        taken[idx] = -1
+
+
 def _neighbour_velocity(
     known: np.ndarray, velocity: np.ndarray, fallback: np.ndarray
 ) -> np.ndarray:
@@ -329,6 +350,7 @@ def track_rope(
             taken[hit] = pts
             cur[hit] = points[pts]
         _reject_overstretched(cur, known, taken, spacing, gamma)
+        _reject_odd_motion(cur, prev, known, taken, gamma)
         if not known.all():
             # ---- pass 2: the rest at the curve (interior) or F (ends)
             missing = ~known
@@ -352,6 +374,7 @@ def track_rope(
                 taken[hit] = pts
                 cur[hit] = points[pts]
                 _reject_overstretched(cur, known, taken, spacing, gamma)
+                _reject_odd_motion(cur, prev, known, taken, gamma)
             still = ~known
             if still.any() and known.any():
                 # re-place the interior invented markers on the curve through every
