@@ -1,0 +1,128 @@
+"""``skincap clean``: a synthetic take written to C3D, a real unlabelled file, user surfaces, errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skincap.cli import app
+from skincap.errors import SkincapWarning
+from skincap.io import read, write
+
+
+def run(*args: object):  # noqa: ANN201
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def synth_c3d(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
+    """A 60-frame dense jump-rope capture written as C3D, with its fragment truth."""
+    from skincap.synth.generate import generate_capture
+    from skincap.synth_files import build_body, build_motion
+
+    body = build_body("procedural", n_vertices=5000)
+    motion = build_motion(body, "jumprope", frames=60)
+    take = generate_capture(body, motion, markers="dense", rope="jump", seed=1)
+    path = tmp_path_factory.mktemp("clean") / "capture.c3d"
+    write(take.capture, path)
+    return path, take.fragment_truth
+
+
+def _read(path: Path):  # noqa: ANN202
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        return read(path)
+
+
+def test_clean_synthetic_capture(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
+    src, _ = synth_c3d
+    out = tmp_path / "clean.c3d"
+    rep = tmp_path / "clean.json"
+    result = run("clean", src, "-o", out, "--method", "linear", "--report", rep)
+    assert result.exit_code == 0, result.output
+    assert "trajectories" in result.output
+    report = json.loads(rep.read_text())
+    before = _read(src)
+    after = _read(out)
+    merge = report["merge"]
+    assert merge["trajectories_before"] == before.n_markers
+    assert after.n_markers == merge["trajectories_after"] < before.n_markers
+    assert after.labels[: report["surface"]["markers"]] == [
+        lab for lab in before.labels if not lab.startswith("*")
+    ]
+    # invented samples survive the C3D round trip and match the report's runs
+    assert after.invented is not None
+    assert int(after.invented.sum()) == report["fill"]["invented_samples"] > 0
+    for label, spans in report["invented"].items():
+        col = after.labels.index(label)
+        for start, end in spans:
+            assert after.invented[start:end, col].all()
+    assert np.isfinite(after.positions[after.invented]).all()
+    # existing outputs are refused without --force, replaced with it
+    again = run("clean", src, "-o", out, "--method", "linear")
+    assert again.exit_code == 2 and "exists" in again.output
+    forced = run("clean", src, "-o", out, "--method", "linear", "--force", "--no-smooth")
+    assert forced.exit_code == 0, forced.output
+
+
+def test_clean_with_a_user_edge_list(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
+    src, _ = synth_c3d
+    cap = _read(src)
+    labels = [lab for lab in cap.labels if not lab.startswith("*")]
+    ref = cap.positions[0, : len(labels)]
+    dist = np.linalg.norm(ref[:, None] - ref[None], axis=2)
+    np.fill_diagonal(dist, np.inf)
+    near = np.argsort(dist, axis=1)[:, :5]
+    lines = ["a,b"] + [f"{labels[i]},{labels[j]}" for i in range(len(labels)) for j in near[i]]
+    edges = tmp_path / "edges.csv"
+    edges.write_text("\n".join(lines) + "\n")
+    rep = tmp_path / "r.json"
+    result = run("clean", src, "-o", tmp_path / "o.c3d", "--surface", edges, "--report", rep)
+    assert result.exit_code == 0, result.output
+    report = json.loads(rep.read_text())
+    assert report["surface"]["faces"] == 0 and report["surface"]["edges"] > len(labels)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("a,b\nD000,NOPE\n")
+    result = run("clean", src, "-o", tmp_path / "p.c3d", "--surface", bad)
+    assert result.exit_code == 2 and "line 2" in result.output and "NOPE" in result.output
+
+
+def test_clean_real_unlabelled_file(data_dir: Path, tmp_path: Path) -> None:
+    src = tmp_path / "in.c3d"
+    shutil.copy(data_dir / "aml_S09_KneeltoRun02_unlabeled.c3d", src)
+    out = tmp_path / "out.c3d"
+    rep = tmp_path / "out.json"
+    result = run("clean", src, "-o", out, "--method", "rigid", "--report", rep)
+    assert result.exit_code == 0, result.output
+    report = json.loads(rep.read_text())
+    merge = report["merge"]
+    assert merge["merged"] > 0 and merge["fragments_after"] < merge["fragments_before"]
+    after = _read(out)
+    before = _read(src)
+    assert after.n_frames == before.n_frames
+    # every measured sample survives (merged or not), filled ones are flagged
+    measured = np.isfinite(after.positions[..., 0]) & ~after.invented
+    assert measured.sum() >= 0.99 * np.isfinite(before.positions[..., 0]).sum()
+
+
+def test_clean_errors(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
+    src, _ = synth_c3d
+    result = run("clean", src, "-o", tmp_path / "x.c3d", "--method", "magic")
+    assert result.exit_code == 2 and "--method" in result.output
+    result = run("clean", src, "-o", tmp_path / "x.trc")
+    assert result.exit_code == 2 and ".c3d" in result.output
+    result = run("clean", src, "-o", tmp_path / "x.c3d", "--reference-frame", "100000")
+    assert result.exit_code == 2 and "reference-frame" in result.output
+    garbage = tmp_path / "g.c3d"
+    garbage.write_bytes(b"\x00garbage" * 10)
+    result = run("clean", garbage, "-o", tmp_path / "y.c3d")
+    assert result.exit_code == 2 and "skincap: error:" in result.output
+    assert not (tmp_path / "y.c3d").exists()
+    result = run("clean", "--help")
+    assert result.exit_code == 0 and "Example: skincap clean" in result.output
