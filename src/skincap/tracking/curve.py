@@ -65,9 +65,9 @@ def fill_interior_on_curve(
 
     Each unknown marker ``j`` with a known marker ``a < j`` before it and ``b > j``
     after it is put at ``C(s_j)``, where ``C`` is the cubic Hermite segment from
-    ``x_a`` to ``x_b`` whose tangents are the non-uniform Catmull-Rom finite
-    differences over the neighbouring known markers (``(x_b - x_pa) / (s_b - s_pa)``
-    at ``a``, ``pa`` the known marker before ``a`` or ``a`` itself; likewise at ``b``).
+    ``x_a`` to ``x_b`` whose tangents are the slopes of the parabolas through the
+    neighbouring known markers (``pa, a, b`` at ``a`` with ``pa`` the known marker
+    before ``a``, ``a, b, nb`` at ``b``; the chord slope where there is none).
     With one marker missing between two straight neighbours it lands on the straight
     line at its rest fraction; on a bent rope it follows the bend.
 
@@ -120,8 +120,8 @@ def fill_interior_on_curve(
     xnb = positions[(*batch, nb)]
     sa, sb, spa, snb = s[a], s[b], s[pa], s[nb]
     h = sb - sa  # (K,) segment length in s
-    ta = (xb - xpa) / (sb - spa)[:, None]  # tangent dx/ds at a
-    tb = (xnb - xa) / (snb - sa)[:, None]  # tangent dx/ds at b
+    ta = _three_point_slope(xpa, xa, xb, spa, sa, sb)  # tangent dx/ds at a
+    tb = _three_point_slope(xa, xb, xnb, sa, sb, snb)  # ... and at b
     u = ((s[j] - sa) / h)[:, None]  # (K, 1) in (0, 1)
     u2, u3 = u * u, u * u * u
     h00 = 2 * u3 - 3 * u2 + 1
@@ -130,6 +130,25 @@ def fill_interior_on_curve(
     h11 = u3 - u2
     filled[lead] = h00 * xa + h10 * h[:, None] * ta + h01 * xb + h11 * h[:, None] * tb
     return filled, interior
+
+
+def _three_point_slope(
+    x0: np.ndarray, x1: np.ndarray, x2: np.ndarray, s0: np.ndarray, s1: np.ndarray, s2: np.ndarray
+) -> np.ndarray:
+    """(K, 3) slope at ``s1`` of the parabola through three samples (non-uniform).
+
+    Where ``s0 == s1`` (no sample before) it is the chord slope to ``x2``, and where
+    ``s1 == s2`` the chord slope from ``x0``.
+    """
+    h0 = (s1 - s0)[:, None]
+    h1 = (s2 - s1)[:, None]
+    safe0 = np.where(h0 > 0, h0, 1.0)
+    safe1 = np.where(h1 > 0, h1, 1.0)
+    d0 = (x1 - x0) / safe0
+    d1 = (x2 - x1) / safe1
+    both = (h0 > 0) & (h1 > 0)
+    mixed = (d0 * h1 + d1 * h0) / np.where(both, h0 + h1, 1.0)
+    return np.where(both, mixed, np.where(h0 > 0, d0, d1))
 
 
 def polyline_length(positions: np.ndarray) -> np.ndarray:

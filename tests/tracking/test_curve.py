@@ -1,0 +1,93 @@
+"""The rope curve: rest arc length, interior fill, arc-length resampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from skincap.errors import ValidationError
+from skincap.tracking.curve import (
+    fill_interior_on_curve,
+    polyline_length,
+    resample_by_arclength,
+    rest_arclength,
+)
+
+
+def test_rest_arclength() -> None:
+    np.testing.assert_allclose(rest_arclength(np.array([0.1, 0.2, 0.3])), [0, 0.1, 0.3, 0.6])
+    with pytest.raises(ValidationError):
+        rest_arclength(np.array([0.1, 0.0]))
+    with pytest.raises(ValidationError):
+        rest_arclength(np.array([0.1, np.nan]))
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    mask=st.lists(st.booleans(), min_size=10, max_size=10),
+    spacing=st.lists(st.floats(0.05, 0.2), min_size=9, max_size=9),
+)
+def test_fill_on_straight_line_is_exact(mask: list[bool], spacing: list[float]) -> None:
+    s = rest_arclength(np.array(spacing))
+    direction = np.array([0.3, -0.8, 0.52])
+    direction /= np.linalg.norm(direction)
+    truth = 0.5 + s[:, None] * direction
+    known = np.array(mask)
+    known[0] = known[-1] = True
+    pos = np.where(known[:, None], truth, np.nan)
+    filled, interior = fill_interior_on_curve(pos, known, s)
+    np.testing.assert_array_equal(interior, ~known)
+    np.testing.assert_allclose(filled, truth, atol=1e-12)
+
+
+def test_fill_on_circle_close_and_ends_untouched() -> None:
+    m = 24
+    s = rest_arclength(np.full(m - 1, 0.12))
+    radius = 0.8
+    ang = s / radius
+    truth = np.stack([radius * np.cos(ang), radius * np.sin(ang), np.zeros(m)], axis=1)
+    known = np.ones(m, dtype=bool)
+    known[[0, 5, 11, 12]] = False
+    pos = np.where(known[:, None], truth, np.nan)
+    filled, interior = fill_interior_on_curve(pos, known, s)
+    assert interior[[5, 11, 12]].all() and not interior[0]
+    assert np.isnan(filled[0]).all()  # an end run is left alone
+    err = np.linalg.norm(filled[[5, 11, 12]] - truth[[5, 11, 12]], axis=1)
+    assert err.max() < 2e-3  # cubic on a 0.8 m circle, 12 cm spacing
+    # batched: the same in a leading frame axis
+    batch, _ = fill_interior_on_curve(np.stack([pos, pos]), np.stack([known, known]), s)
+    np.testing.assert_allclose(batch[1, 1:], filled[1:])
+
+
+def test_fill_checks_shapes() -> None:
+    with pytest.raises(ValidationError):
+        fill_interior_on_curve(np.zeros((5, 3)), np.ones(4, bool), np.arange(5.0))
+
+
+def test_resample_straight_and_circle() -> None:
+    line = np.stack([np.linspace(0, 1, 6), np.zeros(6), np.zeros(6)], axis=1)[None]
+    s, pts = resample_by_arclength(line, 11)
+    np.testing.assert_allclose(s[0], np.linspace(0, 1, 11), atol=1e-12)
+    np.testing.assert_allclose(pts[0, :, 0], np.linspace(0, 1, 11), atol=1e-12)
+    ang = np.linspace(0, np.pi, 25)
+    arc = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], axis=1)
+    s, pts = resample_by_arclength(np.stack([arc, arc * 2]), 50)
+    assert s.shape == (2, 50) and pts.shape == (2, 50, 3)
+    np.testing.assert_allclose(s[:, -1], [np.pi, 2 * np.pi], rtol=2e-3)
+    np.testing.assert_allclose(pts[:, 0], [arc[0], 2 * arc[0]], atol=1e-12)
+    np.testing.assert_allclose(pts[:, -1], [arc[-1], 2 * arc[-1]], atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(pts[0], axis=1), 1.0, atol=2e-3)
+    assert polyline_length(arc) == pytest.approx(np.pi, rel=1e-3)
+
+
+def test_resample_rejects_nan_and_bad_shapes() -> None:
+    bad = np.zeros((2, 4, 3))
+    bad[1, 2] = np.nan
+    with pytest.raises(ValidationError):
+        resample_by_arclength(bad)
+    with pytest.raises(ValidationError):
+        resample_by_arclength(np.zeros((2, 1, 3)))
+    with pytest.raises(ValidationError):
+        resample_by_arclength(np.zeros((2, 4, 3)), 1)
