@@ -375,6 +375,7 @@ def evaluate_gap_repair(
     after: int = 10,
     tail: int | None = 30,
     lost_distance: float = 0.5,
+    known_distance: float | None = 0.02,
     stop_when_lost: bool = True,
     progress: Progress | None = None,
 ) -> dict[str, list[dict[str, Any]]]:
@@ -382,9 +383,13 @@ def evaluate_gap_repair(
 
     For each case (``single``: one marker; ``adjacent``: two markers next to each
     other along the rope) and each gap size ``n`` in increasing order, ``starts``
-    trials draw a start frame ``s`` in ``[first_start, T - n - after]`` and a marker
-    (or adjacent pair) among those the tracker follows, both from a generator seeded
-    with ``(seed, case, n)``. The markers' points are removed in frames
+    trials draw, without repeats, a start frame ``s`` in ``[first_start, T - n - after]``
+    and a marker (or adjacent pair) whose data is *known* through the whole window
+    ``s … s+n+after-1`` — the thesis creates gaps "in the known data": the marker has
+    a trace and, when a ``baseline`` is given, that trace is within
+    ``known_distance`` of the truth there, so a failure is due to the gap and not to
+    the tracker having lost the marker already. The generator is seeded with
+    ``(seed, case, n)``. The markers' points are removed in frames
     ``s … s+n-1`` (:func:`hold_back_points`), the cloud is cut ``tail`` frames after
     ``s+n+after`` (tracking is causal, frames further on cannot change the gap) and
     tracked, and the trace that follows each held-back marker is compared with the
@@ -413,9 +418,9 @@ def evaluate_gap_repair(
         The truth column each trace follows, -1 for none
         (:func:`match_traces_to_truth` on a run without hold-back).
     baseline : (T, K, 3) float64, metres, optional
-        The traces without hold-back; when given each gap also reports
-        ``baseline_error_m``, the tracker's error over the same frames with nothing
-        held back.
+        The traces without hold-back; when given, trials are restricted to known data
+        (see ``known_distance``) and each gap also reports ``baseline_error_m``, the
+        tracker's error over the same frames with nothing held back.
     gaps : sequence of int
         Gap sizes in frames, evaluated in increasing order.
     starts : int
@@ -429,15 +434,20 @@ def evaluate_gap_repair(
     tail : int or None
         Extra frames tracked past ``s+n+after``; None tracks the whole take.
     lost_distance : float, metres
+    known_distance : float or None, metres
+        Largest baseline error at which a marker's data counts as known (2 cm);
+        None draws from every followed marker and frame.
     stop_when_lost : bool
     progress : callable(fraction, label), optional
 
     Returns
     -------
     dict
-        ``{case: [{"gap", "trials", "lost", "mean_error_m", "median_error_m",
+        ``{case: [{"gap", "candidates", "trials", "lost", "mean_error_m", "median_error_m",
         "max_error_m", "invented_fraction", "baseline_error_m"?}, …]}`` per gap size
-        evaluated; errors are None when every trial was lost or no start fitted.
+        evaluated. ``candidates`` counts the known (start, marker) pairs, ``trials``
+        is ``min(starts, candidates)``; errors are None when every trial was lost or
+        no trial could be drawn.
         ``invented_fraction`` is the share of gap samples the tracker flagged as
         invented (below 1 means it took some other point in the held-back marker's
         place). ``flagged_lost`` (when the track has ``lost_frames``) counts trials
@@ -463,29 +473,50 @@ def evaluate_gap_repair(
     if starts < 1:
         raise ValidationError(f"starts: expected at least 1, got {starts}")
 
-    # Candidate first columns: a single followed marker, or a followed adjacent pair.
+    # Where the data is "known": the marker is followed, and (with a baseline) the
+    # baseline trace is within known_distance of it. (T, R) bool.
     followed = trace_of_truth >= 0
-    candidates = {
-        "single": np.flatnonzero(followed),
-        "adjacent": np.flatnonzero(followed[:-1] & followed[1:]),
-    }
+    known = np.broadcast_to(followed, (n_frames, len(labels))).copy()
+    if baseline is not None and known_distance is not None:
+        base_arr = np.asarray(baseline, dtype=np.float64)
+        if base_arr.ndim != 3 or base_arr.shape[0] != n_frames or base_arr.shape[1] != tot.size:
+            raise ValidationError(
+                f"baseline: expected ({n_frames}, {tot.size}, 3), got {base_arr.shape}"
+            )
+        follow = base_arr[:, np.maximum(trace_of_truth, 0)]  # (T, R, 3)
+        dist = np.linalg.norm(follow - truth_arr, axis=2)
+        known &= np.nan_to_num(dist, nan=np.inf) <= known_distance
     total_runs = len(cases) * len(gap_sizes) * starts
     runs_done = 0
     results: dict[str, list[dict[str, Any]]] = {}
     for case_index, case in enumerate(cases):
         width = CASES[case]
+        # (T, R - width + 1): every marker of the group known in that frame.
+        group = np.ones((n_frames, max(0, len(labels) - width + 1)), dtype=bool)
+        for k in range(width):
+            group &= known[:, k : k + group.shape[1]]
+        csum = np.concatenate([np.zeros((1, group.shape[1]), np.int64), np.cumsum(group, axis=0)])
         rows: list[dict[str, Any]] = []
         for n in gap_sizes:
-            last_start = n_frames - n - after
+            window = n + after
+            last_start = n_frames - window
             errors: list[float] = []
             lost: list[bool] = []
             invented_share: list[float] = []
             base_err: list[float] = []
             flagged: list[float] = []
-            if last_start >= first_start and candidates[case].size:
+            # (start, first column) pairs whose whole window is known.
+            if last_start >= first_start and group.shape[1]:
+                s_range = np.arange(first_start, last_start + 1)
+                whole = (csum[s_range + window] - csum[s_range]) == window
+                pairs = np.argwhere(whole)
+                pairs[:, 0] += first_start
+            else:
+                pairs = np.zeros((0, 2), dtype=np.int64)
+            if pairs.shape[0]:
                 rng = np.random.default_rng([seed, case_index, n])
-                trial_starts = rng.integers(first_start, last_start + 1, size=starts)
-                trial_markers = rng.choice(candidates[case], size=starts)
+                pick = rng.choice(pairs.shape[0], size=min(starts, pairs.shape[0]), replace=False)
+                trial_starts, trial_markers = pairs[pick, 0], pairs[pick, 1]
                 for s, r0 in zip(trial_starts.tolist(), trial_markers.tolist(), strict=True):
                     columns = np.arange(r0, r0 + width)
                     traces = trace_of_truth[columns]
@@ -521,7 +552,8 @@ def evaluate_gap_repair(
             extra = {"invented_fraction": invented_share}
             if baseline is not None:
                 extra["baseline_error_m"] = base_err
-            row = {"gap": n, **_summary_of_trials(errors, lost, extra)}
+            row = {"gap": n, "candidates": int(pairs.shape[0])}
+            row.update(_summary_of_trials(errors, lost, extra))
             if flagged:
                 row["flagged_lost"] = int(sum(flagged))
             rows.append(row)
@@ -643,6 +675,7 @@ def evaluate_tracking(
     after: int = 10,
     tail: int | None = 30,
     lost_distance: float = 0.5,
+    known_distance: float | None = 0.02,
     stop_when_lost: bool = True,
     max_match_distance: float = 0.06,
     progress: Progress | None = None,
@@ -669,8 +702,8 @@ def evaluate_tracking(
         the rope truth (metres, no NaN expected; NaN samples are ignored).
     track : callable(PointCloud) -> RopeTrack-like, optional
         Default :func:`rope_tracker_from_truth`.
-    gaps, starts, seed, cases, after, tail, lost_distance, stop_when_lost
-        See :func:`evaluate_gap_repair`.
+    gaps, starts, seed, cases, after, tail, lost_distance, known_distance, stop_when_lost
+        See :func:`evaluate_gap_repair` (the baseline run is its ``baseline``).
     first_start : int, optional
         Earliest gap start; default the end of the initialisation window, taken as the
         first frame where any true rope marker has moved 2 cm from frame 0 (at least
@@ -686,7 +719,9 @@ def evaluate_tracking(
         ``traces``, ``followed`` (traces paired with a true marker),
         ``classification`` (with ``followed_markers_recall``: recall over the points
         of the rope markers that have a trace), ``baseline`` (``mean_error_m`` of the followed traces over
-        their real samples and all samples, ``invented_fraction``), ``gap_repair`` (see
+        their real samples and all samples, ``invented_fraction``,
+        ``followed_2cm_fraction``: the share of all frame × true-marker samples a trace
+        follows within 2 cm), ``gap_repair`` (see
         :func:`evaluate_gap_repair`), ``settings``, ``thesis``, ``targets``.
     """
     truth_labels = [lab for lab in truth.labels if lab.startswith("rope_")]
@@ -739,8 +774,12 @@ def evaluate_tracking(
         base_all = float(d[finite].mean()) if finite.any() else None
         base_real = float(d[real].mean()) if real.any() else None
         inv_frac = float(invented[:, followed].mean())
+        # Share of all (frame, true rope marker) samples followed within 2 cm.
+        near = np.nan_to_num(d, nan=np.inf) <= 0.02
+        known_frac = float(np.count_nonzero(near) / (d.shape[0] * len(truth_labels)))
     else:
         base_all = base_real = inv_frac = None
+        known_frac = 0.0
     gap_repair = evaluate_gap_repair(
         cloud,
         truth_text,
@@ -757,6 +796,7 @@ def evaluate_tracking(
         after=after,
         tail=tail,
         lost_distance=lost_distance,
+        known_distance=known_distance,
         stop_when_lost=stop_when_lost,
         progress=sub(0.05, 1.0),
     )
@@ -775,6 +815,7 @@ def evaluate_tracking(
             "mean_error_real_m": base_real,
             "mean_error_all_m": base_all,
             "invented_fraction": inv_frac,
+            "followed_2cm_fraction": known_frac,
         },
         "gap_repair": gap_repair,
         "settings": {
@@ -786,6 +827,7 @@ def evaluate_tracking(
             "after": int(after),
             "tail": None if tail is None else int(tail),
             "lost_distance_m": float(lost_distance),
+            "known_distance_m": None if known_distance is None else float(known_distance),
             "stop_when_lost": bool(stop_when_lost),
         },
         "thesis": dict(THESIS),
