@@ -284,6 +284,13 @@ def _print_eval_table(result: dict[str, Any]) -> None:
         markup=False,
         soft_wrap=True,
     )
+    b = result["baseline"]
+    out.print(
+        f"tracking without hold-back: {100 * b['followed_2cm_fraction']:.1f}% of rope marker "
+        f"samples followed within 2 cm; gaps are held back only where the marker is followed",
+        markup=False,
+        soft_wrap=True,
+    )
     for name, t in result["targets"].items():
         mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
         value = t["value"]

@@ -718,10 +718,10 @@ def evaluate_tracking(
         ``frames``, ``rate``, ``points``, ``points_per_frame``, ``rope_markers``,
         ``traces``, ``followed`` (traces paired with a true marker),
         ``classification`` (with ``followed_markers_recall``: recall over the points
-        of the rope markers that have a trace), ``baseline`` (``mean_error_m`` of the followed traces over
-        their real samples and all samples, ``invented_fraction``,
-        ``followed_2cm_fraction``: the share of all frame × true-marker samples a trace
-        follows within 2 cm), ``gap_repair`` (see
+        of the rope markers that have a trace), ``baseline`` (``mean_error_real_m``
+        and ``mean_error_all_m`` of the followed traces over their real and over all
+        samples, ``invented_fraction``, ``followed_2cm_fraction``: the share of all
+        frame × true-marker samples a trace follows within 2 cm), ``gap_repair`` (see
         :func:`evaluate_gap_repair`), ``settings``, ``thesis``, ``targets``.
     """
     truth_labels = [lab for lab in truth.labels if lab.startswith("rope_")]
