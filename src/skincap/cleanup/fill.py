@@ -146,7 +146,7 @@ def as_csr(neighbours: Any, n_markers: int) -> CSR:
     return offsets, indices
 
 
-def motion_neighbours(positions: np.ndarray, k: int = 6, *, max_frames: int = 200) -> CSR:
+def motion_neighbours(positions: np.ndarray, k: int = 6, *, max_frames: int = 100) -> CSR:
     """Motion-consistent neighbours: for each marker the ``k`` markers whose distance
     to it stays most nearly constant through the take (skin and segment neighbours
     keep it; markers on other limbs do not), ties broken by closeness.
@@ -173,8 +173,13 @@ def motion_neighbours(positions: np.ndarray, k: int = 6, *, max_frames: int = 20
         return np.zeros(n + 1, dtype=np.int64), np.zeros(0, dtype=np.int64)
     frames = np.unique(np.linspace(0, t - 1, min(t, max_frames)).round().astype(np.int64))
     q = p[frames]  # (F, N, 3)
-    d = np.linalg.norm(q[:, :, None, :] - q[:, None, :, :], axis=-1)  # (F, N, N)
-    seen = np.isfinite(d)
+    ok = ~np.isnan(q[..., 0])  # (F, N)
+    qz = np.where(ok[..., None], q, 0.0)
+    sq = (qz**2).sum(axis=-1)  # (F, N)
+    # |a - b|² = |a|² + |b|² - 2 a·b, one matrix product per frame
+    d2 = sq[:, :, None] + sq[:, None, :] - 2.0 * np.einsum("fnc,fmc->fnm", qz, qz)
+    seen = ok[:, :, None] & ok[:, None, :]
+    d = np.where(seen, np.sqrt(np.maximum(d2, 0.0)), np.nan)  # (F, N, N)
     count = seen.sum(axis=0)  # (N, N)
     dz = np.where(seen, d, 0.0)
     safe = np.maximum(count, 1)
@@ -502,7 +507,8 @@ def _reference_shape(pos: np.ndarray, present: np.ndarray, rows: np.ndarray) -> 
     alternates rigid alignment to the current mean with re-averaging (members absent
     in the start row are added when aligned rows see them). NaN for never-seen members.
     """
-    m = pos.shape[1]
+    if rows.size > 150:  # the mean shape needs no more than a spread of frames
+        rows = rows[np.linspace(0, rows.size - 1, 150).round().astype(np.int64)]
     sub = pos[rows]
     ok = present[rows]
     start = int(np.argmax(ok.sum(axis=1)))
@@ -521,7 +527,6 @@ def _reference_shape(pos: np.ndarray, present: np.ndarray, rows: np.ndarray) -> 
         total = np.where(w[..., None], aligned, 0.0).sum(axis=0)
         ref = np.where(cnt[:, None] > 0, total / np.maximum(cnt, 1)[:, None], np.nan)
         ref = ref - np.nanmean(ref, axis=0) if np.isfinite(ref).any() else ref
-    del m
     return ref
 
 
@@ -569,8 +574,9 @@ def _group_estimates(
     *,
     variance: float,
     missing_data: bool,
-    refits: int = 2,
+    refits: int = 1,
     em_iterations: int = 15,
+    max_train: int = 400,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Estimates of the missing members of one group.
 
@@ -593,6 +599,8 @@ def _group_estimates(
     d = 3 * m
     # local coordinates of training rows (eqs. 4-5)
     rows_tr = np.nonzero(train)[0]
+    if rows_tr.size > max_train:  # an even spread of frames trains the model as well
+        rows_tr = rows_tr[np.linspace(0, rows_tr.size - 1, max_train).round().astype(np.int64)]
     rot, tr = fit_rigid(ref[None], pos[rows_tr], mask=present[rows_tr])
     local = np.einsum("fji,fkj->fki", rot, pos[rows_tr] - tr[:, None, :])  # R^T (x - t)
     y = local.reshape(len(rows_tr), d)

@@ -277,6 +277,9 @@ def smooth_local(
 
 def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
     """(N, K, 3) mean neighbourhood shapes from (T, N, K, 3) with presence (T, N, K)."""
+    if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
+        pick = np.linspace(0, cur.shape[0] - 1, 120).round().astype(np.int64)
+        cur, ok = cur[pick], ok[pick]
     t = cur.shape[0]
     count = ok.sum(axis=2)  # (T, N)
     # start from each neighbourhood's best-covered frame
