@@ -33,10 +33,15 @@ The clips
     A guard with fists at the chin, then alternating straight punches (shoulder
     flexion with elbow extension) with the torso rotating into each punch.
 ``jumprope``
-    Upper arms down by the sides, forearms pointing out and forward with the hands
-    near hip height; the forearms circle (the wrists draw ~9 cm circles) at 1.75 Hz,
-    and the body hops at the same rate: knees bend on landing and the feet leave the
-    floor by ~7 cm at the top of each hop.
+    Skipping a real (simulated) rope: the arms come down from the T-pose to the hips
+    (hands ~0.68 m apart), then the wrists wind the rope up with a fast lift into a
+    wide, slow circle (0.45 m, 0.65 turns/s) that shrinks within 2.5 s into 0.15 m
+    circles at 1.8 turns/s by the hips -- the hand paths of
+    :func:`skincap.synth.rope.jump_rope_hands`, made reachable and solved by two-bone
+    arm IK with the elbows by the sides. The body hops once per turn, timed so the
+    feet are ~7 cm up when the rope passes under them; knees bend on landing.
+    :func:`skincap.synth.rope.simulate_rope` held in these hands turns ~11 times
+    in 1000 frames.
 ``breathe``
     Relaxed standing with the arms lowered; chest and shoulders rise and fall at
     0.25 Hz (the breathing deformation itself is soft tissue).
@@ -55,7 +60,12 @@ import numpy as np
 
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import rest_positions
-from skincap.geometry.rotations import quat_apply, quat_conjugate, quat_multiply
+from skincap.geometry.rotations import (
+    matrix_to_quat,
+    quat_apply,
+    quat_conjugate,
+    quat_multiply,
+)
 from skincap.skinning.name_maps import CONVENTIONS, detect_convention
 from skincap.types import Motion, Skeleton
 
@@ -311,6 +321,45 @@ class _Pose:
         w_shin = self.world(int(self.parents[self.lm[foot_lm]]))
         self.local[:, self.lm[foot_lm]] = quat_multiply(quat_conjugate(w_shin), w_foot)
 
+    def arm_ik(self, side: str, wrist: np.ndarray, pole: np.ndarray) -> None:
+        """Two-bone IK: put the wrist at ``wrist`` (T, 3), the elbow towards ``pole``.
+
+        The elbow is a hinge that bends the forearm forward (towards ``+Z`` in the
+        T-pose, about the axis perpendicular to the upper arm and ``Z``); its angle
+        comes from the shoulder-to-wrist distance (law of cosines). The upper arm is
+        then turned so that the shoulder-to-wrist line points at the target and the
+        elbow lies on the side of that line towards ``pole`` (T, 3) or (3,), a world
+        direction (e.g. back and out: elbows by the sides). Targets beyond reach leave
+        the arm straight, pointing at the target. The hand keeps its local rotation.
+        A pole along the shoulder-to-target line is ill-defined: keep it well apart.
+        """
+        up, fore, hand = f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"
+        if not self.has(up, fore, hand):
+            return
+        a0 = self.rest[self.lm[fore]] - self.rest[self.lm[up]]  # shoulder -> elbow (3,)
+        b0 = self.rest[self.lm[hand]] - self.rest[self.lm[fore]]  # elbow -> wrist
+        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
+        shoulder = self.position(self.lm[up])  # (T, 3)
+        reach_vec = wrist - shoulder
+        dist = np.linalg.norm(reach_vec, axis=-1)
+        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
+        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
+        bend = np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)  # (T,) radians
+        hinge = _unit(np.cross(a0, _Z))  # forearm bends towards +Z at rest
+        self.local[:, self.lm[fore]] = _axis_angle(hinge, bend)
+        # the same two directions in the upper arm's rest frame and in the world:
+        # shoulder-to-wrist, and the side of that line the elbow is on
+        r = _unit(a0 + quat_apply(self.local[:, self.lm[fore]], b0))  # (T, 3)
+        o_rest = _unit(np.cross(r, hinge))
+        n = _unit(reach_vec)
+        pole = np.broadcast_to(np.asarray(pole, dtype=np.float64), n.shape)
+        o_world = _unit(pole - np.sum(pole * n, axis=-1, keepdims=True) * n)
+        frame_rest = np.stack([r, o_rest, np.cross(r, o_rest)], axis=-1)  # (T, 3, 3) columns
+        frame_world = np.stack([n, o_world, np.cross(n, o_world)], axis=-1)
+        world = matrix_to_quat(frame_world @ np.swapaxes(frame_rest, -1, -2))
+        wp = self.world(int(self.parents[self.lm[up]]))
+        self.local[:, self.lm[up]] = quat_multiply(quat_conjugate(wp), world)
+
     # ---------------------------------------------------------------- output
     def motion(self, rate: float, meta: dict[str, Any]) -> Motion:
         q = self.local / np.linalg.norm(self.local, axis=-1, keepdims=True)
@@ -484,45 +533,174 @@ def _clip_punch(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Gene
         pose.aim(f"forearm_{s}", quat_apply(trunk, fore), env)
 
 
-#: Hop and rope-turn frequency of ``jumprope``, Hz.
-JUMP_HZ = 1.75
+#: Steady rope-turn (and hop) frequency of ``jumprope``, Hz.
+JUMP_HZ = 1.8
+#: Turn rate of the wind-up circle that starts the rope, Hz.
+WIND_HZ = 0.65
+#: The arms come down from the T-pose to the hips in this long, seconds.
+_LOWER_SECONDS = 0.6
+#: The wind-up circles shrink to the skipping circles (and speed up) in this long, s.
+_WIND_SECONDS = 2.5
+#: The wind-up radius grows from nothing in this long (no jerk at the start), s.
+_GROW_SECONDS = 0.4
+#: Wrist-circle radii, fractions of the arm length (shoulder to wrist): the wide
+#: wind-up circle (0.45 m at 1.75 m) and the skipping circles (0.15 m).
+_WIND_RADIUS, _SKIP_RADIUS = 0.77, 0.26
+#: Hand positions relative to the shoulder joint, fractions of the arm length:
+#: out to the side (hands ~0.68 m apart at 1.75 m, 1.7 x the shoulder width) and,
+#: in the sagittal plane (up, forward), the bottom of the wind-up and skipping circles.
+_HAND_OUT = 0.28
+_WIND_BOTTOM = (-0.77, 0.15)
+_SKIP_BOTTOM = (-0.80, 0.22)
+#: How far the rope lags the hands: it passes under the feet when the hands are this
+#: far past the bottom of their circle, radians (measured with skincap.synth.rope).
+_ROPE_LAG = np.radians(50.0)
+#: Time in the air per hop, s, and hop height, metres.
+_FLIGHT, _HOP = 0.22, 0.07
+#: The wrist keeps at least this share of the arm length from the shoulder.
+_ARM_FLOOR = 0.5
+
+
+def _smooth3(s: np.ndarray) -> np.ndarray:
+    """Cubic smoothstep ``3 s^2 - 2 s^3`` on ``s`` clipped to 0..1."""
+    s = np.clip(s, 0.0, 1.0)
+    return s * s * (3.0 - 2.0 * s)
+
+
+def _ramp_integral(tau: np.ndarray, width: float) -> np.ndarray:
+    """Integral from 0 to ``tau`` (T,) of the cubic smoothstep ``S(s / width)``, seconds."""
+    u = np.clip(tau / width, 0.0, 1.0)
+    return width * (u**3 - 0.5 * u**4) + np.maximum(tau - width, 0.0)
+
+
+def _rope_turns(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Turn rate (Hz) and turns done by the hands ``tau`` (T,) seconds into the wind-up.
+
+    The rate rises from :data:`WIND_HZ` to :data:`JUMP_HZ` along a cubic smoothstep
+    over :data:`_WIND_SECONDS`; the turns are its closed-form integral (so every frame
+    rate samples the same curve). Both are 0 for ``tau <= 0``.
+    """
+    tau = np.maximum(tau, 0.0)
+    rate = np.where(tau > 0, WIND_HZ + (JUMP_HZ - WIND_HZ) * _smooth3(tau / _WIND_SECONDS), 0.0)
+    turns = WIND_HZ * tau + (JUMP_HZ - WIND_HZ) * _ramp_integral(tau, _WIND_SECONDS)
+    return rate, turns
+
+
+def _hop_profile(t: np.ndarray, passes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Foot lift (0..1) and knee squash (0..1) around rope passes at ``passes`` (K,) s.
+
+    Each hop is a ``sin^2`` flight of :data:`_FLIGHT` seconds centred on a pass; between
+    landing and the next take-off the knees bend and straighten (``sin^2``), and
+    before the first take-off there is one such dip of 0.35 s.
+    """
+    lift = np.zeros_like(t)
+    squash = np.zeros_like(t)
+    if passes.size == 0:
+        return lift, squash
+    take_off = passes - 0.5 * _FLIGHT
+    landing = passes + 0.5 * _FLIGHT
+    k = np.searchsorted(passes, t)  # passes[k-1] < t <= passes[k]
+    near = np.clip(np.stack([k - 1, k]), 0, passes.size - 1)  # (2, T)
+    off = np.min(np.abs(t[None] - passes[near]), axis=0)
+    air = off < 0.5 * _FLIGHT
+    lift = np.where(air, np.cos(np.pi * off / _FLIGHT) ** 2, 0.0)
+    # contact intervals: from the previous landing (or 0.35 s before the first
+    # take-off) to the next take-off
+    nxt = np.searchsorted(take_off, t)  # take_off[nxt-1] < t <= take_off[nxt]
+    has_next = nxt < passes.size
+    nxt_c = np.minimum(nxt, passes.size - 1)
+    begin = np.where(nxt_c > 0, landing[np.maximum(nxt_c - 1, 0)], take_off[0] - 0.35)
+    stop = take_off[nxt_c]
+    s = (t - begin) / np.maximum(stop - begin, 1e-9)
+    squash = np.where(has_next & ~air & (s >= 0.0) & (s <= 1.0), np.sin(np.pi * s) ** 2, 0.0)
+    return lift, squash
 
 
 def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    """Skipping a rope: arms down from the T-pose, a wind-up circle, then hops.
+
+    The wrists follow prescribed circles in the sagittal plane (two-bone arm IK,
+    elbows by the sides): first a wide slow wind-up circle that brings a resting rope
+    over the head, shrinking within :data:`_WIND_SECONDS` into skipping circles at
+    :data:`JUMP_HZ` (see :func:`skincap.synth.rope.jump_rope_hands`, which these
+    follow). The feet leave the floor when the rope passes under them.
+    """
     _sway(pose, t, env, rng)
-    ramp = _quintic((t - HOLD_SECONDS) / (BLEND_SECONDS + 0.4))
-    period = 1.0 / JUMP_HZ
-    flight = 0.22  # s in the air per hop
-    # phase 0 at landing: contact [0, period - flight), flight after it
-    u = np.mod(t - HOLD_SECONDS, period)
-    contact = period - flight
-    s = np.clip((u - contact) / flight, 0.0, 1.0)
-    lift = np.where((t >= HOLD_SECONDS) & (u >= contact), np.sin(np.pi * s) ** 2, 0.0)
-    foot_lift = 0.07 * ramp * lift  # metres
-    # knee compression: deepest mid-contact, none mid-flight (smooth cosine)
-    mid_contact = contact / 2
-    squash = 0.5 * (1.0 + np.cos(2 * np.pi * (u - mid_contact) / period))
-    squash = np.where(t >= HOLD_SECONDS, squash, 0.0)
+    start = HOLD_SECONDS + _LOWER_SECONDS  # the wind-up begins
+    tau = t - start
+    _, turns = _rope_turns(tau)
+    decay = _smooth3(tau / _WIND_SECONDS)  # 0 -> 1: wind-up -> skipping
+    grow = _quintic(tau / _GROW_SECONDS)
+    # angles in the sagittal plane: 0 = up, 90 deg = forward. The circle passes
+    # through the hands' start (its bottom) and grows from nothing while the hands
+    # start at 270 deg and turn forward: they first rise (lifting the rope from
+    # behind the heels), then go over the top, down the front and back under.
+    angle = 1.5 * np.pi + 2.0 * np.pi * turns  # (T,) radians
+    # hops: the rope passes under the feet _ROPE_LAG after the hands pass the bottom
+    # of their circle, first after three quarters of a turn (from 270 deg)
+    n_pass = int(np.floor(turns[-1] + 2.0)) if t.size else 0
+    pass_turns = 0.75 + _ROPE_LAG / (2.0 * np.pi) + np.arange(n_pass)
+    # invert the monotonic turns(tau) on a 1 ms grid of tau (the same grid points
+    # whatever the clip's length and frame rate)
+    tau_grid = np.arange(0.0, max(float(tau[-1]), 0.0) + 2.0, 1e-3)
+    _, turns_grid = _rope_turns(tau_grid)
+    passes = start + np.interp(pass_turns, turns_grid, tau_grid, right=np.inf)
+    passes = passes[np.isfinite(passes)]
+    lift, squash = _hop_profile(t, passes)
+    ramp = _quintic((t - start) / 1.0)
+    foot_lift = _HOP * lift  # metres
     knee = np.radians(8.0) * env + np.radians(30.0) * ramp * squash
     pose.root_offset = _pelvis_for_knee(pose, knee, back=0.3)
     pose.root_offset[:, 1] += foot_lift
     pose.turn("spine", _axis_angle(_X, np.radians(4.0) * env))
-    # arms: upper arms down by the sides, forearms out-forward, circling
-    omega = 2 * np.pi * JUMP_HZ
-    cone = np.radians(20.0) * ramp
+
+    hold = t < HOLD_SECONDS
+    lower = _quintic((t - HOLD_SECONDS) / _LOWER_SECONDS)  # (T,) 0 -> 1
     for side in ("l", "r"):
-        pose.aim(f"upperarm_{side}", _sided_dir((0.22, -0.96, 0.12), side), env)
-        if not pose.has(f"forearm_{side}"):
+        up, fore, hand = f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"
+        if not pose.has(up, fore, hand):
             continue
-        f0 = _sided_dir((0.75, -0.3, 0.6), side)
-        e1 = _unit(_Y - np.dot(_Y, f0) * f0)
-        e2 = np.cross(f0, e1) * (1.0 if side == "l" else -1.0)
-        # the wrists are lowest (rope under the feet) at mid-flight
-        ang = omega * (t - HOLD_SECONDS) - omega * (contact + flight / 2) + np.pi
-        ring = np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2
-        target = np.cos(cone)[:, None] * f0 + np.sin(cone)[:, None] * ring
-        pose.aim(f"forearm_{side}", target, env)
-    _legs_planted(pose, foot_lift, np.radians(8.0) * ramp * lift)
+        sx = 1.0 if side == "l" else -1.0
+        sh_rest = pose.rest[pose.lm[up]]
+        arm = pose.rest[pose.lm[hand]] - sh_rest  # (3,) T-pose shoulder -> wrist
+        length = float(np.linalg.norm(arm))
+        # the circles in the sagittal plane, riding with the body (half the hop)
+        bottom = (1.0 - decay)[:, None] * np.array(_WIND_BOTTOM) + decay[:, None] * np.array(
+            _SKIP_BOTTOM
+        )  # (T, 2) (up, forward) / arm length
+        radius = (_WIND_RADIUS + (_SKIP_RADIUS - _WIND_RADIUS) * decay) * grow  # (T,)
+        centre = bottom + radius[:, None] * np.array([1.0, 0.0])
+        up_fwd = centre + radius[:, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        # before the wind-up the hands wait at its start point (the bottom)
+        target = np.empty((t.size, 3))
+        target[:, 0] = sh_rest[0] + sx * _HAND_OUT * length
+        target[:, 1] = sh_rest[1] + length * up_fwd[:, 0] + pose.root_offset[:, 1] * 0.5
+        target[:, 2] = sh_rest[2] + length * up_fwd[:, 1]
+        # lowering from the T-pose: the shoulder-to-wrist direction turns and the
+        # reach shortens smoothly from the T-pose's to the stance's
+        shoulder = pose.position(pose.lm[up])
+        stance = target - shoulder
+        # the wrist never comes nearer the shoulder than _ARM_FLOOR of the arm (a soft
+        # floor on the distance): the arm swings past the shoulder, it does not fold
+        dist = np.linalg.norm(stance, axis=-1)
+        floor = _ARM_FLOOR * length
+        stance *= ((1.0 + (floor / np.maximum(dist, 1e-9)) ** 8) ** 0.125)[:, None]
+        d0 = _unit(arm)
+        d1 = _unit(stance)
+        direction = _unit((1.0 - lower)[:, None] * d0 + lower[:, None] * d1)
+        reach = (1.0 - lower) * length + lower * np.linalg.norm(stance, axis=-1)
+        wrist = shoulder + direction * reach[:, None]
+        # pole (where the elbow points): straight back as the arm leaves the T-pose
+        # (so the T-pose solves the IK there), then down and back, elbows by the
+        # sides; it keeps well away from the shoulder-to-wrist line all along the
+        # wind-up and skipping circles
+        back = np.array([0.3 * sx, 0.0, -1.0])
+        down_back = _unit(np.array([0.0, -1.5, -1.0]))
+        pole = _nlerp(back, down_back, _quintic(2.0 * lower))
+        before = pose.local.copy()
+        pose.arm_ik(side, wrist, pole)
+        pose.local[hold] = before[hold]  # the T-pose is held exactly
+    _legs_planted(pose, foot_lift, np.radians(8.0) * lift)
 
 
 def _clip_breathe(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
