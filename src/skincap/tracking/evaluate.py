@@ -602,6 +602,13 @@ def rope_tracker_from_truth(cloud: PointCloud, point_truth: np.ndarray) -> Track
 def target_summary(result: dict[str, Any]) -> dict[str, Any]:
     """Compare an :func:`evaluate_tracking` result with the issue's targets and the thesis.
 
+    ``f1``: the rope class's F1. ``single_gap_error_10_30_m``: the largest per-gap
+    mean error of the single-marker case over the 10–30-frame gaps (met only with no
+    lost trial there). ``single_no_loss_up_to_60``: lost single-marker trials over
+    gaps up to 60 frames (evaluated only when a gap of 60 or more was run).
+    ``adjacent_gap_error_30_m``: the two-adjacent case's mean error at exactly 30
+    frames (met only with no lost trial).
+
     Returns
     -------
     dict of target name -> ``{"value", "target", "thesis", "met"}``; ``met`` is None
