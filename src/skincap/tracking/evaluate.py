@@ -643,7 +643,7 @@ def target_summary(result: dict[str, Any]) -> dict[str, Any]:
     }
     limit = TARGETS["single_no_loss_up_to_frames"]
     upto = [r for r in single if r["gap"] <= limit and r["trials"]]
-    covered = any(r["gap"] >= limit for r in upto)
+    covered = any(r["gap"] >= limit and r["trials"] for r in single)
     lost_upto = sum(r["lost"] for r in upto)
     out["single_no_loss_up_to_60"] = {
         "value": lost_upto if upto else None,
