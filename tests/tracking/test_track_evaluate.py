@@ -492,3 +492,14 @@ def test_real_tracker_on_a_synthetic_jump_rope(jump_take) -> None:
             assert row["invented_fraction"] > 0.5
             # Repair is worse than tracking the same frames with the marker seen.
             assert row["baseline_error_m"] < row["mean_error_m"]
+
+
+def test_target_summary_coverage() -> None:
+    rows = [{"gap": g, "trials": 2, "lost": 0, "mean_error_m": 0.01} for g in (10, 50, 70)]
+    t = target_summary({"classification": None, "gap_repair": {"single": rows}})
+    assert t["single_no_loss_up_to_60"]["met"] is True  # a 70-frame gap covers 60
+    assert t["f1"]["met"] is None and t["adjacent_gap_error_30_m"]["met"] is None
+    short = [{"gap": 10, "trials": 2, "lost": 1, "mean_error_m": 0.01}]
+    t2 = target_summary({"classification": None, "gap_repair": {"single": short}})
+    assert t2["single_no_loss_up_to_60"]["met"] is None  # no gap of 60 frames was run
+    assert t2["single_gap_error_10_30_m"]["met"] is False  # a lost trial fails it
