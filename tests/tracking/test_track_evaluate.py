@@ -310,6 +310,13 @@ def test_gap_repair_errors_are_the_invented_offset(scene: Scene) -> None:
             assert row["max_error_m"] == pytest.approx(offset, abs=1e-12)
             assert row["invented_fraction"] == pytest.approx(1.0)
             assert row["baseline_error_m"] == pytest.approx(0.0, abs=1e-12)
+            assert len(row["detail"]) == 5
+            starts = [d["start"] for d in row["detail"]]
+            assert min(starts) >= 20 and max(starts) <= scene.cloud.n_frames - row["gap"] - 10
+            for d in row["detail"]:
+                idx = [int(m.split("_")[1]) for m in d["markers"]]
+                assert idx == list(range(idx[0], idx[0] + (1 if case == "single" else 2)))
+                assert d["mean_error_m"] == pytest.approx(offset) and d["lost"] is False
     assert calls[-1] == 1.0 and calls == sorted(calls)
 
 

@@ -452,6 +452,8 @@ def evaluate_gap_repair(
         invented (below 1 means it took some other point in the held-back marker's
         place). ``flagged_lost`` (when the track has ``lost_frames``) counts trials
         in which the tracker itself flagged the trace lost in the gap or after it.
+        ``detail`` lists every trial: ``start``, ``markers``, ``mean_error_m`` (over
+        the gap), ``max_error_m`` (over the gap and the ``after`` frames), ``lost``.
     """
     truth_arr = np.asarray(truth, dtype=np.float64)
     labels = [str(x) for x in truth_labels]
@@ -505,6 +507,7 @@ def evaluate_gap_repair(
             invented_share: list[float] = []
             base_err: list[float] = []
             flagged: list[float] = []
+            detail: list[dict[str, Any]] = []
             # (start, first column) pairs whose whole window is known.
             if last_start >= first_start and group.shape[1]:
                 s_range = np.arange(first_start, last_start + 1)
@@ -532,6 +535,16 @@ def evaluate_gap_repair(
                     is_lost = bool(~np.isfinite(err).all() or np.nanmax(err) > lost_distance)
                     lost.append(is_lost)
                     errors.append(float(gap_part.mean()) if np.isfinite(gap_part).all() else np.nan)
+                    finite = err[np.isfinite(err)]
+                    detail.append(
+                        {
+                            "start": int(s),
+                            "markers": [labels[c] for c in columns],
+                            "mean_error_m": None if np.isnan(errors[-1]) else errors[-1],
+                            "max_error_m": float(finite.max()) if finite.size else None,
+                            "lost": is_lost,
+                        }
+                    )
                     flags = getattr(result, "lost_frames", None)
                     if flags is not None:
                         window = np.asarray(flags, dtype=bool)[s : s + n + after][:, traces]
@@ -556,6 +569,7 @@ def evaluate_gap_repair(
             row.update(_summary_of_trials(errors, lost, extra))
             if flagged:
                 row["flagged_lost"] = int(sum(flagged))
+            row["detail"] = detail
             rows.append(row)
             if stop_when_lost and (row["trials"] == 0 or 2 * row["lost"] >= row["trials"]):
                 break
