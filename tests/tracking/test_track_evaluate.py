@@ -510,3 +510,53 @@ def test_target_summary_coverage() -> None:
     t2 = target_summary({"classification": None, "gap_repair": {"single": short}})
     assert t2["single_no_loss_up_to_60"]["met"] is None  # no gap of 60 frames was run
     assert t2["single_gap_error_10_30_m"]["met"] is False  # a lost trial fails it
+
+
+def test_gap_trials_are_drawn_from_known_data_only(scene: Scene) -> None:
+    rope, labels = _truth_rope(scene)
+    track = oracle_tracker(rope, 0.01, reverse=False)
+    baseline = rope.copy()
+    baseline[:, 2] += 1.0  # the tracker never follows rope_02
+    baseline[100:, 5] += 0.05  # nor rope_05 from frame 100 on
+    res = evaluate_gap_repair(
+        scene.cloud,
+        scene.point_truth,
+        rope,
+        labels,
+        track,
+        truth_of_trace=np.arange(rope.shape[1]),
+        baseline=baseline,
+        gaps=(10,),
+        starts=40,
+        first_start=20,
+    )
+    t_count = scene.cloud.n_frames
+    n_starts = t_count - 10 - 10 - 20 + 1  # s in [20, T - gap - after]
+    # rope_05 is known only while the window ends by frame 100: s + 20 <= 100.
+    known_05 = 100 - 20 - 20 + 1
+    single, adjacent = res["single"][0], res["adjacent"][0]
+    assert single["candidates"] == 6 * n_starts + known_05
+    # Pairs: (0,1), (3,4), (6,7) always; (4,5) and (5,6) while rope_05 is known.
+    assert adjacent["candidates"] == 3 * n_starts + 2 * known_05
+    for row in (single, adjacent):
+        assert row["trials"] == 40
+        for d in row["detail"]:
+            assert "rope_02" not in d["markers"]
+            if "rope_05" in d["markers"]:
+                assert d["start"] + 20 <= 100
+    # Without a known-distance restriction every followed marker and frame may be drawn.
+    free = evaluate_gap_repair(
+        scene.cloud,
+        scene.point_truth,
+        rope,
+        labels,
+        track,
+        truth_of_trace=np.arange(rope.shape[1]),
+        baseline=baseline,
+        gaps=(10,),
+        starts=3,
+        first_start=20,
+        known_distance=None,
+        cases=("single",),
+    )
+    assert free["single"][0]["candidates"] == 8 * n_starts
