@@ -31,7 +31,15 @@ def test_skin_glb_from_makehuman_and_cmu(tmp_path, makehuman_dir):
     from skincap.io.gltf import read_gltf
 
     out = tmp_path / "walk.glb"
-    result = run("skin", makehuman_dir / "makehuman_base.obj", DATA / "cmu_131_01_bvh11.bvh", "--units", "cmu", "-o", out)
+    result = run(
+        "skin",
+        makehuman_dir / "makehuman_base.obj",
+        DATA / "cmu_131_01_bvh11.bvh",
+        "--units",
+        "cmu",
+        "-o",
+        out,
+    )
     assert result.exit_code == 0, result.output
     assert "994 frames" in result.stdout
     mesh = read_gltf(out)
@@ -49,14 +57,26 @@ def test_skin_dqs_pc2_matches_deformer(tmp_path, makehuman_dir):
 
     bvh = DATA / "bvhtoolbox_test_mocapbank.bvh"
     out = tmp_path / "mocap.pc2"
-    result = run("skin", makehuman_dir / "makehuman_base.obj", bvh, "--units", "cm", "--method", "dqs", "-o", out)
+    result = run(
+        "skin",
+        makehuman_dir / "makehuman_base.obj",
+        bvh,
+        "--units",
+        "cm",
+        "--method",
+        "dqs",
+        "-o",
+        out,
+    )
     assert result.exit_code == 0, result.output
     cache = read_pc2(out)
     assert cache.frames.shape == (455, 13380, 3)
     rest = (tmp_path / "mocap.obj").read_text()
     assert rest.count("\nv ") == 13380
     # the same frame computed through the Python API
-    setup = prepare_skinning(read_makehuman(makehuman_dir / "makehuman_base.obj"), read_bvh(bvh, units="cm"))
+    setup = prepare_skinning(
+        read_makehuman(makehuman_dir / "makehuman_base.obj"), read_bvh(bvh, units="cm")
+    )
     frame = 200
     matrices = skinning_matrices(setup.motion, setup.mesh.skin)[frame]
     expected = make_deformer("dqs", setup.mesh).deform(matrices)
@@ -73,7 +93,14 @@ def test_skin_bare_mesh_gets_automatic_weights(tmp_path):
     bare = tmp_path / "body.obj"  # the body alone, no rig beside it
     write_obj(Mesh(body.vertices, body.faces), bare)
     full = read_bvh(DATA / "bvhtoolbox_test_mocapbank.bvh", units="cm")
-    short = Motion(full.skeleton, full.rotations[:12], full.translations[:12], full.rate, full.channels, full.meta)
+    short = Motion(
+        full.skeleton,
+        full.rotations[:12],
+        full.translations[:12],
+        full.rate,
+        full.channels,
+        full.meta,
+    )
     bvh = tmp_path / "short.bvh"
     write_bvh(short, bvh)
     out = tmp_path / "frames"
@@ -90,7 +117,10 @@ def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
         (["--method", "dqs", "-o", tmp_path / "x.glb"], "linear blend"),
         (["--method", "cubic", "-o", tmp_path / "x.pc2"], "lbs or dqs"),
         (["-o", tmp_path / "x.fbx"], "cannot write"),
-        (["--weights", "file", "-o", tmp_path / "x.glb", "--map", tmp_path / "missing.json"], "missing.json"),
+        (
+            ["--weights", "file", "-o", tmp_path / "x.glb", "--map", tmp_path / "missing.json"],
+            "missing.json",
+        ),
     ]:
         result = run("skin", mesh, bvh, "--units", "cm", *extra)
         assert result.exit_code == 2, (extra, result.output)

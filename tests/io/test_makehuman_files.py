@@ -11,7 +11,12 @@ from skincap.io.makehuman import read_mhskel, read_mhw
 def test_mhskel_summary_matches_file(data_dir):
     s = read_mhskel(data_dir / "makehuman_default.mhskel")
     raw = json.loads((data_dir / "makehuman_default.mhskel").read_text())
-    assert (s["kind"], s["bones"], s["joints"], s["root"]) == ("rig", len(raw["bones"]), len(raw["joints"]), "root")
+    assert (s["kind"], s["bones"], s["joints"], s["root"]) == (
+        "rig",
+        len(raw["bones"]),
+        len(raw["joints"]),
+        "root",
+    )
 
 
 def test_mhw_summary_matches_manifest(data_dir):

@@ -200,7 +200,11 @@ def generate_capture(
     # average, its floor at the lowest skin point (the MakeHuman bind pose has its
     # origin at the hips, retargeted takes stand on y = 0).
     centroid = frames.mean(axis=1)  # (T, 3)
-    center = (float(centroid[:, 0].mean()), float(frames[..., 1].min()), float(centroid[:, 2].mean()))
+    center = (
+        float(centroid[:, 0].mean()),
+        float(frames[..., 1].min()),
+        float(centroid[:, 2].mean()),
+    )
     rig = CameraRig.ring(n=n_cameras, n_up=n_cameras_up, center=center, seed=int(seeds[3]))
     result: CaptureResult = simulate_capture(
         true_positions,
