@@ -554,6 +554,15 @@ def demo(
 
 
 # -------------------------------------------------------------------------- bench
+def print_bench_results(results: dict[str, Any], json_output: bool) -> None:
+    """Print a benchmark's ``lines``, or its measurements as JSON (without the lines)."""
+    if json_output:
+        print(json.dumps({k: v for k, v in results.items() if k != "lines"}, indent=2, default=str))
+        return
+    for line in results["lines"]:
+        out.print(line, markup=False, soft_wrap=True)
+
+
 @bench_app.command("io")
 def bench_io(
     repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
@@ -569,11 +578,7 @@ def bench_io(
 
     with _user_errors():
         results = run_io_benchmarks(repeat=repeat)
-    if json_output:
-        print(json.dumps(results, indent=2))
-        return
-    for line in results["lines"]:
-        out.print(line, markup=False, soft_wrap=True)
+    print_bench_results(results, json_output)
 
 
 @bench_app.command("skin")
@@ -596,11 +601,7 @@ def bench_skin(
         results = run_skinning_benchmark(
             n_vertices=vertices, n_influences=influences, n_frames=frames, repeat=repeat
         )
-    if json_output:
-        print(json.dumps({k: v for k, v in results.items() if k != "lines"}, indent=2, default=str))
-        return
-    for line in results["lines"]:
-        out.print(line, markup=False, soft_wrap=True)
+    print_bench_results(results, json_output)
 
 
 @bench_app.command("synth")
@@ -616,8 +617,7 @@ def bench_synth(
 
     with _user_errors():
         results = run_synth_benchmark(frames=frames, vertices=vertices)
-    for line in results["lines"]:
-        out.print(line, markup=False, soft_wrap=True)
+    print_bench_results(results, json_output=False)
 
 
 # Verbs of the cleanup and tracking stages live in their own modules; importing them

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from skincap.cli import _user_errors, app, bench_app, err, eval_app, out
+from skincap.cli import _user_errors, app, bench_app, err, eval_app, out, print_bench_results
 from skincap.errors import FormatError, OutputExistsError, ValidationError
 
 if TYPE_CHECKING:
@@ -433,8 +433,4 @@ def bench_track(
         results = run_track_benchmark(
             frames=frames, points_per_frame=points, rope_markers=rope_markers, repeat=repeat
         )
-    if json_output:
-        print(json.dumps({k: v for k, v in results.items() if k != "lines"}, indent=2))
-        return
-    for line in results["lines"]:
-        out.print(line, markup=False, soft_wrap=True)
+    print_bench_results(results, json_output)
