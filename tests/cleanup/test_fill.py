@@ -167,3 +167,53 @@ def test_real_take_beats_spline_and_rigid(data_dir):
     assert rmse["local_pca_weighted"] < 0.5 * rmse["spline"], rmse
     assert rmse["local_pca_weighted"] < rmse["rigid"], rmse
     assert rmse["local_pca_weighted"] < 40.0, rmse
+
+
+def _drifting_cluster(frames=200, n=8, seed=1):
+    """A turning, moving cluster whose marker 0 also slides 30 mm along the cluster's
+    own x axis over the take (skin sliding: no neighbour explains it)."""
+    rng = np.random.default_rng(seed)
+    local = rng.normal(0, 0.1, (n, 3))
+    t = np.arange(frames) / 100.0
+    rot = Rotation.from_rotvec(np.stack([0.6 * np.sin(t), 0.8 * t, 0.3 * t], 1)).as_matrix()
+    slide = np.zeros((frames, n, 3))
+    slide[:, 0, 0] = 0.03 * (np.arange(frames) / (frames - 1)) ** 2
+    move = np.stack([t, np.sin(3 * t), 0 * t], 1)[:, None]
+    return np.einsum("tij,tnj->tni", rot, local[None] + slide) + move
+
+
+@pytest.mark.parametrize("method", ["local_pca", "local_pca_weighted", "local_pca_missing"])
+def test_anchored_fill_joins_the_gap_ends(method):
+    truth = _drifting_cluster()
+    pos = truth.copy()
+    s, e = 120, 170
+    pos[s:e, 0] = np.nan
+    m = MarkerSet(pos, [f"m{i}" for i in range(8)], 100.0)
+    nb = (np.arange(9) * 7, np.array([j for i in range(8) for j in range(8) if j != i]))
+    anchored, inv = fill_gaps(m, method=method, neighbours=nb)
+    free, _ = fill_gaps(m, method=method, neighbours=nb, anchor_ends=False)
+    assert inv[s:e, 0].all() and inv.sum() == e - s
+    err_a = np.linalg.norm(anchored[s:e, 0] - truth[s:e, 0], axis=1)
+    err_f = np.linalg.norm(free[s:e, 0] - truth[s:e, 0], axis=1)
+    # continuity: the first and last filled frames sit within one frame's slide
+    # (at most 0.3 mm) of the truth, and the whole gap follows the drift
+    slide_step = 0.03 * 2 * (e / 199) / 199
+    assert err_a[0] < slide_step and err_a[-1] < slide_step
+    assert err_a.max() < 0.002
+    # without the anchoring the drift the neighbourhood cannot explain stays
+    assert err_f[0] > 5 * err_a[0] and err_f[-1] > 5 * err_a[-1]
+    assert err_f.max() > 3 * err_a.max()
+
+
+def test_anchored_fill_one_sided_gap_takes_the_end_offset():
+    truth = _drifting_cluster()
+    pos = truth.copy()
+    pos[170:, 0] = np.nan  # a run to the end of the take: anchored from its start only
+    m = MarkerSet(pos, [f"m{i}" for i in range(8)], 100.0)
+    nb = (np.arange(9) * 7, np.array([j for i in range(8) for j in range(8) if j != i]))
+    anchored, _ = fill_gaps(m, method="local_pca", neighbours=nb)
+    free, _ = fill_gaps(m, method="local_pca", neighbours=nb, anchor_ends=False)
+    err_a = np.linalg.norm(anchored[170:, 0] - truth[170:, 0], axis=1)
+    err_f = np.linalg.norm(free[170:, 0] - truth[170:, 0], axis=1)
+    assert err_a[0] < 0.001 and err_a[0] < 0.2 * err_f[0]
+    assert err_a.max() < err_f.max()

@@ -577,12 +577,19 @@ def _group_estimates(
     refits: int = 1,
     em_iterations: int = 15,
     max_train: int = 400,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    query_frame: np.ndarray | None = None,
+    query_member: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Estimates of the missing members of one group.
 
-    pos (T, m, 3) with NaN, present (T, m), want (T, m) targets. Returns
-    (rows (F,), estimates (F, m, 3) NaN where not estimated, variance (F, m)), or None
-    when the group has no model.
+    pos (T, m, 3) with NaN, present (T, m), want (T, m) targets. ``query_frame`` /
+    ``query_member`` (Q,) int: measured samples to estimate as if that member alone
+    were missing in that frame (the anchors at a gap's ends).
+
+    Returns (rows (F + Q,), estimates (F + Q, m, 3) NaN where not estimated, variance
+    (F + Q, m), centre observed (F + Q,) bool, local-frame rotations (F + Q, 3, 3)),
+    the Q query rows last (``rows`` holds their frames), or None when the group has no
+    model.
     """
     t, m, _ = pos.shape
     count = present.sum(axis=1)
@@ -612,10 +619,17 @@ def _group_estimates(
         return None
     # rows to estimate: a wanted member missing and >= 3 members present
     rows = np.nonzero(want.any(axis=1) & (count >= 3))[0]
+    if query_frame is None or query_member is None:
+        query_frame = query_member = np.zeros(0, dtype=np.int64)
+    n_rows = rows.size
+    rows = np.concatenate([rows, query_frame])
     if rows.size == 0:
         return None
-    cur = pos[rows]  # (F, m, 3)
-    obs = present[rows]
+    cur = pos[rows]  # (F + Q, m, 3)
+    obs = present[rows].copy()
+    obs[n_rows + np.arange(query_frame.size), query_member] = False  # as if missing
+    cur[~obs] = np.nan
+    # a query row left with fewer than three members gets NaN from the rigid fit
     fit_pts = cur.copy()
     fit_mask = obs.copy()
     est = cur.copy()
@@ -632,7 +646,7 @@ def _group_estimates(
     bj = basis.reshape(m, 3, -1)
     var = noise * (3.0 + np.einsum("jcq,fqr,jcr->fj", bj, ainv, bj))
     est = np.where(obs[..., None], np.nan, est)
-    return rows, est, var
+    return rows, est, var, obs[:, 0], rot
 
 
 def _em_pca_impute(y: np.ndarray, obs: np.ndarray, variance: float, iterations: int) -> np.ndarray:
@@ -666,6 +680,7 @@ def fill_local_pca(
     missing_data: bool = False,
     variance: float = 0.99,
     estimated_centre_weight: float = 0.5,
+    anchor_ends: bool = True,
     progress: Progress | None = None,
 ) -> np.ndarray:
     """Local-PCA hole filling (Park & Hodgins 2006, §4.3, eqs. 4-5).
@@ -689,6 +704,17 @@ def fill_local_pca(
         Fraction of the variance each model keeps (the paper: 0.99).
     estimated_centre_weight : float
         See ``weighted``.
+    anchor_ends : bool
+        Join each gap to its measured ends. For every run of missing frames of a
+        marker, the model also estimates the marker in the last measured frame before
+        the run and the first measured frame after it, as if it were missing there;
+        the offsets ``measured - estimate`` at the two ends, expressed in the marker's
+        local frame (the rotation of its own group's eq. 5 fit; world axes when that
+        group has no model), are interpolated linearly across the run, turned back
+        into world axes frame by frame and added to the estimates. A run at the start
+        or end of the take (or whose other end has no estimate) takes the one end's
+        offset unchanged. This removes the slow drift the neighbourhood model cannot
+        explain and makes the filled trajectory continuous with the measured one.
     progress : callable(fraction, label), optional
 
     Returns
@@ -703,6 +729,21 @@ def fill_local_pca(
     offsets, indices = neighbours
     acc = np.zeros((t, n, 3))
     wacc = np.zeros((t, n))
+    # the gaps (runs of missing frames holding a target) and their measured ends
+    g_marker, g_start, g_len = _runs(~present)
+    hit = target[g_start, g_marker] if g_marker.size else np.zeros(0, dtype=bool)
+    g_marker, g_start, g_end = g_marker[hit], g_start[hit], (g_start + g_len)[hit]
+    if not anchor_ends:
+        g_marker = g_start = g_end = np.zeros(0, dtype=np.int64)
+    # anchor queries: [before ends of every gap, after ends of every gap]; -1 = none
+    q_frame = np.concatenate([g_start - 1, np.where(g_end < t, g_end, -1)])
+    q_marker = np.concatenate([g_marker, g_marker])
+    q_ok = q_frame >= 0
+    q_acc = np.zeros((q_frame.size, 3))
+    q_w = np.zeros(q_frame.size)
+    q_rot = np.full((q_frame.size, 3, 3), np.nan)
+    # each marker's own group's local rotation in the frames it is estimated in
+    rot_at = np.full((t, n, 3, 3), np.nan) if q_frame.size else None
     # groups worth modelling: those containing a target
     has_target = target.any(axis=0)
     groups = []
@@ -710,33 +751,124 @@ def fill_local_pca(
         members = np.concatenate([[i], indices[offsets[i] : offsets[i + 1]]])
         if members.size >= 4 and has_target[members].any():
             groups.append(members)
+    where = np.full(n, -1, dtype=np.int64)
     for gi, members in enumerate(groups):
+        where[members] = np.arange(members.size)
+        mine = np.nonzero(q_ok & (where[q_marker] >= 0))[0]
+        q_member = where[q_marker[mine]]
+        where[members] = -1
         res = _group_estimates(
             p[:, members],
             present[:, members],
             target[:, members],
             variance=variance,
             missing_data=missing_data,
+            query_frame=q_frame[mine],
+            query_member=q_member,
         )
         if progress is not None:
             progress((gi + 1) / len(groups), "local PCA")
         if res is None:
             continue
-        rows, est, var = res
-        sel = target[rows][:, members] & ~np.isnan(est[..., 0])  # (F, m)
+        rows, est, var, centre_obs, rot = res
         if weighted:
             w = 1.0 / var
-            centre_present = present[rows, members[0]]
-            w = w * np.where(centre_present, 1.0, estimated_centre_weight)[:, None]
+            w = w * np.where(centre_obs, 1.0, estimated_centre_weight)[:, None]
         else:
             w = np.ones(var.shape)
+        nq = mine.size
+        nr = rows.size - nq
+        sel = target[rows[:nr]][:, members] & ~np.isnan(est[:nr, :, 0])  # (F, m)
         fr, mj = np.nonzero(sel)
         tt, nn = rows[fr], members[mj]
         np.add.at(acc, (tt, nn), est[fr, mj] * w[fr, mj][:, None])
         np.add.at(wacc, (tt, nn), w[fr, mj])
+        if nq:
+            qe = est[nr + np.arange(nq), q_member]  # (Q', 3)
+            qwt = w[nr + np.arange(nq), q_member]
+            good = ~np.isnan(qe[:, 0])
+            np.add.at(q_acc, mine[good], qe[good] * qwt[good, None])
+            np.add.at(q_w, mine[good], qwt[good])
+            # the centre's own group gives the marker's local frame
+            own = q_marker[mine] == members[0]
+            q_rot[mine[own]] = rot[nr:][own]
+            centre_rows = rows[:nr][~present[rows[:nr], members[0]]]
+            rot_at[centre_rows, members[0]] = rot[:nr][~present[rows[:nr], members[0]]]
     done = wacc > 0
     p[done] = acc[done] / wacc[done][:, None]
+    if q_frame.size:
+        _anchor_gaps(p, done, g_marker, g_start, g_end, q_frame, q_acc, q_w, q_rot, rot_at)
     return p
+
+
+def _anchor_gaps(
+    p: np.ndarray,
+    done: np.ndarray,
+    g_marker: np.ndarray,
+    g_start: np.ndarray,
+    g_end: np.ndarray,
+    q_frame: np.ndarray,
+    q_acc: np.ndarray,
+    q_w: np.ndarray,
+    q_rot: np.ndarray,
+    rot_at: np.ndarray,
+) -> None:
+    """Add to each gap's estimates the end offsets (measured - estimate), interpolated
+    linearly across the gap in the marker's local frame; in place on p (T, N, 3).
+
+    g_* (G,) the gaps; q_* (2G,) the anchor estimates (before ends, then after ends):
+    summed weighted estimates q_acc (2G, 3), weights q_w (2G,), local rotations q_rot
+    (2G, 3, 3) NaN where unknown; rot_at (T, N, 3, 3) the local rotation of each
+    estimated sample, NaN where unknown; done (T, N) the samples the model estimated.
+    """
+    g = g_marker.size
+    est = np.where((q_w > 0)[:, None], q_acc / np.maximum(q_w, 1e-300)[:, None], np.nan)
+    measured = p[np.maximum(q_frame, 0), np.concatenate([g_marker, g_marker])]
+    off = measured - est  # (2G, 3) world; NaN where the end is missing or unestimated
+    # local offsets where the marker's frame is known at the end, world otherwise
+    has_rot = ~np.isnan(q_rot[:, 0, 0])
+    off_local = np.where(
+        has_rot[:, None],
+        np.einsum("qji,qj->qi", np.where(has_rot[:, None, None], q_rot, 0), off),
+        off,
+    )
+    ok = ~np.isnan(off[:, 0])
+    before_ok, after_ok = ok[:g], ok[g:]
+    # one row per (gap, gap frame)
+    length = g_end - g_start
+    rep = np.repeat(np.arange(g), length)
+    first = np.cumsum(length) - length
+    frame = g_start[rep] + np.arange(rep.size) - first[rep]
+    mk = g_marker[rep]
+    sel = done[frame, mk] & (before_ok | after_ok)[rep]
+    rep, frame, mk = rep[sel], frame[sel], mk[sel]
+    if rep.size == 0:
+        return
+    # weight of the after end: 0 next to the before end, 1 next to the after end
+    w_after = (frame - g_start[rep] + 1) / (length[rep] + 1.0)
+    w_after = np.where(before_ok[rep], np.where(after_ok[rep], w_after, 0.0), 1.0)
+    rot = rot_at[frame, mk]  # (S, 3, 3)
+    # local axes only when the gap frame's rotation and every end used have one
+    local = (
+        ~np.isnan(rot[:, 0, 0])
+        & (~before_ok[rep] | has_rot[rep])
+        & (~after_ok[rep] | has_rot[g + rep])
+    )
+    ob = np.where(
+        before_ok[rep][:, None],
+        np.nan_to_num(np.where(local[:, None], off_local[rep], off[rep])),
+        0.0,
+    )
+    oa = np.where(
+        after_ok[rep][:, None],
+        np.nan_to_num(np.where(local[:, None], off_local[g + rep], off[g + rep])),
+        0.0,
+    )
+    o = (1.0 - w_after)[:, None] * ob + w_after[:, None] * oa
+    world = np.where(
+        local[:, None], np.einsum("sij,sj->si", np.where(local[:, None, None], rot, 0), o), o
+    )
+    p[frame, mk] += world
 
 
 # ------------------------------------------------------------------------ facade
@@ -746,6 +878,7 @@ def fill_gaps(
     method: FillMethod = "local_pca",
     neighbours: Any = None,
     max_gap: int | None = None,
+    anchor_ends: bool = True,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fill the missing samples of ``markers`` with one of :data:`FILL_METHODS`.
@@ -764,6 +897,9 @@ def fill_gaps(
         donors). None: :func:`motion_neighbours` with 6 neighbours per marker.
     max_gap : int, optional
         Leave missing runs longer than this many frames unfilled.
+    anchor_ends : bool
+        Local methods only: join each filled gap continuously to the measured samples
+        at its ends (see :func:`fill_local_pca`). Default True.
     progress : callable(fraction, label), optional
 
     Returns
@@ -811,6 +947,7 @@ def fill_gaps(
             csr,
             weighted=method in ("local_pca_weighted", "local_pca_missing"),
             missing_data=method == "local_pca_missing",
+            anchor_ends=anchor_ends,
             progress=progress,
         )
         left = target & np.isnan(out[..., 0])
