@@ -743,7 +743,10 @@ def fill_local_pca(
     q_w = np.zeros(q_frame.size)
     q_rot = np.full((q_frame.size, 3, 3), np.nan)
     # each marker's own group's local rotation in the frames it is estimated in
-    rot_at = np.full((t, n, 3, 3), np.nan) if q_frame.size else None
+    # (stored per target sample: sample_id (T, N) -> rot_at (S, 3, 3))
+    sample_id = np.full((t, n), -1, dtype=np.int64)
+    sample_id[target] = np.arange(int(target.sum()))
+    rot_at = np.full((int(target.sum()) if q_frame.size else 0, 3, 3), np.nan)
     # groups worth modelling: those containing a target
     has_target = target.any(axis=0)
     groups = []
@@ -792,12 +795,14 @@ def fill_local_pca(
             # the centre's own group gives the marker's local frame
             own = q_marker[mine] == members[0]
             q_rot[mine[own]] = rot[nr:][own]
-            centre_rows = rows[:nr][~present[rows[:nr], members[0]]]
-            rot_at[centre_rows, members[0]] = rot[:nr][~present[rows[:nr], members[0]]]
+            sid = sample_id[rows[:nr], members[0]]
+            rot_at[sid[sid >= 0]] = rot[:nr][sid >= 0]
     done = wacc > 0
     p[done] = acc[done] / wacc[done][:, None]
     if q_frame.size:
-        _anchor_gaps(p, done, g_marker, g_start, g_end, q_frame, q_acc, q_w, q_rot, rot_at)
+        _anchor_gaps(
+            p, done, g_marker, g_start, g_end, q_frame, q_acc, q_w, q_rot, rot_at, sample_id
+        )
     return p
 
 
@@ -812,14 +817,16 @@ def _anchor_gaps(
     q_w: np.ndarray,
     q_rot: np.ndarray,
     rot_at: np.ndarray,
+    sample_id: np.ndarray,
 ) -> None:
     """Add to each gap's estimates the end offsets (measured - estimate), interpolated
     linearly across the gap in the marker's local frame; in place on p (T, N, 3).
 
     g_* (G,) the gaps; q_* (2G,) the anchor estimates (before ends, then after ends):
     summed weighted estimates q_acc (2G, 3), weights q_w (2G,), local rotations q_rot
-    (2G, 3, 3) NaN where unknown; rot_at (T, N, 3, 3) the local rotation of each
-    estimated sample, NaN where unknown; done (T, N) the samples the model estimated.
+    (2G, 3, 3) NaN where unknown; rot_at (S, 3, 3) the local rotation of each
+    target sample (its row in sample_id (T, N), -1 off target), NaN where unknown;
+    done (T, N) the samples the model estimated.
     """
     g = g_marker.size
     est = np.where((q_w > 0)[:, None], q_acc / np.maximum(q_w, 1e-300)[:, None], np.nan)
@@ -847,7 +854,7 @@ def _anchor_gaps(
     # weight of the after end: 0 next to the before end, 1 next to the after end
     w_after = (frame - g_start[rep] + 1) / (length[rep] + 1.0)
     w_after = np.where(before_ok[rep], np.where(after_ok[rep], w_after, 0.0), 1.0)
-    rot = rot_at[frame, mk]  # (S, 3, 3)
+    rot = rot_at[sample_id[frame, mk]]  # (S, 3, 3); done samples are targets
     # local axes only when the gap frame's rotation and every end used have one
     local = (
         ~np.isnan(rot[:, 0, 0])
