@@ -681,6 +681,7 @@ def fill_local_pca(
     variance: float = 0.99,
     estimated_centre_weight: float = 0.5,
     anchor_ends: bool = True,
+    anchor_window: int = 1,
     progress: Progress | None = None,
 ) -> np.ndarray:
     """Local-PCA hole filling (Park & Hodgins 2006, §4.3, eqs. 4-5).
@@ -715,6 +716,13 @@ def fill_local_pca(
         or end of the take (or whose other end has no estimate) takes the one end's
         offset unchanged. This removes the slow drift the neighbourhood model cannot
         explain and makes the filled trajectory continuous with the measured one.
+    anchor_window : int
+        Each end's offset is a weighted mean over up to this many measured frames next
+        to the gap (as many as are measured in a row; weights falling linearly with
+        the distance to the gap). 1 (the default) uses the frame next to the gap
+        only. Wider windows damp the measurement noise of a single frame (better on
+        the synthetic takes: 3 frames cut the mean error by a sixth) but follow fast
+        real motion less closely (worse on the real takes).
     progress : callable(fraction, label), optional
 
     Returns
@@ -735,10 +743,30 @@ def fill_local_pca(
     g_marker, g_start, g_end = g_marker[hit], g_start[hit], (g_start + g_len)[hit]
     if not anchor_ends:
         g_marker = g_start = g_end = np.zeros(0, dtype=np.int64)
-    # anchor queries: [before ends of every gap, after ends of every gap]; -1 = none
-    q_frame = np.concatenate([g_start - 1, np.where(g_end < t, g_end, -1)])
-    q_marker = np.concatenate([g_marker, g_marker])
-    q_ok = q_frame >= 0
+    # anchor queries: up to anchor_window measured frames next to each end of each gap
+    # (end e = gap for the before end, G + gap for the after end)
+    g = g_marker.size
+    frame = np.arange(t)[:, None]
+    last_missing = np.maximum.accumulate(np.where(present, -1, frame), axis=0)
+    next_missing = np.minimum.accumulate(np.where(present, t, frame)[::-1], axis=0)[::-1]
+    before = np.maximum(g_start - 1, 0)
+    after = np.minimum(g_end, t - 1)
+    avail = np.concatenate(
+        [
+            np.where(g_start > 0, before - last_missing[before, g_marker], 0),
+            np.where(g_end < t, next_missing[after, g_marker] - after, 0),
+        ]
+    )  # (2G,) measured frames in a row next to each end
+    k = np.arange(max(int(anchor_window), 1))
+    q_end = np.repeat(np.arange(2 * g), k.size)
+    q_k = np.tile(k, 2 * g)
+    q_ok = q_k < avail[q_end]
+    q_end, q_k = q_end[q_ok], q_k[q_ok]
+    side_after = q_end >= g
+    gap_of = np.where(side_after, q_end - g, q_end)
+    q_frame = np.where(side_after, g_end[gap_of] + q_k, g_start[gap_of] - 1 - q_k)
+    q_marker = g_marker[gap_of]
+    q_ok = np.ones(q_frame.size, dtype=bool)
     q_acc = np.zeros((q_frame.size, 3))
     q_w = np.zeros(q_frame.size)
     q_rot = np.full((q_frame.size, 3, 3), np.nan)
@@ -801,7 +829,12 @@ def fill_local_pca(
     p[done] = acc[done] / wacc[done][:, None]
     if q_frame.size:
         _anchor_gaps(
-            p, done, g_marker, g_start, g_end, q_frame, q_acc, q_w, q_rot, rot_at, sample_id
+            p,
+            done,
+            (g_marker, g_start, g_end),
+            (q_end, q_frame, (k.size - q_k).astype(np.float64), q_acc, q_w, q_rot),
+            rot_at,
+            sample_id,
         )
     return p
 
@@ -809,37 +842,49 @@ def fill_local_pca(
 def _anchor_gaps(
     p: np.ndarray,
     done: np.ndarray,
-    g_marker: np.ndarray,
-    g_start: np.ndarray,
-    g_end: np.ndarray,
-    q_frame: np.ndarray,
-    q_acc: np.ndarray,
-    q_w: np.ndarray,
-    q_rot: np.ndarray,
+    gaps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    queries: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray],
     rot_at: np.ndarray,
     sample_id: np.ndarray,
 ) -> None:
     """Add to each gap's estimates the end offsets (measured - estimate), interpolated
     linearly across the gap in the marker's local frame; in place on p (T, N, 3).
 
-    g_* (G,) the gaps; q_* (2G,) the anchor estimates (before ends, then after ends):
-    summed weighted estimates q_acc (2G, 3), weights q_w (2G,), local rotations q_rot
-    (2G, 3, 3) NaN where unknown; rot_at (S, 3, 3) the local rotation of each
-    target sample (its row in sample_id (T, N), -1 off target), NaN where unknown;
-    done (T, N) the samples the model estimated.
+    gaps: (marker, start, end) (G,) each. queries (Q,) each: the end they belong to
+    (gap index for the before end, G + gap for the after end), frame, weight in the
+    end's mean (falling linearly with the distance to the gap), summed weighted
+    estimates (Q, 3), summed weights (Q,), the marker's local rotation (Q, 3, 3) NaN
+    where unknown. An end's offset is the weighted mean over its queries. rot_at (S, 3, 3): the
+    local rotation of each target sample (its row in sample_id (T, N), -1 off target),
+    NaN where unknown; done (T, N): the samples the model estimated.
     """
+    g_marker, g_start, g_end = gaps
+    q_end, q_frame, q_weight, q_acc, q_w, q_rot = queries
     g = g_marker.size
     est = np.where((q_w > 0)[:, None], q_acc / np.maximum(q_w, 1e-300)[:, None], np.nan)
-    measured = p[np.maximum(q_frame, 0), np.concatenate([g_marker, g_marker])]
-    off = measured - est  # (2G, 3) world; NaN where the end is missing or unestimated
-    # local offsets where the marker's frame is known at the end, world otherwise
-    has_rot = ~np.isnan(q_rot[:, 0, 0])
-    off_local = np.where(
-        has_rot[:, None],
-        np.einsum("qji,qj->qi", np.where(has_rot[:, None, None], q_rot, 0), off),
-        off,
+    marker_of = np.concatenate([g_marker, g_marker])[q_end]
+    off = p[q_frame, marker_of] - est  # (Q, 3) world; NaN where unestimated
+    q_has = ~np.isnan(q_rot[:, 0, 0])
+    rot0 = np.where(q_has[:, None, None], q_rot, 0.0)
+    off_l = np.einsum("qji,qj->qi", rot0, np.nan_to_num(off))  # R^T off: local axes
+    good = ~np.isnan(off[:, 0])
+    # per end: mean world offset over its estimated queries, and mean local offset
+    # when every one of them has the marker's local frame
+    n_ok = np.bincount(q_end[good], minlength=2 * g)
+    n_rot = np.bincount(q_end[good & q_has], minlength=2 * g)
+    ok = n_ok > 0
+    has_rot = ok & (n_rot == n_ok)
+    w_ok = np.bincount(q_end[good], weights=q_weight[good], minlength=2 * g)
+    wq = q_weight[good]
+    off_w, off_local = (
+        np.stack(
+            [np.bincount(q_end[good], weights=wq * v[good, c], minlength=2 * g) for c in range(3)],
+            1,
+        )
+        / np.maximum(w_ok, 1e-300)[:, None]
+        for v in (np.nan_to_num(off), off_l)
     )
-    ok = ~np.isnan(off[:, 0])
+    off = np.where(ok[:, None], off_w, np.nan)
     before_ok, after_ok = ok[:g], ok[g:]
     # one row per (gap, gap frame)
     length = g_end - g_start
