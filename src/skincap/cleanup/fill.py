@@ -766,7 +766,6 @@ def fill_local_pca(
     gap_of = np.where(side_after, q_end - g, q_end)
     q_frame = np.where(side_after, g_end[gap_of] + q_k, g_start[gap_of] - 1 - q_k)
     q_marker = g_marker[gap_of]
-    q_ok = np.ones(q_frame.size, dtype=bool)
     q_acc = np.zeros((q_frame.size, 3))
     q_w = np.zeros(q_frame.size)
     q_rot = np.full((q_frame.size, 3, 3), np.nan)
@@ -785,7 +784,7 @@ def fill_local_pca(
     where = np.full(n, -1, dtype=np.int64)
     for gi, members in enumerate(groups):
         where[members] = np.arange(members.size)
-        mine = np.nonzero(q_ok & (where[q_marker] >= 0))[0]
+        mine = np.nonzero(where[q_marker] >= 0)[0]
         q_member = where[q_marker[mine]]
         where[members] = -1
         res = _group_estimates(
