@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import pytest
 import trimesh
+from byte_mutations import mutate as _mutate
+from byte_mutations import mutation_ops
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
@@ -23,6 +25,8 @@ from scipy.spatial.transform import Rotation
 from skincap.errors import FormatError, SkincapError, SkincapWarning
 from skincap.io.gltf import read_gltf
 from skincap.types import Mesh
+
+MUTATIONS = mutation_ops(max_size=6)
 
 FLOAT, UBYTE, USHORT, UINT = 5126, 5121, 5123, 5125
 
@@ -453,28 +457,6 @@ def test_bad_glb_container(tmp_path: Path) -> None:
         p.write_bytes(blob)
         with pytest.raises(FormatError, match=fragment):
             read_gltf(p)
-
-
-MUTATIONS = st.lists(
-    st.tuples(st.integers(0, 3), st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=6
-)
-
-
-def _mutate(data: bytes, ops: list[tuple[int, int, int]]) -> bytes:
-    b = bytearray(data)
-    for kind, pos, val in ops:
-        if not b:
-            break
-        i = pos % len(b)
-        if kind == 0:
-            b[i] ^= 1 << (val % 8)
-        elif kind == 1:
-            b.insert(i, val % 256)
-        elif kind == 2:
-            del b[i]
-        else:
-            del b[i:]
-    return bytes(b)
 
 
 def _seed(kind: str) -> bytes:

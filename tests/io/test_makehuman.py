@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from byte_mutations import mutate as _mutate
+from byte_mutations import mutation_ops
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -16,6 +18,8 @@ from skincap.errors import FormatError, SkincapError, SkincapWarning, Validation
 from skincap.io._common import to_y_up
 from skincap.io.makehuman import bone_rest_frames, read_makehuman
 from skincap.types import Mesh
+
+MUTATIONS = mutation_ops(max_size=5)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 OBJ = DATA / "makehuman_base.obj"
@@ -395,28 +399,6 @@ def test_bad_json_and_weights(tmp_path: Path) -> None:
     (tmp_path / "tiny.obj").write_text(TINY_OBJ.replace("g body", "g skin"))
     with pytest.raises(FormatError, match="no 'body' group"):
         read_makehuman(obj)
-
-
-MUTATIONS = st.lists(
-    st.tuples(st.integers(0, 3), st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=5
-)
-
-
-def _mutate(data: bytes, ops: list[tuple[int, int, int]]) -> bytes:
-    b = bytearray(data)
-    for kind, pos, val in ops:
-        if not b:
-            break
-        i = pos % len(b)
-        if kind == 0:
-            b[i] ^= 1 << (val % 8)
-        elif kind == 1:
-            b.insert(i, val % 256)
-        elif kind == 2:
-            del b[i]
-        else:
-            del b[i:]
-    return bytes(b)
 
 
 @settings(

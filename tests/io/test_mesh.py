@@ -9,12 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
+from byte_mutations import mutate as _mutate
+from byte_mutations import mutation_ops
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from skincap.errors import FormatError, OutputExistsError, SkincapError
 from skincap.io.mesh import read_obj, read_ply, triangulate_polygons, write_obj, write_ply
 from skincap.types import Mesh
+
+MUTATIONS = mutation_ops(max_size=6)
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 BASE_OBJ = DATA / "makehuman_base.obj"
@@ -247,28 +251,6 @@ def test_obj_empty_and_binary_garbage(tmp_path: Path) -> None:
 
 
 SEED_OBJ = SMALL_OBJ.encode()
-
-
-def _mutate(data: bytes, ops: list[tuple[int, int, int]]) -> bytes:
-    b = bytearray(data)
-    for kind, pos, val in ops:
-        if not b:
-            break
-        i = pos % len(b)
-        if kind == 0:
-            b[i] ^= 1 << (val % 8)
-        elif kind == 1:
-            b.insert(i, val % 256)
-        elif kind == 2:
-            del b[i]
-        else:
-            del b[i:]
-    return bytes(b)
-
-
-MUTATIONS = st.lists(
-    st.tuples(st.integers(0, 3), st.integers(0, 10**6), st.integers(0, 255)), min_size=1, max_size=6
-)
 
 
 @settings(
