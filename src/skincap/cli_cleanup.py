@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from skincap.cleanup.methods import FILL_METHODS
 from skincap.cli import _user_errors, app, err, eval_app, out
 from skincap.errors import FormatError
 
@@ -20,17 +21,6 @@ if TYPE_CHECKING:
 
     from skincap.cleanup.surface import MarkerSurface
     from skincap.types import MarkerSet
-
-_CLEAN_METHODS = (
-    "local_pca",
-    "local_pca_weighted",
-    "local_pca_missing",
-    "linear",
-    "pchip",
-    "spline",
-    "rigid",
-    "pca",
-)
 
 
 # -------------------------------------------------------------------------- clean
@@ -133,7 +123,7 @@ def clean(
     src: Annotated[Path, typer.Argument(help="Capture (.c3d/.trc/.csv): labels and *N fragments.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="Cleaned C3D to write.")],
     method: Annotated[
-        str, typer.Option(help=f"Hole filling: {', '.join(_CLEAN_METHODS)}.")
+        str, typer.Option(help=f"Hole filling: {', '.join(FILL_METHODS)}.")
     ] = "local_pca",
     reference_frame: Annotated[
         int | None, typer.Option(help="Reference pose frame (default: most markers present).")
@@ -167,8 +157,8 @@ def clean(
         from skincap.errors import OutputExistsError
         from skincap.types import MarkerSet
 
-        if method not in _CLEAN_METHODS:
-            raise FormatError(output, f"--method must be one of {', '.join(_CLEAN_METHODS)}")
+        if method not in FILL_METHODS:
+            raise FormatError(output, f"--method must be one of {', '.join(FILL_METHODS)}")
         if output.suffix.lower() != ".c3d":
             raise FormatError(output, "the cleaned capture is written as .c3d")
         if src.exists() and output.exists() and src.resolve() == output.resolve():
@@ -236,7 +226,7 @@ def eval_fill(
     ],
     methods: Annotated[
         str | None,
-        typer.Option(help=f"Comma-separated methods (default all: {', '.join(_CLEAN_METHODS)})."),
+        typer.Option(help=f"Comma-separated methods (default all: {', '.join(FILL_METHODS)})."),
     ] = None,
     gap_lengths: Annotated[
         str, typer.Option(help="Comma-separated gap lengths in frames.")
@@ -268,10 +258,10 @@ def eval_fill(
 
         chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
         if chosen is not None:
-            unknown = [m for m in chosen if m not in _CLEAN_METHODS]
+            unknown = [m for m in chosen if m not in FILL_METHODS]
             if unknown or not chosen:
                 raise FormatError(
-                    "--methods", f"unknown {unknown}; choose from {', '.join(_CLEAN_METHODS)}"
+                    "--methods", f"unknown {unknown}; choose from {', '.join(FILL_METHODS)}"
                 )
         lengths = _int_list(gap_lengths, "--gap-lengths")
         if gaps < 1 or simultaneous < 1:

@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
+from quaternion_samples import unit_quats  # noqa: E402
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import ValidationError
@@ -21,44 +22,6 @@ from skincap.geometry.dual_quaternions import (
     dq_to_matrices,
     dq_to_quat_translation,
 )
-
-SQ = np.sqrt(0.5)
-# identity, 180 degrees about axes and a diagonal (w = 0), tiny angles, negatives
-SPECIAL = np.array(
-    [
-        [0, 0, 0, 1],
-        [1, 0, 0, 0],
-        [0, 1, 0, 0],
-        [0, 0, 1, 0],
-        [SQ, SQ, 0, 0],
-        [0, 0, SQ, SQ],
-        [1e-9, 0, 0, 1],
-        [0, 1e-12, 1, 0],
-        [0, 0, 0, -1],
-        [-1, 0, 0, 0],
-    ],
-    dtype=float,
-)
-SPECIAL = SPECIAL / np.linalg.norm(SPECIAL, axis=1, keepdims=True)
-
-
-@st.composite
-def unit_quats(draw: st.DrawFn) -> np.ndarray:
-    """Random, special (180 degrees, identity, antipodal) or near-special unit quaternions."""
-    kind = draw(st.sampled_from(["random", "special", "near"]))
-    if kind == "special":
-        q = SPECIAL[draw(st.integers(0, len(SPECIAL) - 1))].copy()
-    else:
-        raw = draw(arrays(np.float64, 4, elements=st.floats(-1, 1, allow_nan=False)))
-        if np.linalg.norm(raw) < 1e-3:
-            raw = np.array([0.0, 0.0, 0.0, 1.0])
-        q = raw
-        if kind == "near":
-            q = SPECIAL[draw(st.integers(0, len(SPECIAL) - 1))] + 1e-7 * raw
-    if draw(st.booleans()):
-        q = -q
-    return q / np.linalg.norm(q)
-
 
 translations = arrays(np.float64, 3, elements=st.floats(-10, 10, allow_nan=False))
 points = arrays(np.float64, 3, elements=st.floats(-10, 10, allow_nan=False))

@@ -48,10 +48,11 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
+from skincap.cleanup.methods import FILL_METHODS, FillMethod
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.geometry.rigid import apply_rigid, fit_rigid
 from skincap.types import MarkerSet
@@ -70,27 +71,6 @@ __all__ = [
     "mean_neighbour_distance",
 ]
 
-FillMethod = Literal[
-    "local_pca",
-    "local_pca_weighted",
-    "local_pca_missing",
-    "linear",
-    "pchip",
-    "spline",
-    "rigid",
-    "pca",
-]
-#: Every method :func:`fill_gaps` accepts.
-FILL_METHODS: tuple[str, ...] = (
-    "local_pca",
-    "local_pca_weighted",
-    "local_pca_missing",
-    "linear",
-    "pchip",
-    "spline",
-    "rigid",
-    "pca",
-)
 
 Progress = Callable[[float, str], None]
 CSR = tuple[np.ndarray, np.ndarray]
