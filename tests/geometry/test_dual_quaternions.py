@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
-from quaternion_samples import unit_quats  # noqa: E402
+from quaternion_samples import unit_quats
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import ValidationError
