@@ -177,3 +177,42 @@ def test_bad_arguments_raise_validation_error() -> None:
         fit_rigid(np.zeros((2, 4, 3)), np.zeros((3, 4, 3)))
     with pytest.raises(ValidationError, match="rotation"):
         apply_rigid(np.eye(2), np.zeros(3), pts)
+
+
+@settings(max_examples=150, deadline=None)
+@given(
+    point_sets(),
+    st.integers(0, 2**31 - 1),
+    st.sampled_from([0.0, 1e-6, 1e-3, 0.1]),
+    st.integers(0, 2**31 - 1),
+)
+def test_quaternion_solver_matches_the_svd_reference(
+    pts: np.ndarray, seed: int, noise: float, noise_seed: int
+) -> None:
+    rng = np.random.default_rng(noise_seed)
+    dst = pts @ _rotation(seed).T + rng.normal(0.0, 1.0, 3) + noise * rng.normal(size=pts.shape)
+    w = rng.uniform(0.2, 2.0, len(pts))
+    r_q, t_q = fit_rigid(pts, dst, w)
+    r_s, t_s = fit_rigid(pts, dst, w, method="svd")
+    assert np.allclose(r_q @ r_q.T, np.eye(3), atol=1e-9)
+    assert np.linalg.det(r_q) == pytest.approx(1.0, abs=1e-9)
+    # degenerate sets have many minimisers: the residuals agree, not the rotations
+    res_q, res_s = _residual(r_q, t_q, pts, dst, w), _residual(r_s, t_s, pts, dst, w)
+    scale = float(np.sum(w * np.sum((dst - dst.mean(0)) ** 2, axis=-1))) + 1e-300
+    assert abs(res_q - res_s) <= 1e-9 * scale + 1e-12
+
+
+def test_quaternion_solver_equals_svd_on_a_large_batch() -> None:
+    rng = np.random.default_rng(7)
+    src = rng.normal(0.0, 0.05, (2000, 7, 3)) + rng.normal(0.0, 1.0, (2000, 1, 3))
+    rot = Rotation.random(2000, random_state=3).as_matrix()
+    dst = np.einsum("bij,bkj->bki", rot, src) + rng.normal(0.0, 0.003, src.shape)
+    mask = rng.random((2000, 7)) > 0.2
+    r_q, t_q = fit_rigid(src, dst, mask=mask)
+    r_s, t_s = fit_rigid(src, dst, mask=mask, method="svd")
+    np.testing.assert_array_equal(np.isnan(t_q), np.isnan(t_s))
+    assert np.isnan(t_q).any()  # some rows keep fewer than 3 points
+    np.testing.assert_allclose(r_q, r_s, atol=1e-9, equal_nan=True)
+    np.testing.assert_allclose(t_q, t_s, atol=1e-9, equal_nan=True)
+    with pytest.raises(ValidationError, match="method"):
+        fit_rigid(src, dst, method="eig")
