@@ -620,9 +620,10 @@ def bench_synth(
     print_bench_results(results, json_output=False)
 
 
-# Verbs of the cleanup and tracking stages live in their own modules; importing them
+# Verbs of the cleanup, tracking and rendering stages live in their own modules; importing them
 # registers their commands on ``app`` and ``eval_app`` (they import nothing heavy).
 from skincap import cli_cleanup as _cli_cleanup  # noqa: E402,F401
+from skincap import cli_render as _cli_render  # noqa: E402,F401
 from skincap import cli_tracking as _cli_tracking  # noqa: E402,F401
 
 

@@ -60,6 +60,11 @@ DEFAULT_PC2_RATE = 30.0
 LayerKind = Literal["markers", "points", "skeleton", "mesh", "curve"]
 
 
+def _finite(points: np.ndarray) -> np.ndarray:
+    """Rows of a (P, 3) array that are finite."""
+    return points[np.isfinite(points).all(axis=1)]
+
+
 @dataclass
 class Layer(abc.ABC):
     """One drawable thing of a scene.
@@ -94,6 +99,10 @@ class Layer(abc.ABC):
     def finite_points(self) -> np.ndarray:
         """(P, 3) every finite position of the layer (a subsample for big layers)."""
 
+    @abc.abstractmethod
+    def points_at(self, k: int) -> np.ndarray:
+        """(P, 3) the finite positions of frame ``k`` (a subsample for big meshes)."""
+
 
 @dataclass
 class MarkerLayer(Layer):
@@ -105,6 +114,9 @@ class MarkerLayer(Layer):
     invented: np.ndarray
 
     kind: ClassVar[LayerKind] = "markers"
+
+    def points_at(self, k: int) -> np.ndarray:
+        return _finite(self.positions[k])
 
     @property
     def n_frames(self) -> int:
@@ -122,6 +134,9 @@ class PointLayer(Layer):
     cloud: PointCloud
 
     kind: ClassVar[LayerKind] = "points"
+
+    def points_at(self, k: int) -> np.ndarray:
+        return _finite(self.cloud.frame(k))
 
     @property
     def n_frames(self) -> int:
@@ -143,6 +158,9 @@ class SkeletonLayer(Layer):
 
     kind: ClassVar[LayerKind] = "skeleton"
 
+    def points_at(self, k: int) -> np.ndarray:
+        return _finite(self.joints[k])
+
     @property
     def n_frames(self) -> int:
         return int(self.joints.shape[0])
@@ -161,6 +179,10 @@ class MeshLayer(Layer):
 
     kind: ClassVar[LayerKind] = "mesh"
 
+    def points_at(self, k: int) -> np.ndarray:
+        v = self.frames[k]
+        return _finite(v[:: max(1, v.shape[0] // 2000)].astype(np.float64))
+
     @property
     def n_frames(self) -> int:
         return int(self.frames.shape[0])
@@ -178,6 +200,9 @@ class CurveLayer(Layer):
     curves: np.ndarray
 
     kind: ClassVar[LayerKind] = "curve"
+
+    def points_at(self, k: int) -> np.ndarray:
+        return _finite(self.curves[k])
 
     @property
     def n_frames(self) -> int:
@@ -231,6 +256,15 @@ class Scene:
         pts = [p for p in pts if p.size]
         if not pts:
             return np.array([[-0.5, 0.0, -0.5], [0.5, 1.0, 0.5]])
+        allp = np.concatenate(pts)
+        return np.stack([allp.min(axis=0), allp.max(axis=0)])
+
+    def bounds_at(self, t_seconds: float) -> np.ndarray | None:
+        """(2, 3) lowest and highest finite position at ``t_seconds``; None if nothing shows."""
+        pts = [lay.points_at(self.layer_frame(lay, t_seconds)) for lay in self.layers]
+        pts = [p for p in pts if p.size]
+        if not pts:
+            return None
         allp = np.concatenate(pts)
         return np.stack([allp.min(axis=0), allp.max(axis=0)])
 
