@@ -218,6 +218,19 @@ def test_frame_maps_to_each_layers_nearest_frame_and_clips(viewer, scene: Scene)
     for bad in (-1, scene.n_frames):
         with pytest.raises(ValidationError, match="frame"):
             viewer.frame = bad
+    viewer.step_buttons.value = "+10"  # the step buttons move and wrap
+    assert viewer.frame == 26
+    viewer.frame = 3
+    viewer.step_buttons.value = "-10"
+    assert viewer.frame == scene.n_frames - 7
+
+
+def test_missing_viser_names_the_extra(monkeypatch: pytest.MonkeyPatch) -> None:
+    from skincap.errors import MissingDependencyError
+
+    monkeypatch.setitem(sys.modules, "viser", None)  # import viser -> ImportError
+    with pytest.raises(MissingDependencyError, match=r"skincap\[view\]"):
+        serve_scene(Scene([rope_curve()]), port=0)
 
 
 def test_hidden_layers_are_not_updated_until_shown(viewer) -> None:  # type: ignore[no-untyped-def]
