@@ -169,9 +169,14 @@ class ViewerHandle:
         shown_host = "localhost" if host in ("0.0.0.0", "::", "") else host
         self.url = f"http://{shown_host}:{self.port}"
 
-        self._build_scene()
-        self._build_gui(n_frames)
-        self._show(self._frame)
+        try:
+            self._build_scene()
+            self._build_gui(n_frames)
+            self._show(self._frame)
+        except BaseException:
+            with _quiet():
+                self.server.stop()
+            raise
         self._player = threading.Thread(target=self._play_loop, name="skincap-view", daemon=True)
         self._player.start()
         if play and n_frames > 1:
