@@ -641,6 +641,7 @@ def bench_synth(
 from skincap import cli_cleanup as _cli_cleanup  # noqa: E402,F401
 from skincap import cli_render as _cli_render  # noqa: E402,F401
 from skincap import cli_tracking as _cli_tracking  # noqa: E402,F401
+from skincap import cli_view as _cli_view  # noqa: E402,F401
 
 
 def main() -> None:

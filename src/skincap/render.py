@@ -10,12 +10,12 @@ subject's front when it faces +Z) and stays put for a clip so motion reads as mo
 
 Colours: markers take a stable colour from their label (:func:`label_colours`), the
 same in every file, so raw and cleaned captures overlay label for label; invented
-samples are white discs with a dark rim; missing samples are not drawn.
+samples are white discs with a dark rim; unlabelled fragments are grey; missing
+samples are not drawn.
 """
 
 from __future__ import annotations
 
-import hashlib
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap.colours import label_colours as shared_label_colours
 from skincap.errors import FormatError, MissingDependencyError, ValidationError
 from skincap.io._common import atomic_output
 from skincap.scene import (
@@ -40,18 +41,6 @@ __all__ = ["Camera", "label_colours", "render_image", "render_frames", "write_pi
 #: Output types :func:`write_picture` knows.
 PICTURE_EXTENSIONS = (".png", ".gif", ".mp4")
 
-# a palette of 20 well-separated colours (RGB 0..1); labels hash into it
-_PALETTE = np.array(
-    [
-        [0.902, 0.098, 0.294], [0.235, 0.706, 0.294], [0.263, 0.388, 0.847],
-        [0.961, 0.510, 0.192], [0.569, 0.118, 0.706], [0.275, 0.941, 0.941],
-        [0.941, 0.196, 0.902], [0.737, 0.965, 0.047], [0.980, 0.745, 0.745],
-        [0.000, 0.502, 0.502], [0.902, 0.745, 1.000], [0.604, 0.388, 0.141],
-        [1.000, 0.882, 0.098], [0.502, 0.000, 0.000], [0.667, 1.000, 0.765],
-        [0.502, 0.502, 0.000], [1.000, 0.843, 0.706], [0.000, 0.000, 0.459],
-        [0.255, 0.604, 0.769], [0.835, 0.369, 0.000],
-    ]
-)  # fmt: skip
 _SKIN = np.array([0.86, 0.72, 0.62])
 _BACKGROUND = (0.97, 0.97, 0.96)
 _POINT_COLOUR = np.array([0.35, 0.35, 0.38])
@@ -61,21 +50,12 @@ _DISC_SIDES = 8
 
 
 def label_colours(labels: Sequence[str]) -> np.ndarray:
-    """(N, 3) float RGB in 0..1: a stable colour per label, the same in every file.
+    """(N, 3) float RGB in 0..1: the viewer's stable colour per label (fragments grey).
 
-    The colour is chosen by a hash of the label text, so ``LKNE`` is the same colour
-    in a raw and a cleaned capture; fragments (``*17``) are grey.
+    See :func:`skincap.colours.label_colours`; the same marker has the same colour in
+    every file, in the viewer and in rendered pictures.
     """
-    out = np.empty((len(labels), 3))
-    for i, label in enumerate(labels):  # a loop over labels (strings), not over frames
-        if label.startswith("*"):
-            out[i] = (0.55, 0.55, 0.55)
-        else:
-            h = int.from_bytes(
-                hashlib.blake2s(label.encode("utf-8"), digest_size=4).digest(), "big"
-            )
-            out[i] = _PALETTE[h % len(_PALETTE)]
-    return out
+    return shared_label_colours(labels).astype(np.float64) / 255.0
 
 
 @dataclass(frozen=True)

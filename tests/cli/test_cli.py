@@ -236,31 +236,36 @@ def test_console_script_exit_status(tmp_path):
     assert "Traceback" not in proc.stderr
 
 
-def test_demo_writes_readable_outputs(tmp_path):
-    from skincap import io
+def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
+    import ezc3d
 
-    result = run("demo", "-o", tmp_path / "demo")
-    assert result.exit_code == 0, result.output
-    written = sorted(p.name for p in (tmp_path / "demo").iterdir())
-    assert written == [
-        "motion.bvh",
-        "motion_joints.csv",
-        "walk.glb",
-        "walk_dqs.obj",
-        "walk_dqs.pc2",
-        "walking.c3d",
-        "walking.csv",
-        "walking.trc",
-    ]
+    from skincap import io
     from skincap.export.pc2 import read_pc2
     from skincap.io.gltf import read_gltf
 
-    assert read_gltf(tmp_path / "demo" / "walk.glb").skin.skeleton.n_joints == 163
-    assert read_pc2(tmp_path / "demo" / "walk_dqs.pc2").frames.shape == (240, 13380, 3)
-    markers = io.read(tmp_path / "demo" / "walking.c3d")
-    assert markers.n_markers == 12 and markers.rate == 160.0
-    assert run("demo", "-o", tmp_path / "demo").exit_code == 2  # outputs exist
-    assert run("demo", "-o", tmp_path / "demo", "--force").exit_code == 0
+    folder = tmp_path / "demo"
+    result = run("demo", "-o", folder, "--frames", "240")
+    assert result.exit_code == 0, result.output
+    assert "skincap view" in result.stdout and "report.html" in result.stdout
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    for heading in ("Cleanup", "Hole filling", "Rope tracking", "Skinning", "Timings"):
+        assert heading in page
+    assert page.count("data:image/png;base64,") >= 12  # maps, plots and rendered frames
+    figures = json.loads((folder / "results.json").read_text())["figures"]
+    assert figures["synthetic"]["frames"] == 240
+    assert figures["cleanup"]["merged"] > 0 and figures["cleanup"]["wrong_rate"] < 0.1
+    assert figures["tracking"]["f1"] > 0.7
+    fill = figures["fill"]
+    assert fill["local_pca"]["mean_normalised"] < fill["spline"]["mean_normalised"]
+    # outputs other programs read: ezc3d re-reads our C3Ds
+    for c3d in (folder / "cleaned.c3d", folder / "track" / "rope.c3d"):
+        assert ezc3d.c3d(str(c3d))["data"]["points"].shape[2] == 240
+    cleaned = io.read(folder / "cleaned.c3d")
+    assert cleaned.invented is not None and cleaned.invented.any()
+    assert read_gltf(folder / "walk.glb").skin.skeleton.n_joints == 163
+    assert read_pc2(folder / "walk_dqs.pc2").frames.shape == (240, 13380, 3)
+    assert io.read(folder / "formats" / "walking.c3d").n_markers == 12
+    assert run("demo", "-o", folder, "--frames", "240").exit_code == 2  # outputs exist
 
 
 def _all_verbs():

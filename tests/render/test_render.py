@@ -35,7 +35,7 @@ def test_label_colours_are_stable_and_fragments_grey():
     b = label_colours(["RKNE", "LKNE"])
     np.testing.assert_array_equal(a[0], b[1])
     np.testing.assert_array_equal(a[1], b[0])
-    np.testing.assert_array_equal(a[2], [0.55, 0.55, 0.55])
+    np.testing.assert_allclose(a[2], [178 / 255] * 3)
 
 
 def test_a_marker_is_drawn_in_its_label_colour_at_the_centre():

@@ -20,9 +20,9 @@ import pytest
 from typer.testing import CliRunner
 from viewer_scenes import DATA, GAP_COLUMNS, blob_mesh, full_scene, raw_and_cleaned, rope_curve
 
+from skincap.colours import INVENTED_COLOUR, file_tint, hsv_to_rgb, label_colours
 from skincap.errors import ValidationError
 from skincap.scene import Scene
-from skincap.viewer.colours import INVENTED_COLOUR, file_tint, hsv_to_rgb, label_colours
 from skincap.viewer.server import camera_framing, default_point_size
 from skincap.viewer.timeline import PlaybackClock, parse_speed, speed_label
 
@@ -57,7 +57,7 @@ def test_label_colours_are_stable_per_label_across_files_and_orders() -> None:
     # fixed across sessions: CRC-32, not the salted built-in hash
     np.testing.assert_array_equal(label_colours(["LASI"]), label_colours(["LASI"]))
     code = subprocess.run(
-        [sys.executable, "-c", "from skincap.viewer.colours import label_colours as c;"
+        [sys.executable, "-c", "from skincap.colours import label_colours as c;"
          "print(c(['LASI']).tolist())"],
         capture_output=True, text=True, check=True, env={**os.environ, "PYTHONHASHSEED": "7"},
     )  # fmt: skip

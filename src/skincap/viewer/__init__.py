@@ -7,7 +7,7 @@ called, so importing this package needs no optional dependency.
 
 from __future__ import annotations
 
-from skincap.viewer.colours import file_tint, label_colours
+from skincap.colours import file_tint, label_colours
 from skincap.viewer.server import ViewerHandle, camera_framing, default_point_size, serve_scene
 from skincap.viewer.timeline import PlaybackClock
 

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from skincap.colours import INVENTED_COLOUR, label_colours
 from skincap.errors import ValidationError
-from skincap.viewer.colours import INVENTED_COLOUR, label_colours
 
 __all__ = [
     "DrawStyle",
@@ -147,7 +147,7 @@ class MarkerDrawer(LayerDrawer):
 
     Missing samples (NaN) are not drawn. Invented samples (``layer.invented``) are
     drawn larger, as grey diamonds. Colours follow
-    :func:`skincap.viewer.colours.label_colours`, or the file tint when
+    :func:`skincap.colours.label_colours`, or the file tint when
     ``style.tint_markers``.
     """
 

@@ -30,8 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from skincap.colours import file_tint
 from skincap.errors import MissingDependencyError, ValidationError
-from skincap.viewer.colours import file_tint
 from skincap.viewer.layers import DrawStyle, LayerDrawer, make_drawer
 from skincap.viewer.timeline import SPEEDS, PlaybackClock, parse_speed, speed_label
 

@@ -1,10 +1,11 @@
-"""Stable colours for the viewer: one per marker label, one per file.
+"""Stable colours for the viewer and the renderer: one per marker label, one per file.
 
 A label's colour depends only on the label text (a CRC-32 hash, not Python's salted
 ``hash``), so the same marker has the same colour in every file and every session:
 overlay a raw and a cleaned take and ``LASI`` is the same hue in both. A subject
 prefix (``Alice:LASI``) is ignored so that Vicon-style names match plain ones.
-Grey is kept for invented samples: label colours are always saturated.
+Grey is kept for invented samples and unlabelled fragments (``*17``): label colours
+are always saturated.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import numpy as np
 
 __all__ = [
     "INVENTED_COLOUR",
+    "FRAGMENT_COLOUR",
     "label_key",
     "label_colours",
     "file_tint",
@@ -24,6 +26,8 @@ __all__ = [
 
 #: (3,) uint8 colour of samples a gap filler invented (mid grey, seen on the white page).
 INVENTED_COLOUR = np.array([128, 128, 128], dtype=np.uint8)
+#: (3,) uint8 colour of unlabelled fragments (``*N``): light grey, no identity yet.
+FRAGMENT_COLOUR = np.array([178, 178, 178], dtype=np.uint8)
 
 # Hue-spread tints for whole files (raw, cleaned, ...); index 0 is a blue, 1 an orange.
 _FILE_TINTS = np.array(
@@ -101,7 +105,8 @@ def label_colours(labels: Sequence[str]) -> np.ndarray:
     (N, 3) uint8
         RGB colours. Equal keys give equal colours in any file and session;
         saturation is at least 0.6 so no label looks like the grey of
-        :data:`INVENTED_COLOUR`.
+        :data:`INVENTED_COLOUR`. Unlabelled fragments (``*N``) are
+        :data:`FRAGMENT_COLOUR`.
     """
     codes = np.array(
         [zlib.crc32(label_key(str(s)).encode("utf-8")) for s in labels], dtype=np.uint64
@@ -109,7 +114,10 @@ def label_colours(labels: Sequence[str]) -> np.ndarray:
     hue = (codes & np.uint64(0xFFFF)).astype(np.float64) / 65536.0
     sat = 0.6 + 0.35 * ((codes >> np.uint64(16)) & np.uint64(0xFF)).astype(np.float64) / 255.0
     val = 0.75 + 0.2 * ((codes >> np.uint64(24)) & np.uint64(0xFF)).astype(np.float64) / 255.0
-    return hsv_to_rgb(np.stack([hue, sat, val], axis=-1)).reshape(-1, 3)
+    rgb = hsv_to_rgb(np.stack([hue, sat, val], axis=-1)).reshape(-1, 3)
+    fragment = np.array([str(s).startswith("*") for s in labels], dtype=bool).reshape(-1)
+    rgb[fragment] = FRAGMENT_COLOUR
+    return rgb
 
 
 def file_tint(index: int) -> np.ndarray:
