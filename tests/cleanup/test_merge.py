@@ -9,7 +9,7 @@ import pytest
 from cleanup_takes import dense_jumprope_take
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup.merge import merge_fragments
+from skincap.cleanup.merge import merge_fragments, neighbour_spacing
 from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.io import read
@@ -87,11 +87,12 @@ def test_dense_jumprope_take_table1() -> None:
     anchors = np.flatnonzero([not lab.startswith("*") for lab in cap.labels])
     surface = build_marker_surface(cap.positions[:, anchors], reference_frame=0)
     merged, report = merge_fragments(cap, surface, fragment_truth=take.fragment_truth)
-    # measured (150 frames): 520 -> 408 trajectories, 112 merged, 1 wrong (0.9 %),
-    # 0 body fragments left over; the paper: 0.0-1.1 % wrong with manual merges
+    # measured (150 frames): 538 -> 426 trajectories, 112 merged, 1 wrong (0.9 %; a
+    # marker hidden in frame 0, so unlabelled), 12 body fragments (16 samples, mostly
+    # single frames) left to the hole filler; the paper: 0.0-1.1 % wrong with manual merges
     assert report.merged >= 100
-    assert report.wrong_rate <= 0.02
-    assert report.left_unmerged <= 3
+    assert report.wrong_rate <= 0.01
+    assert report.left_unmerged_frames <= 30
     assert report.trajectories_after == merged.n_markers < report.trajectories_before
     # merged samples are the fragments' own samples, never altered
     inv = {}
@@ -105,6 +106,7 @@ def test_dense_jumprope_take_table1() -> None:
             assert np.array_equal(
                 merged.positions[seen, out_col[label]], cap.positions[seen, col[f]]
             )
+            assert seen.sum() >= 2  # single-frame fragments are left to the hole filler
 
 
 def test_real_unlabelled_file(data_dir) -> None:  # noqa: ANN001
@@ -115,7 +117,9 @@ def test_real_unlabelled_file(data_dir) -> None:  # noqa: ANN001
     ref = choose_reference_frame(cap.positions)
     anchors = np.flatnonzero(np.isfinite(cap.positions[ref, :, 0]))
     surface = build_marker_surface(cap.positions[:, anchors], reference_frame=ref)
-    merged, report = merge_fragments(cap, surface, anchors)
+    # its one mergeable run is a single frame (left alone by default)
+    assert merge_fragments(cap, surface, anchors)[1].merged == 0
+    merged, report = merge_fragments(cap, surface, anchors, min_frames=1)
     assert report.fragments_before > 0 and report.merged > 0
     assert report.fragments_after < report.fragments_before
     # merged runs never overlap what their marker already had
@@ -140,3 +144,32 @@ def test_validation() -> None:
         merge_fragments(markers, surface, np.arange(10))
     with pytest.raises(ValidationError, match="alpha1"):
         merge_fragments(markers, surface, alpha1=0.0)
+
+
+def test_beyond_the_paper_fewer_wrong_merges() -> None:
+    """The paper's test alone (mean spacing, no neighbour check, single frames merged)
+    against the defaults on the 150-frame take: measured 2 -> 1 wrong (300 frames:
+    15 -> 2), at the price of leaving some single-frame fragments to the hole filler."""
+    take = dense_jumprope_take()
+    cap = take.capture
+    anchors = np.flatnonzero([not lab.startswith("*") for lab in cap.labels])
+    surface = build_marker_surface(cap.positions[:, anchors], reference_frame=0)
+    _, paper = merge_fragments(
+        cap,
+        surface,
+        neighbour_check=False,
+        robust_spacing=False,
+        min_frames=1,
+        fragment_truth=take.fragment_truth,
+    )
+    _, ours = merge_fragments(cap, surface, fragment_truth=take.fragment_truth)
+    assert ours.wrongly_merged < paper.wrongly_merged
+    assert ours.merged >= 0.85 * paper.merged
+
+
+def test_neighbour_spacing_ignores_a_long_edge() -> None:
+    markers, _ = _sheet_capture()
+    surface = build_marker_surface(markers.positions[:, :25], reference_frame=0)
+    robust = neighbour_spacing(surface)
+    np.testing.assert_allclose(np.nanmedian(robust), 0.05, rtol=1e-6)
+    assert np.array_equal(neighbour_spacing(surface, robust=False), surface.mean_neighbour_distance)

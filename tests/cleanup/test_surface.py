@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from skincap.cleanup.surface import (
     build_marker_surface,
     choose_reference_frame,
+    complete_reference_pose,
     pair_distance_cv,
     surface_edge_scores,
     surface_from_edges,
@@ -159,3 +160,23 @@ def test_bad_inputs() -> None:
         pytest.approx(np.nan, nan_ok=True),
         0.0,
     )
+
+
+def test_complete_reference_pose_places_hidden_markers() -> None:
+    rng = np.random.default_rng(4)
+    rest = rng.normal(0.0, 0.1, (12, 3))
+    frames = 50
+    rot = Rotation.from_rotvec(np.outer(np.linspace(0, 1.2, frames), [0.3, 1, 0])).as_matrix()
+    truth = (
+        np.einsum("tij,kj->tki", rot, rest)
+        + np.outer(np.linspace(0, 1, frames), [1, 0, 0])[:, None]
+    )
+    pos = truth.copy()
+    pos[:20, 3] = np.nan  # hidden in the reference frame 5, seen from frame 20 on
+    pos[:, 7] = np.nan  # never seen
+    ref = complete_reference_pose(pos, 5)
+    np.testing.assert_allclose(ref[3], truth[5, 3], atol=1e-9)
+    assert np.isnan(ref[7]).all()
+    np.testing.assert_array_equal(np.delete(ref, [3, 7], 0), np.delete(truth[5], [3, 7], 0))
+    with pytest.raises(ValidationError, match="reference_frame"):
+        complete_reference_pose(pos, 50)

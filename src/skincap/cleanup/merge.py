@@ -28,12 +28,13 @@ from typing import Any
 
 import numpy as np
 
-from skincap.cleanup.local_frames import estimate_missing
+from skincap.cleanup.local_frames import estimate_missing, neighbour_table
 from skincap.cleanup.surface import MarkerSurface
 from skincap.errors import ValidationError
+from skincap.geometry.rigid import fit_rigid
 from skincap.types import MarkerSet
 
-__all__ = ["MergeReport", "merge_fragments"]
+__all__ = ["MergeReport", "merge_fragments", "neighbour_spacing"]
 
 
 @dataclass
@@ -91,6 +92,133 @@ def _overlaps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.any(a & b, axis=0)
 
 
+def neighbour_spacing(surface: MarkerSurface, *, robust: bool = True) -> np.ndarray:
+    """Each marker's typical distance to its neighbours in the reference pose (eq. 3's d̄).
+
+    Parameters
+    ----------
+    surface : MarkerSurface
+    robust : bool, default True
+        The median of the marker's neighbour distances instead of the paper's mean. An
+        automatic surface has a few long edges (a bridge across a crease or to a
+        marker with few neighbours) that inflate the mean, and with it ε¹ and ε²,
+        until a neighbouring marker's fragment fits inside them.
+
+    Returns
+    -------
+    (N,) float64, metres
+        NaN for a marker without neighbours (it is never matched).
+    """
+    if not robust:
+        return np.asarray(surface.mean_neighbour_distance, dtype=np.float64)
+    table, valid = neighbour_table(surface, surface.n_markers)
+    ref = surface.reference
+    length = np.where(valid, np.linalg.norm(ref[table] - ref[:, None, :], axis=2), np.inf)
+    length = np.where(np.isfinite(length), length, np.inf)
+    length.sort(axis=1)
+    count = np.isfinite(length).sum(axis=1)
+    lo = np.clip((count - 1) // 2, 0, max(length.shape[1] - 1, 0))
+    hi = np.clip(count // 2, 0, max(length.shape[1] - 1, 0))
+    rows = np.arange(surface.n_markers)
+    if length.shape[1] == 0:
+        return np.full(surface.n_markers, np.nan)
+    med = 0.5 * (length[rows, lo] + length[rows, hi])
+    return np.where(count > 0, med, np.nan)
+
+
+def _neighbour_identity_margin(
+    est: np.ndarray,
+    present: np.ndarray,
+    surface: MarkerSurface,
+    frag_pos: np.ndarray,
+    frag_present: np.ndarray,
+    fi: np.ndarray,
+    ci: np.ndarray,
+    rivals: tuple[np.ndarray, np.ndarray],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How much closer each candidate fragment is to its marker than to the marker's
+    missing neighbours.
+
+    For every candidate pair (fragment ``fi[p]``, marker ``ci[p]``) and every frame the
+    fragment spans, the marker's neighbourhood is fitted rigidly (eq. 2) to the
+    available neighbours; the fit predicts where the marker and each of its neighbours
+    should be, and where each of its *rivals* should be: the markers near it in the
+    reference pose (``rivals``: (N, M) columns and validity, its surface neighbours and
+    the nearest other markers, since an automatic surface misses some true
+    neighbours). A rival that is missing in that frame could be the fragment too: its
+    position is its own estimate when it has one, else the prediction.
+
+    Returns
+    -------
+    d_marker : (P,) float64
+        Mean distance from the fragment to the marker's predicted position.
+    d_other : (P,) float64
+        Mean over frames of the distance to the nearest missing neighbour (inf when
+        no neighbour is ever missing).
+    worse : (P,) bool
+        Whether in some frame a missing neighbour is nearer than the marker.
+    """
+    table, valid = neighbour_table(surface, surface.n_markers)
+    ref = surface.reference
+    rel = np.where(valid[..., None], ref[table] - ref[:, None, :], np.nan)  # (N, D, 3)
+    comp, comp_ok = rivals  # (N, M): markers near each marker in the reference pose
+    rel_c = np.where(comp_ok[..., None], ref[comp] - ref[:, None, :], 0.0)  # (N, M, 3)
+    rp, rt = np.nonzero(frag_present[:, fi].T)  # rows: (pair, frame)
+    p_count = fi.size
+    if rp.size == 0 or table.shape[1] == 0:
+        return np.full(p_count, np.inf), np.full(p_count, np.inf), np.zeros(p_count, bool)
+    i = ci[rp]
+    nb = table[i]  # (R, D)
+    nb_ok = valid[i] & np.isfinite(rel[i]).all(axis=2)
+    dst = est[rt[:, None], nb]  # (R, D, 3), NaN where unavailable
+    rot, tr = fit_rigid(np.where(nb_ok[..., None], rel[i], 0.0), dst, mask=nb_ok)
+    cj = comp[i]  # (R, M)
+    pred = np.einsum("rij,rmj->rmi", rot, rel_c[i]) + tr[:, None]
+    own = est[rt[:, None], cj]
+    other = np.where(np.isfinite(own), own, pred)  # (R, M, 3)
+    frag = frag_pos[rt, fi[rp]]  # (R, 3)
+    d_i = np.linalg.norm(frag - tr, axis=1)  # (R,)
+    missing = comp_ok[i] & ~present[rt[:, None], cj]
+    d_j = np.where(missing, np.linalg.norm(other - frag[:, None], axis=2), np.inf)
+    d_j = np.where(np.isfinite(d_j), d_j, np.inf)
+    near_j = d_j.min(axis=1)  # (R,)
+    fitted = np.isfinite(d_i)
+    cnt = np.bincount(rp[fitted], minlength=p_count)
+    d_marker = np.bincount(rp[fitted], weights=d_i[fitted], minlength=p_count)
+    d_marker = np.where(cnt > 0, d_marker / np.maximum(cnt, 1), np.inf)
+    finite_j = fitted & np.isfinite(near_j)
+    cnt_j = np.bincount(rp[finite_j], minlength=p_count)
+    d_other = np.bincount(rp[finite_j], weights=near_j[finite_j], minlength=p_count)
+    d_other = np.where(cnt_j > 0, d_other / np.maximum(cnt_j, 1), np.inf)
+    worse = np.bincount(rp[fitted & (near_j <= d_i)], minlength=p_count) > 0
+    return d_marker, d_other, worse
+
+
+def _rivals(
+    surface: MarkerSurface, spacing: np.ndarray, k: int = 12
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N, M) int and bool: each marker's surface neighbours plus the markers within
+    twice its spacing in the reference pose (at most ``k`` nearest), itself excluded."""
+    from scipy.spatial import cKDTree
+
+    n = surface.n_markers
+    ref = surface.reference
+    known = np.flatnonzero(np.isfinite(ref).all(axis=1))
+    table, valid = neighbour_table(surface, n)
+    near = np.zeros((n, 0), dtype=np.int64)
+    near_ok = np.zeros((n, 0), dtype=bool)
+    if known.size > 1:
+        kk = min(k + 1, known.size)
+        dist, idx = cKDTree(ref[known]).query(np.where(np.isfinite(ref), ref, 0.0), k=kk)
+        dist = dist.reshape(n, kk)
+        idx = known[idx.reshape(n, kk)]
+        reach = 2.0 * np.where(np.isfinite(spacing), spacing, 0.0)
+        near_ok = (dist <= reach[:, None]) & (idx != np.arange(n)[:, None])
+        near_ok &= np.isfinite(ref).all(axis=1)[:, None]
+        near = np.where(near_ok, idx, 0)
+    return np.concatenate([table, near], axis=1), np.concatenate([valid, near_ok], axis=1)
+
+
 def merge_fragments(
     markers: MarkerSet,
     surface: MarkerSurface,
@@ -101,6 +229,9 @@ def merge_fragments(
     ambiguity_ratio: float = 0.7,
     max_passes: int = 10,
     temporal: bool = True,
+    robust_spacing: bool = True,
+    neighbour_check: bool = True,
+    min_frames: int = 2,
     fragment_truth: dict[str, str] | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> tuple[MarkerSet, MergeReport]:
@@ -123,6 +254,23 @@ def merge_fragments(
         A fragment matching two markers joins the closer only when its mean distance
         is below this fraction of the other's.
     max_passes : int, default 10
+    min_frames : int, default 2
+        Fragments shorter than this are left unmerged. A single-frame fragment is
+        the weakest evidence there is (one distance, no motion) and on the synthetic
+        jump-rope take one in seven of them went to the wrong marker; left alone, its
+        sample is filled by the hole filler instead.
+    robust_spacing : bool, default True
+        Scale ε¹ and ε² by the median neighbour distance instead of the mean (see
+        :func:`neighbour_spacing`).
+    neighbour_check : bool, default True
+        Beyond the paper: refuse a fragment that lies nearly as close to where one
+        of the marker's *missing neighbours* should be (its estimate, or where the
+        marker's neighbourhood fit puts it when it has none) as to the marker: the
+        mean distance to the marker must be below ``ambiguity_ratio`` times the mean
+        distance to the nearest missing neighbour, and no missing neighbour may be
+        nearer in any frame. A neighbour without an estimate never competes in the
+        paper's test, yet it is the likeliest owner of a fragment near a crease.
+        Left unmerged, the samples are filled by the hole filler instead.
     temporal : bool, default True
         Estimate from the neighbourhood shape in the frames bracketing each gap
         (see :func:`~skincap.cleanup.local_frames.estimate_missing`) instead of the
@@ -152,9 +300,16 @@ def merge_fragments(
         )
     if n and (anchors.min() < 0 or anchors.max() >= c_count or np.unique(anchors).size != n):
         raise ValidationError(f"anchors must be distinct columns in 0..{c_count - 1}")
-    if not (0 < alpha1 and 0 < alpha2 and 0 < ambiguity_ratio <= 1 and max_passes >= 1):
+    if not (
+        0 < alpha1
+        and 0 < alpha2
+        and 0 < ambiguity_ratio <= 1
+        and max_passes >= 1
+        and min_frames >= 1
+    ):
         raise ValidationError(
-            "need alpha1 > 0, alpha2 > 0, 0 < ambiguity_ratio <= 1, max_passes >= 1"
+            "need alpha1 > 0, alpha2 > 0, 0 < ambiguity_ratio <= 1, max_passes >= 1, "
+            "min_frames >= 1"
         )
     is_anchor = np.zeros(c_count, dtype=bool)
     is_anchor[anchors] = True
@@ -180,12 +335,13 @@ def merge_fragments(
     length = run_end - run_start
     target = np.full(frags.size, -1, dtype=np.int64)  # anchor index each run joined
 
-    mnd = surface.mean_neighbour_distance
+    mnd = neighbour_spacing(surface, robust=robust_spacing)
     eps1 = alpha1 * mnd  # ε¹, eq. 3 (NaN for markers without neighbours: never matched)
     eps2 = alpha2 * mnd  # ε²
+    rivals = _rivals(surface, mnd)
     passes = 0
     for passes in range(1, max_passes + 1):
-        open_f = np.flatnonzero((target < 0) & has_data)
+        open_f = np.flatnonzero((target < 0) & has_data & (length >= min_frames))
         if open_f.size == 0 or n == 0:
             break
         est, _ = estimate_missing(cur, surface, surface.reference, temporal=temporal)
@@ -210,6 +366,12 @@ def merge_fragments(
         within = np.where(checked, dist < eps2[ci][None, :], True).all(axis=0)
         enough = 2 * checked.sum(axis=0) >= length[fi]
         ok = strict & within & enough
+        if neighbour_check and ok.any():
+            okp = np.flatnonzero(ok)
+            d_mark, d_other, worse = _neighbour_identity_margin(
+                est, anchor_present, surface, frag_pos, frag_present, fi[okp], ci[okp], rivals
+            )
+            ok[okp] = ~worse & (d_mark < ambiguity_ratio * d_other)
         mean_d = np.where(checked, dist, 0.0).sum(axis=0) / np.maximum(checked.sum(axis=0), 1)
         mean_d = np.where(checked.any(axis=0), mean_d, np.inf)
         # per fragment: the best valid match must be clearly closer than any other

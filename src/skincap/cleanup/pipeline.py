@@ -17,6 +17,7 @@ from skincap.cleanup.surface import (
     MarkerSurface,
     build_marker_surface,
     choose_reference_frame,
+    complete_reference_pose,
     pair_distance_cv,
 )
 from skincap.errors import ValidationError
@@ -50,6 +51,14 @@ def invented_runs(invented: np.ndarray, labels: list[str]) -> dict[str, list[lis
     return out
 
 
+def _surface(positions: np.ndarray, reference_frame: int) -> MarkerSurface:
+    """The automatic surface, with markers hidden in the reference frame placed there
+    by their neighbours (:func:`complete_reference_pose`) so they get neighbours too."""
+    pos = positions.copy()
+    pos[reference_frame] = complete_reference_pose(positions, reference_frame)
+    return build_marker_surface(pos, reference_frame=reference_frame)
+
+
 def clean_markers(
     markers: MarkerSet,
     *,
@@ -77,6 +86,9 @@ def clean_markers(
         Hole-filling method of :func:`skincap.cleanup.fill.fill_gaps`.
     reference_frame : int, optional
         Reference pose; default the first frame with the most labelled markers.
+        Labelled markers missing there are placed by their neighbours from the
+        nearest frame where they are seen (see
+        :func:`~skincap.cleanup.surface.complete_reference_pose`).
     surface : MarkerSurface, optional
         A ready surface over the labelled columns (in column order), e.g. a user
         surface; then no fragment is promoted.
@@ -147,7 +159,7 @@ def clean_markers(
         anchors = np.concatenate([labelled, promoted])
         if progress is not None:
             progress(0.0, "building the marker surface")
-        surface = build_marker_surface(pos[:, anchors], reference_frame=reference_frame)
+        surface = _surface(pos[:, anchors], reference_frame)
         if promoted.size:
             # a promoted fragment stays only when it moves with >= 3 skin neighbours
             # (rope markers and ghosts seen in the reference frame do not)
@@ -158,7 +170,7 @@ def clean_markers(
             keep[labelled.size :] = firm_deg[labelled.size :] >= 3
             if not keep.all():
                 anchors = anchors[keep]
-                surface = build_marker_surface(pos[:, anchors], reference_frame=reference_frame)
+                surface = _surface(pos[:, anchors], reference_frame)
 
     merged, merge_report = merge_fragments(
         markers,

@@ -51,6 +51,7 @@ __all__ = [
     "MarkerSurface",
     "build_marker_surface",
     "choose_reference_frame",
+    "complete_reference_pose",
     "pair_distance_cv",
     "surface_edge_scores",
     "surface_from_edges",
@@ -257,6 +258,57 @@ def choose_reference_frame(positions: np.ndarray) -> int:
         raise ValidationError(f"positions must have shape (T, N, 3) with T > 0; got {pos.shape}")
     present = np.isfinite(pos).all(axis=2).sum(axis=1)
     return int(np.argmax(present))
+
+
+def complete_reference_pose(
+    positions: np.ndarray, reference_frame: int, *, k: int = 6
+) -> np.ndarray:
+    """The reference pose with the markers hidden in it placed by their neighbours.
+
+    The paper assumed no marker is missing in the reference pose. For each marker
+    missing there: the frame nearest in time where it is present, its ``k`` nearest
+    markers in that frame that are present in both frames, and the rigid transform
+    (Kabsch) carrying them from that frame to the reference frame, applied to the
+    marker.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference_frame : int
+    k : int, default 6
+        Neighbours carrying each hidden marker (at least 3 must be available).
+
+    Returns
+    -------
+    (N, 3) float64, metres
+        The reference frame's positions, hidden markers filled in; NaN for markers
+        never present or without 3 usable neighbours.
+    """
+    from skincap.geometry.rigid import apply_rigid, fit_rigid
+
+    pos = np.asarray(positions, dtype=np.float64)
+    t_count, n, _ = pos.shape
+    if not 0 <= reference_frame < t_count:
+        raise ValidationError(f"reference_frame {reference_frame} is outside 0..{t_count - 1}")
+    ref = pos[reference_frame].copy()
+    present = np.isfinite(pos).all(axis=2)  # (T, N)
+    hidden = np.flatnonzero(~present[reference_frame] & present.any(axis=0))
+    if hidden.size == 0 or n < 4:
+        return ref
+    # the present frame nearest in time to the reference frame, per hidden marker
+    gap = np.abs(np.arange(t_count)[:, None] - reference_frame)
+    src_frame = np.argmin(np.where(present[:, hidden], gap, t_count + 1), axis=0)  # (H,)
+    both = present[src_frame] & present[reference_frame][None, :]  # (H, N)
+    here = pos[src_frame]  # (H, N, 3)
+    dist = np.linalg.norm(here - pos[src_frame, hidden][:, None, :], axis=2)
+    dist = np.where(both, dist, np.inf)
+    kk = min(k, n - 1)
+    nb = np.argsort(dist, axis=1, kind="stable")[:, :kk]  # (H, k)
+    use = np.isfinite(np.take_along_axis(dist, nb, axis=1))
+    rot, tr = fit_rigid(here[np.arange(hidden.size)[:, None], nb], ref[nb], mask=use)
+    moved = apply_rigid(rot, tr, pos[src_frame, hidden][:, None, :])[:, 0]
+    ref[hidden] = moved  # NaN where fewer than 3 neighbours
+    return ref
 
 
 def pair_distance_cv(positions: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
