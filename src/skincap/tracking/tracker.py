@@ -54,6 +54,11 @@ _CHUNK_FRAMES = 4096
 _STRETCH = 1.1
 #: Candidates per trace considered by the assignment.
 _CANDIDATES = 3
+#: Rounds of residual-corrected prediction for traces not found at V.
+_ROUNDS = 3
+#: Gate of the second-chance searches (residual-corrected V, curve/F), in γ; a point
+#: beyond γ is taken there only at its rest spacing (± γ) from a measured neighbour.
+_WIDE_GATE = 2.0
 
 
 @dataclass(eq=False)
@@ -131,6 +136,10 @@ class _FrameTree:
         self.tree: cKDTree | None = None
         self.base = 0
 
+    def count(self, t: int) -> int:
+        """Points in frame t."""
+        return int(self.cloud.offsets[t + 1] - self.cloud.offsets[t])
+
     def query(self, t: int, q: np.ndarray, k: int, gate: float) -> tuple[np.ndarray, np.ndarray]:
         """(R, k) distances (inf for none) and global point indices near ``q`` in frame t."""
         c = t // _CHUNK_FRAMES
@@ -164,27 +173,47 @@ def _side_neighbours(known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _reject_overstretched(
-    cur: np.ndarray, known: np.ndarray, taken: np.ndarray, spacing: np.ndarray, gamma: float
+    cur: np.ndarray, known: np.ndarray, taken: np.ndarray, s: np.ndarray, gamma: float
 ) -> None:
     """Refuse taken points that would stretch the rope (beyond the thesis), in place.
 
-    A rope does not stretch: the chord between neighbouring markers is at most
-    their rest spacing. A link longer than ``1.1 l_j + γ`` is broken; a marker all of
-    whose measured links are broken (at least one) is un-taken — it follows
-    something else, typically a body marker it was confused with.
+    A rope does not stretch: two measured markers ``a < b`` lie at most
+    ``1.1 (s_b - s_a) + γ`` apart. When consecutive measured markers break that, the
+    measured markers kept are the largest subset in which every consecutive pair
+    obeys it (dynamic programming over the chain); among equally large subsets the
+    one whose links are least compressed (chord well below the rest arc length, as
+    when a trace slipped onto its neighbour's marker) wins. The others are un-taken.
     """
-    link_ok = np.ones(known.size + 1, dtype=bool)  # link j joins j-1 and j; ends open
-    both = known[:-1] & known[1:]
-    chord = np.linalg.norm(cur[1:] - cur[:-1], axis=1)
-    link_ok[1:-1] = ~both | (chord <= _STRETCH * spacing + gamma)
-    has_left = np.concatenate([[False], both])
-    has_right = np.concatenate([both, [False]])
-    bad_left = has_left & ~link_ok[:-1]
-    bad_right = has_right & ~link_ok[1:]
-    bad = known & (bad_left | bad_right) & (bad_left | ~has_left) & (bad_right | ~has_right)
-    if bad.any():
-        known[bad] = False
-        taken[bad] = -1
+    idx = np.nonzero(known)[0]
+    if idx.size < 2:
+        return
+    xs = cur[idx]
+    chord = np.linalg.norm(xs[1:] - xs[:-1], axis=1)
+    if np.all(chord <= _STRETCH * (s[idx[1:]] - s[idx[:-1]]) + gamma):
+        return
+    n = idx.size
+    si = s[idx]
+    dist = np.linalg.norm(xs[:, None] - xs[None, :], axis=2)  # (n, n)
+    ds = si[None, :] - si[:, None]  # s_b - s_a
+    feasible = np.triu(dist <= _STRETCH * ds + gamma, k=1)
+    squeeze = np.clip((ds - dist) / np.where(ds > 0, ds, 1.0), 0.0, 1.0)
+    gain = np.where(feasible, 1.0 - 0.5 * squeeze, -np.inf)  # a link: +1 marker, − compression
+    score = np.ones(n)
+    back = np.full(n, -1, dtype=np.int64)
+    for b in range(1, n):
+        cand = score[:b] + gain[:b, b]
+        a = int(np.argmax(cand))
+        if cand[a] > score[b]:
+            score[b] = cand[a]
+            back[b] = a
+    keep = np.zeros(n, dtype=bool)
+    b = int(np.argmax(score))
+    while b >= 0:
+        keep[b] = True
+        b = int(back[b])
+    rows = idx[~keep]
+    known[rows] = False
+    taken[rows] = -1
 
 
 def _reject_odd_motion(
@@ -206,6 +235,127 @@ def _reject_odd_motion(
         idx = np.nonzero(odd)[0] + 1
         known[idx] = False
         taken[idx] = -1
+
+
+def _match(
+    tree: _FrameTree,
+    t: int,
+    rows: np.ndarray,
+    pred: np.ndarray,
+    k: int,
+    gamma: float,
+    cur: np.ndarray,
+    known: np.ndarray,
+    taken: np.ndarray,
+    points: np.ndarray,
+    gate: float | None = None,
+    spacing: np.ndarray | None = None,
+) -> bool:
+    """Match the traces ``rows`` to free points of frame t within γ of ``pred``, in place.
+
+    Points already taken this frame are skipped; conflicts are resolved one-to-one
+    (:func:`~skincap.tracking.init.gated_assignment`). Returns True if any matched.
+    """
+    if rows.size == 0:
+        return False
+    gate = gamma if gate is None else gate
+    n_taken = int(known.sum())
+    kk = min(k + n_taken, tree.count(t))
+    d, i = tree.query(t, pred[rows], kk, gate)
+    if n_taken:
+        d = np.where(np.isin(i, taken[known]), np.inf, d)
+    if spacing is not None:
+        # the chord to each measured neighbour within γ of its rest spacing
+        m = known.size
+        q = points[np.minimum(i, points.shape[0] - 1)]  # (R, kk, 3)
+        lonely = ~(known[np.maximum(rows - 1, 0)] & (rows > 0))
+        lonely &= ~(known[np.minimum(rows + 1, m - 1)] & (rows < m - 1))
+        d = np.where(lonely[:, None] & (d >= gamma), np.inf, d)
+        for step in (-1, 1):
+            nb = rows + step
+            okn = (nb >= 0) & (nb < m)
+            nbc = np.clip(nb, 0, m - 1)
+            has = okn & known[nbc]
+            if not has.any():
+                continue
+            rest = spacing[np.minimum(np.minimum(rows, nbc), m - 2)]
+            chord = np.linalg.norm(q - cur[nbc][:, None, :], axis=2)
+            bad = has[:, None] & (np.abs(chord - rest[:, None]) > gamma)
+            d = np.where(bad, np.inf, d)
+    hit_rows, pts = gated_assignment(d, i, gate)
+    if hit_rows.size == 0:
+        return False
+    hit = rows[hit_rows]
+    known[hit] = True
+    taken[hit] = pts
+    cur[hit] = points[pts]
+    return True
+
+
+def _interp_along(known: np.ndarray, values: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(M, 3) ``values`` of the known markers, interpolated linearly in rest arc length.
+
+    Unknown markers between two known ones get the linear interpolation at their
+    ``s``; unknown markers at an end the value of the nearest known one; known markers
+    keep theirs. With nothing known the result is zero.
+    """
+    m = known.size
+    before, after = _side_neighbours(known)
+    has_b, has_a = before >= 0, after < m
+    b = np.clip(before, 0, m - 1)
+    a = np.clip(after, 0, m - 1)
+    both = has_b & has_a
+    span = np.where(both, s[a] - s[b], 1.0)
+    w = np.where(both, (s - s[b]) / span, np.where(has_b, 0.0, 1.0))
+    out = (1.0 - w)[:, None] * values[b] + w[:, None] * values[a]
+    out[~(has_b | has_a)] = 0.0
+    return np.where(known[:, None], values, out)
+
+
+def _check_on_curve(
+    tree: _FrameTree,
+    t: int,
+    k: int,
+    gamma: float,
+    s: np.ndarray,
+    cur: np.ndarray,
+    known: np.ndarray,
+    taken: np.ndarray,
+    points: np.ndarray,
+) -> None:
+    """Move a trace off a body point onto the rope marker it lost (beyond the thesis).
+
+    A trace that took a body point while its rope marker was hidden keeps following
+    that point by its own velocity after the marker reappears. For every measured
+    marker with measured markers on both sides, the curve through the *other*
+    measured markers gives where it should be (``C_j``); a marker farther than
+    ``2 γ`` from ``C_j`` swaps to a free point that is at least γ nearer to ``C_j``
+    (and within γ of it), conflicts resolved one-to-one. In place.
+    """
+    m = known.size
+    before, after = _side_neighbours(known)
+    rows = np.nonzero(known & (before >= 0) & (after < m))[0]
+    if rows.size == 0:
+        return
+    loo = np.broadcast_to(known, (rows.size, m)).copy()
+    loo[np.arange(rows.size), rows] = False
+    batch = np.broadcast_to(np.where(known[:, None], cur, 0.0), (rows.size, m, 3))
+    curve, _ = fill_interior_on_curve(batch, loo, s)
+    c = curve[np.arange(rows.size), rows]
+    dev = np.linalg.norm(cur[rows] - c, axis=1)
+    odd = dev > 2.0 * gamma
+    if not odd.any():
+        return
+    rows, c, dev = rows[odd], c[odd], dev[odd]
+    n_taken = int(known.sum())
+    kk = min(k + n_taken, tree.count(t))
+    d, i = tree.query(t, c, kk, gamma)
+    d = np.where(np.isin(i, taken[known]) | (d > (dev - gamma)[:, None]), np.inf, d)
+    hit_rows, pts = gated_assignment(d, i, gamma)
+    if hit_rows.size:
+        hit = rows[hit_rows]
+        taken[hit] = pts
+        cur[hit] = points[pts]
 
 
 def _neighbour_velocity(
@@ -334,62 +484,91 @@ def track_rope(
 
     for t in range(1, t_frames):
         prev = positions[t - 1]
-        cur = np.empty((m, 3))
+        cur = np.zeros((m, 3))
         known = np.zeros(m, dtype=bool)
         taken = np.full(m, -1, dtype=np.int64)
         n_t = int(cloud.offsets[t + 1] - cloud.offsets[t])
         k = min(k_cand, n_t)
-        # ---- pass 1: measured traces at V (eqs. 3.1-3.2)
-        active = np.nonzero(temp_count == 0)[0]
-        if k > 0 and active.size:
-            v_pred = prev[active] + velocity[active]
-            d, i = tree.query(t, v_pred, k, gamma)
-            rows, pts = gated_assignment(d, i, gamma)
-            hit = active[rows]
-            known[hit] = True
-            taken[hit] = pts
-            cur[hit] = points[pts]
-        _reject_overstretched(cur, known, taken, spacing, gamma)
-        _reject_odd_motion(cur, prev, known, taken, gamma)
+        v_pred = prev + velocity  # V (eqs. 3.1-3.2)
+        active = temp_count == 0
+        if k > 0:
+            # ---- pass 1: measured traces at V, then at V corrected by the
+            # residuals of the traces found (beyond the thesis)
+            _match(tree, t, np.nonzero(active)[0], v_pred, k, gamma, cur, known, taken, points)
+            _reject_overstretched(cur, known, taken, s, gamma)
+            _reject_odd_motion(cur, prev, known, taken, gamma)
+            tried = v_pred
+            for _ in range(_ROUNDS):
+                found = known & active
+                want = active & ~known
+                if not (found.any() and want.any()):
+                    break
+                pred = v_pred + _interp_along(found, np.where(found[:, None], cur - v_pred, 0.0), s)
+                want &= np.einsum("ij,ij->i", pred - tried, pred - tried) > (0.5 * gamma) ** 2
+                if not want.any():
+                    break
+                rows = np.nonzero(want)[0]
+                if not _match(
+                    tree,
+                    t,
+                    rows,
+                    pred,
+                    k,
+                    gamma,
+                    cur,
+                    known,
+                    taken,
+                    points,
+                    gate=_WIDE_GATE * gamma,
+                    spacing=spacing,
+                ):
+                    break
+                _reject_overstretched(cur, known, taken, s, gamma)
+                _reject_odd_motion(cur, prev, known, taken, gamma)
+                tried = np.where(want[:, None], pred, tried)
+        new_count = np.where(known, 0, temp_count + 1)
+        pred = prev + velocity
         if not known.all():
             # ---- pass 2: the rest at the curve (interior) or F (ends)
-            missing = ~known
-            new_count = np.where(missing, temp_count + 1, 0)
             meas_vel = np.where(known[:, None], cur - prev, 0.0)
             v_tilde = _neighbour_velocity(known, meas_vel, velocity)
             if known.any():
                 pred, _ = fill_interior_on_curve(np.where(known[:, None], cur, 0.0), known, s)
                 pred = _predict_ends(pred, known, prev, v_tilde, new_count, spacing)
-            else:
-                pred = prev + velocity
-            want = np.nonzero(missing)[0]
             if k > 0:
-                kk = min(n_t, k + int(known.sum()))  # room for points pass 1 took
-                d, i = tree.query(t, pred[want], kk, gamma)
-                used = np.isin(i, taken[known])
-                d = np.where(used, np.inf, d)
-                rows, pts = gated_assignment(d, i, gamma)
-                hit = want[rows]
-                known[hit] = True
-                taken[hit] = pts
-                cur[hit] = points[pts]
-                _reject_overstretched(cur, known, taken, spacing, gamma)
+                want = np.nonzero(~known)[0]
+                _match(
+                    tree,
+                    t,
+                    want,
+                    pred,
+                    k,
+                    gamma,
+                    cur,
+                    known,
+                    taken,
+                    points,
+                    gate=_WIDE_GATE * gamma,
+                    spacing=spacing,
+                )
+                _reject_overstretched(cur, known, taken, s, gamma)
                 _reject_odd_motion(cur, prev, known, taken, gamma)
-            still = ~known
-            if still.any() and known.any():
+        if k > 0 and known.sum() >= 3:
+            _check_on_curve(tree, t, k, gamma, s, cur, known, taken, points)
+        still = ~known
+        if still.any():
+            if known.any():
                 # re-place the interior invented markers on the curve through every
-                # marker measured this frame (pass 2 may have found more)
+                # marker measured this frame
                 refit, interior = fill_interior_on_curve(
                     np.where(known[:, None], cur, 0.0), known, s
                 )
                 cur[still] = np.where(interior[still, None], refit[still], pred[still])
-            elif still.any():
+            else:
                 cur[still] = pred[still]
-            temp_count = np.where(known, 0, temp_count + 1)
-            invented[t] = ~known
-            lost_frames[t] = temp_count > init.max_temp_markers
-        else:
-            temp_count[:] = 0
+        temp_count = np.where(known, 0, temp_count + 1)
+        invented[t] = still
+        lost_frames[t] = temp_count > init.max_temp_markers
         point_index[t] = taken
         positions[t] = cur
         velocity = cur - prev
