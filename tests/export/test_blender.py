@@ -202,3 +202,31 @@ def test_makehuman_walks_cmu_bvh(blender, tmp_path):
     ref = lbs_reference(mesh, pose)
     assert np.linalg.norm(ref[1].mean(0) - ref[0].mean(0)) > 2.0  # walked over 2 m
     np.testing.assert_allclose(blender_to_y_up(r["positions"]), ref, atol=2e-5)
+
+
+def test_blender_plays_our_bvh(blender, tmp_path):
+    """A BVH skincap writes, imported by Blender's own BVH importer: every joint where FK puts it."""
+    from skincap.geometry.kinematics import joint_positions
+    from skincap.io.bvh import write_bvh
+
+    motion = read_bvh(DATA / "cmu_131_01_bvh11.bvh", units="cmu")
+    walk = slice(450, 750)  # the clean walk of this take
+    short = Motion(
+        motion.skeleton, motion.rotations[walk], motion.translations[walk], motion.rate,
+        motion.channels, motion.meta,
+    )  # fmt: skip
+    ours = tmp_path / "walk.bvh"
+    write_bvh(short, ours)
+    out = tmp_path / "bvh.npz"
+    frames = [0, 150, 299]
+    run_blender(blender, "import_bvh.py", ours, out, *frames)
+    r = np.load(out)
+    assert r["frame_range"].tolist() == [1.0, 300.0]
+    # Blender works in the file's numbers: read our file back in its own units
+    file_units = read_bvh(ours, units="m")
+    ref = joint_positions(file_units)[frames]  # (3, J, 3)
+    names = list(file_units.skeleton.names)
+    cols = [names.index(n) for n in r["names"]]
+    assert len(cols) >= 25  # every joint with channels became a bone
+    np.testing.assert_allclose(blender_to_y_up(r["heads"]), ref[:, cols], atol=1e-3)
+    assert np.linalg.norm(ref[2, 0] - ref[0, 0]) > 20  # walked over 1 m (CMU units of 5.6 cm)
