@@ -17,11 +17,11 @@ import builtins
 import sys
 
 import bpy
+import io_anim_bvh.import_bvh as _bvh_addon
 import numpy as np
 
 # Debian's Blender 3.4 runs on Python 3.11, where open(..., "rU") is gone, but its BVH
 # add-on still asks for it; give the add-on an open() that drops the "U".
-import io_anim_bvh.import_bvh as _bvh_addon  # noqa: E402
 
 
 def _open_without_u(file, mode="r", *args, **kwargs):
