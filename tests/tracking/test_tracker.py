@@ -112,3 +112,19 @@ def test_rejects_mismatched_init(whip_take) -> None:  # type: ignore[no-untyped-
         track_rope(whip_take.points, init)
     with pytest.raises(ValidationError, match="PointCloud"):
         track_rope(whip_take.truth, init)  # type: ignore[arg-type]
+
+
+def test_leave_one_out_weights_match_the_curve() -> None:
+    from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
+    from skincap.tracking.tracker import _leave_one_out_weights
+
+    rng = np.random.default_rng(4)
+    s = rest_arclength(rng.uniform(0.08, 0.15, size=9))
+    x = rng.normal(size=(10, 3))
+    w = _leave_one_out_weights(s)
+    for j in range(1, 9):
+        known = np.ones(10, dtype=bool)
+        known[j] = False
+        curve, _ = fill_interior_on_curve(x, known, s)
+        np.testing.assert_allclose(w[j] @ x, curve[j], atol=1e-12)
+    assert not w[[0, 9]].any()

@@ -26,8 +26,20 @@ Beyond the thesis:
   :attr:`RopeTrack.lost_frames`, and it keeps looking for a point within γ of that
   invented position; taking one ends the loss.
 
-Candidate points come from a KD-tree over (x, y, z, frame × 1 km) built once per
-chunk of frames, so a query only ever returns points of the frame asked for.
+* A measured trace not found within γ of V gets a second chance in the same frame:
+  V corrected by the prediction errors of the traces found (interpolated along the
+  rope), searched within ``2 γ`` but only at its rest spacing ``l_j`` (± γ) from a
+  measured neighbour — the fast middle of a turning rope accelerates far beyond γ
+  per frame, and the errors of neighbouring markers are alike. The same wider,
+  length-constrained gate is used for the curve/F searches.
+* Traces that break the rope's length (two measured markers farther apart than the
+  rope between them) are resolved by keeping the largest consistent chain (a trace
+  that slipped onto its neighbour's marker is dropped), and a trace that sits more
+  than ``2 γ`` off the curve through the other measured markers moves to a free
+  point on that curve (it had taken a body point while its marker was hidden).
+
+Candidate points come from a KD-tree over each frame's points, built when the frame
+is first searched.
 """
 
 from __future__ import annotations
@@ -46,10 +58,6 @@ from skincap.types import MarkerSet, PointCloud
 
 __all__ = ["RopeTrack", "track_rope"]
 
-#: Separation of frames along the tree's fourth axis, metres (far beyond any γ).
-_FRAME_SEPARATION = 1000.0
-#: Frames per KD-tree chunk.
-_CHUNK_FRAMES = 4096
 #: Largest chord between neighbouring markers, in rest spacings (plus γ).
 _STRETCH = 1.1
 #: Candidates per trace considered by the assignment.
@@ -128,11 +136,11 @@ class RopeTrack:
 
 
 class _FrameTree:
-    """Nearest points of one frame, from KD-trees over (x, y, z, frame) chunks."""
+    """Nearest points of one frame: a KD-tree over that frame's points, built on demand."""
 
     def __init__(self, cloud: PointCloud) -> None:
         self.cloud = cloud
-        self.chunk = -1
+        self.t = -1
         self.tree: cKDTree | None = None
         self.base = 0
 
@@ -141,24 +149,18 @@ class _FrameTree:
         return int(self.cloud.offsets[t + 1] - self.cloud.offsets[t])
 
     def query(self, t: int, q: np.ndarray, k: int, gate: float) -> tuple[np.ndarray, np.ndarray]:
-        """(R, k) distances (inf for none) and global point indices near ``q`` in frame t."""
-        c = t // _CHUNK_FRAMES
-        if c != self.chunk:
-            f0 = c * _CHUNK_FRAMES
-            f1 = min(self.cloud.n_frames, f0 + _CHUNK_FRAMES)
-            a, b = int(self.cloud.offsets[f0]), int(self.cloud.offsets[f1])
-            frames = np.repeat(np.arange(f1 - f0), np.diff(self.cloud.offsets[f0 : f1 + 1]))
-            data = np.column_stack([self.cloud.points[a:b], frames * _FRAME_SEPARATION])
-            self.tree = cKDTree(data if data.shape[0] else np.zeros((1, 4)) - 1e9)
-            self.base, self.chunk, self.f0 = a, c, f0
+        """(R, k) distances (inf for none) and global point indices near ``q`` in frame t.
+
+        Frame t must hold at least ``k >= 1`` points. Where the distance is inf the
+        index is meaningless.
+        """
+        if t != self.t:
+            a, b = int(self.cloud.offsets[t]), int(self.cloud.offsets[t + 1])
+            self.tree = cKDTree(self.cloud.points[a:b])
+            self.base, self.t = a, t
         assert self.tree is not None
-        q4 = np.empty((q.shape[0], 4))
-        q4[:, :3] = q
-        q4[:, 3] = (t - self.f0) * _FRAME_SEPARATION
-        d, i = self.tree.query(q4, k=k, distance_upper_bound=gate)
-        d = d.reshape(q.shape[0], k)
-        i = i.reshape(q.shape[0], k) + self.base
-        return d, i
+        d, i = self.tree.query(q, k=k, distance_upper_bound=gate)
+        return d.reshape(q.shape[0], k), i.reshape(q.shape[0], k) + self.base
 
 
 def _side_neighbours(known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -312,6 +314,25 @@ def _interp_along(known: np.ndarray, values: np.ndarray, s: np.ndarray) -> np.nd
     return np.where(known[:, None], values, out)
 
 
+def _leave_one_out_weights(s: np.ndarray) -> np.ndarray:
+    """(M, M) W: ``W[j] @ x`` is the curve through every marker but ``j``, at ``s_j``.
+
+    :func:`~skincap.tracking.curve.fill_interior_on_curve` is linear in the
+    positions, so it is evaluated once on unit positions. Row ``j`` is valid when
+    markers ``j - 2 … j + 2`` (those that exist) are all measured; rows 0 and M - 1
+    are zero (an end has no curve on both sides).
+    """
+    m = s.size
+    basis = np.zeros((m, m, m, 3))
+    basis[:, np.arange(m), np.arange(m), 0] = 1.0  # [j, k]: marker k at unit x
+    known = np.ones((m, m, m), dtype=bool)
+    known[np.arange(m), :, np.arange(m)] = False
+    filled, _ = fill_interior_on_curve(basis, known, s)
+    w = filled[np.arange(m), :, np.arange(m), 0]  # (j, k)
+    w[[0, m - 1]] = 0.0
+    return w
+
+
 def _check_on_curve(
     tree: _FrameTree,
     t: int,
@@ -322,7 +343,8 @@ def _check_on_curve(
     known: np.ndarray,
     taken: np.ndarray,
     points: np.ndarray,
-) -> None:
+    loo_weights: np.ndarray,
+) -> bool:
     """Move a trace off a body point onto the rope marker it lost (beyond the thesis).
 
     A trace that took a body point while its rope marker was hidden keeps following
@@ -330,22 +352,29 @@ def _check_on_curve(
     marker with measured markers on both sides, the curve through the *other*
     measured markers gives where it should be (``C_j``); a marker farther than
     ``2 γ`` from ``C_j`` swaps to a free point that is at least γ nearer to ``C_j``
-    (and within γ of it), conflicts resolved one-to-one. In place.
+    (and within γ of it), conflicts resolved one-to-one. In place; True if any moved.
     """
     m = known.size
     before, after = _side_neighbours(known)
     rows = np.nonzero(known & (before >= 0) & (after < m))[0]
     if rows.size == 0:
-        return
-    loo = np.broadcast_to(known, (rows.size, m)).copy()
-    loo[np.arange(rows.size), rows] = False
-    batch = np.broadcast_to(np.where(known[:, None], cur, 0.0), (rows.size, m, 3))
-    curve, _ = fill_interior_on_curve(batch, loo, s)
-    c = curve[np.arange(rows.size), rows]
+        return False
+    x = np.where(known[:, None], cur, 0.0)
+    # markers j-2 … j+2 all measured (or beyond an end): the precomputed weights
+    pad = np.concatenate([[True, True], known, [True, True]])
+    full = pad[rows] & pad[rows + 1] & pad[rows + 3] & pad[rows + 4]
+    c = loo_weights[rows] @ x
+    slow = np.nonzero(~full)[0]
+    if slow.size:
+        loo = np.broadcast_to(known, (slow.size, m)).copy()
+        loo[np.arange(slow.size), rows[slow]] = False
+        batch = np.broadcast_to(x, (slow.size, m, 3))
+        curve, _ = fill_interior_on_curve(batch, loo, s)
+        c[slow] = curve[np.arange(slow.size), rows[slow]]
     dev = np.linalg.norm(cur[rows] - c, axis=1)
     odd = dev > 2.0 * gamma
     if not odd.any():
-        return
+        return False
     rows, c, dev = rows[odd], c[odd], dev[odd]
     n_taken = int(known.sum())
     kk = min(k + n_taken, tree.count(t))
@@ -356,6 +385,7 @@ def _check_on_curve(
         hit = rows[hit_rows]
         taken[hit] = pts
         cur[hit] = points[pts]
+    return bool(hit_rows.size)
 
 
 def _neighbour_velocity(
@@ -479,6 +509,7 @@ def track_rope(
     velocity = np.zeros((m, 3))  # v^{i-1} Δt: last per-frame displacement (eq. 3.2)
     temp_count = (~seen0).astype(np.int64)  # consecutive temporary markers
     tree = _FrameTree(cloud)
+    loo_weights = _leave_one_out_weights(s)
     every = max(1, t_frames // 100)
     k_cand = _CANDIDATES
 
@@ -535,9 +566,10 @@ def track_rope(
             if known.any():
                 pred, _ = fill_interior_on_curve(np.where(known[:, None], cur, 0.0), known, s)
                 pred = _predict_ends(pred, known, prev, v_tilde, new_count, spacing)
+            found_more = False
             if k > 0:
                 want = np.nonzero(~known)[0]
-                _match(
+                found_more = _match(
                     tree,
                     t,
                     want,
@@ -553,11 +585,12 @@ def track_rope(
                 )
                 _reject_overstretched(cur, known, taken, s, gamma)
                 _reject_odd_motion(cur, prev, known, taken, gamma)
+        swapped = False
         if k > 0 and known.sum() >= 3:
-            _check_on_curve(tree, t, k, gamma, s, cur, known, taken, points)
+            swapped = _check_on_curve(tree, t, k, gamma, s, cur, known, taken, points, loo_weights)
         still = ~known
         if still.any():
-            if known.any():
+            if known.any() and (found_more or swapped):
                 # re-place the interior invented markers on the curve through every
                 # marker measured this frame
                 refit, interior = fill_interior_on_curve(
@@ -565,7 +598,7 @@ def track_rope(
                 )
                 cur[still] = np.where(interior[still, None], refit[still], pred[still])
             else:
-                cur[still] = pred[still]
+                cur[still] = pred[still]  # nothing new measured: the curve/F prediction
         temp_count = np.where(known, 0, temp_count + 1)
         invented[t] = still
         lost_frames[t] = temp_count > init.max_temp_markers
