@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from skincap.cleanup.methods import FILL_METHODS
-from skincap.cli import _user_errors, app, err, eval_app, out
+from skincap.cli import _user_errors, app, bench_app, err, eval_app, out, print_bench_results
 from skincap.errors import FormatError
 
 if TYPE_CHECKING:
@@ -111,6 +111,30 @@ def _read_surface(path: Path, markers: MarkerSet, reference_frame: int | None) -
     return surface_from_faces(faces, ref, reference_frame=frame)
 
 
+def _read_fragment_truth(path: Path) -> dict[str, str]:
+    """``fragment,truth`` CSV (``skincap synth``'s truth/fragments.csv): label -> true label."""
+    from skincap.io._common import check_readable
+
+    check_readable(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    truth: dict[str, str] = {}
+    for number, line in enumerate(text.splitlines(), start=1):
+        if not line.strip():
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if len(cells) != 2 or not cells[0] or not cells[1]:
+            raise FormatError(path, "expected 'fragment,truth' on every line", line=number)
+        if number == 1 and cells == ["fragment", "truth"]:
+            continue
+        truth[cells[0]] = cells[1]
+    if not truth:
+        raise FormatError(path, "no fragment rows")
+    return truth
+
+
 def _write_json(path: Path, data: dict[str, Any], *, force: bool) -> None:
     from skincap.io._common import atomic_output
 
@@ -139,6 +163,13 @@ def clean(
     iterations: Annotated[int, typer.Option(help="Smoothing iterations.")] = 10,
     report: Annotated[
         Path | None, typer.Option(help="JSON report: counts and invented [start, end) runs.")
+    ] = None,
+    fragment_truth: Annotated[
+        Path | None,
+        typer.Option(
+            help="Ground truth 'fragment,truth' CSV (skincap synth's truth/fragments.csv): "
+            "the report then counts wrong merges."
+        ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
 ) -> None:
@@ -176,6 +207,7 @@ def clean(
                 src, f"--reference-frame {reference_frame} is outside 0..{markers.n_frames - 1}"
             )
         user_surface = None if surface is None else _read_surface(surface, markers, reference_frame)
+        truth = None if fragment_truth is None else _read_fragment_truth(fragment_truth)
         with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
             task = bar.add_task("cleaning", total=1.0)
 
@@ -190,6 +222,7 @@ def clean(
                 smooth=not no_smooth,
                 lam=lam,
                 iterations=iterations,
+                fragment_truth=truth,
                 progress=progress,
             )
         summary["input"] = str(src)
@@ -202,7 +235,14 @@ def clean(
     out.print(
         f"{src} -> {output}: {merge['trajectories_before']} -> {merge['trajectories_after']} "
         f"trajectories, {merge['merged']} fragments merged, "
-        f"{fill['invented_samples']} samples invented, {fill['unfilled_samples']} unfilled",
+        f"{fill['invented_samples']} samples invented, {fill['unfilled_samples']} unfilled"
+        + (
+            ""
+            if merge["wrongly_merged"] is None
+            else f"; {merge['wrongly_merged']} wrongly merged ({100 * merge['wrong_rate']:.2f} %), "
+            f"{merge['left_unmerged']} body fragments left unmerged "
+            f"({merge['left_unmerged_frames']} samples)"
+        ),
         markup=False,
     )
 
@@ -325,3 +365,36 @@ def eval_fill(
         out.print(
             f"best: {best['best']} (RMSE {best['best_rmse_mm']:.2f} mm; vs {ratios})", markup=False
         )
+
+
+# -------------------------------------------------------------------------- bench
+@bench_app.command("clean")
+def bench_clean(
+    markers: Annotated[int, typer.Option(help="Markers of the synthetic dense take.")] = 350,
+    frames: Annotated[
+        str, typer.Option(help="Comma-separated take lengths (the last is the headline).")
+    ] = "250,500,1000",
+    methods: Annotated[str, typer.Option(help="Comma-separated fill methods.")] = "local_pca",
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """Time the whole clean (and its fill and smoothing) against the linear fill.
+
+    Example: skincap bench clean --markers 350 --frames 250,1000
+    """
+    with _user_errors():
+        from skincap.cleanup.benchmark import run_clean_benchmark
+
+        chosen = [m.strip() for m in methods.split(",") if m.strip()]
+        unknown = [m for m in chosen if m not in FILL_METHODS]
+        if unknown or not chosen:
+            raise FormatError(
+                "--methods", f"unknown {unknown}; choose from {', '.join(FILL_METHODS)}"
+            )
+        if markers < 4:
+            raise FormatError("--markers", "must be at least 4")
+        results = run_clean_benchmark(
+            n_markers=markers, frames=_int_list(frames, "--frames"), methods=chosen
+        )
+    print_bench_results(results, json_output)

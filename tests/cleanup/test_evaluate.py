@@ -84,5 +84,6 @@ def test_evaluate_fill_report(take, tmp_path):
 def test_benchmark_lines():
     r = run_clean_benchmark(n_markers=40, frames=(60, 120), smooth=True)
     assert len(r["rows"]) == 2 and r["goal_s"] == 10.0
+    assert all(row["clean_s"] > 0 for row in r["rows"])
     assert any("linear in frames" in line for line in r["lines"])
     assert all(row["rmse_mm"] < row["linear_rmse_mm"] for row in r["rows"])
