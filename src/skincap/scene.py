@@ -18,8 +18,12 @@ long point CSV         points (un-indexed)
 ``.pc2``               mesh (with its same-stem ``.obj``)
 ``.glb .gltf``         mesh, skinned and animated by its first animation, plus the
                        skin's skeleton
+``.usd .usda .usdc``   every mesh of the stage with its time-sampled points (needs
+                       usd-core, the ``usd`` extra)
 directory              every file above in it (not recursive); a ``.obj`` that has
-                       a same-stem ``.pc2`` is loaded once, animated
+                       a same-stem ``.pc2`` is loaded once, animated; a folder of
+                       ``<stem>_<digits>.obj`` frames (``skincap skin -o DIR``) is
+                       one animated mesh
 =====================  ==========================================================
 
 All positions are metres, Y up.
@@ -29,6 +33,7 @@ from __future__ import annotations
 
 import abc
 import os
+import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -53,7 +58,10 @@ __all__ = [
     "SCENE_EXTENSIONS",
 ]
 
-SCENE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply", ".pc2", ".glb", ".gltf")
+SCENE_EXTENSIONS = (
+    ".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply", ".pc2", ".glb", ".gltf", ".usd", ".usda",
+    ".usdc",
+)  # fmt: skip
 #: Rate given to a PC2 cache when nothing else in the scene says one (PC2 stores none).
 DEFAULT_PC2_RATE = 30.0
 
@@ -302,10 +310,13 @@ def load_scene(
     if not paths:
         raise ValidationError("load_scene: no paths given")
     files: list[Path] = []
+    sequences: list[Path] = []
     from_folder: set[Path] = set()  # unreadable files found in a folder are skipped
     for raw in paths:
         p = Path(raw)
-        if p.is_dir():
+        if p.is_dir() and _obj_sequence(p):
+            sequences.append(p)
+        elif p.is_dir():
             found = _scene_files_in(p)
             if not found:
                 raise FormatError(
@@ -337,6 +348,8 @@ def load_scene(
     # a point cache deforms a motion: borrow the rate of a skeleton or mesh layer first
     motions = [lay.rate for lay in layers if lay.kind in ("skeleton", "mesh") and lay.n_frames > 1]
     pc2_rate = rate if rate is not None else (motions[0] if motions else None)
+    for folder in sequences:
+        layers.append(_load_obj_sequence(folder, rate if rate is not None else pc2_rate, units))
     if pc2_rate is None and pc2_pending:
         warnings.warn(
             f"{pc2_pending[0][0]}: PC2 stores no frame rate; playing it at {DEFAULT_PC2_RATE:g} Hz "
@@ -416,6 +429,8 @@ def _load_file(path: Path, units: str | None) -> list[Layer]:
         return _gltf_layers(path)
     if ext in (".obj", ".ply"):
         return [_static_mesh_layer(name, _read_static_mesh(path, units), path)]
+    if ext in (".usd", ".usda", ".usdc"):
+        return _usd_layers(path)
     raise FormatError(path, f"skincap cannot show {ext or 'files without an extension'!r} files")
 
 
@@ -511,6 +526,91 @@ def _load_pc2(cache: Path, obj: Path, rate: float, units: str | None) -> MeshLay
             f"has {frames.shape[1]} points per sample but {obj.name} has {rest.n_vertices} vertices",
         )
     return MeshLayer(cache.name, rate, cache, faces=rest.faces, frames=frames.astype(np.float32))
+
+
+_OBJ_FRAME = re.compile(r"^(?P<stem>.+)_(?P<index>\d+)\.obj$", re.IGNORECASE)
+
+
+def _obj_sequence(folder: Path) -> list[Path]:
+    """The frames of a folder holding only ``<stem>_<digits>.obj`` files of one stem, in order."""
+    objs = sorted(f for f in folder.iterdir() if f.is_file() and f.suffix.lower() == ".obj")
+    others = [f for f in folder.iterdir() if f.is_file() and f.suffix.lower() in SCENE_EXTENSIONS]
+    matches = [_OBJ_FRAME.match(f.name) for f in objs]
+    if len(objs) < 2 or len(others) != len(objs) or not all(matches):
+        return []
+    if len({m.group("stem") for m in matches if m}) != 1:
+        return []
+    return sorted(objs, key=lambda f: int(_OBJ_FRAME.match(f.name).group("index")))  # type: ignore[union-attr]
+
+
+def _load_obj_sequence(folder: Path, rate: float | None, units: str | None) -> MeshLayer:
+    frames = _obj_sequence(folder)
+    meshes = [_read_static_mesh(f, units) for f in frames]  # one file per frame
+    first = meshes[0]
+    for f, m in zip(frames, meshes, strict=True):
+        if m.n_vertices != first.n_vertices:
+            raise FormatError(
+                f, f"has {m.n_vertices} vertices, {frames[0].name} has {first.n_vertices}"
+            )
+    if rate is None:
+        warnings.warn(
+            f"{folder}: an OBJ sequence stores no frame rate; playing it at {DEFAULT_PC2_RATE:g} Hz",
+            SkincapWarning,
+            stacklevel=3,
+        )
+        rate = DEFAULT_PC2_RATE
+    stack = np.stack([m.vertices for m in meshes]).astype(np.float32)
+    return MeshLayer(folder.name, float(rate), folder, faces=first.faces, frames=stack)
+
+
+def _usd_layers(path: Path) -> list[Layer]:
+    """Every UsdGeom.Mesh of a stage, its points sampled at each time code (metres, Y up)."""
+    from skincap.errors import MissingDependencyError
+
+    try:
+        from pxr import Usd, UsdGeom
+    except ImportError:
+        raise MissingDependencyError("usd-core", "usd", "reading USD") from None
+    stage = Usd.Stage.Open(str(path))
+    if stage is None:
+        raise FormatError(path, "USD could not open the stage")
+    scale = UsdGeom.GetStageMetersPerUnit(stage) or 1.0
+    z_up = UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.z
+    rate = float(stage.GetTimeCodesPerSecond() or 24.0)
+    layers: list[Layer] = []
+    for prim in stage.Traverse():
+        if not prim.IsA(UsdGeom.Mesh):
+            continue
+        mesh = UsdGeom.Mesh(prim)
+        counts = np.asarray(mesh.GetFaceVertexCountsAttr().Get(), dtype=np.int64)
+        indices = np.asarray(mesh.GetFaceVertexIndicesAttr().Get(), dtype=np.int64)
+        points_attr = mesh.GetPointsAttr()
+        times = points_attr.GetTimeSamples() or [Usd.TimeCode.Default()]
+        frames = np.stack([np.asarray(points_attr.Get(t), dtype=np.float64) for t in times]) * scale
+        if z_up:  # (x, y, z) Z up -> (x, z, -y) Y up
+            frames = np.stack([frames[..., 0], frames[..., 2], -frames[..., 1]], axis=-1)
+        faces = _fan_triangles(counts, indices, path)
+        layers.append(
+            MeshLayer(
+                f"{path.name}:{prim.GetName()}", rate, path, faces=faces,
+                frames=frames.astype(np.float32),
+            )
+        )  # fmt: skip
+    if not layers:
+        raise FormatError(path, "the stage holds no mesh")
+    return layers
+
+
+def _fan_triangles(counts: np.ndarray, indices: np.ndarray, path: Path) -> np.ndarray:
+    """(F, 3) triangles fanning out each polygon of ``counts`` corners over ``indices``."""
+    if counts.sum() != indices.size or (counts < 3).any():
+        raise FormatError(path, "face vertex counts and indices disagree")
+    starts = np.cumsum(counts) - counts
+    n_tri = counts - 2
+    poly = np.repeat(np.arange(counts.size), n_tri)
+    k = np.arange(n_tri.sum()) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri)
+    first = indices[starts[poly]]
+    return np.stack([first, indices[starts[poly] + k + 1], indices[starts[poly] + k + 2]], axis=1)
 
 
 _ROPE_CURVE_HEADER = "frame,s,x,y,z"
