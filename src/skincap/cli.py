@@ -562,8 +562,8 @@ def demo(
         f"x mean neighbour distance ({best[1]['mean_mm']:.2f} mm)",
         f"  rope: {tr['rope_markers_found']} markers tracked, rope/body F1 {tr['f1']:.3f}",
         f"  report: {result['report']}",
-        "Look at it in the browser:",
-        f"  {result['view']}",
+        "Look at it in the browser (raw against cleaned capture with the rope; the walk):",
+        *(f"  {command}" for command in result["view"]),
     ]
     for line in lines:
         out.print(line, markup=False, soft_wrap=True)
