@@ -81,4 +81,5 @@ def test_run_track_benchmark_small() -> None:
     assert res["speedup"] == pytest.approx(res["baseline_s"] / res["track_s"])
     # The real tracker follows the analytic rope to within a few millimetres.
     assert res["track_error_m"] < 0.005
-    assert len(res["lines"]) == 4 and "real time" in res["lines"][1]
+    assert len(res["lines"]) == 5 and "real time" in res["lines"][1]
+    assert res["same_as_numpy"] and res["speedup_vs_numpy"] > 0

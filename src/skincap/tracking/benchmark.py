@@ -7,7 +7,9 @@ noise, ghosts and dropped points — about 400 points per frame. Three numbers c
 out of one run:
 
 * frames per second of :func:`~skincap.tracking.tracker.track_rope` (initialisation
-  included) and its ratio to real time (the target: at least 50×);
+  included) and its ratio to real time (the target: at least 50×), with the compiled
+  kernel when numba is installed (the extra ``fast``) and with the NumPy reference,
+  which must take the same points;
 * the same for a naive baseline measured in the same process: greedy nearest
   neighbour with constant-velocity prediction, a brute-force distance matrix per
   frame instead of a KD-tree, conflicts resolved greedily, no gap model, the same γ
@@ -171,6 +173,7 @@ def run_track_benchmark(
     rate: float = 120.0,
     repeat: int = 3,
     seed: int = 0,
+    backend: str = "auto",
 ) -> dict[str, Any]:
     """Time ``track_rope`` against real time and the naive baseline on one scene.
 
@@ -180,6 +183,9 @@ def run_track_benchmark(
         The scene (:func:`jump_rope_scene`).
     repeat : int
         Timing repeats; the best is kept.
+    backend : {"auto", "numba", "numpy"}
+        The tracker timed as ``track_*`` (:func:`~skincap.tracking.tracker.track_rope`);
+        the NumPy reference is timed as well (``numpy_*``).
 
     Returns
     -------
@@ -189,11 +195,14 @@ def run_track_benchmark(
         ``track_realtime`` and ``baseline_realtime`` (× real time), ``speedup`` (ours
         vs the baseline), ``track_error_m`` / ``baseline_error_m`` (mean distance to
         the exact rope over all frames and markers), ``target_realtime`` (50),
-        ``lines`` (text to print).
+        ``backend`` (the one timed as ``track``), ``numpy_s``, ``numpy_fps``,
+        ``numpy_realtime``, ``speedup_vs_numpy`` (the NumPy reference, timed once
+        per repeat too), ``same_as_numpy`` (both took the same points and invented the
+        same markers), ``lines`` (text to print).
     """
     from skincap.benchmarks import best_time
     from skincap.tracking.init import init_rope
-    from skincap.tracking.tracker import track_rope
+    from skincap.tracking.tracker import _resolve_backend, track_rope
 
     cloud, rope, first = jump_rope_scene(
         frames=frames,
@@ -203,17 +212,29 @@ def run_track_benchmark(
         seed=seed,
     )
 
+    used = _resolve_backend(backend)
+
     def ours() -> Any:
-        return track_rope(cloud, init_rope(cloud, markers=first))
+        return track_rope(cloud, init_rope(cloud, markers=first), backend=used)
+
+    def reference() -> Any:
+        return track_rope(cloud, init_rope(cloud, markers=first), backend="numpy")
 
     gamma = init_rope(cloud, markers=first).gamma  # the same γ for both trackers
 
     def naive() -> Any:
         return track_greedy_nearest(cloud, first, gamma=gamma)
 
-    track = ours()
+    track = ours()  # compiles the kernel (or loads it from numba's cache)
+    ref = reference()
+    same = bool(
+        np.array_equal(track.point_index, ref.point_index)
+        and np.array_equal(track.invented, ref.invented)
+        and np.allclose(track.positions, ref.positions, rtol=0.0, atol=1e-9)
+    )
     base_pos, _ = naive()
     track_s = best_time(ours, repeat)
+    ref_s = track_s if used == "numpy" else best_time(reference, repeat)
     base_s = best_time(naive, max(1, repeat))
 
     # Pair our traces (ordered along the rope by the tracker) with the truth columns.
@@ -244,12 +265,22 @@ def run_track_benchmark(
         "track_error_m": track_err,
         "baseline_error_m": base_err,
         "target_realtime": 50.0,
+        "backend": used,
+        "numpy_s": ref_s,
+        "numpy_fps": frames / ref_s,
+        "numpy_realtime": duration / ref_s,
+        "speedup_vs_numpy": ref_s / track_s,
+        "same_as_numpy": same,
     }
     result["lines"] = [
         f"track: {frames} frames at {rate:g} Hz, {result['points_per_frame']:.0f} points/frame, "
         f"{rope_markers} rope markers (analytic jump-rope scene)",
-        f"track_rope: {result['track_fps']:.0f} frames/s = {result['track_realtime']:.0f}x real "
-        f"time (goal >= 50x); mean error {track_err * 1000:.1f} mm",
+        f"track_rope ({used}): {result['track_fps']:.0f} frames/s = "
+        f"{result['track_realtime']:.0f}x real time (goal >= 50x); mean error "
+        f"{track_err * 1000:.1f} mm",
+        f"track_rope (numpy reference): {result['numpy_fps']:.0f} frames/s = "
+        f"{result['numpy_realtime']:.0f}x real time; {used} is {result['speedup_vs_numpy']:.1f}x "
+        f"the reference, same points taken: {'yes' if same else 'NO'}",
         f"naive greedy nearest neighbour (no KD-tree): {result['baseline_fps']:.0f} frames/s = "
         f"{result['baseline_realtime']:.0f}x real time; mean error {base_err * 1000:.1f} mm",
         f"track_rope is {result['speedup']:.2f}x the naive baseline's speed",

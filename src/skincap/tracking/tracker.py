@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from skincap.errors import ValidationError
+from skincap.errors import MissingDependencyError, ValidationError
 from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
 from skincap.tracking.init import RopeInit, gated_assignment
 from skincap.types import MarkerSet, PointCloud
@@ -453,64 +453,51 @@ def _predict_ends(
     return cur
 
 
-def track_rope(
+def numba_available() -> bool:
+    """True when numba can be imported (the optional extra ``fast``)."""
+    try:
+        import numba  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _resolve_backend(backend: str) -> str:
+    if backend not in ("auto", "numba", "numpy"):
+        raise ValidationError(f"backend: expected 'auto', 'numba' or 'numpy', got {backend!r}")
+    if backend == "numpy":
+        return "numpy"
+    if numba_available():
+        return "numba"
+    if backend == "numba":
+        raise MissingDependencyError("numba", "fast", "the compiled rope tracker")
+    return "numpy"
+
+
+def _track_numpy(
     cloud: PointCloud,
     init: RopeInit,
-    *,
-    progress: Callable[[float], object] | None = None,
-) -> RopeTrack:
-    """Track the rope markers through the whole take.
+    s: np.ndarray,
+    positions: np.ndarray,
+    invented: np.ndarray,
+    point_index: np.ndarray,
+    lost_frames: np.ndarray,
+    velocity: np.ndarray,
+    temp_count: np.ndarray,
+    progress: Callable[[float], object] | None,
+    every: int,
+) -> None:
+    """The per-frame loop of :func:`track_rope` in NumPy (the reference), in place.
 
-    Parameters
-    ----------
-    cloud : PointCloud
-        The take (the one ``init`` was made from), metres, Y up.
-    init : RopeInit
-        From :func:`~skincap.tracking.init.init_rope`: frame-0 indices, spacings
-        ``l_j``, γ, maxTempMarkers.
-    progress : callable, optional
-        Called with the fraction of frames done (0..1), about a hundred times.
-
-    Returns
-    -------
-    RopeTrack
-        Positions never NaN; ``invented`` where a temporary marker was used;
-        ``point_index`` the taken points (each at most once); ``lost_frames``.
-
-    Raises
-    ------
-    ValidationError
-        ``init`` does not fit ``cloud`` (an index beyond frame 0's points).
+    Frame 0 of the output arrays is filled; ``velocity`` (M, 3) and ``temp_count``
+    (M,) are the state after frame 0.
     """
-    if not isinstance(cloud, PointCloud):
-        raise ValidationError(f"cloud: expected a PointCloud, got {type(cloud).__name__}")
-    if not isinstance(init, RopeInit):
-        raise ValidationError(f"init: expected a RopeInit, got {type(init).__name__}")
-    n0 = int(cloud.counts[0]) if cloud.n_frames else 0
-    if cloud.n_frames < 1 or init.indices.max() >= n0 or init.n_markers < 3:
-        raise ValidationError(
-            f"init: rope index {int(init.indices.max())} is beyond frame 0's {n0} points"
-        )
     t_frames, m = cloud.n_frames, init.n_markers
     gamma = init.gamma
     spacing = init.spacing
-    s = rest_arclength(spacing)
     points = cloud.points
-
-    positions = np.empty((t_frames, m, 3))
-    invented = np.zeros((t_frames, m), dtype=bool)
-    point_index = np.full((t_frames, m), -1, dtype=np.int64)
-    lost_frames = np.zeros((t_frames, m), dtype=bool)
-    seen0 = init.indices >= 0
-    positions[0] = init.positions
-    positions[0, seen0] = points[cloud.offsets[0] + init.indices[seen0]]
-    point_index[0, seen0] = init.indices[seen0]
-    invented[0] = ~seen0
-    velocity = np.zeros((m, 3))  # v^{i-1} Δt: last per-frame displacement (eq. 3.2)
-    temp_count = (~seen0).astype(np.int64)  # consecutive temporary markers
     tree = _FrameTree(cloud)
     loo_weights = _leave_one_out_weights(s)
-    every = max(1, t_frames // 100)
     k_cand = _CANDIDATES
 
     for t in range(1, t_frames):
@@ -607,6 +594,94 @@ def track_rope(
         velocity = cur - prev
         if progress is not None and t % every == 0:
             progress(t / t_frames)
+
+
+def track_rope(
+    cloud: PointCloud,
+    init: RopeInit,
+    *,
+    progress: Callable[[float], object] | None = None,
+    backend: str = "auto",
+) -> RopeTrack:
+    """Track the rope markers through the whole take.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+        The take (the one ``init`` was made from), metres, Y up.
+    init : RopeInit
+        From :func:`~skincap.tracking.init.init_rope`: frame-0 indices, spacings
+        ``l_j``, γ, maxTempMarkers.
+    progress : callable, optional
+        Called with the fraction of frames done (0..1), about a hundred times.
+    backend : {"auto", "numba", "numpy"}
+        ``numba`` runs the per-frame loop compiled (:mod:`skincap.tracking._kernel`,
+        the optional extra ``fast``; several times faster), ``numpy`` the NumPy
+        reference; ``auto`` picks numba when it is installed. Both take the same
+        points and invent the same markers; invented positions agree to rounding.
+
+    Returns
+    -------
+    RopeTrack
+        Positions never NaN; ``invented`` where a temporary marker was used;
+        ``point_index`` the taken points (each at most once); ``lost_frames``.
+
+    Raises
+    ------
+    ValidationError
+        ``init`` does not fit ``cloud`` (an index beyond frame 0's points), or an
+        unknown ``backend``.
+    MissingDependencyError
+        ``backend="numba"`` without numba installed.
+    """
+    if not isinstance(cloud, PointCloud):
+        raise ValidationError(f"cloud: expected a PointCloud, got {type(cloud).__name__}")
+    if not isinstance(init, RopeInit):
+        raise ValidationError(f"init: expected a RopeInit, got {type(init).__name__}")
+    n0 = int(cloud.counts[0]) if cloud.n_frames else 0
+    if cloud.n_frames < 1 or init.indices.max() >= n0 or init.n_markers < 3:
+        raise ValidationError(
+            f"init: rope index {int(init.indices.max())} is beyond frame 0's {n0} points"
+        )
+    t_frames, m = cloud.n_frames, init.n_markers
+    gamma = init.gamma
+    spacing = init.spacing
+    s = rest_arclength(spacing)
+    points = cloud.points
+
+    positions = np.empty((t_frames, m, 3))
+    invented = np.zeros((t_frames, m), dtype=bool)
+    point_index = np.full((t_frames, m), -1, dtype=np.int64)
+    lost_frames = np.zeros((t_frames, m), dtype=bool)
+    seen0 = init.indices >= 0
+    positions[0] = init.positions
+    positions[0, seen0] = points[cloud.offsets[0] + init.indices[seen0]]
+    point_index[0, seen0] = init.indices[seen0]
+    invented[0] = ~seen0
+    velocity = np.zeros((m, 3))  # v^{i-1} Δt: last per-frame displacement (eq. 3.2)
+    temp_count = (~seen0).astype(np.int64)  # consecutive temporary markers
+    every = max(1, t_frames // 100)
+    if _resolve_backend(backend) == "numba":
+        from skincap.tracking._kernel import track_frames
+
+        offsets = np.ascontiguousarray(cloud.offsets, dtype=np.int64)
+        pts = np.ascontiguousarray(points, dtype=np.float64)
+        t0 = 1
+        while t0 < t_frames:
+            t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
+            track_frames(
+                t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
+                int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE,
+                positions, invented, point_index, lost_frames, velocity, temp_count,
+            )  # fmt: skip
+            if progress is not None and (t1 - 1) % every == 0:
+                progress((t1 - 1) / t_frames)
+            t0 = t1
+    else:
+        _track_numpy(
+            cloud, init, s, positions, invented, point_index, lost_frames, velocity, temp_count,
+            progress, every,
+        )  # fmt: skip
     if progress is not None:
         progress(1.0)
     return RopeTrack(
