@@ -128,3 +128,30 @@ def test_leave_one_out_weights_match_the_curve() -> None:
         curve, _ = fill_interior_on_curve(x, known, s)
         np.testing.assert_allclose(w[j] @ x, curve[j], atol=1e-12)
     assert not w[[0, 9]].any()
+
+
+def test_a_point_that_continues_a_slow_object_is_refused() -> None:
+    from skincap.tracking.tracker import _follows_other, _Previous
+
+    gamma = 0.03
+    rope_prev = np.array([[0.0, 0, 0], [0.12, 0, 0], [0.24, 0, 0]])
+    body_prev = np.array([[0.12, 0.30, 0.0]])  # a body marker, not taken by the rope
+    prev = _Previous(
+        points=np.concatenate([rope_prev, body_prev]),
+        untaken=np.array([False, False, False, True]),
+        positions=rope_prev,
+        steady=np.array([True, False, True]),
+    )
+    points = np.array([[0.12, 0.31, 0.0], [0.12, 0.08, 0.0]])  # body moved 1 cm; rope 8 cm
+    cand = np.array([[0, 1]])
+    dist = np.array([[0.01, 0.02]])
+    fast = np.array([[0.0, 0, 0], [0.12, 0.32, 0.0], [0.24, 0, 0]])  # trace 1 predicted 8+ cm up
+    refused = _follows_other(prev, np.array([1]), fast, cand, dist, points, gamma)
+    np.testing.assert_array_equal(refused, [[True, False]])
+    # a slow rope (predicted to move <= γ) judges nothing
+    slow = np.array([[0.0, 0, 0], [0.12, 0.025, 0.0], [0.24, 0, 0]])
+    assert not _follows_other(prev, np.array([1]), slow, cand, dist, points, gamma).any()
+    # a steady end trace (held in a hand, among hand markers) is exempt
+    end_prev = _Previous(prev.points, prev.untaken, rope_prev, np.array([True, True, True]))
+    ends = np.array([[0.0, 0.32, 0.0], [0.12, 0, 0], [0.24, 0, 0]])
+    assert not _follows_other(end_prev, np.array([0]), ends, cand, dist, points, gamma).any()

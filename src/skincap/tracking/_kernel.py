@@ -235,8 +235,49 @@ def _is_taken(p, known, taken):  # pragma: no cover - runs compiled
 
 
 @numba.njit(**_JIT)
+def _follows_other(points, pa, pb, prev_taken, p, pred, last, gamma):  # pragma: no cover
+    """As the reference ``_follows_other``: ``p`` lies within ``min(γ, D - γ)`` of a
+    point of the previous frame that the rope did not take (``D = |pred - last|``)."""
+    dx, dy, dz = pred[0] - last[0], pred[1] - last[1], pred[2] - last[2]
+    lim = min(gamma, _norm3(dx, dy, dz) - gamma)
+    if lim <= 0.0:
+        return False
+    lim2 = lim * lim
+    for q in range(pa, pb):
+        ex = p[0] - points[q, 0]
+        ey = p[1] - points[q, 1]
+        ez = p[2] - points[q, 2]
+        if ex * ex + ey * ey + ez * ez < lim2:
+            mine = False
+            for j in range(prev_taken.size):
+                if prev_taken[j] == q:
+                    mine = True
+            if not mine:
+                return True
+    return False
+
+
+@numba.njit(**_JIT)
 def _match(
-    points, a, b, rows, pred, k, gamma, cur, known, taken, gate, spacing, use_spacing
+    points,
+    a,
+    b,
+    rows,
+    pred,
+    k,
+    gamma,
+    cur,
+    known,
+    taken,
+    gate,
+    spacing,
+    use_spacing,
+    pa,
+    pb,
+    prev_taken,
+    prev,
+    steady,
+    follow,
 ):  # pragma: no cover
     """As the reference ``_match``: rows to free points of the frame within the gate."""
     r_n = rows.size
@@ -256,6 +297,18 @@ def _match(
         for r in range(r_n):
             for c in range(kk):
                 if d[r, c] < _INF and _is_taken(ii[r, c], known, taken):
+                    d[r, c] = _INF
+    if follow:
+        for r in range(r_n):
+            row = rows[r]
+            for c in range(kk):
+                if (
+                    (not steady[row] or 0 < row < m - 1)
+                    and d[r, c] < _INF
+                    and _follows_other(
+                        points, pa, pb, prev_taken, points[ii[r, c]], pred[row], prev[row], gamma
+                    )
+                ):
                     d[r, c] = _INF
     if use_spacing:
         for r in range(r_n):
@@ -600,6 +653,7 @@ def track_frames(
     n_cand,
     rounds,
     wide,
+    follow,
     positions,
     invented,
     point_index,
@@ -634,6 +688,12 @@ def track_frames(
                 gamma,
                 spacing,
                 False,
+                offsets[t - 1],
+                a,
+                point_index[t - 1],
+                prev,
+                active,
+                follow,
             )
             _reject_overstretched(cur, known, taken, s, gamma, stretch)
             _reject_odd_motion(cur, prev, known, taken, gamma)
@@ -669,6 +729,12 @@ def track_frames(
                     wide * gamma,
                     spacing,
                     True,
+                    offsets[t - 1],
+                    a,
+                    point_index[t - 1],
+                    prev,
+                    active,
+                    follow,
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
@@ -709,6 +775,12 @@ def track_frames(
                     wide * gamma,
                     spacing,
                     True,
+                    offsets[t - 1],
+                    a,
+                    point_index[t - 1],
+                    prev,
+                    active,
+                    follow,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
                 _reject_odd_motion(cur, prev, known, taken, gamma)

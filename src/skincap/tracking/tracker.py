@@ -32,6 +32,9 @@ Beyond the thesis:
   measured neighbour — the fast middle of a turning rope accelerates far beyond γ
   per frame, and the errors of neighbouring markers are alike. The same wider,
   length-constrained gate is used for the curve/F searches.
+* A point that continues a point of the previous frame that the rope did not take,
+  moving slower than the rope by more than γ, is a body marker beside a fast rope:
+  traces coming back from a gap, and inner traces, do not take it.
 * Traces that break the rope's length (two measured markers farther apart than the
   rope between them) are resolved by keeping the largest consistent chain (a trace
   that slipped onto its neighbour's marker is dropped), and a trace that sits more
@@ -67,6 +70,8 @@ _ROUNDS = 3
 #: Gate of the second-chance searches (residual-corrected V, curve/F), in γ; a point
 #: beyond γ is taken there only at its rest spacing (± γ) from a measured neighbour.
 _WIDE_GATE = 2.0
+#: Refuse candidates that continue a point the rope did not take (:func:`_follows_other`).
+_FOLLOW = True
 
 
 @dataclass(eq=False)
@@ -239,6 +244,56 @@ def _reject_odd_motion(
         taken[idx] = -1
 
 
+@dataclass
+class _Previous:
+    """The previous frame, for :func:`_follows_other`."""
+
+    points: np.ndarray  # (n, 3) that frame's points, metres
+    untaken: np.ndarray  # (n,) bool: not taken by the rope there
+    positions: np.ndarray  # (M, 3) the rope there
+    steady: np.ndarray  # (M,) bool: measured there
+
+
+def _follows_other(
+    prev: _Previous,
+    rows: np.ndarray,
+    pred: np.ndarray,
+    cand: np.ndarray,
+    dist: np.ndarray,
+    points: np.ndarray,
+    gamma: float,
+) -> np.ndarray:
+    """(R, K) bool: the candidate continues something else than the rope (beyond the thesis).
+
+    A body marker beside a fast rope moves far less than the rope. The trace of a
+    marker coming back from a gap, or any inner trace, refuses a candidate that lies
+    within ``min(γ, D - γ)`` of a point of the previous frame that the rope did not
+    take, ``D`` being how far the trace is predicted to move: that point has moved
+    slower than the rope by more than γ, so it is not the rope. Off where the rope
+    is slow (``D <= γ``); the ends of a steady rope are exempt (they are held in
+    the hands, among hand markers that move with them).
+    """
+    m = prev.steady.size
+    out = np.zeros(dist.shape, dtype=bool)
+    q = prev.points[prev.untaken]
+    if q.shape[0] == 0:
+        return out
+    e = pred[rows] - prev.positions[rows]
+    speed = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    lim = np.minimum(gamma, speed - gamma)
+    judged = (~prev.steady[rows] | ((rows > 0) & (rows < m - 1))) & (lim > 0.0)
+    r_idx, c_idx = np.nonzero(judged[:, None] & np.isfinite(dist))
+    if r_idx.size == 0:
+        return out
+    p = points[cand[r_idx, c_idx]]  # (P, 3)
+    dx = p[:, None, 0] - q[None, :, 0]
+    dy = p[:, None, 1] - q[None, :, 1]
+    dz = p[:, None, 2] - q[None, :, 2]
+    near = (dx * dx + dy * dy + dz * dz) < (lim[r_idx] * lim[r_idx])[:, None]
+    out[r_idx, c_idx] = near.any(axis=1)
+    return out
+
+
 def _match(
     tree: _FrameTree,
     t: int,
@@ -252,11 +307,14 @@ def _match(
     points: np.ndarray,
     gate: float | None = None,
     spacing: np.ndarray | None = None,
+    follow: _Previous | None = None,
 ) -> bool:
     """Match the traces ``rows`` to free points of frame t within γ of ``pred``, in place.
 
     Points already taken this frame are skipped; conflicts are resolved one-to-one
-    (:func:`~skincap.tracking.init.gated_assignment`). Returns True if any matched.
+    (:func:`~skincap.tracking.init.gated_assignment`). With ``follow``, points that
+    continue another object (:func:`_follows_other`) are skipped too. Returns True
+    if any matched.
     """
     if rows.size == 0:
         return False
@@ -266,6 +324,8 @@ def _match(
     d, i = tree.query(t, pred[rows], kk, gate)
     if n_taken:
         d = np.where(np.isin(i, taken[known]), np.inf, d)
+    if follow is not None:
+        d = np.where(_follows_other(follow, rows, pred, i, d, points, gamma), np.inf, d)
     if spacing is not None:
         # the chord to each measured neighbour within γ of its rest spacing
         m = known.size
@@ -512,7 +572,24 @@ def _track_numpy(
         if k > 0:
             # ---- pass 1: measured traces at V, then at V corrected by the
             # residuals of the traces found (beyond the thesis)
-            _match(tree, t, np.nonzero(active)[0], v_pred, k, gamma, cur, known, taken, points)
+            a0, a1 = int(cloud.offsets[t - 1]), int(cloud.offsets[t])
+            untaken = np.ones(a1 - a0, dtype=bool)
+            mine = point_index[t - 1]
+            untaken[mine[(mine >= a0) & (mine < a1)] - a0] = False
+            follow = _Previous(points[a0:a1], untaken, prev, active) if _FOLLOW else None
+            _match(
+                tree,
+                t,
+                np.nonzero(active)[0],
+                v_pred,
+                k,
+                gamma,
+                cur,
+                known,
+                taken,
+                points,
+                follow=follow,
+            )
             _reject_overstretched(cur, known, taken, s, gamma)
             _reject_odd_motion(cur, prev, known, taken, gamma)
             tried = v_pred
@@ -539,6 +616,7 @@ def _track_numpy(
                     points,
                     gate=_WIDE_GATE * gamma,
                     spacing=spacing,
+                    follow=follow,
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma)
@@ -569,6 +647,7 @@ def _track_numpy(
                     points,
                     gate=_WIDE_GATE * gamma,
                     spacing=spacing,
+                    follow=follow,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma)
                 _reject_odd_motion(cur, prev, known, taken, gamma)
@@ -671,7 +750,7 @@ def track_rope(
             t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
             track_frames(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
-                int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE,
+                int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
