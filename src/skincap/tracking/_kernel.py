@@ -404,12 +404,14 @@ def _reject_overstretched(cur, known, taken, s, gamma, stretch):  # pragma: no c
 
 
 @numba.njit(**_JIT)
-def _reject_odd_motion(cur, prev, known, taken, limit):  # pragma: no cover - runs compiled
+def _reject_odd_motion(cur, prev, known, taken, limit, steady):  # pragma: no cover - runs compiled
     """As the reference: refuse an inner marker that does not move with its neighbours."""
     m = known.size
     odd = np.zeros(m, np.bool_)
     for j in range(1, m - 1):
         if not (known[j] and known[j - 1] and known[j + 1]):
+            continue
+        if not steady[j]:
             continue
         e = np.empty(3)
         for c in range(3):
@@ -696,7 +698,7 @@ def track_frames(
                 follow,
             )
             _reject_overstretched(cur, known, taken, s, gamma, stretch)
-            _reject_odd_motion(cur, prev, known, taken, gamma)
+            _reject_odd_motion(cur, prev, known, taken, gamma, active)
             tried = v_pred.copy()
             for _ in range(rounds):
                 found = known & active
@@ -738,7 +740,7 @@ def track_frames(
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
-                _reject_odd_motion(cur, prev, known, taken, gamma)
+                _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 for j in range(m):
                     if want[j]:
                         tried[j] = pred[j]
@@ -783,7 +785,7 @@ def track_frames(
                     follow,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
-                _reject_odd_motion(cur, prev, known, taken, gamma)
+                _reject_odd_motion(cur, prev, known, taken, gamma, active)
         swapped = False
         if k > 0 and known.sum() >= 3:
             swapped = _check_on_curve(points, a, b, k, gamma, s, cur, known, taken)

@@ -224,15 +224,23 @@ def _reject_overstretched(
 
 
 def _reject_odd_motion(
-    cur: np.ndarray, prev: np.ndarray, known: np.ndarray, taken: np.ndarray, limit: float
+    cur: np.ndarray,
+    prev: np.ndarray,
+    known: np.ndarray,
+    taken: np.ndarray,
+    limit: float,
+    steady: np.ndarray,
 ) -> None:
     """Refuse taken points that do not move with the rope (beyond the thesis), in place.
 
     A marker whose two neighbours are measured moves, frame to frame, within
     ``limit`` of the mean of their moves (the rope is smooth); a point that does not
-    belongs to something else (a body marker sitting on the rope's path).
+    belongs to something else (a body marker sitting on the rope's path). Only
+    ``steady`` markers (measured in the previous frame) are judged: one coming back
+    from a gap "moves" by the error of its invented position, which says nothing
+    about the point (those are judged by :func:`_follows_other`).
     """
-    inner = known[1:-1] & known[:-2] & known[2:]
+    inner = known[1:-1] & known[:-2] & known[2:] & steady[1:-1]
     if not inner.any():
         return
     move = cur - prev
@@ -591,7 +599,7 @@ def _track_numpy(
                 follow=follow,
             )
             _reject_overstretched(cur, known, taken, s, gamma)
-            _reject_odd_motion(cur, prev, known, taken, gamma)
+            _reject_odd_motion(cur, prev, known, taken, gamma, active)
             tried = v_pred
             for _ in range(_ROUNDS):
                 found = known & active
@@ -620,7 +628,7 @@ def _track_numpy(
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma)
-                _reject_odd_motion(cur, prev, known, taken, gamma)
+                _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 tried = np.where(want[:, None], pred, tried)
         new_count = np.where(known, 0, temp_count + 1)
         pred = prev + velocity
@@ -650,7 +658,7 @@ def _track_numpy(
                     follow=follow,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma)
-                _reject_odd_motion(cur, prev, known, taken, gamma)
+                _reject_odd_motion(cur, prev, known, taken, gamma, active)
         swapped = False
         if k > 0 and known.sum() >= 3:
             swapped = _check_on_curve(tree, t, k, gamma, s, cur, known, taken, points, loo_weights)
