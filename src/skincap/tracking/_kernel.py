@@ -258,6 +258,47 @@ def _follows_other(points, pa, pb, prev_taken, p, pred, last, gamma):  # pragma:
 
 
 @numba.njit(**_JIT)
+def _body_chains(points, pa, a, b, body, body_vel, rope_pred, n_rope, eps):  # pragma: no cover
+    """As the reference ``_body_chains``: flag frame [a, b)'s points continuing the body
+    points of frame [pa, a) (``body``/``body_vel`` are global, written in place)."""
+    eps2 = eps * eps
+    nq = a - pa
+    q_count = np.zeros(nq, np.int64)
+    p_q = np.full(b - a, -1, np.int64)
+    p_count = np.zeros(b - a, np.int64)
+    for p in range(a, b):
+        body[p] = False
+        for c in range(3):
+            body_vel[p, c] = 0.0
+        for q in range(pa, a):
+            if not body[q]:
+                continue
+            ex = points[p, 0] - (points[q, 0] + body_vel[q, 0])
+            ey = points[p, 1] - (points[q, 1] + body_vel[q, 1])
+            ez = points[p, 2] - (points[q, 2] + body_vel[q, 2])
+            if ex * ex + ey * ey + ez * ez < eps2:
+                p_count[p - a] += 1
+                q_count[q - pa] += 1
+                p_q[p - a] = q
+    for p in range(a, b):
+        if p_count[p - a] != 1 or q_count[p_q[p - a] - pa] != 1:
+            continue
+        near_rope = False
+        for r in range(n_rope):
+            ex = points[p, 0] - rope_pred[r, 0]
+            ey = points[p, 1] - rope_pred[r, 1]
+            ez = points[p, 2] - rope_pred[r, 2]
+            if ex * ex + ey * ey + ez * ez < eps2:
+                near_rope = True
+        if near_rope:
+            continue
+        q = p_q[p - a]
+        body[p] = True
+        for c in range(3):
+            body_vel[p, c] = points[p, c] - points[q, c]
+
+
+@numba.njit(**_JIT)
 def _match(
     points,
     a,
@@ -278,6 +319,7 @@ def _match(
     prev,
     steady,
     follow,
+    body,
 ):  # pragma: no cover
     """As the reference ``_match``: rows to free points of the frame within the gate."""
     r_n = rows.size
@@ -298,6 +340,12 @@ def _match(
             for c in range(kk):
                 if d[r, c] < _INF and _is_taken(ii[r, c], known, taken):
                     d[r, c] = _INF
+    for r in range(r_n):
+        if steady[rows[r]]:
+            continue
+        for c in range(kk):
+            if d[r, c] < _INF and body[ii[r, c]]:
+                d[r, c] = _INF
     if follow:
         for r in range(r_n):
             row = rows[r]
@@ -662,9 +710,13 @@ def track_frames(
     lost_frames,
     velocity,
     temp_count,
+    chain,
+    body,
+    body_vel,
 ):  # pragma: no cover - runs compiled
     """Track frames ``t0 … t1 - 1`` (t0 >= 1), updating the output arrays and the state
-    (``velocity``, ``temp_count``) in place, as the NumPy loop of ``track_rope``."""
+    (``velocity``, ``temp_count``, the body chains ``body``/``body_vel`` over all
+    points) in place, as the NumPy loop of ``track_rope``."""
     m = temp_count.size
     for t in range(t0, t1):
         prev = positions[t - 1]
@@ -674,6 +726,13 @@ def track_frames(
         a, b = offsets[t], offsets[t + 1]
         k = min(n_cand, b - a)
         v_pred = prev + velocity
+        rope_pred = np.empty((m, 3))
+        n_rope = 0
+        for j in range(m):
+            if point_index[t - 1, j] >= 0:
+                rope_pred[n_rope] = v_pred[j]
+                n_rope += 1
+        _body_chains(points, offsets[t - 1], a, b, body, body_vel, rope_pred, n_rope, chain * gamma)
         active = temp_count == 0
         if k > 0:
             _match(
@@ -696,6 +755,7 @@ def track_frames(
                 prev,
                 active,
                 follow,
+                body,
             )
             _reject_overstretched(cur, known, taken, s, gamma, stretch)
             _reject_odd_motion(cur, prev, known, taken, gamma, active)
@@ -737,6 +797,7 @@ def track_frames(
                     prev,
                     active,
                     follow,
+                    body,
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
@@ -783,6 +844,7 @@ def track_frames(
                     prev,
                     active,
                     follow,
+                    body,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)

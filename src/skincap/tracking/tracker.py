@@ -35,6 +35,14 @@ Beyond the thesis:
 * A point that continues a point of the previous frame that the rope did not take,
   moving slower than the rope by more than γ, is a body marker beside a fast rope:
   traces coming back from a gap, and inner traces, do not take it.
+* Body chains: every point of frame 0 the rope does not take is a body point (the user
+  selected the rope there); a point that continues a body point of the previous frame
+  (the only point within ``γ / 3`` of where that point's velocity takes it, and that
+  point the only one near it, and no trace measured there predicted near it) is a
+  body point too. A trace coming back from a gap (or never seen) does not take a
+  body point. This keeps the traces of markers hidden in the initialisation window,
+  invented on the curve beside the legs, off the leg markers while the rope hangs
+  still and no motion test can tell the two apart.
 * Traces that break the rope's length (two measured markers farther apart than the
   rope between them) are resolved by keeping the largest consistent chain (a trace
   that slipped onto its neighbour's marker is dropped), and a trace that sits more
@@ -72,6 +80,9 @@ _ROUNDS = 3
 _WIDE_GATE = 2.0
 #: Refuse candidates that continue a point the rope did not take (:func:`_follows_other`).
 _FOLLOW = True
+#: Gate of the body chains (:func:`_body_chains`), in γ: a point continues a body point
+#: of the previous frame when it lies this close to where that point's velocity takes it.
+_CHAIN = 1.0 / 3.0
 
 
 @dataclass(eq=False)
@@ -302,6 +313,66 @@ def _follows_other(
     return out
 
 
+def _body_chains(
+    prev_points: np.ndarray,
+    prev_body: np.ndarray,
+    prev_vel: np.ndarray,
+    points: np.ndarray,
+    rope_pred: np.ndarray,
+    eps: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Body points of a frame, by continuity with the previous frame's (beyond the thesis).
+
+    Parameters
+    ----------
+    prev_points : (P, 3) float64, metres
+        The previous frame's points.
+    prev_body : (P,) bool
+        Which of them are body points.
+    prev_vel : (P, 3) float64, metres per frame
+        Their last displacement (zero where a chain starts).
+    points : (N, 3) float64, metres
+        This frame's points.
+    rope_pred : (R, 3) float64, metres
+        Where the traces measured in the previous frame are predicted now (V): a point
+        near one of them is ambiguous and not a body point (a hand marker hidden
+        beside the rope's end does not pass its chain to the rope).
+    eps : float, metres
+        Gate around the predicted position ``q + v`` of each previous body point.
+
+    Returns
+    -------
+    body : (N,) bool
+        The points that are the only one within ``eps`` of a previous body point's
+        prediction which itself is the only prediction (body or rope) within ``eps``
+        of them.
+    vel : (N, 3) float64, metres per frame
+        Their displacement from that point (zero elsewhere).
+    """
+    n = points.shape[0]
+    body = np.zeros(n, dtype=bool)
+    vel = np.zeros((n, 3))
+    qi = np.nonzero(prev_body)[0]
+    if qi.size == 0 or n == 0:
+        return body, vel
+    pred = prev_points[qi] + prev_vel[qi]
+    dx = points[:, None, 0] - pred[None, :, 0]
+    dy = points[:, None, 1] - pred[None, :, 1]
+    dz = points[:, None, 2] - pred[None, :, 2]
+    near = (dx * dx + dy * dy + dz * dz) < eps * eps  # (N, Q)
+    single = near.sum(axis=1) == 1
+    if rope_pred.shape[0]:
+        ex = points[:, None, 0] - rope_pred[None, :, 0]
+        ey = points[:, None, 1] - rope_pred[None, :, 1]
+        ez = points[:, None, 2] - rope_pred[None, :, 2]
+        single &= ~((ex * ex + ey * ey + ez * ez) < eps * eps).any(axis=1)
+    ok = near & single[:, None] & (near.sum(axis=0) == 1)[None, :]
+    p_idx, q_col = np.nonzero(ok)
+    body[p_idx] = True
+    vel[p_idx] = points[p_idx] - prev_points[qi[q_col]]
+    return body, vel
+
+
 def _match(
     tree: _FrameTree,
     t: int,
@@ -316,13 +387,17 @@ def _match(
     gate: float | None = None,
     spacing: np.ndarray | None = None,
     follow: _Previous | None = None,
+    body: np.ndarray | None = None,
+    body_steady: np.ndarray | None = None,
 ) -> bool:
     """Match the traces ``rows`` to free points of frame t within γ of ``pred``, in place.
 
     Points already taken this frame are skipped; conflicts are resolved one-to-one
     (:func:`~skincap.tracking.init.gated_assignment`). With ``follow``, points that
-    continue another object (:func:`_follows_other`) are skipped too. Returns True
-    if any matched.
+    continue another object (:func:`_follows_other`) are skipped too; with ``body``
+    ((cloud points,) bool) and ``body_steady`` ((M,) bool: traces measured in the
+    previous frame), the body points (:func:`_body_chains`) are skipped by the traces
+    that are not steady. Returns True if any matched.
     """
     if rows.size == 0:
         return False
@@ -332,6 +407,9 @@ def _match(
     d, i = tree.query(t, pred[rows], kk, gate)
     if n_taken:
         d = np.where(np.isin(i, taken[known]), np.inf, d)
+    if body is not None and body_steady is not None:
+        off = body[np.minimum(i, points.shape[0] - 1)] & ~body_steady[rows][:, None]
+        d = np.where(off, np.inf, d)
     if follow is not None:
         d = np.where(_follows_other(follow, rows, pred, i, d, points, gamma), np.inf, d)
     if spacing is not None:
@@ -552,13 +630,17 @@ def _track_numpy(
     lost_frames: np.ndarray,
     velocity: np.ndarray,
     temp_count: np.ndarray,
+    body: np.ndarray,
+    body_vel: np.ndarray,
     progress: Callable[[float], object] | None,
     every: int,
 ) -> None:
     """The per-frame loop of :func:`track_rope` in NumPy (the reference), in place.
 
     Frame 0 of the output arrays is filled; ``velocity`` (M, 3) and ``temp_count``
-    (M,) are the state after frame 0.
+    (M,) are the state after frame 0; ``body`` (cloud points,) bool and ``body_vel``
+    (cloud points, 3) hold frame 0's body points (:func:`_body_chains`) and are
+    filled frame by frame.
     """
     t_frames, m = cloud.n_frames, init.n_markers
     gamma = init.gamma
@@ -575,12 +657,20 @@ def _track_numpy(
         taken = np.full(m, -1, dtype=np.int64)
         n_t = int(cloud.offsets[t + 1] - cloud.offsets[t])
         k = min(k_cand, n_t)
+        a0, a1, a2 = int(cloud.offsets[t - 1]), int(cloud.offsets[t]), int(cloud.offsets[t + 1])
         v_pred = prev + velocity  # V (eqs. 3.1-3.2)
+        body[a1:a2], body_vel[a1:a2] = _body_chains(
+            points[a0:a1],
+            body[a0:a1],
+            body_vel[a0:a1],
+            points[a1:a2],
+            v_pred[point_index[t - 1] >= 0],
+            _CHAIN * gamma,
+        )
         active = temp_count == 0
         if k > 0:
             # ---- pass 1: measured traces at V, then at V corrected by the
             # residuals of the traces found (beyond the thesis)
-            a0, a1 = int(cloud.offsets[t - 1]), int(cloud.offsets[t])
             untaken = np.ones(a1 - a0, dtype=bool)
             mine = point_index[t - 1]
             untaken[mine[(mine >= a0) & (mine < a1)] - a0] = False
@@ -597,6 +687,8 @@ def _track_numpy(
                 taken,
                 points,
                 follow=follow,
+                body=body,
+                body_steady=active,
             )
             _reject_overstretched(cur, known, taken, s, gamma)
             _reject_odd_motion(cur, prev, known, taken, gamma, active)
@@ -625,6 +717,8 @@ def _track_numpy(
                     gate=_WIDE_GATE * gamma,
                     spacing=spacing,
                     follow=follow,
+                    body=body,
+                    body_steady=active,
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma)
@@ -656,6 +750,8 @@ def _track_numpy(
                     gate=_WIDE_GATE * gamma,
                     spacing=spacing,
                     follow=follow,
+                    body=body,
+                    body_steady=active,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
@@ -747,6 +843,11 @@ def track_rope(
     invented[0] = ~seen0
     velocity = np.zeros((m, 3))  # v^{i-1} Δt: last per-frame displacement (eq. 3.2)
     temp_count = (~seen0).astype(np.int64)  # consecutive temporary markers
+    # frame 0's points the rope does not take are body points (the user's selection)
+    body = np.zeros(points.shape[0], dtype=bool)
+    body_vel = np.zeros((points.shape[0], 3))
+    body[cloud.offsets[0] : cloud.offsets[1]] = True
+    body[cloud.offsets[0] + init.indices[seen0]] = False
     every = max(1, t_frames // 100)
     if _resolve_backend(backend) == "numba":
         from skincap.tracking._kernel import track_frames
@@ -760,6 +861,7 @@ def track_rope(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
                 int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
+                _CHAIN, body, body_vel,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
                 progress((t1 - 1) / t_frames)
@@ -767,7 +869,7 @@ def track_rope(
     else:
         _track_numpy(
             cloud, init, s, positions, invented, point_index, lost_frames, velocity, temp_count,
-            progress, every,
+            body, body_vel, progress, every,
         )  # fmt: skip
     if progress is not None:
         progress(1.0)
