@@ -155,3 +155,35 @@ def test_a_point_that_continues_a_slow_object_is_refused() -> None:
     end_prev = _Previous(prev.points, prev.untaken, rope_prev, np.array([True, True, True]))
     ends = np.array([[0.0, 0.32, 0.0], [0.12, 0, 0], [0.24, 0, 0]])
     assert not _follows_other(end_prev, np.array([0]), ends, cand, dist, points, gamma).any()
+
+
+def test_body_chains_continue_unambiguous_body_points_only() -> None:
+    from skincap.tracking.tracker import _body_chains
+
+    prev = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0], [1.0, 0.0, 0.0], [1.004, 0.0, 0.0]])
+    prev_body = np.array([True, False, True, True])
+    prev_vel = np.array([[0.01, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    pts = np.array(
+        [
+            [0.011, 0.0, 0.0],  # continues point 0 by its velocity
+            [0.5, 0.0, 0.0],  # continues a point that was not body
+            [1.002, 0.0, 0.0],  # near two body predictions: ambiguous
+            [2.0, 0.0, 0.0],  # new
+        ]
+    )
+    body, vel = _body_chains(prev, prev_body, prev_vel, pts, np.zeros((0, 3)), 0.01)
+    np.testing.assert_array_equal(body, [True, False, False, False])
+    np.testing.assert_allclose(vel[0], [0.011, 0.0, 0.0])
+    assert not vel[1:].any()
+    # a measured trace predicted beside it makes it ambiguous too
+    body, _ = _body_chains(prev, prev_body, prev_vel, pts, np.array([[0.012, 0.0, 0.0]]), 0.01)
+    assert not body.any()
+    pytest.importorskip("numba")
+    from skincap.tracking._kernel import _body_chains as kernel_chains
+
+    allp = np.concatenate([prev, pts])
+    gbody = np.concatenate([prev_body, np.zeros(4, dtype=bool)])
+    gvel = np.concatenate([prev_vel, np.zeros((4, 3))])
+    kernel_chains(allp, 0, 4, 8, gbody, gvel, np.zeros((1, 3)), 0, 0.01)
+    np.testing.assert_array_equal(gbody[4:], [True, False, False, False])
+    np.testing.assert_allclose(gvel[4], [0.011, 0.0, 0.0])
