@@ -266,13 +266,30 @@ def _body_chains(points, pa, a, b, body, body_vel, rope_pred, n_rope, eps):  # p
     q_count = np.zeros(nq, np.int64)
     p_q = np.full(b - a, -1, np.int64)
     p_count = np.zeros(b - a, np.int64)
+    # the previous body points' predictions sorted by x: only those within eps in x
+    n_body = 0
+    for q in range(pa, a):
+        if body[q]:
+            n_body += 1
+    qs = np.empty(n_body, np.int64)
+    n_body = 0
+    for q in range(pa, a):
+        if body[q]:
+            qs[n_body] = q
+            n_body += 1
+    px = np.empty(n_body)
+    for r in range(n_body):
+        px[r] = points[qs[r], 0] + body_vel[qs[r], 0]
+    order = np.argsort(px)
+    xs = px[order]
     for p in range(a, b):
         body[p] = False
         for c in range(3):
             body_vel[p, c] = 0.0
-        for q in range(pa, a):
-            if not body[q]:
-                continue
+        lo = np.searchsorted(xs, points[p, 0] - eps)
+        hi = np.searchsorted(xs, points[p, 0] + eps, side="right")
+        for r in range(lo, hi):
+            q = qs[order[r]]
             ex = points[p, 0] - (points[q, 0] + body_vel[q, 0])
             ey = points[p, 1] - (points[q, 1] + body_vel[q, 1])
             ez = points[p, 2] - (points[q, 2] + body_vel[q, 2])
