@@ -617,6 +617,42 @@ def _neighbour_velocity(known, velocity, fallback):  # pragma: no cover - runs c
 
 
 @numba.njit(**_JIT)
+def _zipper(cur, known, spacing, inner, quad):  # pragma: no cover - runs compiled
+    """As the reference ``_zipper_predictions``: (rows, (M, 3) predictions)."""
+    m = known.size
+    pred = np.zeros((m, 3))
+    want = np.zeros(m, np.bool_)
+    if m < 4:
+        return np.nonzero(want)[0], pred
+    before, after = _side(known)
+    for j in range(1, m - 1):
+        if known[j] or (inner and (before[j] < 0 or after[j] >= m)):
+            continue
+        for step in (-1, 1):
+            j1, j2, j3 = j + step, j + 2 * step, j + 3 * step
+            if not (0 <= j2 < m and known[j1] and known[j2]):
+                continue
+            jo = j - step
+            if 0 <= jo < m and known[jo]:
+                continue
+            third = quad and 0 <= j3 < m and known[j3]
+            e = np.empty(3)
+            for c in range(3):
+                if third:
+                    e[c] = 3.0 * cur[j1, c] - 3.0 * cur[j2, c] + cur[j3, c]
+                else:
+                    e[c] = 2.0 * cur[j1, c] - cur[j2, c]
+                e[c] -= cur[j1, c]
+            norm = _norm3(e[0], e[1], e[2])
+            if norm > 0:
+                rest = spacing[min(j, j1)]
+                for c in range(3):
+                    pred[j, c] = cur[j1, c] + (rest / norm) * e[c]
+                want[j] = True
+    return np.nonzero(want)[0], pred
+
+
+@numba.njit(**_JIT)
 def _predict_end(cur, prev, v_tilde, temp_count, spacing, j, step):  # pragma: no cover
     m = cur.shape[0]
     j1, j2, j3 = j + step, j + 2 * step, j + 3 * step
@@ -730,6 +766,9 @@ def track_frames(
     chain,
     body,
     body_vel,
+    zip_rounds,
+    zip_inner,
+    zip_quad,
 ):  # pragma: no cover - runs compiled
     """Track frames ``t0 … t1 - 1`` (t0 >= 1), updating the output arrays and the state
     (``velocity``, ``temp_count``, the body chains ``body``/``body_vel`` over all
@@ -865,6 +904,34 @@ def track_frames(
                 )
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
+                for _ in range(zip_rounds):
+                    rows, zpred = _zipper(cur, known, spacing, zip_inner, zip_quad)
+                    if rows.size == 0 or not _match(
+                        points,
+                        a,
+                        b,
+                        rows,
+                        zpred,
+                        k,
+                        gamma,
+                        cur,
+                        known,
+                        taken,
+                        wide * gamma,
+                        spacing,
+                        True,
+                        offsets[t - 1],
+                        a,
+                        point_index[t - 1],
+                        prev,
+                        active,
+                        follow,
+                        body,
+                    ):
+                        break
+                    found_more = True
+                    _reject_overstretched(cur, known, taken, s, gamma, stretch)
+                    _reject_odd_motion(cur, prev, known, taken, gamma, active)
         swapped = False
         if k > 0 and known.sum() >= 3:
             swapped = _check_on_curve(points, a, b, k, gamma, s, cur, known, taken)

@@ -83,6 +83,11 @@ _FOLLOW = True
 #: Gate of the body chains (:func:`_body_chains`), in γ: a point continues a body point
 #: of the previous frame when it lies this close to where that point's velocity takes it.
 _CHAIN = 1.0 / 3.0
+#: Rounds of the zipper (:func:`_zipper_predictions`): a run of invented inner markers
+#: is searched from its measured ends inward, one marker per side and round.
+_ZIP = 3
+_ZIP_INNER = True
+_ZIP_QUAD = True
 
 
 @dataclass(eq=False)
@@ -440,6 +445,69 @@ def _match(
     return True
 
 
+def _zipper_predictions(
+    cur: np.ndarray, known: np.ndarray, spacing: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where the ends of runs of unknown markers continue the rope (beyond the thesis).
+
+    The curve through the measured markers bridges a long run of unknown markers
+    badly (a whip's wave, a rope lifting off the floor), and so does F at a bent
+    end: the prediction falls far from markers that are in plain view. An unknown
+    marker ``j`` (not an end of the rope) with two measured markers on one side
+    (``j - 1`` and ``j - 2``, or ``j + 1`` and ``j + 2``) and an unknown neighbour on
+    the other is predicted by continuing the measured side, bending as it bends
+    when a third measured marker follows (quadratic extrapolation, else straight on
+    as the thesis' N, eq. 3.5), at the rest spacing from its neighbour::
+
+        e = 3 m_{j-1} - 3 m_{j-2} + m_{j-3}   (or 2 m_{j-1} - m_{j-2})
+        x_j = m_{j-1} + l * (e - m_{j-1}) / |e - m_{j-1}|
+
+    Parameters
+    ----------
+    cur : (M, 3) float64, metres
+        The markers; only the measured ones are read.
+    known : (M,) bool
+        Measured this frame.
+    spacing : (M - 1,) float64, metres
+        Rest spacings ``l_j``.
+
+    Returns
+    -------
+    rows : (R,) int64
+        The markers predicted.
+    pred : (M, 3) float64, metres
+        Their predictions (zero elsewhere).
+    """
+    m = known.size
+    pred = np.zeros((m, 3))
+    if m < 4:
+        return np.zeros(0, dtype=np.int64), pred
+    ar = np.arange(m)
+    pad = np.concatenate([[False] * 3, known, [False] * 3])
+    k_m3, k_m2, k_m1 = pad[ar], pad[ar + 1], pad[ar + 2]
+    k_p1, k_p2, k_p3 = pad[ar + 4], pad[ar + 5], pad[ar + 6]
+    body = ~known & (ar > 0) & (ar < m - 1)
+    if _ZIP_INNER:
+        before, after = _side_neighbours(known)
+        body &= (before >= 0) & (after < m)
+    lo = body & k_m1 & k_m2 & ~k_p1
+    hi = body & k_p1 & k_p2 & ~k_m1
+    for side, step, third in ((lo, -1, k_m3), (hi, 1, k_p3)):
+        j = np.nonzero(side)[0]
+        if j.size == 0:
+            continue
+        a, b = cur[j + step], cur[j + 2 * step]
+        c = cur[np.clip(j + 3 * step, 0, m - 1)]
+        e = np.where((third[j] & _ZIP_QUAD)[:, None], 3.0 * a - 3.0 * b + c, 2.0 * a - b)
+        d = e - a
+        norm = np.linalg.norm(d, axis=1)
+        rest = spacing[np.minimum(j, j + step)]
+        ok = norm > 0
+        pred[j[ok]] = a[ok] + (rest[ok] / norm[ok])[:, None] * d[ok]
+        side[j[~ok]] = False
+    return np.nonzero(lo | hi)[0], pred
+
+
 def _interp_along(known: np.ndarray, values: np.ndarray, s: np.ndarray) -> np.ndarray:
     """(M, 3) ``values`` of the known markers, interpolated linearly in rest arc length.
 
@@ -755,6 +823,30 @@ def _track_numpy(
                 )
                 _reject_overstretched(cur, known, taken, s, gamma)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
+                # ---- the zipper: runs of inner markers from their measured ends
+                for _ in range(_ZIP):
+                    rows, zpred = _zipper_predictions(cur, known, spacing)
+                    if rows.size == 0 or not _match(
+                        tree,
+                        t,
+                        rows,
+                        zpred,
+                        k,
+                        gamma,
+                        cur,
+                        known,
+                        taken,
+                        points,
+                        gate=_WIDE_GATE * gamma,
+                        spacing=spacing,
+                        follow=follow,
+                        body=body,
+                        body_steady=active,
+                    ):
+                        break
+                    found_more = True
+                    _reject_overstretched(cur, known, taken, s, gamma)
+                    _reject_odd_motion(cur, prev, known, taken, gamma, active)
         swapped = False
         if k > 0 and known.sum() >= 3:
             swapped = _check_on_curve(tree, t, k, gamma, s, cur, known, taken, points, loo_weights)
@@ -861,7 +953,7 @@ def track_rope(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
                 int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
-                _CHAIN, body, body_vel,
+                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
                 progress((t1 - 1) / t_frames)
