@@ -187,3 +187,51 @@ def test_body_chains_continue_unambiguous_body_points_only() -> None:
     kernel_chains(allp, 0, 4, 8, gbody, gvel, np.zeros((1, 3)), 0, 0.01)
     np.testing.assert_array_equal(gbody[4:], [True, False, False, False])
     np.testing.assert_allclose(gvel[4], [0.011, 0.0, 0.0])
+
+
+def test_zipper_continues_the_measured_side_of_a_run_at_the_rest_spacing() -> None:
+    from skincap.tracking.tracker import _zipper_predictions
+
+    # 9 markers on a circle of radius 1 (0.2 rad apart): markers 3, 4 and 5 unknown
+    m, r, step = 9, 1.0, 0.2
+    ang = step * np.arange(m)
+    cur = np.stack([r * np.cos(ang), r * np.sin(ang), np.zeros(m)], axis=1)
+    chord = 2 * r * np.sin(step / 2)
+    spacing = np.full(m - 1, chord)
+    known = np.ones(m, dtype=bool)
+    known[3:6] = False
+    rows, pred = _zipper_predictions(cur, known, spacing)
+    # the run's ends, from their measured sides; the middle waits for the next round
+    np.testing.assert_array_equal(rows, [3, 5])
+    # three measured markers on each side: bent as the rope bends, at the rest spacing
+    np.testing.assert_allclose(np.linalg.norm(pred[3] - cur[2]), chord)
+    np.testing.assert_allclose(np.linalg.norm(pred[5] - cur[6]), chord)
+    assert np.linalg.norm(pred[3] - cur[3]) < 0.002 and np.linalg.norm(pred[5] - cur[5]) < 0.002
+    assert not pred[[0, 1, 2, 4, 6, 7, 8]].any()
+    # two measured markers only (marker 1 unknown too): straight on, as the thesis' N
+    known[1] = False
+    rows, pred = _zipper_predictions(cur, known, spacing)
+    np.testing.assert_array_equal(rows, [5])  # 3 has one measured marker before it
+    known[1], known[0] = True, False
+    rows, pred = _zipper_predictions(cur, known, spacing)
+    np.testing.assert_array_equal(rows, [3, 5])
+    straight = cur[2] + chord * (cur[2] - cur[1]) / np.linalg.norm(cur[2] - cur[1])
+    np.testing.assert_allclose(pred[3], straight)
+    # a run at the end of the rope is left to F; a single unknown marker to the curve
+    known = np.ones(m, dtype=bool)
+    known[5:] = False
+    assert _zipper_predictions(cur, known, spacing)[0].size == 0
+    known = np.ones(m, dtype=bool)
+    known[4] = False
+    assert _zipper_predictions(cur, known, spacing)[0].size == 0
+    pytest.importorskip("numba")
+    from skincap.tracking._kernel import _zipper
+
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        known = rng.random(m) < 0.6
+        pts = rng.normal(size=(m, 3))
+        rows, pred = _zipper_predictions(pts, known, spacing)
+        krows, kpred = _zipper(pts, known, spacing, True, True)
+        np.testing.assert_array_equal(krows, rows)
+        np.testing.assert_allclose(kpred, pred, atol=1e-12)
