@@ -217,3 +217,61 @@ def test_anchored_fill_one_sided_gap_takes_the_end_offset():
     err_f = np.linalg.norm(free[170:, 0] - truth[170:, 0], axis=1)
     assert err_a[0] < 0.001 and err_a[0] < 0.2 * err_f[0]
     assert err_a.max() < err_f.max()
+
+
+def test_rigid_weights_follow_each_gaps_spreads():
+    from skincap.cleanup.fill import _rigid_weights
+
+    missing = np.zeros((10, 3), dtype=bool)
+    missing[2:5, 0] = True
+    missing[3:8, 1] = True
+    missing[1:3, 2] = True
+    sp = np.full((10, 3), np.nan)
+    sr = np.full((10, 3), np.nan)
+    sp[2:5, 0], sr[2:5, 0] = 0.0, 0.01  # the PCA fill agrees with itself: PCA alone
+    sp[3:8, 1] = [0.001, 0.002, 0.003, 0.004, 0.005]  # mean 0.003 over the gap
+    sr[3:8, 1] = 0.004  # weight of rigid 0.003² / (0.003² + 0.004²) = 0.36
+    # marker 2 has no spreads (a one-sided gap): half and half
+    w = _rigid_weights(missing, missing, sp, sr, None)
+    _, nn = np.nonzero(missing)
+    np.testing.assert_allclose(w, np.select([nn == 0, nn == 1], [0.0, 0.36], 0.5))
+    np.testing.assert_allclose(_rigid_weights(missing, missing, sp, sr, 0.25), 0.25)
+
+
+def test_spreads_measure_what_one_side_cannot_explain():
+    from skincap.cleanup.fill import fill_local_pca, fill_rigid
+
+    nb = (np.arange(9) * 7, np.array([j for i in range(8) for j in range(8) if j != i]))
+    s, e = 120, 170
+    for truth, lo, hi in ((_rigid_cluster(200), 0.0, 1e-9), (_drifting_cluster(), 0.008, 0.014)):
+        pos = truth.copy()
+        pos[s:e, 0] = np.nan
+        target = np.isnan(pos[..., 0])
+        for fill in (fill_rigid, fill_local_pca):
+            spread = np.full(target.shape, np.nan)
+            fill(pos, target, nb, spread=spread)
+            assert np.isfinite(spread[target]).all() and np.isnan(spread[~target]).all()
+            # the drifting marker slides 11 mm along the cluster between the gap's ends
+            assert lo <= spread[target].mean() <= hi, (fill.__name__, spread[target].mean())
+
+
+def test_rigid_blend_extremes_and_validation(take):
+    markers, truth = take
+    nb = motion_neighbours(markers.positions)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        pure, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=0.0)
+        rigid, _ = fill_gaps(markers, method="rigid", neighbours=nb)
+        ones, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=1.0)
+        auto, _ = fill_gaps(markers, method="local_pca", neighbours=nb)
+    miss = markers.missing & ~np.isnan(rigid[..., 0]) & ~np.isnan(pure[..., 0])
+    np.testing.assert_allclose(ones[miss], rigid[miss])
+    # the adaptive fill lies on the segment between the two fills
+    a, b, c = pure[miss], auto[miss], rigid[miss]
+    np.testing.assert_allclose(
+        np.linalg.norm(b - a, axis=1) + np.linalg.norm(c - b, axis=1),
+        np.linalg.norm(c - a, axis=1),
+        atol=1e-9,
+    )
+    with pytest.raises(ValidationError):
+        fill_gaps(markers, method="local_pca", rigid_blend=1.5)
