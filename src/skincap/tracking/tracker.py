@@ -43,6 +43,12 @@ Beyond the thesis:
   body point. This keeps the traces of markers hidden in the initialisation window,
   invented on the curve beside the legs, off the leg markers while the rope hangs
   still and no motion test can tell the two apart.
+* The zipper: a run of two or more invented markers inside the rope (a whip's wave,
+  a rope lifting off the floor) is badly bridged by the curve, so the markers at the
+  run's ends are also searched where the measured side continues: bent as it bends
+  (quadratic extrapolation through three measured markers, else straight on as N),
+  at the rest spacing, inward one marker per side and round
+  (:func:`_zipper_predictions`).
 * Traces that break the rope's length (two measured markers farther apart than the
   rope between them) are resolved by keeping the largest consistent chain (a trace
   that slipped onto its neighbour's marker is dropped), and a trace that sits more
@@ -86,7 +92,10 @@ _CHAIN = 1.0 / 3.0
 #: Rounds of the zipper (:func:`_zipper_predictions`): a run of invented inner markers
 #: is searched from its measured ends inward, one marker per side and round.
 _ZIP = 3
+#: The zipper only inside the rope (a run at an end of the rope is left to F: with the
+#: end marker hidden among hand markers, continuing the run outward takes them).
 _ZIP_INNER = True
+#: The zipper bends with the measured side (quadratic), not straight on (linear).
 _ZIP_QUAD = True
 
 
@@ -451,13 +460,13 @@ def _zipper_predictions(
     """Where the ends of runs of unknown markers continue the rope (beyond the thesis).
 
     The curve through the measured markers bridges a long run of unknown markers
-    badly (a whip's wave, a rope lifting off the floor), and so does F at a bent
-    end: the prediction falls far from markers that are in plain view. An unknown
-    marker ``j`` (not an end of the rope) with two measured markers on one side
-    (``j - 1`` and ``j - 2``, or ``j + 1`` and ``j + 2``) and an unknown neighbour on
-    the other is predicted by continuing the measured side, bending as it bends
-    when a third measured marker follows (quadratic extrapolation, else straight on
-    as the thesis' N, eq. 3.5), at the rest spacing from its neighbour::
+    badly (a whip's wave, a rope lifting off the floor): the prediction falls far
+    from markers that are in plain view. An unknown marker ``j`` (not an end of the
+    rope; with ``_ZIP_INNER``, only inside the measured part) with two measured
+    markers on one side (``j - 1`` and ``j - 2``, or ``j + 1`` and ``j + 2``) and an
+    unknown neighbour on the other is predicted by continuing the measured side, bending as it bends
+    when a third measured marker follows (quadratic extrapolation with ``_ZIP_QUAD``,
+    else straight on as the thesis' N, eq. 3.5), at the rest spacing from its neighbour::
 
         e = 3 m_{j-1} - 3 m_{j-2} + m_{j-3}   (or 2 m_{j-1} - m_{j-2})
         x_j = m_{j-1} + l * (e - m_{j-1}) / |e - m_{j-1}|
