@@ -149,6 +149,13 @@ def clean(
     method: Annotated[
         str, typer.Option(help=f"Hole filling: {', '.join(FILL_METHODS)}.")
     ] = "local_pca",
+    rigid_blend: Annotated[
+        float | None,
+        typer.Option(
+            help="Local methods: weight of the rigid fill in each filled sample, 0-1 "
+            "(0: the paper's local PCA alone). Default: chosen per gap."
+        ),
+    ] = None,
     reference_frame: Annotated[
         int | None, typer.Option(help="Reference pose frame (default: most markers present).")
     ] = None,
@@ -190,6 +197,8 @@ def clean(
 
         if method not in FILL_METHODS:
             raise FormatError(output, f"--method must be one of {', '.join(FILL_METHODS)}")
+        if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+            raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
         if output.suffix.lower() != ".c3d":
             raise FormatError(output, "the cleaned capture is written as .c3d")
         if src.exists() and output.exists() and src.resolve() == output.resolve():
@@ -217,6 +226,7 @@ def clean(
             cleaned, summary = clean_markers(
                 markers,
                 method=method,
+                rigid_blend=rigid_blend,
                 reference_frame=reference_frame,
                 surface=user_surface,
                 smooth=not no_smooth,
@@ -273,6 +283,13 @@ def eval_fill(
     ] = "30,60,90,120",
     gaps: Annotated[int, typer.Option(help="Gaps punched per length.")] = 10,
     simultaneous: Annotated[int, typer.Option(help="Markers removed together per gap.")] = 1,
+    rigid_blend: Annotated[
+        float | None,
+        typer.Option(
+            help="Local methods: weight of the rigid fill in each filled sample, 0-1 "
+            "(0: the paper's local PCA alone). Default: chosen per gap."
+        ),
+    ] = None,
     seed: Annotated[
         int, typer.Option(help="Random seed: the same seed punches the same gaps.")
     ] = 0,
@@ -306,6 +323,8 @@ def eval_fill(
         lengths = _int_list(gap_lengths, "--gap-lengths")
         if gaps < 1 or simultaneous < 1:
             raise FormatError("--gaps/--simultaneous", "must be at least 1")
+        if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+            raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
         if output.exists() and not output.is_dir():
             raise FormatError(output, "exists and is not a folder")
         json_path, png_path = output / "fill_eval.json", output / "fill_eval.png"
@@ -332,6 +351,7 @@ def eval_fill(
                 gaps=gaps,
                 simultaneous=simultaneous,
                 seed=seed,
+                rigid_blend=rigid_blend,
                 progress=progress,
             )
         result["input"] = str(src)

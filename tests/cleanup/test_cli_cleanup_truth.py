@@ -68,3 +68,19 @@ def test_bench_clean_small() -> None:
     rows = json.loads(res.output)["rows"]
     assert [r["frames"] for r in rows] == [40, 80] and all(r["clean_s"] > 0 for r in rows)
     assert run("bench", "clean", "--methods", "nope").exit_code == 2
+
+
+def test_clean_and_eval_fill_take_a_rigid_blend(take_files, tmp_path: Path) -> None:  # noqa: ANN001
+    src, _, _ = take_files
+    report = tmp_path / "r.json"
+    res = run("clean", src, "-o", tmp_path / "c.c3d", "--report", report, "--rigid-blend", 0)
+    assert res.exit_code == 0, res.output
+    assert json.loads(report.read_text())["fill"]["rigid_blend"] == 0.0
+    bad = run("clean", src, "-o", tmp_path / "d.c3d", "--rigid-blend", 2)
+    assert bad.exit_code == 2 and "--rigid-blend" in bad.output
+    res = run(
+        "eval", "fill", src, "-o", tmp_path / "ev", "--methods", "local_pca", "--gaps", 1,
+        "--gap-lengths", 20, "--rigid-blend", 0.5,
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert json.loads((tmp_path / "ev" / "fill_eval.json").read_text())["rigid_blend"] == 0.5

@@ -165,6 +165,7 @@ def evaluate_fill(
     neighbours: Any = None,
     truth: np.ndarray | None = None,
     min_neighbours: int = 3,
+    rigid_blend: float | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> dict[str, Any]:
     """Punch seeded gaps into visible data, fill them with each method and score them.
@@ -191,6 +192,10 @@ def evaluate_fill(
         default: the measured samples themselves.
     min_neighbours : int
         Present, unpunched neighbours each punched marker keeps.
+    rigid_blend : float in [0, 1], optional
+        Passed to :func:`~skincap.cleanup.fill.fill_gaps` for the local methods: the
+        rigid fill's weight; None (default) weighs it per gap, 0 is the paper's
+        local PCA alone.
     progress : callable(fraction, label), optional
 
     Returns
@@ -214,6 +219,8 @@ def evaluate_fill(
         )
     if gaps < 1 or simultaneous < 1:
         raise ValidationError("gaps and simultaneous must be >= 1")
+    if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+        raise ValidationError(f"rigid_blend: expected a weight in [0, 1], got {rigid_blend!r}")
     p = markers.positions
     t, n, _ = p.shape
     ref = p if truth is None else np.asarray(truth, dtype=np.float64)
@@ -254,7 +261,9 @@ def evaluate_fill(
             for method in methods:
                 with warnings.catch_warnings():
                     warnings.simplefilter("ignore", SkincapWarning)
-                    filled, _ = fill_gaps(take, method=method, neighbours=csr)
+                    filled, _ = fill_gaps(
+                        take, method=method, neighbours=csr, rigid_blend=rigid_blend
+                    )
                 e = np.linalg.norm(filled[tt, nn] - ref[tt, nn], axis=-1)
                 ok = np.isfinite(e)
                 unfilled[method][length] += int((~ok).sum())
@@ -299,6 +308,7 @@ def evaluate_fill(
         "gaps_per_length": gaps,
         "simultaneous": simultaneous,
         "seed": seed,
+        "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
         "scored_against": "measured" if truth is None else "truth",
         "mean_neighbour_distance_mm": float(np.nanmean(mnd) * 1000.0)
         if np.isfinite(mnd).any()

@@ -63,6 +63,7 @@ def clean_markers(
     markers: MarkerSet,
     *,
     method: str = "local_pca",
+    rigid_blend: float | None = None,
     reference_frame: int | None = None,
     surface: MarkerSurface | None = None,
     smooth: bool = True,
@@ -84,6 +85,10 @@ def clean_markers(
         unlabelled fragments.
     method : str, default "local_pca"
         Hole-filling method of :func:`skincap.cleanup.fill.fill_gaps`.
+    rigid_blend : float in [0, 1], optional
+        Local methods: the rigid fill's weight in the filled samples
+        (:func:`~skincap.cleanup.fill.fill_gaps`); None (default) per gap, 0 the
+        paper's local PCA alone.
     reference_frame : int, optional
         Reference pose; default the first frame with the most labelled markers.
         Labelled markers missing there are placed by their neighbours from the
@@ -187,7 +192,11 @@ def clean_markers(
     if progress is not None:
         progress(0.3, "filling holes")
     filled, invented = fill_gaps(
-        body, method=method, neighbours=surface.neighbours, progress=step(0.3, 0.5)
+        body,
+        method=method,
+        neighbours=surface.neighbours,
+        rigid_blend=rigid_blend,
+        progress=step(0.3, 0.5),
     )
     if smooth:
         if progress is not None:
@@ -240,6 +249,7 @@ def clean_markers(
         "merge": merge_report.as_dict(),
         "fill": {
             "method": method,
+            "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
             "holes_before": holes,
             "invented_samples": int(invented.sum()),
             "unfilled_samples": int(np.isnan(filled[..., 0]).sum()),
