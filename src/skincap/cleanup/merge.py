@@ -194,6 +194,42 @@ def _neighbour_identity_margin(
     return d_marker, d_other, worse
 
 
+def _prediction_error(
+    est: np.ndarray, present: np.ndarray, surface: MarkerSurface, *, max_frames: int = 40
+) -> np.ndarray:
+    """(N,) float: each marker's 90th-percentile distance between where its neighbours'
+    rigid fit (eq. 2, reference-pose shape) puts it and where it was measured, over up
+    to ``max_frames`` of its measured frames; NaN when never predicted."""
+    n = surface.n_markers
+    table, valid = neighbour_table(surface, n)
+    out = np.full(n, np.nan)
+    if table.shape[1] == 0:
+        return out
+    ref = surface.reference
+    rel = np.where(valid[..., None], ref[table] - ref[:, None, :], np.nan)  # (N, D, 3)
+    seen = present.T  # (N, T)
+    order = np.cumsum(seen, axis=1)
+    step = np.maximum(order[:, -1] / max_frames, 1.0)[:, None]
+    pick = seen & (np.floor((order - 1) / step) != np.floor((order - 2) / step))
+    mi, ti = np.nonzero(pick)
+    ok = valid[mi] & np.isfinite(rel[mi]).all(axis=2)
+    _, tr = fit_rigid(np.where(ok[..., None], rel[mi], 0.0), est[ti[:, None], table[mi]], mask=ok)
+    err = np.linalg.norm(tr - est[ti, mi], axis=1)
+    good = np.isfinite(err)
+    mi, err = mi[good], err[good]
+    if mi.size == 0:
+        return out
+    # per-marker 90th percentile: sort by (marker, error) and index into each block
+    order2 = np.lexsort((err, mi))
+    mi, err = mi[order2], err[order2]
+    cnt = np.bincount(mi, minlength=n)
+    first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    has = cnt > 0
+    idx = first + np.floor(0.9 * (cnt - 1)).astype(np.int64)
+    out[has] = err[idx[has]]
+    return out
+
+
 def _rivals(
     surface: MarkerSurface, spacing: np.ndarray, k: int = 12
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -231,6 +267,7 @@ def merge_fragments(
     temporal: bool = True,
     robust_spacing: bool = True,
     neighbour_check: bool = True,
+    prediction_factor: float | None = 2.0,
     min_frames: int = 2,
     fragment_truth: dict[str, str] | None = None,
     progress: Callable[[float, str], None] | None = None,
@@ -271,6 +308,14 @@ def merge_fragments(
         nearer in any frame. A neighbour without an estimate never competes in the
         paper's test, yet it is the likeliest owner of a fragment near a crease.
         Left unmerged, the samples are filled by the hole filler instead.
+    prediction_factor : float or None, default 2.0
+        Beyond the paper, with ``neighbour_check``: a fragment's mean distance to
+        where the marker's neighbourhood fit puts it must stay within this many times
+        the fit's usual error *for this marker* -- the 90th percentile of that
+        distance over the frames where the marker was measured, at least a tenth of
+        its spacing. Where the skin barely deforms the fit is tight and a nearby
+        marker's fragment (one hidden in the reference frame, or a neighbour missing
+        at the same time) no longer fits inside the fixed ε². None: off.
     temporal : bool, default True
         Estimate from the neighbourhood shape in the frames bracketing each gap
         (see :func:`~skincap.cleanup.local_frames.estimate_missing`) instead of the
@@ -372,6 +417,11 @@ def merge_fragments(
                 est, anchor_present, surface, frag_pos, frag_present, fi[okp], ci[okp], rivals
             )
             ok[okp] = ~worse & (d_mark < ambiguity_ratio * d_other)
+            if prediction_factor is not None:
+                e90 = _prediction_error(est, anchor_present, surface)[ci[okp]]
+                floor = 0.1 * mnd[ci[okp]]
+                scale = np.where(np.isfinite(e90), np.maximum(e90, floor), np.inf)
+                ok[okp] &= d_mark <= prediction_factor * scale
         mean_d = np.where(checked, dist, 0.0).sum(axis=0) / np.maximum(checked.sum(axis=0), 1)
         mean_d = np.where(checked.any(axis=0), mean_d, np.inf)
         # per fragment: the best valid match must be clearly closer than any other
