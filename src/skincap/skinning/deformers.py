@@ -46,7 +46,8 @@ from typing import Any, Literal
 import numpy as np
 import scipy.sparse
 
-from skincap.errors import MissingDependencyError, ValidationError
+from skincap.backends import numba_available, resolve_backend
+from skincap.errors import ValidationError
 from skincap.geometry.dual_quaternions import dq_from_quat_translation
 from skincap.geometry.kinematics import forward_kinematics_arrays
 from skincap.geometry.rotations import matrix_to_quat
@@ -69,16 +70,6 @@ _RIGID_TOL = 1e-9
 
 
 # ------------------------------------------------------------------------ numba
-@functools.cache
-def numba_available() -> bool:
-    """True when numba can be imported (the optional ``fast`` extra)."""
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 @functools.cache
 def _numba_kernels() -> tuple[Callable[..., None], Callable[..., None]]:
     """Compile (or load from the on-disk cache) the two parallel skinning kernels."""
@@ -183,15 +174,9 @@ def _numba_kernels() -> tuple[Callable[..., None], Callable[..., None]]:
 
 # ------------------------------------------------------------------- validation
 def _resolve_backend(backend: str) -> str:
-    if backend not in ("auto", "numba", "numpy"):
-        raise ValidationError(f"backend: expected 'auto', 'numba' or 'numpy', got {backend!r}")
-    if backend == "numpy":
-        return "numpy"
-    if numba_available():
-        return "numba"
-    if backend == "numba":
-        raise MissingDependencyError("numba", "fast", "the numba skinning kernels")
-    return "numpy"
+    return resolve_backend(
+        backend, numba_installed=numba_available(), feature="the numba skinning kernels"
+    )
 
 
 def _split_rigid(matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:

@@ -68,7 +68,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from skincap.errors import MissingDependencyError, ValidationError
+from skincap.backends import numba_available, resolve_backend
+from skincap.errors import ValidationError
 from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
 from skincap.tracking.init import RopeInit, gated_assignment
 from skincap.types import MarkerSet, PointCloud
@@ -676,25 +677,10 @@ def _predict_ends(
     return cur
 
 
-def numba_available() -> bool:
-    """True when numba can be imported (the optional extra ``fast``)."""
-    try:
-        import numba  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
 def _resolve_backend(backend: str) -> str:
-    if backend not in ("auto", "numba", "numpy"):
-        raise ValidationError(f"backend: expected 'auto', 'numba' or 'numpy', got {backend!r}")
-    if backend == "numpy":
-        return "numpy"
-    if numba_available():
-        return "numba"
-    if backend == "numba":
-        raise MissingDependencyError("numba", "fast", "the compiled rope tracker")
-    return "numpy"
+    return resolve_backend(
+        backend, numba_installed=numba_available(), feature="the compiled rope tracker"
+    )
 
 
 def _track_numpy(
