@@ -142,6 +142,16 @@ def _write_json(path: Path, data: dict[str, Any], *, force: bool) -> None:
         tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
 
 
+#: ``--rigid-blend``, shared by ``clean`` and ``eval fill``.
+RigidBlendOption = Annotated[
+    float | None,
+    typer.Option(
+        help="Local methods: weight of the rigid fill in each filled sample, 0-1 "
+        "(0: the paper's local PCA alone). Default: chosen per gap."
+    ),
+]
+
+
 @app.command()
 def clean(
     src: Annotated[Path, typer.Argument(help="Capture (.c3d/.trc/.csv): labels and *N fragments.")],
@@ -149,13 +159,7 @@ def clean(
     method: Annotated[
         str, typer.Option(help=f"Hole filling: {', '.join(FILL_METHODS)}.")
     ] = "local_pca",
-    rigid_blend: Annotated[
-        float | None,
-        typer.Option(
-            help="Local methods: weight of the rigid fill in each filled sample, 0-1 "
-            "(0: the paper's local PCA alone). Default: chosen per gap."
-        ),
-    ] = None,
+    rigid_blend: RigidBlendOption = None,
     reference_frame: Annotated[
         int | None, typer.Option(help="Reference pose frame (default: most markers present).")
     ] = None,
@@ -283,13 +287,7 @@ def eval_fill(
     ] = "30,60,90,120",
     gaps: Annotated[int, typer.Option(help="Gaps punched per length.")] = 10,
     simultaneous: Annotated[int, typer.Option(help="Markers removed together per gap.")] = 1,
-    rigid_blend: Annotated[
-        float | None,
-        typer.Option(
-            help="Local methods: weight of the rigid fill in each filled sample, 0-1 "
-            "(0: the paper's local PCA alone). Default: chosen per gap."
-        ),
-    ] = None,
+    rigid_blend: RigidBlendOption = None,
     seed: Annotated[
         int, typer.Option(help="Random seed: the same seed punches the same gaps.")
     ] = 0,
