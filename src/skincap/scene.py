@@ -603,14 +603,12 @@ def _usd_layers(path: Path) -> list[Layer]:
 
 def _fan_triangles(counts: np.ndarray, indices: np.ndarray, path: Path) -> np.ndarray:
     """(F, 3) triangles fanning out each polygon of ``counts`` corners over ``indices``."""
+    from skincap.io.mesh import triangulate_polygons
+
     if counts.sum() != indices.size or (counts < 3).any():
         raise FormatError(path, "face vertex counts and indices disagree")
-    starts = np.cumsum(counts) - counts
-    n_tri = counts - 2
-    poly = np.repeat(np.arange(counts.size), n_tri)
-    k = np.arange(n_tri.sum()) - np.repeat(np.cumsum(n_tri) - n_tri, n_tri)
-    first = indices[starts[poly]]
-    return np.stack([first, indices[starts[poly] + k + 1], indices[starts[poly] + k + 2]], axis=1)
+    faces, _ = triangulate_polygons(indices, np.concatenate([[0], np.cumsum(counts)]))
+    return faces
 
 
 _ROPE_CURVE_HEADER = "frame,s,x,y,z"
