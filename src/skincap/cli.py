@@ -237,24 +237,10 @@ def convert(
 
 # --------------------------------------------------------------------------- skin
 def load_skinnable_mesh(path: Path, *, units: str | None = None) -> Any:
-    """Read a mesh for skinning: a MakeHuman OBJ with its rig beside it, a glTF, or a bare OBJ/PLY."""
+    """Read a mesh for skinning (see :func:`skincap.io.read_mesh`)."""
     from skincap import io
-    from skincap.types import Mesh
 
-    ext = path.suffix.lower()
-    if ext == ".obj" and any(path.parent.glob("*.mhskel")):
-        from skincap.io.makehuman import read_makehuman
-
-        return read_makehuman(path, units=units or "dm")
-    if ext not in (".obj", ".ply", ".gltf", ".glb"):
-        raise FormatError(
-            path, f"expected a mesh (.obj, .ply, .gltf, .glb), got {ext or 'no extension'!r}"
-        )
-    options = {"units": units} if units is not None and ext in (".obj", ".ply") else {}
-    mesh = io.read(path, **options)
-    if not isinstance(mesh, Mesh):
-        raise FormatError(path, "is not a mesh")
-    return mesh
+    return io.read_mesh(path, units=units)
 
 
 _SKIN_OUTPUTS = (".glb", ".pc2", ".usd", ".usda", ".usdc")

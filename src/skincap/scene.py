@@ -468,17 +468,9 @@ def _static_mesh_layer(name: str, mesh: Mesh, source: Path | None) -> MeshLayer:
 
 
 def _read_static_mesh(path: Path, units: str | None) -> Mesh:
-    from skincap import io
+    from skincap.io import read_mesh
 
-    if path.suffix.lower() == ".obj" and any(path.parent.glob("*.mhskel")):
-        from skincap.io.makehuman import read_makehuman
-
-        return read_makehuman(path, units=units or "dm")
-    options = {"units": units} if units else {}
-    mesh = io.read(path, **options)
-    if not isinstance(mesh, Mesh):
-        raise FormatError(path, "is not a mesh")
-    return mesh
+    return read_mesh(path, units=units)
 
 
 def _gltf_layers(path: Path) -> list[Layer]:

@@ -26,7 +26,14 @@ from typing import Any
 
 from skincap.errors import FormatError
 
-__all__ = ["read", "write", "READ_EXTENSIONS", "WRITE_EXTENSIONS", "kind_of_extension"]
+__all__ = [
+    "read",
+    "read_mesh",
+    "write",
+    "READ_EXTENSIONS",
+    "WRITE_EXTENSIONS",
+    "kind_of_extension",
+]
 
 READ_EXTENSIONS = (
     ".c3d",
@@ -119,6 +126,47 @@ def read(path: str | os.PathLike[str], **options: Any) -> Any:
     from skincap.io.makehuman import read_mhw
 
     return read_mhw(path, **options)
+
+
+def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
+    """Read a mesh file: a MakeHuman OBJ with its rig beside it, a glTF, or a bare OBJ/PLY.
+
+    An ``.obj`` with a ``.mhskel`` in its folder is read with
+    :func:`skincap.io.makehuman.read_makehuman` (skinned; decimetres unless ``units``
+    says otherwise); other files by their extension's reader.
+
+    Parameters
+    ----------
+    path : path-like
+    units : str, optional
+        Length unit of an OBJ/PLY (glTF is always metres).
+
+    Returns
+    -------
+    Mesh
+
+    Raises
+    ------
+    FormatError
+        Not a mesh file, or a malformed one.
+    """
+    from skincap.types import Mesh
+
+    p = Path(path)
+    ext = p.suffix.lower()
+    if ext == ".obj" and any(p.parent.glob("*.mhskel")):
+        from skincap.io.makehuman import read_makehuman
+
+        return read_makehuman(p, units=units or "dm")
+    if ext not in (".obj", ".ply", ".gltf", ".glb"):
+        raise FormatError(
+            p, f"expected a mesh (.obj, .ply, .gltf, .glb), got {ext or 'no extension'!r}"
+        )
+    options = {"units": units} if units is not None and ext in (".obj", ".ply") else {}
+    mesh = read(p, **options)
+    if not isinstance(mesh, Mesh):
+        raise FormatError(p, "is not a mesh")
+    return mesh
 
 
 def write(obj: Any, path: str | os.PathLike[str], *, force: bool = False, **options: Any) -> None:
