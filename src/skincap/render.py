@@ -20,13 +20,13 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from skincap.colours import label_colours as shared_label_colours
 from skincap.errors import FormatError, MissingDependencyError, ValidationError
 from skincap.io._common import atomic_output
+from skincap.plotting import agg_pyplot
 from skincap.scene import (
     CurveLayer,
     MarkerLayer,
@@ -248,22 +248,12 @@ def _floor_lines(bounds: np.ndarray, eye: np.ndarray, rows: np.ndarray, f: float
     return np.stack([pa[ok, :2], pb[ok, :2]], axis=1)
 
 
-def _require_matplotlib() -> Any:
-    try:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot  # noqa: F401
-    except ImportError:
-        raise MissingDependencyError("matplotlib", "plot", "rendering pictures") from None
-    return matplotlib
-
-
 class _Renderer:
     """One figure reused for every frame of a clip (Agg, no display)."""
 
     def __init__(self, scene: Scene, camera: Camera, size: tuple[int, int], title: bool) -> None:
-        mpl = _require_matplotlib()
+        agg_pyplot("rendering pictures")
+        from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.collections import LineCollection, PolyCollection
         from matplotlib.figure import Figure
 
@@ -311,7 +301,7 @@ class _Renderer:
             va="top",
         )
         self.show_title = title
-        self.mpl = mpl
+        self.canvas = FigureCanvasAgg(self.fig)
 
     def draw(self, t_seconds: float) -> np.ndarray:
         """(H, W, 3) uint8 picture of the scene at ``t_seconds``."""
@@ -335,11 +325,8 @@ class _Renderer:
             if len(names) > 70:
                 names = names[:67] + "..."
             self.text.set_text(f"{names}\nt = {t_seconds:7.3f} s  frame {frame}")
-        from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-        canvas = FigureCanvasAgg(self.fig)
-        canvas.draw()
-        return np.asarray(canvas.buffer_rgba())[..., :3].copy()
+        self.canvas.draw()
+        return np.asarray(self.canvas.buffer_rgba())[..., :3].copy()
 
 
 def render_image(
@@ -436,7 +423,6 @@ def write_picture(
     if ext == ".png":
         t = scene.duration / 2 if time is None else float(time)
         picture = render_image(scene, t, camera=camera, size=size)
-        _require_matplotlib()
         import matplotlib.image
 
         with atomic_output(out, force=force) as tmp:

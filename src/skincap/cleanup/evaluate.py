@@ -22,7 +22,7 @@ from skincap.cleanup.fill import (
     mean_neighbour_distance,
     motion_neighbours,
 )
-from skincap.errors import MissingDependencyError, SkincapWarning, ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.types import MarkerSet
 
 __all__ = [
@@ -372,12 +372,9 @@ def plot_fill_evaluation(result: dict[str, Any], path: str | Path, *, force: boo
     MissingDependencyError
         matplotlib is not installed (extra ``plot``).
     """
-    try:
-        import matplotlib
-    except ImportError:
-        raise MissingDependencyError("matplotlib", "plot", "PNG plots") from None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from skincap.plotting import agg_pyplot
+
+    plt = agg_pyplot("PNG plots")
 
     from skincap.io._common import atomic_output
 

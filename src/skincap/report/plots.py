@@ -9,17 +9,9 @@ from typing import Any
 import numpy as np
 
 from skincap.io._common import atomic_output
+from skincap.plotting import agg_pyplot
 
 __all__ = ["plot_missing_maps", "plot_fill_errors"]
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def plot_missing_maps(
@@ -46,7 +38,7 @@ def plot_missing_maps(
     path : path-like
         The PNG, written atomically.
     """
-    plt = _pyplot()
+    plt = agg_pyplot("the report's figures")
     from matplotlib.colors import ListedColormap
 
     cmap = ListedColormap([(0.93, 0.93, 0.91), (0.80, 0.10, 0.15), (0.20, 0.45, 0.85)])
@@ -104,7 +96,7 @@ def plot_fill_errors(
     path : path-like
         The PNG, written atomically.
     """
-    plt = _pyplot()
+    plt = agg_pyplot("the report's figures")
     lengths = [int(v) for v in result["gap_lengths"]]
     fig, ax = plt.subplots(figsize=(7, 4.2))
     for method, per_length in result["results"].items():

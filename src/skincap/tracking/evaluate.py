@@ -31,7 +31,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from skincap.errors import MissingDependencyError, ValidationError
+from skincap.errors import ValidationError
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = [
@@ -883,12 +883,9 @@ def plot_gap_repair(
     MissingDependencyError
         matplotlib is not installed (extra ``plot``).
     """
-    try:
-        import matplotlib
-    except ImportError:
-        raise MissingDependencyError("matplotlib", "plot", "PNG plots") from None
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from skincap.plotting import agg_pyplot
+
+    plt = agg_pyplot("PNG plots")
 
     from skincap.io._common import atomic_output
 
