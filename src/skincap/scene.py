@@ -415,7 +415,9 @@ def _load_file(path: Path, units: str | None) -> list[Layer]:
         options = {"units": units} if units and ext == ".trc" else {}
         return [_marker_layer(name, io.read(path, **options), path)]
     if ext == ".csv":
-        if _is_rope_curve_csv(path):
+        from skincap.tracking.outputs import is_rope_curve_csv
+
+        if is_rope_curve_csv(path):
             return [_read_rope_curve(path)]
         options = {"units": units} if units else {}
         obj = io.read(path, **options)
@@ -603,52 +605,10 @@ def _fan_triangles(counts: np.ndarray, indices: np.ndarray, path: Path) -> np.nd
     return faces
 
 
-_ROPE_CURVE_HEADER = "frame,s,x,y,z"
-
-
-def _is_rope_curve_csv(path: Path) -> bool:
-    try:
-        with path.open("rb") as fh:
-            first = fh.readline(256).decode("utf-8", errors="replace").strip().lower()
-    except OSError as exc:
-        raise FormatError(path, f"cannot read: {exc.strerror}") from None
-    return first.replace(" ", "") == _ROPE_CURVE_HEADER
-
-
 def _read_rope_curve(path: Path) -> CurveLayer:
-    """A ``skincap track`` ``rope_curve.csv``: equal sample count per frame, 120 Hz unless
-    a ``report.json`` beside it names the rate."""
-    import json
+    from skincap.tracking.outputs import read_rope_curve
 
-    try:
-        table = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError as exc:
-        raise FormatError(path, f"rope curve table: {exc}") from None
-    if table.size == 0:
-        raise FormatError(path, "rope curve has no rows")
-    if table.shape[1] != 5:
-        raise FormatError(
-            path, f"rope curve rows need 5 columns (frame,s,x,y,z), got {table.shape[1]}"
-        )
-    frames = table[:, 0].astype(np.int64)
-    if (np.diff(frames) < 0).any() or frames[0] < 0:
-        raise FormatError(path, "rope curve frames must start at >= 0 and not decrease")
-    counts = np.bincount(frames)
-    k = int(counts.max())
-    if (counts[counts > 0] != k).any():
-        raise FormatError(path, "rope curve: every frame needs the same number of samples")
-    curves = np.full((counts.size, k, 3), np.nan)
-    slot = np.arange(frames.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    curves[frames, slot] = table[:, 2:5]
-    rate = 120.0
-    report = path.with_name("report.json")
-    if report.is_file():
-        try:
-            value = json.loads(report.read_text(encoding="utf-8")).get("rate")
-            if isinstance(value, (int, float)) and value > 0:
-                rate = float(value)
-        except (OSError, ValueError, AttributeError):
-            pass
+    curves, rate = read_rope_curve(path)
     return CurveLayer(path.name, rate, path, curves=curves)
 
 

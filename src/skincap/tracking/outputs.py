@@ -13,16 +13,27 @@ from typing import Any
 
 import numpy as np
 
-from skincap.errors import ValidationError
+from skincap.errors import FormatError, ValidationError
 from skincap.io._common import atomic_output
 from skincap.tracking.curve import resample_by_arclength
 from skincap.tracking.tracker import RopeTrack
 from skincap.types import PointCloud
 
-__all__ = ["OUTPUT_NAMES", "track_report", "write_track_outputs"]
+__all__ = [
+    "OUTPUT_NAMES",
+    "ROPE_CURVE_HEADER",
+    "track_report",
+    "write_track_outputs",
+    "read_rope_curve",
+    "is_rope_curve_csv",
+]
 
 #: The files written into the output folder.
 OUTPUT_NAMES = ("rope.c3d", "body_points.csv", "rope_curve.csv", "report.json")
+#: First line of ``rope_curve.csv``.
+ROPE_CURVE_HEADER = "frame,s,x,y,z"
+#: Rate of a ``rope_curve.csv`` without a ``report.json`` beside it, Hz.
+DEFAULT_CURVE_RATE = 120.0
 
 
 def _body_cloud(cloud: PointCloud, track: RopeTrack) -> PointCloud:
@@ -137,7 +148,7 @@ def write_track_outputs(
     s, pts = resample_by_arclength(track.positions, curve_samples)
     t_frames, n = s.shape
     table = np.column_stack([np.repeat(np.arange(t_frames), n), s.ravel(), pts.reshape(-1, 3)])
-    lines = ["frame,s,x,y,z"]
+    lines = [ROPE_CURVE_HEADER]
     if table.size:
         cols = [np.char.mod("%d", table[:, 0].astype(np.int64))]
         cols += [np.char.mod("%.9g", table[:, c]) for c in range(1, 5)]
@@ -148,3 +159,63 @@ def write_track_outputs(
     with atomic_output(out / "report.json", force=force) as tmp:
         tmp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
     return report
+
+
+def is_rope_curve_csv(path: str | os.PathLike[str]) -> bool:
+    """True when the file's first line is the ``rope_curve.csv`` header."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            first = fh.readline(256).decode("utf-8", errors="replace").strip().lower()
+    except OSError as exc:
+        raise FormatError(p, f"cannot read: {exc.strerror}") from None
+    return first.replace(" ", "") == ROPE_CURVE_HEADER
+
+
+def read_rope_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, float]:
+    """Read a ``rope_curve.csv`` written by :func:`write_track_outputs`.
+
+    Returns
+    -------
+    curves : (T, K, 3) float64, metres
+        The resampled rope per frame (NaN for frames the file lacks).
+    rate : float, Hz
+        From the ``report.json`` beside it, else :data:`DEFAULT_CURVE_RATE`.
+
+    Raises
+    ------
+    FormatError
+        No rows, rows without 5 columns, decreasing frames, or frames with different
+        sample counts.
+    """
+    p = Path(path)
+    try:
+        table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+    except ValueError as exc:
+        raise FormatError(p, f"rope curve table: {exc}") from None
+    if table.size == 0:
+        raise FormatError(p, "rope curve has no rows")
+    if table.shape[1] != 5:
+        raise FormatError(
+            p, f"rope curve rows need 5 columns (frame,s,x,y,z), got {table.shape[1]}"
+        )
+    frames = table[:, 0].astype(np.int64)
+    if (np.diff(frames) < 0).any() or frames[0] < 0:
+        raise FormatError(p, "rope curve frames must start at >= 0 and not decrease")
+    counts = np.bincount(frames)
+    k = int(counts.max())
+    if (counts[counts > 0] != k).any():
+        raise FormatError(p, "rope curve: every frame needs the same number of samples")
+    curves = np.full((counts.size, k, 3), np.nan)
+    slot = np.arange(frames.size) - np.repeat(np.cumsum(counts) - counts, counts)
+    curves[frames, slot] = table[:, 2:5]
+    rate = DEFAULT_CURVE_RATE
+    report = p.with_name("report.json")
+    if report.is_file():
+        try:
+            value = json.loads(report.read_text(encoding="utf-8")).get("rate")
+            if isinstance(value, (int, float)) and value > 0:
+                rate = float(value)
+        except (OSError, ValueError, AttributeError):
+            pass
+    return curves, rate
