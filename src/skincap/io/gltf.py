@@ -297,17 +297,8 @@ def _load(path: Path) -> _Doc:
     return _Doc(path, doc, glb_bin)
 
 
-def _local_matrix(g: _Doc, i: int, node: dict[str, Any]) -> np.ndarray:
-    """(4, 4) local transform of node i (its 'matrix' or T * R * S)."""
-    if "matrix" in node:
-        m = (
-            np.asarray(node["matrix"], dtype=np.float64)
-            if isinstance(node["matrix"], list)
-            else None
-        )
-        if m is None or m.shape != (16,) or not np.isfinite(m).all():
-            raise g.fail(f"nodes[{i}]: 'matrix' must be 16 finite numbers")
-        return m.reshape(4, 4).T  # column-major in the file
+def _node_trs(g: _Doc, i: int, node: dict[str, Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked translation (3,), rotation (4,) x, y, z, w and scale (3,) of node i."""
     t = np.asarray(node.get("translation", [0, 0, 0]), dtype=np.float64)
     r = np.asarray(node.get("rotation", [0, 0, 0, 1]), dtype=np.float64)
     s = np.asarray(node.get("scale", [1, 1, 1]), dtype=np.float64)
@@ -320,6 +311,21 @@ def _local_matrix(g: _Doc, i: int, node: dict[str, Any]) -> np.ndarray:
         raise g.fail(f"nodes[{i}]: translation/rotation/scale must be 3/4/3 finite numbers")
     if np.linalg.norm(r) < 1e-8:
         raise g.fail(f"nodes[{i}]: rotation quaternion has zero length")
+    return t, r, s
+
+
+def _local_matrix(g: _Doc, i: int, node: dict[str, Any]) -> np.ndarray:
+    """(4, 4) local transform of node i (its 'matrix' or T * R * S)."""
+    if "matrix" in node:
+        m = (
+            np.asarray(node["matrix"], dtype=np.float64)
+            if isinstance(node["matrix"], list)
+            else None
+        )
+        if m is None or m.shape != (16,) or not np.isfinite(m).all():
+            raise g.fail(f"nodes[{i}]: 'matrix' must be 16 finite numbers")
+        return m.reshape(4, 4).T  # column-major in the file
+    t, r, s = _node_trs(g, i, node)
     m = np.eye(4)
     m[:3, :3] = Rotation.from_quat(r).as_matrix() * s[None, :]  # (x, y, z, w), as scipy
     m[:3, 3] = t
@@ -832,9 +838,7 @@ def _read_gltf_animation(p: Path, which: int, rate: float | None) -> GltfAnimati
         if "matrix" in node:
             rest_matrix[i] = _local_matrix(g, i, node)
             continue
-        rest_t[i] = node.get("translation", [0.0, 0.0, 0.0])
-        rest_r[i] = node.get("rotation", [0.0, 0.0, 0.0, 1.0])
-        rest_s[i] = node.get("scale", [1.0, 1.0, 1.0])
+        rest_t[i], rest_r[i], rest_s[i] = _node_trs(g, i, node)
     trs = {
         "translation": np.broadcast_to(rest_t, (n, n_nodes, 3)).copy(),
         "rotation": np.broadcast_to(rest_r, (n, n_nodes, 4)).copy(),
