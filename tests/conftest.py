@@ -2,9 +2,18 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+# Property tests explore new random cases on every developer run; CI
+# (HYPOTHESIS_PROFILE=ci, set by .ci/run) replays one fixed derandomised set, so a run
+# that lands is reproducible. A failure found locally is fixed, not hidden: its example
+# is printed with the blob to replay it.
+settings.register_profile("ci", derandomize=True, print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
 DATA = Path(__file__).parent / "data"
 

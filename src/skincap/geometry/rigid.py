@@ -230,7 +230,10 @@ def _rotation_quaternion(h: np.ndarray, e0: np.ndarray) -> np.ndarray:
         # from above the largest root Newton only descends (f is convex there); a
         # rounding-born negative step near a double root is cut to 0, and λmax >= 0
         # (N is traceless)
-        step = np.clip(f / np.where(fp > 0, fp, np.inf), 0.0, lam)
+        # (a subnormal fp, at a near-double root, may overflow the quotient: the clip
+        # then takes the step to 0, and a NaN λ fails the verification below)
+        with np.errstate(over="ignore", invalid="ignore"):
+            step = np.clip(f / np.where(fp > 0, fp, np.inf), 0.0, lam)
         lam -= step
         if not (np.abs(step) > tol).any():
             break
@@ -244,7 +247,18 @@ def _rotation_quaternion(h: np.ndarray, e0: np.ndarray) -> np.ndarray:
     q = q / np.where(qn > 0, qn, 1.0)
     nq = np.einsum("ijb,jb->ib", n4, q)
     resid = np.sqrt(((nq - lam * q) ** 2).sum(axis=0))
-    bad = ~(qn > 0) | ~(resid <= 1e-9 * e0f) | ~np.isfinite(lam)
+    # the eigenvector's angular error is at most resid / gap (Davis-Kahan), and the gap
+    # to the next eigenvalue is at least p'(λ) / (2 e0)², the other two factors of
+    # p'(λ) = Π (λ - λ_i) being at most 2 e0 (every eigenvalue lies in [-e0, e0]);
+    # nearly collinear points have a tiny gap, and a residual that would verify a
+    # well-separated eigenvector can then leave the rotation about the line off by
+    # far more than rounding
+    # (all in units of e0, so tiny or huge coordinates neither underflow nor overflow;
+    # an underflowed gap only sends the batch to the SVD)
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        ln = lam / e0f
+        gap = (4.0 * ln**3 + 2.0 * (c2 / e0f / e0f) * ln + c1 / e0f / e0f / e0f) / 4.0
+    bad = ~(qn > 0) | ~(resid / e0f <= 1e-11 * gap) | ~np.isfinite(lam)
     rot = _quaternion_matrix(q)  # (B, 3, 3)
     if bad.any():
         rot[bad] = _rotation_svd(np.moveaxis(hc[:, :, bad], -1, 0))
