@@ -419,14 +419,18 @@ def _grow_chains(
     visited[np.arange(s), sb] = True
     alive = np.ones(s, dtype=bool)
     length = np.full(s, 2)
+    skipped = np.zeros(s, dtype=bool)  # the last step passed over an unseen marker
     for _ in range(n):
         rows = np.nonzero(alive)[0]
         if rows.size == 0:
             break
         found = np.full(rows.size, -1, dtype=np.int64)
         new_step = np.zeros((rows.size, 3))
+        hop_skip = np.zeros(rows.size, dtype=bool)
         for skip in (1, 2):  # the next marker, else the one after (one unseen)
             todo = found < 0
+            if skip == 2:  # never two unseen markers in a row: a bridge joins those
+                todo &= ~skipped[rows]
             if not todo.any():
                 break
             r = rows[todo]
@@ -453,15 +457,128 @@ def _grow_chains(
             idx_todo = np.nonzero(todo)[0]
             found[idx_todo[got]] = pick[got]
             new_step[idx_todo[got]] = (pts[pick[got]] - last[r[got]]) / skip
+            hop_skip[idx_todo[got]] = skip == 2
         ok_rows = rows[found >= 0]
         alive[rows[found < 0]] = False
         f = found[found >= 0]
         prev_step[ok_rows] = step[ok_rows]
         step[ok_rows] = new_step[found >= 0]
+        skipped[ok_rows] = hop_skip[found >= 0]
         last[ok_rows] = pts[f]
         visited[ok_rows, f] = True
         out[ok_rows, length[ok_rows]] = f
         length[ok_rows] += 1
+    return out
+
+
+# ------------------------------------------------------------------- body rejection
+#: Frames of the take (seconds) over which frame 0's points are followed for rigidity.
+_RIGID_SECONDS = 5.0
+#: A pair is rigid when its distance varies by less than this many spacings.
+_RIGID_RANGE = 0.1
+#: Partners searched within this many spacings of a chain point.
+_RIGID_RADIUS = 3.0
+#: A chain point with at least this many rigid partners off the chain is a body marker.
+_RIGID_PARTNERS = 2
+
+
+def follow_points(cloud: PointCloud, n_frames: int, gate: float) -> np.ndarray:
+    """Follow every frame-0 point by unambiguous nearest neighbours (no identities).
+
+    Each point predicts its next position at constant velocity and takes the
+    nearest point of the next frame when that lies within ``gate``, no other point
+    lies within twice that distance of the prediction, and no other followed point
+    takes it. The first frame without such a match ends the point's run for good.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    n_frames : int
+        Frames to follow from frame 0 (clipped to the take).
+    gate : float, metres
+
+    Returns
+    -------
+    (F, N0, 3) float64, metres
+        Positions of frame 0's ``N0`` points; NaN from the frame a run ends.
+    """
+    n_frames = int(min(max(1, n_frames), cloud.n_frames))
+    p0 = cloud.frame(0)
+    n0 = p0.shape[0]
+    out = np.full((n_frames, n0, 3), np.nan)
+    out[0] = p0
+    pos = p0.copy()
+    vel = np.zeros_like(p0)
+    alive = np.ones(n0, dtype=bool)
+    for t in range(1, n_frames):
+        frame = cloud.frame(t)
+        rows = np.nonzero(alive)[0]
+        if rows.size == 0 or frame.shape[0] < 2:
+            break
+        d, i = cKDTree(frame).query(pos[rows] + vel[rows], k=2)
+        ok = (d[:, 0] < gate) & (d[:, 1] > 2.0 * d[:, 0])
+        took, count = np.unique(i[ok, 0], return_counts=True)
+        ok[ok] &= np.isin(i[ok, 0], took[count == 1])
+        alive[rows[~ok]] = False
+        got = rows[ok]
+        new = frame[i[ok, 0]]
+        vel[got] = new - pos[got]
+        pos[got] = new
+        out[t, got] = new
+    return out
+
+
+def body_like(
+    cloud: PointCloud, chain: np.ndarray, spacing: float, *, seconds: float = _RIGID_SECONDS
+) -> np.ndarray:
+    """Flag chain points that move rigidly with body points (beyond the thesis).
+
+    A hand marker at the end of a held rope, or a body marker the chain took where a
+    rope marker is hidden, moves rigidly with its neighbours on the body; a rope
+    marker does not (rope markers keep their distance only to their own neighbours
+    along the rope, which are in the chain). Frame 0's points are followed
+    (:func:`follow_points`, gate a quarter of the spacing) for ``seconds``; a chain
+    point is body-like when at least two points off the chain, within three
+    spacings of it in frame 0, keep their distance to it within a tenth of the
+    spacing over all frames both are followed, and those frames include the chain
+    point moving at least half a spacing away from where it started. A point never
+    followed that far gives no evidence and stays in the chain.
+
+    Parameters
+    ----------
+    cloud : PointCloud
+    chain : (C,) int
+        Indices of the chain's points among frame 0's points.
+    spacing : float, metres
+        The chain's median link.
+    seconds : float
+
+    Returns
+    -------
+    (C,) bool
+        True for a body-like point.
+    """
+    chain = np.asarray(chain, dtype=np.int64)
+    n_follow = int(round(seconds * cloud.rate))
+    traj = follow_points(cloud, n_follow, 0.25 * spacing)  # (F, N0, 3)
+    p0 = traj[0]
+    off_chain = np.ones(p0.shape[0], dtype=bool)
+    off_chain[chain] = False
+    out = np.zeros(chain.size, dtype=bool)
+    near = cKDTree(p0).query_ball_point(p0[chain], r=_RIGID_RADIUS * spacing)
+    for c, (point, partners) in enumerate(zip(chain.tolist(), near, strict=True)):
+        q = np.asarray([k for k in partners if off_chain[k]], dtype=np.int64)
+        if q.size == 0:
+            continue
+        both = np.isfinite(traj[:, point, 0])[:, None] & np.isfinite(traj[:, q, 0])  # (F, Q)
+        moved = np.linalg.norm(traj[:, point] - p0[point], axis=1)  # (F,) NaN when lost
+        far = np.nan_to_num(moved, nan=0.0) >= 0.5 * spacing
+        d = np.linalg.norm(traj[:, q] - traj[:, point][:, None], axis=2)  # (F, Q)
+        hi = np.where(both, d, -np.inf).max(axis=0)
+        lo = np.where(both, d, np.inf).min(axis=0)
+        seen_moving = (both & far[:, None]).any(axis=0)
+        rigid = seen_moving & (hi - lo < _RIGID_RANGE * spacing)
+        out[c] = int(rigid.sum()) >= _RIGID_PARTNERS
     return out
 
 
@@ -546,6 +663,7 @@ def init_rope(
         selected or surviving the window.
     """
     chosen = sum([box is not None, markers is not None, bool(auto)])
+    rejected = np.zeros(0, dtype=np.int64)
     if chosen != 1:
         raise ValidationError(
             "rope: give exactly one of box=, markers= or auto=True to select the rope"
@@ -579,6 +697,11 @@ def init_rope(
         method = "markers"
     else:
         sel = find_rope_chain(cloud, window_seconds=window_seconds)
+        if sel.size >= 2:
+            link = float(np.median(np.linalg.norm(np.diff(p0[sel], axis=0), axis=1)))
+            body = body_like(cloud, sel, link)
+            rejected = sel[body]
+            sel = sel[~body]
         method = "auto"
     if sel.size < 3:
         raise ValidationError(
@@ -616,5 +739,10 @@ def init_rope(
         gamma=float(gamma),
         max_temp_markers=int(max_temp_markers),
         window=(0, n_window),
-        meta={"method": method, "discarded": int((~keep).sum()), "inserted": inserted},
+        meta={
+            "method": method,
+            "discarded": int((~keep).sum()),
+            "inserted": inserted,
+            "body_like": rejected.tolist(),
+        },
     )
