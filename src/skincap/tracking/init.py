@@ -25,7 +25,14 @@ from skincap.errors import ValidationError
 from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
 from skincap.types import PointCloud
 
-__all__ = ["RopeInit", "init_rope", "find_rope_chain", "gated_assignment"]
+__all__ = [
+    "RopeInit",
+    "body_like",
+    "find_rope_chain",
+    "follow_points",
+    "gated_assignment",
+    "init_rope",
+]
 
 #: A rope point's third-nearest neighbour lies beyond this many spacings (1-D test).
 _ISOLATION = 1.35
@@ -480,6 +487,8 @@ _RIGID_RANGE = 0.1
 _RIGID_RADIUS = 3.0
 #: A chain point with at least this many rigid partners off the chain is a body marker.
 _RIGID_PARTNERS = 2
+#: A link stretched beyond (1 + this) times its rest length is not along a rope.
+_STRETCH = 0.25
 
 
 def follow_points(cloud: PointCloud, n_frames: int, gate: float) -> np.ndarray:
@@ -544,6 +553,13 @@ def body_like(
     point moving at least half a spacing away from where it started. A point never
     followed that far gives no evidence and stays in the chain.
 
+    A body marker that does not move (a shin beside the rope's middle) is caught by
+    the rope's length instead: two rope markers about ``k`` spacings apart in frame
+    0 never get farther apart than ``k`` spacings of rope (25 % tolerance). A point
+    whose links to both chain neighbours (its one link, at an end) stretch beyond
+    that while followed is body-like (an interior point only: one link stretched at
+    an end may be the following's mistake where the held end is among hand markers).
+
     Parameters
     ----------
     cloud : PointCloud
@@ -579,6 +595,17 @@ def body_like(
         seen_moving = (both & far[:, None]).any(axis=0)
         rigid = seen_moving & (hi - lo < _RIGID_RANGE * spacing)
         out[c] = int(rigid.sum()) >= _RIGID_PARTNERS
+    # Links a rope cannot make: the chord between two rope markers never exceeds
+    # the rope between them (k spacings for a link of about k spacings in frame 0).
+    rest = np.flatnonzero(~out)  # the chain without its rigid (hand) points
+    if rest.size >= 3:
+        kept = chain[rest]
+        a, b = traj[:, kept[:-1]], traj[:, kept[1:]]  # (F, C'-1, 3)
+        chord = np.nan_to_num(np.linalg.norm(b - a, axis=2), nan=0.0).max(axis=0)
+        k = np.maximum(1.0, np.rint(np.linalg.norm(p0[kept[1:]] - p0[kept[:-1]], axis=1) / spacing))
+        stretched = chord > (1.0 + _STRETCH) * k * spacing
+        # interior points only: ends answer to the rigidity test (a held end follows a hand)
+        out[rest[1:-1]] |= stretched[:-1] & stretched[1:]
     return out
 
 
@@ -608,6 +635,35 @@ def _insert_unseen(
     pos[seen] = mean
     pos, _ = fill_interior_on_curve(pos, seen, rest_arclength(new_spacing))
     return new_sel, pos, new_spacing, int((~seen).sum())
+
+
+def _adopt_at_inserted(
+    p0: np.ndarray, sel: np.ndarray, positions: np.ndarray, gamma: float, rejected: np.ndarray
+) -> np.ndarray:
+    """Which inserted traces have their marker in frame 0 after all (automatic init).
+
+    A bridge across hidden markers inserts traces on the curve through the chain;
+    a rope marker seen between two hidden ones fails the chain's 1-D test (it is
+    alone among body points) but lies on that curve. An inserted trace adopts the
+    frame-0 point nearest it when that point is within γ, not already a trace nor
+    rejected as body-like, and unambiguous: the next point is at least twice as far.
+
+    Returns
+    -------
+    (M,) bool
+        True for an inserted trace (``sel == -1``) that adopts a point.
+    """
+    out = np.zeros(sel.size, dtype=bool)
+    ins = np.flatnonzero(sel < 0)
+    if ins.size == 0 or p0.shape[0] < 2:
+        return out
+    d, i = cKDTree(p0).query(positions[ins], k=2)
+    taken = np.isin(i[:, 0], np.concatenate([sel[sel >= 0], rejected]))
+    ok = (d[:, 0] <= gamma) & (d[:, 1] >= 2.0 * d[:, 0]) & ~taken
+    first, count = np.unique(i[ok, 0], return_counts=True)
+    ok[ok] &= np.isin(i[ok, 0], first[count == 1])
+    out[ins[ok]] = True
+    return out
 
 
 def init_rope(
@@ -732,6 +788,25 @@ def init_rope(
     if np.any(spacing <= 0):
         raise ValidationError("rope: two selected traces coincide")
     sel, mean, spacing, inserted = _insert_unseen(sel, mean, spacing)
+    if method == "auto" and inserted:
+        adopt = _adopt_at_inserted(p0, sel, mean, float(gamma), rejected)
+        if adopt.any():
+            sel = sel.copy()
+            sel[adopt] = cKDTree(p0).query(mean[adopt], k=1)[1]
+            again = init_rope(
+                cloud,
+                markers=sel[sel >= 0],
+                window_seconds=window_seconds,
+                gamma=gamma,
+                max_temp_markers=max_temp_markers,
+            )
+            again.meta.update(
+                method="auto",
+                discarded=again.meta["discarded"] + int((~keep).sum()),
+                body_like=rejected.tolist(),
+                adopted=int(adopt.sum()),
+            )
+            return again
     return RopeInit(
         indices=sel,
         positions=mean,
