@@ -125,7 +125,8 @@ def test_makehuman_tpose_is_a_tpose_with_add_convention() -> None:
     # Y-up human 1.66 m tall with arms spread about 1.69 m along x
     assert 1.6 < extent[1] < 1.7 and 1.6 < extent[0] < 1.75 and extent[2] < 0.4
     # "replace" (the BVH norm) collapses this file: MakeHuman writes displacements
-    collapsed = joint_positions(read_bvh(MAKEHUMAN, units="dm", up="z"))[0]
+    replaced = read_bvh(MAKEHUMAN, units="dm", up="z", position_channels="replace")
+    collapsed = joint_positions(replaced)[0]
     assert (collapsed.max(axis=0) - collapsed.min(axis=0)).max() < 0.3
 
 
@@ -578,3 +579,61 @@ def test_fast_decimal_parser_equals_float(values: list[float], decimals: int, se
     got = _parse_plain_decimals(body, 3)
     assert got is not None
     np.testing.assert_array_equal(got.ravel(), [float(t) for t in tokens])
+
+
+def test_position_channels_auto_reads_makehuman_displacements_as_add() -> None:
+    # MakeHuman writes 6 channels on every joint with values near 0: read as "replace"
+    # its bones would collapse onto their parents
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnitWarning)
+        auto = read_bvh(MAKEHUMAN, up="z")
+    explicit = read_bvh(MAKEHUMAN, units="dm", up="z", position_channels="add")
+    assert auto.meta["position_channels"] == "add"
+    np.testing.assert_array_equal(auto.translations, explicit.translations)
+    collapsed = read_bvh(MAKEHUMAN, units="dm", up="z", position_channels="replace")
+    bones = np.linalg.norm(explicit.skeleton.offsets[1:], axis=-1)
+    assert np.median(np.linalg.norm(collapsed.translations[0, 1:], axis=-1)) < 0.2 * np.median(
+        bones
+    )
+
+
+def test_position_channels_auto_keeps_absolute_values_as_replace(tmp_path: Path) -> None:
+    # every joint with positions equal to its offsets (absolute values, the BVH norm),
+    # then a stretched frame: still "replace"
+    for seed in range(5):
+        m = random_motion(seed)
+        write_bvh(m, tmp_path / f"r{seed}.bvh", units="m", position_channels="replace")
+        back = read_bvh(tmp_path / f"r{seed}.bvh", units="m", up="y")
+        assert back.meta["position_channels"] == "replace"
+        assert_same_motion(m, back)
+    text = SMALL.replace("Frames: 2", "Frames: 2")
+    path = tmp_path / "small.bvh"
+    path.write_text(text)
+    assert read_bvh(path, units="cm").meta["position_channels"] == "replace"
+
+
+def test_up_auto_stands_the_makehuman_tpose_up() -> None:
+    with pytest.warns(UnitWarning, match="stands along z"):
+        auto = read_bvh(MAKEHUMAN, units="dm")
+    assert auto.meta["up"] == "z"
+    explicit = read_bvh(MAKEHUMAN, units="dm", up="z", position_channels="add")
+    np.testing.assert_allclose(joint_positions(auto), joint_positions(explicit))
+
+
+@pytest.mark.parametrize(("path", "units"), [(CMU, "cmu"), (MOCAPBANK, "cm")])
+def test_up_auto_keeps_y_up_files(path: Path, units: str) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnitWarning)
+        m = read_bvh(path, units=units)
+    assert m.meta["up"] == "y"
+
+
+def test_up_auto_round_trips_a_z_up_file(tmp_path: Path) -> None:
+    # a Y-up standing skeleton written Z-up is read back standing
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnitWarning)
+        m = read_bvh(CMU, units="cmu")
+        write_bvh(m, tmp_path / "z.bvh", units="cm", up="z")
+        back = read_bvh(tmp_path / "z.bvh", units="cm")
+    assert back.meta["up"] == "z"
+    np.testing.assert_allclose(joint_positions(back), joint_positions(m), atol=1e-6)

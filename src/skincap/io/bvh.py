@@ -71,7 +71,7 @@ from skincap.io._common import (
 )
 from skincap.types import POSITION_CHANNELS, ROTATION_CHANNELS, Motion, Skeleton
 
-__all__ = ["read_bvh", "write_bvh", "guess_bvh_units", "BVH_UNITS"]
+__all__ = ["read_bvh", "write_bvh", "guess_bvh_units", "guess_bvh_up", "BVH_UNITS"]
 
 #: Length units of BVH files, metres per unit: the general units plus ``"cmu"``,
 #: the CMU ASF unit (1/0.45 inch) of the cgspeed CMU conversions.
@@ -125,12 +125,29 @@ def guess_bvh_units(height: float) -> str:
     return min(_GUESSABLE, key=lambda u: abs(math.log(h * BVH_UNITS[u] / _HUMAN_HEIGHT)))
 
 
-def _skeleton_height(parents: np.ndarray, offsets: np.ndarray) -> float:
-    """Largest extent (over x, y, z) of the rest-pose joint positions, offsets' unit."""
+def _rest_extent(parents: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """(3,) extent along the file's x, y, z of the rest-pose joint positions, offsets' unit."""
     pos = np.zeros_like(offsets)
     for k in range(parents.size):
         pos[k] = offsets[k] if parents[k] < 0 else pos[parents[k]] + offsets[k]
-    return float((pos.max(axis=0) - pos.min(axis=0)).max()) if pos.size else 0.0
+    return pos.max(axis=0) - pos.min(axis=0) if pos.size else np.zeros(3)
+
+
+def _skeleton_height(parents: np.ndarray, offsets: np.ndarray) -> float:
+    """Largest extent (over x, y, z) of the rest-pose joint positions, offsets' unit."""
+    return float(_rest_extent(parents, offsets).max())
+
+
+def guess_bvh_up(extent: np.ndarray) -> str:
+    """ "y" or "z": the up axis of a BVH file from its rest pose's extent (3,) along x, y, z.
+
+    A BVH's rest pose stands (T- or A-pose). Read with the wrong up axis a standing
+    body lies down: its extent along the supposed up axis is its depth, a fraction of
+    its height. "z" only when the body is clearly standing along z (z extent at least
+    twice the y extent and the largest of the two); otherwise "y", the BVH norm.
+    """
+    y, z = float(extent[1]), float(extent[2])
+    return "z" if z > 0 and z >= 2.0 * y else "y"
 
 
 # ---------------------------------------------------------------------- hierarchy
@@ -496,8 +513,8 @@ def read_bvh(
     path: str | os.PathLike[str],
     *,
     units: str | None = None,
-    up: Literal["y", "z"] = "y",
-    position_channels: Literal["replace", "add"] = "replace",
+    up: Literal["auto", "y", "z"] = "auto",
+    position_channels: Literal["auto", "replace", "add"] = "auto",
 ) -> Motion:
     """Read a BVH file into a :class:`~skincap.types.Motion` (metres, Y up).
 
@@ -508,12 +525,20 @@ def read_bvh(
         Length unit of the file. None: guessed from the skeleton's height with
         :func:`guess_bvh_units`, with a :class:`~skincap.errors.UnitWarning` naming the
         file and the guess.
-    up : {"y", "z"}
+    up : {"auto", "y", "z"}
         Up axis of the file (BVH is normally Y-up). Z-up files are turned to Y-up.
-    position_channels : {"replace", "add"}
+        ``"auto"`` (default): "y" unless the rest pose clearly stands along z
+        (:func:`guess_bvh_up`; e.g. MakeHuman and some Blender exports), with a
+        :class:`~skincap.errors.UnitWarning` naming the file when it guesses "z".
+        The axis used is recorded in ``meta["up"]``.
+    position_channels : {"auto", "replace", "add"}
         How position channel values combine with the joint's ``OFFSET``: ``"replace"``
         (the BVH norm) or ``"add"`` (values are displacements from the rest offset, as
-        MakeHuman writes its 6-channel joints). Recorded in ``meta``.
+        MakeHuman writes its 6-channel joints). ``"auto"`` (default) reads "replace"
+        unless the non-root joints' bones would collapse under it (median bone-length
+        change over half the median bone) while keeping their ``OFFSET`` lengths under
+        "add" (within a tenth): values near zero beside non-zero offsets are
+        displacements. The mode used is recorded in ``meta["position_channels"]``.
 
     Returns
     -------
@@ -543,13 +568,13 @@ def read_bvh(
     (994, 38, 4)
     """
     scale = None if units is None else _bvh_unit_scale(units)
-    if position_channels not in ("replace", "add"):
+    if position_channels not in ("auto", "replace", "add"):
         raise ValidationError(
-            f"position_channels: expected 'replace' or 'add', got {position_channels!r}"
+            f"position_channels: expected 'auto', 'replace' or 'add', got {position_channels!r}"
         )
     up_key = str(up).strip().lower().lstrip("+")
-    if up_key not in ("y", "z"):
-        raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
+    if up_key not in ("auto", "y", "z"):
+        raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
     p = check_readable(path)
     try:
         raw = p.read_bytes()
@@ -624,6 +649,8 @@ def _read(
             group[0].append(k)
             group[1].append(cols)
 
+    if position_mode == "auto":
+        position_mode = _position_mode(parents, offsets, pos_joint, pos_axis, data[:, pos_col])
     translations = np.repeat(offsets[None], t, axis=0)  # (T, J, 3) file units
     if pos_col and position_mode == "add":
         translations[:, pos_joint, pos_axis] += data[:, pos_col]
@@ -635,6 +662,15 @@ def _read(
         angles = data[:, np.asarray(cols)]  # (T, k, len(seq)) degrees
         rotations[:, ks] = euler_to_quat(angles, seq, degrees=True)
 
+    if up == "auto":
+        up = guess_bvh_up(_rest_extent(parents, offsets))
+        if up == "z":
+            warnings.warn(
+                f"{os.fspath(p)}: up axis not given; the rest pose stands along z, read as "
+                "Z-up (pass up='y' to override)",
+                UnitWarning,
+                stacklevel=3,
+            )
     guessed = scale is None
     if units is not None and scale is not None:
         unit_name = units.strip().lower()
@@ -675,6 +711,42 @@ def _read(
             "first_frame": 0,
         },
     )
+
+
+def _position_mode(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    pos_joint: list[int],
+    pos_axis: list[int],
+    values: np.ndarray,
+) -> str:
+    """ "replace" or "add": how this file's position channels combine with OFFSET.
+
+    ``values`` (T, C) are the position channel columns, ``pos_joint``/``pos_axis`` (C,)
+    their joint and axis. Only non-root joints decide (a root's channels place the
+    body in the world either way): under the right reading their bone lengths stay
+    near their OFFSET lengths; under the wrong one a file of displacements (near 0)
+    collapses its bones, and a file of absolute values doubles them.
+    """
+    joint = np.asarray(pos_joint, dtype=np.int64)
+    axis = np.asarray(pos_axis, dtype=np.int64)
+    keep = parents[joint] >= 0
+    if not keep.any() or values.shape[0] == 0:
+        return "replace"
+    joint, axis, values = joint[keep], axis[keep], values[:, keep]
+    moved = np.unique(joint)
+    replaced = np.repeat(offsets[None, moved], values.shape[0], axis=0)  # (T, M, 3)
+    added = replaced.copy()
+    slot = np.searchsorted(moved, joint)
+    replaced[:, slot, axis] = values
+    added[:, slot, axis] += values
+    rest = np.linalg.norm(offsets[moved], axis=-1)  # (M,)
+    dev_replace = np.median(np.abs(np.linalg.norm(replaced, axis=-1) - rest))
+    dev_add = np.median(np.abs(np.linalg.norm(added, axis=-1) - rest))
+    # "replace" is the norm: only a clear collapse under it, with the bones intact
+    # under "add", reads the file as displacements
+    scale = np.median(rest)
+    return "add" if dev_add < 0.1 * scale < 0.5 * scale < dev_replace else "replace"
 
 
 # ------------------------------------------------------------------------- writer
@@ -752,8 +824,8 @@ def write_bvh(
     unit = units if units is not None else str(motion.meta.get("source_units", "cm"))
     scale = _bvh_unit_scale(unit, "units" if units is not None else "motion.meta['source_units']")
     up_key = str(up if up is not None else motion.meta.get("up", "y")).strip().lower().lstrip("+")
-    if up_key not in ("y", "z"):
-        raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
+    if up_key not in ("auto", "y", "z"):
+        raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
     mode = (
         position_channels
         if position_channels is not None
