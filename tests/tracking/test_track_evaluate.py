@@ -512,31 +512,37 @@ def test_target_summary_coverage() -> None:
     assert t2["single_gap_error_10_30_m"]["met"] is False  # a lost trial fails it
 
 
-def test_gap_trials_are_drawn_from_known_data_only(scene: Scene) -> None:
+def test_gap_trials_are_drawn_from_measured_data_only(scene: Scene) -> None:
     rope, labels = _truth_rope(scene)
     track = oracle_tracker(rope, 0.01, reverse=False)
-    baseline = rope.copy()
-    baseline[:, 2] += 1.0  # the tracker never follows rope_02
-    baseline[100:, 5] += 0.05  # nor rope_05 from frame 100 on
-    res = evaluate_gap_repair(
-        scene.cloud,
-        scene.point_truth,
-        rope,
-        labels,
-        track,
-        truth_of_trace=np.arange(rope.shape[1]),
-        baseline=baseline,
-        gaps=(10,),
-        starts=40,
-        first_start=20,
-    )
     t_count = scene.cloud.n_frames
+    # rope_05 unseen from frame 100 on; rope_02 unseen throughout
+    cloud, keep = hold_back_points(scene.cloud, scene.point_truth, ["rope_05"], 100, t_count - 100)
+    truth = scene.point_truth[keep]
+    cloud, keep = hold_back_points(cloud, truth, ["rope_02"], 0, t_count)
+    truth = truth[keep]
+
+    def run(baseline, truth_of_trace):  # type: ignore[no-untyped-def]
+        return evaluate_gap_repair(
+            cloud,
+            truth,
+            rope,
+            labels,
+            track,
+            truth_of_trace=truth_of_trace,
+            baseline=baseline,
+            gaps=(10,),
+            starts=40,
+            first_start=20,
+        )
+
+    res = run(rope.copy(), np.arange(rope.shape[1]))
     n_starts = t_count - 10 - 10 - 20 + 1  # s in [20, T - gap - after]
-    # rope_05 is known only while the window ends by frame 100: s + 20 <= 100.
+    # rope_05 is measured only while the window ends by frame 100: s + 20 <= 100.
     known_05 = 100 - 20 - 20 + 1
     single, adjacent = res["single"][0], res["adjacent"][0]
     assert single["candidates"] == 6 * n_starts + known_05
-    # Pairs: (0,1), (3,4), (6,7) always; (4,5) and (5,6) while rope_05 is known.
+    # Pairs: (0,1), (3,4), (6,7) always; (4,5) and (5,6) while rope_05 is measured.
     assert adjacent["candidates"] == 3 * n_starts + 2 * known_05
     for row in (single, adjacent):
         assert row["trials"] == 40
@@ -544,19 +550,17 @@ def test_gap_trials_are_drawn_from_known_data_only(scene: Scene) -> None:
             assert "rope_02" not in d["markers"]
             if "rope_05" in d["markers"]:
                 assert d["start"] + 20 <= 100
-    # Without a known-distance restriction every followed marker and frame may be drawn.
-    free = evaluate_gap_repair(
-        scene.cloud,
-        scene.point_truth,
-        rope,
-        labels,
-        track,
-        truth_of_trace=np.arange(rope.shape[1]),
-        baseline=baseline,
-        gaps=(10,),
-        starts=3,
-        first_start=20,
-        known_distance=None,
-        cases=("single",),
-    )
-    assert free["single"][0]["candidates"] == 8 * n_starts
+    # The draw depends on the take and the seed only, never on the tracking result.
+    bad = rope.copy()
+    bad[:, 3] += 1.0
+    bad[100:, 6] += 0.05
+    no_trace = np.arange(rope.shape[1])
+    no_trace[7] = -1  # the tracker never had rope_07: its trials are lost
+    for other in (run(bad, np.arange(rope.shape[1])), run(None, no_trace)):
+        for case in ("single", "adjacent"):
+            a, b = res[case][0]["detail"], other[case][0]["detail"]
+            assert [(d["start"], d["markers"]) for d in a] == [
+                (d["start"], d["markers"]) for d in b
+            ]
+    lost7 = [d for d in run(None, no_trace)["single"][0]["detail"] if d["markers"] == ["rope_07"]]
+    assert lost7 and all(d["lost"] and d["mean_error_m"] is None for d in lost7)

@@ -375,7 +375,6 @@ def evaluate_gap_repair(
     after: int = 10,
     tail: int | None = 30,
     lost_distance: float = 0.5,
-    known_distance: float | None = 0.02,
     stop_when_lost: bool = True,
     progress: Progress | None = None,
 ) -> dict[str, list[dict[str, Any]]]:
@@ -385,11 +384,11 @@ def evaluate_gap_repair(
     other along the rope) and each gap size ``n`` in increasing order, ``starts``
     trials draw, without repeats, a start frame ``s`` in ``[first_start, T - n - after]``
     and a marker (or adjacent pair) whose data is *known* through the whole window
-    ``s … s+n+after-1`` — the thesis creates gaps "in the known data": the marker has
-    a trace and, when a ``baseline`` is given, that trace is within
-    ``known_distance`` of the truth there, so a failure is due to the gap and not to
-    the tracker having lost the marker already. The generator is seeded with
-    ``(seed, case, n)``. The markers' points are removed in frames
+    ``s … s+n+after-1`` — the thesis creates gaps "in the known data": the marker's
+    point is measured (present in the cloud) in every frame of the window. The draw
+    depends only on the take and ``(seed, case, n)`` (the generator's seed), never
+    on a tracking result, so figures are comparable across tracker versions; a
+    marker without a trace (``truth_of_trace`` has none for it) is a lost trial. The markers' points are removed in frames
     ``s … s+n-1`` (:func:`hold_back_points`), the cloud is cut ``tail`` frames after
     ``s+n+after`` (tracking is causal, frames further on cannot change the gap) and
     tracked, and the trace that follows each held-back marker is compared with the
@@ -418,9 +417,9 @@ def evaluate_gap_repair(
         The truth column each trace follows, -1 for none
         (:func:`match_traces_to_truth` on a run without hold-back).
     baseline : (T, K, 3) float64, metres, optional
-        The traces without hold-back; when given, trials are restricted to known data
-        (see ``known_distance``) and each gap also reports ``baseline_error_m``, the
-        tracker's error over the same frames with nothing held back.
+        The traces without hold-back; when given, each gap also reports
+        ``baseline_error_m``, the tracker's error over the same frames with nothing
+        held back (it does not change which trials are drawn).
     gaps : sequence of int
         Gap sizes in frames, evaluated in increasing order.
     starts : int
@@ -434,9 +433,6 @@ def evaluate_gap_repair(
     tail : int or None
         Extra frames tracked past ``s+n+after``; None tracks the whole take.
     lost_distance : float, metres
-    known_distance : float or None, metres
-        Largest baseline error at which a marker's data counts as known (2 cm);
-        None draws from every followed marker and frame.
     stop_when_lost : bool
     progress : callable(fraction, label), optional
 
@@ -475,19 +471,25 @@ def evaluate_gap_repair(
     if starts < 1:
         raise ValidationError(f"starts: expected at least 1, got {starts}")
 
-    # Where the data is "known": the marker is followed, and (with a baseline) the
-    # baseline trace is within known_distance of it. (T, R) bool.
-    followed = trace_of_truth >= 0
-    known = np.broadcast_to(followed, (n_frames, len(labels))).copy()
-    if baseline is not None and known_distance is not None:
+    # Where the data is "known": the marker's point is measured in that frame. (T, R) bool.
+    truth_text = np.asarray(point_truth).astype(str)
+    if truth_text.shape != (cloud.points.shape[0],):
+        raise ValidationError(
+            f"point_truth: expected ({cloud.points.shape[0]},) labels, got {truth_text.shape}"
+        )
+    names, which = np.unique(truth_text, return_inverse=True)
+    column_of_name = np.array([labels.index(x) if x in labels else -1 for x in names.tolist()])
+    column = column_of_name[which].reshape(-1)
+    frame_of_point = np.repeat(np.arange(n_frames), cloud.counts)
+    known = np.zeros((n_frames, len(labels)), dtype=bool)
+    on = column >= 0
+    known[frame_of_point[on], column[on]] = True
+    if baseline is not None:
         base_arr = np.asarray(baseline, dtype=np.float64)
         if base_arr.ndim != 3 or base_arr.shape[0] != n_frames or base_arr.shape[1] != tot.size:
             raise ValidationError(
                 f"baseline: expected ({n_frames}, {tot.size}, 3), got {base_arr.shape}"
             )
-        follow = base_arr[:, np.maximum(trace_of_truth, 0)]  # (T, R, 3)
-        dist = np.linalg.norm(follow - truth_arr, axis=2)
-        known &= np.nan_to_num(dist, nan=np.inf) <= known_distance
     total_runs = len(cases) * len(gap_sizes) * starts
     runs_done = 0
     results: dict[str, list[dict[str, Any]]] = {}
@@ -523,6 +525,23 @@ def evaluate_gap_repair(
                 for s, r0 in zip(trial_starts.tolist(), trial_markers.tolist(), strict=True):
                     columns = np.arange(r0, r0 + width)
                     traces = trace_of_truth[columns]
+                    if (traces < 0).any():  # the tracker never had this marker
+                        lost.append(True)
+                        errors.append(np.nan)
+                        detail.append(
+                            {
+                                "start": int(s),
+                                "markers": [labels[c] for c in columns],
+                                "mean_error_m": None,
+                                "max_error_m": None,
+                                "lost": True,
+                            }
+                        )
+                        invented_share.append(np.nan)
+                        if baseline is not None:
+                            base_err.append(np.nan)
+                        runs_done += 1
+                        continue
                     held, _ = hold_back_points(
                         cloud, point_truth, [labels[c] for c in columns], s, n
                     )
@@ -696,7 +715,6 @@ def evaluate_tracking(
     after: int = 10,
     tail: int | None = 30,
     lost_distance: float = 0.5,
-    known_distance: float | None = 0.02,
     stop_when_lost: bool = True,
     max_match_distance: float = 0.06,
     progress: Progress | None = None,
@@ -723,7 +741,7 @@ def evaluate_tracking(
         the rope truth (metres, no NaN expected; NaN samples are ignored).
     track : callable(PointCloud) -> RopeTrack-like, optional
         Default :func:`rope_tracker_from_truth`.
-    gaps, starts, seed, cases, after, tail, lost_distance, known_distance, stop_when_lost
+    gaps, starts, seed, cases, after, tail, lost_distance, stop_when_lost
         See :func:`evaluate_gap_repair` (the baseline run is its ``baseline``).
     first_start : int, optional
         Earliest gap start; default the end of the initialisation window, taken as the
@@ -817,7 +835,6 @@ def evaluate_tracking(
         after=after,
         tail=tail,
         lost_distance=lost_distance,
-        known_distance=known_distance,
         stop_when_lost=stop_when_lost,
         progress=sub(0.05, 1.0),
     )
@@ -848,7 +865,7 @@ def evaluate_tracking(
             "after": int(after),
             "tail": None if tail is None else int(tail),
             "lost_distance_m": float(lost_distance),
-            "known_distance_m": None if known_distance is None else float(known_distance),
+            "trials_drawn_from": "measured data (take and seed only)",
             "stop_when_lost": bool(stop_when_lost),
         },
         "thesis": dict(THESIS),
