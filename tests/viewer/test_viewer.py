@@ -14,6 +14,7 @@ import time
 import urllib.request
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -118,10 +119,16 @@ def test_playback_clock_and_speed_validation() -> None:
 def test_camera_framing_sees_the_whole_box_from_above() -> None:
     bounds = np.array([[-4.0, 0.0, -0.5], [4.0, 1.8, 0.5]])  # a walk along x
     position, look_at = camera_framing(bounds, fov_radians=np.radians(50))
-    np.testing.assert_allclose(look_at, [0.0, 0.9, 0.0])
+    centre = np.array([0.0, 0.9, 0.0])
+    assert look_at[1] == pytest.approx(0.9)
     view = position - look_at
     assert view[1] > 0  # above the horizon
     assert abs(view[2]) > abs(view[0])  # from the side of a walk along x
+    # the box centre lies left of the page centre, clear of the GUI panel on the right
+    forward = -view / np.linalg.norm(view)
+    right = np.cross(forward, [0.0, 1.0, 0.0])
+    assert np.dot(centre - position, right) < 0
+    assert np.linalg.norm(np.cross(centre - position, forward)) < np.linalg.norm(view)
     radius = 0.5 * np.linalg.norm(bounds[1] - bounds[0])
     assert np.linalg.norm(view) > radius  # outside the box
     assert default_point_size(bounds) == pytest.approx(0.006 * 2 * radius)
@@ -283,6 +290,19 @@ def test_playback_advances_in_real_time(viewer, scene: Scene) -> None:  # type: 
     viewer.speed_dropdown.value = "0.5x"
     assert viewer.speed == 0.5
     viewer.set_speed(1.0)
+
+
+def test_scrubbing_the_slider_pauses_playback(viewer) -> None:  # type: ignore[no-untyped-def]
+    # a drag from the page arrives as a slider update with a client; playback must stop,
+    # or the playback thread would pull the handle back from under the user's drag
+    viewer.frame = 0
+    viewer.play()
+    drag = SimpleNamespace(target=SimpleNamespace(value=7), client=object())
+    viewer._on_slider(drag)
+    assert not viewer.playing and viewer.play_button.label == "Play"
+    assert viewer.frame == 7
+    time.sleep(0.2)
+    assert viewer.frame == 7
 
 
 def test_scene_with_one_static_mesh_and_bad_arguments() -> None:

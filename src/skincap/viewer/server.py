@@ -6,7 +6,7 @@ threads and returns a :class:`ViewerHandle`. The page shows every layer of the s
 deforming meshes, rope curves) over a ground grid, Y up, with the camera framing the
 scene bounds, and a GUI panel:
 
-* **Timeline**: play/pause, step buttons, a frame slider (scrub), the time, and a
+* **Timeline**: play/pause, step buttons, a frame slider (scrubbing pauses), the time, and a
   speed dropdown. Playback runs in real time at the scene's rate and loops.
 * **Layers**: one checkbox per file and one per layer of a file with several.
 * **Display**: tint markers per file (raw against cleaned) and the point size.
@@ -62,14 +62,23 @@ def _node_name(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.:+-]+", "_", text).strip("_") or "layer"
 
 
+#: Width over height of the page the viewer is usually opened in (a laptop window).
+PAGE_ASPECT = 1.6
+#: How far right of the content the camera aims, as a fraction of the view's half
+#: width: the content's centre lands at about 37 % of the page width, mid-way across
+#: the part the GUI panel leaves free.
+PANEL_SHIFT = 0.27
+
+
 def camera_framing(
     bounds: np.ndarray, *, fov_radians: float = 50.0 * math.pi / 180.0
 ) -> tuple[np.ndarray, np.ndarray]:
     """A camera position and look-at point that frame ``bounds`` (Y up).
 
-    The camera looks at the box centre from the side facing its longest horizontal
-    extent, 20 degrees above the horizon and 30 degrees round, far enough that the
-    bounding sphere fits the vertical field of view.
+    The camera looks at the box from the side facing its longest horizontal extent,
+    20 degrees above the horizon and 30 degrees round, far enough that the bounding
+    sphere fits the vertical field of view, aimed a little right of the box centre so
+    the box sits left of the GUI panel.
 
     Parameters
     ----------
@@ -99,8 +108,13 @@ def camera_framing(
             math.cos(azimuth) * math.cos(elevation),
         ]
     )
-    distance = 0.85 * radius / math.sin(0.5 * fov_radians)  # the box fills the view
-    return centre + distance * direction, centre
+    distance = 0.95 * radius / math.sin(0.5 * fov_radians)  # the box fills the view
+    # viser's control panel floats over the right quarter of the page: aim right of
+    # the content so it sits in the free part, left of the page centre
+    right = np.array([math.cos(azimuth), 0.0, -math.sin(azimuth)])
+    half_width = distance * math.tan(0.5 * fov_radians) * PAGE_ASPECT
+    look_at = centre + PANEL_SHIFT * half_width * right
+    return look_at + distance * direction, look_at
 
 
 def default_point_size(bounds: np.ndarray) -> float:
@@ -330,7 +344,10 @@ class ViewerHandle:
 
     def _on_slider(self, event: Any) -> None:
         frame = int(event.target.value)
-        if event.client is not None:  # the user scrubbed: keep playing from there
+        if event.client is not None:
+            # the user scrubbed: pause, or the playback thread's next slider update
+            # would pull the handle back from under the user's drag
+            self.pause()
             self.clock.anchor(frame, time.monotonic())
         self._show(frame)
 
