@@ -15,10 +15,12 @@ from skincap.errors import SkincapWarning, ValidationError
 from skincap.types import MarkerSet
 
 
-def _body_error(take, cleaned: MarkerSet, n: int) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
-    """Errors (T, n) against truth for the marker columns, and their invented mask."""
+def _body_error(take, cleaned: MarkerSet, n: int, hidden: dict) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+    """Errors (T, n) against truth for the marker columns, and their invented mask
+    (a recovered hidden marker ``U<n>`` compared with its first fragment's truth)."""
     names = list(take.truth.labels)
-    idx = np.array([names.index(lab) for lab in cleaned.labels[:n]])
+    truth = {new: take.fragment_truth[frags[0]] for new, frags in hidden["markers"].items()}
+    idx = np.array([names.index(truth.get(lab, lab)) for lab in cleaned.labels[:n]])
     err = np.linalg.norm(cleaned.positions[:, :n] - take.truth.positions[:, idx], axis=2)
     return err, cleaned.invented[:, :n]
 
@@ -33,7 +35,9 @@ def test_clean_dense_take(method: str) -> None:
             cap, method=method, smooth=False, fragment_truth=take.fragment_truth
         )
     n = report["surface"]["markers"]
-    assert n == sum(not lab.startswith("*") for lab in cap.labels)
+    hidden = report["hidden"]
+    assert n == sum(not lab.startswith("*") for lab in cap.labels) + hidden["new_markers"]
+    assert hidden["wrong_markers"] == 0 and hidden["recovered"] == hidden["new_markers"]
     merge = report["merge"]
     assert merge["merged"] >= 100 and merge["wrong_rate"] <= 0.02
     assert cleaned.n_markers == merge["trajectories_after"]
@@ -41,7 +45,7 @@ def test_clean_dense_take(method: str) -> None:
     assert fill["method"] == method
     assert fill["invented_samples"] + fill["unfilled_samples"] == fill["holes_before"]
     # invented == the filled holes; measured samples untouched without smoothing
-    err, inv = _body_error(take, cleaned, n)
+    err, inv = _body_error(take, cleaned, n, hidden)
     assert inv.sum() == fill["invented_samples"]
     assert np.isfinite(cleaned.positions[:, :n][inv]).all()
     assert not cleaned.invented[:, n:].any()

@@ -34,7 +34,7 @@ from skincap.errors import ValidationError
 from skincap.geometry.rigid import fit_rigid
 from skincap.types import MarkerSet
 
-__all__ = ["MergeReport", "merge_fragments", "neighbour_spacing"]
+__all__ = ["MergeReport", "find_hidden_markers", "merge_fragments", "neighbour_spacing"]
 
 
 @dataclass
@@ -534,3 +534,239 @@ def merge_fragments(
         assignments=assignments,
     )
     return out, report
+
+
+def _in_chain(
+    left: np.ndarray,
+    present: np.ndarray,
+    cols: np.ndarray,
+    mid: np.ndarray,
+    spacing: np.ndarray,
+    min_frames: int,
+    *,
+    reach: float = 4.0,
+    max_cv: float = 0.05,
+) -> np.ndarray:
+    """(G,) bool: whether each unlabelled column sits inside a chain of unlabelled
+    points -- a rope's markers, not skin.
+
+    A chain link has two other unlabelled columns between 1 and ``reach`` spacings
+    from it in its middle frame (a skin marker's own neighbours are nearer), seen with it for at least ``min_frames`` frames, each at a
+    nearly constant distance from it (coefficient of variation below ``max_cv``: an
+    inextensible rope), at similar distances (ratio within 0.75-1.33) and on
+    opposite sides (the angle between them above 120 degrees); a column steadily tied
+    (same distance test) to a link is part of the chain too (its ends, the handle
+    next to a hand). A skin marker hidden
+    in the reference frame has labelled markers around it, not a row of unlabelled
+    ones.
+
+    Parameters
+    ----------
+    left : (T, L, 3) float, metres, NaN where missing
+        The unlabelled columns.
+    present : (T, L) bool
+    cols : (G,) int
+        Columns of ``left`` to test; ``mid`` (G,) int their middle frames and
+        ``spacing`` (G,) float their neighbourhoods' spacing, metres.
+    """
+    here = left[mid, cols]  # (G, 3)
+    rel = left[mid] - here[:, None, :]  # (G, L, 3)
+    d = np.linalg.norm(rel, axis=2)
+    d = np.where(np.isfinite(d), d, np.inf)
+    d[np.arange(cols.size), cols] = np.inf
+    close = (d <= reach * spacing[:, None]) & (d >= spacing[:, None])
+    gi, li = np.nonzero(close)
+    if gi.size == 0:
+        return np.zeros(cols.size, dtype=bool)
+    both = present[:, cols[gi]] & present[:, li]  # (T, P)
+    dist = np.linalg.norm(left[:, cols[gi]] - left[:, li], axis=2)  # (T, P)
+    cnt = both.sum(axis=0)
+    dz = np.where(both, dist, 0.0)
+    mean = dz.sum(axis=0) / np.maximum(cnt, 1)
+    var = np.where(both, (dz - mean) ** 2, 0.0).sum(axis=0) / np.maximum(cnt, 1)
+    steady = (cnt >= min_frames) & (np.sqrt(var) <= max_cv * np.maximum(mean, 1e-12))
+    gi, li = gi[steady], li[steady]
+    if gi.size < 2:
+        return np.zeros(cols.size, dtype=bool)
+    # pairs of steady partners of the same column
+    a, b = np.nonzero((gi[:, None] == gi[None, :]) & (li[:, None] < li[None, :]))
+    if a.size == 0:
+        return np.zeros(cols.size, dtype=bool)
+    ua, ub = rel[gi[a], li[a]], rel[gi[b], li[b]]
+    na, nb = np.linalg.norm(ua, axis=1), np.linalg.norm(ub, axis=1)
+    cos = np.einsum("pi,pi->p", ua, ub) / (na * nb)
+    link = (na <= 1.33 * nb) & (nb <= 1.33 * na) & (cos < -0.5)
+    out = np.zeros(cols.size, dtype=bool)
+    out[gi[a][link]] = True
+    # the chain's ends: steadily tied to a link (repeat along the chain)
+    while True:
+        grow = np.zeros(cols.size, dtype=bool)
+        grow[gi[np.isin(li, cols[out])]] = True
+        if not (grow & ~out).any():
+            return out
+        out |= grow
+
+
+def find_hidden_markers(
+    merged: MarkerSet,
+    surface: MarkerSurface,
+    *,
+    k: int = 8,
+    min_frames: int = 10,
+    max_spread: float = 0.1,
+    max_fit: float = 0.1,
+    min_clearance: float = 0.45,
+    group_radius: float = 0.5,
+    rival_radius: float = 1.5,
+) -> list[list[int]]:
+    """Leftover fragments that are skin markers hidden in the reference frame.
+
+    The paper assumed every marker is seen in the reference pose; a marker hidden
+    there has no label, and its fragments either stay unlabelled or -- worse -- join
+    a neighbour. After a first merge, a leftover fragment is taken for such a marker
+    when, over its **whole** span,
+
+    * it rides with a skin neighbourhood: the ``k`` markers nearest to it in its
+      middle frame (measured, else estimated by eq. 2) are fitted rigidly from every
+      frame to the middle one; the fit's mean residual stays below ``max_fit`` and
+      the fragment, carried by the same fit, stays within ``max_spread`` of where it
+      is in the middle frame (both in units of the neighbours' spacing). A rope's
+      marker next to a hand moves with the hand for a while but not over a whole
+      fragment of a dynamic take, and a ghost jumps;
+    * it never comes within ``min_clearance`` spacings of one of those markers
+      (measured or estimated): a fragment of a labelled marker that the merge left
+      over sits on that marker's estimate;
+    * none of those markers within ``rival_radius`` spacings of it (in the middle
+      frame) goes unmeasured through its whole span: such a marker could own it,
+      its estimate being off (a crease, a hand), and the merge's stricter tests
+      left it over. The same test runs in the reference pose, where the fragment
+      is carried by its neighbourhood's rigid fit, against every known marker.
+
+    The accepted fragments are grouped into markers, longest first: a fragment joins
+    a group when it lies within ``group_radius`` spacings of the group's seed in the
+    reference pose (both carried there by their neighbourhood's rigid fit) and does
+    not overlap it in time. A fragment near a group that it overlaps is dropped
+    (two things cannot be one marker), as is anything ambiguous: a fragment left
+    unlabelled costs a filled hole, a wrong label a wrong trajectory.
+
+    Parameters
+    ----------
+    merged : MarkerSet
+        :func:`merge_fragments`' output: the surface's markers in the first
+        ``surface.n_markers`` columns, leftover fragment columns after them;
+        positions (T, C, 3) metres, NaN where missing.
+    surface : MarkerSurface
+        The surface over the first ``surface.n_markers`` columns.
+    k : int, default 8
+        Markers in a fragment's neighbourhood (at least 3).
+    min_frames : int, default 10
+        Shorter leftover columns are not considered.
+    max_spread, max_fit, min_clearance, group_radius, rival_radius : float
+        Thresholds in units of the neighbourhood's median spacing
+        (:func:`neighbour_spacing`).
+
+    Returns
+    -------
+    list of list of int
+        One list per new marker: columns of ``merged`` (all >= ``surface.n_markers``),
+        the seed (longest) first, the others in time order of no consequence.
+    """
+    n = surface.n_markers
+    pos = merged.positions
+    t_count, c_count, _ = pos.shape
+    if k < 3 or min_frames < 1:
+        raise ValidationError(
+            f"need k >= 3 and min_frames >= 1; got k={k}, min_frames={min_frames}"
+        )
+    if c_count < n:
+        raise ValidationError(f"merged has {c_count} columns but the surface {n} markers")
+    left = pos[:, n:]
+    present = np.isfinite(left).all(axis=2)  # (T, L)
+    count = present.sum(axis=0)
+    cand = np.flatnonzero(count >= min_frames)
+    if cand.size == 0 or n < k:
+        return []
+    est, _ = estimate_missing(pos[:, :n], surface, surface.reference, temporal=True)
+    spacing = neighbour_spacing(surface)
+    # middle present frame of each candidate
+    order = np.cumsum(present[:, cand], axis=0)  # (T, Cc)
+    mid = np.argmax(order >= ((count[cand] + 1) // 2)[None, :], axis=0)  # (Cc,)
+    here = left[mid, cand]  # (Cc, 3)
+    d_mid = np.linalg.norm(est[mid] - here[:, None, :], axis=2)  # (Cc, N)
+    d_mid = np.where(np.isfinite(d_mid), d_mid, np.inf)
+    nb = np.argsort(d_mid, axis=1, kind="stable")[:, :k]  # (Cc, k)
+    has_k = np.isfinite(np.take_along_axis(d_mid, nb, axis=1)).all(axis=1)
+    s = np.nanmedian(np.where(np.isfinite(spacing[nb]), spacing[nb], np.nan), axis=1)
+    has_k &= np.isfinite(s) & (s > 0)
+    cand, mid, here, nb, s = cand[has_k], mid[has_k], here[has_k], nb[has_k], s[has_k]
+    if cand.size == 0:
+        return []
+    rc, rt = np.nonzero(present[:, cand].T)  # rows (candidate, frame)
+    src = est[rt[:, None], nb[rc]]  # (R, k, 3), NaN where the neighbour is unknown
+    dst = est[mid[rc][:, None], nb[rc]]  # (R, k, 3)
+    rot, tr = fit_rigid(src, dst)
+    moved = np.einsum("rij,rkj->rki", rot, src) + tr[:, None]
+    resid = np.nanmean(np.linalg.norm(moved - dst, axis=2), axis=1) if src.size else np.zeros(0)
+    frag = left[rt, cand[rc]]  # (R, 3)
+    carried = np.einsum("rij,rj->ri", rot, frag) + tr
+    dev = np.linalg.norm(carried - here[rc], axis=1)
+    near = np.linalg.norm(src - frag[:, None], axis=2)
+    near = np.min(np.where(np.isfinite(near), near, np.inf), axis=1)
+    bad = ~np.isfinite(dev) | ~np.isfinite(resid)
+    worst = np.zeros((3, cand.size))
+    np.maximum.at(worst[0], rc, np.where(bad, np.inf, dev))
+    np.maximum.at(worst[1], rc, np.where(bad, np.inf, resid))
+    clearance = np.full(cand.size, np.inf)
+    np.minimum.at(clearance, rc, near)
+    fitted = np.bincount(rc[~bad], minlength=cand.size)
+    # a known marker near it that is never measured while it is could own it
+    measured = np.isfinite(pos[:, :n]).all(axis=2)  # (T, N)
+    seen_with = np.zeros((cand.size, k), dtype=bool)
+    np.logical_or.at(seen_with, rc, measured[rt[:, None], nb[rc]])
+    d_nb = np.take_along_axis(d_mid[has_k], nb, axis=1)  # (Cc, k)
+    rival = np.any(~seen_with & (d_nb <= rival_radius * s[:, None]), axis=1)
+    good = (
+        (worst[0] <= max_spread * s)
+        & (worst[1] <= max_fit * s)
+        & (clearance >= min_clearance * s)
+        & (2 * fitted >= count[cand])
+        & ~rival
+    )
+    if not good.any():
+        return []
+    g = np.flatnonzero(good)
+    g = g[~_in_chain(left, present, cand[g], mid[g], s[g], min_frames)]
+    if g.size == 0:
+        return []
+    # each accepted fragment carried into the reference pose by its neighbourhood
+    ref = surface.reference
+    r_rot, r_tr = fit_rigid(est[mid[g][:, None], nb[g]], ref[nb[g]])
+    at_ref = np.einsum("gij,gj->gi", r_rot, here[g]) + r_tr
+    keep = np.isfinite(at_ref).all(axis=1)
+    g, at_ref = g[keep], at_ref[keep]
+    # the same rival test in the reference pose, against every known marker there
+    with_g = present[:, cand[g]].T.astype(np.float64) @ measured.astype(np.float64)  # (G, N)
+    d_ref = np.linalg.norm(ref[None, :, :] - at_ref[:, None, :], axis=2)  # (G, N), NaN unknown
+    near_ref = np.where(np.isfinite(d_ref), d_ref, np.inf) <= rival_radius * s[g][:, None]
+    keep = ~np.any(near_ref & (with_g == 0), axis=1)
+    g, at_ref = g[keep], at_ref[keep]
+    cols = cand[g]
+    seeds: list[int] = []
+    groups: list[list[int]] = []
+    taken: list[np.ndarray] = []
+    for j in np.argsort(-count[cols], kind="stable").tolist():
+        dist = [float(np.linalg.norm(at_ref[j] - at_ref[sd])) / s[g[sd]] for sd in seeds]
+        apart = [not np.any(taken[q] & present[:, cols[j]]) for q in range(len(seeds))]
+        near_seed = [q for q, d in enumerate(dist) if d <= group_radius]
+        if len(near_seed) == 1 and apart[near_seed[0]]:
+            q = near_seed[0]
+            groups[q].append(int(cols[j]) + n)
+            taken[q] |= present[:, cols[j]]
+        elif not near_seed and not any(
+            d <= rival_radius and a for d, a in zip(dist, apart, strict=True)
+        ):
+            seeds.append(j)
+            groups.append([int(cols[j]) + n])
+            taken.append(present[:, cols[j]].copy())
+        # else ambiguous: it could be a seed's marker or a new one; left over
+    return groups

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from skincap.cleanup.merge import merge_fragments
+from skincap.cleanup.merge import find_hidden_markers, merge_fragments
 from skincap.cleanup.surface import (
     MarkerSurface,
     build_marker_surface,
@@ -59,6 +59,93 @@ def _surface(positions: np.ndarray, reference_frame: int) -> MarkerSurface:
     return build_marker_surface(pos, reference_frame=reference_frame)
 
 
+def _add_hidden_markers(
+    markers: MarkerSet,
+    anchors: np.ndarray,
+    merged: MarkerSet,
+    groups: list[list[int]],
+    fragment_truth: dict[str, str] | None,
+) -> tuple[MarkerSet, np.ndarray, dict[str, str] | None, dict[str, Any]]:
+    """The capture with one new marker column per group of leftover fragments.
+
+    ``groups`` index columns of ``merged`` (a first merge's output); each group's
+    samples move out of their fragment columns into a new column ``U<n>`` named after
+    the group's first (longest) fragment ``*<n>``, appended after the capture's
+    columns and to ``anchors``. Returns the new capture, anchors, the truth extended
+    with each new label (its first fragment's truth) and the ``hidden`` report.
+    """
+    labels = [str(lab) for lab in markers.labels]
+    hidden: dict[str, Any] = {"enabled": True, "new_markers": len(groups), "markers": {}}
+    if not groups:
+        if fragment_truth is not None:
+            hidden.update(recovered=0, wrong_markers=0, wrong_fragments=0)
+        return markers, anchors, fragment_truth, hidden
+    column_of = {lab: c for c, lab in enumerate(labels)}
+    pos = markers.positions.copy()
+    res = None if markers.residuals is None else markers.residuals.copy()
+    inv = None if markers.invented is None else markers.invented.copy()
+    t_count = pos.shape[0]
+    new_pos = np.full((t_count, len(groups), 3), np.nan)
+    new_res = None if res is None else np.full((t_count, len(groups)), np.nan)
+    new_inv = None if inv is None else np.zeros((t_count, len(groups)), dtype=bool)
+    new_labels: list[str] = []
+    taken = set(labels)
+    for g, members in enumerate(groups):
+        names = [str(merged.labels[m]) for m in members]
+        base = "U" + names[0].lstrip("*")
+        name, k = base, 1
+        while name in taken:
+            name, k = f"{base}_{k}", k + 1
+        taken.add(name)
+        new_labels.append(name)
+        hidden["markers"][name] = names
+        for m, lab in zip(members, names, strict=True):
+            col = column_of[lab]
+            rows = np.isfinite(merged.positions[:, m]).all(axis=1)
+            new_pos[rows, g] = pos[rows, col]
+            pos[rows, col] = np.nan
+            if res is not None and new_res is not None:
+                new_res[rows, g] = res[rows, col]
+                res[rows, col] = np.nan
+            if inv is not None and new_inv is not None:
+                new_inv[rows, g] = inv[rows, col]
+                inv[rows, col] = False
+    out = MarkerSet(
+        positions=np.concatenate([pos, new_pos], axis=1),
+        labels=labels + new_labels,
+        rate=markers.rate,
+        meta=dict(markers.meta),
+        residuals=None if res is None else np.concatenate([res, new_res], axis=1),
+        invented=None if inv is None else np.concatenate([inv, new_inv], axis=1),
+    )
+    c_count = len(labels)
+    anchors = np.concatenate([anchors, np.arange(c_count, c_count + len(groups))])
+    if fragment_truth is not None:
+        fragment_truth = dict(fragment_truth)
+        known = {fragment_truth.get(labels[a], labels[a]) for a in anchors[: -len(groups)]}
+        seen: set[str] = set()
+        wrong_markers = wrong_fragments = 0
+        for name, names in hidden["markers"].items():
+            truth = fragment_truth.get(names[0], names[0])
+            fragment_truth[name] = truth
+            wrong_fragments += sum(fragment_truth.get(f, f) != truth for f in names[1:])
+            is_marker = truth in markers_in_truth(fragment_truth) and truth not in known
+            if not is_marker or truth in seen:
+                wrong_markers += 1
+            seen.add(truth)
+        hidden.update(
+            recovered=len(groups) - wrong_markers,
+            wrong_markers=wrong_markers,
+            wrong_fragments=wrong_fragments,
+        )
+    return out, anchors, fragment_truth, hidden
+
+
+def markers_in_truth(fragment_truth: dict[str, str]) -> set[str]:
+    """True marker labels named by a fragment truth: everything but ``ghost`` and ``rope_*``."""
+    return {v for v in fragment_truth.values() if v != "ghost" and not v.startswith("rope_")}
+
+
 def clean_markers(
     markers: MarkerSet,
     *,
@@ -73,6 +160,7 @@ def clean_markers(
     alpha2: float = 0.6,
     keep_fragments: bool = True,
     promote_fragments: bool | None = None,
+    recover_hidden: bool = True,
     fragment_truth: dict[str, str] | None = None,
     progress: Callable[[float, str], None] | None = None,
 ) -> tuple[MarkerSet, dict[str, Any]]:
@@ -111,6 +199,15 @@ def clean_markers(
         skin neighbours (distance CV <= 0.2 over >= 10 shared frames) become marker
         columns. Off: only the labelled columns are markers. Beware: the tape markers
         of a rope keep their mutual distances too, so they pass this test.
+    recover_hidden : bool, default True
+        Beyond the paper (which assumed a complete reference frame): with an
+        automatic surface over labelled columns, give the markers hidden in the
+        reference frame a label. A first merge runs; the leftover fragments that ride
+        with a skin neighbourhood over their whole span and never come near a known
+        marker (:func:`~skincap.cleanup.merge.find_hidden_markers`) become new marker
+        columns labelled ``U<n>`` after their longest fragment ``*<n>``; then the
+        surface is rebuilt and the merge runs again from the start, so fragments
+        that had gone to a neighbour of the hidden marker now go to it.
     fragment_truth : dict of str to str, optional
         Ground truth for the merge report's wrong-merge count.
     progress : callable(fraction, label), optional
@@ -123,6 +220,8 @@ def clean_markers(
         samples the input already flagged). NaN where nothing could be filled.
     report : dict
         ``surface`` (markers, edges, faces, reference_frame, mean neighbour distance),
+        ``hidden`` (new markers -> their fragments; with truth, how many hidden
+        markers were recovered and how many fragments or markers were wrong),
         ``merge`` (:class:`~skincap.cleanup.merge.MergeReport` fields), ``fill``
         (method, holes before, invented and unfilled samples), ``smooth`` (λ,
         iterations) and ``invented`` (label -> [start, end) runs).
@@ -144,6 +243,7 @@ def clean_markers(
             return None
         return lambda f, label: progress(base + span * f, label)
 
+    auto_surface = surface is None
     if surface is not None:
         if surface.n_markers != labelled.size:
             raise ValidationError(
@@ -176,6 +276,16 @@ def clean_markers(
             if not keep.all():
                 anchors = anchors[keep]
                 surface = _surface(pos[:, anchors], reference_frame)
+
+    hidden: dict[str, Any] = {"enabled": False, "new_markers": 0, "markers": {}}
+    if recover_hidden and auto_surface and labelled.size and reference_frame is not None:
+        first, _ = merge_fragments(markers, surface, anchors, alpha1=alpha1, alpha2=alpha2)
+        groups = find_hidden_markers(first, surface)
+        markers, anchors, fragment_truth, hidden = _add_hidden_markers(
+            markers, anchors, first, groups, fragment_truth
+        )
+        if groups:
+            surface = _surface(markers.positions[:, anchors], reference_frame)
 
     merged, merge_report = merge_fragments(
         markers,
@@ -246,6 +356,7 @@ def clean_markers(
             ),
             "markers_without_neighbours": int((surface.degree == 0).sum()),
         },
+        "hidden": hidden,
         "merge": merge_report.as_dict(),
         "fill": {
             "method": method,
