@@ -91,17 +91,23 @@ def test_benchmark_lines():
 
 def test_rigid_blend_setting_is_passed_and_reported(take):
     markers, truth = take
-    kw = dict(methods=["local_pca", "rigid"], gap_lengths=(30,), gaps=3, seed=4, truth=truth)
+    kw = dict(
+        methods=["local_pca", "rigid", "rigid_weighted"],
+        gap_lengths=(30,),
+        gaps=3,
+        seed=4,
+        truth=truth,
+    )
     auto = evaluate_fill(markers, **kw)
     paper = evaluate_fill(markers, rigid_blend=0.0, **kw)
     full = evaluate_fill(markers, rigid_blend=1.0, **kw)
     assert auto["rigid_blend"] == "per gap" and paper["rigid_blend"] == 0.0
     # the baselines do not change; the local method does, and with weight 1 it is the
-    # rigid fill (every punched gap keeps >= 3 donors, so no sample differs)
+    # donor-weighted rigid fill (every punched gap keeps >= 3 donors, so no sample differs)
     assert auto["results"]["rigid"] == paper["results"]["rigid"]
     assert auto["results"]["local_pca"] != paper["results"]["local_pca"]
     assert full["results"]["local_pca"]["all"]["mm"] == pytest.approx(
-        full["results"]["rigid"]["all"]["mm"]
+        full["results"]["rigid_weighted"]["all"]["mm"]
     )
     with pytest.raises(ValidationError):
         evaluate_fill(markers, rigid_blend=-0.1, **kw)

@@ -261,11 +261,17 @@ def test_rigid_blend_extremes_and_validation(take):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
         pure, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=0.0)
-        rigid, _ = fill_gaps(markers, method="rigid", neighbours=nb)
+        rigid, _ = fill_gaps(markers, method="rigid_weighted", neighbours=nb)
+        plain, _ = fill_gaps(markers, method="rigid", neighbours=nb)
         ones, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=1.0)
+        ones_plain, _ = fill_gaps(
+            markers, method="local_pca", neighbours=nb, rigid_blend=1.0, rigid_weighted=False
+        )
         auto, _ = fill_gaps(markers, method="local_pca", neighbours=nb)
     miss = markers.missing & ~np.isnan(rigid[..., 0]) & ~np.isnan(pure[..., 0])
+    # the blend's rigid fill weighs its donors; rigid_weighted=False is the Vicon-style one
     np.testing.assert_allclose(ones[miss], rigid[miss])
+    np.testing.assert_allclose(ones_plain[miss], plain[miss])
     # the adaptive fill lies on the segment between the two fills
     a, b, c = pure[miss], auto[miss], rigid[miss]
     np.testing.assert_allclose(

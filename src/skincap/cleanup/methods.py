@@ -12,6 +12,7 @@ FillMethod = Literal[
     "pchip",
     "spline",
     "rigid",
+    "rigid_weighted",
     "pca",
 ]
 #: Every method :func:`skincap.cleanup.fill.fill_gaps` accepts.
