@@ -287,7 +287,8 @@ def _print_eval_table(result: dict[str, Any]) -> None:
     b = result["baseline"]
     out.print(
         f"tracking without hold-back: {100 * b['followed_2cm_fraction']:.1f}% of rope marker "
-        f"samples followed within 2 cm; gaps are held back only where the marker is followed",
+        f"samples followed within 2 cm; gap trials are drawn where the marker is measured "
+        f"(from the take and --seed only, whatever the tracking)",
         markup=False,
         soft_wrap=True,
     )
