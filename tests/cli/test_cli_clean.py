@@ -53,9 +53,12 @@ def test_clean_synthetic_capture(synth_c3d, tmp_path: Path) -> None:  # noqa: AN
     merge = report["merge"]
     assert merge["trajectories_before"] == before.n_markers
     assert after.n_markers == merge["trajectories_after"] < before.n_markers
-    assert after.labels[: report["surface"]["markers"]] == [
-        lab for lab in before.labels if not lab.startswith("*")
-    ]
+    labelled = [lab for lab in before.labels if not lab.startswith("*")]
+    n_surface = report["surface"]["markers"]
+    assert after.labels[: len(labelled)] == labelled
+    # markers hidden in the reference frame follow the labelled ones, named U<n>
+    assert n_surface == len(labelled) + report["hidden"]["new_markers"]
+    assert all(lab.startswith("U") for lab in after.labels[len(labelled) : n_surface])
     # invented samples survive the C3D round trip and match the report's runs
     assert after.invented is not None
     assert int(after.invented.sum()) == report["fill"]["invented_samples"] > 0

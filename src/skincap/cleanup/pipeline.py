@@ -357,7 +357,8 @@ def clean_markers(
             "markers_without_neighbours": int((surface.degree == 0).sum()),
         },
         "hidden": hidden,
-        "merge": merge_report.as_dict(),
+        # counted on the input: the hidden markers' columns are made of its fragments
+        "merge": {**merge_report.as_dict(), "trajectories_before": int(c_count)},
         "fill": {
             "method": method,
             "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
