@@ -122,3 +122,31 @@ def test_weighted_rigid_beats_plain_rigid_on_real_walking():
     # measured (seed 0, 4 gaps per length): rigid 4.04 mm, weighted 3.15, local PCA 2.20
     assert rmse["rigid_weighted"] < 0.9 * rmse["rigid"], rmse
     assert rmse["local_pca"] < 0.75 * rmse["rigid"], rmse
+
+
+def test_frame_donors_use_a_neighbour_missing_for_part_of_the_gap():
+    """Marker 0's only rigid donors besides two are missing for half its gap: the
+    fixed-set fill is left with too few (NaN or a poor fit); per-frame donors use them
+    where they are seen and stay exact on rigid motion."""
+    truth, _ = _limb_take()
+    rigid_only = truth[:, :6]
+    offsets = np.arange(7, dtype=np.int64) * 5
+    indices = np.array([[j for j in range(6) if j != i] for i in range(6)]).reshape(-1)
+    gappy = rigid_only.copy()
+    gappy[50:150, 0] = np.nan
+    gappy[60:100, 1] = np.nan  # donors 1 and 2 each miss part of the gap
+    gappy[110:140, 2] = np.nan
+    target = np.zeros(gappy.shape[:2], dtype=bool)
+    target[50:150, 0] = True
+    fixed = fill_rigid(gappy, target, (offsets, indices))
+    per_frame = fill_rigid(gappy, target, (offsets, indices), frame_donors=True)
+    weighted = fill_rigid(gappy, target, (offsets, indices), weighted=True, frame_donors=True)
+    np.testing.assert_allclose(per_frame[50:150, 0], rigid_only[50:150, 0], atol=1e-9)
+    np.testing.assert_allclose(weighted[50:150, 0], rigid_only[50:150, 0], atol=1e-9)
+    np.testing.assert_allclose(fixed[50:150, 0], rigid_only[50:150, 0], atol=1e-9)
+    # with only two donors seen throughout, the fixed set cannot fill at all
+    gappy[80:90, 3] = np.nan
+    fixed = fill_rigid(gappy, target, (offsets, indices))
+    per_frame = fill_rigid(gappy, target, (offsets, indices), frame_donors=True)
+    assert np.isnan(fixed[50:150, 0]).all()
+    np.testing.assert_allclose(per_frame[50:150, 0], rigid_only[50:150, 0], atol=1e-9)

@@ -40,8 +40,10 @@ Methods
     The rigid fill with each donor weighted in the fit (weighted Kabsch) by how
     rigidly it moved with the marker within one gap length before and after the gap:
     ``1 / (var(distance) + (0.003 d)²)``, ``d`` the mean neighbour distance. Donors
-    across a joint or a crease hardly count. The local methods blend with (and fall
-    back to) this fill by default.
+    across a joint or a crease hardly count. Donors need only be seen at the gap's
+    ends and in the frame being filled (a neighbour missing for part of the gap still
+    serves where it is seen). The local methods blend with (and fall back to) this
+    fill by default.
 ``pca``
     Whole-body PCA fill (Gløersen & Federolf 2016): PCA of all markers' normalised
     coordinates over the take, missing values reconstructed iteratively.
@@ -347,6 +349,7 @@ def fill_rigid(
     spread: np.ndarray | None = None,
     weighted: bool = False,
     noise_floor: float = 0.003,
+    frame_donors: bool = False,
 ) -> np.ndarray:
     """Vicon-style rigid-body fill from >= 3 donor markers.
 
@@ -382,6 +385,12 @@ def fill_rigid(
         See ``weighted``: the distance spread, as a fraction of the mean neighbour
         distance, below which donors count as equally rigid (keeps measurement
         noise from deciding between near-rigid donors).
+    frame_donors : bool
+        Donors need only be measured at the gap's ends (where the gap has them) and in
+        the gap frame being filled, instead of throughout the gap: a neighbour
+        missing for part of the gap still serves in the frames it is seen, and each
+        frame uses the first ``max_donors`` it sees. False (default): the
+        Vicon-style fixed donor set.
 
     Returns
     -------
@@ -408,15 +417,23 @@ def fill_rigid(
     cand = np.where(
         cand_ok, indices[np.minimum(offsets[marker][:, None] + slot, len(indices) - 1)], 0
     )
-    # presence counts over [s-1, e] via cumulative sums
-    cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])  # (T+1, N)
-    lo = np.maximum(start - 1, 0)
-    hi = np.minimum(end + 1, t)  # exclusive
-    need = hi - lo
-    seen = cs[hi[:, None], cand] - cs[lo[:, None], cand]  # (G, K)
-    donor = cand_ok & (seen == need[:, None])
-    # keep the first max_donors donors
-    donor &= np.cumsum(donor, axis=1) <= max_donors
+    if frame_donors:
+        # candidates seen at the gap's ends; each gap frame uses those it sees
+        donor = cand_ok.copy()
+        donor &= np.where(
+            (start > 0)[:, None], present[np.maximum(start - 1, 0)[:, None], cand], True
+        )
+        donor &= np.where((end < t)[:, None], present[np.minimum(end, t - 1)[:, None], cand], True)
+    else:
+        # presence counts over [s-1, e] via cumulative sums
+        cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])
+        lo = np.maximum(start - 1, 0)
+        hi = np.minimum(end + 1, t)  # exclusive
+        need = hi - lo
+        seen = cs[hi[:, None], cand] - cs[lo[:, None], cand]  # (G, K)
+        donor = cand_ok & (seen == need[:, None])
+        # keep the first max_donors donors
+        donor &= np.cumsum(donor, axis=1) <= max_donors
     donor_w = None
     if weighted:
         slot_edge = np.minimum(offsets[marker][:, None] + slot, len(indices) - 1)
@@ -424,18 +441,22 @@ def fill_rigid(
         donor_w = 1.0 / (donor_w + (noise_floor * _mean_edge(p, neighbours)[marker])[:, None] ** 2)
         donor &= donor_w > 0
         donor_w = np.where(donor, donor_w, 0.0)
-    enough = donor.sum(axis=1) >= 3
-    before_ok = (start > 0) & enough
-    after_ok = (end < t) & enough
     # one row per (run, gap frame)
     rep = np.repeat(np.arange(g), end - start)
     frame = np.concatenate([np.arange(a, b) for a, b in zip(start, end, strict=True)])
-    keep = target[frame, marker[rep]] & (before_ok | after_ok)[rep]
-    rep, frame = rep[keep], frame[keep]
-    if rep.size == 0:
-        return p
     donors = cand[rep]  # (S, K)
     dmask = donor[rep]
+    if frame_donors:
+        dmask &= present[frame[:, None], donors]
+        dmask &= np.cumsum(dmask, axis=1) <= max_donors
+    enough = dmask.sum(axis=1) >= 3
+    before_ok = (start[rep] > 0) & enough
+    after_ok = (end[rep] < t) & enough
+    keep = target[frame, marker[rep]] & (before_ok | after_ok)
+    rep, frame, donors, dmask = rep[keep], frame[keep], donors[keep], dmask[keep]
+    before_ok, after_ok = before_ok[keep], after_ok[keep]
+    if rep.size == 0:
+        return p
     cur = p[frame[:, None], donors]  # (S, K, 3)
     est = np.zeros((rep.size, 3))
     wsum = np.zeros(rep.size)
@@ -443,7 +464,7 @@ def fill_rigid(
     span = (end - start + 1).astype(np.float64)
     w_before = (end[rep] - frame) / span[rep]  # 1 next to the frame before, ->0 at the end
     for ref_frame, ok, w in ((start - 1, before_ok, w_before), (end, after_ok, 1.0 - w_before)):
-        okr = ok[rep]
+        okr = ok
         if not okr.any():
             continue
         rf = np.clip(ref_frame[rep], 0, t - 1)
@@ -1182,7 +1203,7 @@ def fill_gaps(
     elif method == "rigid":
         out = fill_rigid(p, target, csr)
     elif method == "rigid_weighted":
-        out = fill_rigid(p, target, csr, weighted=True)
+        out = fill_rigid(p, target, csr, weighted=True, frame_donors=True)
     elif method == "pca":
         out = fill_pca(p, target)
     else:
@@ -1202,7 +1223,12 @@ def fill_gaps(
         if blend or left.any():
             spread_rigid = np.full((t, n), np.nan)
             back = fill_rigid(
-                p, target if blend else left, csr, spread=spread_rigid, weighted=rigid_weighted
+                p,
+                target if blend else left,
+                csr,
+                spread=spread_rigid,
+                weighted=rigid_weighted,
+                frame_donors=rigid_weighted,
             )
             both = target & ~left & ~np.isnan(back[..., 0])
             if blend:
