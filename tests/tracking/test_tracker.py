@@ -235,3 +235,32 @@ def test_zipper_continues_the_measured_side_of_a_run_at_the_rest_spacing() -> No
         krows, kpred = _zipper(pts, known, spacing, True, True)
         np.testing.assert_array_equal(krows, rows)
         np.testing.assert_allclose(kpred, pred, atol=1e-12)
+
+
+def test_a_slow_steady_trace_takes_no_point_beyond_gamma_in_the_wide_gate() -> None:
+    from skincap.tracking.tracker import _FrameTree, _match
+
+    gamma = 0.03
+    spacing = np.array([0.12, 0.12])
+    prev = np.array([[0.0, 0, 0], [0.12, 0, 0], [0.24, 0, 0]])
+    # frame 1: markers 0 and 2 measured; marker 1 hidden, a body point 4.5 cm from
+    # where it was, at its rest spacing from both neighbours
+    body_pt = np.array([0.12, 0.0, 0.045])
+    pts = np.concatenate([prev, prev[[0, 2]], [body_pt]])
+    cloud = PointCloud(points=pts, offsets=np.array([0, 3, 6]), rate=120.0, ids=None, meta={})
+
+    def run(pred: np.ndarray) -> bool:
+        cur = np.zeros((3, 3))
+        cur[[0, 2]] = prev[[0, 2]]
+        known = np.array([True, False, True])
+        taken = np.array([3, -1, 4])
+        steady = np.ones(3, dtype=bool)
+        kw = dict(gate=2 * gamma, spacing=spacing, body_steady=steady, prev=prev)
+        return _match(
+            _FrameTree(cloud), 1, np.array([1]), pred, 3, gamma, cur, known, taken, pts, **kw
+        )
+
+    assert not run(prev.copy())  # predicted still: the body point 4.5 cm off is refused
+    fast = prev.copy()
+    fast[1] = [0.12, 0.0, 0.05]  # predicted to move 5 cm (> γ): taken 0.5 cm from there
+    assert run(fast)

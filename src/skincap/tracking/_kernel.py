@@ -337,6 +337,7 @@ def _match(
     steady,
     follow,
     body,
+    slow,
 ):  # pragma: no cover
     """As the reference ``_match``: rows to free points of the frame within the gate."""
     r_n = rows.size
@@ -363,6 +364,18 @@ def _match(
         for c in range(kk):
             if d[r, c] < _INF and body[ii[r, c]]:
                 d[r, c] = _INF
+    if slow and gate > gamma:
+        for r in range(r_n):
+            row = rows[r]
+            if not steady[row]:
+                continue
+            ex = pred[row, 0] - prev[row, 0]
+            ey = pred[row, 1] - prev[row, 1]
+            ez = pred[row, 2] - prev[row, 2]
+            if ex * ex + ey * ey + ez * ez <= gamma * gamma:
+                for c in range(kk):
+                    if d[r, c] >= gamma:
+                        d[r, c] = _INF
     if follow:
         for r in range(r_n):
             row = rows[r]
@@ -769,6 +782,7 @@ def track_frames(
     zip_rounds,
     zip_inner,
     zip_quad,
+    slow,
 ):  # pragma: no cover - runs compiled
     """Track frames ``t0 … t1 - 1`` (t0 >= 1), updating the output arrays and the state
     (``velocity``, ``temp_count``, the body chains ``body``/``body_vel`` over all
@@ -812,6 +826,7 @@ def track_frames(
                 active,
                 follow,
                 body,
+                slow,
             )
             _reject_overstretched(cur, known, taken, s, gamma, stretch)
             _reject_odd_motion(cur, prev, known, taken, gamma, active)
@@ -854,6 +869,7 @@ def track_frames(
                     active,
                     follow,
                     body,
+                    slow,
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
@@ -901,6 +917,7 @@ def track_frames(
                     active,
                     follow,
                     body,
+                    slow,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma, stretch)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
@@ -927,6 +944,7 @@ def track_frames(
                         active,
                         follow,
                         body,
+                        slow,
                     ):
                         break
                     found_more = True

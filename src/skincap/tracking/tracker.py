@@ -90,6 +90,9 @@ _FOLLOW = True
 #: Gate of the body chains (:func:`_body_chains`), in γ: a point continues a body point
 #: of the previous frame when it lies this close to where that point's velocity takes it.
 _CHAIN = 1.0 / 3.0
+#: A steady trace predicted to move at most γ takes no point beyond γ in the wider
+#: second-chance gates (a slow rope does not jump; a body point beside it would).
+_SLOW = True
 #: Rounds of the zipper (:func:`_zipper_predictions`): a run of invented inner markers
 #: is searched from its measured ends inward, one marker per side and round.
 _ZIP = 3
@@ -404,6 +407,7 @@ def _match(
     follow: _Previous | None = None,
     body: np.ndarray | None = None,
     body_steady: np.ndarray | None = None,
+    prev: np.ndarray | None = None,
 ) -> bool:
     """Match the traces ``rows`` to free points of frame t within γ of ``pred``, in place.
 
@@ -412,7 +416,9 @@ def _match(
     continue another object (:func:`_follows_other`) are skipped too; with ``body``
     ((cloud points,) bool) and ``body_steady`` ((M,) bool: traces measured in the
     previous frame), the body points (:func:`_body_chains`) are skipped by the traces
-    that are not steady. Returns True if any matched.
+    that are not steady. With ``prev`` ((M, 3) the rope in the previous frame) and a
+    wider ``gate``, a steady trace predicted to move no more than γ does not take a
+    point beyond γ (:data:`_SLOW`). Returns True if any matched.
     """
     if rows.size == 0:
         return False
@@ -425,6 +431,10 @@ def _match(
     if body is not None and body_steady is not None:
         off = body[np.minimum(i, points.shape[0] - 1)] & ~body_steady[rows][:, None]
         d = np.where(off, np.inf, d)
+    if _SLOW and prev is not None and body_steady is not None and gate > gamma:
+        e = pred[rows] - prev[rows]
+        slow = body_steady[rows] & (np.einsum("ij,ij->i", e, e) <= gamma * gamma)
+        d = np.where(slow[:, None] & (d >= gamma), np.inf, d)
     if follow is not None:
         d = np.where(_follows_other(follow, rows, pred, i, d, points, gamma), np.inf, d)
     if spacing is not None:
@@ -782,6 +792,7 @@ def _track_numpy(
                     follow=follow,
                     body=body,
                     body_steady=active,
+                    prev=prev,
                 ):
                     break
                 _reject_overstretched(cur, known, taken, s, gamma)
@@ -815,6 +826,7 @@ def _track_numpy(
                     follow=follow,
                     body=body,
                     body_steady=active,
+                    prev=prev,
                 )
                 _reject_overstretched(cur, known, taken, s, gamma)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
@@ -837,6 +849,7 @@ def _track_numpy(
                         follow=follow,
                         body=body,
                         body_steady=active,
+                        prev=prev,
                     ):
                         break
                     found_more = True
@@ -948,7 +961,7 @@ def track_rope(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
                 int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
-                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD,
+                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
                 progress((t1 - 1) / t_frames)
