@@ -87,12 +87,12 @@ def test_dense_jumprope_take_table1() -> None:
     anchors = np.flatnonzero([not lab.startswith("*") for lab in cap.labels])
     surface = build_marker_surface(cap.positions[:, anchors], reference_frame=0)
     merged, report = merge_fragments(cap, surface, fragment_truth=take.fragment_truth)
-    # measured (150 frames): 538 -> 426 trajectories, 112 merged, 1 wrong (0.9 %; a
-    # marker hidden in frame 0, so unlabelled), 12 body fragments (16 samples, mostly
-    # single frames) left to the hole filler; the paper: 0.0-1.1 % wrong with manual merges
+    # measured (150 frames): 538 -> 430 trajectories, 108 merged, none wrong, 15 body
+    # fragments (49 samples) left to the hole filler (rival_ratio 0.7: 111 merged, 16
+    # samples left); the paper: 0.0-1.1 % wrong with manual merges
     assert report.merged >= 100
-    assert report.wrong_rate <= 0.01
-    assert report.left_unmerged_frames <= 30
+    assert report.wrong_rate == 0
+    assert report.left_unmerged_frames <= 60
     assert report.trajectories_after == merged.n_markers < report.trajectories_before
     # merged samples are the fragments' own samples, never altered
     inv = {}
@@ -117,9 +117,12 @@ def test_real_unlabelled_file(data_dir) -> None:  # noqa: ANN001
     ref = choose_reference_frame(cap.positions)
     anchors = np.flatnonzero(np.isfinite(cap.positions[ref, :, 0]))
     surface = build_marker_surface(cap.positions[:, anchors], reference_frame=ref)
-    # its one mergeable run is a single frame (left alone by default)
+    # its one mergeable run is a single frame (left alone by default); it lies 0.04
+    # spacings from *61's neighbourhood fit but a missing rival's estimate is only 4.2
+    # times farther, inside the default rival margin (rival_ratio 0.2): refused too
     assert merge_fragments(cap, surface, anchors)[1].merged == 0
-    merged, report = merge_fragments(cap, surface, anchors, min_frames=1)
+    assert merge_fragments(cap, surface, anchors, min_frames=1)[1].merged == 0
+    merged, report = merge_fragments(cap, surface, anchors, min_frames=1, rival_ratio=0.7)
     assert report.fragments_before > 0 and report.merged > 0
     assert report.fragments_after < report.fragments_before
     # merged runs never overlap what their marker already had
