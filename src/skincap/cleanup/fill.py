@@ -39,7 +39,7 @@ Methods
 ``rigid_weighted``
     The rigid fill with each donor weighted in the fit (weighted Kabsch) by how
     rigidly it moved with the marker within one gap length before and after the gap:
-    ``1 / (var(distance) + (0.003 d)²)``, ``d`` the mean neighbour distance. Donors
+    ``1 / (var(distance) + (0.001 d)²)``, ``d`` the mean neighbour distance. Donors
     across a joint or a crease hardly count. Donors need only be seen at the gap's
     ends and in the frame being filled (a neighbour missing for part of the gap still
     serves where it is seen). The local methods blend with (and fall back to) this
@@ -348,7 +348,7 @@ def fill_rigid(
     max_donors: int = 6,
     spread: np.ndarray | None = None,
     weighted: bool = False,
-    noise_floor: float = 0.003,
+    noise_floor: float = 0.001,
     frame_donors: bool = False,
 ) -> np.ndarray:
     """Vicon-style rigid-body fill from >= 3 donor markers.
@@ -1149,14 +1149,15 @@ def fill_gaps(
     anchor_ends : bool
         Local methods only: join each filled gap continuously to the measured samples
         at its ends (see :func:`fill_local_pca`). Default True.
-    rigid_blend : float in [0, 1]
-        Local methods only: the weight of the ``rigid`` fill in the final estimate,
-        ``(1 - w) * local PCA + w * rigid``, where both exist. 0 gives the local-PCA
-        estimate alone (the paper). The two err in different ways (the PCA model
-        misses deformations it never saw; the rigid fill ignores deformation and
-        drifts with the donors), so their mean beats either: with 0.5 (the default)
-        the RMSE over punched 30-120-frame gaps falls on all three real takes and on
-        the synthetic one (see the module docstring).
+    rigid_blend : float in [0, 1], optional
+        Local methods only: the weight of the rigid fill (``rigid_weighted`` unless
+        ``rigid_weighted=False``) in the final estimate, ``(1 - w) * local PCA + w *
+        rigid``, where both exist. 0 gives the local-PCA estimate alone (the paper).
+        The two err in different ways (the PCA model misses deformations it never
+        saw; the rigid fill ignores deformation and drifts with the donors). None
+        (the default) weighs them per gap by their spreads (see the module
+        docstring), which beats either alone on all three real takes and on the
+        synthetic one.
     rigid_weighted : bool
         Local methods only: the rigid fill they blend with (and fall back to) weighs
         its donors by how rigidly they moved with the marker next to the gap
