@@ -323,7 +323,7 @@ def merge_fragments(
         seeds 0-3, 600 frames seed 4; ground truth, ``clean_markers``' final merge):
         a margin of 0.7 merged 291/345/341/422/515 fragments of which 0/8/4/2/11
         wrongly, these margins 292/335/309/389/494 of which 0/0/1/0/0 (a two-frame
-        ghost 3 mm from a missing marker's estimate).
+        ghost 0.07 spacings from a missing marker's neighbourhood fit).
     prediction_factor : float or None, default 2.0
         Beyond the paper, with ``neighbour_check``: a fragment's mean distance to
         where the marker's neighbourhood fit puts it must stay within this many times
