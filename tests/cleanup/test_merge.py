@@ -119,10 +119,13 @@ def test_real_unlabelled_file(data_dir) -> None:  # noqa: ANN001
     surface = build_marker_surface(cap.positions[:, anchors], reference_frame=ref)
     # its one mergeable run is a single frame (left alone by default); it lies 0.04
     # spacings from *61's neighbourhood fit but a missing rival's estimate is only 4.2
-    # times farther, inside the default rival margin (rival_ratio 0.2): refused too
+    # times farther, inside the default rival margin (rival_ratio 0.2, and a single
+    # frame needs a four times larger one, short_frames 4): refused too
     assert merge_fragments(cap, surface, anchors)[1].merged == 0
     assert merge_fragments(cap, surface, anchors, min_frames=1)[1].merged == 0
-    merged, report = merge_fragments(cap, surface, anchors, min_frames=1, rival_ratio=0.7)
+    merged, report = merge_fragments(
+        cap, surface, anchors, min_frames=1, rival_ratio=0.7, short_frames=1
+    )
     assert report.fragments_before > 0 and report.merged > 0
     assert report.fragments_after < report.fragments_before
     # merged runs never overlap what their marker already had

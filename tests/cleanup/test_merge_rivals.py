@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup.merge import _joins_in_time, merge_fragments
+from skincap.cleanup.merge import _joins_in_time, _prediction_error, merge_fragments
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import ValidationError
 from skincap.types import MarkerSet
@@ -99,3 +99,60 @@ def test_fragments_of_two_hidden_markers_are_not_one_marker() -> None:
     assert not _joins_in_time(est, y, x, nb, radius)
     assert _joins_in_time(est, later_x, x, nb, radius)
     assert not _joins_in_time(est, later_x, np.full((FRAMES, 3), np.nan), nb, radius)
+
+
+def _pair_missing(extra: np.ndarray, frames: slice) -> tuple[MarkerSet, np.ndarray]:
+    """The 7x7 sheet with A and B missing in ``frames`` and one fragment *1 there:
+    ``extra`` (FRAMES, 3) metres. Returns the capture and the clean positions."""
+    g = np.stack(np.meshgrid(np.arange(7), np.arange(7), indexing="ij"), -1).reshape(-1, 2)
+    pos = _motion(np.column_stack([g * 0.05, np.zeros(49)]))
+    sheet = pos.copy()
+    sheet[frames, A] = np.nan
+    sheet[frames, B] = np.nan
+    frag = np.full((FRAMES, 1, 3), np.nan)
+    frag[frames, 0] = extra[frames]
+    labels = [f"M{i:02d}" for i in range(49)] + ["*1"]
+    markers = MarkerSet(positions=np.concatenate([sheet, frag], 1), labels=labels, rate=100.0)
+    return markers, pos
+
+
+def test_a_short_fragment_needs_a_wider_margin() -> None:
+    # a two-frame ghost 6.5 mm from A towards B (B 7 times farther) while both are
+    # missing: a margin of 0.2 takes it for A, the doubled margin of a two-frame
+    # fragment (short_frames 4) does not; A's own two frames still merge
+    g = np.stack(np.meshgrid(np.arange(7), np.arange(7), indexing="ij"), -1).reshape(-1, 2)
+    rest = np.column_stack([g * 0.05, np.zeros(49)])
+    ghost = _motion(np.vstack([rest, rest[A] + [0.0, 0.0065, 0.0]]))[:, 49]
+    frames = slice(40, 42)
+    markers, pos = _pair_missing(ghost, frames)
+    surface = build_marker_surface(markers.positions[:, :49], reference_frame=0)
+    truth = {"*1": "ghost"}
+    _, loose = merge_fragments(markers, surface, short_frames=1, fragment_truth=truth)
+    _, strict = merge_fragments(markers, surface, fragment_truth=truth)
+    assert loose.assignments == {"*1": f"M{A:02d}"} and loose.wrongly_merged == 1
+    assert strict.merged == 0
+    own, _ = _pair_missing(pos[:, A], frames)
+    _, report = merge_fragments(own, surface, fragment_truth={"*1": f"M{A:02d}"})
+    assert report.assignments == {"*1": f"M{A:02d}"} and report.wrongly_merged == 0
+
+
+def test_a_marker_misplaced_in_the_reference_pose_is_calibrated() -> None:
+    # A's reference position is 2.75 cm (0.55 spacings) off, as for a marker placed in
+    # the reference frame by its neighbours from another frame; where it is measured
+    # its neighbourhood shows where it really sits
+    g = np.stack(np.meshgrid(np.arange(7), np.arange(7), indexing="ij"), -1).reshape(-1, 2)
+    frames = slice(50, 70)
+    markers, pos = _pair_missing(_motion(np.column_stack([g * 0.05, np.zeros(49)]))[:, A], frames)
+    ref = markers.positions[:, :49].copy()
+    ref[0, A] = pos[0, A] + (pos[0, A] - pos[0, B]) * 0.55  # away from B
+    surface = build_marker_surface(ref, reference_frame=0)
+    present = np.isfinite(markers.positions[:, :49, 0])
+    error, calibrated = _prediction_error(markers.positions[:, :49], present, surface)
+    assert np.linalg.norm(calibrated[A] - pos[0, A]) < 1e-3
+    assert np.linalg.norm(surface.reference[A] - pos[0, A]) > 0.025
+    assert error[A] < 2e-3  # measured from the calibrated place, not the reference one
+    truth = {"*1": f"M{A:02d}"}
+    _, off = merge_fragments(markers, surface, calibrate=False, fragment_truth=truth)
+    _, on = merge_fragments(markers, surface, fragment_truth=truth)
+    assert off.merged == 0
+    assert on.assignments == truth and on.wrongly_merged == 0

@@ -135,6 +135,7 @@ def _neighbour_identity_margin(
     fi: np.ndarray,
     ci: np.ndarray,
     rivals: tuple[np.ndarray, np.ndarray],
+    calibrated: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """How much closer each candidate fragment is to its marker than to the marker's
     missing neighbours.
@@ -160,9 +161,10 @@ def _neighbour_identity_margin(
     """
     table, valid = neighbour_table(surface, surface.n_markers)
     ref = surface.reference
-    rel = np.where(valid[..., None], ref[table] - ref[:, None, :], np.nan)  # (N, D, 3)
+    cal = ref if calibrated is None else calibrated  # the marker's and rivals' places
+    rel = np.where(valid[..., None], ref[table] - cal[:, None, :], np.nan)  # (N, D, 3)
     comp, comp_ok = rivals  # (N, M): markers near each marker in the reference pose
-    rel_c = np.where(comp_ok[..., None], ref[comp] - ref[:, None, :], 0.0)  # (N, M, 3)
+    rel_c = np.where(comp_ok[..., None], cal[comp] - cal[:, None, :], 0.0)  # (N, M, 3)
     rp, rt = np.nonzero(frag_present[:, fi].T)  # rows: (pair, frame)
     p_count = fi.size
     if rp.size == 0 or table.shape[1] == 0:
@@ -195,39 +197,71 @@ def _neighbour_identity_margin(
 
 
 def _prediction_error(
-    est: np.ndarray, present: np.ndarray, surface: MarkerSurface, *, max_frames: int = 40
-) -> np.ndarray:
-    """(N,) float: each marker's 90th-percentile distance between where its neighbours'
-    rigid fit (eq. 2, reference-pose shape) puts it and where it was measured, over up
-    to ``max_frames`` of its measured frames; NaN when never predicted."""
+    est: np.ndarray,
+    present: np.ndarray,
+    surface: MarkerSurface,
+    *,
+    max_frames: int = 40,
+    calibrate: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each marker's neighbourhood puts it, learnt from the frames it was measured
+    in, and how well.
+
+    Over up to ``max_frames`` of each marker's measured frames, its neighbours'
+    reference positions are fitted rigidly to where they are (eq. 2) and the
+    marker's measured position is carried back into the reference pose by the
+    inverse fit; the mean is the marker's *calibrated* reference position (its
+    reference-pose place as its neighbourhood sees it across the take, which matters
+    for a marker placed in the reference frame by its neighbours from another frame,
+    :func:`~skincap.cleanup.surface.complete_reference_pose`).
+
+    ``calibrate=False``: the reference pose's positions are used as they are.
+
+    Returns
+    -------
+    error : (N,) float, metres
+        90th percentile over those frames of the distance between the fit's
+        prediction from the calibrated position and the measured one; NaN when
+        never predicted.
+    calibrated : (N, 3) float, metres
+        The calibrated reference positions; the reference pose's where never
+        predicted.
+    """
     n = surface.n_markers
     table, valid = neighbour_table(surface, n)
     out = np.full(n, np.nan)
-    if table.shape[1] == 0:
-        return out
     ref = surface.reference
-    rel = np.where(valid[..., None], ref[table] - ref[:, None, :], np.nan)  # (N, D, 3)
+    cal = np.array(ref, dtype=np.float64, copy=True)
+    if table.shape[1] == 0:
+        return out, cal
     seen = present.T  # (N, T)
     order = np.cumsum(seen, axis=1)
     step = np.maximum(order[:, -1] / max_frames, 1.0)[:, None]
     pick = seen & (np.floor((order - 1) / step) != np.floor((order - 2) / step))
     mi, ti = np.nonzero(pick)
-    ok = valid[mi] & np.isfinite(rel[mi]).all(axis=2)
-    _, tr = fit_rigid(np.where(ok[..., None], rel[mi], 0.0), est[ti[:, None], table[mi]], mask=ok)
-    err = np.linalg.norm(tr - est[ti, mi], axis=1)
-    good = np.isfinite(err)
-    mi, err = mi[good], err[good]
+    ok = valid[mi] & np.isfinite(ref[table[mi]]).all(axis=2)
+    rot, tr = fit_rigid(
+        np.where(ok[..., None], ref[table[mi]], 0.0), est[ti[:, None], table[mi]], mask=ok
+    )
+    back = np.einsum("rji,rj->ri", rot, est[ti, mi] - tr)  # R^T (x - t), reference pose
+    good = np.isfinite(back).all(axis=1)
+    mi, ti, rot, tr, back = mi[good], ti[good], rot[good], tr[good], back[good]
     if mi.size == 0:
-        return out
+        return out, cal
+    cnt = np.bincount(mi, minlength=n)
+    has = cnt > 0
+    mean = np.stack([np.bincount(mi, weights=back[:, a], minlength=n) for a in range(3)], axis=1)
+    if calibrate:
+        cal[has] = mean[has] / cnt[has, None]
+    pred = np.einsum("rij,rj->ri", rot, cal[mi]) + tr
+    err = np.linalg.norm(pred - est[ti, mi], axis=1)
     # per-marker 90th percentile: sort by (marker, error) and index into each block
     order2 = np.lexsort((err, mi))
     mi, err = mi[order2], err[order2]
-    cnt = np.bincount(mi, minlength=n)
     first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
-    has = cnt > 0
     idx = first + np.floor(0.9 * (cnt - 1)).astype(np.int64)
     out[has] = err[idx[has]]
-    return out
+    return out, cal
 
 
 def _rivals(
@@ -264,6 +298,8 @@ def merge_fragments(
     alpha2: float = 0.6,
     ambiguity_ratio: float = 0.7,
     rival_ratio: float = 0.2,
+    calibrate: bool = True,
+    short_frames: int = 4,
     max_passes: int = 10,
     temporal: bool = True,
     robust_spacing: bool = True,
@@ -311,19 +347,33 @@ def merge_fragments(
         Left unmerged, the samples are filled by the hole filler instead.
     rival_ratio : float, default 0.2
         The margin of ``neighbour_check``: a fragment joins its marker only when the
-        marker's neighbourhood fit (reference-pose shape) explains it five times
-        better than any missing rival does -- or, where the skin deforms and that
-        fit is off, when the marker's temporal estimate (the shape of the frames
-        bracketing the gap) explains it ten times better (half the ratio) and the
-        fit still twice as well (2.5 times the ratio). The fit's error is a fair
-        share of the spacing where the skin deforms, so a fragment of an adjacent
-        marker missing at the same time (or of one hidden in the reference frame,
-        beside such a rival) passes a margin of 0.7 (the paper's kind of ambiguity
-        test) yet not these. Measured on five synthetic jump-rope takes (300 frames
-        seeds 0-3, 600 frames seed 4; ground truth, ``clean_markers``' final merge):
-        a margin of 0.7 merged 291/345/341/422/515 fragments of which 0/8/4/2/11
-        wrongly, these margins 292/335/309/389/494 of which 0/0/1/0/0 (a two-frame
-        ghost 0.07 spacings from a missing marker's neighbourhood fit).
+        marker's neighbourhood fit explains it five times better than any missing
+        rival does -- or, where the skin deforms and that fit is off, when the
+        marker's temporal estimate (the shape of the frames bracketing the gap)
+        explains it ten times better (half the ratio) and the fit still twice as
+        well (2.5 times the ratio). The fit's error is a fair share of the spacing
+        where the skin deforms, so a fragment of an adjacent marker missing at the
+        same time (or of one hidden in the reference frame, beside such a rival)
+        passes a margin of 0.7 (the paper's kind of ambiguity test) yet not these.
+        Measured on five synthetic jump-rope takes (300 frames seeds 0-3, 600
+        frames seed 4; ground truth, ``clean_markers``' final merge): a margin of
+        0.7 merged 291/345/341/422/515 fragments of which 0/8/4/2/11 wrongly;
+        these margins with ``calibrate`` and ``short_frames`` 302/335/322/382/503,
+        none wrongly.
+    calibrate : bool, default True
+        With ``neighbour_check``: the neighbourhood fit predicts the marker (and its
+        rivals) from where its neighbourhood puts it across the frames it was
+        measured in, not from its reference-pose position alone (see
+        :func:`_prediction_error`). A marker hidden in the reference frame and
+        placed there by its neighbours from another frame can sit half a spacing
+        off; its fragments then failed the margin.
+    short_frames : int, default 4
+        A fragment shorter than this is weaker evidence: its margin shrinks in
+        proportion (a two-frame fragment needs twice the margin) and, with
+        ``prediction_factor``, its marker must be predicted by its neighbours
+        within a fifth of its spacing (90th percentile). Ghosts are mostly one to
+        three frames long and, riding a nearby marker, can sit near a missing
+        marker's estimate for a frame or two.
     prediction_factor : float or None, default 2.0
         Beyond the paper, with ``neighbour_check``: a fragment's mean distance to
         where the marker's neighbourhood fit puts it must stay within this many times
@@ -366,12 +416,13 @@ def merge_fragments(
         and 0 < alpha2
         and 0 < ambiguity_ratio <= 1
         and 0 < rival_ratio <= 1
+        and short_frames >= 1
         and max_passes >= 1
         and min_frames >= 1
     ):
         raise ValidationError(
             "need alpha1 > 0, alpha2 > 0, 0 < ambiguity_ratio <= 1, 0 < rival_ratio <= 1, "
-            "max_passes >= 1, "
+            "short_frames >= 1, max_passes >= 1, "
             "min_frames >= 1"
         )
     is_anchor = np.zeros(c_count, dtype=bool)
@@ -433,19 +484,34 @@ def merge_fragments(
         mean_d = np.where(checked.any(axis=0), mean_d, np.inf)
         if neighbour_check and ok.any():
             okp = np.flatnonzero(ok)
+            e90_all, calibrated = _prediction_error(
+                est, anchor_present, surface, calibrate=calibrate
+            )
             d_mark, d_other, worse = _neighbour_identity_margin(
-                est, anchor_present, surface, frag_pos, frag_present, fi[okp], ci[okp], rivals
+                est,
+                anchor_present,
+                surface,
+                frag_pos,
+                frag_present,
+                fi[okp],
+                ci[okp],
+                rivals,
+                calibrated,
             )
-            by_fit = d_mark < rival_ratio * d_other
-            by_time = (mean_d[okp] < 0.5 * rival_ratio * d_other) & (
-                d_mark < 2.5 * rival_ratio * d_other
-            )
+            # short fragments are weak evidence: the margin grows as they shrink
+            margin = rival_ratio * np.minimum(1.0, length[fi[okp]] / max(short_frames, 1))
+            by_fit = d_mark < margin * d_other
+            by_time = (mean_d[okp] < 0.5 * margin * d_other) & (d_mark < 2.5 * margin * d_other)
             ok[okp] = ~worse & (by_fit | by_time)
             if prediction_factor is not None:
-                e90 = _prediction_error(est, anchor_present, surface)[ci[okp]]
+                e90 = e90_all[ci[okp]]
                 floor = 0.1 * mnd[ci[okp]]
                 scale = np.where(np.isfinite(e90), np.maximum(e90, floor), np.inf)
                 ok[okp] &= d_mark <= prediction_factor * scale
+                # a short fragment is too little evidence for a marker its
+                # neighbours predict poorly (a ghost near the estimate fits as well)
+                short = length[fi[okp]] < short_frames
+                ok[okp] &= ~short | (np.nan_to_num(e90, nan=np.inf) <= 0.2 * mnd[ci[okp]])
         # per fragment: the best valid match must be clearly closer than any other
         # marker whose estimate comes near (valid or not)
         order = np.lexsort((mean_d, fi))
