@@ -142,12 +142,15 @@ def _neighbour_identity_margin(
 
     For every candidate pair (fragment ``fi[p]``, marker ``ci[p]``) and every frame the
     fragment spans, the marker's neighbourhood is fitted rigidly (eq. 2) to the
-    available neighbours (measured ones weigh 20 times the estimated ones); the fit predicts where the marker and each of its neighbours
-    should be, and where each of its *rivals* should be: the markers near it in the
-    reference pose (``rivals``: (N, M) columns and validity, its surface neighbours and
-    the nearest other markers, since an automatic surface misses some true
-    neighbours). A rival that is missing in that frame could be the fragment too: its
-    position is its own estimate when it has one, else the prediction.
+    available neighbours (measured ones weigh 20 times the estimated ones); the fit
+    predicts where the marker and each of its neighbours should be, and where each
+    of its *rivals* should be: the markers near it in the reference pose
+    (``rivals``: (N, M) columns and validity, its surface neighbours and the nearest
+    other markers, since an automatic surface misses some true neighbours). A rival
+    that is missing in that frame could be the fragment too: its position is its own
+    estimate when it has one, else the prediction. ``calibrated`` (N, 3) metres:
+    where the marker and its rivals sit in the reference pose (see
+    :func:`_prediction_error`); default the reference pose itself.
 
     Returns
     -------
