@@ -646,8 +646,9 @@ def _in_chain(
     points -- a rope's markers, not skin.
 
     A chain link has two other unlabelled columns between 1 and ``reach`` spacings
-    from it in its middle frame (a skin marker's own neighbours are nearer), seen with it for at least ``min_frames`` frames, each at a
-    nearly constant distance from it (coefficient of variation below ``max_cv``: an
+    from it in its middle frame (a skin marker's own neighbours are nearer), seen
+    with it for at least ``min_frames`` frames, each at a nearly constant distance
+    from it (coefficient of variation below ``max_cv``: an
     inextensible rope), at similar distances (ratio within 0.75-1.33) and on
     opposite sides (the angle between them above 120 degrees); a column steadily tied
     (same distance test) to a link is part of the chain too (its ends, the handle
