@@ -48,7 +48,8 @@ Methods
     Whole-body PCA fill (Gløersen & Federolf 2016): PCA of all markers' normalised
     coordinates over the take, missing values reconstructed iteratively.
 
-The local methods fall back to the ``rigid`` fill for samples no group could estimate
+The local methods fall back to the ``rigid_weighted`` fill (``rigid`` with
+``fill_gaps(rigid_weighted=False)``) for samples no group could estimate
 (fewer than three present members); samples no method can reach stay NaN.
 
 Blending with the rigid fill (beyond the paper; ``fill_gaps(rigid_blend=None)``, the
@@ -59,25 +60,29 @@ distance between its two one-sided versions (the local-PCA fill anchored at the
 start alone vs at the end alone -- the change of its offset across the gap; the
 rigid fill carried from the frame before vs from the frame after), averaged over the
 gap. Punched 30-120-frame gaps, RMSE (``skincap eval fill``, seed 0, 10 gaps per
-length):
+length), blended with the donor-weighted rigid fill (``rigid_weighted``):
 
-=====================  =========  ======  =========  =================
-take                   local_pca  rigid   adaptive   local_pca_missing
-                       (w = 0)            local_pca  adaptive
-=====================  =========  ======  =========  =================
-cmu_85_02              22.7 mm    25.2    18.1       16.3
-kt_optitrack_walking   4.26       4.32    2.99       3.14
-aml_PronetoRun01       5.44       6.71    4.54       4.46
-synthetic jump rope    2.42       1.75    1.69       1.62
-(300 frames, dense)    0.0225     0.0189  0.0185     0.0181  mean / spacing
-                       0.272      0.146   0.133      0.108   max / spacing
-=====================  =========  ======  =========  =================
+=====================  =========  ======  ========  =========  =================
+take                   local_pca  rigid   rigid_    adaptive   local_pca_missing
+                       (w = 0)            weighted  local_pca  adaptive
+=====================  =========  ======  ========  =========  =================
+cmu_85_02              22.7 mm    25.2    17.9      16.8       15.5
+kt_optitrack_walking   4.26       4.32    3.21      2.64       2.25
+aml_PronetoRun01       5.44       6.71    3.65      3.50       3.73
+synthetic jump rope    2.42       1.75    1.69      1.65       1.60
+(300 frames, dense)    0.0225     0.0189  0.0185    0.0182     0.0180  mean / spacing
+                       0.272      0.146   0.143     0.125      0.102   max / spacing
+=====================  =========  ======  ========  =========  =================
 
-Against the synthetic take's noise-free truth instead of its noisy measured samples:
-0.0188 / 0.272 (w = 0), rigid 0.0151 / 0.150, adaptive 0.0145 / 0.138,
-local_pca_missing adaptive 0.0141 / 0.113 (mean / max over the spacing). A fixed
-``w = 0.5`` gave 18.8 / 3.50 / 5.27 mm on the real takes; ``rigid_blend=0``
-restores the paper's estimate.
+Blending with the equal-weight ``rigid`` fill instead (``rigid_weighted=False``)
+gave 18.1 / 2.99 / 4.54 mm on the real takes. The synthetic take's floor: its
+noise-free truth scored against its noisy measured samples (0.5 mm noise) already
+gives 0.0106 / 0.040 (mean / max over the spacing) on the same punched gaps.
+Against that noise-free truth instead of the measured samples: local_pca adaptive
+0.0142 / 0.130, local_pca_missing adaptive 0.0140 / 0.108, rigid_weighted 0.0146 /
+0.148, rigid 0.0151 / 0.150 (before the donor weighting: adaptive 0.0145 /
+0.138). A fixed ``w = 0.5`` gave 18.8 / 3.50 / 5.27 mm on the real takes;
+``rigid_blend=0`` restores the paper's estimate.
 """
 
 from __future__ import annotations
