@@ -21,9 +21,10 @@ def run(*args):  # type: ignore[no-untyped-def]
 
 
 def _scene() -> tuple[PointCloud, np.ndarray]:
-    """Rope hanging from (0, 2, 0), still for 0.5 s, then swinging; a blob of body
-    points beside it; rope marker 7 unseen in frames 90-99. Returns the cloud and
-    the (M,) truth label per point (rope index or -1 for the body)."""
+    """Rope (a chain of 12 cm links) hanging from (0, 2, 0), still for 0.5 s, then
+    swinging and curling; a blob of body points beside it; rope marker 7 unseen in
+    frames 90-99. Returns the cloud and the (M,) truth label per point (rope index or
+    -1 for the body)."""
     t = np.arange(T)
     u = np.clip((t - 60) / 30.0, 0, 1)
     ramp = u * u * (3 - 2 * u)  # smooth start of the swing
@@ -31,7 +32,10 @@ def _scene() -> tuple[PointCloud, np.ndarray]:
     s = 0.12 * np.arange(M_ROPE)
     bend = 0.3 * ramp[:, None] * (s[None] / s[-1]) ** 2  # a curl growing along the rope
     ang = theta[:, None] + bend
-    rope = np.stack([s * np.sin(ang), 2.0 - s * np.cos(ang), np.zeros_like(ang)], axis=2)
+    # an inextensible chain: each 12 cm link at the angle of its far marker
+    link = 0.12 * np.stack([np.sin(ang[:, 1:]), -np.cos(ang[:, 1:])], axis=2)  # (T, M-1, 2)
+    xy = np.concatenate([np.zeros((T, 1, 2)), np.cumsum(link, axis=1)], axis=1)
+    rope = np.stack([xy[..., 0], 2.0 + xy[..., 1], np.zeros_like(ang)], axis=2)
     rng = np.random.default_rng(3)
     d = rng.normal(size=(N_BODY, 3))
     body0 = np.array([1.2, 1.0, 0.0]) + 0.3 * d / np.linalg.norm(d, axis=1, keepdims=True)

@@ -264,3 +264,97 @@ def test_a_slow_steady_trace_takes_no_point_beyond_gamma_in_the_wide_gate() -> N
     fast = prev.copy()
     fast[1] = [0.12, 0.0, 0.05]  # predicted to move 5 cm (> γ): taken 0.5 cm from there
     assert run(fast)
+
+
+def _segment_and_rope(frames: int = 40) -> tuple[PointCloud, np.ndarray]:
+    """A body segment (three markers turning slowly while it moves 12 cm) beside a rope
+    marker swinging on its own; points in shuffled order per frame.
+
+    Returns the cloud and (frames, 4) the global index of each object's point: columns
+    0-2 the segment, 3 the rope marker.
+    """
+    rng = np.random.default_rng(3)
+    t = np.arange(frames) / 120.0
+    base = np.array([[0.0, 1.0, 0.0], [0.10, 1.0, 0.0], [0.0, 1.0, 0.12]])
+    ang = 0.5 * t  # rad, slow turn about y
+    c, s_ = np.cos(ang), np.sin(ang)
+    rot = np.zeros((frames, 3, 3))
+    rot[:, 0, 0], rot[:, 0, 2], rot[:, 2, 0], rot[:, 2, 2] = c, s_, -s_, c
+    rot[:, 1, 1] = 1.0
+    seg = np.einsum("tij,kj->tki", rot, base) + np.stack([0.36 * t, 0 * t, 0 * t], 1)[:, None]
+    rope = np.stack([0.05 + 0.02 * np.sin(20 * t), 0.9 + 0.15 * t, 0.06 * np.cos(15 * t)], 1)
+    objs = np.concatenate([seg, rope[:, None]], axis=1)  # (F, 4, 3)
+    pts, where = [], np.zeros((frames, 4), dtype=np.int64)
+    for f in range(frames):
+        order = rng.permutation(4)
+        pts.append(objs[f, order])
+        where[f, order] = 4 * f + np.arange(4)
+    cloud = PointCloud(
+        points=np.concatenate(pts), offsets=np.arange(frames + 1) * 4, rate=120.0, ids=None, meta={}
+    )
+    return cloud, where
+
+
+def test_a_point_moving_rigidly_with_body_points_is_body_like() -> None:
+    from skincap.tracking.tracker import _rigid_with_body
+
+    cloud, where = _segment_and_rope()
+    t, window, spacing = 39, 30, 0.12
+    pts, off = cloud.points, cloud.offsets
+    for obj, body_like in [(0, True), (3, False)]:
+        # a trace that followed the object (its history), and a point followed by itself
+        point_index = np.full((cloud.n_frames, 2), -1, dtype=np.int64)
+        point_index[:, 0] = where[:, obj]
+        point_index[t] = -1
+        taken = np.array([where[t, obj], -1])
+        for j in (0, -1):
+            got = _rigid_with_body(
+                pts, off, point_index, t, j, where[t, obj], taken, spacing, window
+            )
+            assert got == body_like, (obj, j)
+    # the segment still (moving less than half a spacing): no evidence
+    still = PointCloud(
+        points=np.tile(pts[:4], (cloud.n_frames, 1)), offsets=off, rate=120.0, ids=None, meta={}
+    )
+    point_index = np.full((cloud.n_frames, 1), -1, dtype=np.int64)
+    assert not _rigid_with_body(
+        still.points, off, point_index, t, -1, 4 * t, np.array([4 * t]), spacing, window
+    )
+
+
+def test_kernel_rigidity_test_matches_the_reference() -> None:
+    pytest.importorskip("numba")
+    from skincap.tracking._kernel import _rigid_with_body as kernel_rigid
+    from skincap.tracking.init import _RIGID_PARTNERS, _RIGID_RADIUS, _RIGID_RANGE
+    from skincap.tracking.tracker import _rigid_with_body
+
+    cloud, where = _segment_and_rope()
+    rig = np.array([0.12, 30.0, _RIGID_RADIUS, _RIGID_RANGE, float(_RIGID_PARTNERS), 0.5])
+    for t in (20, 30, 39):
+        for obj in range(4):
+            point_index = np.full((cloud.n_frames, 1), -1, dtype=np.int64)
+            point_index[:t, 0] = where[:t, obj]
+            taken = np.array([where[t, obj]])
+            for j in (0, -1):
+                args = (cloud.points, cloud.offsets, point_index, t, j, where[t, obj], taken)
+                assert kernel_rigid(*args, rig) == _rigid_with_body(*args, 0.12, 30)
+
+
+def test_a_stretched_link_drops_its_body_like_side() -> None:
+    from skincap.tracking.tracker import _reject_overstretched
+
+    gamma = 0.03
+    s = np.array([0.0, 0.12, 0.24])
+    # marker 2 one γ beyond its rest spacing from marker 1 (the limit is half a γ)
+    cur = np.array([[0.0, 0, 0], [0.12, 0, 0], [0.24 + gamma, 0, 0]])
+
+    def run(body_like: int) -> np.ndarray:
+        known = np.ones(3, dtype=bool)
+        taken = np.array([10, 11, 12])
+        _reject_overstretched(cur, known, taken, s, gamma, lambda j, p: j == body_like)
+        assert np.array_equal(taken == -1, ~known)
+        return known
+
+    np.testing.assert_array_equal(run(-1), [True, True, False])  # no evidence: least stretch
+    np.testing.assert_array_equal(run(2), [True, True, False])
+    np.testing.assert_array_equal(run(1), [True, False, True])  # marker 1 on a body point

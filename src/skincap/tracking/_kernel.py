@@ -316,6 +316,125 @@ def _body_chains(points, pa, a, b, body, body_vel, rope_pred, n_rope, eps):  # p
 
 
 @numba.njit(**_JIT)
+def _rope_taken_at(point_index, f, q):  # pragma: no cover - runs compiled
+    """True when a trace took the point q in frame f."""
+    for j in range(point_index.shape[1]):
+        if point_index[f, j] == q:
+            return True
+    return False
+
+
+@numba.njit(**_JIT)
+def _rigid_with_body(points, offsets, point_index, t, j, p, taken, rig):  # pragma: no cover
+    """As the reference ``_rigid_with_body``; ``rig`` = (spacing, window, radius, range,
+    partners, adjacent-link allowance) as floats."""
+    spacing = rig[0]
+    window = int(rig[1])
+    tol = rig[3] * spacing
+    if t < window:
+        return False
+    traj = np.empty((window + 1, 3))
+    traj[window] = points[p]
+    whole = j >= 0
+    if whole:
+        for f in range(t - window, t):
+            if point_index[f, j] < 0:
+                whole = False
+                break
+    if whole:
+        for f in range(t - window, t):
+            traj[f - t + window] = points[point_index[f, j]]
+    else:
+        vx = 0.0
+        vy = 0.0
+        vz = 0.0
+        for f in range(t - 1, t - window - 1, -1):
+            fa, fb = offsets[f], offsets[f + 1]
+            if fb - fa < 2:
+                return False
+            r = f - t + window
+            qx = traj[r + 1, 0] - vx
+            qy = traj[r + 1, 1] - vy
+            qz = traj[r + 1, 2] - vz
+            d1 = _INF
+            d2 = _INF
+            n1 = -1
+            for q in range(fa, fb):
+                dd = _norm3(points[q, 0] - qx, points[q, 1] - qy, points[q, 2] - qz)
+                if dd < d1:
+                    d2 = d1
+                    d1 = dd
+                    n1 = q
+                elif dd < d2:
+                    d2 = dd
+            if not (d1 < 2.0 * tol and d2 > 2.0 * d1):
+                return False
+            traj[r] = points[n1]
+            vx = traj[r + 1, 0] - traj[r, 0]
+            vy = traj[r + 1, 1] - traj[r, 1]
+            vz = traj[r + 1, 2] - traj[r, 2]
+    far = 0.0
+    for r in range(window):
+        dd = _norm3(
+            traj[r, 0] - traj[window, 0], traj[r, 1] - traj[window, 1], traj[r, 2] - traj[window, 2]
+        )
+        far = max(far, dd)
+    if far < 0.5 * spacing:
+        return False
+    a, b = offsets[t], offsets[t + 1]
+    found = 0
+    m = taken.size
+    for c in range(a, b):
+        if c == p:
+            continue
+        dq = _norm3(
+            points[c, 0] - traj[window, 0],
+            points[c, 1] - traj[window, 1],
+            points[c, 2] - traj[window, 2],
+        )
+        if not dq < rig[2] * spacing:
+            continue
+        mine = False
+        for jj in range(m):
+            if taken[jj] == c:
+                mine = True
+        if mine:
+            continue
+        qx = points[c, 0]
+        qy = points[c, 1]
+        qz = points[c, 2]
+        ok = True
+        for f in range(t - 1, t - window - 1, -1):
+            fa, fb = offsets[f], offsets[f + 1]
+            if fb == fa:
+                ok = False
+                break
+            r = f - t + window
+            px = qx + traj[r, 0] - traj[r + 1, 0]
+            py = qy + traj[r, 1] - traj[r + 1, 1]
+            pz = qz + traj[r, 2] - traj[r + 1, 2]
+            best = _INF
+            n = fa
+            for q in range(fa, fb):
+                dd = _norm3(points[q, 0] - px, points[q, 1] - py, points[q, 2] - pz)
+                if dd < best and not _rope_taken_at(point_index, f, q):
+                    best = dd
+                    n = q
+            qx = points[n, 0]
+            qy = points[n, 1]
+            qz = points[n, 2]
+            to_p = _norm3(qx - traj[r, 0], qy - traj[r, 1], qz - traj[r, 2])
+            if not (best < tol and abs(to_p - dq) < tol):
+                ok = False
+                break
+        if ok:
+            found += 1
+            if found >= rig[4]:
+                return True
+    return False
+
+
+@numba.njit(**_JIT)
 def _match(
     points,
     a,
@@ -338,8 +457,13 @@ def _match(
     follow,
     body,
     slow,
+    offsets,
+    point_index,
+    t,
+    rig,
 ):  # pragma: no cover
-    """As the reference ``_match``: rows to free points of the frame within the gate."""
+    """As the reference ``_match``: rows to free points of the frame within the gate
+    (``rig`` as :func:`_rigid_with_body`; ``t`` < 0 skips the rigidity test)."""
     r_n = rows.size
     if r_n == 0:
         return False
@@ -388,6 +512,15 @@ def _match(
                     )
                 ):
                     d[r, c] = _INF
+    if t >= 0:
+        for r in range(r_n):
+            if steady[rows[r]]:
+                continue
+            for c in range(kk):
+                if d[r, c] < gate and _rigid_with_body(
+                    points, offsets, point_index, t, -1, ii[r, c], taken, rig
+                ):
+                    d[r, c] = _INF
     if use_spacing:
         for r in range(r_n):
             row = rows[r]
@@ -424,9 +557,13 @@ def _match(
 
 
 @numba.njit(**_JIT)
-def _reject_overstretched(cur, known, taken, s, gamma, stretch):  # pragma: no cover
-    """As the reference: keep the largest chain of measured markers obeying the rope's length."""
+def _reject_overstretched(
+    cur, known, taken, s, gamma, stretch, points, offsets, point_index, t, rig
+):  # pragma: no cover
+    """As the reference: keep the largest chain of measured markers obeying the rope's
+    length, markers on points moving rigidly with body points counting against it."""
     m = known.size
+    adj = rig[5]
     n = 0
     for j in range(m):
         if known[j]:
@@ -443,12 +580,17 @@ def _reject_overstretched(cur, known, taken, s, gamma, stretch):  # pragma: no c
     for q in range(n - 1):
         a, b = idx[q], idx[q + 1]
         chord = _norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
-        if not chord <= stretch * (s[b] - s[a]) + gamma:
+        lim = s[b] - s[a] + adj * gamma if b - a == 1 else stretch * (s[b] - s[a]) + gamma
+        if not chord <= lim:
             ok = False
             break
     if ok:
         return
-    score = np.ones(n)
+    w = np.ones(n)
+    for q in range(n):
+        if _rigid_with_body(points, offsets, point_index, t, idx[q], taken[idx[q]], taken, rig):
+            w[q] = -1.0
+    score = w.copy()
     back = np.full(n, -1, np.int64)
     for b in range(1, n):
         best = -_INF
@@ -457,10 +599,11 @@ def _reject_overstretched(cur, known, taken, s, gamma, stretch):  # pragma: no c
             ja, jb = idx[a], idx[b]
             ds = s[jb] - s[ja]
             dist = _norm3(cur[ja, 0] - cur[jb, 0], cur[ja, 1] - cur[jb, 1], cur[ja, 2] - cur[jb, 2])
-            if dist <= stretch * ds + gamma:
-                squeeze = (ds - dist) / (ds if ds > 0 else 1.0)
-                squeeze = min(max(squeeze, 0.0), 1.0)
-                gain = 1.0 - 0.5 * squeeze
+            lim = ds + adj * gamma if jb - ja == 1 else stretch * ds + gamma
+            if dist <= lim:
+                dev = (ds - dist) / (ds if ds > 0 else 1.0)
+                squeeze = min(max(dev, 0.0), 1.0) + min(max(-dev, 0.0), 1.0)
+                gain = w[b] - 0.5 * squeeze
             else:
                 gain = -_INF
             cand = score[a] + gain
@@ -783,6 +926,7 @@ def track_frames(
     zip_inner,
     zip_quad,
     slow,
+    rig,
 ):  # pragma: no cover - runs compiled
     """Track frames ``t0 … t1 - 1`` (t0 >= 1), updating the output arrays and the state
     (``velocity``, ``temp_count``, the body chains ``body``/``body_vel`` over all
@@ -827,8 +971,14 @@ def track_frames(
                 follow,
                 body,
                 slow,
+                offsets,
+                point_index,
+                -1,
+                rig,
             )
-            _reject_overstretched(cur, known, taken, s, gamma, stretch)
+            _reject_overstretched(
+                cur, known, taken, s, gamma, stretch, points, offsets, point_index, t, rig
+            )
             _reject_odd_motion(cur, prev, known, taken, gamma, active)
             tried = v_pred.copy()
             for _ in range(rounds):
@@ -870,9 +1020,15 @@ def track_frames(
                     follow,
                     body,
                     slow,
+                    offsets,
+                    point_index,
+                    t,
+                    rig,
                 ):
                     break
-                _reject_overstretched(cur, known, taken, s, gamma, stretch)
+                _reject_overstretched(
+                    cur, known, taken, s, gamma, stretch, points, offsets, point_index, t, rig
+                )
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 for j in range(m):
                     if want[j]:
@@ -918,8 +1074,14 @@ def track_frames(
                     follow,
                     body,
                     slow,
+                    offsets,
+                    point_index,
+                    t,
+                    rig,
                 )
-                _reject_overstretched(cur, known, taken, s, gamma, stretch)
+                _reject_overstretched(
+                    cur, known, taken, s, gamma, stretch, points, offsets, point_index, t, rig
+                )
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 for _ in range(zip_rounds):
                     rows, zpred = _zipper(cur, known, spacing, zip_inner, zip_quad)
@@ -945,10 +1107,16 @@ def track_frames(
                         follow,
                         body,
                         slow,
+                        offsets,
+                        point_index,
+                        t,
+                        rig,
                     ):
                         break
                     found_more = True
-                    _reject_overstretched(cur, known, taken, s, gamma, stretch)
+                    _reject_overstretched(
+                        cur, known, taken, s, gamma, stretch, points, offsets, point_index, t, rig
+                    )
                     _reject_odd_motion(cur, prev, known, taken, gamma, active)
         swapped = False
         if k > 0 and known.sum() >= 3:

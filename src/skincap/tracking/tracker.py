@@ -50,10 +50,15 @@ Beyond the thesis:
   at the rest spacing, inward one marker per side and round
   (:func:`_zipper_predictions`).
 * Traces that break the rope's length (two measured markers farther apart than the
-  rope between them) are resolved by keeping the largest consistent chain (a trace
-  that slipped onto its neighbour's marker is dropped), and a trace that sits more
-  than ``2 γ`` off the curve through the other measured markers moves to a free
-  point on that curve (it had taken a body point while its marker was hidden).
+  rope between them, neighbours more than γ/2 beyond their rest spacing) are
+  resolved by keeping the largest consistent chain (a trace that slipped onto its
+  neighbour's marker is dropped), markers on points that move rigidly with body
+  points counting against a chain (a body marker keeps its distance to two or more
+  points the rope does not take over the last quarter second; a rope marker does
+  not): the body-like side of a stretched link goes. A trace coming back from a gap
+  does not take such a point either. A trace that sits more than ``2 γ`` off the
+  curve through the other measured markers moves to a free point on that curve (it
+  had taken a body point while its marker was hidden).
 
 Candidate points come from a KD-tree over each frame's points, built when the frame
 is first searched.
@@ -71,7 +76,13 @@ from scipy.spatial import cKDTree
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
 from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
-from skincap.tracking.init import RopeInit, gated_assignment
+from skincap.tracking.init import (
+    _RIGID_PARTNERS,
+    _RIGID_RADIUS,
+    _RIGID_RANGE,
+    RopeInit,
+    gated_assignment,
+)
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = ["RopeTrack", "track_rope"]
@@ -93,6 +104,11 @@ _CHAIN = 1.0 / 3.0
 #: A steady trace predicted to move at most γ takes no point beyond γ in the wider
 #: second-chance gates (a slow rope does not jump; a body point beside it would).
 _SLOW = True
+#: Largest chord between two neighbouring measured markers: their rest spacing plus
+#: this many γ (a rope does not stretch; a body point beside the rope sits farther).
+_ADJ = 0.5
+#: Window of the rigidity test (:func:`_rigid_with_body`), in seconds.
+_RIGID_WINDOW = 0.25
 #: Rounds of the zipper (:func:`_zipper_predictions`): a run of invented inner markers
 #: is searched from its measured ends inward, one marker per side and round.
 _ZIP = 3
@@ -209,32 +225,51 @@ def _side_neighbours(known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _reject_overstretched(
-    cur: np.ndarray, known: np.ndarray, taken: np.ndarray, s: np.ndarray, gamma: float
+    cur: np.ndarray,
+    known: np.ndarray,
+    taken: np.ndarray,
+    s: np.ndarray,
+    gamma: float,
+    rigid: Callable[[int, int], bool] | None = None,
 ) -> None:
     """Refuse taken points that would stretch the rope (beyond the thesis), in place.
 
     A rope does not stretch: two measured markers ``a < b`` lie at most
-    ``1.1 (s_b - s_a) + γ`` apart. When consecutive measured markers break that, the
-    measured markers kept are the largest subset in which every consecutive pair
-    obeys it (dynamic programming over the chain); among equally large subsets the
-    one whose links are least compressed (chord well below the rest arc length, as
-    when a trace slipped onto its neighbour's marker) wins. The others are un-taken.
+    ``1.1 (s_b - s_a) + γ`` apart, neighbours ``b = a + 1`` at most their rest spacing
+    plus ``_ADJ γ`` (a body point beside the rope sits farther). When consecutive
+    measured markers break that, the measured markers kept are the best subset in
+    which every consecutive pair obeys it (dynamic programming over the chain): each
+    marker kept counts +1, or -1 where ``rigid(j, point)`` says its point moves
+    rigidly with body points (:func:`_rigid_with_body`: the body-like side of a
+    stretched link goes, never the rope-like side), each link less half its
+    deformation (chord below or beyond the rest arc length, relative: a trace that
+    slipped onto its neighbour's marker, or onto a point beside the rope). The others
+    are un-taken. ``rigid`` is only asked when a link breaks the limits.
     """
     idx = np.nonzero(known)[0]
     if idx.size < 2:
         return
     xs = cur[idx]
     chord = np.linalg.norm(xs[1:] - xs[:-1], axis=1)
-    if np.all(chord <= _STRETCH * (s[idx[1:]] - s[idx[:-1]]) + gamma):
+    ds1 = s[idx[1:]] - s[idx[:-1]]
+    lim1 = np.where(idx[1:] - idx[:-1] == 1, ds1 + _ADJ * gamma, _STRETCH * ds1 + gamma)
+    if np.all(chord <= lim1):
         return
     n = idx.size
     si = s[idx]
     dist = np.linalg.norm(xs[:, None] - xs[None, :], axis=2)  # (n, n)
     ds = si[None, :] - si[:, None]  # s_b - s_a
-    feasible = np.triu(dist <= _STRETCH * ds + gamma, k=1)
-    squeeze = np.clip((ds - dist) / np.where(ds > 0, ds, 1.0), 0.0, 1.0)
-    gain = np.where(feasible, 1.0 - 0.5 * squeeze, -np.inf)  # a link: +1 marker, − compression
-    score = np.ones(n)
+    adjacent = idx[None, :] - idx[:, None] == 1
+    limit = np.where(adjacent, ds + _ADJ * gamma, _STRETCH * ds + gamma)
+    feasible = np.triu(dist <= limit, k=1)
+    dev = (ds - dist) / np.where(ds > 0, ds, 1.0)
+    squeeze = np.clip(dev, 0.0, 1.0) + np.clip(-dev, 0.0, 1.0)  # compressed or stretched
+    # a marker counts +1, one on a point moving rigidly with body points -1
+    w = np.ones(n)
+    if rigid is not None:
+        w = np.array([-1.0 if rigid(int(j), int(taken[j])) else 1.0 for j in idx])
+    gain = np.where(feasible, w[None, :] - 0.5 * squeeze, -np.inf)  # a link: marker − deformation
+    score = w.copy()
     back = np.full(n, -1, dtype=np.int64)
     for b in range(1, n):
         cand = score[:b] + gain[:b, b]
@@ -250,6 +285,101 @@ def _reject_overstretched(
     rows = idx[~keep]
     known[rows] = False
     taken[rows] = -1
+
+
+def _rigid_with_body(
+    points: np.ndarray,
+    offsets: np.ndarray,
+    point_index: np.ndarray,
+    t: int,
+    j: int,
+    p: int,
+    taken: np.ndarray,
+    spacing: float,
+    window: int,
+) -> bool:
+    """True when the point ``p`` of frame t moves rigidly with body points (beyond the thesis).
+
+    ``p``'s path over the last ``window`` frames is trace ``j``'s points where the
+    trace was measured in all of them; otherwise (or ``j < 0``) ``p`` is followed
+    backward itself at constant velocity, to the nearest point when that lies within
+    ``2 _RIGID_RANGE`` spacings and the second nearest twice as far; a frame without
+    such a point means no evidence (False), as does a path moving less than half a
+    ``spacing`` (a still point moves "rigidly" with everything still). Every point of frame t within
+    ``_RIGID_RADIUS`` spacings of ``p`` that the rope does not take (``taken``) is
+    followed backward frame by frame, moving as ``p``'s trace moved, to the nearest
+    point within ``_RIGID_RANGE`` spacings of that prediction that the rope did not
+    take; ``p`` is body-like when at least two of them keep their distance to it
+    within ``_RIGID_RANGE`` spacings over the whole window (a body marker moves with
+    its segment's markers; a rope marker does not; the rope's own points are taken).
+
+    Parameters
+    ----------
+    points : (N, 3) float64, metres
+        The cloud's points; ``offsets`` (T + 1,) int its frames.
+    point_index : (T, M) int64
+        The points the traces took in frames before t (-1 where invented).
+    t, j, p : int
+        The frame, the trace (-1: none), the point (global index in frame t).
+    taken : (M,) int64
+        The points the traces take in frame t so far (-1 for none).
+    spacing : float, metres
+        The rope's median rest spacing.
+    window : int
+        Frames looked back (none before frame ``window``: False).
+    """
+    if t < window:
+        return False
+    tol = _RIGID_RANGE * spacing
+    hist = point_index[t - window : t, j] if j >= 0 else np.full(window, -1)
+    if np.any(hist < 0):
+        # follow p itself backward at constant velocity, unambiguous nearest points
+        traj = np.empty((window + 1, 3))
+        traj[-1] = points[p]
+        v = np.zeros(3)
+        for f in range(t - 1, t - window - 1, -1):
+            fa, fb = int(offsets[f]), int(offsets[f + 1])
+            if fb - fa < 2:
+                return False
+            x = traj[f - t + window + 1]
+            dd = np.linalg.norm(points[fa:fb] - (x - v), axis=1)
+            o = np.argsort(dd)[:2]
+            if not (dd[o[0]] < 2.0 * tol and dd[o[1]] > 2.0 * dd[o[0]]):
+                return False
+            traj[f - t + window] = points[fa + o[0]]
+            v = x - traj[f - t + window]
+    else:
+        traj = np.concatenate([points[hist], points[p][None]])  # (W + 1, 3)
+    if np.max(np.linalg.norm(traj - traj[-1], axis=1)) < 0.5 * spacing:
+        return False
+    a, b = int(offsets[t]), int(offsets[t + 1])
+    frame = points[a:b]
+    d0 = np.linalg.norm(frame - traj[-1], axis=1)
+    cand = (d0 < _RIGID_RADIUS * spacing) & (np.arange(a, b) != p)
+    cand[taken[(taken >= a) & (taken < b)] - a] = False
+    found = 0
+    for c in np.nonzero(cand)[0]:
+        q = frame[c]
+        dq = d0[c]
+        ok = True
+        for f in range(t - 1, t - window - 1, -1):
+            fa, fb = int(offsets[f]), int(offsets[f + 1])
+            if fb == fa:
+                ok = False
+                break
+            pred = q + (traj[f - t + window] - traj[f - t + window + 1])
+            dd = np.linalg.norm(points[fa:fb] - pred, axis=1)
+            dd[point_index[f][(point_index[f] >= fa) & (point_index[f] < fb)] - fa] = np.inf
+            n = int(np.argmin(dd))
+            q = points[fa + n]
+            if not (dd[n] < tol and abs(np.linalg.norm(q - traj[f - t + window]) - dq) < tol):
+                ok = False
+                break
+        if ok:
+            found += 1
+            if found >= _RIGID_PARTNERS:
+                return True
+    return False
 
 
 def _reject_odd_motion(
@@ -408,6 +538,7 @@ def _match(
     body: np.ndarray | None = None,
     body_steady: np.ndarray | None = None,
     prev: np.ndarray | None = None,
+    rigid: Callable[[int, int], bool] | None = None,
 ) -> bool:
     """Match the traces ``rows`` to free points of frame t within γ of ``pred``, in place.
 
@@ -418,7 +549,10 @@ def _match(
     previous frame), the body points (:func:`_body_chains`) are skipped by the traces
     that are not steady. With ``prev`` ((M, 3) the rope in the previous frame) and a
     wider ``gate``, a steady trace predicted to move no more than γ does not take a
-    point beyond γ (:data:`_SLOW`). Returns True if any matched.
+    point beyond γ (:data:`_SLOW`). With ``rigid`` (``(trace, point) -> bool``, see
+    :func:`_rigid_with_body`) and ``body_steady``, the traces that are not steady
+    (coming back from a gap) do not take a point moving rigidly with body points.
+    Returns True if any matched.
     """
     if rows.size == 0:
         return False
@@ -437,6 +571,11 @@ def _match(
         d = np.where(slow[:, None] & (d >= gamma), np.inf, d)
     if follow is not None:
         d = np.where(_follows_other(follow, rows, pred, i, d, points, gamma), np.inf, d)
+    if rigid is not None and body_steady is not None:
+        for r in np.nonzero(~body_steady[rows])[0]:
+            for c in range(d.shape[1]):
+                if np.isfinite(d[r, c]) and d[r, c] < gate and rigid(-1, int(i[r, c])):
+                    d[r, c] = np.inf
     if spacing is not None:
         # the chord to each measured neighbour within γ of its rest spacing
         m = known.size
@@ -722,6 +861,9 @@ def _track_numpy(
     tree = _FrameTree(cloud)
     loo_weights = _leave_one_out_weights(s)
     k_cand = _CANDIDATES
+    offsets = cloud.offsets
+    window = int(round(_RIGID_WINDOW * cloud.rate))
+    l_med = float(np.median(spacing))
 
     for t in range(1, t_frames):
         prev = positions[t - 1]
@@ -741,6 +883,10 @@ def _track_numpy(
             _CHAIN * gamma,
         )
         active = temp_count == 0
+
+        def rigid(j: int, p: int, t: int = t, taken: np.ndarray = taken) -> bool:
+            return _rigid_with_body(points, offsets, point_index, t, j, p, taken, l_med, window)
+
         if k > 0:
             # ---- pass 1: measured traces at V, then at V corrected by the
             # residuals of the traces found (beyond the thesis)
@@ -763,7 +909,7 @@ def _track_numpy(
                 body=body,
                 body_steady=active,
             )
-            _reject_overstretched(cur, known, taken, s, gamma)
+            _reject_overstretched(cur, known, taken, s, gamma, rigid)
             _reject_odd_motion(cur, prev, known, taken, gamma, active)
             tried = v_pred
             for _ in range(_ROUNDS):
@@ -793,9 +939,10 @@ def _track_numpy(
                     body=body,
                     body_steady=active,
                     prev=prev,
+                    rigid=rigid,
                 ):
                     break
-                _reject_overstretched(cur, known, taken, s, gamma)
+                _reject_overstretched(cur, known, taken, s, gamma, rigid)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 tried = np.where(want[:, None], pred, tried)
         new_count = np.where(known, 0, temp_count + 1)
@@ -827,8 +974,9 @@ def _track_numpy(
                     body=body,
                     body_steady=active,
                     prev=prev,
+                    rigid=rigid,
                 )
-                _reject_overstretched(cur, known, taken, s, gamma)
+                _reject_overstretched(cur, known, taken, s, gamma, rigid)
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 # ---- the zipper: runs of inner markers from their measured ends
                 for _ in range(_ZIP):
@@ -850,10 +998,11 @@ def _track_numpy(
                         body=body,
                         body_steady=active,
                         prev=prev,
+                        rigid=rigid,
                     ):
                         break
                     found_more = True
-                    _reject_overstretched(cur, known, taken, s, gamma)
+                    _reject_overstretched(cur, known, taken, s, gamma, rigid)
                     _reject_odd_motion(cur, prev, known, taken, gamma, active)
         swapped = False
         if k > 0 and known.sum() >= 3:
@@ -954,6 +1103,16 @@ def track_rope(
 
         offsets = np.ascontiguousarray(cloud.offsets, dtype=np.int64)
         pts = np.ascontiguousarray(points, dtype=np.float64)
+        rig = np.array(
+            [
+                float(np.median(spacing)),
+                float(round(_RIGID_WINDOW * cloud.rate)),
+                _RIGID_RADIUS,
+                _RIGID_RANGE,
+                float(_RIGID_PARTNERS),
+                _ADJ,
+            ]
+        )
         t0 = 1
         while t0 < t_frames:
             t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
@@ -961,7 +1120,7 @@ def track_rope(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
                 int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
-                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW,
+                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW, rig,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
                 progress((t1 - 1) / t_frames)
