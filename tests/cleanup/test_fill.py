@@ -302,3 +302,42 @@ def test_whole_body_pca_is_not_swamped_by_the_body_travelling():
     moving = fill_pca(gappy + travel, target) - travel
     np.testing.assert_allclose(moving[150:190, 4], still[150:190, 4], atol=0.005)
     np.testing.assert_allclose(moving[~target], gappy[~target], atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["local_pca", "rigid_weighted", "linear"])
+def test_only_fills_the_masked_samples(take, method):
+    markers, truth = take
+    missing = markers.missing
+    only = np.zeros_like(missing)
+    cols = np.flatnonzero(missing.any(axis=0))[:5]
+    only[:, cols] = missing[:, cols]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        out, invented = fill_gaps(markers, method=method, only=only)
+    assert invented.any() and not (invented & ~only).any()
+    assert np.isnan(out[missing & ~only]).all()
+    err = np.linalg.norm(out[invented] - truth[invented], axis=-1)
+    # spatial fills within 1 cm of the truth; linear interpolation is only checked for
+    # filling the same samples it fills without the mask
+    limit = {"local_pca": 0.01, "rigid_weighted": 0.01, "linear": np.inf}[method]
+    assert np.median(err) < limit
+    if method == "linear":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkincapWarning)
+            whole, _ = fill_gaps(markers, method=method)
+        np.testing.assert_array_equal(out[invented], whole[invented])
+    with pytest.raises(ValidationError, match="only"):
+        fill_gaps(markers, method=method, only=only[:-1])
+
+
+def test_evaluate_fill_can_leave_the_takes_own_gaps_open(take):
+    markers, _ = take
+    kw = dict(methods=["local_pca", "linear"], gap_lengths=(20,), gaps=2, seed=1)
+    full = evaluate_fill(markers, **kw)
+    punched_only = evaluate_fill(markers, fill_own_gaps=False, **kw)
+    assert punched_only["fill_own_gaps"] is False and full["fill_own_gaps"] is True
+    for method in kw["methods"]:
+        a, b = full["results"][method]["all"], punched_only["results"][method]["all"]
+        assert a["samples"] == b["samples"] > 0  # the same punched samples are scored
+    # linear interpolation does not look at neighbours: the same fill either way
+    assert full["results"]["linear"]["all"]["mm"] == punched_only["results"]["linear"]["all"]["mm"]

@@ -1133,6 +1133,7 @@ def fill_gaps(
     anchor_ends: bool = True,
     rigid_blend: float | None = None,
     rigid_weighted: bool = True,
+    only: np.ndarray | None = None,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Fill the missing samples of ``markers`` with one of :data:`FILL_METHODS`.
@@ -1168,6 +1169,9 @@ def fill_gaps(
         its donors by how rigidly they moved with the marker next to the gap
         (:func:`fill_rigid` ``weighted=True``, the ``rigid_weighted`` method).
         Default True; False blends with the equal-weight ``rigid`` fill.
+    only : (T, N) bool, optional
+        Fill only these missing samples; the other missing samples stay NaN and are
+        not used as estimated neighbours either. Default: every missing sample.
     progress : callable(fraction, label), optional
 
     Returns
@@ -1197,6 +1201,11 @@ def fill_gaps(
     missing = np.isnan(p[..., 0])
     interior = method in ("linear", "pchip", "spline")
     target = _targets(missing, max_gap, interior_only=interior)
+    if only is not None:
+        only = np.asarray(only, dtype=bool)
+        if only.shape != (t, n):
+            raise ValidationError(f"only: expected a ({t}, {n}) boolean mask, got {only.shape}")
+        target &= only
     if not target.any():
         return p.copy(), np.zeros((t, n), dtype=bool)
     csr = motion_neighbours(p) if neighbours is None else as_csr(neighbours, n)
