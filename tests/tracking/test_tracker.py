@@ -214,13 +214,20 @@ def test_zipper_continues_the_measured_side_of_a_run_at_the_rest_spacing() -> No
     np.testing.assert_array_equal(rows, [5])  # 3 has one measured marker before it
     known[1], known[0] = True, False
     rows, pred = _zipper_predictions(cur, known, spacing)
-    np.testing.assert_array_equal(rows, [3, 5])
+    np.testing.assert_array_equal(rows, [0, 3, 5])  # the unknown end too (_ZIP_ENDS)
     straight = cur[2] + chord * (cur[2] - cur[1]) / np.linalg.norm(cur[2] - cur[1])
     np.testing.assert_allclose(pred[3], straight)
     # a run at the end of the rope is left to F; a single unknown marker to the curve
     known = np.ones(m, dtype=bool)
     known[5:] = False
     assert _zipper_predictions(cur, known, spacing)[0].size == 0
+    # an unknown end of the rope beside measured markers: bent as the rope bends
+    for end in (0, m - 1):
+        known = np.ones(m, dtype=bool)
+        known[end] = False
+        rows, pred = _zipper_predictions(cur, known, spacing)
+        np.testing.assert_array_equal(rows, [end])
+        assert np.linalg.norm(pred[end] - cur[end]) < 0.002
     known = np.ones(m, dtype=bool)
     known[4] = False
     assert _zipper_predictions(cur, known, spacing)[0].size == 0
@@ -232,7 +239,7 @@ def test_zipper_continues_the_measured_side_of_a_run_at_the_rest_spacing() -> No
         known = rng.random(m) < 0.6
         pts = rng.normal(size=(m, 3))
         rows, pred = _zipper_predictions(pts, known, spacing)
-        krows, kpred = _zipper(pts, known, spacing, True, True)
+        krows, kpred = _zipper(pts, known, spacing, True, True, True)
         np.testing.assert_array_equal(krows, rows)
         np.testing.assert_allclose(kpred, pred, atol=1e-12)
 

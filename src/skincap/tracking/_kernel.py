@@ -773,7 +773,7 @@ def _neighbour_velocity(known, velocity, fallback):  # pragma: no cover - runs c
 
 
 @numba.njit(**_JIT)
-def _zipper(cur, known, spacing, inner, quad):  # pragma: no cover - runs compiled
+def _zipper(cur, known, spacing, inner, quad, ends):  # pragma: no cover - runs compiled
     """As the reference ``_zipper_predictions``: (rows, (M, 3) predictions)."""
     m = known.size
     pred = np.zeros((m, 3))
@@ -781,8 +781,13 @@ def _zipper(cur, known, spacing, inner, quad):  # pragma: no cover - runs compil
     if m < 4:
         return np.nonzero(want)[0], pred
     before, after = _side(known)
-    for j in range(1, m - 1):
-        if known[j] or (inner and (before[j] < 0 or after[j] >= m)):
+    for j in range(m):
+        if known[j]:
+            continue
+        if j == 0 or j == m - 1:
+            if not ends:
+                continue
+        elif inner and (before[j] < 0 or after[j] >= m):
             continue
         for step in (-1, 1):
             j1, j2, j3 = j + step, j + 2 * step, j + 3 * step
@@ -927,6 +932,7 @@ def track_frames(
     zip_quad,
     slow,
     rig,
+    zip_ends,
 ):  # pragma: no cover - runs compiled
     """Track frames ``t0 … t1 - 1`` (t0 >= 1), updating the output arrays and the state
     (``velocity``, ``temp_count``, the body chains ``body``/``body_vel`` over all
@@ -1084,7 +1090,7 @@ def track_frames(
                 )
                 _reject_odd_motion(cur, prev, known, taken, gamma, active)
                 for _ in range(zip_rounds):
-                    rows, zpred = _zipper(cur, known, spacing, zip_inner, zip_quad)
+                    rows, zpred = _zipper(cur, known, spacing, zip_inner, zip_quad, zip_ends)
                     if rows.size == 0 or not _match(
                         points,
                         a,

@@ -117,6 +117,9 @@ _ZIP = 3
 _ZIP_INNER = True
 #: The zipper bends with the measured side (quadratic), not straight on (linear).
 _ZIP_QUAD = True
+#: The zipper also predicts a rope end next to two measured markers (a curled free
+#: end is missed by the thesis' straight N; rigid body points beside it are refused).
+_ZIP_ENDS = True
 
 
 @dataclass(eq=False)
@@ -611,8 +614,9 @@ def _zipper_predictions(
 
     The curve through the measured markers bridges a long run of unknown markers
     badly (a whip's wave, a rope lifting off the floor): the prediction falls far
-    from markers that are in plain view. An unknown marker ``j`` (not an end of the
-    rope; with ``_ZIP_INNER``, only inside the measured part) with two measured
+    from markers that are in plain view. An unknown marker ``j`` (an end of the rope
+    only with ``_ZIP_ENDS``; an inner one with ``_ZIP_INNER`` only inside the
+    measured part) with two measured
     markers on one side (``j - 1`` and ``j - 2``, or ``j + 1`` and ``j + 2``) and an
     unknown neighbour on the other is predicted by continuing the measured side, bending as it bends
     when a third measured marker follows (quadratic extrapolation with ``_ZIP_QUAD``,
@@ -649,6 +653,8 @@ def _zipper_predictions(
     if _ZIP_INNER:
         before, after = _side_neighbours(known)
         body &= (before >= 0) & (after < m)
+    if _ZIP_ENDS:
+        body |= ~known & ((ar == 0) | (ar == m - 1))
     lo = body & k_m1 & k_m2 & ~k_p1
     hi = body & k_p1 & k_p2 & ~k_m1
     for side, step, third in ((lo, -1, k_m3), (hi, 1, k_p3)):
@@ -1120,7 +1126,7 @@ def track_rope(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
                 int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
-                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW, rig,
+                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW, rig, _ZIP_ENDS,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
                 progress((t1 - 1) / t_frames)
