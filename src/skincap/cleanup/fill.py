@@ -29,6 +29,11 @@ Methods
     missing data (EM / iterative least-squares imputation, after Shum et al. 1995), so
     the frames where a member is missing still train the model, and the reference
     shape is a Procrustes mean computed with missing members.
+``local_pca_window`` (beyond the paper)
+    One missing-data local-PCA model per gap, of the marker's own group only (no
+    averaging over the neighbours' groups), trained on the frames within eight gap
+    lengths of the gap; joined to the measured ends like the other local methods
+    (see :func:`fill_local_window`).
 ``linear``, ``pchip``, ``spline``
     Interpolation in time of each trajectory (linear; scipy's PCHIP; scipy's not-a-knot
     cubic spline). Interior gaps only.
@@ -102,6 +107,7 @@ __all__ = [
     "FILL_METHODS",
     "fill_gaps",
     "fill_local_pca",
+    "fill_local_window",
     "fill_linear",
     "fill_pchip",
     "fill_spline",
@@ -996,6 +1002,93 @@ def fill_local_pca(
     return p
 
 
+def fill_local_window(
+    positions: np.ndarray,
+    target: np.ndarray,
+    neighbours: CSR,
+    *,
+    window: float = 8.0,
+    variance: float = 0.99,
+    spread: np.ndarray | None = None,
+) -> np.ndarray:
+    """Own-group local PCA trained around each gap (the ``local_pca_window`` method).
+
+    For each missing run ``[s, e)`` of marker ``i`` (length ``L``) one local-PCA model
+    (eqs. 4-5, missing-data PCA) of ``i`` and its neighbours is trained on the frames
+    ``[s - window * L, e + window * L)`` only, and only ``i``'s own group estimates
+    it (no averaging over the neighbours' groups). The estimate is joined to the
+    measured samples at the run's ends: the model re-estimates ``x_i(s - 1)`` and
+    ``x_i(e)`` as if missing, and the two offsets (measured - estimate) are
+    interpolated linearly across the run. One loop over runs; all frames of a run
+    are solved in one batch.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    target : (T, N) bool
+        Samples to fill.
+    neighbours : CSR (offsets (N + 1,), indices (E,))
+    window : float
+        Training frames each side of a run, in run lengths (at least 10 frames).
+    variance : float
+        Fraction of the variance the PCA keeps.
+    spread : (T, N) float array, optional
+        Written in place on the filled samples of runs anchored at both ends: the
+        distance (metres) between the two end offsets, how far the model strays
+        across the run; left unchanged elsewhere.
+
+    Returns
+    -------
+    (T, N, 3) float64 : a filled copy; samples with fewer than three present group
+    members (or a group without a model) stay NaN.
+    """
+    p = np.array(positions, dtype=np.float64)
+    t = p.shape[0]
+    present = ~np.isnan(p[..., 0])
+    offsets, indices = neighbours
+    marker, start, length = _runs(~present)
+    keep = target[start, marker] if marker.size else np.zeros(0, dtype=bool)
+    for i, s, ln in zip(marker[keep], start[keep], length[keep], strict=True):
+        members = np.concatenate([[i], indices[offsets[i] : offsets[i + 1]]])
+        if members.size < 4:
+            continue
+        e = s + ln
+        w = max(10, int(round(window * ln)))
+        lo, hi = max(0, s - w), min(t, e + w)
+        ends = [f for f in (s - 1, e) if 0 <= f < t]
+        want = np.zeros((hi - lo, members.size), dtype=bool)
+        want[s - lo : e - lo, 0] = target[s:e, i]
+        res = _group_estimates(
+            p[lo:hi, members],
+            present[lo:hi, members],
+            want,
+            variance=variance,
+            missing_data=True,
+            query_frame=np.asarray(ends, dtype=np.int64) - lo,
+            query_member=np.zeros(len(ends), dtype=np.int64),
+        )
+        if res is None:
+            continue
+        rows, est, _, _, _ = res
+        nr = rows.size - len(ends)
+        frames = rows[:nr] + lo
+        val = est[:nr, 0]
+        ok = (frames >= s) & (frames < e) & ~np.isnan(val[:, 0]) & target[frames, i]
+        frames, val = frames[ok], val[ok]
+        off = {f: p[f, i] - est[nr + k, 0] for k, f in enumerate(ends)}
+        off = {f: o for f, o in off.items() if np.isfinite(o).all()}
+        before, after = off.get(s - 1), off.get(e)
+        wa = ((frames - s + 1) / (ln + 1.0))[:, None]
+        if before is not None and after is not None:
+            val = val + (1.0 - wa) * before + wa * after
+            if spread is not None:
+                spread[frames, i] = np.linalg.norm(after - before)
+        elif before is not None or after is not None:
+            val = val + (before if before is not None else after)
+        p[frames, i] = val
+    return p
+
+
 def _anchor_gaps(
     p: np.ndarray,
     done: np.ndarray,
@@ -1223,16 +1316,19 @@ def fill_gaps(
         out = fill_pca(p, target)
     else:
         spread_pca = np.full((t, n), np.nan)
-        out = fill_local_pca(
-            p,
-            target,
-            csr,
-            weighted=method in ("local_pca_weighted", "local_pca_missing"),
-            missing_data=method == "local_pca_missing",
-            anchor_ends=anchor_ends,
-            spread=spread_pca,
-            progress=progress,
-        )
+        if method == "local_pca_window":
+            out = fill_local_window(p, target, csr, spread=spread_pca)
+        else:
+            out = fill_local_pca(
+                p,
+                target,
+                csr,
+                weighted=method in ("local_pca_weighted", "local_pca_missing"),
+                missing_data=method == "local_pca_missing",
+                anchor_ends=anchor_ends,
+                spread=spread_pca,
+                progress=progress,
+            )
         left = target & np.isnan(out[..., 0])
         blend = rigid_blend is None or rigid_blend > 0
         if blend or left.any():

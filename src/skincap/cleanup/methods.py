@@ -8,6 +8,7 @@ FillMethod = Literal[
     "local_pca",
     "local_pca_weighted",
     "local_pca_missing",
+    "local_pca_window",
     "linear",
     "pchip",
     "spline",
