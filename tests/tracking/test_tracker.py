@@ -365,3 +365,34 @@ def test_a_stretched_link_drops_its_body_like_side() -> None:
     np.testing.assert_array_equal(run(-1), [True, True, False])  # no evidence: least stretch
     np.testing.assert_array_equal(run(2), [True, True, False])
     np.testing.assert_array_equal(run(1), [True, False, True])  # marker 1 on a body point
+
+
+def test_traces_back_from_a_gap_refuse_rigid_body_points() -> None:
+    from skincap.tracking.tracker import _FrameTree, _match, _rigid_with_body
+
+    cloud, where = _segment_and_rope()
+    t, gamma = 39, 0.03
+    point_index = np.full((cloud.n_frames, 1), -1, dtype=np.int64)
+    target = cloud.points[where[t, 0]]  # the segment's first marker
+
+    def run(steady: bool, gate: float, with_rigid: bool) -> bool:
+        cur = np.zeros((1, 3))
+        known = np.zeros(1, dtype=bool)
+        taken = np.full(1, -1, dtype=np.int64)
+
+        def rigid(j: int, p: int) -> bool:
+            return _rigid_with_body(
+                cloud.points, cloud.offsets, point_index, t, j, p, taken, 0.12, 30
+            )
+
+        return _match(
+            _FrameTree(cloud), t, np.array([0]), target[None] + 0.005, 3, gamma, cur, known,
+            taken, cloud.points, gate=gate, body_steady=np.array([steady]),
+            rigid=rigid if with_rigid else None,
+        )  # fmt: skip
+
+    assert run(False, gamma, False)  # without the test the body point is taken
+    assert not run(False, gamma, True)  # back from a gap: refused
+    assert not run(False, 2 * gamma, True)  # in the wide gate too
+    assert run(True, gamma, True)  # a steady trace keeps it (the held end moves with the hand)
+    assert run(True, 2 * gamma, True)
