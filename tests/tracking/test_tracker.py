@@ -319,7 +319,7 @@ def test_a_point_moving_rigidly_with_body_points_is_body_like() -> None:
                 pts, off, point_index, t, j, where[t, obj], taken, spacing, window
             )
             assert got == body_like, (obj, j)
-    # the segment still (moving less than half a spacing): no evidence
+    # the segment still (moving less than _RIGID_MOVE spacings): no evidence
     still = PointCloud(
         points=np.tile(pts[:4], (cloud.n_frames, 1)), offsets=off, rate=120.0, ids=None, meta={}
     )
@@ -336,7 +336,7 @@ def test_kernel_rigidity_test_matches_the_reference() -> None:
     from skincap.tracking.tracker import _rigid_with_body
 
     cloud, where = _segment_and_rope()
-    rig = np.array([0.12, 30.0, _RIGID_RADIUS, _RIGID_RANGE, float(_RIGID_PARTNERS), 0.5])
+    rig = np.array([0.12, 30.0, _RIGID_RADIUS, _RIGID_RANGE, float(_RIGID_PARTNERS), 0.5, 0.3])
     for t in (20, 30, 39):
         for obj in range(4):
             point_index = np.full((cloud.n_frames, 1), -1, dtype=np.int64)

@@ -327,7 +327,7 @@ def _rope_taken_at(point_index, f, q):  # pragma: no cover - runs compiled
 @numba.njit(**_JIT)
 def _rigid_with_body(points, offsets, point_index, t, j, p, taken, rig):  # pragma: no cover
     """As the reference ``_rigid_with_body``; ``rig`` = (spacing, window, radius, range,
-    partners, adjacent-link allowance) as floats."""
+    partners, adjacent-link allowance, least move) as floats."""
     spacing = rig[0]
     window = int(rig[1])
     tol = rig[3] * spacing
@@ -379,7 +379,7 @@ def _rigid_with_body(points, offsets, point_index, t, j, p, taken, rig):  # prag
             traj[r, 0] - traj[window, 0], traj[r, 1] - traj[window, 1], traj[r, 2] - traj[window, 2]
         )
         far = max(far, dd)
-    if far < 0.5 * spacing:
+    if far < rig[6] * spacing:
         return False
     a, b = offsets[t], offsets[t + 1]
     found = 0

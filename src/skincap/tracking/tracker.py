@@ -109,6 +109,8 @@ _SLOW = True
 _ADJ = 0.5
 #: Window of the rigidity test (:func:`_rigid_with_body`), in seconds.
 _RIGID_WINDOW = 0.25
+#: The rigidity test needs the point to move this many rest spacings in its window.
+_RIGID_MOVE = 0.3
 #: Rounds of the zipper (:func:`_zipper_predictions`): a run of invented inner markers
 #: is searched from its measured ends inward, one marker per side and round.
 _ZIP = 3
@@ -307,8 +309,8 @@ def _rigid_with_body(
     trace was measured in all of them; otherwise (or ``j < 0``) ``p`` is followed
     backward itself at constant velocity, to the nearest point when that lies within
     ``2 _RIGID_RANGE`` spacings and the second nearest twice as far; a frame without
-    such a point means no evidence (False), as does a path moving less than half a
-    ``spacing`` (a still point moves "rigidly" with everything still). Every point of frame t within
+    such a point means no evidence (False), as does a path moving less than
+    ``_RIGID_MOVE`` spacings (a still point moves "rigidly" with everything still). Every point of frame t within
     ``_RIGID_RADIUS`` spacings of ``p`` that the rope does not take (``taken``) is
     followed backward frame by frame, moving as ``p``'s trace moved, to the nearest
     point within ``_RIGID_RANGE`` spacings of that prediction that the rope did not
@@ -353,7 +355,7 @@ def _rigid_with_body(
             v = x - traj[f - t + window]
     else:
         traj = np.concatenate([points[hist], points[p][None]])  # (W + 1, 3)
-    if np.max(np.linalg.norm(traj - traj[-1], axis=1)) < 0.5 * spacing:
+    if np.max(np.linalg.norm(traj - traj[-1], axis=1)) < _RIGID_MOVE * spacing:
         return False
     a, b = int(offsets[t]), int(offsets[t + 1])
     frame = points[a:b]
@@ -1117,6 +1119,7 @@ def track_rope(
                 _RIGID_RANGE,
                 float(_RIGID_PARTNERS),
                 _ADJ,
+                _RIGID_MOVE,
             ]
         )
         t0 = 1
