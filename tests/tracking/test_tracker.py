@@ -352,7 +352,7 @@ def test_a_stretched_link_drops_its_body_like_side() -> None:
 
     gamma = 0.03
     s = np.array([0.0, 0.12, 0.24])
-    # marker 2 one γ beyond its rest spacing from marker 1 (the limit is half a γ)
+    # marker 2 one γ beyond its rest spacing from marker 1 (the limit is 0.4 γ)
     cur = np.array([[0.0, 0, 0], [0.12, 0, 0], [0.24 + gamma, 0, 0]])
 
     def run(body_like: int) -> np.ndarray:

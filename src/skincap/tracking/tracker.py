@@ -50,7 +50,7 @@ Beyond the thesis:
   at the rest spacing, inward one marker per side and round
   (:func:`_zipper_predictions`).
 * Traces that break the rope's length (two measured markers farther apart than the
-  rope between them, neighbours more than γ/2 beyond their rest spacing) are
+  rope between them, neighbours more than 0.4 γ beyond their rest spacing) are
   resolved by keeping the largest consistent chain (a trace that slipped onto its
   neighbour's marker is dropped), markers on points that move rigidly with body
   points counting against a chain (a body marker keeps its distance to two or more
@@ -106,7 +106,7 @@ _CHAIN = 1.0 / 3.0
 _SLOW = True
 #: Largest chord between two neighbouring measured markers: their rest spacing plus
 #: this many γ (a rope does not stretch; a body point beside the rope sits farther).
-_ADJ = 0.5
+_ADJ = 0.4
 #: Window of the rigidity test (:func:`_rigid_with_body`), in seconds.
 _RIGID_WINDOW = 0.25
 #: The rigidity test needs the point to move this many rest spacings in its window.
