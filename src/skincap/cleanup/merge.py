@@ -1097,7 +1097,10 @@ def find_hidden_markers(
     groups: list[list[int]] = []
     taken: list[np.ndarray] = []
     track: list[np.ndarray] = []  # (T, 3) each group's samples so far
-    for j in np.argsort(-count[cols], kind="stable").tolist():
+    # seeds: fragments that passed the strict test first (their carry into the
+    # reference pose is the surer), each kind longest first
+    order = np.lexsort((-count[cols], ~strict[g]))
+    for j in order.tolist():
         dist = [float(np.linalg.norm(at_ref[j] - at_ref[sd])) / s[g[sd]] for sd in seeds]
         apart = [not np.any(taken[q] & present[:, cols[j]]) for q in range(len(seeds))]
         near_seed = [q for q, d in enumerate(dist) if d <= group_radius]
