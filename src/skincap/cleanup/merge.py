@@ -874,6 +874,7 @@ def find_hidden_markers(
     loose_min_frames: int = 20,
     rule_out_gap: int = 5,
     rule_out_radius: float = 0.7,
+    min_seed_frames: int = 15,
 ) -> list[list[int]]:
     """Leftover fragments that are skin markers hidden in the reference frame.
 
@@ -918,6 +919,9 @@ def find_hidden_markers(
     reference pose (both carried there by their neighbourhood's rigid fit) and does
     not overlap it in time. A fragment within ``rival_radius`` of another group
     starts a group of its own only when that group is ruled out in time as above.
+    Only a fragment of at least ``min_seed_frames`` frames starts a group: a
+    ghost riding a marker a few centimetres off passes the tests above while it
+    lasts, but ghosts are short (geometric, about three frames on average).
     A fragment near a group that it overlaps is dropped
     (two things cannot be one marker), as is anything ambiguous: a fragment left
     unlabelled costs a filled hole, a wrong label a wrong trajectory.
@@ -946,6 +950,9 @@ def find_hidden_markers(
         three frames).
     rule_out_gap : int, default 5
         Frames within which continuity in time is trusted (0: not used).
+    min_seed_frames : int, default 15
+        Shortest fragment that starts a new marker; shorter ones (at least
+        ``min_frames``) can only join one.
 
     Returns
     -------
@@ -1119,18 +1126,22 @@ def find_hidden_markers(
             groups[q].append(int(cols[j]) + n)
             taken[q] |= present[:, cols[j]]
             track[q] = np.where(present[:, cols[j], None], left[:, cols[j]], track[q])
-        elif not near_seed and not any(
-            d <= rival_radius
-            and a
-            and not _ruled_out(
-                est,
-                track[q],
-                left[:, cols[j]],
-                nb[g[j]],
-                rule_out_gap,
-                rule_out_radius * s[g[j]],
+        elif (
+            count[cols[j]] >= min_seed_frames
+            and not near_seed
+            and not any(
+                d <= rival_radius
+                and a
+                and not _ruled_out(
+                    est,
+                    track[q],
+                    left[:, cols[j]],
+                    nb[g[j]],
+                    rule_out_gap,
+                    rule_out_radius * s[g[j]],
+                )
+                for q, (d, a) in enumerate(zip(dist, apart, strict=True))
             )
-            for q, (d, a) in enumerate(zip(dist, apart, strict=True))
         ):
             seeds.append(j)
             groups.append([int(cols[j]) + n])
