@@ -12,6 +12,7 @@ from scipy.spatial.transform import Rotation
 from skincap.cleanup import merge as merge_module
 from skincap.cleanup.merge import (
     _continues_known,
+    _grow_in_time,
     _ruled_out,
     find_hidden_markers,
     merge_fragments,
@@ -143,3 +144,54 @@ def test_more_hidden_markers_recovered_on_the_synthetic_take() -> None:
         assert report["hidden"]["wrong_fragments"] == 0
         assert report["merge"]["wrongly_merged"] == 0
     assert after["merge"]["merged"] >= before["merge"]["merged"]
+
+
+def test_a_group_grows_by_continuity_in_time() -> None:
+    markers, n, truth = _sheet(fold=0.0)
+    est = np.delete(truth, 24, axis=1)
+    nb = np.array([[17, 18, 19, 23, 24, 29, 30, 31]] * 2)
+    left = np.full((FRAMES, 2, 3), np.nan)
+    left[47:, 0] = truth[47:, 24]  # the hidden marker again, 3 frames after its group
+    left[47:, 1] = truth[47:, 25]  # a neighbour's fragment, a spacing away
+    present = np.isfinite(left).all(axis=2)
+    track = [np.where(np.arange(FRAMES)[:, None] < 44, truth[:, 24], np.nan)]
+    track[0][:10] = np.nan
+    taken = [np.isfinite(track[0]).all(axis=1)]
+    groups = [[n + 5]]
+    s = np.full(2, 0.05)
+    _grow_in_time(
+        groups,
+        track,
+        taken,
+        est,
+        left,
+        present,
+        np.arange(2),
+        nb,
+        s,
+        np.ones(2, dtype=bool),
+        n,
+        5,
+        0.5,
+    )
+    assert groups == [[n + 5, n]]
+    assert taken[0][10:44].all() and taken[0][47:].all() and not taken[0][44:47].any()
+    # too long a gap: nothing joins
+    groups, taken2 = [[n + 5]], [np.isfinite(track[0]).all(axis=1)]
+    track2 = [np.where(taken2[0][:, None], truth[:, 24], np.nan)]
+    _grow_in_time(
+        groups,
+        track2,
+        taken2,
+        est,
+        left,
+        present,
+        np.arange(2),
+        nb,
+        s,
+        np.ones(2, dtype=bool),
+        n,
+        2,
+        0.5,
+    )
+    assert groups == [[n + 5]]
