@@ -182,12 +182,23 @@ def clean(
             "the report then counts wrong merges."
         ),
     ] = None,
+    no_hidden: Annotated[
+        bool,
+        typer.Option(
+            "--no-hidden",
+            help="Do not label markers hidden in the reference frame (new U<n> columns); "
+            "their fragments stay unlabelled.",
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
 ) -> None:
     """Clean a capture: marker surface, merge fragments into labels, fill holes, smooth.
 
     Writes the cleaned C3D with filled samples flagged as invented, and with --report
     a JSON file with the surface, Table-1 merge counts and the invented runs per marker.
+    Markers hidden in the reference frame, found among the leftover fragments (they
+    ride with a skin neighbourhood over their whole span), come after the labelled
+    markers as U<n> columns, named after their longest fragment *<n>.
 
     Example: skincap clean take.c3d -o take_clean.c3d --report take_clean.json
     """
@@ -237,6 +248,7 @@ def clean(
                 lam=lam,
                 iterations=iterations,
                 fragment_truth=truth,
+                recover_hidden=not no_hidden,
                 progress=progress,
             )
         summary["input"] = str(src)
@@ -250,6 +262,11 @@ def clean(
         f"{src} -> {output}: {merge['trajectories_before']} -> {merge['trajectories_after']} "
         f"trajectories, {merge['merged']} fragments merged, "
         f"{fill['invented_samples']} samples invented, {fill['unfilled_samples']} unfilled"
+        + (
+            f", {summary['hidden']['new_markers']} hidden markers labelled"
+            if summary["hidden"]["new_markers"]
+            else ""
+        )
         + (
             ""
             if merge["wrongly_merged"] is None

@@ -129,3 +129,28 @@ def test_clean_errors(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
     assert not (tmp_path / "y.c3d").exists()
     result = run("clean", "--help")
     assert result.exit_code == 0 and "Example: skincap clean" in result.output
+
+
+def test_clean_no_hidden_keeps_only_the_labelled_markers(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
+    src, _ = synth_c3d
+    with_hidden = tmp_path / "with.json"
+    without = tmp_path / "without.json"
+    a = run("clean", src, "-o", tmp_path / "a.c3d", "--method", "linear", "--report", with_hidden)
+    b = run(
+        "clean",
+        src,
+        "-o",
+        tmp_path / "b.c3d",
+        "--method",
+        "linear",
+        "--no-hidden",
+        "--report",
+        without,
+    )
+    assert a.exit_code == 0 and b.exit_code == 0, a.output + b.output
+    ra, rb = json.loads(with_hidden.read_text()), json.loads(without.read_text())
+    labelled = sum(not lab.startswith("*") for lab in _read(src).labels)
+    assert rb["hidden"]["enabled"] is False and rb["surface"]["markers"] == labelled
+    assert ra["surface"]["markers"] == labelled + ra["hidden"]["new_markers"]
+    after = _read(tmp_path / "b.c3d")
+    assert not any(lab.startswith("U") for lab in after.labels)
