@@ -8,7 +8,8 @@ import numpy as np
 from cleanup_takes import dense_jumprope_take
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup.merge import find_hidden_markers, merge_fragments
+from skincap.cleanup.hidden import find_hidden_markers
+from skincap.cleanup.merge import merge_fragments
 from skincap.cleanup.pipeline import clean_markers
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import SkincapWarning

@@ -9,14 +9,14 @@ import numpy as np
 from cleanup_takes import dense_jumprope_take
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup import merge as merge_module
-from skincap.cleanup.merge import (
+from skincap.cleanup import hidden as hidden_module
+from skincap.cleanup.hidden import (
     _continues_known,
     _grow_in_time,
     _ruled_out,
     find_hidden_markers,
-    merge_fragments,
 )
+from skincap.cleanup.merge import merge_fragments
 from skincap.cleanup.pipeline import clean_markers
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import SkincapWarning
@@ -117,7 +117,7 @@ def test_more_hidden_markers_recovered_on_the_synthetic_take() -> None:
     without a wrong merge."""
     take = dense_jumprope_take()
     truth = take.fragment_truth
-    defaults = dict(merge_module.find_hidden_markers.__kwdefaults__)
+    defaults = dict(hidden_module.find_hidden_markers.__kwdefaults__)
     reports = []
     try:
         for change in (
@@ -125,7 +125,7 @@ def test_more_hidden_markers_recovered_on_the_synthetic_take() -> None:
             {"min_seed_frames": 10},
             {},
         ):
-            merge_module.find_hidden_markers.__kwdefaults__ = {**defaults, **change}
+            hidden_module.find_hidden_markers.__kwdefaults__ = {**defaults, **change}
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SkincapWarning)
                 reports.append(
@@ -134,7 +134,7 @@ def test_more_hidden_markers_recovered_on_the_synthetic_take() -> None:
                     )[1]
                 )
     finally:
-        merge_module.find_hidden_markers.__kwdefaults__ = defaults
+        hidden_module.find_hidden_markers.__kwdefaults__ = defaults
     before, seeded_short, after = reports
     assert before["hidden"]["recovered"] == 2
     assert seeded_short["hidden"]["recovered"] == 4

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup.merge import _joins_in_time, _prediction_error, merge_fragments
+from skincap.cleanup.hidden import _joins_in_time
+from skincap.cleanup.merge import _prediction_error, merge_fragments
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import ValidationError
 from skincap.types import MarkerSet

@@ -12,7 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from skincap.cleanup.merge import find_hidden_markers, merge_fragments
+from skincap.cleanup.hidden import find_hidden_markers
+from skincap.cleanup.merge import merge_fragments
 from skincap.cleanup.surface import (
     MarkerSurface,
     build_marker_surface,
@@ -204,7 +205,7 @@ def clean_markers(
         automatic surface over labelled columns, give the markers hidden in the
         reference frame a label. A first merge runs; the leftover fragments that ride
         with a skin neighbourhood over their whole span and never come near a known
-        marker (:func:`~skincap.cleanup.merge.find_hidden_markers`) become new marker
+        marker (:func:`~skincap.cleanup.hidden.find_hidden_markers`) become new marker
         columns labelled ``U<n>`` after their longest fragment ``*<n>``; then the
         surface is rebuilt and the merge runs again from the start, so fragments
         that had gone to a neighbour of the hidden marker now go to it.
