@@ -13,6 +13,7 @@ from skincap.tracking.curve import (
     polyline_length,
     resample_by_arclength,
     rest_arclength,
+    settle_single_gaps,
 )
 
 
@@ -91,3 +92,69 @@ def test_resample_rejects_nan_and_bad_shapes() -> None:
         resample_by_arclength(np.zeros((2, 1, 3)))
     with pytest.raises(ValidationError):
         resample_by_arclength(np.zeros((2, 4, 3)), 1)
+
+
+def _kinked_rope(m: int = 16, spacing: float = 0.12) -> np.ndarray:
+    """(M, 3) a planar rope whose links are exactly ``spacing`` long, sharply waved."""
+    theta = 1.1 * np.sin(2 * np.pi * np.arange(m - 1) / 5.0)
+    links = spacing * np.stack([np.cos(theta), np.sin(theta), np.zeros(m - 1)], axis=1)
+    return np.concatenate([np.zeros((1, 3)), np.cumsum(links, axis=0)]) + [0.2, 1.0, -0.3]
+
+
+def test_settle_single_gaps_brings_a_lone_marker_back_to_the_bend() -> None:
+    m, spacing = 16, np.full(15, 0.12)
+    truth = _kinked_rope(m)
+    s = rest_arclength(spacing)
+    curve_err, settled_err = [], []
+    for j in range(1, m - 1):
+        known = np.ones(m, dtype=bool)
+        known[j] = False
+        filled, _ = fill_interior_on_curve(np.where(known[:, None], truth, np.nan), known, s)
+        half = settle_single_gaps(filled, known, spacing, 0.5)
+        full = settle_single_gaps(filled, known, spacing, 1.0)
+        np.testing.assert_array_equal(half[known], filled[known])  # measured ones untouched
+        np.testing.assert_array_equal(settle_single_gaps(filled, known, spacing, 0.0), filled)
+        # weight 1: exactly at the rest spacings from both neighbours
+        np.testing.assert_allclose(np.linalg.norm(full[j] - truth[[j - 1, j + 1]], axis=1), 0.12)
+        curve_err.append(np.linalg.norm(filled[j] - truth[j]))
+        settled_err.append(np.linalg.norm(half[j] - truth[j]))
+    # the curve cuts the sharp bends; halfway to the rest spacings is nearer the truth
+    assert np.mean(settled_err) < 0.6 * np.mean(curve_err)
+    assert max(curve_err) > 0.01
+
+
+def test_settle_single_gaps_leaves_runs_stretched_links_and_batches() -> None:
+    m, spacing = 10, np.full(9, 0.12)
+    truth = _kinked_rope(m)
+    known = np.ones(m, dtype=bool)
+    known[[3, 4]] = False  # a run of two: not lone
+    known[7] = False
+    pos = truth.copy()
+    pos[[3, 4, 7]] += 0.01
+    out = settle_single_gaps(pos, known, spacing, 1.0)
+    np.testing.assert_array_equal(out[[3, 4]], pos[[3, 4]])
+    assert not np.allclose(out[7], pos[7])
+    # neighbours farther apart than two spacings: no circle, left alone
+    far = pos.copy()
+    far[8] = far[6] + [0.3, 0.0, 0.0]
+    np.testing.assert_array_equal(settle_single_gaps(far, known, spacing, 1.0)[7], far[7])
+    batch = settle_single_gaps(np.stack([pos, far]), np.stack([known, known]), spacing, 1.0)
+    np.testing.assert_array_equal(batch[0], out)
+    with pytest.raises(ValidationError):
+        settle_single_gaps(pos, known, spacing[:-1], 0.5)
+
+
+def test_kernel_settle_matches_the_reference() -> None:
+    pytest.importorskip("numba")
+    from skincap.tracking._kernel import _settle
+
+    rng = np.random.default_rng(3)
+    m = 12
+    spacing = rng.uniform(0.08, 0.14, m - 1)
+    for _ in range(20):
+        pos = _kinked_rope(m) + rng.normal(0, 0.02, (m, 3))
+        known = rng.random(m) > 0.35
+        ref = settle_single_gaps(pos, known, spacing, 0.5)
+        out = pos.copy()
+        _settle(out, known, spacing, 0.5)
+        np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12)

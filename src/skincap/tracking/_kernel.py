@@ -750,6 +750,34 @@ def _fill_interior(x, known, s, out):  # pragma: no cover - runs compiled
 
 
 @numba.njit(**_JIT)
+def _settle(out, known, spacing, weight):  # pragma: no cover - runs compiled
+    """As curve.settle_single_gaps on one frame, in place on ``out`` (M, 3)."""
+    m = known.size
+    if weight == 0.0:
+        return
+    for j in range(1, m - 1):
+        if known[j] or not (known[j - 1] and known[j + 1]):
+            continue
+        l1 = spacing[j - 1]
+        l2 = spacing[j]
+        d = out[j + 1] - out[j - 1]
+        c = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if not c > 0:
+            continue
+        u = d / c
+        along = (c * c + l1 * l1 - l2 * l2) / (2.0 * c)
+        r2 = l1 * l1 - along * along
+        centre = out[j - 1] + along * u
+        off = out[j] - centre
+        off = off - (off[0] * u[0] + off[1] * u[1] + off[2] * u[2]) * u
+        on = np.sqrt(off[0] * off[0] + off[1] * off[1] + off[2] * off[2])
+        if not (r2 > 0 and on > 1e-12):
+            continue
+        scale = ((1.0 - weight) * on + weight * np.sqrt(r2)) / on
+        out[j] = centre + scale * off
+
+
+@numba.njit(**_JIT)
 def _neighbour_velocity(known, velocity, fallback):  # pragma: no cover - runs compiled
     m = known.size
     before, after = _side(known)
@@ -933,6 +961,7 @@ def track_frames(
     slow,
     rig,
     zip_ends,
+    settle,
 ):  # pragma: no cover - runs compiled
     """Track frames ``t0 … t1 - 1`` (t0 >= 1), updating the output arrays and the state
     (``velocity``, ``temp_count``, the body chains ``body``/``body_vel`` over all
@@ -1056,6 +1085,7 @@ def track_frames(
                     if known[j]:
                         x[j] = cur[j]
                 _fill_interior(x, known, s, pred)
+                _settle(pred, known, spacing, settle)
                 _predict_ends(pred, known, prev, v_tilde, new_count, spacing)
             if k > 0:
                 found_more = _match(
@@ -1135,6 +1165,7 @@ def track_frames(
                         x[j] = cur[j]
                 refit = np.empty((m, 3))
                 interior = _fill_interior(x, known, s, refit)
+                _settle(refit, known, spacing, settle)
                 for j in range(m):
                     if not known[j]:
                         cur[j] = refit[j] if interior[j] else pred[j]

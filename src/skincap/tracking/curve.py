@@ -20,6 +20,7 @@ from skincap.errors import ValidationError
 __all__ = [
     "rest_arclength",
     "fill_interior_on_curve",
+    "settle_single_gaps",
     "polyline_length",
     "resample_by_arclength",
 ]
@@ -130,6 +131,82 @@ def fill_interior_on_curve(
     h11 = u3 - u2
     filled[lead] = h00 * xa + h10 * h[:, None] * ta + h01 * xb + h11 * h[:, None] * tb
     return filled, interior
+
+
+def settle_single_gaps(
+    positions: np.ndarray, known: np.ndarray, spacing: np.ndarray, weight: float
+) -> np.ndarray:
+    """Pull each lone unknown marker toward its rest spacings from both neighbours.
+
+    A smooth curve through the measured markers cuts a sharp bend (a whip's wave): a
+    lone missing marker ``j`` (``j - 1`` and ``j + 1`` known) lands too near the chord
+    between its neighbours. The points at the rest spacings ``l_{j-1}`` from ``x_{j-1}``
+    and ``l_j`` from ``x_{j+1}`` form a circle around that chord; ``j`` keeps the
+    direction of its offset from the chord and moves its distance from the chord
+    ``weight`` of the way to the circle's radius (and onto the circle's plane)::
+
+        x_j = c + ((1 - w) |o| + w r) o / |o|
+
+    with ``c`` the circle's centre on the chord, ``r`` its radius and ``o`` the
+    marker's offset from the chord. Markers whose neighbours are farther apart than
+    ``l_{j-1} + l_j`` (no circle) or that lie on the chord (no direction) are left.
+
+    Parameters
+    ----------
+    positions : (..., M, 3) float, metres
+        Marker positions, the unknown ones already placed (e.g. by
+        :func:`fill_interior_on_curve`); NaN propagates.
+    known : (..., M) bool
+        True where the position is measured.
+    spacing : (M - 1,) float, metres
+        Rest spacings ``l_j``.
+    weight : float
+        ``w`` in [0, 1]: 0 leaves the markers, 1 puts them on the circle.
+
+    Returns
+    -------
+    (..., M, 3) float64, metres
+        ``positions`` with the lone unknown markers moved; others untouched.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    known = np.asarray(known, dtype=bool)
+    spacing = np.asarray(spacing, dtype=np.float64)
+    m = positions.shape[-2]
+    if positions.shape[-1] != 3 or known.shape != positions.shape[:-1] or spacing.shape != (m - 1,):
+        raise ValidationError(
+            f"positions/known/spacing: expected (..., M, 3), (..., M), (M - 1,), got "
+            f"{positions.shape}, {known.shape}, {spacing.shape}"
+        )
+    out = positions.copy()
+    if m < 3 or weight == 0.0:
+        return out
+    lone = ~known[..., 1:-1] & known[..., :-2] & known[..., 2:]  # (..., M - 2)
+    if not lone.any():
+        return out
+    lead = np.nonzero(lone)
+    batch, j = lead[:-1], lead[-1] + 1
+    xa = positions[(*batch, j - 1)]
+    xb = positions[(*batch, j + 1)]
+    xj = positions[(*batch, j)]
+    l1, l2 = spacing[j - 1], spacing[j]
+    d = xb - xa
+    c = np.sqrt(np.einsum("ij,ij->i", d, d))
+    ok = c > 0
+    c_safe = np.where(ok, c, 1.0)
+    u = d / c_safe[:, None]
+    along = (c * c + l1 * l1 - l2 * l2) / (2.0 * c_safe)
+    r2 = l1 * l1 - along * along
+    centre = xa + along[:, None] * u
+    off = xj - centre
+    off = off - np.einsum("ij,ij->i", off, u)[:, None] * u
+    on = np.sqrt(np.einsum("ij,ij->i", off, off))
+    ok &= (r2 > 0) & (on > 1e-12)
+    radius = np.sqrt(np.where(ok, r2, 0.0))
+    on_safe = np.where(ok, on, 1.0)
+    scale = ((1.0 - weight) * on + weight * radius) / on_safe
+    moved = centre + scale[:, None] * off
+    out[(*batch, j)] = np.where(ok[:, None], moved, xj)
+    return out
 
 
 def _three_point_slope(

@@ -75,7 +75,7 @@ from scipy.spatial import cKDTree
 
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
-from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
+from skincap.tracking.curve import fill_interior_on_curve, rest_arclength, settle_single_gaps
 from skincap.tracking.init import (
     _RIGID_PARTNERS,
     _RIGID_RADIUS,
@@ -122,6 +122,10 @@ _ZIP_QUAD = True
 #: The zipper also predicts a rope end next to two measured markers (a curled free
 #: end is missed by the thesis' straight N; rigid body points beside it are refused).
 _ZIP_ENDS = True
+#: A lone invented inner marker moves this share of the way from the curve to its rest
+#: spacings from both neighbours (:func:`~skincap.tracking.curve.settle_single_gaps`):
+#: the curve cuts a whip's sharp bend.
+_SETTLE = 0.5
 
 
 @dataclass(eq=False)
@@ -961,6 +965,7 @@ def _track_numpy(
             v_tilde = _neighbour_velocity(known, meas_vel, velocity)
             if known.any():
                 pred, _ = fill_interior_on_curve(np.where(known[:, None], cur, 0.0), known, s)
+                pred = settle_single_gaps(pred, known, spacing, _SETTLE)
                 pred = _predict_ends(pred, known, prev, v_tilde, new_count, spacing)
             found_more = False
             if k > 0:
@@ -1023,6 +1028,7 @@ def _track_numpy(
                 refit, interior = fill_interior_on_curve(
                     np.where(known[:, None], cur, 0.0), known, s
                 )
+                refit = settle_single_gaps(refit, known, spacing, _SETTLE)
                 cur[still] = np.where(interior[still, None], refit[still], pred[still])
             else:
                 cur[still] = pred[still]  # nothing new measured: the curve/F prediction
@@ -1129,7 +1135,7 @@ def track_rope(
                 t0, t1, pts, offsets, float(gamma), np.asarray(spacing, dtype=np.float64), s,
                 int(init.max_temp_markers), _STRETCH, _CANDIDATES, _ROUNDS, _WIDE_GATE, _FOLLOW,
                 positions, invented, point_index, lost_frames, velocity, temp_count,
-                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW, rig, _ZIP_ENDS,
+                _CHAIN, body, body_vel, _ZIP, _ZIP_INNER, _ZIP_QUAD, _SLOW, rig, _ZIP_ENDS, _SETTLE,
             )  # fmt: skip
             if progress is not None and (t1 - 1) % every == 0:
                 progress((t1 - 1) / t_frames)
