@@ -159,39 +159,19 @@ def test_a_group_grows_by_continuity_in_time() -> None:
     taken = [np.isfinite(track[0]).all(axis=1)]
     groups = [[n + 5]]
     s = np.full(2, 0.05)
-    _grow_in_time(
-        groups,
-        track,
-        taken,
-        est,
-        left,
-        present,
-        np.arange(2),
-        nb,
-        s,
-        np.ones(2, dtype=bool),
-        n,
-        5,
-        0.5,
-    )
+
+    def grow(groups: list[list[int]], track: list, taken: list, max_gap: int) -> None:
+        # both fragments are candidates past the clearance/rival tests
+        ok = np.ones(2, dtype=bool)
+        _grow_in_time(
+            groups, track, taken, est, left, present, np.arange(2), nb, s, ok, n, max_gap, 0.5
+        )
+
+    grow(groups, track, taken, 5)
     assert groups == [[n + 5, n]]
     assert taken[0][10:44].all() and taken[0][47:].all() and not taken[0][44:47].any()
     # too long a gap: nothing joins
     groups, taken2 = [[n + 5]], [np.isfinite(track[0]).all(axis=1)]
     track2 = [np.where(taken2[0][:, None], truth[:, 24], np.nan)]
-    _grow_in_time(
-        groups,
-        track2,
-        taken2,
-        est,
-        left,
-        present,
-        np.arange(2),
-        nb,
-        s,
-        np.ones(2, dtype=bool),
-        n,
-        2,
-        0.5,
-    )
+    grow(groups, track2, taken2, 2)
     assert groups == [[n + 5]]
