@@ -42,6 +42,36 @@ out = Console(highlight=False)
 err = Console(stderr=True, highlight=False)
 
 
+def skincap_version() -> str:
+    """The installed distribution's version (``skincap.__version__`` when not installed)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("skincap")
+    except PackageNotFoundError:
+        from skincap import __version__
+
+        return __version__
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        print(f"skincap {skincap_version()}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _global_options(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version", callback=_print_version, is_eager=True, help="Print the version and exit."
+        ),
+    ] = False,
+) -> None:
+    """Optical motion capture to moving human skin. Run 'skincap demo' to see it work."""
+
+
 @contextlib.contextmanager
 def _user_errors() -> Iterator[None]:
     """Turn skincap errors into one line and status 2; show warnings as one line each."""
@@ -94,6 +124,17 @@ def _print_summary(path: Path, summary: dict[str, Any]) -> None:
     out.print(table)
 
 
+def _read_for_info(path: Path, units: str | None) -> Any:
+    """Read ``path`` as the other verbs would: a mesh as ``skin`` reads it (a MakeHuman
+    ``.obj`` with its rig beside it, in metres), anything else by its extension."""
+    from skincap import io
+
+    ext = path.suffix.lower()
+    if ext in (".obj", ".ply", ".gltf", ".glb"):
+        return io.read_mesh(path, units=units)
+    return _read(path, **({"units": units} if units is not None and ext == ".bvh" else {}))
+
+
 def _summary_of(obj: Any) -> dict[str, Any]:
     from skincap.summary import summarize
 
@@ -128,10 +169,7 @@ def info(
     summaries = []
     with _user_errors():
         for path in files:
-            options: dict[str, Any] = {}
-            if units is not None and path.suffix.lower() in (".bvh", ".obj"):
-                options["units"] = units
-            summary = {"file": str(path), **_summary_of(_read(path, **options))}
+            summary = {"file": str(path), **_summary_of(_read_for_info(path, units))}
             summaries.append(summary)
             if not json_output:
                 _print_summary(path, summary)
@@ -151,20 +189,29 @@ def convert_file(
     force: bool = False,
     units: str | None = None,
     points: bool = False,
-) -> str:
-    """Convert ``src`` to ``dst`` by their extensions; return a one-line summary.
+) -> dict[str, int]:
+    """Convert ``src`` to ``dst`` by their extensions; return the counts written.
 
     Markers go C3D <-> TRC <-> CSV (Vicon trajectories CSV; the long point format
     with ``points=True``), BVH -> BVH (``units`` rescales the written file), BVH ->
     CSV of joint world positions, and meshes between OBJ and PLY (glTF read).
+    ``dst`` is checked against ``src`` (links included) before anything is read.
     """
+    from skincap.io.output_safety import guard_outputs
+
+    with guard_outputs([src], [dst], force=force):
+        return _convert_checked(src, dst, force=force, units=units, points=points)
+
+
+def _convert_checked(
+    src: Path, dst: Path, *, force: bool, units: str | None, points: bool
+) -> dict[str, int]:
+    """Read ``src``, write ``dst``; return what was written: frames, joints, vertices, triangles."""
     from skincap import io
     from skincap.types import MarkerSet, Mesh, Motion, PointCloud
 
     in_kind = io.kind_of_extension(src)
     out_ext = dst.suffix.lower()
-    if src.resolve() == dst.resolve():
-        raise FormatError(dst, "output is the input file; inputs are never modified")
     read_options: dict[str, Any] = {}
     if (
         units is not None
@@ -193,7 +240,7 @@ def convert_file(
         elif isinstance(obj, PointCloud) and out_ext != ".csv":
             obj = obj.to_markerset()
         io.write(obj, dst, force=force)
-        return f"{src} -> {dst}: {obj.n_frames} frames"
+        return {"frames": obj.n_frames}
     if isinstance(obj, Motion):
         if out_ext == ".bvh":
             io.write(obj, dst, force=force)
@@ -205,12 +252,12 @@ def convert_file(
             raise FormatError(
                 dst, f"a BVH converts to .bvh or .csv (joint positions), not {out_ext}"
             )
-        return f"{src} -> {dst}: {obj.n_frames} frames, {obj.skeleton.n_joints} joints"
+        return {"frames": obj.n_frames, "joints": obj.skeleton.n_joints}
     if isinstance(obj, Mesh):
         if out_ext not in _MESH_OUT:
             raise FormatError(dst, f"a mesh converts to {', '.join(_MESH_OUT)}, not {out_ext}")
         io.write(obj, dst, force=force)
-        return f"{src} -> {dst}: {obj.n_vertices} vertices, {obj.n_faces} triangles"
+        return {"vertices": obj.n_vertices, "triangles": obj.n_faces}
     raise FormatError(src, "this file type cannot be converted")
 
 
@@ -225,14 +272,26 @@ def convert(
     points: Annotated[
         bool, typer.Option("--points", help="Markers to the long point CSV (frame,time,x,y,z,id).")
     ] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the summary as JSON (input, output, counts).")
+    ] = False,
 ) -> None:
     """Convert between formats: C3D <-> TRC <-> CSV, BVH -> BVH, BVH -> CSV joint positions, OBJ <-> PLY.
 
     Example: skincap convert walk.c3d walk.trc
     """
     with _user_errors():
-        message = convert_file(src, dst, force=force, units=units, points=points)
-    out.print(message, markup=False)
+        counts = convert_file(src, dst, force=force, units=units, points=points)
+    if json_output:
+        print_json({"input": str(src), "output": str(dst), **counts})
+        return
+    what = ", ".join(f"{n} {name}" for name, n in counts.items())
+    out.print(f"{src} -> {dst}: {what}", markup=False)
+
+
+def print_json(data: Any) -> None:
+    """Print ``data`` as JSON on stdout: the machine-readable form of a verb's summary line."""
+    print(json.dumps(data, indent=2, allow_nan=False, default=str))
 
 
 # --------------------------------------------------------------------------- skin
@@ -293,64 +352,175 @@ def skin(
     ] = None,
     max_influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    json_output: Annotated[
+        bool,
+        typer.Option("--json", help="Print the summary as JSON (outputs, vertices, height, joints)."),
+    ] = False,
 ) -> None:
     """Skin a mesh with a BVH motion: bind, retarget, deform, export.
 
+    A folder output (one OBJ per frame) says the size it will write before it starts.
+
     Example: skincap skin makehuman_base.obj walk.bvh --units cmu --method dqs -o walk.pc2
     """
+    from skincap.io.output_safety import guard_outputs
+
+    with _user_errors(), guard_outputs(
+        [*mesh_input_files(mesh_path), motion_path, name_map],
+        skin_output_files(output),
+        folders=[] if output.suffix else [output],
+        force=force,
+    ):
+        summary = _skin(
+            mesh_path,
+            motion_path,
+            output,
+            method=method,
+            weights=weights,
+            name_map=name_map,
+            units=units,
+            mesh_units=mesh_units,
+            max_influences=max_influences,
+            force=force,
+        )
+    if json_output:
+        print_json(summary)
+        return
+    out.print(
+        f"{mesh_path.name} + {motion_path.name} -> {', '.join(summary['outputs'])}: "
+        f"{summary['vertices']} vertices, {summary['height_m']:.3g} m tall, "
+        f"{summary['joints']}-joint rig, {summary['frames']} frames at {summary['rate']:.6g} Hz, "
+        f"{method}, {summary['weights']} weights",
+        markup=False,
+        soft_wrap=True,
+    )
+
+
+def mesh_input_files(mesh_path: Path) -> list[Path]:
+    """Every file reading ``mesh_path`` may open: the mesh, a MakeHuman rig beside an
+    ``.obj`` (``.mhskel``/``.mhw``), the ``.bin`` buffers beside a ``.gltf``."""
+    files = [mesh_path]
+    ext = mesh_path.suffix.lower()
+    folder = mesh_path.parent
+    if ext == ".obj" and folder.is_dir():
+        files += sorted(folder.glob("*.mhskel")) + sorted(folder.glob("*.mhw"))
+    elif ext == ".gltf" and folder.is_dir():
+        files += sorted(folder.glob("*.bin"))
+    return files
+
+
+def skin_output_files(output: Path) -> list[Path]:
+    """The files ``skin -o output`` writes, known before skinning (a folder's frames are
+    checked once the frame count is known)."""
+    if output.suffix.lower() == ".pc2":
+        return [output, output.with_suffix(".obj")]  # the cache and the mesh it plays on
+    return [output] if output.suffix else []
+
+
+def _skin(
+    mesh_path: Path,
+    motion_path: Path,
+    output: Path,
+    *,
+    method: str,
+    weights: str | None,
+    name_map: Path | None,
+    units: str | None,
+    mesh_units: str | None,
+    max_influences: int,
+    force: bool,
+) -> dict[str, Any]:
+    """Bind, retarget, deform and export; return the summary (``skin --json``)."""
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
     from skincap.io.bvh import read_bvh
     from skincap.skinning.pipeline import prepare_skinning
 
-    with _user_errors():
-        ext = output.suffix.lower()
-        if method not in ("lbs", "dqs"):
-            raise FormatError(output, f"--method must be lbs or dqs, got {method!r}")
-        if ext and ext not in _SKIN_OUTPUTS:
-            raise FormatError(
-                output,
-                f"cannot write {ext!r}; skin writes {', '.join(_SKIN_OUTPUTS)} or a folder (OBJ sequence)",
-            )
-        if ext == ".glb" and method != "lbs":
-            raise FormatError(
-                output,
-                "glTF skinning is linear blend skinning; write .pc2, .usd or a folder to bake DQS",
-            )
-        if weights not in (None, "auto", "file"):
-            raise FormatError(output, f"--weights must be auto or file, got {weights!r}")
-        mesh = load_skinnable_mesh(mesh_path, units=mesh_units)
-        motion = read_bvh(motion_path, units=units)
-        setup = prepare_skinning(
-            mesh,
-            motion,
-            weights=weights,
-            name_map=name_map,
-            max_influences=max_influences,  # type: ignore[arg-type]
+    ext = output.suffix.lower()
+    if method not in ("lbs", "dqs"):
+        raise FormatError(output, f"--method must be lbs or dqs, got {method!r}")
+    if ext and ext not in _SKIN_OUTPUTS:
+        raise FormatError(
+            output,
+            f"cannot write {ext!r}; skin writes {', '.join(_SKIN_OUTPUTS)} or a folder (OBJ sequence)",
         )
-        frames = setup.motion.n_frames
-        with Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
-            TimeRemainingColumn(),
-            console=err,
-            transient=True,
-            disable=not err.is_terminal,
-        ) as progress:
-            task = progress.add_task(f"skinning ({method})", total=frames)
+    if ext == ".glb" and method != "lbs":
+        raise FormatError(
+            output,
+            "glTF skinning is linear blend skinning; write .pc2, .usd or a folder to bake DQS",
+        )
+    if weights not in (None, "auto", "file"):
+        raise FormatError(output, f"--weights must be auto or file, got {weights!r}")
+    if not ext and output.is_dir() and any(output.iterdir()) and not force:
+        raise OutputExistsError(output)
+    mesh = load_skinnable_mesh(mesh_path, units=mesh_units)
+    motion = read_bvh(motion_path, units=units)
+    setup = prepare_skinning(
+        mesh,
+        motion,
+        weights=weights,
+        name_map=name_map,
+        max_influences=max_influences,  # type: ignore[arg-type]
+    )
+    frames = setup.motion.n_frames
+    if not output.suffix:
+        _check_obj_sequence(setup, output)
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    ) as progress:
+        task = progress.add_task(f"skinning ({method})", total=frames)
 
-            def advance(fraction: float) -> None:
-                progress.update(task, completed=fraction * frames)
+        def advance(fraction: float) -> None:
+            progress.update(task, completed=fraction * frames)
 
-            written = _write_skinned(setup, output, method=method, force=force, progress=advance)
-    out.print(
-        f"{mesh_path.name} + {motion_path.name} -> {', '.join(str(p) for p in written)}: "
-        f"{setup.mesh.n_vertices} vertices, {frames} frames at {setup.motion.rate:.6g} Hz, "
-        f"{method}, {setup.report['weights']} weights",
+        written = _write_skinned(setup, output, method=method, force=force, progress=advance)
+    from skincap.summary import mesh_height
+
+    return {
+        "mesh": str(mesh_path),
+        "motion": str(motion_path),
+        "outputs": [str(p) for p in (written if output.suffix else [output])],
+        "files": len(written),
+        "vertices": setup.mesh.n_vertices,
+        "height_m": mesh_height(setup.mesh),
+        "joints": setup.mesh.skin.skeleton.n_joints,
+        "frames": frames,
+        "rate": setup.motion.rate,
+        "method": method,
+        "weights": setup.report["weights"],
+    }
+
+
+def _check_obj_sequence(setup: Any, folder: Path) -> None:
+    """Check an OBJ-sequence folder's frame files against the inputs; say the size first."""
+    from skincap.export.obj_sequence import estimate_obj_sequence_bytes, obj_sequence_paths
+    from skincap.io.output_safety import check_outputs
+
+    frames = setup.motion.n_frames
+    check_outputs(obj_sequence_paths(folder, frames), force=True)
+    size = estimate_obj_sequence_bytes(setup.mesh, frames, units="m", up="y")
+    err.print(
+        f"skin: writing {frames} OBJ files to {folder}, about {_bytes_text(size)}",
         markup=False,
         soft_wrap=True,
     )
+
+
+def _bytes_text(size: float) -> str:
+    """``4.0 GB``, ``512 MB``…: decimal units, as file managers and ``df -H`` show them."""
+    if size < 1000:
+        return f"{size:.0f} B"
+    for unit in ("kB", "MB", "GB"):
+        size /= 1000
+        if size < 1000 or unit == "GB":
+            break
+    return f"{size:.1f} {unit}"
 
 
 def _write_skinned(
@@ -442,10 +612,14 @@ def synth(
     """
     from rich.progress import Progress
 
+    from skincap.io.output_safety import guard_outputs
     from skincap.synth.generate import generate_capture
-    from skincap.synth_files import build_body, build_motion, write_synth_outputs
+    from skincap.synth_files import OUTPUT_FILES, build_body, build_motion, write_synth_outputs
 
-    with _user_errors():
+    motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
+    with _user_errors(), guard_outputs(
+        [motion_file], [output / name for name in OUTPUT_FILES], folders=[output], force=force
+    ):
         if frames is not None and seconds is not None:
             raise FormatError(output, "give --frames or --seconds, not both")
         if frames is not None and frames < 1 or seconds is not None and seconds <= 0:
@@ -456,12 +630,6 @@ def synth(
             )
         if soft_tissue < 0 or noise_mm < 0:
             raise FormatError(output, "--soft-tissue and --noise-mm must not be negative")
-        from skincap.synth_files import OUTPUT_FILES
-
-        if not force:
-            for name in OUTPUT_FILES:
-                if (output / name).exists():
-                    raise OutputExistsError(output / name)
         with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("body", total=1.0)
 
@@ -630,13 +798,45 @@ from skincap import cli_tracking as _cli_tracking  # noqa: E402,F401
 from skincap import cli_view as _cli_view  # noqa: E402,F401
 
 
+class Terminated(BaseException):
+    """SIGTERM or SIGHUP arrived: unwinds like Ctrl-C so every ``.part`` file is removed."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum = signum
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    raise Terminated(signum)
+
+
+def install_termination_handlers() -> None:
+    """Make SIGTERM and SIGHUP raise :class:`Terminated` (a BaseException).
+
+    Without this Python dies on them at once and a write in progress leaves its
+    temporary ``.part`` file; raised as an exception, the signal unwinds through
+    :func:`skincap.io._common.atomic_output`, which removes it, as SIGINT does.
+    """
+    import signal
+
+    for name in ("SIGTERM", "SIGHUP"):
+        if hasattr(signal, name):
+            signal.signal(getattr(signal, name), _raise_terminated)
+
+
 def main() -> None:
     """Console-script entry point."""
+    install_termination_handlers()
     try:
         app()
     except KeyboardInterrupt:
         err.print("skincap: interrupted")
         sys.exit(130)
+    except Terminated as exc:
+        import signal
+
+        err.print(f"skincap: terminated by {signal.Signals(exc.signum).name}")
+        sys.exit(128 + exc.signum)
 
 
 if __name__ == "__main__":

@@ -71,7 +71,9 @@ def render(
     from skincap.render import Camera, write_picture
     from skincap.scene import load_scene
 
-    with _user_errors():
+    from skincap.io.output_safety import guard_outputs
+
+    with _user_errors(), guard_outputs(paths, [output], force=force):
         if time is not None and frame is not None:
             raise ValidationError("give --time or --frame, not both")
         width_height = _parse_size(size)

@@ -12,7 +12,16 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from skincap.cli import _user_errors, app, bench_app, err, eval_app, out, print_bench_results
+from skincap.cli import (
+    _user_errors,
+    app,
+    bench_app,
+    err,
+    eval_app,
+    out,
+    print_bench_results,
+    print_json,
+)
 from skincap.errors import FormatError, OutputExistsError, ValidationError
 
 if TYPE_CHECKING:
@@ -76,6 +85,9 @@ def track(
         float, typer.Option(help="Seconds at the start where the rope hangs still.")
     ] = 0.5,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the summary as JSON (counts, written files).")
+    ] = False,
 ) -> None:
     """Separate a rope from the body in un-indexed points and track it (Porter 2012).
 
@@ -88,20 +100,18 @@ def track(
     """
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
+    from skincap.io.output_safety import guard_outputs
     from skincap.tracking.init import init_rope
     from skincap.tracking.outputs import OUTPUT_NAMES, write_track_outputs
     from skincap.tracking.tracker import track_rope
 
-    with _user_errors():
+    outputs = [output / name for name in OUTPUT_NAMES]
+    with _user_errors(), guard_outputs([input_file], outputs, folders=[output], force=force):
         given = [rope_box is not None, rope_markers is not None, rope is not None]
         if sum(given) != 1:
             raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")
         if rope is not None and rope != "auto":
             raise ValidationError(f"--rope: the only choice is 'auto', got {rope!r}")
-        if not force:
-            for name in OUTPUT_NAMES:
-                if (output / name).exists():
-                    raise OutputExistsError(output / name)
         cloud = _read_cloud(input_file)
         if rope_box is not None:
             box = _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
@@ -128,6 +138,19 @@ def track(
 
             result = track_rope(cloud, init, progress=advance)
         report = write_track_outputs(cloud, result, output, force=force)
+    if json_output:
+        print_json(
+            {
+                "input": str(input_file),
+                "outputs": [str(p) for p in outputs],
+                "frames": report["frames"],
+                "rope_markers": len(report["rope_markers"]),
+                "rope_points": report["rope_points"],
+                "invented_samples": report["invented_samples"],
+                "lost_traces": len(report["lost_traces"]),
+            }
+        )
+        return
     out.print(
         f"{input_file} -> {output}: {report['frames']} frames, "
         f"{len(report['rope_markers'])} rope markers, {report['rope_points']} rope points, "
@@ -137,6 +160,8 @@ def track(
 
 # -------------------------------------------------------------------- eval track
 _EVAL_OUTPUTS = ("track_eval.json", "track_eval.png")
+#: The files ``eval track`` reads from a ``skincap synth`` folder.
+_SYNTH_INPUTS = ("capture_points.csv", "truth/markers.c3d", "truth/points.csv")
 _DEFAULT_GAPS = "10,20,30,40,50,60,70,80,90,100,110,120"
 
 
@@ -350,9 +375,12 @@ def eval_track(
     from rich.progress import Progress
 
     from skincap.io._common import atomic_output
+    from skincap.io.output_safety import guard_outputs
     from skincap.tracking.evaluate import evaluate_tracking, plot_gap_repair
 
-    with _user_errors():
+    paths = [output / name for name in _EVAL_OUTPUTS]
+    inputs = [] if input_dir is None else [input_dir / name for name in _SYNTH_INPUTS]
+    with _user_errors(), guard_outputs(inputs, paths, folders=[output], force=force):
         if (input_dir is None) == (synth is None):
             raise ValidationError(
                 "give a folder made by skincap synth or --synth jump|whip (one of them)"
@@ -364,11 +392,6 @@ def eval_track(
         if frames < 2 or starts < 1:
             raise ValidationError("--frames must be at least 2 and --starts at least 1")
         gap_sizes = _parse_gaps(gaps)
-        paths = [output / name for name in _EVAL_OUTPUTS]
-        if not force:
-            for p in paths:
-                if p.exists():
-                    raise OutputExistsError(p)
         with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("reading", total=1.0)
             if input_dir is not None:

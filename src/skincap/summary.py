@@ -18,6 +18,7 @@ __all__ = [
     "summarize_points",
     "summarize_motion",
     "summarize_mesh",
+    "mesh_height",
 ]
 
 
@@ -135,8 +136,20 @@ def summarize_motion(motion: Motion) -> dict[str, Any]:
     }
 
 
+def mesh_height(mesh: Mesh) -> float:
+    """The mesh's vertical (Y) extent, metres: a standing body's height."""
+    if mesh.n_vertices == 0:
+        return 0.0
+    lo, hi = mesh.bounds
+    return float(hi[1] - lo[1])
+
+
 def summarize_mesh(mesh: Mesh) -> dict[str, Any]:
-    """Vertices, faces, bounds, groups and skin joints of ``mesh``."""
+    """Vertices, faces, bounds, height, groups and skin joints of ``mesh``.
+
+    ``mesh`` as :func:`skincap.io.read_mesh` gives it (a MakeHuman body with its rig,
+    in metres), so the counts are the ones ``skincap skin`` works with.
+    """
     b = mesh.bounds
     out: dict[str, Any] = {
         "kind": "mesh",
@@ -146,6 +159,7 @@ def summarize_mesh(mesh: Mesh) -> dict[str, Any]:
         "bounds_min": b[0].tolist(),
         "bounds_max": b[1].tolist(),
         "size_m": (b[1] - b[0]).tolist(),
+        "height_m": mesh_height(mesh),
         "groups": len(mesh.groups),
         "skin_joints": mesh.skin.skeleton.n_joints if mesh.skin is not None else 0,
         "source_units": mesh.meta.get("source_units"),

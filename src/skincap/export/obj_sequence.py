@@ -24,17 +24,17 @@ import numpy as np
 
 from skincap.errors import FormatError, OutputExistsError, ValidationError
 from skincap.io._common import atomic_output, from_y_up, unit_scale
+from skincap.io.output_safety import is_protected_input
 from skincap.io.mesh import write_obj
-from skincap.types import MeshAnimation
+from skincap.types import Mesh, MeshAnimation
 
-__all__ = ["write_obj_sequence"]
+__all__ = ["write_obj_sequence", "obj_sequence_paths", "estimate_obj_sequence_bytes"]
 
 _STEM = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 
-def _topology_text(animation: MeshAnimation, units: str, up: str) -> tuple[str, str]:
+def _topology_text(rest: Mesh, units: str, up: str) -> tuple[str, str]:
     """(head, tail): the rest mesh's OBJ text before and after its ``v`` lines."""
-    rest = animation.rest
     meta = {k: v for k, v in rest.meta.items() if k not in ("normal_table", "corner_normal")}
     bare = replace(rest, meta=meta, skin=None)
     with tempfile.TemporaryDirectory(prefix="skincap_obj_") as tmp:
@@ -46,6 +46,53 @@ def _topology_text(animation: MeshAnimation, units: str, up: str) -> tuple[str, 
     head = "\n".join(lines[:first]) + "\n"
     tail = "\n".join(lines[first + n :])
     return head, tail
+
+
+def _frame_digits(n_frames: int) -> int:
+    return max(4, len(str(max(n_frames - 1, 0))))
+
+
+def _vertex_line(digits: int | None) -> str:
+    return "v %r %r %r\n" if digits is None else f"v %.{digits}g %.{digits}g %.{digits}g\n"
+
+
+def obj_sequence_paths(
+    folder: str | os.PathLike[str], n_frames: int, *, stem: str = "frame"
+) -> list[Path]:
+    """The files :func:`write_obj_sequence` writes for ``n_frames`` frames, in frame order."""
+    width = _frame_digits(n_frames)
+    return [Path(folder) / f"{stem}_{t:0{width}d}.obj" for t in range(n_frames)]
+
+
+def estimate_obj_sequence_bytes(
+    rest: Mesh,
+    n_frames: int,
+    *,
+    units: str | None = None,
+    up: str | None = None,
+    digits: int | None = 9,
+) -> int:
+    """Bytes :func:`write_obj_sequence` will write for ``n_frames`` frames of ``rest``.
+
+    The rest mesh's own file (topology written once per frame, vertices formatted as
+    the sequence formats them) times the frame count: exact for the topology, and the
+    vertex lines of a moving body differ from the rest pose's by a few characters at
+    most (sign and exponent of a coordinate).
+
+    Parameters
+    ----------
+    rest : Mesh
+        (V, 3) rest vertices, metres, Y up.
+    n_frames : int
+    units, up, digits
+        As for :func:`write_obj_sequence`.
+    """
+    units_name = units if units is not None else str(rest.meta.get("source_units", "m"))
+    up_key = up if up is not None else str(rest.meta.get("up", "y"))
+    head, tail = _topology_text(rest, units_name, up_key)
+    coords = from_y_up(rest.vertices, up_key) / unit_scale(units_name)
+    vertices = (_vertex_line(digits) * rest.n_vertices) % tuple(coords.reshape(-1).tolist())
+    return int(n_frames) * len((head + vertices + tail).encode("utf-8"))
 
 
 def write_obj_sequence(
@@ -133,11 +180,10 @@ def write_obj_sequence(
     out.mkdir(exist_ok=True)
 
     n_frames = int(animation.n_frames or 0)
-    width = max(4, len(str(max(n_frames - 1, 0))))
-    head, tail = _topology_text(animation, units_name, up_key)
+    width = _frame_digits(n_frames)
+    head, tail = _topology_text(rest, units_name, up_key)
     n = rest.n_vertices
-    line = "v %r %r %r\n" if digits is None else f"v %.{digits}g %.{digits}g %.{digits}g\n"
-    vertex_format = line * n
+    vertex_format = _vertex_line(digits) * n
     written: list[Path] = []
     for block in animation.iter_chunks(int(chunk)):
         if len(written) + block.shape[0] > n_frames:
@@ -161,6 +207,11 @@ def write_obj_sequence(
     pattern = re.compile(rf"^{re.escape(stem)}_\d{{4,}}\.obj$")
     keep = {p.name for p in written}
     for old in out.iterdir():
-        if old.is_file() and pattern.match(old.name) and old.name not in keep:
+        if (
+            old.is_file()
+            and pattern.match(old.name)
+            and old.name not in keep
+            and not is_protected_input(old)  # an input in the folder is never deleted
+        ):
             old.unlink()
     return written

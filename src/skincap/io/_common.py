@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from skincap.errors import FormatError, OutputExistsError, ValidationError
+from skincap.errors import FormatError, ValidationError
 
 __all__ = [
     "UNIT_TO_METRES",
@@ -100,16 +100,22 @@ def atomic_output(path: str | os.PathLike[str], *, force: bool = False) -> Itera
     On any exception the temporary file is removed and ``path`` is left untouched,
     so a failed write never leaves a partial or corrupted output.
 
+    The target is checked by :func:`skincap.io.output_safety.check_output` first:
+    it must not be an input of the running command (registered with
+    :func:`~skincap.io.output_safety.protect_inputs`; symbolic and hard links
+    included), a dangling symbolic link or a folder.
+
     Raises
     ------
     OutputExistsError
         ``path`` exists and ``force`` is False.
     FormatError
-        The target folder does not exist.
+        The target folder does not exist; the target is a protected input, a dangling
+        link or a folder.
     """
-    target = Path(path)
-    if target.exists() and not force:
-        raise OutputExistsError(target)
+    from skincap.io.output_safety import check_output
+
+    target = check_output(path, force=force)
     folder = target.parent if str(target.parent) else Path(".")
     if not folder.is_dir():
         raise FormatError(target, f"cannot write: folder {str(folder)!r} does not exist")
