@@ -354,7 +354,9 @@ def skin(
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[
         bool,
-        typer.Option("--json", help="Print the summary as JSON (outputs, vertices, height, joints)."),
+        typer.Option(
+            "--json", help="Print the summary as JSON (outputs, vertices, height, joints)."
+        ),
     ] = False,
 ) -> None:
     """Skin a mesh with a BVH motion: bind, retarget, deform, export.
@@ -365,11 +367,14 @@ def skin(
     """
     from skincap.io.output_safety import guard_outputs
 
-    with _user_errors(), guard_outputs(
-        [*mesh_input_files(mesh_path), motion_path, name_map],
-        skin_output_files(output),
-        folders=[] if output.suffix else [output],
-        force=force,
+    with (
+        _user_errors(),
+        guard_outputs(
+            [*mesh_input_files(mesh_path), motion_path, name_map],
+            skin_output_files(output),
+            folders=[] if output.suffix else [output],
+            force=force,
+        ),
     ):
         summary = _skin(
             mesh_path,
@@ -617,8 +622,11 @@ def synth(
     from skincap.synth_files import OUTPUT_FILES, build_body, build_motion, write_synth_outputs
 
     motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
-    with _user_errors(), guard_outputs(
-        [motion_file], [output / name for name in OUTPUT_FILES], folders=[output], force=force
+    with (
+        _user_errors(),
+        guard_outputs(
+            [motion_file], [output / name for name in OUTPUT_FILES], folders=[output], force=force
+        ),
     ):
         if frames is not None and seconds is not None:
             raise FormatError(output, "give --frames or --seconds, not both")

@@ -202,12 +202,15 @@ def clean(
 
     Example: skincap clean take.c3d -o take_clean.c3d --report take_clean.json
     """
-    with _user_errors():
+    from skincap.io.output_safety import guard_outputs
+
+    inputs = [src, surface, fragment_truth]
+    outputs = [output] if report is None else [output, report]
+    with _user_errors(), guard_outputs(inputs, outputs, force=force):
         from rich.progress import Progress
 
         from skincap import io
         from skincap.cleanup.pipeline import clean_markers
-        from skincap.errors import OutputExistsError
         from skincap.types import MarkerSet
 
         if method not in FILL_METHODS:
@@ -216,11 +219,6 @@ def clean(
             raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
         if output.suffix.lower() != ".c3d":
             raise FormatError(output, "the cleaned capture is written as .c3d")
-        if src.exists() and output.exists() and src.resolve() == output.resolve():
-            raise FormatError(output, "output is the input file; inputs are never modified")
-        for target in (output, report):
-            if target is not None and target.exists() and not force:
-                raise OutputExistsError(target)
         markers = io.read(src)
         if not isinstance(markers, MarkerSet):
             raise FormatError(src, "not a marker capture (labelled trajectories)")
@@ -319,13 +317,15 @@ def eval_fill(
 
     Example: skincap eval fill walk.c3d --methods local_pca,rigid,spline --gaps 5 -o fill_eval
     """
-    with _user_errors():
+    from skincap.io.output_safety import guard_outputs
+
+    json_path, png_path = output / "fill_eval.json", output / "fill_eval.png"
+    with _user_errors(), guard_outputs([src], [json_path, png_path], folders=[output], force=force):
         from rich.progress import Progress
         from rich.table import Table
 
         from skincap import io
         from skincap.cleanup.evaluate import evaluate_fill, format_fill_table, plot_fill_evaluation
-        from skincap.errors import OutputExistsError
         from skincap.types import MarkerSet
 
         chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
@@ -340,12 +340,6 @@ def eval_fill(
             raise FormatError("--gaps/--simultaneous", "must be at least 1")
         if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
             raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
-        if output.exists() and not output.is_dir():
-            raise FormatError(output, "exists and is not a folder")
-        json_path, png_path = output / "fill_eval.json", output / "fill_eval.png"
-        for target in (json_path, png_path):
-            if target.exists() and not force:
-                raise OutputExistsError(target)
         markers = io.read(src)
         if not isinstance(markers, MarkerSet):
             raise FormatError(src, "not a marker capture (labelled trajectories)")

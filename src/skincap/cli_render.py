@@ -68,10 +68,9 @@ def render(
     """
     from rich.progress import Progress
 
+    from skincap.io.output_safety import guard_outputs
     from skincap.render import Camera, write_picture
     from skincap.scene import load_scene
-
-    from skincap.io.output_safety import guard_outputs
 
     with _user_errors(), guard_outputs(paths, [output], force=force):
         if time is not None and frame is not None:

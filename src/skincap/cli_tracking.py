@@ -22,7 +22,7 @@ from skincap.cli import (
     print_bench_results,
     print_json,
 )
-from skincap.errors import FormatError, OutputExistsError, ValidationError
+from skincap.errors import FormatError, ValidationError
 
 if TYPE_CHECKING:
     import numpy as np

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from skincap.errors import FormatError, OutputExistsError
+from skincap.errors import FormatError
 
 __all__ = ["run_demo", "demo_data_path", "DEMO_FRAMES"]
 
@@ -74,6 +74,15 @@ class _Steps:
         return report
 
 
+#: The shipped files the demo reads (protected: no output may replace them).
+DEMO_INPUTS = (
+    DEMO_C3D,
+    DEMO_BVH,
+    DEMO_BODY,
+    "makehuman_default.mhskel",
+    "makehuman_default_weights.mhw",
+    DEMO_WALK,
+)
 #: Files and folders the demo writes (checked before anything is written).
 DEMO_OUTPUTS = ("report.html", "cleaned.c3d", "results.json", "walk.glb", "walk_dqs.pc2")
 
@@ -112,11 +121,19 @@ def run_demo(
 
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 240:
         raise ValidationError(f"frames: at least 240, got {frames!r}")
+    from skincap.io.output_safety import guard_outputs
+
     folder = Path(output)
-    if not force:
-        for name in DEMO_OUTPUTS:
-            if (folder / name).exists():
-                raise OutputExistsError(folder / name)
+    shipped = [demo_data_path(name) for name in DEMO_INPUTS]
+    with guard_outputs(
+        shipped, [folder / name for name in DEMO_OUTPUTS], folders=[folder], force=force
+    ):
+        return _run_demo(folder, force=force, frames=frames, progress=progress)
+
+
+def _run_demo(
+    folder: Path, *, force: bool, frames: int, progress: Callable[[float, str], None] | None
+) -> dict[str, Any]:
     folder.mkdir(parents=True, exist_ok=True)
     steps = _Steps(progress)
     figures: dict[str, Any] = {}

@@ -24,8 +24,8 @@ import numpy as np
 
 from skincap.errors import FormatError, OutputExistsError, ValidationError
 from skincap.io._common import atomic_output, from_y_up, unit_scale
-from skincap.io.output_safety import is_protected_input
 from skincap.io.mesh import write_obj
+from skincap.io.output_safety import is_protected_input
 from skincap.types import Mesh, MeshAnimation
 
 __all__ = ["write_obj_sequence", "obj_sequence_paths", "estimate_obj_sequence_bytes"]
