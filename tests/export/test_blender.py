@@ -230,3 +230,38 @@ def test_blender_plays_our_bvh(blender, tmp_path):
     assert len(cols) >= 25  # every joint with channels became a bone
     np.testing.assert_allclose(blender_to_y_up(r["heads"]), ref[:, cols], atol=1e-3)
     assert np.linalg.norm(ref[2, 0] - ref[0, 0]) > 20  # walked over 1 m (CMU units of 5.6 cm)
+
+
+_DEFAULT_IMPORT = """
+import sys
+import bpy
+
+bpy.ops.wm.read_factory_settings(use_empty=True)
+bpy.ops.import_scene.gltf(filepath=sys.argv[sys.argv.index("--") + 1])  # every default
+meshes = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+assert len(meshes) == 1 and len(meshes[0].data.vertices) > 0, meshes
+"""
+
+
+def test_glb_with_the_importers_defaults_fails_only_inside_blender(
+    blender, tmp_path, cylinder, bend
+):
+    """What a user runs: File > Import > glTF with every default, NumPy unpatched.
+
+    Either Blender imports our file, or it fails at its own ``np.bool`` (Blender 3.4's
+    importer with NumPy >= 1.24, in its default shading mode, before it looks at the
+    file's normals): nothing in our file may be the cause. We write NORMAL, so the
+    failure cannot be avoided from our side; README.md gives the working option
+    (Shading: Smooth), which the other glTF tests use.
+    """
+    glb = tmp_path / "bend.glb"
+    write_glb(cylinder, bend, glb)
+    done = subprocess.run(
+        [blender, "-b", "--factory-startup", "--python-exit-code", "1",
+         "--python-expr", _DEFAULT_IMPORT, "--", str(glb)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    if done.returncode != 0:
+        text = done.stdout + done.stderr
+        assert "module 'numpy' has no attribute 'bool'" in text, text[-3000:]
+        assert "dtype=np.bool)" in text and "set_poly_smoothing" in text, text[-3000:]
