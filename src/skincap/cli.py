@@ -714,14 +714,27 @@ def demo(
             result = run_demo(output, force=force, frames=frames, progress=report)
     figures = result["figures"]
     cl, tr = figures["cleanup"], figures["tracking"]
-    scored = {m: v for m, v in figures["fill"].items() if v["mean_normalised"] is not None}
-    best = min(scored.items(), key=lambda kv: kv[1]["mean_normalised"])
+    verdict = figures["fill_verdict"]
+    if verdict is None:
+        fill_line = "  gap fill: no method filled the punched gaps"
+    else:
+        # the same targets, and so the same verdict, as the report's red and green marks
+        from skincap.report.demo_report import FILL_TARGET_MAX, FILL_TARGET_MEAN
+
+        fill_line = (
+            f"  gap fill, lowest error: {verdict['method']}, mean {verdict['mean_normalised']:.4f} "
+            f"x mean neighbour distance ({verdict['mean_mm']:.2f} mm), max "
+            f"{verdict['max_normalised']:.3f}: "
+            + ("meets" if verdict["meets_targets"] else "misses")
+            + f" the targets (mean <= {FILL_TARGET_MEAN}, max <= {FILL_TARGET_MAX})"
+        )
     lines = [
         f"demo: {len(result['outputs'])} files in {output} ({figures['total_seconds']:.0f} s)",
         f"  cleanup: {cl['merged']} fragments merged, {cl['wrongly_merged']} wrongly "
-        f"({cl['wrong_rate'] * 100:.2f} %); {cl['invented_samples']} samples filled",
-        f"  best gap fill: {best[0]}, mean error {best[1]['mean_normalised']:.4f} "
-        f"x mean neighbour distance ({best[1]['mean_mm']:.2f} mm)",
+        f"({cl['wrong_rate'] * 100:.2f} %); {cl['invented_samples']} samples filled; "
+        f"labelled trajectories {cl['labelled_missing_before'] * 100:.1f} % -> "
+        f"{cl['labelled_missing_after'] * 100:.1f} % missing",
+        fill_line,
         f"  rope: {tr['rope_markers_found']} markers tracked, rope/body F1 {tr['f1']:.3f}",
         f"  report: {result['report']}",
         "Look at it in the browser (raw against cleaned capture with the rope; the walk):",

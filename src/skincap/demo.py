@@ -249,8 +249,15 @@ def _clean(
         write_c3d(cleaned, folder / "cleaned.c3d", force=force)
         _write_json(folder / "clean_report.json", report, force)
     outputs += [folder / "cleaned.c3d", folder / "clean_report.json"]
+    from skincap.report.demo_report import labelled_missing_maps
+
+    before, after, filled = labelled_missing_maps(take.capture, cleaned)
     merge = report["merge"]
     figures["cleanup"] = {
+        # over the raw capture's labelled columns, as the report's table and figure
+        "labelled_missing_before": float(before.mean()),
+        "labelled_missing_after": float(after.mean()),
+        "labelled_filled": float(filled.mean()),
         "surface_edges": report["surface"].get("edges"),
         "trajectories_before": merge["trajectories_before"],
         "trajectories_after": merge["trajectories_after"],
@@ -296,6 +303,9 @@ def _evaluate_fill(
         }
         for method, per in result["results"].items()
     }
+    from skincap.report.demo_report import fill_verdict
+
+    figures["fill_verdict"] = fill_verdict(figures["fill"])
     return result
 
 

@@ -261,6 +261,21 @@ def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
     assert figures["tracking"]["f1"] > 0.7
     fill = figures["fill"]
     assert fill["local_pca"]["mean_normalised"] < fill["spline"]["mean_normalised"]
+    # one number wherever it appears: the labelled-trajectory missing fraction in the
+    # table is the one the figure draws (both from labelled_missing_maps), and the CLI
+    # line says it too
+    cl = figures["cleanup"]
+    said = " ".join(result.stdout.split())
+    before, after = cl["labelled_missing_before"] * 100, cl["labelled_missing_after"] * 100
+    assert f"{before:.1f} % → {after:.1f} %" in page
+    assert f"labelled trajectories {before:.1f} % -> {after:.1f} % missing" in said
+    # the CLI's gap-fill verdict is the report's mark for that method's average
+    verdict = figures["fill_verdict"]
+    mark = "met" if verdict["meets_mean"] else "missed"
+    mean_cell = f'<span class="{mark}">{verdict["mean_normalised"]:.4g}</span>'
+    assert mean_cell in page
+    assert ("meets the targets" if verdict["meets_targets"] else "misses the targets") in said
+    assert "best gap fill" not in said
     # outputs other programs read: ezc3d re-reads our C3Ds
     for c3d in (folder / "cleaned.c3d", folder / "track" / "rope.c3d"):
         assert ezc3d.c3d(str(c3d))["data"]["points"].shape[2] == 240

@@ -47,6 +47,32 @@ def test_skin_glb_from_makehuman_and_cmu(tmp_path, makehuman_dir):
     assert mesh.skin is not None and mesh.skin.skeleton.n_joints == 163
 
 
+def test_info_sees_the_body_skin_uses(tmp_path, makehuman_dir):
+    """info and skin --json report one vertex count, height and rig for the MakeHuman OBJ."""
+    import json
+
+    from skincap.io.bvh import read_bvh, write_bvh
+    from skincap.types import Motion
+
+    walk = read_bvh(DATA / "cmu_131_01_bvh11.bvh", units="cmu")
+    short = Motion(walk.skeleton, walk.rotations[:3], walk.translations[:3], walk.rate,
+                   walk.channels, walk.meta)  # fmt: skip
+    bvh = tmp_path / "short.bvh"
+    write_bvh(short, bvh, units="m")
+    obj = makehuman_dir / "makehuman_base.obj"
+    skinned = run("skin", obj, bvh, "--units", "m", "-o", tmp_path / "w.glb", "--json")
+    assert skinned.exit_code == 0, skinned.output
+    used = json.loads(skinned.stdout)
+    info = run("info", obj, "--json")
+    assert info.exit_code == 0, info.output
+    seen = json.loads(info.stdout)
+    assert seen["vertices"] == used["vertices"] == 13380  # MakeHuman helpers left out
+    assert seen["skin_joints"] == used["joints"] == 163
+    assert seen["height_m"] == pytest.approx(used["height_m"], abs=1e-12)
+    assert 1.5 < seen["height_m"] < 1.8 and seen["source_units"] == "dm"  # a body, in metres
+    assert used["outputs"] == [str(tmp_path / "w.glb")] and used["frames"] == 3
+
+
 def test_skin_dqs_pc2_matches_deformer(tmp_path, makehuman_dir):
     from skincap.export.pc2 import read_pc2
     from skincap.io.bvh import read_bvh
@@ -107,7 +133,27 @@ def test_skin_bare_mesh_gets_automatic_weights(tmp_path):
     result = run("skin", bare, bvh, "--units", "cm", "-o", out)
     assert result.exit_code == 0, result.output
     assert "auto weights" in result.stdout
-    assert len(list(out.glob("*.obj"))) == 12
+    files = sorted(out.glob("*.obj"))
+    assert len(files) == 12
+    # the size is said before the frames are written, and it is right
+    text = " ".join(result.output.split())
+    said = float(text.split("12 OBJ files to ")[1].split("about ")[1].split(" MB")[0])
+    written = sum(p.stat().st_size for p in files) / 1e6
+    assert said == pytest.approx(written, rel=0.05)  # 11.9 said, 11.56 written
+    # MakeHuman's body stands arms down; the mocapbank skeleton's zero pose is a T:
+    # the warning names the joint furthest outside the body and how far
+    from skincap.skinning.bind import fit_skeleton_to_mesh, transform_skeleton
+    from skincap.skinning.rest_pose import rest_pose_misfit
+
+    mesh = Mesh(body.vertices, body.faces)
+    motion = read_bvh(bvh, units="cm")
+    scale, shift = fit_skeleton_to_mesh(motion.skeleton, mesh)
+    misfit = rest_pose_misfit(mesh, transform_skeleton(motion.skeleton, scale, shift))
+    assert misfit["misfit"]
+    assert (
+        f"skincap: warning: the mesh does not stand in the BVH's rest pose: joint "
+        f"'{misfit['worst_joint']}' is {100 * misfit['worst_distance_m']:.1f} cm outside"
+    ) in text
 
 
 def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):

@@ -75,9 +75,10 @@ def estimate_obj_sequence_bytes(
     """Bytes :func:`write_obj_sequence` will write for ``n_frames`` frames of ``rest``.
 
     The rest mesh's own file (topology written once per frame, vertices formatted as
-    the sequence formats them) times the frame count: exact for the topology, and the
-    vertex lines of a moving body differ from the rest pose's by a few characters at
-    most (sign and exponent of a coordinate).
+    the sequence formats them) times the frame count: exact for the topology. The
+    rest coordinates are nudged by a relative 1e-8·√2 first, so they print with every
+    significant digit as a moving body's do (a modelled rest pose often has short
+    ones, ``0.49627``); what is left is a coordinate's sign and magnitude.
 
     Parameters
     ----------
@@ -91,6 +92,7 @@ def estimate_obj_sequence_bytes(
     up_key = up if up is not None else str(rest.meta.get("up", "y"))
     head, tail = _topology_text(rest, units_name, up_key)
     coords = from_y_up(rest.vertices, up_key) / unit_scale(units_name)
+    coords = coords * (1.0 + np.sqrt(2.0) * 1e-8)  # every significant digit shows
     vertices = (_vertex_line(digits) * rest.n_vertices) % tuple(coords.reshape(-1).tolist())
     return int(n_frames) * len((head + vertices + tail).encode("utf-8"))
 

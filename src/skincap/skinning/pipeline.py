@@ -19,6 +19,7 @@ import numpy as np
 
 from skincap.errors import ValidationError
 from skincap.skinning.bind import bind_mesh, fit_skeleton_to_mesh, transform_skeleton
+from skincap.skinning.rest_pose import warn_if_rest_pose_differs
 from skincap.skinning.retarget import retarget
 from skincap.types import Mesh, Motion
 
@@ -128,6 +129,10 @@ def prepare_skinning(
         )
     scale, translation = fit_skeleton_to_mesh(motion.skeleton, mesh)
     fitted = fit_motion(motion, scale, translation)
+    # a mesh not in the skeleton's rest pose binds skin to the wrong bones: say how far off
+    misfit = warn_if_rest_pose_differs(mesh, fitted.skeleton, stacklevel=2)
     bound = bind_mesh(mesh, fitted.skeleton, weights="auto", max_influences=max_influences)
-    report.update(rig="motion", fit_scale=scale, fit_translation=translation.tolist())
+    report.update(
+        rig="motion", fit_scale=scale, fit_translation=translation.tolist(), rest_pose=misfit
+    )
     return SkinningSetup(bound, fitted, report)
