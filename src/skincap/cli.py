@@ -460,6 +460,8 @@ def _skin(
         raise OutputExistsError(output)
     mesh = load_skinnable_mesh(mesh_path, units=mesh_units)
     motion = read_bvh(motion_path, units=units)
+    if not ext:  # before binding, which can take minutes for a bare mesh
+        _check_obj_sequence(mesh, motion.n_frames, output)
     setup = prepare_skinning(
         mesh,
         motion,
@@ -468,8 +470,6 @@ def _skin(
         max_influences=max_influences,  # type: ignore[arg-type]
     )
     frames = setup.motion.n_frames
-    if not output.suffix:
-        _check_obj_sequence(setup, output)
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -502,14 +502,16 @@ def _skin(
     }
 
 
-def _check_obj_sequence(setup: Any, folder: Path) -> None:
-    """Check an OBJ-sequence folder's frame files against the inputs; say the size first."""
+def _check_obj_sequence(mesh: Any, frames: int, folder: Path) -> None:
+    """Check an OBJ-sequence folder's frame files against the inputs; say the size first.
+
+    ``mesh`` is the rest mesh as read (binding keeps its vertices and topology) and
+    ``frames`` the motion's frame count (retargeting keeps it)."""
     from skincap.export.obj_sequence import estimate_obj_sequence_bytes, obj_sequence_paths
     from skincap.io.output_safety import check_outputs
 
-    frames = setup.motion.n_frames
     check_outputs(obj_sequence_paths(folder, frames), force=True)
-    size = estimate_obj_sequence_bytes(setup.mesh, frames, units="m", up="y")
+    size = estimate_obj_sequence_bytes(mesh, frames, units="m", up="y")
     err.print(
         f"skin: writing {frames} OBJ files to {folder}, about {_bytes_text(size)}",
         markup=False,

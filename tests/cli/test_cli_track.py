@@ -110,10 +110,24 @@ def test_track_markers_and_box(scene, tmp_path) -> None:  # type: ignore[no-unty
     _check_outputs(out, cloud, truth)
     out = tmp_path / "box"
     result = run(
-        "track", folder / "points.csv", "--rope-box", "-0.1,0.2,-0.1,0.1,2.1,0.1", "-o", out
-    )
+        "track", folder / "points.csv", "--rope-box", "-0.1,0.2,-0.1,0.1,2.1,0.1", "-o", out,
+        "--json",
+    )  # fmt: skip
     assert result.exit_code == 0, result.output
     _check_outputs(out, cloud, truth)
+    # --json: the summary line's counts, as the report has them, and the files written
+    summary = json.loads(result.stdout)
+    report = json.loads((out / "report.json").read_text())
+    assert summary == {
+        "input": str(folder / "points.csv"),
+        "outputs": [str(out / n) for n in ("rope.c3d", "body_points.csv", "rope_curve.csv",
+                                           "report.json")],
+        "frames": T,
+        "rope_markers": M_ROPE,
+        "rope_points": report["rope_points"],
+        "invented_samples": 10,
+        "lost_traces": 0,
+    }  # fmt: skip
 
 
 def test_track_c3d_of_unlabelled_points(scene, tmp_path) -> None:  # type: ignore[no-untyped-def]

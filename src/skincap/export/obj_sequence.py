@@ -78,7 +78,9 @@ def estimate_obj_sequence_bytes(
     the sequence formats them) times the frame count: exact for the topology. The
     rest coordinates are nudged by a relative 1e-8·√2 first, so they print with every
     significant digit as a moving body's do (a modelled rest pose often has short
-    ones, ``0.49627``); what is left is a coordinate's sign and magnitude.
+    ones, ``0.49627``). So it errs a little high: 4 % for a bending cylinder whose
+    base stays still (still vertices keep short numbers), 3 % for a body moving as a
+    whole (the MakeHuman body on a BVH: 11.9 MB said, 11.56 MB written).
 
     Parameters
     ----------
