@@ -192,6 +192,7 @@ def test_values_beyond_float32_are_refused(value, tmp_path):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_cli_convert_and_clean_keep_analogs(tmp_path):
     src = ANALOG_FILES[0]
     runner = CliRunner()
@@ -203,3 +204,17 @@ def test_cli_convert_and_clean_keep_analogs(tmp_path):
     r = runner.invoke(app, ["clean", str(src), "-o", str(cleaned)])
     assert r.exit_code == 0, r.output
     assert_carried(src, cleaned, points_changed=True)
+
+
+def test_cli_refuses_a_trc_value_a_c3d_cannot_hold(tmp_path):
+    """Issue #13 item 6: 1e39 in a TRC used to become a C3D that skincap could not read."""
+    pos = np.ones((3, 2, 3))
+    pos[1, 0, 2] = 1e36  # metres: the TRC (mm) holds 1e39
+    trc = tmp_path / "big.trc"
+    write_trc(MarkerSet(positions=pos, labels=["a", "b"], rate=100.0), trc, units="mm")
+    out = tmp_path / "big.c3d"
+    r = CliRunner().invoke(app, ["convert", str(trc), str(out)])
+    assert r.exit_code == 2, r.output
+    lines = [s for s in r.output.splitlines() if s.strip()]
+    assert len(lines) == 1 and "point 'a', frame 1" in lines[0] and "1e+39 mm" in lines[0], r.output
+    assert not out.exists()
