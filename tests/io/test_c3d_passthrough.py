@@ -126,6 +126,8 @@ def test_added_columns_keep_analogs_aligned(src, tmp_path):
     assert_carried(src, out, points_changed=True)
     back = _read(out)
     assert back.labels == grown.labels
+    # the source's descriptions follow their labels
+    assert back.meta["descriptions"] == [*m.meta["descriptions"], ""]
     np.testing.assert_allclose(back.positions, grown.positions, rtol=1e-6, atol=1e-9)
 
 
@@ -218,3 +220,15 @@ def test_cli_refuses_a_trc_value_a_c3d_cannot_hold(tmp_path):
     lines = [s for s in r.output.splitlines() if s.strip()]
     assert len(lines) == 1 and "point 'a', frame 1" in lines[0] and "1e+39 mm" in lines[0], r.output
     assert not out.exists()
+
+
+@pytest.mark.parametrize("n_frames", [40_000, 70_000])
+def test_long_takes_keep_every_frame(n_frames, tmp_path):
+    """Past 32767 frames POINT:FRAMES is read unsigned; past 65535 the header and data decide."""
+    pos = np.random.default_rng(0).normal(size=(n_frames, 1, 3))
+    out = tmp_path / "long.c3d"
+    write_c3d(MarkerSet(positions=pos, labels=["a"], rate=1000.0), out, units="m")
+    assert ezc3d.c3d(str(out))["data"]["points"].shape == (4, 1, n_frames)
+    back = read_c3d(out)
+    assert back.n_frames == n_frames
+    np.testing.assert_allclose(back.positions, pos, atol=1e-6)

@@ -1,4 +1,4 @@
-"""C3D marker files, read and written through ezc3d.
+"""C3D marker files: read through ezc3d, written by skincap (:mod:`skincap.io.c3d_encode`).
 
 skincap validates the whole C3D structure in Python before ezc3d sees a file
 (header, every parameter record, the size of the data section): ezc3d can crash the
@@ -24,6 +24,24 @@ What the reader keeps
 * Invented samples: files written by skincap mark them with camera mask 0b1111111
   and declare it in ``SKINCAP:INVENTED_CAMERA_MASK``; without that parameter
   ``invented`` is None.
+* Everything else, for the writer (``meta["c3d"]``, a
+  :class:`~skincap.io.c3d_content.C3dContent`): every parameter group and parameter
+  (type, dimensions, values, description, name as written), the analog samples as
+  stored and the header's events. Text is UTF-8, or Latin-1 where it is not valid
+  UTF-8.
+
+What the writer writes
+----------------------
+The points from the MarkerSet (POINT's labels, descriptions, units, scale, rate and
+frame count rewritten from it, its other parameters kept), and ``meta["c3d"]`` as it
+came: analog samples with ``ANALOG`` unchanged (so ``SCALE``, ``OFFSET`` and
+``GEN_SCALE`` give the same values), ``FORCE_PLATFORM``, ``EVENT``,
+``EVENT_CONTEXT``, header events, vendor groups. Columns added on the same frames
+(cleanup's ``U1``…) keep the analogs aligned. When the frame count differs from the
+source's, the analog samples cannot be realigned (which frames went is unknown): they
+and the force plates are left out with a :class:`SkincapWarning`, never written
+misaligned; events (in seconds) and the other groups stay. Refusing would block the
+markers, the product asked for, with no way around; the warning names what is lost.
 """
 
 from __future__ import annotations
@@ -720,7 +738,7 @@ def write_c3d(
     units: str | None = None,
     up: Literal["y", "z"] | None = None,
 ) -> None:
-    """Write a MarkerSet (and its model outputs) as a float C3D through ezc3d.
+    """Write a MarkerSet (its model outputs and ``meta["c3d"]``) as a float C3D.
 
     Parameters
     ----------
@@ -735,9 +753,11 @@ def write_c3d(
         ``invented`` samples get camera mask 0b1111111, declared in
         ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
         written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
-        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``… (ezc3d does this);
-        ``meta["descriptions"]`` are written when there are at most 255 points
-        (beyond that ezc3d writes blank DESCRIPTIONS of its own).
+        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``…, and
+        ``meta["descriptions"]`` to ``DESCRIPTIONS``, ``DESCRIPTIONS2``…; text is
+        UTF-8. ``meta["c3d"]`` (from :func:`read_c3d`) is written back as the
+        module docstring says: analogs kept when the frame count is the source's,
+        else left out with a SkincapWarning.
     path : str or PathLike
         Output file; refused if it exists unless ``force``.
     units : str, optional
@@ -747,7 +767,16 @@ def write_c3d(
 
     Raises
     ------
-    OutputExistsError, ValidationError, FormatError
+    OutputExistsError, ValidationError
+    FormatError
+        A value the file cannot hold (a coordinate beyond float32, a label over 255
+        bytes), naming the value and where it is; nothing is written.
+
+    Warns
+    -----
+    SkincapWarning
+        The source's analog channels (and force plates) are left out because the
+        frame count changed.
     """
     if not isinstance(markers, MarkerSet):
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
@@ -861,7 +890,8 @@ def write_c3d(
     # --- POINT: what describes the points is written from the MarkerSet
     point: list[C3dParameter] = [
         num("USED", total, "int"),
-        num("FRAMES", t, "int") if t <= 32767 else num("FRAMES", float(t), "float"),
+        # int16 read as unsigned by ezc3d up to 65535; beyond, -1 and the header decide
+        num("FRAMES", t if t <= 65535 else -1, "int"),
         num("DATA_START", 0, "int"),
         num("SCALE", -pscale, "float"),
         num("RATE", float(markers.rate), "float"),
@@ -870,7 +900,9 @@ def write_c3d(
     point += chunked("LABELS", labels)
     descriptions = meta.get("descriptions")
     if not (isinstance(descriptions, list) and len(descriptions) == n):
-        descriptions = [""] * n
+        # columns added, removed or reordered: the source's descriptions by label
+        by_label = _source_descriptions(content) if content is not None else {}
+        descriptions = [by_label.get(lab, "") for lab in markers.labels]
     point += chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n))
     screen = meta.get("screen_axes")
     if not (
@@ -972,6 +1004,22 @@ def write_c3d(
     )
     with atomic_output(target, force=force) as tmp:
         tmp.write_bytes(payload)
+
+
+def _source_descriptions(content: C3dContent) -> dict[str, str]:
+    """The source file's POINT descriptions by label."""
+
+    def listed(name: str) -> list[str]:
+        out: list[str] = []
+        k = 1
+        while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
+            if p.type != -1:
+                break
+            out.extend(p.value)  # type: ignore[arg-type]
+            k += 1
+        return out
+
+    return {lab: d for lab, d in zip(listed("LABELS"), listed("DESCRIPTIONS"), strict=False) if lab}
 
 
 def _like_source(new: C3dParameter, old: C3dParameter | None) -> C3dParameter:

@@ -237,12 +237,18 @@ class C3dContent:
         n_ev = self.n_parameter_events() + (self.events.count if self.events else 0)
         if n_ev:
             parts.append(f"{n_ev} events")
-        # the writer's own signature groups are not content
-        skip = ("POINT", "ANALOG", "FORCE_PLATFORM", "EZC3D", "SKINCAP")
-        others = [g.name for g in self.groups if g.name.upper() not in skip]
+        # counted above, or the writers' own signature; a group whose USED is 0 is empty
+        skip = ("POINT", "ANALOG", "FORCE_PLATFORM", "EVENT", "EVENT_CONTEXT", "EZC3D", "SKINCAP")
+        others = [g.name for g in self.groups if g.name.upper() not in skip and not _unused(g)]
         if others:
             parts.append("parameter groups " + ", ".join(others))
         return "; ".join(parts)
+
+
+def _unused(group: C3dGroup) -> bool:
+    """A group declaring ``USED`` = 0 (ANALYSIS, ROTATION with nothing in them)."""
+    p = group.get("USED")
+    return p is not None and p.type in (1, 2) and len(p.raw) > 0 and p.value.ravel()[0] == 0  # type: ignore[union-attr]
 
 
 def warn_dropped_c3d_content(meta: dict[str, Any], fmt: str, path: Any, stacklevel: int) -> None:
