@@ -68,3 +68,37 @@ def test_moved_bones_take_the_general_path(tmp_path):
     motion.translations[:, 1:] *= 1.1  # another body with the same names
     out = retarget(motion, body)
     assert "same_rig" not in out.meta["retarget"]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["makehuman", "procedural"])
+def test_cli_synth_truth_skins_back_within_a_millimetre(kind, tmp_path):
+    """The user's check: ``synth --soft-tissue 0`` then ``skin`` on its own rig."""
+    from typer.testing import CliRunner
+
+    from skincap.cli import app
+    from skincap.export.pc2 import read_pc2
+
+    runner = CliRunner()
+    out = tmp_path / "S"
+    r = runner.invoke(
+        app,
+        [
+            "synth", "--body", kind, "--motion", str(DATA / "cmu_131_01_bvh11.bvh"),
+            "--units", "cmu", "--frames", "3", "--vertices", "5000", "--markers", "sparse",
+            "--soft-tissue", "0", "-o", str(out),
+        ],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    body = DATA / "makehuman_base.obj" if kind == "makehuman" else out / "truth" / "body.glb"
+    cache = tmp_path / "x.pc2"
+    r = runner.invoke(
+        app,
+        ["skin", str(body), str(out / "truth" / "motion.bvh"), "--method", "dqs",
+         "--units", "m", "-o", str(cache)],
+    )  # fmt: skip
+    assert r.exit_code == 0, r.output
+    truth = read_pc2(out / "truth" / "mesh.pc2").frames
+    again = read_pc2(cache).frames
+    assert again.shape == truth.shape
+    assert float(np.linalg.norm(again - truth, axis=-1).max()) < 1e-3
