@@ -232,3 +232,41 @@ def test_long_takes_keep_every_frame(n_frames, tmp_path):
     back = read_c3d(out)
     assert back.n_frames == n_frames
     np.testing.assert_allclose(back.positions, pos, atol=1e-6)
+
+
+def test_carried_parameters_keep_type_shape_case_lock_and_bytes(tmp_path):
+    """A vendor group with every parameter type goes out record for record."""
+    from skincap.io.c3d_content import C3dGroup, C3dParameter
+
+    floats = np.arange(24, dtype=np.float64).reshape(2, 3, 4) / 8.0
+    vendor = C3dGroup(
+        "Vendor_x",
+        description="ünïcode group".encode(),
+        locked=True,
+        parameters=(
+            C3dParameter("Flags", 1, (5,), bytes([0, 1, 2, 127, 255]), b"bytes", True),
+            C3dParameter("COUNTS", 2, (2, 2), np.array([1, -2, 300, 32767], "<i2").tobytes()),
+            C3dParameter("GRID", 4, (2, 3, 4), floats.astype("<f4").ravel(order="F").tobytes()),
+            C3dParameter("NAMES", -1, (6, 2), "Δx    ".encode()[:6].ljust(6) + b"plain "),
+            C3dParameter("ONE", 4, (), np.array([2.5], "<f4").tobytes()),
+        ),
+    )
+    src = _read(ANALOG_FILES[0])
+    content = src.meta["c3d"]
+    meta = {**src.meta, "c3d": type(content)(
+        groups=(*content.groups, vendor),
+        analogs=content.analogs,
+        analog_ratio=content.analog_ratio,
+        n_frames=content.n_frames,
+        first_frame=content.first_frame,
+        events=content.events,
+    )}  # fmt: skip
+    out = tmp_path / "vendor.c3d"
+    write_c3d(MarkerSet(src.positions, src.labels, src.rate, meta=meta), out)
+    back = _read(out).meta["c3d"].group("VENDOR_X")
+    assert back == vendor  # names as written, types, dims, bytes, descriptions, locks
+    ez = ezc3d.c3d(str(out))["parameters"]["Vendor_x"]
+    assert ez["Flags"]["type"] == 1 and ez["Flags"]["value"].tolist() == [0, 1, 2, 127, -1]
+    assert ez["COUNTS"]["value"].tolist() == [[1, 300], [-2, 32767]]
+    np.testing.assert_array_equal(ez["GRID"]["value"], floats)
+    assert [s.strip() for s in ez["NAMES"]["value"]] == ["Δx", "plain"]
