@@ -270,3 +270,19 @@ def test_carried_parameters_keep_type_shape_case_lock_and_bytes(tmp_path):
     assert ez["COUNTS"]["value"].tolist() == [[1, 300], [-2, 32767]]
     np.testing.assert_array_equal(ez["GRID"]["value"], floats)
     assert [s.strip() for s in ez["NAMES"]["value"]] == ["Δx", "plain"]
+
+
+def test_a_file_skincap_wrote_through_ezc3d_loses_only_its_rotation_pointer(tmp_path):
+    """Files ezc3d wrote carry ROTATION:DATA_START, a block of theirs: not carried."""
+    src = DATA / "aml_PronetoRun01_labeled.c3d"
+    c = ezc3d.c3d(str(src))
+    c.add_parameter("ROTATION", "USED", 0)
+    c.add_parameter("ROTATION", "DATA_START", 12)
+    old = tmp_path / "old.c3d"
+    c.write(str(old))
+    out = tmp_path / "new.c3d"
+    write_c3d(_read(old), out)
+    params = ezc3d.c3d(str(out))["parameters"]
+    assert "ROTATION" not in params
+    written_by = ezc3d.c3d(str(old))["parameters"]["EZC3D"]["VERSION"]["value"]
+    assert params["EZC3D"]["VERSION"]["value"] == written_by  # other groups carried

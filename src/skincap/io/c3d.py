@@ -962,6 +962,16 @@ def write_c3d(
             # frame numbers of another frame count
             kept = tuple(p for p in g.parameters if not p.name.upper().startswith("ACTUAL_"))
             out_groups.append(replace(g, parameters=kept))
+        elif key == "ROTATION":
+            # rotation samples are not read: their group (and its DATA_START, a block
+            # of the source) would point at nothing in this file
+            used = g.get("USED")
+            if used is not None and used.type in (1, 2) and np.any(np.asarray(used.value) > 0):
+                warnings.warn(
+                    f"{target}: the source's ROTATION data (segment rotations) is not written",
+                    SkincapWarning,
+                    stacklevel=2,
+                )
         elif key == "SKINCAP":
             kept = tuple(p for p in g.parameters if p.name.upper() != "INVENTED_CAMERA_MASK")
             if kept:
