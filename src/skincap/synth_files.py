@@ -14,6 +14,9 @@ Layout of the output folder::
     truth/marker_surface.ply   triangulation whose vertices are the markers (frame 0)
     truth/motion.bvh        the motion on the body's skeleton
     truth/mesh.obj + truth/mesh.pc2   the skin at rest and animated (metres, Y up)
+    truth/body.glb          the body with its rig and weights, and the motion on it:
+                            ``skincap skin truth/body.glb truth/motion.bvh --method dqs``
+                            gives truth/mesh.pc2 back (soft tissue 0)
 """
 
 from __future__ import annotations
@@ -43,6 +46,7 @@ OUTPUT_FILES = (
     "truth/motion.bvh",
     "truth/mesh.obj",
     "truth/mesh.pc2",
+    "truth/body.glb",
 )
 
 
@@ -133,6 +137,7 @@ def write_synth_outputs(
 
     Existing outputs are refused before anything is written unless ``force``.
     """
+    from skincap.export.gltf import write_glb
     from skincap.export.pc2 import write_pc2
     from skincap.io.bvh import write_bvh
     from skincap.io.c3d import write_c3d
@@ -179,6 +184,10 @@ def write_synth_outputs(
     done(root / "truth" / "mesh.obj")
     write_pc2(result.skin, root / "truth" / "mesh.pc2", force=force)
     done(root / "truth" / "mesh.pc2")
+    # the rigged body, so the skin can be made again from motion.bvh (the procedural
+    # body has no other file with its weights)
+    write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
+    done(root / "truth" / "body.glb")
     _write_text(
         root / "summary.json", json.dumps(_jsonable(result.summary), indent=2) + "\n", force
     )

@@ -113,6 +113,9 @@ class MarkerSet:
         True where a sample was made up by a gap filler rather than measured.
     meta : dict
         Source details: ``source_units``, ``up``, ``first_frame``, ``model_outputs``…
+        From a C3D, ``c3d``: what the file carries besides the points (analogs,
+        events, every parameter), immutable, written back by the C3D writer while
+        the frame count is unchanged; pass ``meta`` along to keep it.
     """
 
     positions: np.ndarray

@@ -36,6 +36,7 @@ import numpy as np
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.geometry.rotations import matrix_to_quat
 from skincap.io._common import atomic_output
+from skincap.io.narrowing import check_float32
 from skincap.types import Mesh, Motion, Skin
 
 __all__ = ["write_glb", "GLTF_MAX_INFLUENCES"]
@@ -55,7 +56,8 @@ _RIGID_TOLERANCE = 1e-6
 class _Builder:
     """Accumulates bufferViews and accessors over one binary buffer."""
 
-    def __init__(self) -> None:
+    def __init__(self, path: str | os.PathLike[str]) -> None:
+        self.path = path  # named when a value does not fit float32
         self.blob = bytearray()
         self.views: list[dict[str, Any]] = []
         self.accessors: list[dict[str, Any]] = []
@@ -67,9 +69,15 @@ class _Builder:
         *,
         target: int | None = None,
         minmax: bool = False,
+        name: str = "value",
     ) -> int:
-        """Append ``data`` (n, k) or (n,) as one accessor; return its index."""
+        """Append ``data`` (n, k) or (n,) as one accessor; return its index.
+
+        Float data beyond float32's range is refused (FormatError naming ``name``).
+        """
         dtype = {_FLOAT: "<f4", _USHORT: "<u2", _UINT: "<u4"}[component]
+        if component == _FLOAT:
+            check_float32(data, self.path, lambda idx: f"{name} {list(idx)}")
         arr = np.ascontiguousarray(data, dtype=dtype)
         n = arr.shape[0]
         width = 1 if arr.ndim == 1 else int(np.prod(arr.shape[1:]))
@@ -252,16 +260,16 @@ def write_glb(
     skin = _check_inputs(mesh, motion)
     skel = skin.skeleton
     nj = skel.n_joints
-    b = _Builder()
+    b = _Builder(path)
 
     # ---- mesh
     verts = mesh.vertices
-    pos_acc = b.add(verts, _FLOAT, target=_ARRAY_BUFFER, minmax=True)
-    nrm_acc = b.add(_vertex_normals(verts, mesh.faces), _FLOAT, target=_ARRAY_BUFFER)
+    pos_acc = b.add(verts, _FLOAT, target=_ARRAY_BUFFER, minmax=True, name="vertex")
+    nrm_acc = b.add(_vertex_normals(verts, mesh.faces), _FLOAT, target=_ARRAY_BUFFER, name="normal")
     attributes: dict[str, int] = {"POSITION": pos_acc, "NORMAL": nrm_acc}
     if mesh.uv is not None:
         uv = np.stack([mesh.uv[:, 0], 1.0 - mesh.uv[:, 1]], axis=1)
-        attributes["TEXCOORD_0"] = b.add(uv, _FLOAT, target=_ARRAY_BUFFER)
+        attributes["TEXCOORD_0"] = b.add(uv, _FLOAT, target=_ARRAY_BUFFER, name="uv")
     j4, w4, n_lost = _four_influences(skin.joint_indices, skin.joint_weights)
     if n_lost:
         warnings.warn(
@@ -277,7 +285,9 @@ def write_glb(
     idx_acc = b.add(mesh.faces.reshape(-1), index_type, target=_ELEMENT_ARRAY_BUFFER)
 
     # ---- skin: column-major MAT4
-    ibm_acc = b.add(skin.inverse_bind.transpose(0, 2, 1).reshape(nj, 16), _FLOAT)
+    ibm_acc = b.add(
+        skin.inverse_bind.transpose(0, 2, 1).reshape(nj, 16), _FLOAT, name="inverse bind matrix"
+    )
 
     # ---- joint nodes: rest TRS from the bind pose when rigid, else frame 0
     bind = skin.bind_matrices
@@ -306,7 +316,7 @@ def write_glb(
     # ---- animation: one shared time accessor, LINEAR samplers per joint and channel
     t = motion.n_frames
     times = np.arange(t, dtype=np.float64) / motion.rate
-    time_acc = b.add(times, _FLOAT, minmax=True)
+    time_acc = b.add(times, _FLOAT, minmax=True, name="key time")
     q = _continuous(motion.rotations / np.linalg.norm(motion.rotations, axis=-1, keepdims=True))
     samplers: list[dict[str, Any]] = []
     channels: list[dict[str, Any]] = []
@@ -315,7 +325,7 @@ def write_glb(
             ("rotation", q[:, j]),
             ("translation", motion.translations[:, j]),
         ):
-            out_acc = b.add(values, _FLOAT)
+            out_acc = b.add(values, _FLOAT, name="animation key")
             samplers.append({"input": time_acc, "output": out_acc, "interpolation": "LINEAR"})
             channels.append(
                 {"sampler": len(samplers) - 1, "target": {"node": j, "path": path_name}}

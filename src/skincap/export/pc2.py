@@ -45,6 +45,7 @@ import numpy as np
 
 from skincap.errors import FormatError, ValidationError
 from skincap.io._common import atomic_output, check_readable, from_y_up, to_y_up, unit_scale
+from skincap.io.narrowing import check_float32
 from skincap.types import MeshAnimation
 
 __all__ = ["write_pc2", "read_pc2", "PC2Cache", "PC2_SIGNATURE"]
@@ -135,6 +136,8 @@ def write_pc2(
         Bad ``up``/``units``/``sample_rate``/``chunk``, non-finite positions, or a
         streamed animation that yields a different number of frames than
         ``n_frames`` (nothing is left behind: the write is atomic).
+    FormatError
+        A position (in ``units``) beyond float32's range (nothing written).
     OutputExistsError
         ``path`` exists and ``force`` is False.
     """
@@ -154,6 +157,7 @@ def write_pc2(
     n_points = animation.rest.n_vertices
     n_samples = int(animation.n_frames or 0)
     start = _frame_number(animation, start_frame)
+    check_float32(np.array([start, step]), path, lambda i: ("startFrame", "sampleRate")[i[0]])
     header = _HEADER.pack(PC2_SIGNATURE, 1, n_points, start, step, n_samples)
     with atomic_output(path, force=force) as tmp, open(tmp, "wb") as fh:
         fh.write(header)
@@ -169,6 +173,14 @@ def write_pc2(
                     f"frames: frame {written + bad} has NaN or infinite positions; PC2 cannot store missing points"
                 )
             out = from_y_up(block, up) * scale
+            check_float32(
+                out,
+                path,
+                lambda idx, first=written: (
+                    f"frame {first + idx[0]}, vertex {idx[1]}, {'xyz'[idx[2]]}"
+                ),
+                unit=units,
+            )
             fh.write(np.ascontiguousarray(out, dtype="<f4").tobytes())
             written += block.shape[0]
 

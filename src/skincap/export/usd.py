@@ -28,6 +28,7 @@ import numpy as np
 
 from skincap.errors import FormatError, MissingDependencyError, ValidationError
 from skincap.io._common import atomic_output
+from skincap.io.narrowing import check_float32
 from skincap.types import MeshAnimation
 
 __all__ = ["write_usd", "USD_SUFFIXES"]
@@ -112,6 +113,9 @@ def write_usd(
         counts = np.full(rest.n_faces, 3, dtype=np.int64)
         indices = rest.faces.reshape(-1)
 
+    check_float32(
+        rest.vertices, path, lambda idx: f"rest vertex {idx[0]}, {'xyz'[idx[1]]}", unit="m"
+    )
     with atomic_output(path, force=force) as tmp:
         # the temporary name keeps the suffix, so usd-core picks the same file format
         layer = Sdf.Layer.CreateNew(str(tmp))
@@ -151,6 +155,12 @@ def write_usd(
             if not np.isfinite(block).all():
                 bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
                 raise ValidationError(f"frames: frame {done + bad} has NaN or infinite positions")
+            check_float32(
+                block,
+                path,
+                lambda idx, first=done: f"frame {first + idx[0]}, vertex {idx[1]}, {'xyz'[idx[2]]}",
+                unit="m",
+            )
             f32 = np.ascontiguousarray(block, dtype=np.float32)
             bounds = np.stack([f32.min(axis=1), f32.max(axis=1)], axis=1)  # (t, 2, 3)
             # usd-core takes one time sample per call: the loop only hands over arrays

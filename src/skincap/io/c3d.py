@@ -1,4 +1,4 @@
-"""C3D marker files, read and written through ezc3d.
+"""C3D marker files: read through ezc3d, written by skincap (:mod:`skincap.io.c3d_encode`).
 
 skincap validates the whole C3D structure in Python before ezc3d sees a file
 (header, every parameter record, the size of the data section): ezc3d can crash the
@@ -24,6 +24,24 @@ What the reader keeps
 * Invented samples: files written by skincap mark them with camera mask 0b1111111
   and declare it in ``SKINCAP:INVENTED_CAMERA_MASK``; without that parameter
   ``invented`` is None.
+* Everything else, for the writer (``meta["c3d"]``, a
+  :class:`~skincap.io.c3d_content.C3dContent`): every parameter group and parameter
+  (type, dimensions, values, description, name as written), the analog samples as
+  stored and the header's events. Text is UTF-8, or Latin-1 where it is not valid
+  UTF-8.
+
+What the writer writes
+----------------------
+The points from the MarkerSet (POINT's labels, descriptions, units, scale, rate and
+frame count rewritten from it, its other parameters kept), and ``meta["c3d"]`` as it
+came: analog samples with ``ANALOG`` unchanged (so ``SCALE``, ``OFFSET`` and
+``GEN_SCALE`` give the same values), ``FORCE_PLATFORM``, ``EVENT``,
+``EVENT_CONTEXT``, header events, vendor groups. Columns added on the same frames
+(cleanup's ``U1``…) keep the analogs aligned. When the frame count differs from the
+source's, the analog samples cannot be realigned (which frames went is unknown): they
+and the force plates are left out with a :class:`SkincapWarning`, never written
+misaligned; events (in seconds) and the other groups stay. Refusing would block the
+markers, the product asked for, with no way around; the warning names what is lost.
 """
 
 from __future__ import annotations
@@ -31,13 +49,19 @@ from __future__ import annotations
 import math
 import os
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 
-from skincap.errors import FormatError, MissingDependencyError, UnitWarning, ValidationError
+from skincap.errors import (
+    FormatError,
+    MissingDependencyError,
+    SkincapWarning,
+    UnitWarning,
+    ValidationError,
+)
 from skincap.io._common import (
     UNIT_TO_METRES,
     atomic_output,
@@ -46,6 +70,15 @@ from skincap.io._common import (
     unit_scale,
     up_rotation,
 )
+from skincap.io.c3d_content import (
+    C3dContent,
+    C3dGroup,
+    C3dParameter,
+    HeaderEvents,
+    decode_text,
+)
+from skincap.io.c3d_encode import C3dFrames, char_parameter, encode_c3d, number_parameter
+from skincap.io.narrowing import FLOAT32_MAX, check_float32
 from skincap.types import MarkerSet
 
 __all__ = ["read_c3d", "write_c3d", "MODEL_OUTPUT_GROUPS"]
@@ -80,6 +113,11 @@ class _C3dLayout:
     data_offset: int
     header_rate: float
     params: dict[tuple[str, str], Any]
+    #: every group in file order: NAME -> (name as written, description, locked,
+    #: {PARAMETER NAME: record})
+    records: dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]] = field(
+        default_factory=dict
+    )
 
 
 def _decode_floats(raw: bytes, processor: str) -> np.ndarray:
@@ -101,14 +139,19 @@ def _decode_ints(raw: bytes, processor: str, size: int) -> np.ndarray:
 
 
 def _decode_strings(raw: bytes, dims: list[int]) -> list[str]:
-    """A CHAR parameter -> list of strings (trailing blanks and NULs removed)."""
+    """A CHAR parameter -> list of strings (UTF-8, else Latin-1; trailing blanks and NULs removed)."""
     if not dims:
-        return [raw.decode("latin-1").rstrip(" \x00")]
+        return [decode_text(raw)]
     width = dims[0]
     count = math.prod(dims[1:])
-    return [
-        raw[i * width : (i + 1) * width].decode("latin-1").rstrip(" \x00") for i in range(count)
-    ]
+    return [decode_text(raw[i * width : (i + 1) * width]) for i in range(count)]
+
+
+def _intel_bytes(value: Any, ptype: int, raw: bytes) -> bytes:
+    """A decoded parameter value back to little-endian bytes (CHAR and BYTE unchanged)."""
+    if ptype in (-1, 1):
+        return raw
+    return np.asarray(value).astype("<f4" if ptype == 4 else "<i2").tobytes()
 
 
 def _s8(byte: int) -> int:
@@ -161,7 +204,8 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
     rate = float(_decode_floats(data[20:24], processor)[0])
 
     groups: dict[int, str] = {}
-    raw_params: list[tuple[int, str, Any, int]] = []
+    group_meta: dict[int, tuple[str, bytes, bool]] = {}
+    raw_params: list[tuple[int, str, Any, int, C3dParameter]] = []
     pos = start + 4
     while True:
         if pos + 2 > end:
@@ -181,7 +225,8 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
             raise FormatError(
                 path, f"parameter name {name_raw!r} is not printable ASCII", offset=pos + 2
             )
-        name = name_raw.decode("ascii").upper()
+        name_as_written = name_raw.decode("ascii")  # kept for writing back (Vicon: "Bodymass")
+        name = name_as_written.upper()
         offset_field = name_end
         nxt = int(np.frombuffer(data[offset_field : offset_field + 2], dtype=f"{ie}i2")[0])
         last_record = nxt == 0
@@ -212,6 +257,7 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
                     path, f"group id {-gid} defined twice ({groups[-gid]!r}, {name!r})", offset=pos
                 )
             groups[-gid] = name
+            group_meta[-gid] = (name_as_written, data[body + 1 : body + 1 + dlen], nchars < 0)
         else:
             if body + 2 > rec_end:
                 raise FormatError(path, f"parameter {name!r}: record too short", offset=body)
@@ -254,13 +300,24 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
                 value = _decode_floats(raw, processor)
             else:
                 value = _decode_ints(raw, processor, _TYPE_SIZES[ptype])
-            raw_params.append((gid, name, value, pos))
+            record = C3dParameter(
+                name=name_as_written,
+                type=ptype,
+                dims=tuple(int(d) for d in dims),
+                raw=_intel_bytes(value, ptype, raw),
+                description=data[vstart + nbytes + 1 : vstart + nbytes + 1 + dlen],
+                locked=nchars < 0,
+            )
+            raw_params.append((gid, name, value, pos, record))
         if last_record:
             break
         pos = rec_end
 
     params: dict[tuple[str, str], Any] = {}
-    for gid, name, value, where in raw_params:
+    records: dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]] = {}
+    for gid, gname in groups.items():  # file order; a name defined twice is one group
+        records.setdefault(gname, (*group_meta[gid], {}))
+    for gid, name, value, where, record in raw_params:
         if gid not in groups:
             raise FormatError(
                 path,
@@ -271,6 +328,7 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
         # a group may appear twice under two ids (Vicon writes PROCESSING so): the
         # later definition of a parameter wins, as in ezc3d
         params[key] = value
+        records[groups[gid]][3][name] = record
 
     used = params.get(("POINT", "USED"))
     if used is not None and (len(used) < 1 or int(used[0]) & 0xFFFF != n_points):
@@ -322,7 +380,9 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
         if scale_p is None or not len(scale_p) or scale_p[0] == 0:
             raise FormatError(path, f"point scale factor {scale} is zero or not finite", offset=12)
         scale = float(scale_p[0])
-    return _C3dLayout(processor, n_points, n_analog, first, last, scale, data_offset, rate, params)
+    return _C3dLayout(
+        processor, n_points, n_analog, first, last, scale, data_offset, rate, params, records
+    )
 
 
 # ---------------------------------------------------------------------------- read
@@ -384,6 +444,67 @@ def _up_from_screen(layout: _C3dLayout, path: Path) -> tuple[str, bool]:
         stacklevel=3,
     )
     return "z", True
+
+
+def _analog_samples(layout: _C3dLayout, data: bytes, n_frames: int) -> tuple[np.ndarray, int]:
+    """Analog samples as stored, (C, n_frames * ratio) float64, and the ratio."""
+    n_analog = layout.n_analog_per_frame
+    if not n_analog:
+        return np.zeros((0, 0)), 0
+    used = layout.params.get(("ANALOG", "USED"))
+    channels = int(used[0])  # the scan checked it divides n_analog
+    ratio = n_analog // channels
+    words = 4 * layout.n_points + n_analog
+    is_float = layout.scale < 0
+    size = 4 if is_float else 2
+    block = data[layout.data_offset : layout.data_offset + n_frames * words * size]
+    if is_float:
+        with np.errstate(invalid="ignore"):  # NaN samples are carried as they are
+            flat = _decode_floats(block, layout.processor)
+    else:
+        fmt = layout.params.get(("ANALOG", "FORMAT"))
+        unsigned = isinstance(fmt, list) and bool(fmt) and fmt[0].strip().upper() == "UNSIGNED"
+        ie = ">" if layout.processor == "mips" else "<"
+        flat = np.frombuffer(block, dtype=f"{ie}{'u2' if unsigned else 'i2'}").astype(np.float64)
+    frames = flat.reshape(n_frames, words)[:, 4 * layout.n_points :]  # (T, ratio * C)
+    # each frame holds `ratio` sub-frames of every channel: -> (C, T * ratio)
+    samples = frames.reshape(n_frames, ratio, channels).transpose(2, 0, 1)
+    return samples.reshape(channels, n_frames * ratio), ratio
+
+
+def _header_events(layout: _C3dLayout, data: bytes) -> HeaderEvents | None:
+    """The header's event block (bytes 294-467), or None when it holds no event."""
+    ie = ">" if layout.processor == "mips" else "<"
+    w = np.frombuffer(data[294:302], dtype=f"{ie}u2").astype(np.int64)
+    count = int(w[3])
+    if not 0 < count <= 18:
+        return None
+    return HeaderEvents(
+        count=count,
+        times=_decode_floats(data[304:376], layout.processor),
+        display=bytes(data[376:394]),
+        labels=bytes(data[396:468]),
+        label_range_present=int(w[0]),
+        label_range_block=int(w[1]),
+    )
+
+
+def _content(layout: _C3dLayout, data: bytes, n_frames: int) -> C3dContent:
+    """meta["c3d"]: the file's parameters, analog samples and header events."""
+    analogs, ratio = _analog_samples(layout, data, n_frames)
+    groups = tuple(
+        C3dGroup(name=name, description=desc, locked=locked, parameters=tuple(params.values()))
+        for name, desc, locked, params in layout.records.values()
+    )
+    return C3dContent(
+        groups=groups,
+        analogs=analogs,
+        analog_ratio=ratio,
+        n_frames=n_frames,
+        first_frame=layout.first_frame,
+        events=_header_events(layout, data),
+        processor=layout.processor,
+    )
 
 
 def _guess_units(xyz: np.ndarray) -> str:
@@ -594,6 +715,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         "descriptions": [descriptions[i] for i in marker_cols],
         "renamed_labels": renamed,
         "zeros_as_missing": n_zero,
+        "c3d": _content(layout, data, n_frames),
     }
     if isinstance(xs, list) and xs and isinstance(ys, list) and ys:
         meta["screen_axes"] = (xs[0].strip(), ys[0].strip())
@@ -616,7 +738,7 @@ def write_c3d(
     units: str | None = None,
     up: Literal["y", "z"] | None = None,
 ) -> None:
-    """Write a MarkerSet (and its model outputs) as a float C3D through ezc3d.
+    """Write a MarkerSet (its model outputs and ``meta["c3d"]``) as a float C3D.
 
     Parameters
     ----------
@@ -631,9 +753,11 @@ def write_c3d(
         ``invented`` samples get camera mask 0b1111111, declared in
         ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
         written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
-        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``… (ezc3d does this);
-        ``meta["descriptions"]`` are written when there are at most 255 points
-        (beyond that ezc3d writes blank DESCRIPTIONS of its own).
+        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``…, and
+        ``meta["descriptions"]`` to ``DESCRIPTIONS``, ``DESCRIPTIONS2``…; text is
+        UTF-8. ``meta["c3d"]`` (from :func:`read_c3d`) is written back as the
+        module docstring says: analogs kept when the frame count is the source's,
+        else left out with a SkincapWarning.
     path : str or PathLike
         Output file; refused if it exists unless ``force``.
     units : str, optional
@@ -643,7 +767,16 @@ def write_c3d(
 
     Raises
     ------
-    OutputExistsError, ValidationError, FormatError
+    OutputExistsError, ValidationError
+    FormatError
+        A value the file cannot hold (a coordinate beyond float32, a label over 255
+        bytes), naming the value and where it is; nothing is written.
+
+    Warns
+    -----
+    SkincapWarning
+        The source's analog channels (and force plates) are left out because the
+        frame count changed.
     """
     if not isinstance(markers, MarkerSet):
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
@@ -706,25 +839,71 @@ def write_c3d(
     if not (np.isfinite(pscale) and pscale > 0 and rmax <= 255 * pscale * (1 + 1e-6)):
         # the smallest power of ten whose 255 steps hold the largest residual
         pscale = 10.0 ** np.ceil(np.log10(rmax / 255.0)) if rmax > 0 else 1.0
-    # stored as a byte k with residual = k * |SCALE|: quantise here, and aim a quarter
-    # step above k so ezc3d's float -> byte conversion gives k whether it rounds or truncates
-    all_res = (np.clip(np.round(all_res / pscale), 0, 255) + 0.25) * pscale
-    all_res[all_miss] = -1.0
+    # stored as a byte k with residual = k * |SCALE|
+    steps = np.clip(np.round(all_res / pscale), 0, 255).astype(np.int64)
     total = len(labels)
+    target = Path(path)
+    where_names = labels
 
-    import ezc3d
+    def where(idx: tuple[int, ...]) -> str:
+        return f"point {where_names[idx[1]]!r}, frame {idx[0]}, {'xyz'[idx[2]]}"
 
-    c = ezc3d.c3d()
-    c["parameters"]["POINT"]["RATE"]["value"] = [float(markers.rate)]
-    c["parameters"]["POINT"]["LABELS"]["value"] = labels
-    c.add_parameter("POINT", "SCALE", [-pscale])
-    c.add_parameter("POINT", "UNITS", [units])
-    descriptions = meta.get("descriptions")
-    # ezc3d writes DESCRIPTIONS itself beyond 255 points (blank), so ours go only below
-    if isinstance(descriptions, list) and len(descriptions) == n and total <= 255:
-        c.add_parameter(
-            "POINT", "DESCRIPTIONS", [str(s) for s in descriptions] + [""] * (total - n)
+    check_float32(np.where(all_miss[..., None], 0.0, all_pos), target, where, unit=units)
+    if not (np.isfinite(markers.rate) and 0 < markers.rate <= FLOAT32_MAX):
+        raise FormatError(target, f"frame rate {markers.rate} cannot be stored as a float32")
+    first = int(meta.get("first_frame", 1))
+    if first < 0 or first > 65535:
+        raise ValidationError(f"meta['first_frame']: must be in 0..65535, got {first}")
+
+    content = meta.get("c3d")
+    if not isinstance(content, C3dContent):
+        content = None
+    keep_analogs = content is not None and content.n_frames == t
+    if content is not None and not keep_analogs and content.n_analog_channels:
+        fp = content.n_force_plates()
+        warnings.warn(
+            f"{target}: the markers have {t} frames, the source's {content.n_analog_channels} "
+            f"analog channels were aligned with {content.n_frames}: analog data"
+            f"{f' and {fp} force plates' if fp else ''} not written (they cannot be "
+            "realigned with frames that changed)",
+            SkincapWarning,
+            stacklevel=2,
         )
+    if keep_analogs and content is not None:
+        analogs, ratio = content.analogs, content.analog_ratio
+    else:
+        analogs, ratio = np.zeros((0, 0)), 0
+
+    def num(name: str, values: Any, kind: str, scalar: bool | None = None) -> C3dParameter:
+        return number_parameter(name, values, kind, target=target, scalar=scalar)
+
+    def text(name: str, values: str | list[str]) -> C3dParameter:
+        return char_parameter(name, values, target=target)
+
+    def chunked(name: str, values: list[str]) -> list[C3dParameter]:
+        """LABELS, LABELS2, LABELS3… of at most 255 strings each."""
+        out = [text(name, values[:255])]
+        for k in range(255, len(values), 255):
+            out.append(text(f"{name}{k // 255 + 1}", values[k : k + 255]))
+        return out
+
+    # --- POINT: what describes the points is written from the MarkerSet
+    point: list[C3dParameter] = [
+        num("USED", total, "int"),
+        # int16 read as unsigned by ezc3d up to 65535; beyond, -1 and the header decide
+        num("FRAMES", t if t <= 65535 else -1, "int"),
+        num("DATA_START", 0, "int"),
+        num("SCALE", -pscale, "float"),
+        num("RATE", float(markers.rate), "float"),
+        text("UNITS", units),
+    ]
+    point += chunked("LABELS", labels)
+    descriptions = meta.get("descriptions")
+    if not (isinstance(descriptions, list) and len(descriptions) == n):
+        # columns added, removed or reordered: the source's descriptions by label
+        by_label = _source_descriptions(content) if content is not None else {}
+        descriptions = [by_label.get(lab, "") for lab in markers.labels]
+    point += chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n))
     screen = meta.get("screen_axes")
     if not (
         isinstance(screen, tuple | list)
@@ -732,42 +911,145 @@ def write_c3d(
         and str(screen[1]).upper().lstrip("+") == up.upper()
     ):
         screen = ("+X", "+Z" if up == "z" else "+Y")
-    c.add_parameter("POINT", "X_SCREEN", [str(screen[0])])
-    c.add_parameter("POINT", "Y_SCREEN", [str(screen[1])])
+    point += [text("X_SCREEN", str(screen[0])), text("Y_SCREEN", str(screen[1]))]
+    source_groups = list(content.groups) if content is not None else []
+    source_point = next((g for g in source_groups if g.name.upper() == "POINT"), None)
+    if source_point is not None and source_point.get("BONES") is None:
+        # segment axes the reader recognised by their labels: the source did not list
+        # them, and the reader recognises them again without the list
+        groups.pop("BONES", None)
     type_groups: list[str] = []
     for gname, names in groups.items():
-        for k in range(0, len(names), 255):  # ANGLES, ANGLES2… like LABELS
-            c.add_parameter("POINT", gname + (str(k // 255 + 1) if k else ""), names[k : k + 255])
+        point += chunked(gname, names)  # ANGLES, ANGLES2… like LABELS
         type_groups.extend([gname, gname[:-1] if gname.endswith("S") else gname])
         unit_param = MODEL_OUTPUT_GROUPS.get(gname, gname.rstrip("S") + "_UNITS")
         gu = model_units.get(gname.lower())
         if gu and gname != "BONES":
-            c.add_parameter("POINT", unit_param, [str(gu)])
+            point.append(text(unit_param, str(gu)))
     if type_groups:
-        c.add_parameter("POINT", "TYPE_GROUPS", type_groups)
-    masks = np.zeros((7, total, t), dtype=bool)
+        point.append(text("TYPE_GROUPS", type_groups))
+    if source_point is not None:
+        point = [_like_source(p, source_point.get(p.name)) for p in point]
+        tg = source_point.get("TYPE_GROUPS")
+        if tg is not None and tg.type == -1:
+            listed = {str(v).strip().upper() for v in tg.value}
+            if set(type_groups) <= listed:  # the source's list still holds: keep it as it is
+                point = [p for p in point if p.name != "TYPE_GROUPS"] + [tg]
+    written = {p.name for p in point}
+
+    def rewritten(name: str) -> bool:
+        """A POINT parameter of the source that the MarkerSet's points replace."""
+        name = name.upper()
+        if name in written or name in ("LONG_FRAMES", "TYPE_GROUPS"):
+            return True
+        listing = {"LABELS", "DESCRIPTIONS", *MODEL_OUTPUT_GROUPS, *groups}
+        listing |= {g.rstrip("S") + "_UNITS" for g in groups} | set(MODEL_OUTPUT_GROUPS.values())
+        return name.rstrip("0123456789") in listing
+
+    out_groups: list[C3dGroup] = []
+    seen: set[str] = set()
+    for g in source_groups:
+        key = g.name.upper()
+        seen.add(key)
+        if key == "POINT":
+            kept = tuple(p for p in g.parameters if not rewritten(p.name))
+            out_groups.append(replace(g, parameters=tuple(point) + kept))
+        elif key == "ANALOG" and not keep_analogs:
+            out_groups.append(replace(g, parameters=_no_analogs(num, text)))
+        elif key == "FORCE_PLATFORM" and not keep_analogs:
+            out_groups.append(replace(g, parameters=(num("USED", 0, "int"),)))
+        elif key == "TRIAL" and not keep_analogs:
+            # frame numbers of another frame count
+            kept = tuple(p for p in g.parameters if not p.name.upper().startswith("ACTUAL_"))
+            out_groups.append(replace(g, parameters=kept))
+        elif key == "ROTATION":
+            # rotation samples are not read: their group (and its DATA_START, a block
+            # of the source) would point at nothing in this file
+            used = g.get("USED")
+            if used is not None and used.type in (1, 2) and np.any(np.asarray(used.value) > 0):
+                warnings.warn(
+                    f"{target}: the source's ROTATION data (segment rotations) is not written",
+                    SkincapWarning,
+                    stacklevel=2,
+                )
+        elif key == "SKINCAP":
+            kept = tuple(p for p in g.parameters if p.name.upper() != "INVENTED_CAMERA_MASK")
+            if kept:
+                out_groups.append(replace(g, parameters=kept))
+        else:
+            out_groups.append(g)
+    if "POINT" not in seen:
+        out_groups.insert(0, C3dGroup("POINT", parameters=tuple(point)))
+    if "ANALOG" not in seen:
+        out_groups.append(C3dGroup("ANALOG", parameters=_no_analogs(num, text)))
+    if "FORCE_PLATFORM" not in seen:
+        out_groups.append(C3dGroup("FORCE_PLATFORM", parameters=(num("USED", 0, "int"),)))
+    masks = np.zeros((t, total), dtype=np.int64)
     if markers.invented is not None:
-        inv = markers.invented & ~miss
-        if inv.any():
-            masks[:, :n, :] = inv.T[None, :, :]
-        c.add_parameter("SKINCAP", "INVENTED_CAMERA_MASK", [_INVENTED_MASK])
+        masks[:, :n] = np.where(markers.invented & ~miss, _INVENTED_MASK, 0)
+        mask_param = num("INVENTED_CAMERA_MASK", _INVENTED_MASK, "int")
+        for k, g in enumerate(out_groups):
+            if g.name.upper() == "SKINCAP":
+                out_groups[k] = replace(g, parameters=g.parameters + (mask_param,))
+                break
+        else:
+            out_groups.append(C3dGroup("SKINCAP", parameters=(mask_param,)))
 
-    pts = np.ones((4, total, t))
-    pts[:3] = all_pos.transpose(2, 1, 0)
-    c["data"]["points"] = pts
-    c["data"]["meta_points"] = {"residuals": all_res.T[None, :, :].copy(), "camera_masks": masks}
-    first = int(meta.get("first_frame", 1))
-    if first < 0 or first > 65535:
-        raise ValidationError(f"meta['first_frame']: must be in 0..65535, got {first}")
-    c["header"]["points"]["first_frame"] = max(first - 1, 0)
-
-    target = Path(path)
+    frames = C3dFrames(
+        xyz=all_pos,
+        invalid=all_miss,
+        residual_steps=steps,
+        camera_masks=masks,
+        analogs=analogs,
+        ratio=ratio,
+    )
+    payload = encode_c3d(
+        out_groups,
+        frames,
+        first_frame=first,
+        rate=float(markers.rate),
+        point_scale=pscale,
+        events=content.events if content is not None else None,
+        target=target,
+    )
     with atomic_output(target, force=force) as tmp:
-        out = str(tmp) if str(tmp).endswith(".c3d") else str(tmp) + ".c3d"
-        try:
-            c.write(out, first_frame_as_zero=first == 0)
-        except (RuntimeError, ValueError, TypeError) as exc:
-            raise FormatError(target, f"ezc3d could not write the file: {exc}") from None
-        finally:
-            if out != str(tmp) and Path(out).exists():
-                os.replace(out, tmp)
+        tmp.write_bytes(payload)
+
+
+def _source_descriptions(content: C3dContent) -> dict[str, str]:
+    """The source file's POINT descriptions by label."""
+
+    def listed(name: str) -> list[str]:
+        out: list[str] = []
+        k = 1
+        while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
+            if p.type != -1:
+                break
+            out.extend(p.value)  # type: ignore[arg-type]
+            k += 1
+        return out
+
+    return {lab: d for lab, d in zip(listed("LABELS"), listed("DESCRIPTIONS"), strict=False) if lab}
+
+
+def _like_source(new: C3dParameter, old: C3dParameter | None) -> C3dParameter:
+    """The source's record when it holds the same values; else ``new`` with its description."""
+    if old is None or old.name.upper() == "DATA_START":
+        return new
+    if old.type == new.type and old.value_equals(new):
+        return old
+    return replace(new, description=old.description, locked=old.locked)
+
+
+def _no_analogs(num: Any, text: Any) -> tuple[C3dParameter, ...]:
+    """An ANALOG group with no channel."""
+    return (
+        num("USED", 0, "int"),
+        num("RATE", 0.0, "float"),
+        num("GEN_SCALE", 1.0, "float"),
+        num("SCALE", np.zeros(0), "float", False),
+        num("OFFSET", np.zeros(0, dtype=np.int64), "int", False),
+        text("LABELS", []),
+        text("DESCRIPTIONS", []),
+        text("UNITS", []),
+    )

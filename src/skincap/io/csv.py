@@ -26,6 +26,7 @@ from skincap.io._common import (
     from_y_up,
     to_y_up,
 )
+from skincap.io.c3d_content import warn_dropped_c3d_content
 from skincap.io.trc import format_float_fields, parse_float_rows, read_text_lines
 from skincap.types import MarkerSet, PointCloud
 
@@ -254,6 +255,7 @@ def write_vicon_csv(
     coords = format_float_fields(pos.reshape(t, 3 * n))
     for f, row in zip(frames.tolist(), coords.tolist(), strict=True):
         lines.append(f + ",0," + ",".join(row) if n else f + ",0")
+    warn_dropped_c3d_content(markers.meta, "a point CSV", path, stacklevel=2)
     with atomic_output(path, force=force) as tmp:
         tmp.write_text("\r\n".join(lines) + "\r\n", encoding="utf-8", newline="")
 

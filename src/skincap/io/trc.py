@@ -33,6 +33,7 @@ from skincap.io._common import (
     to_y_up,
     unit_scale,
 )
+from skincap.io.c3d_content import warn_dropped_c3d_content
 from skincap.types import MarkerSet
 
 __all__ = ["read_trc", "write_trc"]
@@ -317,5 +318,6 @@ def write_trc(
     )
     body = "\n".join("\t".join(row) + "\t" for row in table.tolist())
     text = "\n".join(header) + "\n" + body + ("\n" if t else "")
+    warn_dropped_c3d_content(markers.meta, "a TRC", path, stacklevel=2)
     with atomic_output(path, force=force) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")

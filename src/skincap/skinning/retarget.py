@@ -2,6 +2,15 @@
 
 The method
 ----------
+**A motion on the rig itself.** When every target joint has a source joint of the
+same name, with the same-named parent, whose local translations are the rig's
+bind-local ones in every frame (a motion skincap wrote on this rig, read back from a
+BVH whose joints come in depth-first order rather than the rig's), the local
+rotations are the rig's own: they are copied joint for joint *by name* and nothing is
+aligned or rescaled. The zero pose of such a motion is not the bind pose (its local
+rotations are relative to the bind frames), so the general method below, which takes
+the zero pose as the rest pose, would not apply.
+
 **Pairs.** A *name map* pairs source joints with target joints (a source joint may
 drive a group of sibling target joints, e.g. one BVH toe driving MakeHuman's five
 toes). Built in: both skeletons' naming conventions are detected
@@ -75,13 +84,21 @@ from skincap.geometry.kinematics import (
     rest_positions,
 )
 from skincap.skinning.name_maps import CONVENTIONS, LANDMARKS, detect_convention
-from skincap.skinning.rig import bind_matrices_of, motion_from_world
+from skincap.skinning.rig import (
+    ALL_CHANNELS,
+    bind_local_transforms,
+    bind_matrices_of,
+    motion_from_world,
+)
 from skincap.types import Mesh, Motion, Skeleton, Skin
 
 __all__ = ["retarget", "joint_name_map", "load_name_map"]
 
 #: Segments shorter than this (metres) are treated as zero length.
 _ZERO_LENGTH = 1e-4
+#: A source joint whose local translation is within this (metres, every frame) of the
+#: target's bind-local one counts as the rig's own bone (BVH text keeps 1e-7 m).
+_SAME_BONE = 5e-5
 
 NameMapLike = Mapping[str, Any] | str | os.PathLike[str] | None
 
@@ -358,6 +375,63 @@ def _target_rig(target: Mesh | Skin | Skeleton) -> Skin | Skeleton:
     )
 
 
+def _on_own_rig(source: Motion, rig: Skin | Skeleton, scale: str | float) -> Motion | None:
+    """``source`` reordered onto ``rig`` by joint name when it moves the rig's own bones.
+
+    The source qualifies when every target joint name is in it, each with the
+    same-named parent (roots with roots; extra source joints are allowed where they
+    do not sit between two target joints) and, for every non-root joint, local
+    translations within :data:`_SAME_BONE` of the rig's bind-local ones in every frame.
+    Returns None otherwise (the general retargeting applies). ``scale="height"`` is 1
+    (the same legs); a number scales the root's path about the origin.
+    """
+    tgt, _ = bind_matrices_of(rig)
+    src = source.skeleton
+    src_index = {n: i for i, n in enumerate(src.names)}
+    if any(n not in src_index for n in tgt.names):
+        return None
+    idx = np.array([src_index[n] for n in tgt.names], dtype=np.int64)  # (Jt,) source joints
+    src_parent = src.parents[idx]
+    want = np.where(tgt.parents >= 0, idx[np.maximum(tgt.parents, 0)], -1)
+    if not np.array_equal(src_parent, want):
+        return None
+    trans = source.translations
+    if trans.ndim != 3 or trans.shape[1] != src.n_joints:
+        return None  # root-only translations: the bones are the source's offsets
+    _, bind_t = bind_local_transforms(rig)  # (Jt, 3) metres
+    inner = tgt.parents >= 0
+    moved = trans[:, idx[inner]] - bind_t[inner]  # (T, Jt', 3)
+    if moved.size and not float(np.abs(moved).max()) <= _SAME_BONE:
+        return None
+    translations = np.broadcast_to(bind_t, (source.n_frames, tgt.n_joints, 3)).copy()
+    s_val = (
+        1.0
+        if isinstance(scale, str) and scale == "height"
+        else _scale(scale, src, tgt, [], {}, np.zeros((0, 3)), np.zeros((0, 3)))
+    )
+    translations[:, ~inner] = s_val * trans[:, idx[~inner]]  # roots: the source's world path
+    meta = {
+        k: source.meta[k]
+        for k in ("source_units", "up", "first_frame", "frame_time")
+        if k in source.meta
+    }
+    meta["retarget"] = {
+        "source_convention": detect_convention(src.names),
+        "target_convention": detect_convention(tgt.names),
+        "name_map": {n: [n] for n in tgt.names},
+        "scale": s_val,
+        "same_rig": True,
+    }
+    return Motion(
+        skeleton=tgt,
+        rotations=source.rotations[:, idx].copy(),
+        translations=translations,
+        rate=source.rate,
+        channels=[ALL_CHANNELS] * tgt.n_joints,
+        meta=meta,
+    )
+
+
 def _leg_length(skel_parents: np.ndarray, pos: np.ndarray, top: int, bottom: int) -> float | None:
     """Length along the bones from joint ``top`` down to its descendant ``bottom``."""
     total = 0.0
@@ -393,7 +467,8 @@ def retarget(
         JSON file with it; overrides the built-in maps (see the module docstring).
     scale : "height" or float
         ``"height"``: target hip height / source hip height (leg lengths along the
-        bones). A positive float: that factor.
+        bones). A positive float: that factor. For a motion on the target rig itself
+        (see the module docstring) ``"height"`` is 1.
 
     Returns
     -------
@@ -421,6 +496,10 @@ def retarget(
     rig = _target_rig(target)
     tgt, bind = bind_matrices_of(rig)
     src = source.skeleton
+    if name_map is None:
+        own = _on_own_rig(source, rig, scale)
+        if own is not None:
+            return own
     pairs, keys, report = _resolve_pairs(src, tgt, name_map)
     # parents first (source order) so alignments and ancestors come before use
     order = sorted(range(len(pairs)), key=lambda i: pairs[i][0])
