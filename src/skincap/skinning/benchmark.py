@@ -289,14 +289,22 @@ def run_skinning_benchmark(
     for key, value in max_abs_diff.items():
         if value is not None:
             lines.append(f"  max |diff| {key:30s} {value:.2e} m")
+    cold_runs = (
+        "NumPy while numba compiles in the background" if default_backend == "numba" else "numpy"
+    )
     for method, times in first.items():
         if times is not None:
             lines.append(
-                f"  first call {method.upper()} ({default_backend}, fresh process, import + "
-                f"{n_frames} frames): cold cache {times['cold_s']:.2f} s "
-                f"(CPU {times['cold_cpu_s']:.2f} s), warm cache {times['warm_s']:.2f} s "
-                f"(CPU {times['warm_cpu_s']:.2f} s) (goal <= {FIRST_CALL_GOAL_S:g} s: "
-                + ("met" if times["cold_s"] <= FIRST_CALL_GOAL_S else "MISSED")
+                f"  first call {method.upper()} (fresh process, import + {n_frames} frames, "
+                f"backend='auto'): cold cache {times['cold_s']:.2f} s (CPU "
+                f"{times['cold_cpu_s']:.2f} s; {cold_runs}), "
+                f"warm cache {times['warm_s']:.2f} s (CPU {times['warm_cpu_s']:.2f} s; "
+                f"{default_backend}) (goal <= {FIRST_CALL_GOAL_S:g} s: "
+                + (
+                    "met"
+                    if max(times["cold_s"], times["warm_s"]) <= FIRST_CALL_GOAL_S
+                    else "MISSED"
+                )
                 + ")"
             )
     lines += [f"  note: {n}" for n in notes]
