@@ -25,10 +25,11 @@ import os
 import subprocess
 import sys
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
-from skincap.errors import MissingDependencyError, ValidationError
+from skincap.errors import MissingDependencyError, SkincapWarning, ValidationError
 
 __all__ = [
     "numba_available",
@@ -139,7 +140,9 @@ def compile_in_background(name: str, dispatcher: Any) -> bool:
         fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
     except OSError:  # running already, or no writable cache folder
         return False
-    env = dict(os.environ, SKINCAP_COMPILE="inline")
+    # the child imports skincap from wherever this process did
+    path = os.pathsep.join(p for p in sys.path if p)
+    env = dict(os.environ, SKINCAP_COMPILE="inline", PYTHONPATH=path)
     try:
         child = subprocess.Popen(
             [sys.executable, "-m", "skincap.backends", name, str(lock)],
@@ -200,7 +203,15 @@ def resolve_backend(
         return "numpy"
     if backend == "auto" and kernel is not None and _compile_policy() == "background":
         name, get_dispatcher = kernel
-        dispatcher = get_dispatcher()
+        try:
+            dispatcher = get_dispatcher()
+        except RuntimeError as exc:  # e.g. numba finds no writable cache folder
+            warnings.warn(
+                f"{feature}: the numba kernel cannot be set up ({exc}); using NumPy",
+                SkincapWarning,
+                stacklevel=3,
+            )
+            return "numpy"
         if not kernel_ready(dispatcher):
             compile_in_background(name, dispatcher)
             return "numpy"

@@ -492,3 +492,22 @@ def test_background_compile_fills_the_cache_for_the_next_process(tmp_path) -> No
     assert not list(tmp_path.rglob("skincap-compiling-*.lock"))
     assert list(tmp_path.rglob("*lbs_kernel*.nbi"))  # numba's cache, not ours
     assert backend_of_a_fresh_process() == "numba"
+
+
+@needs_numba
+def test_auto_warns_and_uses_numpy_when_numba_cannot_set_up_the_kernel(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from skincap.errors import SkincapWarning
+    from skincap.skinning import deformers
+
+    def no_cache_folder() -> None:
+        raise RuntimeError("cannot cache function 'lbs_kernel': no locator available")
+
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setitem(deformers._KERNELS, "lbs", ("skinning.lbs", no_cache_folder))
+    rest, idx, w, matrices = random_rig(15, n_vertices=20)
+    with pytest.warns(SkincapWarning, match="no locator available"):
+        d = LinearBlendSkinning(rest, idx, w)
+    assert d.backend == "numpy"
+    assert np.isfinite(d.deform(matrices)).all()
