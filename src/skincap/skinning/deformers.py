@@ -322,9 +322,11 @@ class SkinningDeformer(abc.ABC):
                 raise ValidationError(
                     f"joint_indices: index {max_index} out of range for {n_joints} joints"
                 )
-        self.rest_vertices = np.ascontiguousarray(v)
-        self.joint_indices = np.ascontiguousarray(idx)
-        self.joint_weights = np.ascontiguousarray(w)
+        # C-contiguous and writeable: a read-only input would be another numba
+        # signature, compiled on the spot instead of loaded from the cache
+        self.rest_vertices = np.require(v, requirements=("C", "W"))
+        self.joint_indices = np.require(idx, requirements=("C", "W"))
+        self.joint_weights = np.require(w, requirements=("C", "W"))
         self.n_joints = n_joints
         self._used_joints = max(max_index + 1, 1)
         self.backend = _resolve_backend(backend, self.method)
