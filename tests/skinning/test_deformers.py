@@ -20,7 +20,7 @@ from skincap.skinning.deformers import (
 from skincap.types import Mesh, Motion, Skeleton
 
 BACKENDS = ["numpy"] + (["numba"] if numba_available() else [])
-needs_numba = pytest.mark.skipif(not numba_available(), reason="numba (extra 'fast') not installed")
+needs_numba = pytest.mark.skipif(not numba_available(), reason="numba cannot be imported")
 
 
 # ------------------------------------------------------------------ random rigs

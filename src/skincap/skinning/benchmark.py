@@ -136,7 +136,9 @@ def run_skinning_benchmark(
 
     backends = ["numpy"] + (["numba"] if numba_available() else [])
     if not numba_available():
-        notes.append("numba not installed (extra 'fast'): numba kernels not measured")
+        notes.append(
+            "numba cannot be imported (a core dependency: broken install?): numba kernels not measured"
+        )
         ms["lbs_numba"] = ms["dqs_numba"] = None
     else:
         import numba
