@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from skincap.errors import MissingDependencyError
+from skincap.errors import MissingDependencyError, ValidationError
 
 __all__ = [
     "best_time",
@@ -137,7 +137,7 @@ def first_call_in_fresh_process(
         The snippet failed in the child process (its stderr's last line is quoted).
     """
     if compile_policy not in ("background", "inline"):
-        raise ValueError(
+        raise ValidationError(
             f"compile_policy: expected 'background' or 'inline', got {compile_policy!r}"
         )
     code = _CHILD.format(imports=imports, setup=setup, call=call)
