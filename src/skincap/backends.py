@@ -36,6 +36,7 @@ __all__ = [
     "resolve_backend",
     "kernel_ready",
     "compile_in_background",
+    "start_pending_compiles",
     "BACKENDS",
     "WARM_UPS",
 ]
@@ -50,6 +51,13 @@ WARM_UPS = {
     "skinning.lbs": "skincap.skinning.deformers:warm_up_lbs",
     "skinning.dqs": "skincap.skinning.deformers:warm_up_dqs",
     "tracking": "skincap.tracking._kernel:warm_up",
+}
+
+#: Where each of those kernels' numba dispatcher comes from (``module:function``).
+DISPATCHERS = {
+    "skinning.lbs": "skincap.skinning.deformers:_lbs_dispatcher",
+    "skinning.dqs": "skincap.skinning.deformers:_dqs_dispatcher",
+    "tracking": "skincap.tracking.tracker:_track_frames_dispatcher",
 }
 
 # a background compile older than this is taken as dead (its lock is removed)
@@ -160,6 +168,40 @@ def compile_in_background(name: str, dispatcher: Any) -> bool:
     os.write(fd, str(child.pid).encode())  # whoever measures the compile can find it
     os.close(fd)
     return True
+
+
+def start_pending_compiles(names: tuple[str, ...] | None = None) -> list[str]:
+    """Start the background compile of every kernel not compiled yet, now.
+
+    A long run that will reach several kernels (``skincap demo``) calls this first,
+    so the compiles overlap its early steps on the other core instead of starting
+    when each kernel is first needed. Does nothing without numba or with
+    ``SKINCAP_COMPILE=inline``.
+
+    Parameters
+    ----------
+    names : tuple of str, optional
+        Keys of :data:`WARM_UPS`; default all.
+
+    Returns
+    -------
+    list of str
+        The kernels whose compile was started.
+    """
+    if not numba_available() or _compile_policy() != "background":
+        return []
+    started = []
+    for name in names if names is not None else tuple(WARM_UPS):
+        if name not in DISPATCHERS:
+            raise ValidationError(f"names: expected keys of {sorted(DISPATCHERS)}, got {name!r}")
+        module, function = DISPATCHERS[name].split(":")
+        try:
+            dispatcher = getattr(importlib.import_module(module), function)()
+        except RuntimeError:  # numba cannot set the kernel up: the run will say so
+            continue
+        if not kernel_ready(dispatcher) and compile_in_background(name, dispatcher):
+            started.append(name)
+    return started
 
 
 def resolve_backend(

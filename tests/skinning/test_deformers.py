@@ -511,3 +511,23 @@ def test_auto_warns_and_uses_numpy_when_numba_cannot_set_up_the_kernel(
         d = LinearBlendSkinning(rest, idx, w)
     assert d.backend == "numpy"
     assert np.isfinite(d.deform(matrices)).all()
+
+
+@needs_numba
+def test_start_pending_compiles_starts_each_kernel_not_compiled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from skincap import backends
+
+    started: list[str] = []
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setattr(backends, "compile_in_background", lambda n, d: started.append(n) or True)
+    monkeypatch.setattr(
+        backends, "kernel_ready", lambda d: d.py_func.__name__ == "lbs_kernel"
+    )  # LBS compiled already
+    assert backends.start_pending_compiles() == ["skinning.dqs", "tracking"] == started
+    monkeypatch.setenv("SKINCAP_COMPILE", "inline")
+    assert backends.start_pending_compiles() == []
+    with pytest.raises(ValidationError, match="names"):
+        monkeypatch.delenv("SKINCAP_COMPILE")
+        backends.start_pending_compiles(("skinning.slerp",))
