@@ -15,6 +15,12 @@ from hypothesis import settings
 settings.register_profile("ci", derandomize=True, print_blob=True)
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 
+# backend="auto" compiles numba kernels in the test process (as an explicit
+# backend="numba" does) instead of running NumPy while a background process compiles:
+# the same backend whatever the cache holds, and no second compile competing for the
+# cores. The background policy has its own tests (tests/skinning/test_deformers.py).
+os.environ.setdefault("SKINCAP_COMPILE", "inline")
+
 DATA = Path(__file__).parent / "data"
 
 

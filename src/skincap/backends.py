@@ -1,25 +1,72 @@
-"""Choosing between a numba kernel and its NumPy reference (the optional ``fast`` extra).
+"""Choosing between a numba kernel and its NumPy reference, and when to compile.
 
 The skinning deformers and the rope tracker each keep a plain NumPy path as the
 reference and a numba kernel that must give the same results; both pick one with
-:func:`resolve_backend`.
+:func:`resolve_backend`. numba is a core dependency, so ``backend="auto"`` runs the
+compiled kernel -- once it is compiled.
+
+A kernel compiles once per machine (``cache=True``: numba writes it to
+``__pycache__`` beside the module, or, where the package folder is read-only, to its
+user-wide cache, ``~/.cache/numba``; ``NUMBA_CACHE_DIR`` overrides both) and every
+later process loads it in well under a second. The first compile is what a user
+must not wait for (about a minute for the tracker): when ``auto`` finds a kernel
+neither compiled in this process nor in the cache, it runs the NumPy reference for
+this call and starts one detached, low-priority process that compiles the kernel
+into the cache (:func:`compile_in_background`), so the next run is compiled. The
+environment variable ``SKINCAP_COMPILE=inline`` compiles in the calling process
+instead (the behaviour of an explicit ``backend="numba"``).
 """
 
 from __future__ import annotations
 
 import functools
+import importlib
+import os
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
+from typing import Any
 
-from skincap.errors import MissingDependencyError, ValidationError
+from skincap.errors import MissingDependencyError, SkincapWarning, ValidationError
 
-__all__ = ["numba_available", "resolve_backend", "BACKENDS"]
+__all__ = [
+    "numba_available",
+    "resolve_backend",
+    "kernel_ready",
+    "compile_in_background",
+    "start_pending_compiles",
+    "BACKENDS",
+    "WARM_UPS",
+]
 
 #: The values a ``backend=`` argument takes.
 BACKENDS = ("auto", "numba", "numpy")
 
+#: Kernels that can be compiled ahead in a background process: name -> the
+#: ``module:function`` that compiles it by running it once on a tiny input of the
+#: production argument types. Only these run in :func:`compile_in_background`.
+WARM_UPS = {
+    "skinning.lbs": "skincap.skinning.deformers:warm_up_lbs",
+    "skinning.dqs": "skincap.skinning.deformers:warm_up_dqs",
+    "tracking": "skincap.tracking._kernel:warm_up",
+}
+
+#: Where each of those kernels' numba dispatcher comes from (``module:function``).
+DISPATCHERS = {
+    "skinning.lbs": "skincap.skinning.deformers:_lbs_dispatcher",
+    "skinning.dqs": "skincap.skinning.deformers:_dqs_dispatcher",
+    "tracking": "skincap.tracking.tracker:_track_frames_dispatcher",
+}
+
+# a background compile older than this is taken as dead (its lock is removed)
+_STALE_LOCK_S = 30 * 60.0
+
 
 @functools.cache
 def numba_available() -> bool:
-    """True when numba can be imported (the optional ``fast`` extra)."""
+    """True when numba can be imported (a core dependency; False on a broken install)."""
     try:
         import numba  # noqa: F401
     except ImportError:
@@ -27,18 +74,159 @@ def numba_available() -> bool:
     return True
 
 
-def resolve_backend(backend: str, *, numba_installed: bool, feature: str) -> str:
+def _compile_policy() -> str:
+    value = os.environ.get("SKINCAP_COMPILE", "background").strip().lower()
+    return "inline" if value == "inline" else "background"
+
+
+def kernel_ready(dispatcher: Any) -> bool:
+    """Whether calling a numba dispatcher now costs no compilation.
+
+    Parameters
+    ----------
+    dispatcher : numba dispatcher (an ``@njit(cache=True)`` function)
+
+    Returns
+    -------
+    bool
+        True when it has a compiled overload in this process, or an entry in its
+        on-disk cache for this machine (CPU), this numba and this source (numba's
+        own index key). Also True when the cache cannot be inspected (an unknown
+        numba layout): the caller then compiles as numba always does.
+    """
+    if dispatcher.signatures:
+        return True
+    try:
+        cache = dispatcher._cache
+        cache_file = getattr(cache, "_cache_file", None)
+        if cache_file is None:  # no on-disk cache for this function
+            return False
+        index = cache_file._load_index()
+        probe = cache._index_key(None, dispatcher.targetctx.codegen())
+    except Exception:  # noqa: BLE001 - private numba API: fall back to compiling
+        return True
+    return any(key[1:] == probe[1:] for key in index)
+
+
+def _lock_path(dispatcher: Any, name: str) -> Path | None:
+    try:
+        folder = Path(dispatcher._cache._cache_path)
+    except Exception:  # noqa: BLE001 - private numba API
+        return None
+    return folder / f"skincap-compiling-{name}.lock"
+
+
+def compile_in_background(name: str, dispatcher: Any) -> bool:
+    """Start compiling kernel ``name`` into numba's cache in a detached process.
+
+    At most one such process per kernel and cache folder runs at a time (a lock file
+    beside the cache, removed when it ends, ignored after 30 minutes). The process
+    runs at low priority, prints nothing and touches nothing but numba's cache.
+
+    Parameters
+    ----------
+    name : str
+        A key of :data:`WARM_UPS`.
+    dispatcher : numba dispatcher
+        The kernel (for the location of its cache).
+
+    Returns
+    -------
+    bool
+        True when a process was started, False when one is already running or the
+        cache folder cannot be written.
+    """
+    if name not in WARM_UPS:
+        raise ValidationError(f"name: expected one of {sorted(WARM_UPS)}, got {name!r}")
+    lock = _lock_path(dispatcher, name)
+    if lock is None:
+        return False
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        if lock.exists() and time.time() - lock.stat().st_mtime > _STALE_LOCK_S:
+            lock.unlink(missing_ok=True)
+        fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except OSError:  # running already, or no writable cache folder
+        return False
+    # the child imports skincap from wherever this process did
+    path = os.pathsep.join(p for p in sys.path if p)
+    env = dict(os.environ, SKINCAP_COMPILE="inline", PYTHONPATH=path)
+    try:
+        child = subprocess.Popen(
+            [sys.executable, "-m", "skincap.backends", name, str(lock)],
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            env=env,
+            start_new_session=True,
+            close_fds=True,
+        )
+    except OSError:
+        os.close(fd)
+        lock.unlink(missing_ok=True)
+        return False
+    os.write(fd, str(child.pid).encode())  # whoever measures the compile can find it
+    os.close(fd)
+    return True
+
+
+def start_pending_compiles(names: tuple[str, ...] | None = None) -> list[str]:
+    """Start the background compile of every kernel not compiled yet, now.
+
+    A long run that will reach several kernels (``skincap demo``) calls this first,
+    so the compiles overlap its early steps on the other core instead of starting
+    when each kernel is first needed. Does nothing without numba or with
+    ``SKINCAP_COMPILE=inline``.
+
+    Parameters
+    ----------
+    names : tuple of str, optional
+        Keys of :data:`WARM_UPS`; default all.
+
+    Returns
+    -------
+    list of str
+        The kernels whose compile was started.
+    """
+    if not numba_available() or _compile_policy() != "background":
+        return []
+    started = []
+    for name in names if names is not None else tuple(WARM_UPS):
+        if name not in DISPATCHERS:
+            raise ValidationError(f"names: expected keys of {sorted(DISPATCHERS)}, got {name!r}")
+        module, function = DISPATCHERS[name].split(":")
+        try:
+            dispatcher = getattr(importlib.import_module(module), function)()
+        except RuntimeError:  # numba cannot set the kernel up: the run will say so
+            continue
+        if not kernel_ready(dispatcher) and compile_in_background(name, dispatcher):
+            started.append(name)
+    return started
+
+
+def resolve_backend(
+    backend: str,
+    *,
+    numba_installed: bool,
+    feature: str,
+    kernel: tuple[str, Any] | None = None,
+) -> str:
     """The kernel to run: ``"numba"`` or ``"numpy"``.
 
     Parameters
     ----------
     backend : {"auto", "numba", "numpy"}
-        ``"auto"`` takes numba when it is installed, NumPy otherwise.
+        ``"auto"`` takes numba when it is installed and its kernel compiled (see
+        ``kernel``), NumPy otherwise.
     numba_installed : bool
         Whether numba can be used (callers pass their module's
         :func:`numba_available`, which tests may replace).
     feature : str
         Named in the error when ``"numba"`` is asked for without numba.
+    kernel : (name, callable returning the numba dispatcher), optional
+        For ``"auto"``: when the kernel is not compiled yet (:func:`kernel_ready`)
+        and ``SKINCAP_COMPILE`` is not ``inline``, start
+        :func:`compile_in_background` and return ``"numpy"`` for this call.
 
     Raises
     ------
@@ -51,8 +239,39 @@ def resolve_backend(backend: str, *, numba_installed: bool, feature: str) -> str
         raise ValidationError(f"backend: expected 'auto', 'numba' or 'numpy', got {backend!r}")
     if backend == "numpy":
         return "numpy"
-    if numba_installed:
-        return "numba"
-    if backend == "numba":
-        raise MissingDependencyError("numba", "fast", feature)
-    return "numpy"
+    if not numba_installed:
+        if backend == "numba":
+            raise MissingDependencyError("numba", "fast", feature)
+        return "numpy"
+    if backend == "auto" and kernel is not None and _compile_policy() == "background":
+        name, get_dispatcher = kernel
+        try:
+            dispatcher = get_dispatcher()
+        except RuntimeError as exc:  # e.g. numba finds no writable cache folder
+            warnings.warn(
+                f"{feature}: the numba kernel cannot be set up ({exc}); using NumPy",
+                SkincapWarning,
+                stacklevel=3,
+            )
+            return "numpy"
+        if not kernel_ready(dispatcher):
+            compile_in_background(name, dispatcher)
+            return "numpy"
+    return "numba"
+
+
+def _main(argv: list[str]) -> int:
+    """``python -m skincap.backends NAME LOCK``: compile one kernel, then drop LOCK."""
+    name, lock = argv[0], Path(argv[1])
+    try:
+        if hasattr(os, "nice"):
+            os.nice(10)
+        module, function = WARM_UPS[name].split(":")
+        getattr(importlib.import_module(module), function)()
+    finally:
+        lock.unlink(missing_ok=True)
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover - runs in the background process
+    raise SystemExit(_main(sys.argv[1:]))

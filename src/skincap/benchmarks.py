@@ -7,6 +7,11 @@ process, so the numbers mean the same on a slow or a fast machine.
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
+import tempfile
 import time
 import warnings
 from collections.abc import Callable
@@ -15,9 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from skincap.errors import MissingDependencyError
+from skincap.errors import MissingDependencyError, ValidationError
 
-__all__ = ["best_time", "run_io_benchmarks", "fk_per_frame_reference"]
+__all__ = [
+    "best_time",
+    "first_call_in_fresh_process",
+    "run_io_benchmarks",
+    "fk_per_frame_reference",
+]
 
 _DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
 
@@ -32,6 +42,119 @@ def best_time(fn: Callable[[], Any], repeat: int) -> float:
             fn()
             best = min(best, time.perf_counter() - t0)
     return best
+
+
+_CHILD = """
+import json, time
+t0, c0 = time.perf_counter(), time.process_time()
+{imports}
+t1, c1 = time.perf_counter(), time.process_time()
+{setup}
+t2, c2 = time.perf_counter(), time.process_time()
+{call}
+t3, c3 = time.perf_counter(), time.process_time()
+print(json.dumps({{"wall": [t1 - t0, t3 - t2], "cpu": [c1 - c0, c3 - c2]}}))
+"""
+
+
+def _stop_background_compiles(cache: str) -> int:
+    """Kill the background compiles a child started in ``cache`` (their pid is in the lock)."""
+    import signal
+
+    stopped = 0
+    for lock in Path(cache).rglob("skincap-compiling-*.lock"):
+        try:
+            pid = int(lock.read_text() or 0)
+        except (OSError, ValueError):
+            continue
+        if pid > 0:
+            try:
+                os.kill(pid, signal.SIGTERM)
+                stopped += 1
+            except OSError:
+                pass
+    return stopped
+
+
+def _run_child(code: str, env: dict[str, str], timeout_s: float) -> dict[str, list[float]]:
+    done = subprocess.run(
+        [sys.executable, "-c", code],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout_s,
+        check=False,
+    )
+    if done.returncode != 0:
+        tail = (done.stderr.strip().splitlines() or ["no output"])[-1]
+        raise RuntimeError(f"first-call measurement failed in a child process: {tail}")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def first_call_in_fresh_process(
+    imports: str,
+    setup: str,
+    call: str,
+    *,
+    compile_policy: str = "background",
+    timeout_s: float = 900.0,
+) -> dict[str, float]:
+    """The first call's cost as a user meets it: a new Python process, cold then warm cache.
+
+    Cold: a fresh interpreter with a new, empty numba cache directory
+    (``NUMBA_CACHE_DIR``), as on a fresh install, with ``SKINCAP_COMPILE`` set to
+    ``compile_policy``: with ``"background"`` (the default policy) the call runs
+    the NumPy reference and starts the kernel's background compile, which is
+    stopped as soon as the child ends (nothing is left running); with ``"inline"``
+    the child compiles its kernels itself. Warm: a fresh interpreter with the
+    caller's own numba cache (which the caller has filled by running the kernel)
+    and ``SKINCAP_COMPILE=inline``, so a missing cache entry would show as a
+    compile in the figure rather than hide behind the NumPy path.
+
+    Parameters
+    ----------
+    imports : str
+        Python statements importing what the call needs (timed: a user pays them).
+    setup : str
+        Statements building the input (not timed).
+    call : str
+        The statement whose first execution is timed.
+    compile_policy : {"background", "inline"}, default "background"
+    timeout_s : float, default 900
+        Per child process.
+
+    Returns
+    -------
+    dict
+        ``cold_s`` and ``warm_s``: import plus first call, wall-clock seconds;
+        ``cold_call_s`` and ``warm_call_s``: the call alone; ``cold_cpu_s`` and
+        ``warm_cpu_s``: the CPU seconds of import plus call (all threads of the
+        child; a loaded machine inflates them far less than the wall clock).
+
+    Raises
+    ------
+    RuntimeError
+        The snippet failed in the child process (its stderr's last line is quoted).
+    """
+    if compile_policy not in ("background", "inline"):
+        raise ValidationError(
+            f"compile_policy: expected 'background' or 'inline', got {compile_policy!r}"
+        )
+    code = _CHILD.format(imports=imports, setup=setup, call=call)
+    result: dict[str, float] = {}
+    with tempfile.TemporaryDirectory(prefix="skincap-numba-cache-") as cache:
+        env = dict(os.environ, NUMBA_CACHE_DIR=cache, SKINCAP_COMPILE=compile_policy)
+        try:
+            cold = _run_child(code, env, timeout_s)
+        finally:
+            _stop_background_compiles(cache)
+    warm_env = dict(os.environ, SKINCAP_COMPILE="inline")
+    warm = _run_child(code, warm_env, timeout_s)
+    for label, times in (("cold", cold), ("warm", warm)):
+        result[f"{label}_s"] = sum(times["wall"])
+        result[f"{label}_call_s"] = times["wall"][1]
+        result[f"{label}_cpu_s"] = sum(times["cpu"])
+    return result
 
 
 def fk_per_frame_reference(

@@ -139,6 +139,11 @@ def _run_demo(
     figures: dict[str, Any] = {}
     outputs: list[Path] = []
     t_start = time.perf_counter()
+    # the numba kernels not compiled yet compile in the background from now on, beside
+    # the synthetic capture, instead of when tracking and skinning first need them
+    from skincap.backends import start_pending_compiles
+
+    start_pending_compiles()
 
     take = _synthetic_take(folder, steps, frames, force, outputs, figures)
     cleaned = _clean(folder, steps, take, force, outputs, figures)

@@ -10,7 +10,9 @@ from skincap.skinning.deformers import numba_available
 
 
 def test_small_benchmark_structure_and_agreement() -> None:
-    r = run_skinning_benchmark(n_vertices=2000, n_influences=4, n_frames=4, repeat=1, n_joints=16)
+    r = run_skinning_benchmark(
+        n_vertices=2000, n_influences=4, n_frames=4, repeat=1, n_joints=16, first_call=False
+    )
     ms = r["ms_per_frame"]
     assert ms["lbs_numpy"] > 0 and ms["dqs_numpy"] > 0
     assert (ms["lbs_numba"] is not None) == numba_available()
@@ -26,6 +28,28 @@ def test_small_benchmark_structure_and_agreement() -> None:
     assert r["config"]["n_vertices"] == 2000
     assert any("ms/frame" in line for line in r["lines"])
     assert set(r["goals"]) == {"lbs_numba", "dqs_numba", "lbs_numpy", "dqs_numpy"}
+    assert r["first_call"] == {"lbs": None, "dqs": None}
+    assert r["config"]["default_backend"] == ("numba" if numba_available() else "numpy")
+
+
+@pytest.mark.slow
+def test_first_call_is_measured_in_fresh_processes() -> None:
+    r = run_skinning_benchmark(n_vertices=500, n_influences=2, n_frames=2, repeat=1, n_joints=4)
+    for method in ("lbs", "dqs"):
+        times = r["first_call"][method]
+        assert set(times) == {
+            f"{label}_{what}" for label in ("cold", "warm") for what in ("s", "call_s", "cpu_s")
+        }
+        assert all(v > 0 for v in times.values())
+        assert times["cold_call_s"] <= times["cold_s"]
+    assert sum("first call" in line for line in r["lines"]) == 2
+
+
+def test_first_call_helper_reports_a_child_error() -> None:
+    from skincap.benchmarks import first_call_in_fresh_process
+
+    with pytest.raises(RuntimeError, match="ZeroDivisionError"):
+        first_call_in_fresh_process("import math", "", "1 / 0")
 
 
 def test_benchmark_rejects_bad_sizes() -> None:

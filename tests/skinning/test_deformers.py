@@ -20,7 +20,7 @@ from skincap.skinning.deformers import (
 from skincap.types import Mesh, Motion, Skeleton
 
 BACKENDS = ["numpy"] + (["numba"] if numba_available() else [])
-needs_numba = pytest.mark.skipif(not numba_available(), reason="numba (extra 'fast') not installed")
+needs_numba = pytest.mark.skipif(not numba_available(), reason="numba cannot be imported")
 
 
 # ------------------------------------------------------------------ random rigs
@@ -423,3 +423,111 @@ def test_without_numba_falls_back_to_numpy(monkeypatch: pytest.MonkeyPatch) -> N
     assert d.deform(matrices).shape == (5, 50, 3)
     with pytest.raises(MissingDependencyError, match=r"skincap\[fast\]"):
         LinearBlendSkinning(rest, idx, w, backend="numba")
+
+
+# ------------------------------------------------------ compile policy of "auto"
+@needs_numba
+@pytest.mark.parametrize(
+    ("cls", "name"),
+    [(LinearBlendSkinning, "skinning.lbs"), (DualQuaternionSkinning, "skinning.dqs")],
+)
+def test_auto_on_a_cold_cache_runs_numpy_and_compiles_in_the_background(
+    monkeypatch: pytest.MonkeyPatch, cls: type, name: str
+) -> None:
+    from skincap import backends
+
+    started: list[str] = []
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: False)
+    monkeypatch.setattr(backends, "compile_in_background", lambda n, d: started.append(n) or True)
+    rest, idx, w, matrices = random_rig(13, n_vertices=60)
+    d = cls(rest, idx, w)
+    assert d.backend == "numpy" and started == [name]
+    ref = cls(rest, idx, w, backend="numba").deform(matrices)  # explicit: compiles inline
+    np.testing.assert_allclose(d.deform(matrices), ref, rtol=0, atol=1e-12)
+    monkeypatch.setenv("SKINCAP_COMPILE", "inline")  # the old behaviour: compile on first use
+    assert cls(rest, idx, w).backend == "numba" and started == [name]
+    monkeypatch.delenv("SKINCAP_COMPILE")
+    monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: True)
+    assert cls(rest, idx, w).backend == "numba" and started == [name]
+
+
+@needs_numba
+def test_kernel_ready_sees_a_compiled_kernel() -> None:
+    from skincap.backends import kernel_ready
+    from skincap.skinning.deformers import _lbs_dispatcher
+
+    rest, idx, w, matrices = random_rig(14, n_vertices=30)
+    LinearBlendSkinning(rest, idx, w, backend="numba").deform(matrices)
+    assert kernel_ready(_lbs_dispatcher())
+
+
+@needs_numba
+@pytest.mark.slow
+def test_background_compile_fills_the_cache_for_the_next_process(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """End to end, in fresh processes on an empty numba cache: the first run of
+    ``auto`` gets NumPy and starts the compile; once it is done, the next run gets numba."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    probe = (
+        "from skincap.skinning.deformers import LinearBlendSkinning as L\n"
+        "print(L([[0.0, 0.0, 0.0]], [[0]], [[1.0]]).backend)"
+    )
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    env.pop("SKINCAP_COMPILE", None)
+
+    def backend_of_a_fresh_process() -> str:
+        done = subprocess.run(
+            [sys.executable, "-c", probe], env=env, capture_output=True, text=True, check=True
+        )
+        return done.stdout.strip()
+
+    assert backend_of_a_fresh_process() == "numpy"
+    deadline = time.monotonic() + 600
+    while list(tmp_path.rglob("skincap-compiling-*.lock")) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert not list(tmp_path.rglob("skincap-compiling-*.lock"))
+    assert list(tmp_path.rglob("*lbs_kernel*.nbi"))  # numba's cache, not ours
+    assert backend_of_a_fresh_process() == "numba"
+
+
+@needs_numba
+def test_auto_warns_and_uses_numpy_when_numba_cannot_set_up_the_kernel(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from skincap.errors import SkincapWarning
+    from skincap.skinning import deformers
+
+    def no_cache_folder() -> None:
+        raise RuntimeError("cannot cache function 'lbs_kernel': no locator available")
+
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setitem(deformers._KERNELS, "lbs", ("skinning.lbs", no_cache_folder))
+    rest, idx, w, matrices = random_rig(15, n_vertices=20)
+    with pytest.warns(SkincapWarning, match="no locator available"):
+        d = LinearBlendSkinning(rest, idx, w)
+    assert d.backend == "numpy"
+    assert np.isfinite(d.deform(matrices)).all()
+
+
+@needs_numba
+def test_start_pending_compiles_starts_each_kernel_not_compiled(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from skincap import backends
+
+    started: list[str] = []
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setattr(backends, "compile_in_background", lambda n, d: started.append(n) or True)
+    monkeypatch.setattr(
+        backends, "kernel_ready", lambda d: d.py_func.__name__ == "lbs_kernel"
+    )  # LBS compiled already
+    assert backends.start_pending_compiles() == ["skinning.dqs", "tracking"] == started
+    monkeypatch.setenv("SKINCAP_COMPILE", "inline")
+    assert backends.start_pending_compiles() == []
+    with pytest.raises(ValidationError, match="names"):
+        monkeypatch.delenv("SKINCAP_COMPILE")
+        backends.start_pending_compiles(("skinning.slerp",))

@@ -26,10 +26,11 @@ by the dual-quaternion blend of the rigid parts ``(R_j, t_j)``. For one influenc
 this is exactly ``S_j p``; when every ``S_j`` is rigid (within 1e-9) the first phase
 is skipped. The bottom row of every matrix is ignored (affine transforms).
 
-Kernels: a plain NumPy implementation is the reference and always available. When
-numba is installed (the ``fast`` extra) a parallel numba kernel per method is used
-(``backend="auto"``); it is compiled on first use and cached on disk, and agrees
-with the NumPy reference to rounding.
+Kernels: a plain NumPy implementation is the reference and always available; a
+parallel numba kernel per method (numba is a core dependency) agrees with it to
+rounding and is what ``backend="auto"`` runs. Each kernel compiles once per machine
+into numba's on-disk cache; until it is there, ``auto`` runs the NumPy reference and
+compiles the kernel in a background process (:mod:`skincap.backends`).
 
 Weights are used as given (they should sum to 1 per vertex; LBS scales the result
 by the sum, DQS normalises it away). NaN in a skinning matrix gives NaN for the
@@ -72,7 +73,8 @@ _RIGID_TOL = 1e-9
 # ------------------------------------------------------------------------ numba
 @functools.cache
 def _numba_kernels() -> tuple[Callable[..., None], Callable[..., None]]:
-    """Compile (or load from the on-disk cache) the two parallel skinning kernels."""
+    """The two parallel skinning kernels (numba dispatchers; each compiles, or loads
+    from numba's on-disk cache, on its first call)."""
     import numba
 
     @numba.njit(parallel=True, cache=True, nogil=True, fastmath={"contract"})
@@ -172,10 +174,38 @@ def _numba_kernels() -> tuple[Callable[..., None], Callable[..., None]]:
     return lbs_kernel, dqs_kernel
 
 
+def _lbs_dispatcher() -> Any:
+    return _numba_kernels()[0]
+
+
+def _dqs_dispatcher() -> Any:
+    return _numba_kernels()[1]
+
+
+_KERNELS = {"lbs": ("skinning.lbs", _lbs_dispatcher), "dqs": ("skinning.dqs", _dqs_dispatcher)}
+
+
+def warm_up_lbs() -> None:
+    """Compile the LBS kernel into numba's cache (run by the background compile)."""
+    LinearBlendSkinning(np.zeros((2, 3)), [[0], [0]], [[1.0], [1.0]], backend="numba").deform(
+        np.eye(4)[None]
+    )
+
+
+def warm_up_dqs() -> None:
+    """Compile the DQS kernel into numba's cache (run by the background compile)."""
+    DualQuaternionSkinning(np.zeros((2, 3)), [[0], [0]], [[1.0], [1.0]], backend="numba").deform(
+        np.eye(4)[None]
+    )
+
+
 # ------------------------------------------------------------------- validation
-def _resolve_backend(backend: str) -> str:
+def _resolve_backend(backend: str, method: str = "lbs") -> str:
     return resolve_backend(
-        backend, numba_installed=numba_available(), feature="the numba skinning kernels"
+        backend,
+        numba_installed=numba_available(),
+        feature="the numba skinning kernels",
+        kernel=_KERNELS.get(method),
     )
 
 
@@ -232,8 +262,11 @@ class SkinningDeformer(abc.ABC):
         Number of joints the skinning matrices will have (e.g. the skeleton's).
         Default: any number larger than the largest index.
     backend : {"auto", "numba", "numpy"}, default "auto"
-        ``"auto"`` uses the numba kernel when numba is installed, NumPy otherwise;
-        ``"numba"`` raises :class:`~skincap.errors.MissingDependencyError` without it.
+        ``"auto"`` uses the numba kernel when it is compiled (in this process or in
+        numba's on-disk cache), and otherwise NumPy while the kernel compiles in the
+        background (:func:`skincap.backends.resolve_backend`); ``"numba"`` compiles
+        on first use if needed, and raises
+        :class:`~skincap.errors.MissingDependencyError` without numba.
 
     Attributes
     ----------
@@ -289,12 +322,14 @@ class SkinningDeformer(abc.ABC):
                 raise ValidationError(
                     f"joint_indices: index {max_index} out of range for {n_joints} joints"
                 )
-        self.rest_vertices = np.ascontiguousarray(v)
-        self.joint_indices = np.ascontiguousarray(idx)
-        self.joint_weights = np.ascontiguousarray(w)
+        # C-contiguous and writeable: a read-only input would be another numba
+        # signature, compiled on the spot instead of loaded from the cache
+        self.rest_vertices = np.require(v, requirements=("C", "W"))
+        self.joint_indices = np.require(idx, requirements=("C", "W"))
+        self.joint_weights = np.require(w, requirements=("C", "W"))
         self.n_joints = n_joints
         self._used_joints = max(max_index + 1, 1)
-        self.backend = _resolve_backend(backend)
+        self.backend = _resolve_backend(backend, self.method)
         # NumPy kernels work on batches of about 2**19 vertex-frames: the temporaries
         # stay a few MB and the per-call overheads are shared by several frames
         self._numpy_step = max(1, 2**19 // max(1, n_v))
@@ -457,9 +492,8 @@ class LinearBlendSkinning(SkinningDeformer):
         out[...] = prod.reshape(-1, n_t, 3).transpose(1, 0, 2)
 
     def _numba_all(self, matrices: np.ndarray, out: np.ndarray) -> None:
-        lbs_kernel, _ = _numba_kernels()
         aff = np.ascontiguousarray(matrices[:, :, :3, :])
-        lbs_kernel(self.rest_vertices, self.joint_indices, self.joint_weights, aff, out)
+        _lbs_dispatcher()(self.rest_vertices, self.joint_indices, self.joint_weights, aff, out)
 
 
 class DualQuaternionSkinning(SkinningDeformer):
@@ -550,12 +584,11 @@ class DualQuaternionSkinning(SkinningDeformer):
         return np.ascontiguousarray(prod.reshape(-1, n_t, 3).transpose(2, 1, 0))
 
     def _numba_all(self, matrices: np.ndarray, out: np.ndarray) -> None:
-        _, dqs_kernel = _numba_kernels()
         dq, stretch = _split_rigid(matrices)
         has_stretch = stretch is not None
         if stretch is None:
             stretch = np.zeros((1, 1, 3, 3))
-        dqs_kernel(
+        _dqs_dispatcher()(
             self.rest_vertices,
             self.joint_indices,
             self.joint_weights,

@@ -7,15 +7,17 @@ noise, ghosts and dropped points — about 400 points per frame. Three numbers c
 out of one run:
 
 * frames per second of :func:`~skincap.tracking.tracker.track_rope` (initialisation
-  included) and its ratio to real time (the target: at least 50×), with the compiled
-  kernel when numba is installed (the extra ``fast``) and with the NumPy reference,
-  which must take the same points;
+  included) and its ratio to real time (the target: at least 100×), with the compiled
+  kernel (numba, a core dependency) and with the NumPy reference, which must take
+  the same points;
 * the same for a naive baseline measured in the same process: greedy nearest
   neighbour with constant-velocity prediction, a brute-force distance matrix per
   frame instead of a KD-tree, conflicts resolved greedily, no gap model, the same γ
   as the tracker's initialisation;
 * both trackers' mean error against the scene's exact rope, so speed is not bought
-  with accuracy.
+  with accuracy;
+* the first call in a fresh process, cold and warm numba cache (the first run of
+  a fresh install, and every later one).
 """
 
 from __future__ import annotations
@@ -174,6 +176,7 @@ def run_track_benchmark(
     repeat: int = 3,
     seed: int = 0,
     backend: str = "auto",
+    first_call: bool = True,
 ) -> dict[str, Any]:
     """Time ``track_rope`` against real time and the naive baseline on one scene.
 
@@ -184,8 +187,15 @@ def run_track_benchmark(
     repeat : int
         Timing repeats; the best is kept.
     backend : {"auto", "numba", "numpy"}
-        The tracker timed as ``track_*`` (:func:`~skincap.tracking.tracker.track_rope`);
-        the NumPy reference is timed as well (``numpy_*``).
+        The tracker timed as ``track_*`` (:func:`~skincap.tracking.tracker.track_rope`;
+        ``auto`` times the compiled kernel, compiling it here first if needed, as
+        every run after the first meets it); the NumPy reference is timed as well
+        (``numpy_*``).
+    first_call : bool, default True
+        Also time the first call as a user meets it: a fresh Python process
+        importing skincap and tracking the scene once with the default backend,
+        with a cold numba cache and with a warm one
+        (:func:`skincap.benchmarks.first_call_in_fresh_process`).
 
     Returns
     -------
@@ -194,13 +204,17 @@ def run_track_benchmark(
         ``baseline_s`` (best seconds), ``track_fps``, ``baseline_fps``,
         ``track_realtime`` and ``baseline_realtime`` (× real time), ``speedup`` (ours
         vs the baseline), ``track_error_m`` / ``baseline_error_m`` (mean distance to
-        the exact rope over all frames and markers), ``target_realtime`` (50),
+        the exact rope over all frames and markers), ``target_realtime`` (100),
         ``backend`` (the one timed as ``track``), ``numpy_s``, ``numpy_fps``,
         ``numpy_realtime``, ``speedup_vs_numpy`` (the NumPy reference, timed once
         per repeat too), ``same_as_numpy`` (both took the same points and invented the
-        same markers), ``lines`` (text to print).
+        same markers), ``first_call`` (``cold_s``, ``warm_s``, ``cold_cpu_s``,
+        ``warm_cpu_s``, seconds of import plus first call, or None when not
+        measured), ``default_backend`` (what ``backend="auto"`` runs once its kernel
+        is compiled), ``lines`` (text to print).
     """
-    from skincap.benchmarks import best_time
+    from skincap.backends import numba_available
+    from skincap.benchmarks import best_time, first_call_in_fresh_process
     from skincap.tracking.init import init_rope
     from skincap.tracking.tracker import _resolve_backend, track_rope
 
@@ -212,7 +226,9 @@ def run_track_benchmark(
         seed=seed,
     )
 
-    used = _resolve_backend(backend)
+    # steady state: "auto" is the compiled kernel once it is in the cache
+    used = _resolve_backend("numba" if backend == "auto" and numba_available() else backend)
+    default_backend = "numba" if numba_available() else "numpy"
 
     def ours() -> Any:
         return track_rope(cloud, init_rope(cloud, markers=first), backend=used)
@@ -236,6 +252,17 @@ def run_track_benchmark(
     track_s = best_time(ours, repeat)
     ref_s = track_s if used == "numpy" else best_time(reference, repeat)
     base_s = best_time(naive, max(1, repeat))
+
+    first: dict[str, float] | None = None
+    if first_call:
+        first = first_call_in_fresh_process(
+            "from skincap.tracking.init import init_rope\n"
+            "from skincap.tracking.tracker import track_rope",
+            "from skincap.tracking.benchmark import jump_rope_scene\n"
+            f"cloud, _, first = jump_rope_scene(frames={frames}, rate={rate!r}, "
+            f"points_per_frame={points_per_frame}, rope_markers={rope_markers}, seed={seed})",
+            "track_rope(cloud, init_rope(cloud, markers=first))",
+        )
 
     # Pair our traces (ordered along the rope by the tracker) with the truth columns.
     from skincap.tracking.evaluate import match_traces_to_truth
@@ -264,19 +291,21 @@ def run_track_benchmark(
         "speedup": base_s / track_s,
         "track_error_m": track_err,
         "baseline_error_m": base_err,
-        "target_realtime": 50.0,
+        "target_realtime": 100.0,
         "backend": used,
         "numpy_s": ref_s,
         "numpy_fps": frames / ref_s,
         "numpy_realtime": duration / ref_s,
         "speedup_vs_numpy": ref_s / track_s,
         "same_as_numpy": same,
+        "first_call": first,
+        "default_backend": default_backend,
     }
     result["lines"] = [
         f"track: {frames} frames at {rate:g} Hz, {result['points_per_frame']:.0f} points/frame, "
         f"{rope_markers} rope markers (analytic jump-rope scene)",
         f"track_rope ({used}): {result['track_fps']:.0f} frames/s = "
-        f"{result['track_realtime']:.0f}x real time (goal >= 50x); mean error "
+        f"{result['track_realtime']:.0f}x real time (goal >= 100x); mean error "
         f"{track_err * 1000:.1f} mm",
         f"track_rope (numpy reference): {result['numpy_fps']:.0f} frames/s = "
         f"{result['numpy_realtime']:.0f}x real time; {used} is {result['speedup_vs_numpy']:.1f}x "
@@ -285,4 +314,13 @@ def run_track_benchmark(
         f"{result['baseline_realtime']:.0f}x real time; mean error {base_err * 1000:.1f} mm",
         f"track_rope is {result['speedup']:.2f}x the naive baseline's speed",
     ]
+    if first is not None:
+        result["lines"].append(
+            f"first call in a fresh process (import + track the take, backend='auto'): "
+            f"cold cache {first['cold_s']:.2f} s (CPU {first['cold_cpu_s']:.2f} s; the NumPy "
+            f"reference while the kernel compiles in the background), warm cache "
+            f"{first['warm_s']:.2f} s (CPU {first['warm_cpu_s']:.2f} s) (goal <= 5 s: "
+            + ("met" if max(first["cold_s"], first["warm_s"]) <= 5.0 else "MISSED")
+            + ")"
+        )
     return result

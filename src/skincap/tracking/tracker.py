@@ -838,9 +838,20 @@ def _predict_ends(
     return cur
 
 
+def _track_frames_dispatcher() -> Any:
+    from skincap.tracking._kernel import track_frames
+
+    return track_frames
+
+
 def _resolve_backend(backend: str) -> str:
+    # "auto" runs NumPy while the kernel is not compiled yet and compiles it in the
+    # background (skincap.backends): a first run never waits for the compiler
     return resolve_backend(
-        backend, numba_installed=numba_available(), feature="the compiled rope tracker"
+        backend,
+        numba_installed=numba_available(),
+        feature="the compiled rope tracker",
+        kernel=("tracking", _track_frames_dispatcher),
     )
 
 
@@ -1061,10 +1072,12 @@ def track_rope(
     progress : callable, optional
         Called with the fraction of frames done (0..1), about a hundred times.
     backend : {"auto", "numba", "numpy"}
-        ``numba`` runs the per-frame loop compiled (:mod:`skincap.tracking._kernel`,
-        the optional extra ``fast``; several times faster), ``numpy`` the NumPy
-        reference; ``auto`` picks numba when it is installed. Both take the same
-        points and invent the same markers; invented positions agree to rounding.
+        ``numba`` runs the per-frame loop compiled (:mod:`skincap.tracking._kernel`;
+        tens of times faster; compiled on first use if needed), ``numpy`` the NumPy
+        reference; ``auto`` picks numba once its kernel is compiled, and until then
+        NumPy while the kernel compiles in the background
+        (:func:`skincap.backends.resolve_backend`). Both take the same points and
+        invent the same markers; invented positions agree to rounding.
 
     Returns
     -------
