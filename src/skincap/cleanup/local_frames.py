@@ -24,12 +24,62 @@ from skincap.geometry.rigid import fit_rigid
 
 __all__ = [
     "estimate_missing",
+    "fit_frames_robust",
     "local_reference_coordinates",
     "local_reference_frames",
     "neighbour_table",
 ]
 
 Neighbours = MarkerSurface | tuple[np.ndarray, np.ndarray]
+
+
+def fit_frames_robust(
+    reference: np.ndarray,
+    current: np.ndarray,
+    present: np.ndarray,
+    *,
+    ratio: float = 3.0,
+    floor: float = 0.002,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Local frames (rigid fits of neighbourhoods) that one bad neighbour cannot shake.
+
+    A first rigid fit (:func:`~skincap.geometry.rigid.fit_rigid`) of each
+    neighbourhood's reference shape onto its present members; a member whose residual
+    is above ``max(ratio * median residual of the neighbourhood, floor)`` (a spike, a
+    swapped or sliding marker) is dropped for that frame and the frame fitted again,
+    if at least three members remain (otherwise the first fit stands).
+
+    Parameters
+    ----------
+    reference : (..., K, 3) float, metres
+        Reference shapes (broadcast against ``current``).
+    current : (..., K, 3) float, metres
+    present : (..., K) bool
+    ratio : float
+    floor : float, metres
+
+    Returns
+    -------
+    R : (..., 3, 3), t : (..., 3)
+        ``current ≈ R reference + t``; NaN where fewer than three members are present.
+    """
+    ok = np.asarray(present, dtype=bool)
+    rot, tr = fit_rigid(reference, current, mask=ok)
+    fitted = np.einsum("...ij,...kj->...ki", rot, np.broadcast_to(reference, current.shape))
+    res = np.linalg.norm(fitted + tr[..., None, :] - current, axis=-1)  # (..., K)
+    res = np.where(ok, res, np.nan)
+    count = ok.sum(axis=-1)
+    srt = np.sort(np.where(ok, res, np.inf), axis=-1)
+    mid = np.take_along_axis(srt, np.clip((count - 1) // 2, 0, None)[..., None], axis=-1)[..., 0]
+    cut = np.maximum(ratio * mid, floor)
+    keep = ok & ~(np.nan_to_num(res, nan=np.inf) > cut[..., None])
+    redo = (keep.sum(axis=-1) >= 3) & (keep != ok).any(axis=-1)
+    if redo.any():
+        ref_full = np.broadcast_to(reference, current.shape)
+        rot = rot.copy()
+        tr = tr.copy()
+        rot[redo], tr[redo] = fit_rigid(ref_full[redo], current[redo], mask=keep[redo])
+    return rot, tr
 
 
 def neighbour_table(neighbours: Neighbours, n: int) -> tuple[np.ndarray, np.ndarray]:

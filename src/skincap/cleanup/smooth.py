@@ -210,6 +210,7 @@ def smooth_local(
     lam: float = 0.02,
     iterations: int = 10,
     mask: np.ndarray | None = None,
+    max_move: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """Smooth marker trajectories in their local frames (Park & Hodgins §4.4).
 
@@ -229,14 +230,27 @@ def smooth_local(
     iterations : int >= 1
     mask : (T, N) bool, optional
         True where a sample may change (default: all present samples).
+    max_move : float, (N,) or (T, N) float, metres, optional
+        The farthest a sample may move: a longer smoothing step is shortened to this
+        length (e.g. a small multiple of each marker's measurement noise, so measured
+        data stay measured). Default: no bound.
 
     Returns
     -------
     (T, N, 3) float64, metres
         NaN stays NaN; a frame where a marker has fewer than 3 present neighbours
         splits its local trajectory (the sample is left as it was).
+
+    Notes
+    -----
+    The local frames are robust to one bad neighbour: after a first fit, a neighbour
+    whose residual is over three times the neighbourhood's median residual (and over
+    2 mm) is dropped for that frame and the frame refitted
+    (:func:`skincap.cleanup.local_frames.fit_frames_robust`), so a spike on a
+    neighbour does not shake the marker's local trajectory.
     """
     from skincap.cleanup.fill import as_csr
+    from skincap.cleanup.local_frames import fit_frames_robust
 
     _check_lam_n(lam, iterations)
     p = np.asarray(positions, dtype=np.float64)
@@ -258,7 +272,7 @@ def smooth_local(
     cur_ok = present[:, nb] & nb_ok[None]
     # reference shape of each neighbourhood: mean over frames after a Procrustes pass
     ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
-    rot, tr = fit_rigid(ref[None], cur, mask=cur_ok)  # (T, N, 3, 3), (T, N, 3)
+    rot, tr = fit_frames_robust(ref[None], cur, cur_ok)  # (T, N, 3, 3), (T, N, 3)
     has_frame = ~np.isnan(tr[..., 0])
     local = np.einsum("tnji,tnj->tni", rot, p - tr)  # R^T (x - t)
     local = np.where((present & has_frame)[..., None], local, np.nan)
@@ -270,6 +284,14 @@ def smooth_local(
         change &= m
     sm = smooth_trajectories(local, lam=lam, iterations=iterations, mask=change)
     back = apply_rigid(rot, tr, sm[:, :, None, :])[:, :, 0]
+    if max_move is not None:
+        bound = np.broadcast_to(np.asarray(max_move, dtype=np.float64), (t, n)) if np.ndim(
+            max_move
+        ) != 1 else np.broadcast_to(np.asarray(max_move, dtype=np.float64)[None, :], (t, n))
+        step = back - p
+        length = np.linalg.norm(step, axis=-1)
+        scale = np.where(length > bound, bound / np.where(length > 0, length, 1.0), 1.0)
+        back = p + step * np.nan_to_num(scale, nan=0.0)[..., None]
     out = p.copy()
     out[change] = back[change]
     return out
