@@ -16,7 +16,11 @@ the measured data:
 3. the result ``h + smooth(d)`` is kept only if the largest second difference of
    every filled sample (``x[t-1] - 2x[t] + x[t+1]``, with the measured ends) is within
    ``limit``; otherwise a stronger low-pass is tried, then, for a short interior run,
-   ``h`` alone; a run that still fails is left unfilled (NaN) and counted.
+   ``h`` alone; a run that still fails keeps only the part its measured ends reach
+   before its first excess (less three frames); the rest is left unfilled (NaN)
+   and counted. (The iterated Δ⁴ update is a short kernel: it removes jitter and
+   zig-zag but cannot turn a filler's jump into a plausible ramp, so such a run is
+   cut rather than bent.)
 """
 
 from __future__ import annotations
@@ -111,6 +115,25 @@ def _hermite(p: np.ndarray, fill: np.ndarray, known: np.ndarray) -> np.ndarray:
     return out
 
 
+def _within_from_ends(
+    d2: np.ndarray, runs: np.ndarray, known: np.ndarray, limit: float, margin: int = 3
+) -> np.ndarray:
+    """(T, N) bool: the samples of each run that a measured end reaches before the
+    first second difference above ``limit``, less ``margin`` frames."""
+    keep = np.zeros(runs.shape, dtype=bool)
+    t = runs.shape[0]
+    col, start, end = _run_bounds(runs)
+    for c, s, e in zip(col.tolist(), start.tolist(), end.tolist(), strict=True):
+        bad = np.flatnonzero(~(d2[s:e, c] <= limit))
+        if bad.size == 0:
+            continue
+        if s > 0 and known[s - 1, c]:
+            keep[s : s + max(int(bad[0]) - margin, 0), c] = True
+        if e < t and known[e, c]:
+            keep[s + min(int(bad[-1]) + 1 + margin, e - s) : e, c] = True
+    return keep
+
+
 def _run_peak(d2: np.ndarray, fill: np.ndarray) -> np.ndarray:
     """(T, N) the largest second difference over each sample's fill run (NaN -> inf)."""
     peak = np.zeros(fill.shape)
@@ -189,6 +212,10 @@ def condition_fills(
         out[short] = h[short]
         ok = short & (_run_peak(second_difference(out), short) <= limit)
         pending &= ~ok
+    if pending.any():
+        # keep what stays within the limit from each measured end (the last pass)
+        out[pending] = h[pending] + sm[pending]
+        pending &= ~_within_from_ends(second_difference(out), pending, known, limit)
     dropped = (f & ~base) | pending
     out[dropped] = np.nan
     return out, dropped

@@ -10,10 +10,11 @@ hole filler then replaces them) and flags every sample it changed as invented.
   a robust MAD of the high-pass residual ``x[t] - (-x[t-2] + 4x[t-1] + 4x[t+1] -
   x[t+2]) / 6`` (the cubic through the four neighbours in time, exact on any cubic
   motion), whose variance is ``(1 + 34/36) σ²`` for white noise.
-* :func:`find_spikes` -- samples far from the running median of their own trajectory
-  (window 9: a bump of up to 4 frames cannot move it) *and* unlike what their skin
-  neighbours did in the same frame (the median over neighbours, so one bad neighbour
-  changes nothing): real motion is shared by a neighbourhood, a spike is not.
+* :func:`find_spikes` -- samples far from the running median (window 9: a bump of up
+  to 4 frames cannot move it) of their trajectory *in the local frame of their skin
+  neighbours* (fitted robustly: one bad neighbour is dropped for that frame). Real
+  motion, however fast, moves the neighbourhood with the marker and leaves the local
+  trajectory smooth; a spike does not.
 * :func:`find_label_swaps` -- two neighbouring markers that each jump onto where the
   other was heading, in the same frame, and later back.
 """
@@ -56,34 +57,62 @@ def _nan_median_last(values: np.ndarray, *, min_count: int = 1) -> np.ndarray:
     return np.where(count >= max(min_count, 1), 0.5 * (a + b), np.nan)
 
 
-def running_median(positions: np.ndarray, window: int = 9, *, min_count: int = 3) -> np.ndarray:
-    """Per-coordinate running median along time, NaN-aware.
+def _run_ends(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(T, N) first and last frame of the run of present samples each sample is in."""
+    t, n = valid.shape
+    frame = np.arange(t)[:, None].repeat(n, 1)
+    first = valid & ~np.vstack([np.zeros((1, n), bool), valid[:-1]])
+    last = valid & ~np.vstack([valid[1:], np.zeros((1, n), bool)])
+    start = np.maximum.accumulate(np.where(first, frame, -1), axis=0)
+    end = np.minimum.accumulate(np.where(last, frame, t)[::-1], axis=0)[::-1]
+    return start, end
+
+
+def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:
+    """Per-coordinate running median along time, within each run of present samples.
+
+    Past either end of a run the window sees the run's odd reflection ``2 x[end] -
+    x[2 end - t]``, so a marker moving steadily up to a gap or the take's end has no
+    bias there.
 
     Parameters
     ----------
     positions : (T, N, 3) float; NaN where missing
     window : odd int >= 3
         Frames in the window, centred. A run of up to ``window // 2`` outlying frames
-        does not move the median.
-    min_count : int
-        Fewer present samples in the window give NaN.
+        inside a run does not move the median.
 
     Returns
     -------
-    (T, N, 3) float64
+    (T, N, 3) float64; NaN where missing
     """
     p = _check(positions)
     if window < 3 or window % 2 == 0:
         raise ValidationError(f"window: expected an odd number >= 3, got {window!r}")
     t, n, _ = p.shape
+    valid = ~np.isnan(p[..., 0])
+    start, end = _run_ends(valid)
+    frame = np.arange(t)[:, None]
+    col = np.arange(n)[None, :]
     half = window // 2
-    pad = np.full((half, n, 3), np.nan)
-    padded = np.concatenate([pad, p, pad], axis=0)
-    view = np.lib.stride_tricks.sliding_window_view(padded, window, axis=0)  # (T, N, 3, W)
-    out = np.empty_like(p)
+    out = np.full_like(p, np.nan)
     step = max(1, _CHUNK_ELEMENTS // max(1, n * 3 * window))
     for a in range(0, t, step):
-        out[a : a + step] = _nan_median_last(view[a : a + step], min_count=min_count)
+        b = min(t, a + step)
+        f = frame[a:b]
+        s0, e0 = start[a:b], end[a:b]
+        stack = []
+        for k in range(-half, half + 1):
+            j = f + k
+            lo, hi = j < s0, j > e0
+            anchor = np.where(lo, s0, np.where(hi, e0, j))
+            idx = np.clip(np.where(lo | hi, 2 * anchor - j, j), s0, e0)
+            anchor = np.clip(anchor, 0, t - 1)
+            idx = np.clip(idx, 0, t - 1)
+            v = np.where((lo | hi)[..., None], 2 * p[anchor, col] - p[idx, col], p[idx, col])
+            stack.append(v)
+        med = np.median(np.stack(stack, axis=-1), axis=-1)
+        out[a:b] = np.where(valid[a:b, :, None], med, np.nan)
     return out
 
 
@@ -127,14 +156,17 @@ def find_spikes(
     threshold: float = 10.0,
     floor: float = 0.01,
 ) -> np.ndarray:
-    """Measured samples that jump away from their own trajectory and their neighbours.
+    """Measured samples that jump away from their trajectory, alone among their neighbours.
 
-    For every sample, ``r = x - running_median(x)`` (window ``window``) is how far it
-    stands off its own trajectory; ``e = r - median_k r_k`` removes what its skin
-    neighbours ``k`` did in the same frame (a median: one bad neighbour changes
-    nothing; with fewer than two neighbours present ``e = r``). A sample is a spike
-    when ``|e| > max(threshold * median_t |e|, floor)``, the median over the marker's
-    whole take.
+    Two residuals against a running median over ``window`` frames
+    (:func:`running_median`): the global one less the median of the neighbours' in the
+    same frame (``e_g = r - median_k r_k``, one bad neighbour is outvoted), and the
+    one of the marker's trajectory in its neighbours' local frame
+    (:func:`~skincap.cleanup.smooth.local_trajectories`, fitted robustly). A sample is
+    a spike when both exceed ``max(threshold * median_t |e|, floor)`` (the median over
+    the marker's take): real fast motion is shared by the neighbourhood and leaves at
+    least one of them small. A sample without a local frame (fewer than three
+    neighbours present) is judged on ``e_g`` alone against twice the floor.
 
     Parameters
     ----------
@@ -155,25 +187,31 @@ def find_spikes(
     """
     p = _check(positions)
     t, n, _ = p.shape
-    table, valid = neighbour_table(neighbours, n)
     present = ~np.isnan(p[..., 0])
     if t < window:
         return np.zeros((t, n), dtype=bool)
-    r = p - running_median(p, window)  # (T, N, 3)
-    e = r.copy()
+    from skincap.cleanup.smooth import local_trajectories
+
+    # own trajectory, less what the neighbours did (a median: one bad neighbour is outvoted)
+    r = p - running_median(p, window)
+    table, valid = neighbour_table(neighbours, n)
+    e_global = r.copy()
     k = table.shape[1]
     if k:
         step = max(1, _CHUNK_ELEMENTS // max(1, n * 3 * k))
         for a in range(0, t, step):
-            nb = r[a : a + step][:, table]  # (B, N, K, 3)
-            nb = np.where(valid[None, :, :, None], nb, np.nan)
+            nb = np.where(valid[None, :, :, None], r[a : a + step][:, table], np.nan)
             ok = (~np.isnan(nb[..., 0])).sum(axis=2) >= 2  # (B, N)
             consensus = _nan_median_last(np.moveaxis(nb, 2, 3))  # (B, N, 3)
-            e[a : a + step] = np.where(ok[..., None], r[a : a + step] - consensus, r[a : a + step])
-    size = np.linalg.norm(e, axis=-1)  # (T, N), NaN where unknown
-    typical = _nan_median_last(size.T)  # (N,)
-    limit = np.maximum(threshold * np.nan_to_num(typical, nan=np.inf), floor)
-    spike = np.nan_to_num(size, nan=0.0) > limit[None, :]
+            e_global[a : a + step] = np.where(ok[..., None], r[a : a + step] - consensus, r[a : a + step])
+    # the trajectory in the neighbours' (robust) local frame
+    local, _, _ = local_trajectories(p, neighbours)
+    e_local = local - running_median(local, window)
+    spike = _beyond(e_global, threshold, floor) & _beyond(e_local, threshold, floor)
+    # without a local frame (fewer than three neighbours present): the global test alone,
+    # against twice the floor
+    bare = np.isnan(local[..., 0]) & present
+    spike |= bare & _beyond(e_global, threshold, 2 * floor)
     spike &= present
     if candidates is not None:
         c = np.asarray(candidates, dtype=bool)
@@ -181,6 +219,14 @@ def find_spikes(
             raise ValidationError(f"candidates: expected shape ({t}, {n}), got {c.shape}")
         spike &= c
     return spike
+
+
+def _beyond(e: np.ndarray, threshold: float, floor: float) -> np.ndarray:
+    """(T, N) bool: ``|e| > max(threshold * median_t |e|, floor)`` per marker."""
+    size = np.linalg.norm(e, axis=-1)
+    typical = _nan_median_last(size.T)  # (N,)
+    limit = np.maximum(threshold * np.nan_to_num(typical, nan=np.inf), floor)
+    return np.nan_to_num(size, nan=0.0) > limit[None, :]
 
 
 def _edge_pairs(neighbours: Any, n: int) -> np.ndarray:

@@ -40,6 +40,7 @@ from skincap.geometry.rigid import apply_rigid, fit_rigid
 
 __all__ = [
     "smooth_local",
+    "local_trajectories",
     "smooth_trajectories",
     "frequency_response",
     "cutoff_frequency",
@@ -249,33 +250,18 @@ def smooth_local(
     (:func:`skincap.cleanup.local_frames.fit_frames_robust`), so a spike on a
     neighbour does not shake the marker's local trajectory.
     """
-    from skincap.cleanup.fill import as_csr
-    from skincap.cleanup.local_frames import fit_frames_robust
-
     _check_lam_n(lam, iterations)
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 3:
         raise ValidationError(f"positions: expected shape (T, N, 3), got {p.shape}")
     t, n, _ = p.shape
-    offsets, indices = as_csr(neighbours, n)
     present = ~np.isnan(p[..., 0])
-    deg = np.diff(offsets)
-    kmax = int(deg.max()) if n and deg.size else 0
-    if kmax < 3 or t < 5:
+    if t < 5:
         return p.copy()
-    slot = np.arange(kmax)
-    nb_ok = slot[None, :] < deg[:, None]  # (N, K)
-    nb = np.where(
-        nb_ok, indices[np.minimum(offsets[:-1, None] + slot, max(len(indices) - 1, 0))], 0
-    )
-    cur = p[:, nb]  # (T, N, K, 3)
-    cur_ok = present[:, nb] & nb_ok[None]
-    # reference shape of each neighbourhood: mean over frames after a Procrustes pass
-    ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
-    rot, tr = fit_frames_robust(ref[None], cur, cur_ok)  # (T, N, 3, 3), (T, N, 3)
+    local, rot, tr = local_trajectories(p, neighbours)
+    if rot is None:
+        return p.copy()
     has_frame = ~np.isnan(tr[..., 0])
-    local = np.einsum("tnji,tnj->tni", rot, p - tr)  # R^T (x - t)
-    local = np.where((present & has_frame)[..., None], local, np.nan)
     change = present & has_frame
     if mask is not None:
         m = np.asarray(mask, dtype=bool)
@@ -295,6 +281,55 @@ def smooth_local(
     out = p.copy()
     out[change] = back[change]
     return out
+
+
+def local_trajectories(
+    positions: np.ndarray, neighbours: Any
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Each marker's trajectory in the local frame of its neighbours.
+
+    The frame carries the neighbours' reference shape (their Procrustes mean over the
+    take) onto their present positions (eq. 2), fitted robustly
+    (:func:`skincap.cleanup.local_frames.fit_frames_robust`: an outlying neighbour is
+    dropped for that frame). ``x̂ = R^T (x - t)``.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    neighbours : CSR (offsets, indices) or a MarkerSurface
+
+    Returns
+    -------
+    local : (T, N, 3) float64, metres
+        NaN where the marker is missing or has fewer than 3 present neighbours.
+    rot : (T, N, 3, 3) or None, tr : (T, N, 3) or None
+        The frames (NaN where undetermined); None when no marker has 3 neighbours.
+    """
+    from skincap.cleanup.fill import as_csr
+    from skincap.cleanup.local_frames import fit_frames_robust
+
+    p = np.asarray(positions, dtype=np.float64)
+    t, n, _ = p.shape
+    offsets, indices = as_csr(neighbours, n)
+    present = ~np.isnan(p[..., 0])
+    deg = np.diff(offsets)
+    kmax = int(deg.max()) if n and deg.size else 0
+    if kmax < 3 or t == 0:
+        return np.full_like(p, np.nan), None, None
+    slot = np.arange(kmax)
+    nb_ok = slot[None, :] < deg[:, None]  # (N, K)
+    nb = np.where(
+        nb_ok, indices[np.minimum(offsets[:-1, None] + slot, max(len(indices) - 1, 0))], 0
+    )
+    cur = p[:, nb]  # (T, N, K, 3)
+    cur_ok = present[:, nb] & nb_ok[None]
+    # reference shape of each neighbourhood: mean over frames after a Procrustes pass
+    ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
+    rot, tr = fit_frames_robust(ref[None], cur, cur_ok)  # (T, N, 3, 3), (T, N, 3)
+    has_frame = ~np.isnan(tr[..., 0])
+    local = np.einsum("tnji,tnj->tni", rot, p - tr)  # R^T (x - t)
+    local = np.where((present & has_frame)[..., None], local, np.nan)
+    return local, rot, tr
 
 
 def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
