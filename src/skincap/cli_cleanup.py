@@ -272,7 +272,7 @@ def clean(
     if json_output:
         print(json.dumps(clean_summary(summary), indent=2))
     else:
-        out.print(format_clean_summary(summary), markup=False)
+        out.print(format_clean_summary(summary), markup=False, soft_wrap=True)
 
 
 def clean_summary(report: dict[str, Any]) -> dict[str, Any]:

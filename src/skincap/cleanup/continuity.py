@@ -197,7 +197,11 @@ def condition_fills(
     for n_pass in _PASSES:
         if not pending.any():
             break
-        sm = smooth_trajectories(d, lam=1.0 / 16.0, iterations=n_pass, mask=pending)
+        cols = np.flatnonzero(pending.any(axis=0))  # only the columns still to do
+        sm = np.zeros_like(p)
+        sm[:, cols] = smooth_trajectories(
+            d[:, cols], lam=1.0 / 16.0, iterations=n_pass, mask=pending[:, cols]
+        )
         out[pending] = h[pending] + sm[pending]
         ok = _run_peak(second_difference(out), pending) <= limit
         pending &= ~ok

@@ -262,8 +262,9 @@ def guarded_fill_smooth(
     if unfilled.sum() > UNFILLED_WARNING * unfilled.size:
         warnings.warn(
             f"clean: {int(unfilled.sum())} of {unfilled.size} marker samples "
-            f"({100 * unfilled.sum() / unfilled.size:.1f} %) left unfilled: no fill there "
-            "stayed continuous and within the take's accelerations",
+            f"({100 * unfilled.sum() / unfilled.size:.1f} %) left unfilled: no trustworthy "
+            "fill there (too few neighbours, or no fill stayed continuous and within the "
+            "take's accelerations)",
             SkincapWarning,
             stacklevel=3,
         )

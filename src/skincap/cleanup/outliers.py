@@ -237,6 +237,30 @@ def _edge_pairs(neighbours: Any, n: int) -> np.ndarray:
     return pairs[pairs[:, 0] != pairs[:, 1]]
 
 
+def _close_pairs(p: np.ndarray, reach: float = 0.1) -> np.ndarray:
+    """(P, 2) pairs ``i < j`` where ``j`` is ``i``'s nearest marker in some frame, within
+    ``reach`` metres (the markers a swap can happen between)."""
+    t, n, _ = p.shape
+    if n < 2:
+        return np.zeros((0, 2), dtype=np.int64)
+    found = []
+    step = max(1, _CHUNK_ELEMENTS // max(1, n * n))
+    for a in range(0, t, step):
+        q = p[a : a + step]
+        ok = ~np.isnan(q[..., 0])
+        qz = np.where(ok[..., None], q, 0.0)
+        sq = (qz**2).sum(axis=-1)
+        d2 = sq[:, :, None] + sq[:, None, :] - 2.0 * np.einsum("fnc,fmc->fnm", qz, qz)
+        d2 = np.where(ok[:, :, None] & ok[:, None, :], d2, np.inf)
+        d2[:, np.arange(n), np.arange(n)] = np.inf
+        near = np.argmin(d2, axis=2)  # (B, N)
+        close = np.take_along_axis(d2, near[..., None], axis=2)[..., 0] < reach**2
+        i = np.broadcast_to(np.arange(n), near.shape)[close]
+        found.append(np.sort(np.stack([i, near[close]], axis=1), axis=1))
+    pairs = np.concatenate(found, axis=0) if found else np.zeros((0, 2), dtype=np.int64)
+    return np.unique(pairs, axis=0) if pairs.size else np.zeros((0, 2), dtype=np.int64)
+
+
 def find_label_swaps(
     positions: np.ndarray,
     neighbours: Any,
@@ -251,16 +275,17 @@ def find_label_swaps(
     heading: with the constant-velocity predictions ``p = 2x[t-1] - x[t-2]`` (or
     ``x[t-1]``), the crossed error ``|x_i - p_j| + |x_j - p_i|`` is below ``ratio``
     times the straight one ``|x_i - p_i| + |x_j - p_j|``, and the straight one is
-    above ``floor``. The frames between a pair's swap events alternate between right
-    and swapped; the larger share is taken as right (so a swap at one frame only
-    that never swaps back covers the shorter end of the take). A frame where a marker
-    swaps with two partners is ambiguous and ignored.
+    above ``floor``. The frames from a pair's swap event to the next (or to the first
+    frame either marker is missing: a swap back inside a gap cannot be seen) are
+    swapped. A marker repaired in two pairs at the same frame is ambiguous: neither
+    pair is repaired.
 
     Parameters
     ----------
     positions : (T, N, 3) float, metres; NaN where missing
     neighbours : MarkerSurface or CSR
-        Swaps are looked for between neighbours only.
+        Swaps are looked for between neighbours and between each marker and the
+        marker nearest to it in some frame (within 10 cm) only.
     candidates : (T, N) bool, optional
         Samples that may take part (default all present).
     ratio, floor : float
@@ -275,9 +300,11 @@ def find_label_swaps(
     t, n, _ = p.shape
     if t < 3 or n < 2:
         return []
-    pairs = _edge_pairs(neighbours, n)
+    # surface neighbours and, as a swap needs two markers close together, the nearest ones
+    pairs = np.concatenate([_edge_pairs(neighbours, n), _close_pairs(p)], axis=0)
     if pairs.size == 0:
         return []
+    pairs = np.unique(pairs, axis=0)
     ok = ~np.isnan(p[..., 0])
     if candidates is not None:
         ok &= np.asarray(candidates, dtype=bool)
@@ -348,8 +375,16 @@ def _pair_swap_frames(pair: np.ndarray, ok: np.ndarray, ratio: float, floor: flo
         x[f:] = x[f:, ::-1]
         k[f:] = k[f:, ::-1]
         start = f + 1
-    swapped = (np.cumsum(toggles[:t]) % 2).astype(bool)
+    # the state toggles at each swap; a frame where either marker is missing ends it
+    # (a swap back hidden in the gap cannot be seen, so nothing after it is assumed)
+    both = ok.all(axis=1)
+    swapped = np.zeros(t, dtype=bool)
+    state = False
+    for f in range(t):
+        if toggles[f]:
+            state = not state if toggles[f] % 2 else state
+        if not both[f]:
+            state = False
+        swapped[f] = state
     seen = ok.any(axis=1)
-    if (swapped & seen).sum() > (~swapped & seen).sum():
-        swapped = ~swapped
     return np.flatnonzero(swapped & seen)
