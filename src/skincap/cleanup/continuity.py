@@ -8,11 +8,13 @@ the measured data:
 
 1. a cubic Hermite curve ``h`` through the run's measured ends, with the ends'
    measured velocities (one end only: constant at that end);
-2. the filler's estimate ``f`` enters as its departure ``d = f - h``, low-passed with
-   the iterated ``x <- x - λ Δ⁴ x`` update at ``λ = 1/16`` (zero gain at the Nyquist
-   frequency: a frame-to-frame alternation is removed whatever its size) with ``d``
-   held at zero on the measured samples around the run, so the run joins its ends
-   in value and slope;
+2. the filler's estimate ``f``, less its step at each end (its sample next to the
+   end less the measured end carried on at its velocity, blended linearly across the
+   run), enters as its departure ``d = f - step - h``,
+   low-passed with the iterated ``x <- x - λ Δ⁴ x`` update at ``λ = 1/16`` (zero gain
+   at the Nyquist frequency: a frame-to-frame alternation is removed whatever its
+   size) with ``d`` held at zero on the measured samples around the run, so the run
+   joins its ends in value and slope;
 3. the result ``h + smooth(d)`` is kept only if the largest second difference of
    every filled sample (``x[t-1] - 2x[t] + x[t+1]``, with the measured ends) is within
    ``limit``; otherwise a stronger low-pass is tried, then, for a short interior run,
@@ -82,15 +84,24 @@ def _run_bounds(fill: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return col, start, end
 
 
-def _hermite(p: np.ndarray, fill: np.ndarray, known: np.ndarray) -> np.ndarray:
-    """(T, N, 3) cubic Hermite through each fill run's known ends; NaN off the runs.
+def _hermite(p: np.ndarray, fill: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The Hermite curve through each fill run's known ends, and the filler's steps there.
 
-    End velocity: the known end sample minus its known neighbour outside the run (zero
-    when that neighbour is unknown). A run with one known end is held at it; a run
-    with none stays NaN.
+    Returns
+    -------
+    curve : (T, N, 3)
+        Cubic Hermite through the run's known ends with their velocities (the known end
+        sample minus its known neighbour outside the run; zero when that is unknown). A
+        run with one known end is held at it; NaN off the runs and on runs with none.
+    offset : (T, N, 3)
+        The filler's step at each known end (its sample next to that end less the
+        measured end carried one frame on at its measured velocity), blended linearly
+        across the run (held over a run with one known end): subtracting it joins the
+        fill to its ends. Zero off the runs.
     """
     t, n, _ = p.shape
     out = np.full_like(p, np.nan)
+    offset = np.zeros_like(p)
     col, start, end = _run_bounds(fill)
     for c, s, e in zip(col.tolist(), start.tolist(), end.tolist(), strict=True):
         has0 = s > 0 and known[s - 1, c]
@@ -112,7 +123,20 @@ def _hermite(p: np.ndarray, fill: np.ndarray, known: np.ndarray) -> np.ndarray:
             )
         else:
             out[s:e, c] = p[s - 1, c] if has0 else p[e, c]
-    return out
+        # the filler's step at each known end: its first (last) sample less the measured
+        # end carried one frame on at its measured velocity
+        step0 = p[s, c] - (2 * p[s - 1, c] - p[s - 2, c]) if has0 and s >= 2 and known[s - 2, c] else (
+            p[s, c] - p[s - 1, c] if has0 else None
+        )
+        step1 = p[e - 1, c] - (2 * p[e, c] - p[e + 1, c]) if has1 and e + 1 < t and known[e + 1, c] else (
+            p[e - 1, c] - p[e, c] if has1 else None
+        )
+        if step0 is not None and step1 is not None:
+            u = (np.arange(s, e) - (s - 1)) / (e - s + 1)
+            offset[s:e, c] = (1 - u)[:, None] * step0 + u[:, None] * step1
+        else:
+            offset[s:e, c] = step0 if step0 is not None else step1
+    return out, offset
 
 
 def _within_from_ends(
@@ -188,11 +212,12 @@ def condition_fills(
     if not f.any():
         return out, np.zeros(f.shape, dtype=bool)
     known = ~np.isnan(p[..., 0]) & ~f
-    h = _hermite(p, f, known)
+    h, offset = _hermite(p, f, known)
     base = ~np.isnan(h[..., 0]) & f
-    # departure from the Hermite curve, held at zero on the known samples around it
+    # departure from the Hermite curve, the filler's end steps removed, held at zero
+    # on the known samples around the run
     d = np.where(known[..., None], np.zeros_like(p), np.nan)
-    d[base] = p[base] - h[base]
+    d[base] = p[base] - offset[base] - h[base]
     pending = base.copy()
     for n_pass in _PASSES:
         if not pending.any():

@@ -28,7 +28,7 @@ import numpy as np
 from skincap.cleanup.local_frames import neighbour_table
 from skincap.errors import ValidationError
 
-__all__ = ["find_label_swaps", "find_spikes", "measurement_noise", "running_median"]
+__all__ = ["find_label_swaps", "find_spikes", "measurement_noise", "nan_median", "running_median"]
 
 #: Variance of the cubic-prediction residual over the variance of white noise.
 _RESIDUAL_GAIN = 1.0 + 34.0 / 36.0
@@ -66,6 +66,11 @@ def _run_ends(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     start = np.maximum.accumulate(np.where(first, frame, -1), axis=0)
     end = np.minimum.accumulate(np.where(last, frame, t)[::-1], axis=0)[::-1]
     return start, end
+
+
+def nan_median(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Median along ``axis`` ignoring NaN, NaN where all are NaN (without NumPy's warning)."""
+    return _nan_median_last(np.moveaxis(np.asarray(values, dtype=np.float64), axis, -1))
 
 
 def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:

@@ -244,9 +244,10 @@ def smooth_local(
 
     Notes
     -----
-    The local frames are robust to one bad neighbour: after a first fit, a neighbour
-    whose residual is over three times the neighbourhood's median residual (and over
-    2 mm) is dropped for that frame and the frame refitted
+    The local frames are robust to one bad neighbour: after a first fit, the neighbour
+    whose residual changed most suddenly, when that is over 2.5 times the other
+    neighbours' (and over 1 cm), is put back where its steady residual says for that
+    frame and the frame refitted
     (:func:`skincap.cleanup.local_frames.fit_frames_robust`), so a spike on a
     neighbour does not shake the marker's local trajectory.
     """
@@ -333,7 +334,10 @@ def local_trajectories(
 
 
 def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """(N, K, 3) mean neighbourhood shapes from (T, N, K, 3) with presence (T, N, K)."""
+    """(N, K, 3) neighbourhood shapes from (T, N, K, 3) with presence (T, N, K): the
+    per-coordinate median of the aligned frames (a spike in a few frames cannot
+    bend it), after a first alignment on the mean."""
+    from skincap.cleanup.outliers import nan_median
     if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
         pick = np.linspace(0, cur.shape[0] - 1, 120).round().astype(np.int64)
         cur, ok = cur[pick], ok[pick]
@@ -345,13 +349,16 @@ def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
     ref = cur[best, np.arange(n)]  # (N, K, 3)
     ref_ok = ok[best, np.arange(n)]
     ref = np.where(ref_ok[..., None], ref, 0.0)
-    for _ in range(2):
+    for last in (False, True):
         rot, tr = fit_rigid(cur, ref[None], mask=ok & ref_ok[None])  # current -> reference
         aligned = apply_rigid(rot, tr, cur)  # (T, N, K, 3)
         good = ok & ~np.isnan(tr[..., 0])[..., None]
         cnt = good.sum(axis=0)  # (N, K)
-        total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
-        new = total / np.maximum(cnt, 1)[..., None]
+        if last:
+            new = nan_median(np.where(good[..., None], aligned, np.nan), axis=0)
+        else:
+            total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
+            new = total / np.maximum(cnt, 1)[..., None]
         ref_ok = cnt > 0
         ref = np.where(ref_ok[..., None], new, 0.0)
     return np.where(ref_ok[..., None], ref, np.nan)
