@@ -282,3 +282,16 @@ def test_real_capture_keeps_measured_samples_and_fills_continuous(data_dir: Path
         assert key in guard
     assert guard["unfilled_samples"] == sum(v["unfilled"] for v in report["markers"].values())
     assert out.n_frames == markers.n_frames
+
+
+@pytest.mark.parametrize("frames", [1, 3, 12])
+def test_tiny_and_static_takes_clean_without_error(frames: int) -> None:
+    pos = np.zeros((frames, 6, 3))
+    pos[:, :, 0] = np.arange(6) * 0.05  # nothing moves: measured second differences are 0
+    if frames > 2:
+        pos[1, 1] = np.nan
+    out, report = _quiet(clean_markers, MarkerSet(pos, [f"M{i}" for i in range(6)], 100.0))
+    assert out.n_frames == frames
+    filled = out.invented & np.isfinite(out.positions[..., 0])
+    np.testing.assert_allclose(out.positions[filled], [[0.05, 0.0, 0.0]] * int(filled.sum()), atol=1e-9)
+    assert report["guard"]["largest_move_mm"] == 0.0

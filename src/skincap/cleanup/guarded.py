@@ -237,7 +237,8 @@ def guarded_fill_smooth(
             mask=measured,
             max_move=_noise_bound(noise),
         )
-    limit = measured_acceleration_limit(filled_pos, measured, factor=ACCELERATION_FACTOR)
+    # at least 1 µm/frame²: a take that never moves still lets a fill hold still
+    limit = max(measured_acceleration_limit(filled_pos, measured, factor=ACCELERATION_FACTOR), 1e-6)
     final, dropped = condition_fills(filled_pos, fill_mask, limit=limit)
     filled = fill_mask & ~dropped
     unfilled = np.isnan(final[..., 0])
