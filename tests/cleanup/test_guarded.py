@@ -116,7 +116,7 @@ def test_label_swap_is_found_between_close_markers() -> None:
     from skincap.cleanup.fill import motion_neighbours
 
     found = find_label_swaps(swapped.positions, motion_neighbours(swapped.positions))
-    (a, b, s, e), = swaps
+    ((a, b, s, e),) = swaps
     assert len(found) == 1
     fi, fj, frames = found[0]
     assert {fi, fj} == {a, b}
@@ -214,7 +214,9 @@ def test_swaps_are_repaired_flagged_and_counted(corrupted: dict) -> None:
         err = np.linalg.norm(out.positions[s:e, [a, b]] - truth[s:e, [a, b]], axis=-1)
         assert np.nanmax(err) < 0.003
         assert out.invented[s:e, [a, b]].all()
-    assert report["guard"]["relabelled_samples"] == sum(2 * (e - s) for _, _, s, e in corrupted["swaps"])
+    assert report["guard"]["relabelled_samples"] == sum(
+        2 * (e - s) for _, _, s, e in corrupted["swaps"]
+    )
     assert out.invented[:, :n].sum() >= report["guard"]["relabelled_samples"]
 
 
@@ -256,7 +258,9 @@ def test_meta_and_frames_pass_through(corrupted: dict) -> None:
 # ------------------------------------------------------------------ real captures
 @pytest.mark.slow
 @pytest.mark.parametrize("name", REAL)
-def test_real_capture_keeps_measured_samples_and_fills_continuous(data_dir: Path, name: str) -> None:
+def test_real_capture_keeps_measured_samples_and_fills_continuous(
+    data_dir: Path, name: str
+) -> None:
     """The issue-11 targets on every real capture: <= 2 mm moves, fills <= 3x p99.9."""
     markers = _quiet(read, data_dir / name)
     out, report = _quiet(clean_markers, markers)

@@ -199,11 +199,15 @@ def test_clean_two_markers_and_a_motive_csv_exit_cleanly(tmp_path: Path) -> None
     result = run("clean", two, "-o", tmp_path / "two_clean.c3d")
     assert result.exit_code == 0, result.output
     after = _read(tmp_path / "two_clean.c3d")
-    np.testing.assert_allclose(after.positions, pos, atol=1e-6, equal_nan=True)  # nothing to fill from
+    np.testing.assert_allclose(
+        after.positions, pos, atol=1e-6, equal_nan=True
+    )  # nothing to fill from
 
     import importlib.util
 
-    spec = importlib.util.spec_from_file_location("csvtests", Path(__file__).parents[1] / "io" / "test_csv.py")
+    spec = importlib.util.spec_from_file_location(
+        "csvtests", Path(__file__).parents[1] / "io" / "test_csv.py"
+    )
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     motive = tmp_path / "take.csv"
@@ -211,6 +215,9 @@ def test_clean_two_markers_and_a_motive_csv_exit_cleanly(tmp_path: Path) -> None
     result = run("clean", motive, "-o", tmp_path / "take.c3d")
     assert result.exit_code in (0, 2), result.output
     if result.exit_code == 2:
-        assert result.output.startswith("skincap: error:") and len(result.output.strip().splitlines()) == 1
+        assert (
+            result.output.startswith("skincap: error:")
+            and len(result.output.strip().splitlines()) == 1
+        )
     else:
         assert _read(tmp_path / "take.c3d").n_frames == 4

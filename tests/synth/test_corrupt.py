@@ -36,7 +36,7 @@ def test_spikes_have_the_asked_size_length_and_seed() -> None:
 def test_swaps_exchange_two_columns_over_one_run() -> None:
     take = _take()
     out, swaps = inject_label_swaps(take, [(1, 2)], seed=0)
-    (i, j, s, e), = swaps
+    ((i, j, s, e),) = swaps
     assert (i, j) == (1, 2) and 5 <= e - s <= 40
     np.testing.assert_array_equal(out.positions[s:e, 1], take.positions[s:e, 2])
     np.testing.assert_array_equal(out.positions[:s], take.positions[:s])

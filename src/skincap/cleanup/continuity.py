@@ -119,17 +119,24 @@ def _hermite(p: np.ndarray, fill: np.ndarray, known: np.ndarray) -> tuple[np.nda
             h01 = -2 * u**3 + 3 * u**2
             h11 = u**3 - u**2
             out[s:e, c] = (
-                h00[:, None] * x0 + h10[:, None] * span * v0 + h01[:, None] * x1 + h11[:, None] * span * v1
+                h00[:, None] * x0
+                + h10[:, None] * span * v0
+                + h01[:, None] * x1
+                + h11[:, None] * span * v1
             )
         else:
             out[s:e, c] = p[s - 1, c] if has0 else p[e, c]
         # the filler's step at each known end: its first (last) sample less the measured
         # end carried one frame on at its measured velocity
-        step0 = p[s, c] - (2 * p[s - 1, c] - p[s - 2, c]) if has0 and s >= 2 and known[s - 2, c] else (
-            p[s, c] - p[s - 1, c] if has0 else None
+        step0 = (
+            p[s, c] - (2 * p[s - 1, c] - p[s - 2, c])
+            if has0 and s >= 2 and known[s - 2, c]
+            else (p[s, c] - p[s - 1, c] if has0 else None)
         )
-        step1 = p[e - 1, c] - (2 * p[e, c] - p[e + 1, c]) if has1 and e + 1 < t and known[e + 1, c] else (
-            p[e - 1, c] - p[e, c] if has1 else None
+        step1 = (
+            p[e - 1, c] - (2 * p[e, c] - p[e + 1, c])
+            if has1 and e + 1 < t and known[e + 1, c]
+            else (p[e - 1, c] - p[e, c] if has1 else None)
         )
         if step0 is not None and step1 is not None:
             u = (np.arange(s, e) - (s - 1)) / (e - s + 1)

@@ -209,7 +209,10 @@ def guarded_fill_smooth(
         for i, j, frames in swaps:
             pos[frames, i], pos[frames, j] = p0[frames, j], p0[frames, i]
             if res is not None:
-                res[frames, i], res[frames, j] = body.residuals[frames, j], body.residuals[frames, i]
+                res[frames, i], res[frames, j] = (
+                    body.residuals[frames, j],
+                    body.residuals[frames, i],
+                )
             relabelled[frames, i] = ~np.isnan(pos[frames, i, 0])
             relabelled[frames, j] = ~np.isnan(pos[frames, j, 0])
         # a swapped-in sample is measured data, not the column's own

@@ -121,7 +121,9 @@ def fit_frames_robust(
         fixed = s_cur[rows].copy()
         sub = np.arange(rows.size)
         # the member goes back to where the others' fit and its usual residual put it
-        fixed[sub, w] = np.einsum("sij,sj->si", r_o, s_ref[rows][sub, w]) + t_o - s_steady[rows][sub, w]
+        fixed[sub, w] = (
+            np.einsum("sij,sj->si", r_o, s_ref[rows][sub, w]) + t_o - s_steady[rows][sub, w]
+        )
         r_new, t_new = fit_rigid(s_ref[rows], fixed, mask=s_ok[rows])
         idx = np.flatnonzero(suspect.reshape(-1))[rows]
         lead = ok.shape[:-1]

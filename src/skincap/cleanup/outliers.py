@@ -208,7 +208,9 @@ def find_spikes(
             nb = np.where(valid[None, :, :, None], r[a : a + step][:, table], np.nan)
             ok = (~np.isnan(nb[..., 0])).sum(axis=2) >= 2  # (B, N)
             consensus = _nan_median_last(np.moveaxis(nb, 2, 3))  # (B, N, 3)
-            e_global[a : a + step] = np.where(ok[..., None], r[a : a + step] - consensus, r[a : a + step])
+            e_global[a : a + step] = np.where(
+                ok[..., None], r[a : a + step] - consensus, r[a : a + step]
+            )
     # the trajectory in the neighbours' (robust) local frame
     local, _, _ = local_trajectories(p, neighbours)
     e_local = local - running_median(local, window)

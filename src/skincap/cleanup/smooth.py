@@ -272,9 +272,11 @@ def smooth_local(
     sm = smooth_trajectories(local, lam=lam, iterations=iterations, mask=change)
     back = apply_rigid(rot, tr, sm[:, :, None, :])[:, :, 0]
     if max_move is not None:
-        bound = np.broadcast_to(np.asarray(max_move, dtype=np.float64), (t, n)) if np.ndim(
-            max_move
-        ) != 1 else np.broadcast_to(np.asarray(max_move, dtype=np.float64)[None, :], (t, n))
+        bound = (
+            np.broadcast_to(np.asarray(max_move, dtype=np.float64), (t, n))
+            if np.ndim(max_move) != 1
+            else np.broadcast_to(np.asarray(max_move, dtype=np.float64)[None, :], (t, n))
+        )
         step = back - p
         length = np.linalg.norm(step, axis=-1)
         scale = np.where(length > bound, bound / np.where(length > 0, length, 1.0), 1.0)
@@ -338,6 +340,7 @@ def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
     per-coordinate median of the aligned frames (a spike in a few frames cannot
     bend it), after a first alignment on the mean."""
     from skincap.cleanup.outliers import nan_median
+
     if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
         pick = np.linspace(0, cur.shape[0] - 1, 120).round().astype(np.int64)
         cur, ok = cur[pick], ok[pick]

@@ -198,7 +198,9 @@ def add_rigid_prop(
     labels = list(markers.labels) + [f"Prop:Marker{k + 1}" for k in range(n_markers)]
     res = None
     if markers.residuals is not None:
-        res = np.concatenate([markers.residuals, np.where(np.isnan(prop[..., 0]), np.nan, 0.0)], axis=1)
+        res = np.concatenate(
+            [markers.residuals, np.where(np.isnan(prop[..., 0]), np.nan, 0.0)], axis=1
+        )
     inv = None
     if markers.invented is not None:
         inv = np.concatenate([markers.invented, np.zeros((t, n_markers), dtype=bool)], axis=1)
