@@ -188,9 +188,14 @@ def corrupted() -> dict:
     taken, prop = add_rigid_prop(swapped, seed=8)
     cleaned, report = _quiet(clean_markers, taken)
     return {
-        "input": taken, "truth": truth, "spikes": spikes, "swaps": swaps, "prop": prop,
-        "cleaned": cleaned, "report": report,
-    }  # fmt: skip
+        "input": taken,
+        "truth": truth,
+        "spikes": spikes,
+        "swaps": swaps,
+        "prop": prop,
+        "cleaned": cleaned,
+        "report": report,
+    }
 
 
 def test_spikes_are_flagged_replaced_and_counted(corrupted: dict) -> None:
@@ -248,8 +253,12 @@ def test_rigid_prop_fills_are_continuous_or_left_out(corrupted: dict) -> None:
 
 def test_meta_and_frames_pass_through(corrupted: dict) -> None:
     taken = corrupted["input"]
-    with_meta = MarkerSet(taken.positions, list(taken.labels), taken.rate,
-                          meta={"source": "x", "c3d": {"EVENT": {"LABELS": ["a"]}}})  # fmt: skip
+    with_meta = MarkerSet(
+        taken.positions,
+        list(taken.labels),
+        taken.rate,
+        meta={"source": "x", "c3d": {"EVENT": {"LABELS": ["a"]}}},
+    )
     out, _ = _quiet(clean_markers, with_meta)
     assert out.meta == with_meta.meta
     assert out.n_frames == taken.n_frames
@@ -281,8 +290,13 @@ def test_real_capture_keeps_measured_samples_and_fills_continuous(
         filled = inv & np.isfinite(d2)
         assert not filled.any() or d2[filled].max() <= 3 * ref
     guard = report["guard"]
-    for key in ("filled_samples", "unfilled_samples", "outlier_samples", "relabelled_fragments",
-                "largest_move_mm"):  # fmt: skip
+    for key in (
+        "filled_samples",
+        "unfilled_samples",
+        "outlier_samples",
+        "relabelled_fragments",
+        "largest_move_mm",
+    ):
         assert key in guard
     assert guard["unfilled_samples"] == sum(v["unfilled"] for v in report["markers"].values())
     assert out.n_frames == markers.n_frames

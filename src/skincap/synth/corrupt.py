@@ -104,8 +104,14 @@ def inject_spikes(
         placed += 1
     if placed < count:
         raise ValidationError(f"room for only {placed} of {count} spikes")
-    out = MarkerSet(p, list(markers.labels), markers.rate, meta=dict(markers.meta),
-                    residuals=markers.residuals, invented=markers.invented)  # fmt: skip
+    out = MarkerSet(
+        p,
+        list(markers.labels),
+        markers.rate,
+        meta=dict(markers.meta),
+        residuals=markers.residuals,
+        invented=markers.invented,
+    )
     return out, spikes
 
 
@@ -147,8 +153,14 @@ def inject_label_swaps(
         if res is not None:
             res[s:e, [i, j]] = res[s:e, [j, i]]
         swaps.append((int(i), int(j), s, e))
-    out = MarkerSet(p, list(markers.labels), markers.rate, meta=dict(markers.meta),
-                    residuals=res, invented=markers.invented)  # fmt: skip
+    out = MarkerSet(
+        p,
+        list(markers.labels),
+        markers.rate,
+        meta=dict(markers.meta),
+        residuals=res,
+        invented=markers.invented,
+    )
     return out, swaps
 
 
@@ -183,12 +195,16 @@ def add_rigid_prop(
     t, n, _ = p.shape
     shape = rng.uniform(-size / 2, size / 2, (n_markers, 3))
     time = np.arange(t) / markers.rate
-    angle = np.stack([0.8 * np.sin(2 * np.pi * 0.4 * time), 0.3 * np.sin(2 * np.pi * 0.7 * time),
-                      0.5 * time], axis=1)  # fmt: skip
+    angle = np.stack(
+        [0.8 * np.sin(2 * np.pi * 0.4 * time), 0.3 * np.sin(2 * np.pi * 0.7 * time), 0.5 * time],
+        axis=1,
+    )
     rot = Rotation.from_rotvec(angle).as_matrix()  # (T, 3, 3)
     centre = np.nanmean(p, axis=(0, 1)) + np.array([offset, 0.0, 0.0])
-    path = centre + np.stack([0.3 * np.sin(2 * np.pi * 0.2 * time), 0 * time,
-                              0.4 * np.sin(2 * np.pi * 0.25 * time)], axis=1)  # fmt: skip
+    path = centre + np.stack(
+        [0.3 * np.sin(2 * np.pi * 0.2 * time), 0 * time, 0.4 * np.sin(2 * np.pi * 0.25 * time)],
+        axis=1,
+    )
     prop = np.einsum("tij,kj->tki", rot, shape) + path[:, None, :]
     prop = prop + rng.normal(0.0, 0.0005, prop.shape)
     for _ in range(gaps):
@@ -204,6 +220,12 @@ def add_rigid_prop(
     inv = None
     if markers.invented is not None:
         inv = np.concatenate([markers.invented, np.zeros((t, n_markers), dtype=bool)], axis=1)
-    out = MarkerSet(np.concatenate([p, prop], axis=1), labels, markers.rate,
-                    meta=dict(markers.meta), residuals=res, invented=inv)  # fmt: skip
+    out = MarkerSet(
+        np.concatenate([p, prop], axis=1),
+        labels,
+        markers.rate,
+        meta=dict(markers.meta),
+        residuals=res,
+        invented=inv,
+    )
     return out, list(range(n, n + n_markers))
