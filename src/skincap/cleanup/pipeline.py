@@ -2,7 +2,10 @@
 
 :func:`clean_markers` runs the four steps on a capture of labelled markers and
 unlabelled fragments and returns the cleaned :class:`~skincap.types.MarkerSet` (filled
-samples flagged in ``invented``) and a JSON-ready report.
+samples flagged in ``invented``) and a JSON-ready report. Between merging and filling,
+label swaps are swapped back and spikes removed; smoothing keeps measured samples
+within their noise and fills are kept only where continuous
+(:mod:`skincap.cleanup.guarded`).
 """
 
 from __future__ import annotations
@@ -225,8 +228,19 @@ def clean_markers(
         ``hidden`` (new markers -> their fragments; with truth, how many hidden
         markers were recovered and how many fragments or markers were wrong),
         ``merge`` (:class:`~skincap.cleanup.merge.MergeReport` fields), ``fill``
-        (method, holes before, invented and unfilled samples), ``smooth`` (λ,
-        iterations) and ``invented`` (label -> [start, end) runs).
+        (method, holes before, invented, filled and unfilled samples, fills dropped
+        as unstable, the second-difference limit), ``guard`` (take-wide: filled,
+        unfilled (and whether above the warning threshold), outliers found and
+        replaced, relabelled fragments (merged + 2 per repaired swap), largest move of
+        a kept measured sample in mm, median noise), ``markers`` (the same per marker
+        column, :meth:`~skincap.cleanup.guarded.GuardedFill.per_marker`), ``smooth``
+        (λ, iterations, the noise bound) and ``invented`` (label -> [start, end)
+        runs).
+
+    Warns
+    -----
+    SkincapWarning
+        When more than 1 % of the markers' samples are left unfilled.
     """
     if not isinstance(markers, MarkerSet):
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
