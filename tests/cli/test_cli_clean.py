@@ -156,6 +156,7 @@ def test_clean_no_hidden_keeps_only_the_labelled_markers(synth_c3d, tmp_path: Pa
     assert not any(lab.startswith("U") for lab in after.labels)
 
 
+@pytest.mark.slow
 def test_clean_json_summary_and_report_counts(data_dir: Path, tmp_path: Path) -> None:
     """--json prints the summary line's figures; --report has them per marker."""
     out = tmp_path / "kt.c3d"
