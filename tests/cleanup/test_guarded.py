@@ -61,6 +61,7 @@ def test_running_median_is_exact_on_steady_motion_up_to_a_gap() -> None:
     np.testing.assert_allclose(running_median(x, 9), x, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_spike_is_found_among_its_neighbours() -> None:
     markers, _ = synthetic_dense_take(60, 300, missing=0.0, seed=3)
     from skincap.cleanup.fill import motion_neighbours
@@ -198,6 +199,7 @@ def corrupted() -> dict:
     }
 
 
+@pytest.mark.slow
 def test_spikes_are_flagged_replaced_and_counted(corrupted: dict) -> None:
     spikes, out, report = corrupted["spikes"], corrupted["cleaned"], corrupted["report"]
     n = corrupted["truth"].shape[1]
@@ -211,6 +213,7 @@ def test_spikes_are_flagged_replaced_and_counted(corrupted: dict) -> None:
     assert counted == report["guard"]["outlier_samples"]
 
 
+@pytest.mark.slow
 def test_swaps_are_repaired_flagged_and_counted(corrupted: dict) -> None:
     out, truth, report = corrupted["cleaned"], corrupted["truth"], corrupted["report"]
     n = truth.shape[1]
@@ -225,6 +228,7 @@ def test_swaps_are_repaired_flagged_and_counted(corrupted: dict) -> None:
     assert out.invented[:, :n].sum() >= report["guard"]["relabelled_samples"]
 
 
+@pytest.mark.slow
 def test_measured_samples_stay_and_neighbours_are_unmoved(corrupted: dict) -> None:
     taken, out, report = corrupted["input"], corrupted["cleaned"], corrupted["report"]
     measured = ~np.isnan(taken.positions[..., 0]) & ~out.invented
@@ -235,6 +239,7 @@ def test_measured_samples_stay_and_neighbours_are_unmoved(corrupted: dict) -> No
     assert report["guard"]["noise_median_mm"] == pytest.approx(0.5, rel=0.15)
 
 
+@pytest.mark.slow
 def test_rigid_prop_fills_are_continuous_or_left_out(corrupted: dict) -> None:
     taken, out, report = corrupted["input"], corrupted["cleaned"], corrupted["report"]
     prop = corrupted["prop"]
@@ -251,6 +256,7 @@ def test_rigid_prop_fills_are_continuous_or_left_out(corrupted: dict) -> None:
     assert counted == int(np.isnan(got).sum())
 
 
+@pytest.mark.slow
 def test_meta_and_frames_pass_through(corrupted: dict) -> None:
     taken = corrupted["input"]
     with_meta = MarkerSet(
