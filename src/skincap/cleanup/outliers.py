@@ -102,21 +102,25 @@ def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:
     half = window // 2
     out = np.full_like(p, np.nan)
     step = max(1, _CHUNK_ELEMENTS // max(1, n * 3 * window))
+    padded = np.concatenate([np.zeros((half, n, 3)), np.nan_to_num(p), np.zeros((half, n, 3))])
     for a in range(0, t, step):
         b = min(t, a + step)
         f = frame[a:b]
         s0, e0 = start[a:b], end[a:b]
-        stack = []
-        for k in range(-half, half + 1):
+        stack = np.empty((b - a, n, 3, window))
+        for slot, k in enumerate(range(-half, half + 1)):
+            v = padded[a + half + k : b + half + k].copy()  # x[t + k] inside the run
             j = f + k
-            lo, hi = j < s0, j > e0
-            anchor = np.where(lo, s0, np.where(hi, e0, j))
-            idx = np.clip(np.where(lo | hi, 2 * anchor - j, j), s0, e0)
-            anchor = np.clip(anchor, 0, t - 1)
-            idx = np.clip(idx, 0, t - 1)
-            v = np.where((lo | hi)[..., None], 2 * p[anchor, col] - p[idx, col], p[idx, col])
-            stack.append(v)
-        med = np.median(np.stack(stack, axis=-1), axis=-1)
+            out_of_run = (j < s0) | (j > e0)
+            tt, cc = np.nonzero(out_of_run & valid[a:b])
+            if tt.size:  # past a run end: its odd reflection 2 x[end] - x[2 end - t - k]
+                jj = j[tt, 0] if j.shape[1] == 1 else j[tt, cc]
+                lo = jj < s0[tt, cc]
+                anchor = np.where(lo, s0[tt, cc], e0[tt, cc])
+                idx = np.clip(2 * anchor - jj, s0[tt, cc], e0[tt, cc])
+                v[tt, cc] = 2 * p[anchor, cc] - p[idx, cc]
+            stack[..., slot] = v
+        med = np.partition(stack, half, axis=-1)[..., half]
         out[a:b] = np.where(valid[a:b, :, None], med, np.nan)
     return out
 
@@ -244,9 +248,11 @@ def _edge_pairs(neighbours: Any, n: int) -> np.ndarray:
     return pairs[pairs[:, 0] != pairs[:, 1]]
 
 
-def _close_pairs(p: np.ndarray, reach: float = 0.1) -> np.ndarray:
-    """(P, 2) pairs ``i < j`` where ``j`` is ``i``'s nearest marker in some frame, within
-    ``reach`` metres (the markers a swap can happen between)."""
+def _close_pairs(p: np.ndarray, reach: float = 0.1, every: int = 3) -> np.ndarray:
+    """(P, 2) pairs ``i < j`` where ``j`` is ``i``'s nearest marker in some frame (every
+    ``every``-th frame: two markers close enough to swap stay close for a few frames),
+    within ``reach`` metres (the markers a swap can happen between)."""
+    p = p[::every]
     t, n, _ = p.shape
     if n < 2:
         return np.zeros((0, 2), dtype=np.int64)
@@ -292,7 +298,7 @@ def find_label_swaps(
     positions : (T, N, 3) float, metres; NaN where missing
     neighbours : MarkerSurface or CSR
         Swaps are looked for between neighbours and between each marker and the
-        marker nearest to it in some frame (within 10 cm) only.
+        marker nearest to it in some frame (every third frame, within 10 cm) only.
     candidates : (T, N) bool, optional
         Samples that may take part (default all present).
     ratio, floor : float
