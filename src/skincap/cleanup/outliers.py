@@ -98,7 +98,6 @@ def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:
     valid = ~np.isnan(p[..., 0])
     start, end = _run_ends(valid)
     frame = np.arange(t)[:, None]
-    col = np.arange(n)[None, :]
     half = window // 2
     out = np.full_like(p, np.nan)
     step = max(1, _CHUNK_ELEMENTS // max(1, n * 3 * window))
@@ -114,7 +113,7 @@ def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:
             out_of_run = (j < s0) | (j > e0)
             tt, cc = np.nonzero(out_of_run & valid[a:b])
             if tt.size:  # past a run end: its odd reflection 2 x[end] - x[2 end - t - k]
-                jj = j[tt, 0] if j.shape[1] == 1 else j[tt, cc]
+                jj = j[tt, 0]  # j is (B, 1): the same frame for every column
                 lo = jj < s0[tt, cc]
                 anchor = np.where(lo, s0[tt, cc], e0[tt, cc])
                 idx = np.clip(2 * anchor - jj, s0[tt, cc], e0[tt, cc])
