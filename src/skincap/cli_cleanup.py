@@ -173,7 +173,11 @@ def clean(
     lam: Annotated[float, typer.Option("--lambda", help="Smoothing damping λ.")] = 0.02,
     iterations: Annotated[int, typer.Option(help="Smoothing iterations.")] = 10,
     report: Annotated[
-        Path | None, typer.Option(help="JSON report: counts and invented [start, end) runs.")
+        Path | None,
+        typer.Option(
+            help="JSON report: counts per take and per marker (filled, unfilled, outliers, "
+            "relabelled, largest move) and invented [start, end) runs."
+        ),
     ] = None,
     fragment_truth: Annotated[
         Path | None,
@@ -190,12 +194,21 @@ def clean(
             "their fragments stay unlabelled.",
         ),
     ] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the summary as JSON instead of one line.")
+    ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
 ) -> None:
     """Clean a capture: marker surface, merge fragments into labels, fill holes, smooth.
 
-    Writes the cleaned C3D with filled samples flagged as invented, and with --report
-    a JSON file with the surface, Table-1 merge counts and the invented runs per marker.
+    Measured samples are kept: smoothing moves one by at most 3x its marker's noise
+    (estimated from the take) and never over 1.5 mm. Spikes and label swaps are
+    repaired and, like every fill, flagged as invented (all camera bits). A fill that
+    would not join its measured ends smoothly or would move faster than the take
+    does is left unfilled and counted. The summary line gives samples filled, left
+    unfilled, outliers replaced, fragments relabelled and the largest move of a kept
+    measured sample (--json: the same as JSON). With --report, a JSON file with the
+    surface, Table-1 merge counts, per-marker counts and the invented runs.
     Markers hidden in the reference frame, found among the leftover fragments (they
     ride with a skin neighbourhood over their whole span), come after the labelled
     markers as U<n> columns, named after their longest fragment *<n>.
@@ -254,26 +267,61 @@ def clean(
         io.write(cleaned, output, force=force)
         if report is not None:
             _write_json(report, summary, force=force)
-    merge = summary["merge"]
-    fill = summary["fill"]
-    out.print(
-        f"{src} -> {output}: {merge['trajectories_before']} -> {merge['trajectories_after']} "
-        f"trajectories, {merge['merged']} fragments merged, "
-        f"{fill['invented_samples']} samples invented, {fill['unfilled_samples']} unfilled"
+    if json_output:
+        print(json.dumps(clean_summary(summary), indent=2))
+    else:
+        out.print(format_clean_summary(summary), markup=False, soft_wrap=True)
+
+
+def clean_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """The figures of ``clean``'s summary line, as a dict (what ``--json`` prints)."""
+    merge, guard = report["merge"], report["guard"]
+    return {
+        "input": report["input"],
+        "output": report["output"],
+        "frames": report["frames"],
+        "trajectories_before": merge["trajectories_before"],
+        "trajectories_after": merge["trajectories_after"],
+        "fragments_merged": merge["merged"],
+        "filled_samples": guard["filled_samples"],
+        "unfilled_samples": guard["unfilled_samples"],
+        "unfilled_warning": guard["unfilled_warning"],
+        "outlier_samples": guard["outlier_samples"],
+        "outliers_replaced": guard["outliers_replaced"],
+        "relabelled_fragments": guard["relabelled_fragments"],
+        "label_swaps_repaired": guard["label_swaps_repaired"],
+        "largest_move_mm": guard["largest_move_mm"],
+        "hidden_markers_labelled": report["hidden"]["new_markers"],
+        "wrongly_merged": merge["wrongly_merged"],
+    }
+
+
+def format_clean_summary(report: dict[str, Any]) -> str:
+    """``clean``'s one-line summary: filled, unfilled, outliers, relabelled, largest move."""
+    s = clean_summary(report)
+    merge = report["merge"]
+    line = (
+        f"{s['input']} -> {s['output']}: {s['trajectories_before']} -> "
+        f"{s['trajectories_after']} trajectories, {s['filled_samples']} samples filled, "
+        f"{s['unfilled_samples']} left unfilled"
+        + (" (warning: many)" if s["unfilled_warning"] else "")
+        + f", {s['outliers_replaced']} of {s['outlier_samples']} outliers replaced, "
+        f"{s['relabelled_fragments']} fragments relabelled ({s['fragments_merged']} merged, "
+        f"{s['label_swaps_repaired']} swaps repaired), largest move of a kept measured "
+        f"sample {s['largest_move_mm']:.2f} mm"
         + (
-            f", {summary['hidden']['new_markers']} hidden markers labelled"
-            if summary["hidden"]["new_markers"]
+            f", {s['hidden_markers_labelled']} hidden markers labelled"
+            if s["hidden_markers_labelled"]
             else ""
         )
-        + (
-            ""
-            if merge["wrongly_merged"] is None
-            else f"; {merge['wrongly_merged']} wrongly merged ({100 * merge['wrong_rate']:.2f} %), "
+    )
+    if merge["wrongly_merged"] is not None:
+        line += (
+            f"; {merge['wrongly_merged']} wrongly merged ({100 * merge['wrong_rate']:.2f} %), "
             f"{merge['left_unmerged']} body fragments left unmerged "
             f"({merge['left_unmerged_frames']} samples)"
-        ),
-        markup=False,
-    )
+        )
+    return line
 
 
 # ---------------------------------------------------------------------- eval fill

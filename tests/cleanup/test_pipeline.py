@@ -67,10 +67,19 @@ def test_smoothing_changes_only_slightly_and_keeps_flags() -> None:
         warnings.simplefilter("ignore", SkincapWarning)
         raw, _ = clean_markers(take.capture, method="linear", smooth=False)
         smooth, report = clean_markers(take.capture, method="linear", smooth=True)
-    assert report["smooth"] == {"enabled": True, "lambda": 0.02, "iterations": 10}
+    assert report["smooth"] == {
+        "enabled": True,
+        "lambda": 0.02,
+        "iterations": 10,
+        "max_move_noise_multiple": 3.0,
+        "max_move_mm": 1.5,
+    }
     assert np.array_equal(raw.invented, smooth.invented)
     diff = np.linalg.norm(raw.positions - smooth.positions, axis=2)
     assert np.nanmax(diff) < 0.01 and np.nanmean(diff) < 1e-3
+    # a measured sample moves by at most 1.5 mm (3 sigma of the 0.5 mm noise here)
+    measured = ~raw.invented & np.isfinite(raw.positions[..., 0])
+    assert diff[measured].max() <= 0.0015 + 1e-12
 
 
 def test_user_surface_and_validation() -> None:

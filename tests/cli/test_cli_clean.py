@@ -154,3 +154,71 @@ def test_clean_no_hidden_keeps_only_the_labelled_markers(synth_c3d, tmp_path: Pa
     assert ra["surface"]["markers"] == labelled + ra["hidden"]["new_markers"]
     after = _read(tmp_path / "b.c3d")
     assert not any(lab.startswith("U") for lab in after.labels)
+
+
+@pytest.mark.slow
+def test_clean_json_summary_and_report_counts(data_dir: Path, tmp_path: Path) -> None:
+    """--json prints the summary line's figures; --report has them per marker."""
+    out = tmp_path / "kt.c3d"
+    rep = tmp_path / "kt.json"
+    src = data_dir / "kt_optitrack_walking.c3d"
+    result = run("clean", src, "-o", out, "--report", rep, "--json")
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.stdout[result.stdout.index("{") :])
+    for key in ("filled_samples", "unfilled_samples", "outlier_samples", "outliers_replaced",
+                "relabelled_fragments", "largest_move_mm"):  # fmt: skip
+        assert key in summary
+    assert summary["largest_move_mm"] <= 2.0
+    report = json.loads(rep.read_text())
+    per_marker = report["markers"]
+    assert sum(m["filled"] for m in per_marker.values()) == summary["filled_samples"]
+    assert sum(m["unfilled"] for m in per_marker.values()) == summary["unfilled_samples"]
+    assert max(m["largest_move_mm"] or 0.0 for m in per_marker.values()) == pytest.approx(
+        summary["largest_move_mm"]
+    )
+    # kt_optitrack_walking swaps Foot_Marker3 and Foot_Marker5 for one frame (1952)
+    assert summary["label_swaps_repaired"] == 1
+    assert per_marker["Foot_Marker3"]["relabelled"] == per_marker["Foot_Marker5"]["relabelled"] == 1
+    line = run("clean", src, "-o", tmp_path / "kt2.c3d")
+    assert line.exit_code == 0, line.output
+    text = line.stdout.strip().splitlines()[-1]
+    for words in ("samples filled", "left unfilled", "outliers replaced", "fragments relabelled",
+                  "largest move of a kept measured sample"):  # fmt: skip
+        assert words in text
+
+
+def test_clean_two_markers_and_a_motive_csv_exit_cleanly(tmp_path: Path) -> None:
+    """Issue 13 item 5: no traceback on a 2-marker capture or the OptiTrack sample text."""
+    from skincap.io import write
+    from skincap.types import MarkerSet
+
+    rng = np.random.default_rng(0)
+    pos = rng.normal(size=(50, 2, 3)) * 0.01 + np.array([[0.0, 1.0, 0.0], [0.1, 1.0, 0.0]])
+    pos[10:15, 0] = np.nan
+    two = tmp_path / "two.c3d"
+    write(MarkerSet(positions=pos, labels=["A", "B"], rate=100.0), two)
+    result = run("clean", two, "-o", tmp_path / "two_clean.c3d")
+    assert result.exit_code == 0, result.output
+    after = _read(tmp_path / "two_clean.c3d")
+    np.testing.assert_allclose(
+        after.positions, pos, atol=1e-6, equal_nan=True
+    )  # nothing to fill from
+
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "csvtests", Path(__file__).parents[1] / "io" / "test_csv.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    motive = tmp_path / "take.csv"
+    motive.write_text(module._motive_text())
+    result = run("clean", motive, "-o", tmp_path / "take.c3d")
+    assert result.exit_code in (0, 2), result.output
+    if result.exit_code == 2:
+        assert (
+            result.output.startswith("skincap: error:")
+            and len(result.output.strip().splitlines()) == 1
+        )
+    else:
+        assert _read(tmp_path / "take.c3d").n_frames == 4

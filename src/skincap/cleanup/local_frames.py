@@ -24,12 +24,115 @@ from skincap.geometry.rigid import fit_rigid
 
 __all__ = [
     "estimate_missing",
+    "fit_frames_robust",
     "local_reference_coordinates",
     "local_reference_frames",
     "neighbour_table",
 ]
 
 Neighbours = MarkerSurface | tuple[np.ndarray, np.ndarray]
+
+
+def fit_frames_robust(
+    reference: np.ndarray,
+    current: np.ndarray,
+    present: np.ndarray,
+    *,
+    ratio: float = 3.0,
+    floor: float = 0.005,
+    window: int = 9,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Local frames (rigid fits of neighbourhoods over time) that one bad neighbour cannot shake.
+
+    A first rigid fit (:func:`~skincap.geometry.rigid.fit_rigid`) of each
+    neighbourhood's reference shape onto its present members in every frame. A
+    member's residual vector changes slowly where it deforms or slides with the skin
+    and suddenly where it spikes or is swapped. Its *sudden* part is the residual less
+    its running median over ``window`` frames
+    (:func:`skincap.cleanup.outliers.running_median`); the median is its *usual*
+    residual. Where some member's sudden part exceeds ``floor`` (and at least four
+    are present), each member is left out in turn; the one whose absence lets every
+    other member fit within ``floor`` of its usual residual (and ``ratio`` times
+    closer than before) is the bad one. It is put back where the others' fit and its
+    usual residual say and the frame fitted again. Dropping it instead would change
+    the member set for that frame only, and in a neighbourhood that deforms that
+    moves the frame; a steady misfit (a member across a joint) is left alone for the
+    same reason.
+
+    Parameters
+    ----------
+    reference : (N, K, 3) or (1, N, K, 3) float, metres
+        Reference shapes (broadcast against ``current``).
+    current : (T, N, K, 3) float, metres
+        Members' positions, frames on axis 0.
+    present : (T, N, K) bool
+    ratio : float
+    floor : float, metres
+        A sudden change below this is left alone (default 5 mm).
+    window : odd int, frames
+
+    Returns
+    -------
+    R : (T, N, 3, 3), t : (T, N, 3)
+        ``current ≈ R reference + t``; NaN where fewer than three members are present.
+    """
+    from skincap.cleanup.outliers import running_median
+
+    ok = np.asarray(present, dtype=bool)
+    cur = np.asarray(current, dtype=np.float64)
+    rot, tr = fit_rigid(reference, cur, mask=ok)
+    ref_full = np.broadcast_to(reference, cur.shape)
+    fitted = np.einsum("...ij,...kj->...ki", rot, ref_full)
+    resid = np.where(ok[..., None], fitted + tr[..., None, :] - cur, np.nan)  # (T, N, K, 3)
+    t = cur.shape[0]
+    flat = resid.reshape(t, -1, 3)
+    jump = (flat - running_median(flat, window)).reshape(*ok.shape, 3)  # sudden part
+    sudden = np.linalg.norm(jump, axis=-1)
+    steady = resid - jump  # each member's usual residual around that frame
+    # suspect frames: some member changed suddenly by more than the floor
+    suspect = (np.nan_to_num(sudden, nan=0.0) > floor).any(axis=-1) & (ok.sum(axis=-1) >= 4)
+    if not suspect.any():
+        return rot, tr
+    s_ref, s_cur, s_ok, s_steady = ref_full[suspect], cur[suspect], ok[suspect], steady[suspect]
+    before = np.where(s_ok, np.nan_to_num(sudden[suspect], nan=0.0), 0.0).max(axis=-1)
+    # leave each member out in turn: the bad one is the one whose absence makes the
+    # others fit as usual again
+    count, k_count = s_ok.shape[0], s_ok.shape[-1]
+    score = np.full((count, k_count), np.inf)
+    fits = []
+    for k in range(k_count):
+        without = s_ok.copy()
+        without[:, k] = False
+        r_k, t_k = fit_rigid(s_ref, s_cur, mask=without)
+        fitted_k = np.einsum("sij,skj->ski", r_k, s_ref) + t_k[:, None, :]
+        miss = np.linalg.norm(fitted_k - s_cur - s_steady, axis=-1)  # (S, K)
+        miss = np.where(without, np.nan_to_num(miss, nan=np.inf), 0.0)
+        score[:, k] = np.where(s_ok[:, k], miss.max(axis=-1), np.inf)
+        fits.append((r_k, t_k))
+    best = np.argmin(score, axis=-1)
+    best_score = score[np.arange(count), best]
+    # accept when the others then fit as usual (within the floor and well below before)
+    accept = (best_score < np.minimum(floor, before / ratio)) & np.isfinite(best_score)
+    if accept.any():
+        rows = np.flatnonzero(accept)
+        w = best[rows]
+        r_o = np.stack([fits[k][0][i] for i, k in zip(rows.tolist(), w.tolist(), strict=True)])
+        t_o = np.stack([fits[k][1][i] for i, k in zip(rows.tolist(), w.tolist(), strict=True)])
+        fixed = s_cur[rows].copy()
+        sub = np.arange(rows.size)
+        # the member goes back to where the others' fit and its usual residual put it
+        fixed[sub, w] = (
+            np.einsum("sij,sj->si", r_o, s_ref[rows][sub, w]) + t_o - s_steady[rows][sub, w]
+        )
+        r_new, t_new = fit_rigid(s_ref[rows], fixed, mask=s_ok[rows])
+        idx = np.flatnonzero(suspect.reshape(-1))[rows]
+        lead = ok.shape[:-1]
+        rot = rot.copy().reshape(-1, 3, 3)
+        tr = tr.copy().reshape(-1, 3)
+        rot[idx], tr[idx] = r_new, t_new
+        rot = rot.reshape(*lead, 3, 3)
+        tr = tr.reshape(*lead, 3)
+    return rot, tr
 
 
 def neighbour_table(neighbours: Neighbours, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -2,7 +2,10 @@
 
 :func:`clean_markers` runs the four steps on a capture of labelled markers and
 unlabelled fragments and returns the cleaned :class:`~skincap.types.MarkerSet` (filled
-samples flagged in ``invented``) and a JSON-ready report.
+samples flagged in ``invented``) and a JSON-ready report. Between merging and filling,
+label swaps are swapped back and spikes removed; smoothing keeps measured samples
+within their noise and fills are kept only where continuous
+(:mod:`skincap.cleanup.guarded`).
 """
 
 from __future__ import annotations
@@ -12,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap.cleanup.guarded import MAX_MOVE, MAX_MOVE_NOISE, guarded_fill_smooth
 from skincap.cleanup.hidden import find_hidden_markers
 from skincap.cleanup.merge import merge_fragments
 from skincap.cleanup.surface import (
@@ -224,12 +228,20 @@ def clean_markers(
         ``hidden`` (new markers -> their fragments; with truth, how many hidden
         markers were recovered and how many fragments or markers were wrong),
         ``merge`` (:class:`~skincap.cleanup.merge.MergeReport` fields), ``fill``
-        (method, holes before, invented and unfilled samples), ``smooth`` (λ,
-        iterations) and ``invented`` (label -> [start, end) runs).
-    """
-    from skincap.cleanup.fill import fill_gaps
-    from skincap.cleanup.smooth import smooth_local
+        (method, holes before, invented, filled and unfilled samples, fills dropped
+        as unstable, the second-difference limit), ``guard`` (take-wide: filled,
+        unfilled (and whether above the warning threshold), outliers found and
+        replaced, relabelled fragments (merged + 2 per repaired swap), largest move of
+        a kept measured sample in mm, median noise), ``markers`` (the same per marker
+        column, :meth:`~skincap.cleanup.guarded.GuardedFill.per_marker`), ``smooth``
+        (λ, iterations, the noise bound) and ``invented`` (label -> [start, end)
+        runs).
 
+    Warns
+    -----
+    SkincapWarning
+        When more than 1 % of the markers' samples are left unfilled.
+    """
     if not isinstance(markers, MarkerSet):
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
     pos = markers.positions
@@ -299,26 +311,27 @@ def clean_markers(
     )
     n = anchors.size
     body = merged.select(np.arange(n))
-    holes = int(np.isnan(body.positions[..., 0]).sum())
     if progress is not None:
         progress(0.3, "filling holes")
-    filled, invented = fill_gaps(
+    guarded = guarded_fill_smooth(
         body,
+        surface.neighbours,
         method=method,
-        neighbours=surface.neighbours,
         rigid_blend=rigid_blend,
+        smooth=smooth,
+        lam=lam,
+        iterations=iterations,
         progress=step(0.3, 0.5),
     )
-    if smooth:
-        if progress is not None:
-            progress(0.8, "smoothing")
-        filled = smooth_local(filled, surface.neighbours, lam=lam, iterations=iterations)
-    if body.invented is not None:
-        invented = invented | body.invented
+    filled, invented, holes = guarded.positions, guarded.invented, guarded.holes
     out_pos = filled
     out_labels = list(body.labels)
     out_inv = invented
-    out_res = None if body.residuals is None else np.where(invented, np.nan, body.residuals)
+    out_res = (
+        None
+        if guarded.residuals is None
+        else np.where(invented | guarded.unfilled, np.nan, guarded.residuals)
+    )
     if keep_fragments and merged.n_markers > n:
         rest = merged.select(np.arange(n, merged.n_markers))
         out_pos = np.concatenate([filled, rest.positions], axis=1)
@@ -365,9 +378,21 @@ def clean_markers(
             "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
             "holes_before": holes,
             "invented_samples": int(invented.sum()),
-            "unfilled_samples": int(np.isnan(filled[..., 0]).sum()),
+            "filled_samples": guarded.counts["filled"],
+            "unfilled_samples": guarded.counts["unfilled"],
+            "unfilled_fraction": guarded.counts["unfilled_fraction"],
+            "unstable_fills_dropped": guarded.counts["dropped"],
+            "acceleration_limit_mm_per_frame2": guarded.limit_mm,
         },
-        "smooth": {"enabled": bool(smooth), "lambda": float(lam), "iterations": int(iterations)},
+        "guard": guarded.summary(merge_report.merged),
+        "markers": guarded.per_marker(),
+        "smooth": {
+            "enabled": bool(smooth),
+            "lambda": float(lam),
+            "iterations": int(iterations),
+            "max_move_noise_multiple": MAX_MOVE_NOISE,
+            "max_move_mm": 1000 * MAX_MOVE,
+        },
         "invented": invented_runs(invented, list(body.labels)),
     }
     return cleaned, report

@@ -40,6 +40,7 @@ from skincap.geometry.rigid import apply_rigid, fit_rigid
 
 __all__ = [
     "smooth_local",
+    "local_trajectories",
     "smooth_trajectories",
     "frequency_response",
     "cutoff_frequency",
@@ -210,6 +211,7 @@ def smooth_local(
     lam: float = 0.02,
     iterations: int = 10,
     mask: np.ndarray | None = None,
+    max_move: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """Smooth marker trajectories in their local frames (Park & Hodgins §4.4).
 
@@ -229,26 +231,94 @@ def smooth_local(
     iterations : int >= 1
     mask : (T, N) bool, optional
         True where a sample may change (default: all present samples).
+    max_move : float, (N,) or (T, N) float, metres, optional
+        The farthest a sample may move: a longer smoothing step is shortened to this
+        length (e.g. a small multiple of each marker's measurement noise, so measured
+        data stay measured). Default: no bound.
 
     Returns
     -------
     (T, N, 3) float64, metres
         NaN stays NaN; a frame where a marker has fewer than 3 present neighbours
         splits its local trajectory (the sample is left as it was).
-    """
-    from skincap.cleanup.fill import as_csr
 
+    Notes
+    -----
+    The local frames are robust to one bad neighbour: after a first fit, the neighbour
+    whose residual changed most suddenly, when that is over 2.5 times the other
+    neighbours' (and over 1 cm), is put back where its steady residual says for that
+    frame and the frame refitted
+    (:func:`skincap.cleanup.local_frames.fit_frames_robust`), so a spike on a
+    neighbour does not shake the marker's local trajectory.
+    """
     _check_lam_n(lam, iterations)
     p = np.asarray(positions, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 3:
         raise ValidationError(f"positions: expected shape (T, N, 3), got {p.shape}")
     t, n, _ = p.shape
+    present = ~np.isnan(p[..., 0])
+    if t < 5:
+        return p.copy()
+    local, rot, tr = local_trajectories(p, neighbours)
+    if rot is None:
+        return p.copy()
+    has_frame = ~np.isnan(tr[..., 0])
+    change = present & has_frame
+    if mask is not None:
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != (t, n):
+            raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
+        change &= m
+    sm = smooth_trajectories(local, lam=lam, iterations=iterations, mask=change)
+    back = apply_rigid(rot, tr, sm[:, :, None, :])[:, :, 0]
+    if max_move is not None:
+        bound = (
+            np.broadcast_to(np.asarray(max_move, dtype=np.float64), (t, n))
+            if np.ndim(max_move) != 1
+            else np.broadcast_to(np.asarray(max_move, dtype=np.float64)[None, :], (t, n))
+        )
+        step = back - p
+        length = np.linalg.norm(step, axis=-1)
+        scale = np.where(length > bound, bound / np.where(length > 0, length, 1.0), 1.0)
+        back = p + step * np.nan_to_num(scale, nan=0.0)[..., None]
+    out = p.copy()
+    out[change] = back[change]
+    return out
+
+
+def local_trajectories(
+    positions: np.ndarray, neighbours: Any
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Each marker's trajectory in the local frame of its neighbours.
+
+    The frame carries the neighbours' reference shape (their Procrustes mean over the
+    take) onto their present positions (eq. 2), fitted robustly
+    (:func:`skincap.cleanup.local_frames.fit_frames_robust`: an outlying neighbour is
+    dropped for that frame). ``x̂ = R^T (x - t)``.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres; NaN where missing
+    neighbours : CSR (offsets, indices) or a MarkerSurface
+
+    Returns
+    -------
+    local : (T, N, 3) float64, metres
+        NaN where the marker is missing or has fewer than 3 present neighbours.
+    rot : (T, N, 3, 3) or None, tr : (T, N, 3) or None
+        The frames (NaN where undetermined); None when no marker has 3 neighbours.
+    """
+    from skincap.cleanup.fill import as_csr
+    from skincap.cleanup.local_frames import fit_frames_robust
+
+    p = np.asarray(positions, dtype=np.float64)
+    t, n, _ = p.shape
     offsets, indices = as_csr(neighbours, n)
     present = ~np.isnan(p[..., 0])
     deg = np.diff(offsets)
     kmax = int(deg.max()) if n and deg.size else 0
-    if kmax < 3 or t < 5:
-        return p.copy()
+    if kmax < 3 or t == 0:
+        return np.full_like(p, np.nan), None, None
     slot = np.arange(kmax)
     nb_ok = slot[None, :] < deg[:, None]  # (N, K)
     nb = np.where(
@@ -258,25 +328,19 @@ def smooth_local(
     cur_ok = present[:, nb] & nb_ok[None]
     # reference shape of each neighbourhood: mean over frames after a Procrustes pass
     ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
-    rot, tr = fit_rigid(ref[None], cur, mask=cur_ok)  # (T, N, 3, 3), (T, N, 3)
+    rot, tr = fit_frames_robust(ref[None], cur, cur_ok)  # (T, N, 3, 3), (T, N, 3)
     has_frame = ~np.isnan(tr[..., 0])
     local = np.einsum("tnji,tnj->tni", rot, p - tr)  # R^T (x - t)
     local = np.where((present & has_frame)[..., None], local, np.nan)
-    change = present & has_frame
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool)
-        if m.shape != (t, n):
-            raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
-        change &= m
-    sm = smooth_trajectories(local, lam=lam, iterations=iterations, mask=change)
-    back = apply_rigid(rot, tr, sm[:, :, None, :])[:, :, 0]
-    out = p.copy()
-    out[change] = back[change]
-    return out
+    return local, rot, tr
 
 
 def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """(N, K, 3) mean neighbourhood shapes from (T, N, K, 3) with presence (T, N, K)."""
+    """(N, K, 3) neighbourhood shapes from (T, N, K, 3) with presence (T, N, K): the
+    per-coordinate median of the aligned frames (a spike in a few frames cannot
+    bend it), after a first alignment on the mean."""
+    from skincap.cleanup.outliers import nan_median
+
     if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
         pick = np.linspace(0, cur.shape[0] - 1, 120).round().astype(np.int64)
         cur, ok = cur[pick], ok[pick]
@@ -288,13 +352,16 @@ def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
     ref = cur[best, np.arange(n)]  # (N, K, 3)
     ref_ok = ok[best, np.arange(n)]
     ref = np.where(ref_ok[..., None], ref, 0.0)
-    for _ in range(2):
+    for last in (False, True):
         rot, tr = fit_rigid(cur, ref[None], mask=ok & ref_ok[None])  # current -> reference
         aligned = apply_rigid(rot, tr, cur)  # (T, N, K, 3)
         good = ok & ~np.isnan(tr[..., 0])[..., None]
         cnt = good.sum(axis=0)  # (N, K)
-        total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
-        new = total / np.maximum(cnt, 1)[..., None]
+        if last:
+            new = nan_median(np.where(good[..., None], aligned, np.nan), axis=0)
+        else:
+            total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
+            new = total / np.maximum(cnt, 1)[..., None]
         ref_ok = cnt > 0
         ref = np.where(ref_ok[..., None], new, 0.0)
     return np.where(ref_ok[..., None], ref, np.nan)

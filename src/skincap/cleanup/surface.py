@@ -378,6 +378,8 @@ def _candidate_triangles(edges: np.ndarray, n: int) -> np.ndarray:
     aa, bb = a[rep], b[rep]
     keep = c > bb
     aa, bb, c = aa[keep], bb[keep], c[keep]
+    if c.size == 0:  # no wedge at all (e.g. two markers): scipy's empty fancy index is sparse
+        return np.zeros((0, 3), np.int64)
     closed = np.asarray(adj[bb, c]).ravel() > 0
     return np.stack([aa[closed], bb[closed], c[closed]], axis=1).astype(np.int64)
 
