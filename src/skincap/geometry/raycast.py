@@ -100,9 +100,7 @@ def _mesh_arrays(mesh: Mesh | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray
             "mesh: expected a Mesh or a (vertices (V, 3), faces (F, 3)) pair"
         ) from None
     v = _points("vertices", vertices)
-    if not np.isfinite(v).all():
-        raise ValidationError("vertices: must be finite")
-    _check_coordinates(v)
+    _check_coordinates(v)  # finite, and small enough to square
     f = np.asarray(faces)
     if f.size == 0:
         f = f.reshape(0, 3).astype(np.int64)
