@@ -118,7 +118,9 @@ EXCERPT_LIMIT = 40
 
 _CONTROL = re.compile(r"[\x00-\x08\x0b-\x1f\x7f-\x9f]")
 # a NumPy scalar's repr, np.int64(12) or np.float64(733.0), as NumPy 2 prints it
-_NUMPY_REPR = re.compile(r"\bnp\.(?:u?int\d*|float\d*|longdouble|bool_?|str_|bytes_|complex\d*)\(([^()]*)\)")
+_NUMPY_REPR = re.compile(
+    r"\bnp\.(?:u?int\d*|float\d*|longdouble|bool_?|str_|bytes_|complex\d*)\(([^()]*)\)"
+)
 _TERMINAL_UNSAFE = re.compile(r"[\x00-\x1f\x7f-\x9f]")
 
 

@@ -236,9 +236,7 @@ class TriangleGrid:
             return blocked
         t0, t1 = self._clip_to_box(o, d)
         inside_len = np.linalg.norm(d, axis=1) * np.maximum(t1 - t0, 0.0)
-        n_samples = np.where(
-            t1 >= t0, np.ceil(inside_len / self.spacing).astype(np.int64) + 1, 0
-        )
+        n_samples = np.where(t1 >= t0, np.ceil(inside_len / self.spacing).astype(np.int64) + 1, 0)
         # blocks of segments with at most max_pairs probes
         ends = np.searchsorted(
             np.cumsum(n_samples), np.arange(max_pairs, int(n_samples.sum()), max_pairs)
