@@ -139,8 +139,8 @@ def _path_given(filename: str) -> str:
 def _verb_input_files() -> list[str]:
     """The existing files among the running verb's positional arguments, as given."""
     try:
-        from typer._click.globals import get_current_context  # typer >= 0.26 vendors click
-    except ImportError:  # pragma: no cover - older typer on click
+        from typer._click.globals import get_current_context  # a typer that vendors click
+    except ImportError:  # pragma: no cover - a typer built on click
         from click import get_current_context
 
     ctx = get_current_context(silent=True)
