@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
+import re
 import sys
 import warnings
 from collections.abc import Iterator
@@ -19,7 +21,14 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from skincap.errors import FormatError, OutputExistsError, SkincapError, SkincapWarning
+from skincap.errors import (
+    FormatError,
+    MissingDependencyError,
+    OutputExistsError,
+    SkincapError,
+    SkincapWarning,
+    one_line,
+)
 
 app = typer.Typer(
     name="skincap",
@@ -74,31 +83,108 @@ def _global_options(
 
 @contextlib.contextmanager
 def _user_errors() -> Iterator[None]:
-    """Turn skincap errors into one line and status 2; show warnings as one line each."""
+    """Turn skincap errors into one line and status 2; show each warning once, one line each.
+
+    Warnings are collected while the verb runs and printed when it ends (before the
+    error line, if any), each distinct message once.
+    """
+    error_line = None
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", SkincapWarning)
         try:
             yield
         except SkincapError as exc:
-            _flush_warnings(caught)
-            err.print(f"skincap: error: {exc}", markup=False, soft_wrap=True)
-            raise typer.Exit(2) from None
+            error_line = _skincap_error_line(exc)
         except OSError as exc:
+            error_line = _os_error_line(exc)
+        finally:
             _flush_warnings(caught)
-            name = exc.filename if exc.filename is not None else ""
-            err.print(
-                f"skincap: error: {name}: {exc.strerror or exc}", markup=False, soft_wrap=True
-            )
-            raise typer.Exit(2) from None
-        _flush_warnings(caught)
+    if error_line is not None:
+        _print_line(f"skincap: error: {error_line}")
+        raise typer.Exit(2)
+
+
+def _print_line(text: str) -> None:
+    """One line on stderr, exactly as given: no markup, emoji codes or highlighting."""
+    err.print(text, markup=False, emoji=False, highlight=False, soft_wrap=True)
 
 
 def _flush_warnings(caught: list[warnings.WarningMessage]) -> None:
+    """Print the recorded warnings, each distinct one once, and forget them.
+
+    Warnings from NumPy, SciPy or Python itself are printed here too, with their
+    category, rather than handed back to ``warnings.showwarning``: inside
+    ``catch_warnings(record=True)`` that appends to the very list being printed.
+    """
+    shown: set[str] = set()
     for w in caught:
         if issubclass(w.category, SkincapWarning):
-            err.print(f"skincap: warning: {w.message}", markup=False, soft_wrap=True)
+            text = one_line(str(w.message))
         else:
-            warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+            text = one_line(f"{w.category.__name__}: {w.message}")
+        if text not in shown:
+            shown.add(text)
+            _print_line(f"skincap: warning: {text}")
+    caught.clear()
+
+
+def _skincap_error_line(exc: SkincapError) -> str:
+    """``<file>: <what is wrong>`` for a skincap error, on one line.
+
+    An error that names no file (an argument check deep in an algorithm) is prefixed
+    with the input files the verb was given.
+    """
+    text = str(exc)
+    if getattr(exc, "path", None) is None and not isinstance(exc, MissingDependencyError):
+        inputs = _verb_input_files()
+        if inputs and not any(text.startswith(f"{p}:") for p in inputs):
+            text = f"{', '.join(inputs)}: {text}"
+    return one_line(text)
+
+
+def _os_error_line(exc: OSError) -> str:
+    """``<file>: <system message>`` for an OSError, naming the path the user gave."""
+    name = exc.filename if exc.filename is not None else exc.filename2
+    what = exc.strerror or str(exc)
+    if name is None:
+        inputs = _verb_input_files()
+        return one_line(f"{', '.join(inputs)}: {what}" if inputs else what)
+    return one_line(f"{_path_given(os.fsdecode(name))}: {what.lower()}")
+
+
+# atomic_output (skincap.io._common) writes ``<folder>/.<name>.<8 random>.part<suffix>``
+# and renames it onto ``<folder>/<name>``; an error on that file is about ``<name>``.
+_TEMP_OUTPUT = re.compile(r"^\.(?P<name>.+)\.[A-Za-z0-9_]{8}\.part(?P<suffix>\.[^./]*)?$")
+
+
+def _path_given(filename: str) -> str:
+    """The output path the user gave, when ``filename`` is atomic_output's temporary file."""
+    folder, base = os.path.split(filename)
+    match = _TEMP_OUTPUT.match(base)
+    if match is None or not match["name"].endswith(match["suffix"] or ""):
+        return filename
+    return match["name"] if folder in ("", ".") else os.path.join(folder, match["name"])
+
+
+def _verb_input_files() -> list[str]:
+    """The existing files among the running verb's positional arguments, as given."""
+    try:
+        from typer._click.globals import get_current_context  # a typer that vendors click
+    except ImportError:  # pragma: no cover - a typer built on click
+        from click import get_current_context
+
+    ctx = get_current_context(silent=True)
+    if ctx is None:
+        return []
+    found: list[str] = []
+    for param in ctx.command.params:
+        if param.param_type_name != "argument":
+            continue
+        value = ctx.params.get(param.name or "")
+        for item in value if isinstance(value, list | tuple) else [value]:
+            if isinstance(item, Path) and item.is_file():
+                found.append(str(item))
+    return found
 
 
 def _read(path: Path, **options: Any) -> Any:

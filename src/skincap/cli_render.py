@@ -24,6 +24,47 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+#: Most pictures one clip may hold (an hour at 30 fps), so --fps cannot ask for millions.
+MAX_CLIP_FRAMES = 108_000
+
+
+def _check_times(
+    scene: object,
+    output: Path,
+    *,
+    time: float | None,
+    frame: int | None,
+    start: float,
+    end: float | None,
+    fps: float,
+) -> None:
+    """ValidationError unless --time/--frame/--start/--end/--fps fall inside the take."""
+    duration = float(scene.duration)  # type: ignore[attr-defined]
+    n_frames = int(scene.n_frames)  # type: ignore[attr-defined]
+    still = output.suffix.lower() == ".png"
+    if not still and (time is not None or frame is not None):
+        raise ValidationError("--time and --frame pick a PNG's frame; a clip takes --start/--end")
+    if frame is not None and not 0 <= frame < n_frames:
+        raise ValidationError(f"--frame: the scene's frames are 0 to {n_frames - 1}, got {frame}")
+    if time is not None and not 0.0 <= time <= duration:
+        raise ValidationError(f"--time: the take runs from 0 to {duration:.6g} s, got {time:g}")
+    if still:
+        return
+    if not 0.0 <= start <= duration:
+        raise ValidationError(f"--start: the take runs from 0 to {duration:.6g} s, got {start:g}")
+    if end is not None and not start <= end:
+        raise ValidationError(f"--end ({end:g} s) must not come before --start ({start:g} s)")
+    if not (0.0 < fps < float("inf")):
+        raise ValidationError(f"--fps: expected a positive number, got {fps:g}")
+    stop = duration if end is None else min(end, duration)
+    pictures = (stop - start) * fps + 1
+    if pictures > MAX_CLIP_FRAMES:
+        raise ValidationError(
+            f"--fps {fps:g} over {stop - start:.6g} s makes {pictures:.0f} pictures; "
+            f"a clip holds at most {MAX_CLIP_FRAMES}"
+        )
+
+
 @app.command()
 def render(
     paths: Annotated[
@@ -77,6 +118,7 @@ def render(
             raise ValidationError("give --time or --frame, not both")
         width_height = _parse_size(size)
         scene = load_scene(paths, units=units, rate=rate)
+        _check_times(scene, output, time=time, frame=frame, start=start, end=end, fps=fps)
         at = scene.time_of(frame) if frame is not None else time
         camera = Camera(azimuth=azimuth, elevation=elevation, follow=not fixed)
         with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:

@@ -26,8 +26,8 @@ def _two_spheres() -> tuple[np.ndarray, np.ndarray]:
     return v.astype(float), f
 
 
-def _brute(v, f, o, t, skip=0.0) -> np.ndarray:
-    """(Q,) bool: segment o -> t meets a triangle at a distance > skip from o."""
+def _brute(v, f, o, t, skip=0.0, min_t=1e-9) -> np.ndarray:
+    """(Q,) bool: segment o -> t meets a triangle at a distance > skip from o (and t > min_t)."""
     out = np.zeros(len(o), dtype=bool)
     tri = v[f]
     for k in range(len(o)):
@@ -45,7 +45,7 @@ def _brute(v, f, o, t, skip=0.0) -> np.ndarray:
         q = np.cross(tv, e1)
         w = (d2 * q).sum(1) * inv
         s = (e2 * q).sum(1) * inv
-        out[k] = (ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (s > 1e-9) & (s <= 1)).any()
+        out[k] = (ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (s > min_t) & (s <= 1)).any()
     return out
 
 
@@ -184,3 +184,69 @@ def test_bad_input() -> None:
             np.zeros((1, 3)), np.zeros((2, 3)), np.zeros((1, 3)), np.ones((1, 3)), 0.1
         )
     assert occluded_from_viewpoints(v, f, np.zeros((0, 3)), np.ones((2, 3))).shape == (0, 2)
+
+
+# ------------------------------------------------ hostile meshes (issue 13, item 5)
+def test_grid_without_triangles_blocks_nothing() -> None:
+    v = np.random.default_rng(0).normal(size=(20, 3))
+    f = np.zeros((0, 3), dtype=np.int64)
+    grid = raycast.TriangleGrid(v, f, None)
+    blocked = grid.crossed(v, v + 1.0, np.arange(20), 1000)
+    assert blocked.shape == (20,) and not blocked.any()
+
+
+def test_far_vertex_and_far_segments_match_brute_force() -> None:
+    """A vertex 1e12 m out and segments reaching 1e9 m: coarse cells, exact answers, bounded probes."""
+    v, f = _two_spheres()
+    far = len(v)
+    v = np.concatenate([v, [[1e12, -3e11, 2e11]]])
+    f = np.concatenate([f, [[0, 1, far]]])  # one sliver triangle reaching the far vertex
+    rng = np.random.default_rng(5)
+    o = rng.uniform(-0.6, 0.8, size=(300, 3))
+    t = rng.uniform(-0.6, 0.8, size=(300, 3))
+    t[::3] = o[::3] + rng.normal(size=(100, 3)) * 1e9  # leaves the meshes' neighbourhood
+    got = segments_cross_surface(v, f, o, t)
+    # segments_cross_surface ignores hits at t <= 1e-6 (1 km along a 1e9 m segment)
+    np.testing.assert_array_equal(got, _brute(v, f, o, t, min_t=1e-6))
+    assert 0 < got.sum() < len(got)
+
+
+def test_segment_far_outside_the_mesh_costs_no_probes() -> None:
+    v, f = _two_spheres()
+    grid = raycast.TriangleGrid(v, f, None)
+    o = np.array([[1e6, 1e6, 1e6], [-0.5, 0.0, 0.0]])
+    t = np.array([[1e6, -1e6, 1e6], [1e4, 0.0, 0.0]])  # misses the box / crosses, then far
+    t0, t1 = grid._clip_to_box(o, t - o)
+    assert t0[0] > t1[0]  # never enters the box: not probed at all
+    assert 0.0 <= t0[1] < t1[1] < 2e-4  # only the first 2 m of 10 km lie in the box
+    np.testing.assert_array_equal(grid.crossed(o, t, np.full(2, -1), 1000), [False, True])
+
+
+@pytest.mark.parametrize("x", [-4e307, 1e151, np.inf, np.nan])
+def test_vertex_beyond_the_coordinate_limit_is_refused(x: float) -> None:
+    from skincap.types import Mesh
+
+    v, f = _two_spheres()
+    v[7, 0] = x
+    with pytest.raises(ValidationError, match="vertex 7"):
+        segments_cross_surface(v, f, v[:3], v[3:6])
+    if np.isfinite(x):
+        with pytest.raises(ValidationError, match="vertex 7 lies at"):
+            weights.bone_heat_weight_matrix(
+                Mesh(vertices=v, faces=f), np.array([[0.0, -0.2, 0], [0.0, 0.2, 0]]), [-1, 0]
+            )
+
+
+def test_bone_heat_on_a_mesh_without_faces_takes_the_nearest_bone() -> None:
+    from skincap.types import Mesh
+
+    y = np.linspace(-0.4, 0.4, 9)
+    v = np.stack([np.full(9, 0.05), y, np.zeros(9)], axis=1)
+    joints = np.array([[0.0, -0.5, 0.0], [0.0, 0.0, 0.0], [0.0, 0.5, 0.0]])
+    w = weights.bone_heat_weight_matrix(
+        Mesh(vertices=v, faces=np.zeros((0, 3), dtype=np.int64)), joints, [-1, 0, 1]
+    )
+    # no surface to diffuse over: each vertex belongs to the joint owning its nearest bone
+    # (bone 0 -> 1 owned by joint 0 below y = 0, bone 1 -> 2 owned by joint 1 above)
+    np.testing.assert_allclose(w[y < 0], [[1.0, 0.0, 0.0]] * 4, atol=1e-12)
+    np.testing.assert_allclose(w[y > 0], [[0.0, 1.0, 0.0]] * 4, atol=1e-12)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import struct
 import warnings
 from pathlib import Path
@@ -400,7 +401,7 @@ def _doc_and_bin(tmp_path: Path) -> Path:
         (lambda d: d["accessors"][0].update(count=10**6), "needs bytes"),
         (lambda d: d["accessors"][1].update(componentType=999), "unknown componentType"),
         (lambda d: d["bufferViews"][0].update(byteLength=10**8), "run past the buffer"),
-        (lambda d: d["buffers"][0].update(uri="missing.bin"), "cannot read 'missing.bin'"),
+        (lambda d: d["buffers"][0].update(uri="missing.bin"), "uri 'missing.bin': cannot read it"),
         (lambda d: d["buffers"][0].update(byteLength=10**8), "byteLength says"),
         (
             lambda d: d["meshes"][0]["primitives"][0].update(indices=99),
@@ -457,6 +458,109 @@ def test_bad_glb_container(tmp_path: Path) -> None:
         p.write_bytes(blob)
         with pytest.raises(FormatError, match=fragment):
             read_gltf(p)
+
+
+# ------------------------------------------------------------ buffer uris (issue 13)
+def _gltf_in(folder: Path) -> tuple[Path, bytes, dict]:
+    """A skinned cylinder .gltf in ``folder`` with its buffer in leg_external.bin."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path, _ = write_skinned(folder, "external")
+    blob = (folder / "leg_external.bin").read_bytes()
+    return path, blob, json.loads(path.read_text())
+
+
+def _with_uri(path: Path, doc: dict, uri: str) -> Path:
+    doc["buffers"][0]["uri"] = uri
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.mark.parametrize(
+    ("uri_of", "fragment"),
+    [
+        (lambda outside: str(outside), "must be a relative path inside"),
+        (lambda outside: "../outside/leg.bin", "must be a relative path inside"),
+        (lambda outside: "%2E%2E/outside/leg.bin", "must be a relative path inside"),
+        (lambda outside: "sub/../../outside/leg.bin", "must be a relative path inside"),
+        (lambda outside: "..\\outside\\leg.bin", "must be a relative path inside"),
+        (lambda outside: outside.as_uri(), "only a relative file name or a data: URI"),
+        (lambda outside: "http://example.com/leg.bin", "only a relative file name or a data: URI"),
+        (lambda outside: "//example.com/leg.bin", "only a relative file name or a data: URI"),
+        (lambda outside: "/dev/zero", "must be a relative path inside"),
+        (lambda outside: "/dev/urandom", "must be a relative path inside"),
+        (lambda outside: "/etc/passwd", "must be a relative path inside"),
+    ],
+)
+def test_buffer_uri_outside_the_folder_is_refused(tmp_path: Path, uri_of, fragment: str) -> None:
+    path, blob, doc = _gltf_in(tmp_path / "model")
+    outside = tmp_path / "outside" / "leg.bin"
+    outside.parent.mkdir()
+    outside.write_bytes(blob)  # the right bytes: refused for where they are, not what they hold
+    _with_uri(path, doc, uri_of(outside))
+    with pytest.raises(FormatError, match=fragment) as err:
+        read_gltf(path)
+    assert str(path) in str(err.value)
+
+
+def test_buffer_symlink_escaping_the_folder_is_refused(tmp_path: Path) -> None:
+    path, blob, doc = _gltf_in(tmp_path / "model")
+    outside = tmp_path / "secret.bin"
+    outside.write_bytes(blob)
+    (tmp_path / "model" / "link.bin").symlink_to(outside)
+    _with_uri(path, doc, "link.bin")
+    with pytest.raises(FormatError, match="leads outside the glTF's folder"):
+        read_gltf(path)
+    # a symlink that stays inside the folder is read
+    (tmp_path / "model" / "inner.bin").symlink_to(tmp_path / "model" / "leg_external.bin")
+    _with_uri(path, doc, "inner.bin")
+    assert read_gltf(path).n_vertices == 40
+
+
+def test_buffer_that_is_not_a_regular_file_is_refused(tmp_path: Path) -> None:
+    path, _, doc = _gltf_in(tmp_path / "model")
+    fifo = tmp_path / "model" / "pipe.bin"
+    os.mkfifo(fifo)  # open() for reading would wait for a writer forever
+    _with_uri(path, doc, "pipe.bin")
+    with pytest.raises(FormatError, match="is not a regular file"):
+        read_gltf(path)
+    (tmp_path / "model" / "dir.bin").mkdir()
+    _with_uri(path, doc, "dir.bin")
+    with pytest.raises(FormatError, match="is not a regular file"):
+        read_gltf(path)
+
+
+def test_buffer_in_a_subfolder_is_read_only_up_to_its_byte_length(tmp_path: Path) -> None:
+    path, blob, doc = _gltf_in(tmp_path / "model")
+    sub = tmp_path / "model" / "sub dir"
+    sub.mkdir()
+    big = sub / "leg.bin"
+    big.write_bytes(blob)
+    # 4 GiB of holes after the buffer: reading the whole file would take seconds and
+    # 4 GiB of memory; reading byteLength bytes takes none
+    os.truncate(big, 2**32)
+    _with_uri(path, doc, "sub%20dir/leg.bin")
+    mesh = read_gltf(path)
+    expect = read_gltf(_gltf_in(tmp_path / "plain")[0])
+    np.testing.assert_array_equal(mesh.vertices, expect.vertices)
+    np.testing.assert_array_equal(mesh.faces, expect.faces)
+
+
+@pytest.mark.parametrize("zero", ["matrix", "linear part"])
+def test_singular_inverse_bind_matrix_is_refused(tmp_path: Path, zero: str) -> None:
+    b, nodes, meshes, skins, _ = skinned_cylinder()
+    acc = b.accessors[skins[0]["inverseBindMatrices"]]
+    start = b.views[acc["bufferView"]]["byteOffset"] + 64  # second joint's matrix
+    ibm = np.frombuffer(bytes(b.blob[start : start + 64]), dtype="<f4").reshape(4, 4).copy()
+    if zero == "matrix":
+        ibm[:] = 0.0  # column-major in the file: the fourth row is ibm[:, 3]
+        fragment = r"inverseBindMatrices\[1\] has a fourth row other than \(0, 0, 0, 1\)"
+    else:
+        ibm[:3, :3] = 0.0
+        fragment = r"inverseBindMatrices\[1\] is singular"
+    b.blob[start : start + 64] = ibm.astype("<f4").tobytes()
+    path = b.write_glb(tmp_path / "leg.glb", nodes, meshes, skins)
+    with pytest.raises(FormatError, match=fragment):
+        read_gltf(path)
 
 
 def _seed(kind: str) -> bytes:

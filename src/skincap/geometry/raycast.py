@@ -41,6 +41,14 @@ __all__ = [
 #: Probes per grid cell along a segment in :func:`segments_cross_surface`.
 PROBES_PER_CELL = 4
 
+#: Largest coordinate magnitude accepted for mesh vertices: squared lengths and cross
+#: products of edges (up to 2e150 long) must stay far below float64's 1.8e308.
+MAX_COORDINATE = 1e150
+
+#: Most grid cells along one axis: cell indices and their flattened keys stay far
+#: inside int64 whatever the spread of the coordinates.
+MAX_CELLS_PER_AXIS = 2**20
+
 
 # ------------------------------------------------------------------------- checks
 def _points(name: str, value: object, n: int | None = None) -> np.ndarray:
@@ -70,8 +78,20 @@ def _parents(value: object, n: int) -> np.ndarray:
     return p
 
 
+def _check_coordinates(v: np.ndarray) -> None:
+    """ValidationError naming the first vertex beyond :data:`MAX_COORDINATE` (or not finite)."""
+    bad = ~(np.abs(v) <= MAX_COORDINATE).all(axis=1)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise ValidationError(
+            f"vertices: vertex {k} lies at {[float(x) for x in v[k]]}, beyond the "
+            f"±{MAX_COORDINATE:g} a mesh coordinate may reach (a stray vertex or a wrong unit?)"
+        )
+
+
 def _mesh_arrays(mesh: Mesh | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(mesh, Mesh):
+        _check_coordinates(mesh.vertices)
         return mesh.vertices, mesh.faces
     try:
         vertices, faces = mesh
@@ -80,8 +100,7 @@ def _mesh_arrays(mesh: Mesh | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray
             "mesh: expected a Mesh or a (vertices (V, 3), faces (F, 3)) pair"
         ) from None
     v = _points("vertices", vertices)
-    if not np.isfinite(v).all():
-        raise ValidationError("vertices: must be finite")
+    _check_coordinates(v)  # finite, and small enough to square
     f = np.asarray(faces)
     if f.size == 0:
         f = f.reshape(0, 3).astype(np.int64)
@@ -108,7 +127,11 @@ class TriangleGrid:
 
     Each triangle is listed in every cell that its bounding box, grown by half the
     probe spacing, overlaps. A segment probed at points at most ``spacing`` apart
-    then finds every triangle it can touch in the cells of its probes.
+    then finds every triangle it can touch in the cells of its probes. Cells are
+    counted from ``origin`` (the triangles' lowest corner) and there are at most
+    :data:`MAX_CELLS_PER_AXIS` along an axis, so far-flung vertices make the cells
+    coarser instead of overflowing the integer cell indices. A grid without
+    triangles blocks nothing.
     """
 
     def __init__(self, v: np.ndarray, f: np.ndarray, cell_size: float | None) -> None:
@@ -121,30 +144,42 @@ class TriangleGrid:
         self.normal_len = np.linalg.norm(self.normal, axis=1)
         if cell_size is None:
             edges = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2)
-            h = float(edges.mean())
+            h = float(edges.mean()) if edges.size else 1.0
             if not h > 0:
                 h = 1.0
         else:
             h = float(cell_size)
             if not (h > 0 and np.isfinite(h)):
                 raise ValidationError(f"cell_size: expected a positive number, got {cell_size!r}")
+        if f.shape[0] == 0:
+            tri = np.zeros((1, 3, 3))  # one empty cell keeps the tables well formed
         tmin = tri.min(axis=1)
         tmax = tri.max(axis=1)
+        self.origin = tmin.min(axis=0)  # (3,)
+        span = float((tmax.max(axis=0) - self.origin).max())
+        h = max(h, span / (MAX_CELLS_PER_AXIS - 2))
+        rel_min = tmin - self.origin  # (F, 3), in [0, span]
+        rel_max = tmax - self.origin
         budget = 64 * f.shape[0] + 1_000_000  # triangle-cell entries allowed
         while True:
             spacing = h / PROBES_PER_CELL
             grow = 0.5 * spacing  # every point of a probed segment is this close to a probe
-            lo = np.floor((tmin - grow) / h).astype(np.int64)  # (F, 3)
-            hi = np.floor((tmax + grow) / h).astype(np.int64)
+            lo = np.floor((rel_min - grow) / h).astype(np.int64)  # (F, 3)
+            hi = np.floor((rel_max + grow) / h).astype(np.int64)
             ext = hi - lo + 1
             per_tri = ext.prod(axis=1)
             if per_tri.sum() <= budget:
                 break
             h *= 2.0  # a few huge triangles: coarser cells keep the table small
+        if f.shape[0] == 0:
+            per_tri = np.zeros(0, dtype=np.int64)
         self.h = h
         self.spacing = spacing
         self.gmin = lo.min(axis=0)
         self.dims = hi.max(axis=0) - self.gmin + 1
+        # the box the cells cover, grown by a probe spacing against round-off
+        self.box_lo = self.origin + self.gmin * h - spacing
+        self.box_hi = self.origin + (self.gmin + self.dims) * h + spacing
         tri_id, k = _grid_pairs(np.zeros(f.shape[0], dtype=np.int64), per_tri)
         ex = ext[tri_id]
         cell = (
@@ -161,6 +196,28 @@ class TriangleGrid:
             key[order], return_index=True, return_counts=True
         )
 
+    def _clip_to_box(self, o: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(Q,) parameters ``t0 <= t1`` in [0, 1] of each segment's part inside the grid's box.
+
+        A segment that misses the box gets ``t0 > t1``. Only that part can meet a
+        triangle, so only it is probed: a segment reaching far outside the mesh costs
+        no more than one crossing it.
+        """
+        t0 = np.zeros(o.shape[0])
+        t1 = np.ones(o.shape[0])
+        for axis in range(3):
+            oa, da = o[:, axis], d[:, axis]
+            lo, hi = self.box_lo[axis], self.box_hi[axis]
+            moving = da != 0
+            safe = np.where(moving, da, 1.0)
+            ta, tb = (lo - oa) / safe, (hi - oa) / safe
+            within = (oa >= lo) & (oa <= hi)
+            enter = np.where(moving, np.minimum(ta, tb), np.where(within, -np.inf, np.inf))
+            leave = np.where(moving, np.maximum(ta, tb), np.where(within, np.inf, -np.inf))
+            t0 = np.maximum(t0, enter)
+            t1 = np.minimum(t1, leave)
+        return t0, t1
+
     def _key(self, cell: np.ndarray) -> np.ndarray:
         return cell[:, 0] + self.dims[0] * (cell[:, 1] + self.dims[1] * cell[:, 2])
 
@@ -175,7 +232,11 @@ class TriangleGrid:
         q = o.shape[0]
         blocked = np.zeros(q, dtype=bool)
         d = t_end - o
-        n_samples = np.ceil(np.linalg.norm(d, axis=1) / self.spacing).astype(np.int64) + 1
+        if self.f.shape[0] == 0:
+            return blocked
+        t0, t1 = self._clip_to_box(o, d)
+        inside_len = np.linalg.norm(d, axis=1) * np.maximum(t1 - t0, 0.0)
+        n_samples = np.where(t1 >= t0, np.ceil(inside_len / self.spacing).astype(np.int64) + 1, 0)
         # blocks of segments with at most max_pairs probes
         ends = np.searchsorted(
             np.cumsum(n_samples), np.arange(max_pairs, int(n_samples.sum()), max_pairs)
@@ -185,8 +246,12 @@ class TriangleGrid:
             seg_id, s_k = _grid_pairs(np.zeros(q1 - q0, dtype=np.int64), n_samples[q0:q1])
             seg_id += q0
             frac = s_k / np.maximum(n_samples[seg_id] - 1, 1)
-            pts = o[seg_id] + frac[:, None] * d[seg_id]
-            sc = np.floor(pts / self.h).astype(np.int64) - self.gmin
+            t = t0[seg_id] + frac * (t1[seg_id] - t0[seg_id])
+            pts = o[seg_id] + t[:, None] * d[seg_id]
+            # cell indices from the origin, clipped before the integer cast (probes lie
+            # in the box up to round-off)
+            cells = np.clip(np.floor((pts - self.origin) / self.h), -1, MAX_CELLS_PER_AXIS + 1)
+            sc = cells.astype(np.int64) - self.gmin
             inside = ((sc >= 0) & (sc < self.dims)).all(axis=1)
             skey = self._key(sc)
             pos = np.minimum(np.searchsorted(self.keys, skey), self.keys.size - 1)

@@ -24,7 +24,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from skincap.errors import FormatError
+from skincap.errors import FormatError, naming_file
 
 __all__ = [
     "read",
@@ -89,6 +89,11 @@ def read(path: str | os.PathLike[str], **options: Any) -> Any:
     -------
     MarkerSet, PointCloud, Motion, Mesh, or a dict for MakeHuman rig/weight files.
     """
+    with naming_file(path):
+        return _read_by_extension(path, **options)
+
+
+def _read_by_extension(path: str | os.PathLike[str], **options: Any) -> Any:
     ext = Path(path).suffix.lower()
     kind_of_extension(path)
     if ext == ".c3d":
@@ -157,7 +162,8 @@ def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
     if ext == ".obj" and any(p.parent.glob("*.mhskel")):
         from skincap.io.makehuman import read_makehuman
 
-        return read_makehuman(p, units=units or "dm")
+        with naming_file(p):
+            return read_makehuman(p, units=units or "dm")
     if ext not in (".obj", ".ply", ".gltf", ".glb"):
         raise FormatError(
             p, f"expected a mesh (.obj, .ply, .gltf, .glb), got {ext or 'no extension'!r}"
@@ -176,6 +182,13 @@ def write(obj: Any, path: str | os.PathLike[str], *, force: bool = False, **opti
     so a failure never leaves a partial output; an existing ``path`` is replaced only
     with ``force=True``.
     """
+    with naming_file(path):
+        _write_by_extension(obj, path, force=force, **options)
+
+
+def _write_by_extension(
+    obj: Any, path: str | os.PathLike[str], *, force: bool, **options: Any
+) -> None:
     from skincap.types import MarkerSet, Mesh, Motion, PointCloud
 
     ext = Path(path).suffix.lower()

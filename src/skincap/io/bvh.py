@@ -51,7 +51,7 @@ from typing import Literal
 
 import numpy as np
 
-from skincap.errors import FormatError, UnitWarning, ValidationError
+from skincap.errors import FormatError, UnitWarning, ValidationError, quote_excerpt
 from skincap.geometry.rotations import (
     euler_to_quat,
     matrix_to_quat,
@@ -180,7 +180,7 @@ class _Tokens:
     def expect(self, word: str) -> int:
         tok, line = self.next(repr(word))
         if tok != word:
-            raise self.error(f"expected {word!r}, found {tok!r}", line)
+            raise self.error(f"expected {word!r}, found {quote_excerpt(tok)}", line)
         return line
 
     def rest_of_line(self, line: int) -> list[str]:
@@ -310,7 +310,9 @@ def _parse_hierarchy(tok: _Tokens) -> list[_Joint]:
                 )
     if not joints:
         found = tok.peek()
-        raise tok.error("expected ROOT after HIERARCHY" + (f", found {found!r}" if found else ""))
+        raise tok.error(
+            "expected ROOT after HIERARCHY" + (f", found {quote_excerpt(found)}" if found else "")
+        )
     if tok.peek() is not None:
         raise tok.error(f"unexpected {tok.peek()!r} after the hierarchy; expected ROOT or MOTION")
     # End sites: "<parent>_end", made unique against every joint name.

@@ -15,16 +15,17 @@ import base64
 import binascii
 import json
 import os
+import stat
 import struct
 import urllib.parse
 import warnings
-from pathlib import Path
+from pathlib import Path, PureWindowsPath
 from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from skincap.errors import FormatError, SkincapWarning
+from skincap.errors import FormatError, SkincapWarning, quote_excerpt
 from skincap.io._common import check_readable
 from skincap.types import Mesh, Skeleton, Skin
 
@@ -106,17 +107,59 @@ class _Doc:
             except (binascii.Error, ValueError):
                 raise self.fail(f"buffers[{i}]: data URI is not valid base64") from None
         else:
-            target = self.path.parent / urllib.parse.unquote(uri)
-            try:
-                data = target.read_bytes()
-            except OSError as exc:
-                raise self.fail(
-                    f"buffers[{i}]: cannot read {uri!r}: {exc.strerror or exc}"
-                ) from None
+            data = self._external_buffer(i, uri, length)
         if len(data) < length:
             raise self.fail(f"buffers[{i}]: holds {len(data)} bytes, byteLength says {length}")
         self._buffers[i] = data[:length]
         return self._buffers[i]
+
+    def _external_buffer(self, i: int, uri: str, length: int) -> bytes:
+        """The first ``length`` bytes of the file a buffer's relative ``uri`` names.
+
+        A shared or downloaded ``.gltf`` must not make skincap read other files: the
+        uri must be a relative path (no scheme, no absolute path, no ``..``) to a
+        regular file inside the glTF's own folder once symlinks are resolved, and no
+        more than ``byteLength`` bytes of it are read (``/dev/zero`` or a FIFO never
+        get opened for reading: they are not regular files).
+        """
+        where = f"buffers[{i}]: uri {quote_excerpt(uri)}"
+        parts = urllib.parse.urlsplit(uri)
+        if parts.scheme or parts.netloc or parts.query or parts.fragment:
+            raise self.fail(f"{where}: only a relative file name or a data: URI is read")
+        rel = urllib.parse.unquote(parts.path)
+        pieces = rel.replace("\\", "/").split("/")
+        if (
+            not rel
+            or "\x00" in rel
+            or rel.startswith(("/", "\\"))
+            or PureWindowsPath(rel).drive
+            or ".." in pieces
+        ):
+            raise self.fail(f"{where}: must be a relative path inside the glTF's folder")
+        folder = self.path.parent.resolve()
+        target = folder / rel
+        try:
+            real = target.resolve(strict=True)
+        except (OSError, RuntimeError) as exc:  # missing, or a symlink loop
+            reason = getattr(exc, "strerror", None) or "cannot be resolved"
+            raise self.fail(f"{where}: cannot read it: {reason.lower()}") from None
+        if not real.is_relative_to(folder):
+            raise self.fail(f"{where}: leads outside the glTF's folder (a symlink)")
+        if not real.is_file():  # a device, FIFO or socket is never opened
+            raise self.fail(f"{where}: is not a regular file")
+        try:
+            # O_NONBLOCK: should a FIFO replace the file meanwhile, open() must not wait
+            fd = os.open(real, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        except OSError as exc:
+            reason = (exc.strerror or str(exc)).lower()
+            raise self.fail(f"{where}: cannot read it: {reason}") from None
+        with os.fdopen(fd, "rb") as fh:
+            info = os.fstat(fh.fileno())
+            if not stat.S_ISREG(info.st_mode):
+                raise self.fail(f"{where}: is not a regular file")
+            if info.st_size < length:
+                raise self.fail(f"{where}: holds {info.st_size} bytes, byteLength says {length}")
+            return fh.read(length)
 
     def view(self, i: int) -> tuple[bytes, int, int, int | None]:
         """(buffer, byteOffset, byteLength, byteStride) of bufferView i, range-checked."""
@@ -599,6 +642,30 @@ def _skin_attributes(
     return np.concatenate(j_sets, axis=1), np.concatenate(w_sets, axis=1)
 
 
+#: Largest condition number of an inverse-bind matrix's 3x3 part: beyond it the bind
+#: pose cannot be recovered from it (float32 storage carries ~7 digits).
+MAX_BIND_CONDITION = 1e6
+
+
+def _check_inverse_binds(g: _Doc, where: str, ibm: np.ndarray) -> None:
+    """FormatError unless every (4, 4) inverse-bind matrix is an invertible affine transform.
+
+    glTF 2.0 (section 3.7.3.2): their fourth row MUST be (0, 0, 0, 1); skinning inverts
+    them to find the bind pose, so a singular one (all zero, a zero scale) is refused.
+    """
+    bottom_ok = np.abs(ibm[:, 3] - [0.0, 0.0, 0.0, 1.0]).max(axis=1) <= 1e-5
+    singular = ~(np.linalg.cond(ibm[:, :3, :3]) <= MAX_BIND_CONDITION)  # inf when singular
+    for bad, what in (
+        (~bottom_ok, "has a fourth row other than (0, 0, 0, 1)"),
+        (singular, "is singular (not invertible)"),
+    ):
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise g.fail(
+                f"{where}: inverseBindMatrices[{k}] {what} ({int(bad.sum())} of {len(ibm)})"
+            )
+
+
 def _build_skin(
     g: _Doc,
     skin_i: int,
@@ -626,6 +693,7 @@ def _build_skin(
         if ibm.shape != (nj, 16) or ibm.dtype.kind != "f":
             raise g.fail(f"{where}: inverseBindMatrices must be {nj} float MAT4")
         ibm = ibm.reshape(nj, 4, 4).transpose(0, 2, 1)  # column-major in the file
+        _check_inverse_binds(g, where, ibm)
     else:
         ibm = np.tile(np.eye(4), (nj, 1, 1))
     # nearest ancestor that is a joint of this skin

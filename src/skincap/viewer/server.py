@@ -31,7 +31,8 @@ from typing import Any
 import numpy as np
 
 from skincap.colours import file_tint
-from skincap.errors import MissingDependencyError, ValidationError
+from skincap.errors import MissingDependencyError, SkincapError, ValidationError
+from skincap.viewer.guard import AccessGuard, guarding_viser
 from skincap.viewer.layers import DrawStyle, LayerDrawer, make_drawer
 from skincap.viewer.timeline import SPEEDS, PlaybackClock, parse_speed, speed_label
 
@@ -149,7 +150,11 @@ class ViewerHandle:
     scene : Scene
     server : viser.ViserServer
     url : str
-        The page to open, ``http://host:port``.
+        The page to open, ``http://host:port/<token>/``: only requests carrying the
+        token, and WebSockets from the page's own Origin, are served
+        (:mod:`skincap.viewer.guard`).
+    guard : AccessGuard
+        The token and the checks.
     drawers : dict[str, LayerDrawer]
         One per layer, by layer name; ``drawers[name].children`` are its viser nodes.
     """
@@ -176,12 +181,22 @@ class ViewerHandle:
         self._playing = False
         self.clock = PlaybackClock(scene.rate, max(n_frames, 1))
 
-        with _quiet():
+        self.guard = AccessGuard(host)
+        with _quiet(), guarding_viser(self.guard):
             self.server = viser.ViserServer(host=host, port=port, verbose=False)
+        if not self.guard.installed:
+            with _quiet():
+                self.server.stop()
+            raise SkincapError(
+                f"viser {getattr(viser, '__version__', '?')} started its server in a way "
+                "skincap cannot guard (token and Origin checks); not serving the capture open"
+            )
         self.host = host
         self.port = int(self.server.get_port())
         shown_host = "localhost" if host in ("0.0.0.0", "::", "") else host
-        self.url = f"http://{shown_host}:{self.port}"
+        if ":" in shown_host:  # an IPv6 address in a URL goes in brackets
+            shown_host = f"[{shown_host}]"
+        self.url = f"http://{shown_host}:{self.port}/{self.guard.token}/"
 
         try:
             self._build_scene()
