@@ -27,6 +27,7 @@ from skincap.errors import (
     OutputExistsError,
     SkincapError,
     SkincapWarning,
+    ValidationError,
     one_line,
 )
 
@@ -690,6 +691,21 @@ def synth(
     units: Annotated[
         str | None, typer.Option(help="Length unit of a BVH motion (guessed when omitted).")
     ] = None,
+    spikes: Annotated[
+        int,
+        typer.Option(help="Spikes put into capture.c3d: a marker jumps 4-6 cm for 1-3 frames."),
+    ] = 0,
+    swaps: Annotated[
+        int,
+        typer.Option(
+            help="Label swaps put into capture.c3d: two labelled markers within 12 cm "
+            "exchange labels for 5-40 frames."
+        ),
+    ] = 0,
+    prop: Annotated[
+        bool,
+        typer.Option("--prop", help="Add a 4-marker rigid prop moving on its own beside the body."),
+    ] = False,
     seed: Annotated[int, typer.Option(help="Random seed: the same seed gives the same bytes.")] = 0,
     force: Annotated[
         bool, typer.Option("--force", help="Replace outputs of an earlier run.")
@@ -699,7 +715,9 @@ def synth(
 
     Writes capture.c3d (first-frame labels plus *N fragments), capture_points.csv
     (un-indexed), summary.json and truth/ (clean markers, fragment and point truth,
-    marker surface, motion, animated skin).
+    marker surface, motion, animated skin, the rigged body, and corruption.json: where
+    --spikes, --swaps and --prop put real-world corruption into capture.c3d; the
+    un-indexed capture_points.csv is left as the cameras saw it).
 
     Example: skincap synth --motion jumprope --rope jump --frames 1000 -o take1
     """
@@ -726,6 +744,8 @@ def synth(
             )
         if soft_tissue < 0 or noise_mm < 0:
             raise FormatError(output, "--soft-tissue and --noise-mm must not be negative")
+        if spikes < 0 or swaps < 0:
+            raise FormatError(output, "--spikes and --swaps must not be negative")
         with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("body", total=1.0)
 
@@ -750,9 +770,19 @@ def synth(
                 seed=seed,
                 progress=report,
             )
+            corruption = None
+            if spikes or swaps or prop:
+                from skincap.synth.corrupt import corrupt_capture
+
+                try:
+                    result.capture, corruption = corrupt_capture(
+                        result.capture, spikes=spikes, swaps=swaps, prop=prop, seed=seed + 1
+                    )
+                except ValidationError as exc:
+                    raise FormatError(output, str(exc)) from None
             progress.update(task, completed=0.9, description="writing")
             output.mkdir(parents=True, exist_ok=True)
-            write_synth_outputs(result, output, force=force)
+            write_synth_outputs(result, output, force=force, corruption=corruption)
     s = result.summary
     out.print(
         f"synth: {s['frames']} frames, {s['markers']} markers + {s['rope_markers']} rope markers -> "

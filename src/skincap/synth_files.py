@@ -17,6 +17,8 @@ Layout of the output folder::
     truth/body.glb          the body with its rig and weights, and the motion on it:
                             ``skincap skin truth/body.glb truth/motion.bvh --method dqs``
                             gives truth/mesh.pc2 back (soft tissue 0)
+    truth/corruption.json   spikes, label swaps and prop markers put into capture.c3d
+                            (``--spikes``, ``--swaps``, ``--prop``; empty lists otherwise)
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import numpy as np
 
 from skincap.errors import OutputExistsError, ValidationError
 from skincap.io._common import atomic_output
+from skincap.synth.corrupt import CorruptionTruth
 from skincap.synth.generate import SynthCapture
 from skincap.types import Mesh, Motion
 
@@ -47,6 +50,7 @@ OUTPUT_FILES = (
     "truth/mesh.obj",
     "truth/mesh.pc2",
     "truth/body.glb",
+    "truth/corruption.json",
 )
 
 
@@ -130,12 +134,38 @@ def _write_text(path: Path, text: str, force: bool) -> None:
         tmp.write_text(text, encoding="utf-8")
 
 
+def corruption_record(labels: list[str], corruption: CorruptionTruth | None) -> dict[str, Any]:
+    """JSON-ready truth of :func:`~skincap.synth.corrupt.corrupt_capture`.
+
+    ``spikes``: ``[frame, label]`` per displaced sample; ``swaps``: the two labels and
+    the frames ``[start, end)`` they were exchanged over; ``prop``: the prop's labels.
+    """
+    if corruption is None:
+        return {"spikes": [], "swaps": [], "prop": []}
+    frames, columns = np.nonzero(corruption.spikes)
+    return {
+        "spikes": [[int(f), labels[c]] for f, c in zip(frames, columns, strict=True)],
+        "swaps": [
+            {"labels": [labels[i], labels[j]], "start": s, "end": e}
+            for i, j, s, e in corruption.swaps
+        ],
+        "prop": [labels[c] for c in corruption.prop],
+    }
+
+
 def write_synth_outputs(
-    result: SynthCapture, folder: str | os.PathLike[str], *, force: bool = False
+    result: SynthCapture,
+    folder: str | os.PathLike[str],
+    *,
+    force: bool = False,
+    corruption: CorruptionTruth | None = None,
 ) -> list[Path]:
     """Write every file of a generated capture into ``folder``; return their paths.
 
     Existing outputs are refused before anything is written unless ``force``.
+    ``truth/corruption.json`` lists the spikes, label swaps and prop markers put into
+    ``capture.c3d`` (:func:`skincap.synth.corrupt.corrupt_capture`); empty lists when
+    ``corruption`` is None.
     """
     from skincap.export.gltf import write_glb
     from skincap.export.pc2 import write_pc2
@@ -188,6 +218,12 @@ def write_synth_outputs(
     # body has no other file with its weights)
     write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
     done(root / "truth" / "body.glb")
+    _write_text(
+        root / "truth" / "corruption.json",
+        json.dumps(corruption_record(result.capture.labels, corruption), indent=1) + "\n",
+        force,
+    )
+    done(root / "truth" / "corruption.json")
     _write_text(
         root / "summary.json", json.dumps(_jsonable(result.summary), indent=2) + "\n", force
     )

@@ -2,8 +2,11 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
+import pytest
 from typer.testing import CliRunner
 
+from skincap import io
 from skincap.cli import app
 
 
@@ -57,3 +60,45 @@ def test_synth_cli_rejects_bad_options(tmp_path):
         assert result.exit_code == 2, (extra, result.output)
         assert result.stderr.startswith("skincap: error:")
     assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.slow
+def test_synth_corruption_is_recorded_and_clean_repairs_it(tmp_path):
+    """--spikes/--swaps/--prop land in capture.c3d as corruption.json says, and clean
+    flags every spiked sample, puts swapped samples back on their own label, keeps the prop."""
+    out = tmp_path / "take"
+    result = run(
+        "synth", "--motion", "punch", "--markers", "sparse", "--frames", "240",
+        "--vertices", "5000", "--spikes", "4", "--swaps", "2", "--prop", "-o", out,
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    record = json.loads((out / "truth" / "corruption.json").read_text())
+    assert len(record["swaps"]) == 2 and len(record["prop"]) == 4
+    assert 4 <= len(record["spikes"]) <= 12
+    capture, truth = io.read(out / "capture.c3d"), io.read(out / "truth" / "markers.c3d")
+    column = {label: k for k, label in enumerate(capture.labels)}
+    true_column = {label: k for k, label in enumerate(truth.labels)}
+    for frame, label in record["spikes"]:
+        if label in true_column:  # the prop has no truth column
+            off = (
+                capture.positions[frame, column[label]] - truth.positions[frame, true_column[label]]
+            )
+            assert np.linalg.norm(off) > 0.035
+
+    cleaned_path = tmp_path / "clean.c3d"
+    cleaned = run("clean", out / "capture.c3d", "-o", cleaned_path, "--json")
+    assert cleaned.exit_code == 0, cleaned.output
+    counts = json.loads(cleaned.stdout)
+    assert counts["label_swaps_repaired"] >= 2
+    assert counts["outliers_replaced"] >= len(record["spikes"])
+    clean = io.read(cleaned_path)
+    at = {label: k for k, label in enumerate(clean.labels)}
+    assert all(label in at for label in record["prop"])
+    for frame, label in record["spikes"]:
+        assert clean.invented[frame, at[label]] or np.isnan(clean.positions[frame, at[label], 0])
+    for swap in record["swaps"]:
+        for label in swap["labels"]:
+            got = clean.positions[swap["start"] : swap["end"], at[label]]
+            want = truth.positions[swap["start"] : swap["end"], true_column[label]]
+            err = np.linalg.norm(got - want, axis=-1)
+            assert np.nanmax(err) < 0.01, (label, np.nanmax(err))

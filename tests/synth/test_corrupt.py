@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from skincap.errors import ValidationError
-from skincap.synth.corrupt import add_rigid_prop, inject_label_swaps, inject_spikes
+from skincap.synth.corrupt import (
+    add_rigid_prop,
+    corrupt_capture,
+    inject_label_swaps,
+    inject_spikes,
+    neighbour_pairs,
+)
 from skincap.types import MarkerSet
 
 
@@ -51,3 +57,23 @@ def test_rigid_prop_keeps_its_shape() -> None:
     spread = np.nanmax(d, axis=0) - np.nanmin(d, axis=0)
     assert np.nanmax(spread) < 0.005  # rigid up to the 0.5 mm noise
     assert np.isnan(pts[..., 0]).sum() == 20
+
+
+def test_neighbour_pairs_closest_first_disjoint_and_labelled_only() -> None:
+    pos = np.zeros((40, 5, 3))
+    pos[:, :, 0] = [0.0, 0.05, 0.5, 0.52, 0.53]  # pairs (0,1) at 5 cm, (3,4) at 1 cm
+    take = MarkerSet(pos, ["A", "B", "C", "D", "*7"], 100.0)
+    assert neighbour_pairs(take, 3) == [(2, 3), (0, 1)]  # *7 is a fragment, D is taken
+    assert neighbour_pairs(take, 1) == [(2, 3)]
+    assert neighbour_pairs(take, 2, max_distance=0.03) == [(2, 3)]
+
+
+def test_corrupt_capture_combines_and_records() -> None:
+    take = _take(frames=200, markers=6)
+    take.positions[:] = np.array([0.0, 0.05, 0.4, 0.45, 0.8, 0.85])[:, None]
+    out, truth = corrupt_capture(take, spikes=3, swaps=2, prop=True, seed=1)
+    assert out.positions.shape == (200, 10, 3) and truth.prop == [6, 7, 8, 9]
+    assert len(truth.swaps) == 2 and truth.spikes.shape == (200, 10)
+    assert 3 <= truth.spikes.sum() <= 9
+    with pytest.raises(ValidationError):
+        corrupt_capture(take, swaps=4)

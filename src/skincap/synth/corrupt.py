@@ -17,7 +17,14 @@ import numpy as np
 from skincap.errors import ValidationError
 from skincap.types import MarkerSet
 
-__all__ = ["CorruptionTruth", "add_rigid_prop", "inject_label_swaps", "inject_spikes"]
+__all__ = [
+    "CorruptionTruth",
+    "add_rigid_prop",
+    "corrupt_capture",
+    "inject_label_swaps",
+    "inject_spikes",
+    "neighbour_pairs",
+]
 
 
 @dataclass
@@ -229,3 +236,84 @@ def add_rigid_prop(
         invented=inv,
     )
     return out, list(range(n, n + n_markers))
+
+
+def neighbour_pairs(
+    markers: MarkerSet, count: int, *, max_distance: float = 0.12
+) -> list[tuple[int, int]]:
+    """Up to ``count`` disjoint pairs of labelled markers that stand close together.
+
+    Real label swaps happen between markers a few centimetres apart, so pairs are
+    taken closest first among labelled columns (not ``*N`` fragments) whose median
+    distance over the frames where both are seen is at most ``max_distance`` metres.
+
+    Returns
+    -------
+    list of (i, j) column indices, i < j, no column twice.
+    """
+    labelled = [k for k, label in enumerate(markers.labels) if not label.startswith("*")]
+    if count <= 0 or len(labelled) < 2:
+        return []
+    p = markers.positions[:, labelled]  # (T, L, 3)
+    d = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=-1)  # (T, L, L)
+    seen = ~np.isnan(d)
+    both = seen.sum(axis=0)
+    med = np.full(both.shape, np.inf)
+    ok = both >= max(10, p.shape[0] // 4)
+    if ok.any():
+        with np.errstate(all="ignore"):
+            med_all = np.nanmedian(np.where(seen, d, np.nan)[:, ok], axis=0)
+        med[ok] = med_all
+    np.fill_diagonal(med, np.inf)
+    order = np.argsort(med, axis=None)
+    pairs: list[tuple[int, int]] = []
+    used: set[int] = set()
+    for flat in order:
+        a, b = np.unravel_index(flat, med.shape)
+        if med[a, b] > max_distance or len(pairs) == count:
+            break
+        if a < b and a not in used and b not in used:
+            pairs.append((labelled[a], labelled[b]))
+            used.update((int(a), int(b)))
+    return pairs
+
+
+def corrupt_capture(
+    markers: MarkerSet,
+    *,
+    spikes: int = 0,
+    swaps: int = 0,
+    prop: bool = False,
+    seed: int | np.random.Generator | None = 0,
+) -> tuple[MarkerSet, CorruptionTruth]:
+    """Put real-world corruption into a capture: spikes, label swaps, a rigid prop.
+
+    Swaps go first (between :func:`neighbour_pairs`), then the prop's columns are
+    appended, then ``spikes`` spikes of 4-6 cm for 1-3 frames land on random
+    columns (the prop's included).
+
+    Raises
+    ------
+    ValidationError
+        When the take has no room for what is asked (too short, too few close pairs).
+    """
+    if swaps < 0:
+        raise ValidationError(f"swaps: expected >= 0, got {swaps!r}")
+    rng = _rng(seed)
+    out = markers
+    swap_runs: list[tuple[int, int, int, int]] = []
+    if swaps:
+        pairs = neighbour_pairs(out, swaps)
+        if len(pairs) < swaps:
+            raise ValidationError(
+                f"swaps: only {len(pairs)} pairs of labelled markers stand within 12 cm, "
+                f"{swaps} asked"
+            )
+        out, swap_runs = inject_label_swaps(out, pairs, seed=rng)
+    prop_columns: list[int] = []
+    if prop:
+        out, prop_columns = add_rigid_prop(out, seed=rng)
+    spiked = np.zeros(out.positions.shape[:2], dtype=bool)
+    if spikes:
+        out, spiked = inject_spikes(out, spikes, seed=rng)
+    return out, CorruptionTruth(spiked, swap_runs, prop_columns)
