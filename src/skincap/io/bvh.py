@@ -1002,6 +1002,12 @@ def _float_or_none(text: str) -> float | None:
         return None
 
 
+#: Deepest indentation the writer uses, in tabs. Real skeletons are under 30 joints
+#: deep; a chain of N joints indented one tab per level would make the file grow as N²
+#: (a 100,000-deep chain: ~20 GB), so deeper levels stay at this indentation.
+_MAX_INDENT = 64
+
+
 def _write_hierarchy(
     out: list[str],
     sk: Skeleton,
@@ -1017,13 +1023,14 @@ def _write_hierarchy(
 
     def offset_line(k: int, depth: int) -> str:
         x, y, z = (float(v) + 0.0 for v in offsets[k])
-        return f"{chr(9) * depth}OFFSET {x:.{decimals}f} {y:.{decimals}f} {z:.{decimals}f}"
+        tab = chr(9) * min(depth, _MAX_INDENT)
+        return f"{tab}OFFSET {x:.{decimals}f} {y:.{decimals}f} {z:.{decimals}f}"
 
     # explicit stack of (joint, depth, closing?) instead of recursion: any depth works
     stack: list[tuple[int, int, bool]] = [(r, 0, False) for r in roots[::-1]]
     while stack:
         k, depth, closing = stack.pop()
-        tab = "\t" * depth
+        tab = "\t" * min(depth, _MAX_INDENT)
         if closing:
             out.append(f"{tab}}}")
             continue

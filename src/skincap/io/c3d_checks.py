@@ -339,7 +339,9 @@ class _Checker:
             shadow = self.group("SHADOW") is not None
             if int(ratio) != byframe_hdr and not (byframe_hdr == 1 and shadow):
                 byframe = int(ratio)
-        n_channels = self.count("ANALOG", "USED") if byframe else 0
+        n_channels = self.count("ANALOG", "USED")  # read even when it is not used
+        if not byframe:
+            n_channels = 0
         rotations = self.group("ROTATION") is not None
         if n_points == 0 and n_channels == 0 and not rotations:
             n_frames = 0
