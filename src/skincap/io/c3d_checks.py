@@ -263,22 +263,28 @@ class _Checker:
         p = self.param(gname, pname, kinds)
         return default if p is None else float(p.values[0])
 
-    def chain(self, gname: str, pname: str, kinds: tuple[int, ...]) -> np.ndarray:
-        """``NAME``, ``NAME2``, ``NAME3``… concatenated, as ezc3d's Info classes do."""
+    def chain(
+        self, gname: str, pname: str, kinds: tuple[int, ...], default: list[float]
+    ) -> np.ndarray:
+        """``NAME`` (ezc3d's default when absent), ``NAME2``, ``NAME3``… concatenated, as
+        ezc3d's Points and Analogs Info classes build their per-column factors."""
         g = self.group(gname)
-        parts = []
+        params = {} if g is None else g.params
+        parts = [] if pname in params else [np.asarray(default, dtype=np.float64)]
         k = 1
-        while g is not None and (pname if k == 1 else f"{pname}{k}") in g.params:
+        while k == 1 or (key := f"{pname}{k}") in params:
             key = pname if k == 1 else f"{pname}{k}"
-            p = g.params[key]
+            k += 1
+            if key not in params:
+                continue
+            p = params[key]
             if p.kind not in kinds:
                 want = " or ".join(_TYPE_NAMES[t] for t in kinds)
                 raise self.fail(
                     f"{gname}:{key} is {_TYPE_NAMES[p.kind]}, expected {want}", p.offset
                 )
             parts.append(p.values)
-            k += 1
-        return np.concatenate(parts) if parts else np.zeros(0)
+        return np.concatenate(parts)
 
     def count(self, gname: str, pname: str) -> int:
         v = self.first(gname, pname, _INT_TYPES, 0.0)
@@ -356,7 +362,7 @@ class _Checker:
         self.first("ANALOG", "GEN_SCALE", (4,), 1.0)
         point_bytes = 0
         if n_points:
-            scales = self.chain("POINT", "SCALE", (4,))
+            scales = self.chain("POINT", "SCALE", (4,), [-1.0])
             if scales.size == 0:
                 raise self.fail(f"POINT:SCALE has no value for {n_points} points")
             per_point = np.full(n_points, scales[0])
@@ -367,7 +373,7 @@ class _Checker:
         if n_channels and n_frames:
             shadow = self.group("SHADOW") is not None
             for pname, kinds in (("SCALE", (4,)), ("OFFSET", _INT_TYPES)):
-                have = self.chain("ANALOG", pname, kinds).size
+                have = self.chain("ANALOG", pname, kinds, []).size
                 if have < n_channels and not (shadow and have == 0):
                     raise self.fail(
                         f"ANALOG:{pname} has {have} values, {n_channels} analog channels need one each"
