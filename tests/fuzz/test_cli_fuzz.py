@@ -20,26 +20,35 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from cli_fuzz_cases import FORMATS  # noqa: E402
-from cli_fuzz_run import CI_CASES, CI_DEFAULT_CASES, prepare, run_format  # noqa: E402
+from cli_fuzz_run import (  # noqa: E402
+    CI_CASES,
+    CI_DEFAULT_CASES,
+    FormatReport,
+    prepare,
+    run_formats,
+)
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
-def fuzz_env(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, list[Path]]]:
+def fuzz_reports(tmp_path_factory: pytest.TempPathFactory) -> dict[str, FormatReport]:
+    """Every format's fixed budget, run once in two worker processes (two cores)."""
     work = tmp_path_factory.mktemp("cli_fuzz")
-    return work, prepare(work)
+    fixtures = prepare(work)
+    n = int(os.environ.get("SKINCAP_FUZZ_CASES", "0"))
+    budget = {f: n or CI_CASES.get(f, CI_DEFAULT_CASES) for f in FORMATS}
+    return run_formats(budget, 0, fixtures, work, workers=2)
 
 
 @pytest.mark.parametrize("fmt", list(FORMATS))
 def test_cli_holds_its_contract_on_mutated_inputs(
-    fuzz_env: tuple[Path, dict[str, list[Path]]], fmt: str
+    fuzz_reports: dict[str, FormatReport], fmt: str
 ) -> None:
-    work, fixtures = fuzz_env
+    report = fuzz_reports[fmt]
     n = int(os.environ.get("SKINCAP_FUZZ_CASES", "0")) or CI_CASES.get(fmt, CI_DEFAULT_CASES)
-    report = run_format(fmt, n, 0, fixtures, work)
-    assert report.cases == n
     assert not report.findings, f"{len(report.findings)} broken:\n" + "\n".join(report.findings)
+    assert report.cases == n
     # the mutations must reach past the first check: some cases read, some are refused
     assert report.outcomes["refused"] > 0
     if fmt not in ("mhw", "mhskel", "clean", "skin"):

@@ -144,6 +144,8 @@ def test_every_real_file_passes(path):
         ("POINT", "RATE", _param(FLOAT, [], [-100.0]), "POINT:RATE is -100, not a rate"),
         ("POINT", "RATE", _param(FLOAT, [], [1e30]), "POINT:RATE is 1e[+]30, not a rate"),
         ("ANALOG", "USED", _param(INT, [0, 0], []), "ANALOG:USED has no value"),
+        ("POINT", "SCALE", _param(CHAR, [1], ["x"]), "POINT:SCALE is CHAR, expected FLOAT"),
+        ("ANALOG", "OFFSET", _param(FLOAT, [1], [0.0]), "ANALOG:OFFSET is FLOAT, expected BYTE"),
         ("ANALOG", "GEN_SCALE", _param(FLOAT, [0], []), "ANALOG:GEN_SCALE has no value"),
         ("ANALOG", "RATE", _param(FLOAT, [], [float("inf")]), "ANALOG:RATE is inf"),
     ],

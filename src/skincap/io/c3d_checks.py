@@ -360,9 +360,14 @@ class _Checker:
 
         # Data::Data: every value the Info classes index must exist
         self.first("ANALOG", "GEN_SCALE", (4,), 1.0)
+        # the factor chains are type-checked even where ezc3d would not read them
+        scales = self.chain("POINT", "SCALE", (4,), [-1.0])
+        analog_factors = {
+            "SCALE": self.chain("ANALOG", "SCALE", (4,), []).size,
+            "OFFSET": self.chain("ANALOG", "OFFSET", _INT_TYPES, []).size,
+        }
         point_bytes = 0
         if n_points:
-            scales = self.chain("POINT", "SCALE", (4,), [-1.0])
             if scales.size == 0:
                 raise self.fail(f"POINT:SCALE has no value for {n_points} points")
             per_point = np.full(n_points, scales[0])
@@ -372,8 +377,7 @@ class _Checker:
         analog_bytes = byframe * n_channels * (4 if scale_hdr < 0 else 2)
         if n_channels and n_frames:
             shadow = self.group("SHADOW") is not None
-            for pname, kinds in (("SCALE", (4,)), ("OFFSET", _INT_TYPES)):
-                have = self.chain("ANALOG", pname, kinds, []).size
+            for pname, have in analog_factors.items():
                 if have < n_channels and not (shadow and have == 0):
                     raise self.fail(
                         f"ANALOG:{pname} has {have} values, {n_channels} analog channels need one each"
