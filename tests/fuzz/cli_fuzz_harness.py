@@ -17,8 +17,10 @@ never a signal, a timeout, a traceback, an allocation above the limit or a parti
 
 from __future__ import annotations
 
+import faulthandler
 import io
 import os
+import re
 import resource
 import signal
 import subprocess
@@ -88,6 +90,9 @@ def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: in
     os.dup2(err_fd, 2)
     sys.stdout = io.TextIOWrapper(open(1, "wb", closefd=False), write_through=True)
     sys.stderr = io.TextIOWrapper(open(2, "wb", closefd=False), write_through=True)
+    # on a timeout the parent asks for the stack before it kills: the judge names the hang
+    faulthandler.register(signal.SIGUSR1, file=sys.stderr, all_threads=False)
+    faulthandler.enable(file=sys.stderr, all_threads=False)  # a crash's stack, to the file
     # Python's own default filters, as a user's shell would run skincap
     warnings.resetwarnings()
     warnings.simplefilter("default", DeprecationWarning, append=False)
@@ -202,6 +207,8 @@ def run_cli(
             if done:
                 break
             if time.monotonic() - t0 > timeout_s:
+                os.kill(pid, signal.SIGUSR1)  # faulthandler writes the stack to stderr
+                time.sleep(0.5)
                 os.kill(pid, signal.SIGKILL)
                 _, status = os.waitpid(pid, 0)
                 timed_out = True
@@ -275,13 +282,13 @@ def judge(
     v = Verdict()
     err = outcome.stderr
     if outcome.timed_out:
-        v.add("timeout", f"no exit within {outcome.seconds:.1f} s")
+        v.add("timeout", f"no exit within {outcome.seconds:.1f} s{_where(err)}")
     if outcome.signal is not None:
-        v.add("signal", signal.Signals(outcome.signal).name)
+        v.add("signal", f"{signal.Signals(outcome.signal).name}{_where(err)}")
     if "MemoryError" in err or "std::bad_alloc" in err or "Cannot allocate memory" in err:
-        v.add("memory", "allocation above the limit: " + _last_line(err))
+        v.add("memory", f"allocation above the limit: {_last_line(err)}{_where(err)}")
     if "Traceback (most recent call last)" in err:
-        v.add("traceback", _last_line(err))
+        v.add("traceback", f"{_last_line(err)}{_where(err)}")
     if v.violations:
         return v
     lines = outcome.stderr_lines
@@ -323,6 +330,23 @@ def judge(
         if extra:
             v.add("partial", f"stray files left behind: {extra[:3]}")
     return v
+
+
+_FRAME_RE = re.compile(r'File "[^"]*/(skincap/[^"]+)", line (\d+),? in (\w+)')
+
+
+def _where(stderr: str) -> str:
+    """`` at skincap/<module>:<line> <function>``: the innermost skincap frame of the
+    traceback or faulthandler stack in ``stderr`` (empty when there is none)."""
+    lines = stderr.splitlines()
+    if any(
+        ln.startswith(("Thread 0x", "Current thread 0x", "Stack (most recent call first)"))
+        for ln in lines
+    ):
+        frames = [m for ln in lines if (m := _FRAME_RE.search(ln))]  # most recent first
+    else:
+        frames = [m for ln in reversed(lines) if (m := _FRAME_RE.search(ln))]
+    return f" at {frames[0][1]}:{frames[0][2]} {frames[0][3]}" if frames else ""
 
 
 def _last_line(text: str) -> str:
