@@ -162,11 +162,14 @@ def run_format(
     *,
     first: int = 0,
     progress: bool = False,
+    seconds: float | None = None,
 ) -> FormatReport:
-    """Run cases ``first .. first + n_cases - 1`` of ``fmt``."""
+    """Run cases ``first .. first + n_cases - 1`` of ``fmt`` (fewer if ``seconds`` run out)."""
     report = FormatReport(fmt)
     t0 = time.monotonic()
     for index in range(first, first + n_cases):
+        if seconds is not None and time.monotonic() - t0 > seconds:
+            break
         case = make_case(fmt, index, seed, fixtures)
         outcomes, found = run_case(case, work)
         report.cases += 1
@@ -198,6 +201,7 @@ def run_formats(
     *,
     workers: int = 2,
     progress: bool = False,
+    seconds: dict[str, float] | None = None,
 ) -> dict[str, FormatReport]:
     """All formats of ``budget`` (format -> cases), shared among ``workers`` forked
     processes (each forks its own CLI children); reports in ``budget``'s order."""
@@ -218,7 +222,15 @@ def run_formats(
             code = 1
             try:
                 reports = [
-                    run_format(f, budget[f], seed, fixtures, work, progress=progress).__dict__
+                    run_format(
+                        f,
+                        budget[f],
+                        seed,
+                        fixtures,
+                        work,
+                        progress=progress,
+                        seconds=None if seconds is None else seconds[f],
+                    ).__dict__
                     for f in share
                 ]
                 result.write_text(json.dumps(reports))
@@ -250,6 +262,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--keep", type=Path, help="folder for the cases that break the contract")
     ap.add_argument("--workers", type=int, default=2, help="formats run in this many processes")
+    ap.add_argument(
+        "--minutes", type=float, help="stop each format after its share of this wall-clock time"
+    )
     args = ap.parse_args(argv)
     keep = args.keep or Path(tempfile.mkdtemp(prefix="skincap-fuzz-"))
     fixtures = prepare(keep)
@@ -261,8 +276,18 @@ def main(argv: list[str] | None = None) -> int:
         table = LONG_CASES if args.long else CI_CASES
         default = LONG_DEFAULT_CASES if args.long else CI_DEFAULT_CASES
         budget = {f: args.cases or table.get(f, default) for f in formats}
+        seconds = None
+        if args.minutes:
+            # each worker gets the whole time; its formats share it by their case cost
+            seconds = {f: 60 * args.minutes * args.workers / len(budget) for f in budget}
         reports = run_formats(
-            budget, args.seed, fixtures, keep, workers=args.workers, progress=args.long
+            budget,
+            args.seed,
+            fixtures,
+            keep,
+            workers=args.workers,
+            progress=args.long,
+            seconds=seconds,
         )
     print(
         f"{'format':8} {'cases':>6} {'runs':>6} {'ok':>6} {'refused':>8} {'new':>5} {'known':>6} {'s':>7}"

@@ -683,3 +683,24 @@ def test_shallow_skeletons_keep_one_tab_per_level(tmp_path: Path) -> None:
     # MakeHuman's deepest joint is a finger tip, well under the cap
     assert 5 < max(depths) < 64
     assert depths[0] == 0
+
+
+_NO_CHANNELS = "HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 0\nEnd Site\n{\nOFFSET 0 1 0\n}\n}\n"
+
+
+def test_frames_without_channels_are_held_to_the_file(tmp_path: Path) -> None:
+    """#13 item 3: 'Frames: 1e11' with no channels allocated (1e11, J, 3) arrays (4.4 TiB)."""
+    p = tmp_path / "no_channels.bvh"
+    p.write_text(_NO_CHANNELS + "MOTION\nFrames: 100000000000\nFrame Time: 0.01\n")
+    with pytest.raises(FormatError, match="no channels and only 1 lines follow"):
+        read_bvh(p, units="m", up="y")
+
+
+def test_frames_without_channels_round_trip(tmp_path: Path) -> None:
+    p = tmp_path / "no_channels.bvh"
+    p.write_text(_NO_CHANNELS + "MOTION\nFrames: 3\nFrame Time: 0.01\n\n\n\n")
+    motion = read_bvh(p, units="m", up="y")
+    assert motion.n_frames == 3
+    out = tmp_path / "out.bvh"
+    write_bvh(motion, out)
+    assert read_bvh(out, units="m", up="y").n_frames == 3

@@ -502,6 +502,15 @@ def _parse_motion(
             except (ValueError, TypeError, OverflowError):
                 raise _diagnose_rows(path, rest, first_line, n_frames, n_channels) from None
     if n_channels == 0:
+        # frames without channels are empty lines (as write_bvh writes them): the count
+        # is held to the lines the file has, never trusted to size arrays on its own
+        if n_frames > len(rest):
+            raise FormatError(
+                path,
+                f"'Frames: {n_frames}' declared but the hierarchy has no channels and only "
+                f"{len(rest)} lines follow",
+                line=frames_line,
+            )
         data = np.zeros((n_frames, 0))
     if data.shape != (n_frames, n_channels) or not np.isfinite(data).all():
         raise _diagnose_rows(path, rest, first_line, n_frames, n_channels)
