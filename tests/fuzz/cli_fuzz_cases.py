@@ -519,6 +519,11 @@ def make_case(fmt: str, index: int, seed: int, fixtures: dict[str, list[Path]]) 
         companions["quad.bin"] = (source.parent / "quad.bin").read_bytes()
     ext = EXTENSION[fmt]
     structured = index % 2 == 1
+    if fmt == "bvh" and structured and index % 50 == 25:
+        frames = rng.choice(["100000000000", "4294967296", "-1", "1e9", "3"])
+        text = "HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 0\nEnd Site\n{\nOFFSET 0 1 0\n}\n}\n"
+        text += f"MOTION\nFrames: {frames}\nFrame Time: 0.01\n\n\n\n"
+        return Case(fmt, index, f"no channels, Frames: {frames}", text.encode(), {}, FORMATS[fmt])
     if fmt == "bvh" and structured and index % 50 == 1:
         depth = [1000, 20000, 100000][(index // 50) % 3]
         return Case(
