@@ -79,12 +79,23 @@ def _vm_size_bytes() -> int:
     return 0
 
 
+def _rss_bytes(pid: int) -> int:
+    """Resident memory of a process (0 once it is gone)."""
+    try:
+        with open(f"/proc/{pid}/statm") as f:
+            return int(f.read().split()[1]) * resource.getpagesize()
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: int) -> int:
     """Body of the forked child: limits, clean stdio and warning filters, then the CLI."""
     os.chdir(cwd)
     limit = _vm_size_bytes() + memory_bytes
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    global _RESERVE
+    _RESERVE = bytearray(16 << 20)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
     os.dup2(out_fd, 1)
     os.dup2(err_fd, 2)
@@ -111,6 +122,11 @@ def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: in
         else:
             print(exc.code, file=sys.stderr)
             code = 1
+    except MemoryError as exc:
+        # say where first, in a few bytes: printing the whole traceback may fail too
+        _write_innermost_frame(exc)
+        traceback.print_exc()
+        code = 1
     except BaseException:  # noqa: BLE001 - the harness reports it as a traceback
         traceback.print_exc()
         code = 1
@@ -120,6 +136,27 @@ def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: in
 
 
 _COMMAND = None
+#: Memory the child keeps in reserve and frees to report a MemoryError.
+_RESERVE: bytearray | None = None
+
+
+def _write_innermost_frame(exc: BaseException) -> None:
+    """Write the innermost skincap frame of ``exc``'s traceback to fd 2, as a traceback
+    line, with as little allocation as possible (it runs out of memory)."""
+    global _RESERVE
+    _RESERVE = None  # give back the headroom kept for this moment
+    try:
+        tb, last = exc.__traceback__, None
+        while tb is not None:
+            if "/skincap/" in tb.tb_frame.f_code.co_filename:
+                last = tb
+            tb = tb.tb_next
+        if last is not None:
+            code = last.tb_frame.f_code
+            line = f'  File "{code.co_filename}", line {last.tb_lineno}, in {code.co_name}\n'
+            os.write(2, line.encode())
+    except BaseException:  # noqa: BLE001, S110 - best effort while out of memory
+        pass
 
 
 def _cli_command():
@@ -194,18 +231,25 @@ def run_cli(
                 code = _child(
                     list(argv), os.fspath(cwd), memory_bytes, out_f.fileno(), err_f.fileno()
                 )
-            except MemoryError:  # even printing its traceback ran out of memory
+            except MemoryError as exc:  # even printing its traceback ran out of memory
                 os.write(2, b"\nharness: MemoryError escaped the CLI\n")
+                _write_innermost_frame(exc.__context__ or exc)
             except BaseException as exc:  # noqa: BLE001
                 os.write(2, f"\nharness: {type(exc).__name__} escaped the CLI\n".encode())
             finally:
                 os._exit(code)
         timed_out = False
         pause = 0.002
+        # a child growing towards its limit is asked once for its stack (faulthandler),
+        # so a MemoryError is reported with the place that kept allocating
+        rss_alarm = _rss_bytes(os.getpid()) + 0.75 * memory_bytes
         while True:
             done, status = os.waitpid(pid, os.WNOHANG)
             if done:
                 break
+            if rss_alarm and _rss_bytes(pid) > rss_alarm:
+                os.kill(pid, signal.SIGUSR1)
+                rss_alarm = 0
             if time.monotonic() - t0 > timeout_s:
                 os.kill(pid, signal.SIGUSR1)  # faulthandler writes the stack to stderr
                 time.sleep(0.5)

@@ -47,7 +47,7 @@ LONG_DEFAULT_CASES = 1500
 KNOWN_OPEN: list[tuple[str, str]] = [
     # item 1: _flush_warnings re-shows a non-skincap warning inside catch_warnings(record=True)
     # and loops for ever; the child is killed at the time or memory limit
-    (r"(timeout|memory): .*at skincap/cli.py:\d+ _flush_warnings", "#13 item 1, cli.py"),
+    (r"(timeout|memory|traceback): .*at skincap/cli.py:\d+ _flush_warnings", "#13 item 1, cli.py"),
     # item 5: tracebacks in clean (surface.py) and skin (raycast.py, inverse bind matrices)
     (r"traceback: ValueError: The truth value of an array", "#13 item 5, cleanup surface"),
     (r"traceback: ValueError: zero-size array", "#13 item 5, raycast"),
@@ -128,7 +128,7 @@ def run_case(
             argv,
             cwd=folder,
             memory_bytes=memory_bytes,
-            timeout_s=TIMEOUT_S.get(case.fmt, DEFAULT_TIMEOUT_S),
+            timeout_s=case.timeout_s or TIMEOUT_S.get(case.fmt, DEFAULT_TIMEOUT_S),
         )
         verdict = judge(
             outcome,
