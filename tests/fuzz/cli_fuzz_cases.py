@@ -68,6 +68,7 @@ class Case:
     data: bytes
     companions: dict[str, bytes] = field(default_factory=dict)  # other files beside it
     commands: list[list[str]] = field(default_factory=list)
+    timeout_s: float | None = None  # None: the format's limit
 
 
 # --------------------------------------------------------------------------- fixtures
@@ -525,9 +526,16 @@ def make_case(fmt: str, index: int, seed: int, fixtures: dict[str, list[Path]]) 
         text += f"MOTION\nFrames: {frames}\nFrame Time: 0.01\n\n\n\n"
         return Case(fmt, index, f"no channels, Frames: {frames}", text.encode(), {}, FORMATS[fmt])
     if fmt == "bvh" and structured and index % 50 == 1:
-        depth = [1000, 20000, 100000][(index // 50) % 3]
+        # a deep chain is legal, only slow: the limit grows with the depth
+        depth = [1000, 5000, 20000, 100000][(index // 50) % 4]
         return Case(
-            fmt, index, f"deep chain of {depth} joints", bvh_deep_chain(depth), {}, FORMATS[fmt]
+            fmt,
+            index,
+            f"deep chain of {depth} joints",
+            bvh_deep_chain(depth),
+            {},
+            FORMATS[fmt],
+            timeout_s=20 + depth / 200,
         )
     if not structured:
         head = {"c3d": 512 * 12, "clean": 512 * 12, "glb": 2048, "ply": 1024}.get(fmt, 4096)
