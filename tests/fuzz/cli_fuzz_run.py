@@ -36,8 +36,8 @@ from cli_fuzz_cases import (  # noqa: E402
 from cli_fuzz_harness import DEFAULT_MEMORY_BYTES, judge, preload, run_cli, warm_up  # noqa: E402
 
 #: Cases per format in CI (HYPOTHESIS-like fixed budget), and in ``--long``.
-CI_CASES = {"clean": 12, "skin": 8}
-CI_DEFAULT_CASES = 60
+CI_CASES = {"clean": 10, "skin": 6}
+CI_DEFAULT_CASES = 48
 LONG_CASES = {"clean": 150, "skin": 100}
 LONG_DEFAULT_CASES = 1500
 #: Violations that belong to other items of #13, fixed on other branches at the time
