@@ -400,13 +400,12 @@ class _Checker:
                     f"{n_frames} frames of {frame_bytes} bytes from byte {data_start} need {need} bytes, the file has {size}",
                     size,
                 )
-        if rotations:
-            self.rotation_block(n_frames, rate_hdr)
+        rotation = self.group("ROTATION")
+        if rotation is not None:
+            self.rotation_block(rotation, n_frames, rate_hdr)
 
-    def rotation_block(self, n_frames: int, rate_hdr: float) -> None:
+    def rotation_block(self, g: _Group, n_frames: int, rate_hdr: float) -> None:
         """ROTATION group (RotationsInfo and Data::Data): parameters and block size."""
-        g = self.group("ROTATION")
-        assert g is not None
         for pname in ("DATA_START", "USED"):
             if pname not in g.params:
                 raise self.fail(f"ROTATION:{pname} is missing")
