@@ -58,7 +58,7 @@ KNOWN_OPEN: list[tuple[str, str]] = [
     # item 7: error lines without the file, or over several lines
     (r"message: the error line names no file", "#13 item 7, messages"),
     # item 4: glTF buffer uris that name devices or files outside the folder
-    (r"memory: .*gltf", "#13 item 4, glTF uris"),
+    (r"(memory|timeout): .*at skincap/io/gltf.py:\d+ buffer", "#13 item 4, glTF uris"),
 ]
 #: Wall-clock limit per command: the heavy verbs get longer.
 TIMEOUT_S = {"clean": 90.0, "skin": 90.0}
