@@ -31,9 +31,12 @@ import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import BinaryIO
 
 #: Memory a case may allocate above what the test process already maps (RLIMIT_AS).
 DEFAULT_MEMORY_BYTES = 1 << 30
+#: Largest file a case may write (RLIMIT_FSIZE; its stdout and stderr included).
+MAX_FILE_BYTES = 1 << 30
 #: Wall-clock limit per CLI run.
 DEFAULT_TIMEOUT_S = 20.0
 
@@ -79,6 +82,19 @@ def _vm_size_bytes() -> int:
     return 0
 
 
+def _head_and_tail(f: BinaryIO, keep: int = 1 << 20) -> str:
+    """A child's output, at most ``keep`` bytes of its start and of its end (a looping
+    child can write gigabytes; the judge needs the first and last lines)."""
+    size = f.seek(0, os.SEEK_END)
+    f.seek(0)
+    if size <= 2 * keep:
+        return f.read().decode("utf-8", "replace")
+    head = f.read(keep)
+    f.seek(size - keep)
+    skipped = f"\n[... {size - 2 * keep} bytes ...]\n".encode()
+    return (head + skipped + f.read(keep)).decode("utf-8", "replace")
+
+
 def _rss_bytes(pid: int) -> int:
     """Resident memory of a process (0 once it is gone)."""
     try:
@@ -94,6 +110,8 @@ def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: in
     limit = _vm_size_bytes() + memory_bytes
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
     resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
+    # no file it writes may outgrow this: a runaway output is a SIGXFSZ, not a full disk
+    resource.setrlimit(resource.RLIMIT_FSIZE, (MAX_FILE_BYTES, MAX_FILE_BYTES))
     global _RESERVE
     _RESERVE = bytearray(16 << 20)
     signal.signal(signal.SIGINT, signal.SIG_DFL)
@@ -260,10 +278,8 @@ def run_cli(
             time.sleep(pause)
             pause = min(pause * 1.5, 0.05)
         seconds = time.monotonic() - t0
-        out_f.seek(0)
-        err_f.seek(0)
-        stdout = out_f.read().decode("utf-8", "replace")
-        stderr = err_f.read().decode("utf-8", "replace")
+        stdout = _head_and_tail(out_f)
+        stderr = _head_and_tail(err_f)
     sig = os.WTERMSIG(status) if os.WIFSIGNALED(status) and not timed_out else None
     code = os.WEXITSTATUS(status) if os.WIFEXITED(status) else None
     return Outcome(list(argv), code, sig, timed_out, seconds, stdout, stderr)

@@ -19,6 +19,7 @@ import shutil
 import sys
 import tempfile
 import time
+import traceback
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -235,6 +236,8 @@ def run_formats(
                 ]
                 result.write_text(json.dumps(reports))
                 code = 0
+            except BaseException:  # noqa: BLE001 - say why the worker failed
+                traceback.print_exc()
             finally:
                 os._exit(code)
         pids.append((pid, result, share))
