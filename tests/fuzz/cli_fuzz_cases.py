@@ -353,7 +353,7 @@ def c3d_structured(data: bytes, rng: random.Random) -> tuple[bytes, str]:
         v = rng.choice([0, 1, 255, r["dims"][k] + 1])
         b[r["dims_at"] + k] = v & 0xFF
         choice = f"dim {k}"
-    elif choice == "value" and r["kind"] in (1, 2, 4):
+    elif choice == "value" and r["kind"] in (1, 2, 4) and r["count"] > 0:
         k = rng.randrange(r["count"])
         at = r["values_at"] + k * abs(r["kind"])
         if r["kind"] == 4:
