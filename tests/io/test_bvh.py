@@ -637,3 +637,70 @@ def test_up_auto_round_trips_a_z_up_file(tmp_path: Path) -> None:
         back = read_bvh(tmp_path / "z.bvh", units="cm")
     assert back.meta["up"] == "z"
     np.testing.assert_allclose(joint_positions(back), joint_positions(m), atol=1e-6)
+
+
+def _chain_bvh(depth: int) -> str:
+    """One chain of ``depth`` joints, no indentation, one frame with distinct angles."""
+    parts = ["HIERARCHY\nROOT j0\n{\nOFFSET 0 0 0\nCHANNELS 6 Xposition Yposition Zposition"]
+    parts.append(" Zrotation Xrotation Yrotation\n")
+    for k in range(1, depth):
+        parts.append(f"JOINT j{k}\n{{\nOFFSET 0 1 0\nCHANNELS 3 Zrotation Xrotation Yrotation\n")
+    parts.append("End Site\n{\nOFFSET 0 1 0\n}\n" + "}\n" * depth)
+    values = [0, 0, 0] + [f"{(k % 7) - 3}" for k in range(3 * depth)]
+    parts.append("MOTION\nFrames: 1\nFrame Time: 0.04\n" + " ".join(map(str, values)) + "\n")
+    return "".join(parts)
+
+
+def test_deep_chain_is_written_in_linear_size_and_reads_back(tmp_path: Path) -> None:
+    """A chain 3000 joints deep: indentation stops at 64 tabs, so the file grows linearly
+    with depth (one tab per level gave N² bytes: ~20 GB for #13's 100,000-deep chain)."""
+    depth = 3000
+    src = tmp_path / "deep.bvh"
+    src.write_text(_chain_bvh(depth))
+    motion = read_bvh(src, units="m", up="y")
+    assert motion.skeleton.n_joints == depth + 1
+    out = tmp_path / "deep_out.bvh"
+    write_bvh(motion, out)
+    text = out.read_text()
+    indents = [len(line) - len(line.lstrip("\t")) for line in text.splitlines()]
+    assert max(indents) == 65  # 64 levels plus the CHANNELS line of the deepest ones
+    # ≤ 65 tabs on each of a joint's 5 lines, plus text: under 1 kB a joint (1.3 MB);
+    # one tab per level would be depth² / 2 tabs on each of 5 lines: 22 MB
+    assert len(text) < 1000 * depth
+    back = read_bvh(out, units="m", up="y")
+    assert back.skeleton.names == motion.skeleton.names
+    np.testing.assert_array_equal(back.skeleton.parents, motion.skeleton.parents)
+    np.testing.assert_allclose(back.rotations, motion.rotations, atol=1e-6)
+
+
+def test_shallow_skeletons_keep_one_tab_per_level(tmp_path: Path) -> None:
+    motion = read_bvh(MAKEHUMAN, units="dm", up="z")
+    out = tmp_path / "t.bvh"
+    write_bvh(motion, out)
+    lines = out.read_text().splitlines()
+    joint_lines = [ln for ln in lines if ln.lstrip().startswith(("ROOT", "JOINT"))]
+    depths = [len(ln) - len(ln.lstrip("\t")) for ln in joint_lines]
+    # MakeHuman's deepest joint is a finger tip, well under the cap
+    assert 5 < max(depths) < 64
+    assert depths[0] == 0
+
+
+_NO_CHANNELS = "HIERARCHY\nROOT a\n{\nOFFSET 0 0 0\nCHANNELS 0\nEnd Site\n{\nOFFSET 0 1 0\n}\n}\n"
+
+
+def test_frames_without_channels_are_held_to_the_file(tmp_path: Path) -> None:
+    """#13 item 3: 'Frames: 1e11' with no channels allocated (1e11, J, 3) arrays (4.4 TiB)."""
+    p = tmp_path / "no_channels.bvh"
+    p.write_text(_NO_CHANNELS + "MOTION\nFrames: 100000000000\nFrame Time: 0.01\n")
+    with pytest.raises(FormatError, match="no channels and only 1 lines follow"):
+        read_bvh(p, units="m", up="y")
+
+
+def test_frames_without_channels_round_trip(tmp_path: Path) -> None:
+    p = tmp_path / "no_channels.bvh"
+    p.write_text(_NO_CHANNELS + "MOTION\nFrames: 3\nFrame Time: 0.01\n\n\n\n")
+    motion = read_bvh(p, units="m", up="y")
+    assert motion.n_frames == 3
+    out = tmp_path / "out.bvh"
+    write_bvh(motion, out)
+    assert read_bvh(out, units="m", up="y").n_frames == 3

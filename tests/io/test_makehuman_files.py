@@ -50,3 +50,53 @@ def test_bad_mhw(tmp_path):
     p.write_text('{"weights": {"a": [[0, 1, 2]]}}')
     with pytest.raises(FormatError):
         read_mhw(p)
+
+
+def test_mhw_vertex_index_of_2_pow_31_is_refused_without_allocating(tmp_path):
+    """#13: an index of 2**31 made the summary allocate a dense (2**31, J) table (2.17 TiB)."""
+    p = tmp_path / "big.mhw"
+    p.write_text(json.dumps({"weights": {"a": [[2**31, 0.5], [0, 1.0]], "b": [[1, 1.0]]}}))
+    with pytest.raises(
+        FormatError, match="vertex index 2147483648 is not an integer in 0..2147483647"
+    ):
+        read_mhw(p)
+
+
+def test_mhw_summary_is_sparse_in_the_vertex_index(tmp_path):
+    """An index of 5e7 (51.8 GiB dense before) is summarised from its rows alone."""
+    import tracemalloc
+
+    p = tmp_path / "far.mhw"
+    p.write_text(
+        json.dumps({"weights": {"a": [[50_000_000, 0.25], [3, 1.0]], "b": [[50_000_000, 0.5]]}})
+    )
+    tracemalloc.start()
+    s = read_mhw(p)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    assert s == {
+        "kind": "weights",
+        "bones": 2,
+        "vertices": 2,
+        "max_vertex": 50_000_000,
+        "weight_sum_min": 0.75,
+        "weight_sum_max": 1.0,
+    }
+    assert peak < 1 << 20
+
+
+@pytest.mark.parametrize(
+    "pairs, message",
+    [
+        ([[1.5, 1.0]], "vertex index 1.5 is not an integer"),
+        ([[-1, 1.0]], "vertex index -1 is not an integer"),
+        ([[0, 1e400]], "non-finite"),
+        ([[0, 1.0], [2]], r"expected \[\[vertex, weight\]"),
+        ("x", r"expected \[\[vertex, weight\]"),
+    ],
+)
+def test_bad_mhw_rows(tmp_path, pairs, message):
+    p = tmp_path / "bad.mhw"
+    p.write_text(json.dumps({"weights": {"a": pairs}}).replace("Infinity", "1e400"))
+    with pytest.raises(FormatError, match=message):
+        read_mhw(p)

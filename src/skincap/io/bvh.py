@@ -504,6 +504,15 @@ def _parse_motion(
             except (ValueError, TypeError, OverflowError):
                 raise _diagnose_rows(path, rest, first_line, n_frames, n_channels) from None
     if n_channels == 0:
+        # frames without channels are empty lines (as write_bvh writes them): the count
+        # is held to the lines the file has, never trusted to size arrays on its own
+        if n_frames > len(rest):
+            raise FormatError(
+                path,
+                f"'Frames: {n_frames}' declared but the hierarchy has no channels and only "
+                f"{len(rest)} lines follow",
+                line=frames_line,
+            )
         data = np.zeros((n_frames, 0))
     if data.shape != (n_frames, n_channels) or not np.isfinite(data).all():
         raise _diagnose_rows(path, rest, first_line, n_frames, n_channels)
@@ -1004,6 +1013,12 @@ def _float_or_none(text: str) -> float | None:
         return None
 
 
+#: Deepest indentation the writer uses, in tabs. Real skeletons are under 30 joints
+#: deep; a chain of N joints indented one tab per level would make the file grow as N²
+#: (a 100,000-deep chain: ~20 GB), so deeper levels stay at this indentation.
+_MAX_INDENT = 64
+
+
 def _write_hierarchy(
     out: list[str],
     sk: Skeleton,
@@ -1019,13 +1034,14 @@ def _write_hierarchy(
 
     def offset_line(k: int, depth: int) -> str:
         x, y, z = (float(v) + 0.0 for v in offsets[k])
-        return f"{chr(9) * depth}OFFSET {x:.{decimals}f} {y:.{decimals}f} {z:.{decimals}f}"
+        tab = chr(9) * min(depth, _MAX_INDENT)
+        return f"{tab}OFFSET {x:.{decimals}f} {y:.{decimals}f} {z:.{decimals}f}"
 
     # explicit stack of (joint, depth, closing?) instead of recursion: any depth works
     stack: list[tuple[int, int, bool]] = [(r, 0, False) for r in roots[::-1]]
     while stack:
         k, depth, closing = stack.pop()
-        tab = "\t" * depth
+        tab = "\t" * min(depth, _MAX_INDENT)
         if closing:
             out.append(f"{tab}}}")
             continue

@@ -70,6 +70,7 @@ from skincap.io._common import (
     unit_scale,
     up_rotation,
 )
+from skincap.io.c3d_checks import check_before_ezc3d
 from skincap.io.c3d_content import (
     C3dContent,
     C3dGroup,
@@ -242,10 +243,6 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
             if body + 1 > rec_end:
                 raise FormatError(path, f"group {name!r}: record too short", offset=body)
             dlen = data[body]
-            if dlen > 127:  # ezc3d reads this byte as signed and crashes on a "negative" length
-                raise FormatError(
-                    path, f"group {name!r}: description length {dlen} > 127", offset=body
-                )
             if body + 1 + dlen > rec_end:
                 raise FormatError(
                     path,
@@ -281,12 +278,6 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
                     offset=vstart,
                 )
             dlen = data[vstart + nbytes]
-            if dlen > 127:  # read as signed by ezc3d
-                raise FormatError(
-                    path,
-                    f"parameter {name!r}: description length {dlen} > 127",
-                    offset=vstart + nbytes,
-                )
             if vstart + nbytes + 1 + dlen > rec_end:
                 raise FormatError(
                     path,
@@ -358,15 +349,6 @@ def _scan_c3d(path: Path, data: bytes) -> _C3dLayout:
                 f"header says {n_analog} analog samples per frame but ANALOG:USED is {a_used if a_used is None else list(a_used)}",
                 offset=4,
             )
-        # ezc3d dereferences these per channel without checking (a segfault otherwise)
-        for pname in ("SCALE", "OFFSET"):
-            v = params.get(("ANALOG", pname))
-            if not isinstance(v, np.ndarray) or v.size < int(a_used[0]):
-                have = "missing" if v is None else f"{len(v)} values"
-                raise FormatError(
-                    path,
-                    f"ANALOG:{pname} is {have}, {int(a_used[0])} analog channels need one each",
-                )
     for key, value in params.items():
         if (
             key[0] in ("POINT", "ANALOG")
@@ -557,6 +539,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         data = p.read_bytes()
     except OSError as exc:
         raise FormatError(p, f"cannot read: {exc.strerror}") from None
+    check_before_ezc3d(p, data)
     layout = _scan_c3d(p, data)
     swig = _import_ezc3d()
     try:

@@ -245,10 +245,41 @@ def _plane_normals(rig: _Rig, pos: dict[str, np.ndarray]) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------- weights
+#: Largest vertex index a weights file may name on its own: no mesh skincap can hold
+#: has 2**31 vertices (OBJ, PLY and glTF index them with 32-bit integers).
+MAX_VERTEX_INDEX = 2**31 - 1
+
+
+def _weight_pairs(path: Path, bname: str, pairs: Any, n_vertices: int) -> np.ndarray:
+    """(k, 2) float64 ``[vertex, weight]`` rows of one bone, validated.
+
+    Vertices must be whole numbers in ``0 .. n_vertices - 1``, weights finite and >= 0.
+    Nothing is allocated from the values: the rows are as many as the file holds.
+    """
+    try:
+        arr = np.asarray(pairs, dtype=np.float64).reshape(-1, 2) if pairs else np.zeros((0, 2))
+    except (ValueError, TypeError, OverflowError):
+        raise FormatError(
+            path, f"weights of bone {bname!r}: expected [[vertex, weight], ...]"
+        ) from None
+    if not np.isfinite(arr).all():
+        raise FormatError(path, f"weights of bone {bname!r}: non-finite value")
+    v = arr[:, 0]
+    if arr.shape[0] and (np.any(v != np.round(v)) or v.min() < 0 or v.max() >= n_vertices):
+        bad = v[(v != np.round(v)) | (v < 0) | (v >= n_vertices)][0]
+        raise FormatError(
+            path,
+            f"weights of bone {bname!r}: vertex index {bad:.17g} is not an integer in 0..{n_vertices - 1}",
+        )
+    if (arr[:, 1] < 0).any():
+        raise FormatError(path, f"weights of bone {bname!r}: negative weight")
+    return arr
+
+
 def _dense_weights(
     path: Path, data: dict[str, Any], bone_index: dict[str, int], n_vertices: int
 ) -> np.ndarray:
-    """(V, J) float64 summed raw weights from a ``.mhw`` object."""
+    """(V, J) float64 summed raw weights from a ``.mhw`` object (V from the base mesh)."""
     weights = data.get("weights")
     if not isinstance(weights, dict):
         raise FormatError(
@@ -257,26 +288,12 @@ def _dense_weights(
     dense = np.zeros((n_vertices, len(bone_index)))
     unknown = []
     for bname, pairs in weights.items():
-        try:
-            arr = np.asarray(pairs, dtype=np.float64).reshape(-1, 2) if pairs else np.zeros((0, 2))
-        except (ValueError, TypeError):
-            raise FormatError(
-                path, f"weights of bone {bname!r}: expected [[vertex, weight], ...]"
-            ) from None
         if bname not in bone_index:
+            _weight_pairs(path, bname, pairs, MAX_VERTEX_INDEX + 1)  # well-formed all the same
             unknown.append(bname)
             continue
-        if not np.isfinite(arr).all():
-            raise FormatError(path, f"weights of bone {bname!r}: non-finite value")
-        v = arr[:, 0]
-        if arr.shape[0] and (np.any(v != np.round(v)) or v.min() < 0 or v.max() >= n_vertices):
-            raise FormatError(
-                path,
-                f"weights of bone {bname!r}: vertex index not an integer in 0..{n_vertices - 1}",
-            )
-        if (arr[:, 1] < 0).any():
-            raise FormatError(path, f"weights of bone {bname!r}: negative weight")
-        np.add.at(dense, (v.astype(np.int64), bone_index[bname]), arr[:, 1])
+        arr = _weight_pairs(path, bname, pairs, n_vertices)
+        np.add.at(dense, (arr[:, 0].astype(np.int64), bone_index[bname]), arr[:, 1])
     if unknown:
         warnings.warn(
             f"{path}: weights for {len(unknown)} bone(s) not in the skeleton ignored: {sorted(unknown)[:5]}",
@@ -588,25 +605,19 @@ def read_mhw(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise FormatError(
             p, "'weights' must be a non-empty object of bone name -> [[vertex, weight], ...]"
         )
-    top = 0
-    for bname, pairs in weights.items():
-        try:
-            arr = np.asarray(pairs, dtype=np.float64).reshape(-1, 2) if pairs else np.zeros((0, 2))
-        except (ValueError, TypeError):
-            raise FormatError(
-                p, f"weights of bone {bname!r}: expected [[vertex, weight], ...]"
-            ) from None
-        if arr.size and np.isfinite(arr[:, 0]).all():
-            top = max(top, int(arr[:, 0].max()))
-    bone_index = {str(b): i for i, b in enumerate(weights)}
-    dense = _dense_weights(p, data, bone_index, top + 1)
-    sums = dense.sum(axis=1)
+    # sparse: the summary never allocates by the largest vertex index (#13: an index
+    # of 2**31 asked a dense table for 2.17 TiB)
+    rows = [_weight_pairs(p, str(b), pairs, MAX_VERTEX_INDEX + 1) for b, pairs in weights.items()]
+    allrows = np.concatenate(rows) if rows else np.zeros((0, 2))
+    vertex = allrows[:, 0].astype(np.int64)
+    uniq, inverse = np.unique(vertex, return_inverse=True)
+    sums = np.bincount(inverse, weights=allrows[:, 1], minlength=uniq.size)
     used = sums > 0
     return {
         "kind": "weights",
-        "bones": len(bone_index),
+        "bones": len(weights),
         "vertices": int(used.sum()),
-        "max_vertex": top,
+        "max_vertex": int(vertex.max()) if vertex.size else 0,
         "weight_sum_min": float(sums[used].min()) if used.any() else 0.0,
         "weight_sum_max": float(sums[used].max()) if used.any() else 0.0,
     }
