@@ -250,3 +250,15 @@ def test_bone_heat_on_a_mesh_without_faces_takes_the_nearest_bone() -> None:
     # (bone 0 -> 1 owned by joint 0 below y = 0, bone 1 -> 2 owned by joint 1 above)
     np.testing.assert_allclose(w[y < 0], [[1.0, 0.0, 0.0]] * 4, atol=1e-12)
     np.testing.assert_allclose(w[y > 0], [[0.0, 1.0, 0.0]] * 4, atol=1e-12)
+
+
+def test_closest_points_refuses_queries_beyond_the_coordinate_limit():
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    f = np.array([[0, 1, 2]])
+    d, _, _ = closest_points_on_mesh(v, f, np.array([[0.0, 0, 2.0], [0, 0, -1e149]]))
+    np.testing.assert_allclose(d, [2.0, 1e149])
+    for bad in (-1e300, np.inf, np.nan):
+        with pytest.raises(ValidationError, match="point 1 lies at"):
+            closest_points_on_mesh(v, f, np.array([[0.0, 0, 2.0], [0, 0, bad]]))

@@ -77,3 +77,12 @@ def test_procedural_body_in_its_own_pose_is_no_misfit():
     scale, shift = fit_skeleton_to_mesh(skeleton, body)
     misfit = rest_pose_misfit(body, transform_skeleton(skeleton, scale, shift))
     assert not misfit["misfit"], misfit
+
+
+def test_a_joint_beyond_any_coordinate_is_refused_by_name():
+    """A stray BVH OFFSET (found by the CLI fuzz test: -1e308) must not overflow the
+    distance query into a SciPy traceback."""
+    from skincap.errors import ValidationError
+
+    with pytest.raises(ValidationError, match="joint 'elbow' lies at"):
+        rest_pose_misfit(BOX, _arm_skeleton(-1e300))

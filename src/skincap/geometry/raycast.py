@@ -797,7 +797,7 @@ def closest_points_on_mesh(
     faces : (F, 3) int
         At least one face.
     points : (N, 3) float, metres
-        Must be finite.
+        Finite, within ±:data:`MAX_COORDINATE` (distances to them must not overflow).
     max_pairs : int, default 2,000,000
         Point-triangle pairs per block.
 
@@ -813,8 +813,13 @@ def closest_points_on_mesh(
 
     v, f = _mesh_arrays((vertices, faces))
     p = _points("points", points)
-    if not np.isfinite(p).all():
-        raise ValidationError("points: must be finite")
+    far = ~(np.abs(p) <= MAX_COORDINATE).all(axis=1)
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValidationError(
+            f"points: point {k} lies at {[float(x) for x in p[k]]}, beyond the "
+            f"±{MAX_COORDINATE:g} a query may reach (or not finite)"
+        )
     if f.shape[0] == 0:
         raise ValidationError("faces: the mesh has no triangle")
     n, n_f = p.shape[0], f.shape[0]

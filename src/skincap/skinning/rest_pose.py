@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from skincap.errors import SkincapWarning, ValidationError
-from skincap.geometry.raycast import closest_points_on_mesh
+from skincap.geometry.raycast import MAX_COORDINATE, closest_points_on_mesh
 from skincap.types import Mesh, Skeleton
 
 __all__ = ["winding_numbers", "rest_pose_misfit", "warn_if_rest_pose_differs", "RestPoseWarning"]
@@ -115,6 +115,13 @@ def rest_pose_misfit(mesh: Mesh, skeleton: Skeleton) -> dict[str, Any]:
     }
     if joints.shape[0] == 0 or mesh.n_faces == 0:
         return result
+    far = ~(np.abs(joints) <= MAX_COORDINATE).all(axis=1)
+    if far.any():
+        k = int(np.argmax(far))
+        raise ValidationError(
+            f"skeleton: joint {names[k]!r} lies at {[float(x) for x in joints[k]]} m in the rest "
+            "pose fitted onto the mesh (a stray OFFSET in the motion?)"
+        )
     outside = winding_numbers(mesh.vertices, mesh.faces, joints) < 0.5
     if not outside.any():
         return result
