@@ -192,16 +192,44 @@ def smooth_trajectories(
         if m.shape != (t, n):
             raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
         change &= m
-    col = np.arange(n)[None, :]
     coeff = {-2: 1.0, -1: -4.0, 1: -4.0, 2: 1.0}
-    z = np.where(valid[..., None], y, 0.0)
+    # Inside a run the neighbour at offset k is z shifted by k frames; only the samples
+    # whose neighbour lies past their run end take the odd reflection, so gather those
+    # few (flat indices into (T N, 3)) instead of indexing all T N samples each pass.
+    shifts = []
+    for k, (idx, anchor, refl) in zip((-2, -1, 1, 2), plan, strict=True):
+        rows = np.flatnonzero((refl & valid).reshape(-1))
+        cols = rows % n if n else rows
+        shifts.append(
+            (k, rows, anchor.reshape(-1)[rows] * n + cols, idx.reshape(-1)[rows] * n + cols)
+        )
+    # C order: the flat (T N, 3) views below must share memory with z and nb
+    z = np.ascontiguousarray(np.where(valid[..., None], y, 0.0))
+    change3 = np.broadcast_to(change[..., None], z.shape)
+    nb = np.empty(z.shape)
     for _ in range(iterations):
+        flat = z.reshape(-1, 3)
         d4 = 6.0 * z
-        for k, (idx, anchor, refl) in zip((-2, -1, 1, 2), plan, strict=True):
-            nb = np.where(refl[..., None], 2.0 * z[anchor, col] - z[idx, col], z[idx, col])
-            d4 = d4 + coeff[k] * nb
-        z = np.where(change[..., None], z - lam * d4, z)
+        for k, rows, anchor_flat, idx_flat in shifts:
+            _shifted(z, k, out=nb)
+            nb.reshape(-1, 3)[rows] = 2.0 * flat[anchor_flat] - flat[idx_flat]
+            nb *= coeff[k]
+            d4 += nb
+        d4 *= lam  # z - λ Δ⁴z where the sample may change (in place: same values)
+        np.subtract(z, d4, out=d4)
+        np.copyto(z, d4, where=change3)
     return np.where(valid[..., None], z, np.nan)
+
+
+def _shifted(z: np.ndarray, k: int, *, out: np.ndarray) -> np.ndarray:
+    """``out[t] = z[t + k]`` along axis 0, zero where ``t + k`` falls outside the take."""
+    t = z.shape[0]
+    out[...] = 0.0
+    if k >= 0:
+        out[: max(t - k, 0)] = z[k:]
+    elif -k < t:
+        out[-k:] = z[: t + k]
+    return out
 
 
 def smooth_local(
