@@ -91,9 +91,7 @@ def test_clean_output_is_unchanged(name: str) -> None:
     got = _clean(markers)
     assert list(got["labels"]) == list(want[f"{name}/labels"])
     np.testing.assert_array_equal(got["invented"], want[f"{name}/invented"])
-    np.testing.assert_array_equal(
-        np.isnan(got["positions"]), np.isnan(want[f"{name}/positions"])
-    )
+    np.testing.assert_array_equal(np.isnan(got["positions"]), np.isnan(want[f"{name}/positions"]))
     np.testing.assert_allclose(
         got["positions"], want[f"{name}/positions"], rtol=0, atol=1e-9, equal_nan=True
     )
