@@ -356,7 +356,15 @@ def local_trajectories(
     cur_ok = present[:, nb] & nb_ok[None]
     # reference shape of each neighbourhood: mean over frames after a Procrustes pass
     ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
-    rot, tr = fit_frames_robust(ref[None], cur, cur_ok)  # (T, N, 3, 3), (T, N, 3)
+    # fitted per neighbourhood size: no work on the padded slots of the small ones (the
+    # frames agree with one padded fit to rounding, ~1e-12 m); fewer than 3: no frame
+    rot = np.full((t, n, 3, 3), np.nan)
+    tr = np.full((t, n, 3), np.nan)
+    for size in np.unique(deg[deg >= 3]).tolist():
+        cols = np.flatnonzero(deg == size)
+        rot[:, cols], tr[:, cols] = fit_frames_robust(
+            ref[None, cols, :size], cur[:, cols, :size], cur_ok[:, cols, :size]
+        )  # (T, n_size, 3, 3), (T, n_size, 3)
     has_frame = ~np.isnan(tr[..., 0])
     local = np.einsum("tnji,tnj->tni", rot, p - tr)  # R^T (x - t)
     local = np.where((present & has_frame)[..., None], local, np.nan)
