@@ -355,7 +355,7 @@ def local_trajectories(
     cur = p[:, nb]  # (T, N, K, 3)
     cur_ok = present[:, nb] & nb_ok[None]
     # reference shape of each neighbourhood: mean over frames after a Procrustes pass
-    ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
+    ref = _neighbourhood_reference(cur, cur_ok, deg)  # (N, K, 3)
     # fitted per neighbourhood size: no work on the padded slots of the small ones (the
     # frames agree with one padded fit to rounding, ~1e-12 m); fewer than 3: no frame
     rot = np.full((t, n, 3, 3), np.nan)
@@ -371,10 +371,12 @@ def local_trajectories(
     return local, rot, tr
 
 
-def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
+def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """(N, K, 3) neighbourhood shapes from (T, N, K, 3) with presence (T, N, K): the
     per-coordinate median of the aligned frames (a spike in a few frames cannot
-    bend it), after a first alignment on the mean."""
+    bend it), after a first alignment on the mean. ``sizes`` (N,) int: members of each
+    neighbourhood (its first slots; the rest are padding, NaN in the result, as is
+    every neighbourhood of fewer than 3)."""
     from skincap.cleanup.outliers import nan_median
 
     if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
@@ -382,22 +384,30 @@ def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
         cur, ok = cur[pick], ok[pick]
     t = cur.shape[0]
     count = ok.sum(axis=2)  # (T, N)
-    # start from each neighbourhood's best-covered frame
-    best = np.argmax(count + ok.all(axis=2) * t, axis=0)  # (N,)
-    n = cur.shape[1]
-    ref = cur[best, np.arange(n)]  # (N, K, 3)
-    ref_ok = ok[best, np.arange(n)]
-    ref = np.where(ref_ok[..., None], ref, 0.0)
-    for last in (False, True):
-        rot, tr = fit_rigid(cur, ref[None], mask=ok & ref_ok[None])  # current -> reference
-        aligned = apply_rigid(rot, tr, cur)  # (T, N, K, 3)
-        good = ok & ~np.isnan(tr[..., 0])[..., None]
-        cnt = good.sum(axis=0)  # (N, K)
-        if last:
-            new = nan_median(np.where(good[..., None], aligned, np.nan), axis=0)
-        else:
-            total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
-            new = total / np.maximum(cnt, 1)[..., None]
-        ref_ok = cnt > 0
-        ref = np.where(ref_ok[..., None], new, 0.0)
-    return np.where(ref_ok[..., None], ref, np.nan)
+    # start from each neighbourhood's best-covered frame (all K slots filled counts only
+    # for the largest neighbourhoods)
+    best_all = np.argmax(count + ok.all(axis=2) * t, axis=0)  # (N,)
+    out = np.full(cur.shape[1:], np.nan)
+    # one pass per neighbourhood size: no fits over padded slots
+    for size in np.unique(sizes[sizes >= 3]).tolist():
+        cols = np.flatnonzero(sizes == size)
+        c_cur, c_ok, best = cur[:, cols, :size], ok[:, cols, :size], best_all[cols]
+        n = cols.size
+        ref = c_cur[best, np.arange(n)]  # (n, size, 3)
+        ref_ok = c_ok[best, np.arange(n)]
+        ref = np.where(ref_ok[..., None], ref, 0.0)
+        for last in (False, True):
+            # current -> reference
+            rot, tr = fit_rigid(c_cur, ref[None], mask=c_ok & ref_ok[None])
+            aligned = apply_rigid(rot, tr, c_cur)  # (T, n, size, 3)
+            good = c_ok & ~np.isnan(tr[..., 0])[..., None]
+            cnt = good.sum(axis=0)  # (n, size)
+            if last:
+                new = nan_median(np.where(good[..., None], aligned, np.nan), axis=0)
+            else:
+                total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
+                new = total / np.maximum(cnt, 1)[..., None]
+            ref_ok = cnt > 0
+            ref = np.where(ref_ok[..., None], new, 0.0)
+        out[cols, :size] = np.where(ref_ok[..., None], ref, np.nan)
+    return out
