@@ -96,32 +96,69 @@ def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:
         raise ValidationError(f"window: expected an odd number >= 3, got {window!r}")
     t, n, _ = p.shape
     valid = ~np.isnan(p[..., 0])
+    live = valid.any(axis=0)
+    if not live.all():  # columns never present (padded neighbour slots) stay NaN, unworked
+        out = np.full_like(p, np.nan)
+        if live.any():
+            out[:, live] = running_median(p[:, live], window)
+        return out
     start, end = _run_ends(valid)
     frame = np.arange(t)[:, None]
+    # frames of the run before and after each present sample (a window reaching further
+    # takes the reflection); a missing sample never reflects
+    room_before = np.where(valid, frame - start, window)
+    room_after = np.where(valid, end - frame, window)
     half = window // 2
     out = np.full_like(p, np.nan)
     step = max(1, _CHUNK_ELEMENTS // max(1, n * 3 * window))
     padded = np.concatenate([np.zeros((half, n, 3)), np.nan_to_num(p), np.zeros((half, n, 3))])
+    # NaN (a missing y or z beside a present x) or inf in a window: take the partition
+    finite = bool(np.isfinite(p[valid]).all())
+    p_flat, start_flat, end_flat = p.reshape(-1, 3), start.reshape(-1), end.reshape(-1)
     for a in range(0, t, step):
         b = min(t, a + step)
-        f = frame[a:b]
-        s0, e0 = start[a:b], end[a:b]
-        stack = np.empty((b - a, n, 3, window))
-        for slot, k in enumerate(range(-half, half + 1)):
+        slots = []
+        for k in range(-half, half + 1):
             v = padded[a + half + k : b + half + k].copy()  # x[t + k] inside the run
-            j = f + k
-            out_of_run = (j < s0) | (j > e0)
-            tt, cc = np.nonzero(out_of_run & valid[a:b])
-            if tt.size:  # past a run end: its odd reflection 2 x[end] - x[2 end - t - k]
-                jj = j[tt, 0]  # j is (B, 1): the same frame for every column
-                lo = jj < s0[tt, cc]
-                anchor = np.where(lo, s0[tt, cc], e0[tt, cc])
-                idx = np.clip(2 * anchor - jj, s0[tt, cc], e0[tt, cc])
-                v[tt, cc] = 2 * p[anchor, cc] - p[idx, cc]
-            stack[..., slot] = v
-        med = np.partition(stack, half, axis=-1)[..., half]
-        out[a:b] = np.where(valid[a:b, :, None], med, np.nan)
+            if k:
+                room = room_before[a:b] if k < 0 else room_after[a:b]
+                tt, cc = np.nonzero(room < abs(k))
+            if k and tt.size:  # past a run end: its odd reflection 2 x[end] - x[2 end - t - k]
+                at = (tt + a) * n + cc  # flat (frame, marker) indices: 1-D gathers
+                s0, e0 = start_flat[at], end_flat[at]
+                anchor = s0 if k < 0 else e0
+                idx = np.clip(2 * anchor - (tt + a + k), s0, e0)
+                v.reshape(-1, 3)[tt * n + cc] = 2 * p_flat[anchor * n + cc] - p_flat[idx * n + cc]
+            slots.append(v)
+        out[a:b] = np.where(valid[a:b, :, None], _median_of(slots, finite=finite), np.nan)
     return out
+
+
+# Devillard's median-of-9 exchange network (19 compare-exchanges, after Paeth): picks the
+# same element a sort would, with elementwise minimum/maximum instead of a partition
+# along a short last axis (several times faster in NumPy).
+_MEDIAN9 = (
+    (1, 2), (4, 5), (7, 8), (0, 1), (3, 4), (6, 7), (1, 2), (4, 5), (7, 8), (0, 3),
+    (5, 8), (4, 7), (3, 6), (1, 4), (2, 5), (4, 7), (4, 2), (6, 4), (4, 2),
+)  # fmt: skip
+
+
+def _median_of(slots: list[np.ndarray], *, finite: bool) -> np.ndarray:
+    """Elementwise median of an odd number of equally shaped float arrays.
+
+    ``finite``: every value is finite, so the window of 9 can take the exchange network
+    (it overwrites ``slots``); otherwise a partition, which sorts NaN last.
+    """
+    half = len(slots) // 2
+    if len(slots) != 9 or not finite:
+        return np.partition(np.stack(slots, axis=-1), half, axis=-1)[..., half]
+    v = list(slots)
+    spare = np.empty_like(v[0])
+    for i, j in _MEDIAN9:
+        np.minimum(v[i], v[j], out=spare)
+        np.maximum(v[i], v[j], out=v[j])
+        v[i], spare = spare, v[i]
+    return v[4]
 
 
 def measurement_noise(positions: np.ndarray) -> np.ndarray:

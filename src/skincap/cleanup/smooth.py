@@ -192,16 +192,44 @@ def smooth_trajectories(
         if m.shape != (t, n):
             raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
         change &= m
-    col = np.arange(n)[None, :]
     coeff = {-2: 1.0, -1: -4.0, 1: -4.0, 2: 1.0}
-    z = np.where(valid[..., None], y, 0.0)
+    # Inside a run the neighbour at offset k is z shifted by k frames; only the samples
+    # whose neighbour lies past their run end take the odd reflection, so gather those
+    # few (flat indices into (T N, 3)) instead of indexing all T N samples each pass.
+    shifts = []
+    for k, (idx, anchor, refl) in zip((-2, -1, 1, 2), plan, strict=True):
+        rows = np.flatnonzero((refl & valid).reshape(-1))
+        cols = rows % n if n else rows
+        shifts.append(
+            (k, rows, anchor.reshape(-1)[rows] * n + cols, idx.reshape(-1)[rows] * n + cols)
+        )
+    # C order: the flat (T N, 3) views below must share memory with z and nb
+    z = np.ascontiguousarray(np.where(valid[..., None], y, 0.0))
+    change3 = np.broadcast_to(change[..., None], z.shape)
+    nb = np.empty(z.shape)
     for _ in range(iterations):
+        flat = z.reshape(-1, 3)
         d4 = 6.0 * z
-        for k, (idx, anchor, refl) in zip((-2, -1, 1, 2), plan, strict=True):
-            nb = np.where(refl[..., None], 2.0 * z[anchor, col] - z[idx, col], z[idx, col])
-            d4 = d4 + coeff[k] * nb
-        z = np.where(change[..., None], z - lam * d4, z)
+        for k, rows, anchor_flat, idx_flat in shifts:
+            _shifted(z, k, out=nb)
+            nb.reshape(-1, 3)[rows] = 2.0 * flat[anchor_flat] - flat[idx_flat]
+            nb *= coeff[k]
+            d4 += nb
+        d4 *= lam  # z - λ Δ⁴z where the sample may change (in place: same values)
+        np.subtract(z, d4, out=d4)
+        np.copyto(z, d4, where=change3)
     return np.where(valid[..., None], z, np.nan)
+
+
+def _shifted(z: np.ndarray, k: int, *, out: np.ndarray) -> np.ndarray:
+    """``out[t] = z[t + k]`` along axis 0, zero where ``t + k`` falls outside the take."""
+    t = z.shape[0]
+    out[...] = 0.0
+    if k >= 0:
+        out[: max(t - k, 0)] = z[k:]
+    elif -k < t:
+        out[-k:] = z[: t + k]
+    return out
 
 
 def smooth_local(
@@ -327,18 +355,28 @@ def local_trajectories(
     cur = p[:, nb]  # (T, N, K, 3)
     cur_ok = present[:, nb] & nb_ok[None]
     # reference shape of each neighbourhood: mean over frames after a Procrustes pass
-    ref = _neighbourhood_reference(cur, cur_ok)  # (N, K, 3)
-    rot, tr = fit_frames_robust(ref[None], cur, cur_ok)  # (T, N, 3, 3), (T, N, 3)
+    ref = _neighbourhood_reference(cur, cur_ok, deg)  # (N, K, 3)
+    # fitted per neighbourhood size: no work on the padded slots of the small ones (the
+    # frames agree with one padded fit to rounding, ~1e-12 m); fewer than 3: no frame
+    rot = np.full((t, n, 3, 3), np.nan)
+    tr = np.full((t, n, 3), np.nan)
+    for size in np.unique(deg[deg >= 3]).tolist():
+        cols = np.flatnonzero(deg == size)
+        rot[:, cols], tr[:, cols] = fit_frames_robust(
+            ref[None, cols, :size], cur[:, cols, :size], cur_ok[:, cols, :size]
+        )  # (T, n_size, 3, 3), (T, n_size, 3)
     has_frame = ~np.isnan(tr[..., 0])
     local = np.einsum("tnji,tnj->tni", rot, p - tr)  # R^T (x - t)
     local = np.where((present & has_frame)[..., None], local, np.nan)
     return local, rot, tr
 
 
-def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
+def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray, sizes: np.ndarray) -> np.ndarray:
     """(N, K, 3) neighbourhood shapes from (T, N, K, 3) with presence (T, N, K): the
     per-coordinate median of the aligned frames (a spike in a few frames cannot
-    bend it), after a first alignment on the mean."""
+    bend it), after a first alignment on the mean. ``sizes`` (N,) int: members of each
+    neighbourhood (its first slots; the rest are padding, NaN in the result, as is
+    every neighbourhood of fewer than 3)."""
     from skincap.cleanup.outliers import nan_median
 
     if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
@@ -346,22 +384,30 @@ def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray) -> np.ndarray:
         cur, ok = cur[pick], ok[pick]
     t = cur.shape[0]
     count = ok.sum(axis=2)  # (T, N)
-    # start from each neighbourhood's best-covered frame
-    best = np.argmax(count + ok.all(axis=2) * t, axis=0)  # (N,)
-    n = cur.shape[1]
-    ref = cur[best, np.arange(n)]  # (N, K, 3)
-    ref_ok = ok[best, np.arange(n)]
-    ref = np.where(ref_ok[..., None], ref, 0.0)
-    for last in (False, True):
-        rot, tr = fit_rigid(cur, ref[None], mask=ok & ref_ok[None])  # current -> reference
-        aligned = apply_rigid(rot, tr, cur)  # (T, N, K, 3)
-        good = ok & ~np.isnan(tr[..., 0])[..., None]
-        cnt = good.sum(axis=0)  # (N, K)
-        if last:
-            new = nan_median(np.where(good[..., None], aligned, np.nan), axis=0)
-        else:
-            total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
-            new = total / np.maximum(cnt, 1)[..., None]
-        ref_ok = cnt > 0
-        ref = np.where(ref_ok[..., None], new, 0.0)
-    return np.where(ref_ok[..., None], ref, np.nan)
+    # start from each neighbourhood's best-covered frame (all K slots filled counts only
+    # for the largest neighbourhoods)
+    best_all = np.argmax(count + ok.all(axis=2) * t, axis=0)  # (N,)
+    out = np.full(cur.shape[1:], np.nan)
+    # one pass per neighbourhood size: no fits over padded slots
+    for size in np.unique(sizes[sizes >= 3]).tolist():
+        cols = np.flatnonzero(sizes == size)
+        c_cur, c_ok, best = cur[:, cols, :size], ok[:, cols, :size], best_all[cols]
+        n = cols.size
+        ref = c_cur[best, np.arange(n)]  # (n, size, 3)
+        ref_ok = c_ok[best, np.arange(n)]
+        ref = np.where(ref_ok[..., None], ref, 0.0)
+        for last in (False, True):
+            # current -> reference
+            rot, tr = fit_rigid(c_cur, ref[None], mask=c_ok & ref_ok[None])
+            aligned = apply_rigid(rot, tr, c_cur)  # (T, n, size, 3)
+            good = c_ok & ~np.isnan(tr[..., 0])[..., None]
+            cnt = good.sum(axis=0)  # (n, size)
+            if last:
+                new = nan_median(np.where(good[..., None], aligned, np.nan), axis=0)
+            else:
+                total = np.where(good[..., None], aligned, 0.0).sum(axis=0)
+                new = total / np.maximum(cnt, 1)[..., None]
+            ref_ok = cnt > 0
+            ref = np.where(ref_ok[..., None], new, 0.0)
+        out[cols, :size] = np.where(ref_ok[..., None], ref, np.nan)
+    return out
