@@ -36,6 +36,8 @@ __all__ = [
     "first_ray_hits",
     "segments_near_capsules",
     "closest_points_on_mesh",
+    "check_vertex_coordinates",
+    "MAX_COORDINATE",
 ]
 
 #: Probes per grid cell along a segment in :func:`segments_cross_surface`.
@@ -78,7 +80,7 @@ def _parents(value: object, n: int) -> np.ndarray:
     return p
 
 
-def _check_coordinates(v: np.ndarray) -> None:
+def check_vertex_coordinates(v: np.ndarray) -> None:
     """ValidationError naming the first vertex beyond :data:`MAX_COORDINATE` (or not finite)."""
     bad = ~(np.abs(v) <= MAX_COORDINATE).all(axis=1)
     if bad.any():
@@ -91,7 +93,7 @@ def _check_coordinates(v: np.ndarray) -> None:
 
 def _mesh_arrays(mesh: Mesh | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     if isinstance(mesh, Mesh):
-        _check_coordinates(mesh.vertices)
+        check_vertex_coordinates(mesh.vertices)
         return mesh.vertices, mesh.faces
     try:
         vertices, faces = mesh
@@ -100,7 +102,7 @@ def _mesh_arrays(mesh: Mesh | tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray
             "mesh: expected a Mesh or a (vertices (V, 3), faces (F, 3)) pair"
         ) from None
     v = _points("vertices", vertices)
-    _check_coordinates(v)  # finite, and small enough to square
+    check_vertex_coordinates(v)  # finite, and small enough to square
     f = np.asarray(faces)
     if f.size == 0:
         f = f.reshape(0, 3).astype(np.int64)

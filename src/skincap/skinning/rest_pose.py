@@ -18,7 +18,11 @@ from typing import Any
 import numpy as np
 
 from skincap.errors import SkincapWarning, ValidationError
-from skincap.geometry.raycast import MAX_COORDINATE, closest_points_on_mesh
+from skincap.geometry.raycast import (
+    MAX_COORDINATE,
+    check_vertex_coordinates,
+    closest_points_on_mesh,
+)
 from skincap.types import Mesh, Skeleton
 
 __all__ = ["winding_numbers", "rest_pose_misfit", "warn_if_rest_pose_differs", "RestPoseWarning"]
@@ -115,6 +119,7 @@ def rest_pose_misfit(mesh: Mesh, skeleton: Skeleton) -> dict[str, Any]:
     }
     if joints.shape[0] == 0 or mesh.n_faces == 0:
         return result
+    check_vertex_coordinates(mesh.vertices)  # a stray vertex is named before the joints
     far = ~(np.abs(joints) <= MAX_COORDINATE).all(axis=1)
     if far.any():
         k = int(np.argmax(far))
