@@ -80,14 +80,21 @@ def _parents(value: object, n: int) -> np.ndarray:
     return p
 
 
-def check_vertex_coordinates(v: np.ndarray) -> None:
-    """ValidationError naming the first vertex beyond :data:`MAX_COORDINATE` (or not finite)."""
+def check_vertex_coordinates(
+    v: np.ndarray,
+    *,
+    name: str = "vertices",
+    item: str = "vertex",
+    hint: str = "a mesh coordinate may reach (a stray vertex or a wrong unit?)",
+) -> None:
+    """ValidationError naming the first row of ``v`` (N, 3) beyond :data:`MAX_COORDINATE`
+    or not finite: squared distances of such points would overflow float64."""
     bad = ~(np.abs(v) <= MAX_COORDINATE).all(axis=1)
     if bad.any():
         k = int(np.argmax(bad))
         raise ValidationError(
-            f"vertices: vertex {k} lies at {[float(x) for x in v[k]]}, beyond the "
-            f"±{MAX_COORDINATE:g} a mesh coordinate may reach (a stray vertex or a wrong unit?)"
+            f"{name}: {item} {k} lies at {[float(x) for x in v[k]]}, beyond the "
+            f"±{MAX_COORDINATE:g} {hint}"
         )
 
 
@@ -815,13 +822,7 @@ def closest_points_on_mesh(
 
     v, f = _mesh_arrays((vertices, faces))
     p = _points("points", points)
-    far = ~(np.abs(p) <= MAX_COORDINATE).all(axis=1)
-    if far.any():
-        k = int(np.argmax(far))
-        raise ValidationError(
-            f"points: point {k} lies at {[float(x) for x in p[k]]}, beyond the "
-            f"±{MAX_COORDINATE:g} a query may reach (or not finite)"
-        )
+    check_vertex_coordinates(p, name="points", item="point", hint="a query may reach")
     if f.shape[0] == 0:
         raise ValidationError("faces: the mesh has no triangle")
     n, n_f = p.shape[0], f.shape[0]
