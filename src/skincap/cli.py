@@ -188,6 +188,21 @@ def _verb_input_files() -> list[str]:
     return found
 
 
+def frame_progress() -> Any:
+    """A transient rich progress bar on stderr counting frames (hidden off a terminal)."""
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    )
+
+
 def _read(path: Path, **options: Any) -> Any:
     from skincap import io
 
@@ -523,8 +538,6 @@ def _skin(
     force: bool,
 ) -> dict[str, Any]:
     """Bind, retarget, deform and export; return the summary (``skin --json``)."""
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from skincap.io.bvh import read_bvh
     from skincap.skinning.pipeline import prepare_skinning
 
@@ -557,15 +570,7 @@ def _skin(
         max_influences=max_influences,  # type: ignore[arg-type]
     )
     frames = setup.motion.n_frames
-    with Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
-        TimeRemainingColumn(),
-        console=err,
-        transient=True,
-        disable=not err.is_terminal,
-    ) as progress:
+    with frame_progress() as progress:
         task = progress.add_task(f"skinning ({method})", total=frames)
 
         def advance(fraction: float) -> None:

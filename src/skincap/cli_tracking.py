@@ -18,6 +18,7 @@ from skincap.cli import (
     bench_app,
     err,
     eval_app,
+    frame_progress,
     out,
     print_bench_results,
     print_json,
@@ -98,8 +99,6 @@ def track(
 
     Example: skincap track capture_points.csv --rope auto -o tracked
     """
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     from skincap.io.output_safety import guard_outputs
     from skincap.tracking.init import init_rope
     from skincap.tracking.outputs import OUTPUT_NAMES, write_track_outputs
@@ -122,15 +121,7 @@ def track(
         else:
             init = init_rope(cloud, auto=True, window_seconds=window)
         frames = cloud.n_frames
-        with Progress(
-            TextColumn("{task.description}"),
-            BarColumn(),
-            TextColumn("{task.completed:.0f}/{task.total:.0f} frames"),
-            TimeRemainingColumn(),
-            console=err,
-            transient=True,
-            disable=not err.is_terminal,
-        ) as progress:
+        with frame_progress() as progress:
             task = progress.add_task("tracking the rope", total=frames)
 
             def advance(fraction: float) -> None:

@@ -133,17 +133,22 @@ def check_output(path: str | os.PathLike[str], *, force: bool = False) -> Path:
         raise FormatError(
             target, f"output {how} the input {str(source.given)!r}; inputs are never modified"
         )
-    if target.is_symlink() and not target.exists():
-        raise FormatError(
-            target,
-            f"output is a symbolic link to a missing file ({os.readlink(target)!r}); "
-            "remove the link or choose another output",
-        )
+    _refuse_dangling_link(target, "file")
     if target.is_dir():
         raise FormatError(target, "output is a folder, expected a file")
     if target.exists() and not force:
         raise OutputExistsError(target)
     return target
+
+
+def _refuse_dangling_link(path: Path, kind: str) -> None:
+    """FormatError when ``path`` is a symbolic link to nothing (replacing it would hide that)."""
+    if path.is_symlink() and not path.exists():
+        raise FormatError(
+            path,
+            f"output is a symbolic link to a missing {kind} ({os.readlink(path)!r}); "
+            "remove the link or choose another output",
+        )
 
 
 def check_outputs(paths: Iterable[str | os.PathLike[str]], *, force: bool = False) -> list[Path]:
@@ -172,12 +177,7 @@ def check_output_folder(path: str | os.PathLike[str]) -> Path:
         raise FormatError(
             folder, f"output folder is the input {str(source.given)!r}; inputs are never modified"
         )
-    if folder.is_symlink() and not folder.exists():
-        raise FormatError(
-            folder,
-            f"output is a symbolic link to a missing folder ({os.readlink(folder)!r}); "
-            "remove the link or choose another output",
-        )
+    _refuse_dangling_link(folder, "folder")
     if folder.exists() and not folder.is_dir():
         raise FormatError(folder, "exists and is not a folder")
     return folder
