@@ -76,7 +76,7 @@ def fit_frames_robust(
     R : (T, N, 3, 3), t : (T, N, 3)
         ``current ≈ R reference + t``; NaN where fewer than three members are present.
     """
-    from skincap.cleanup.outliers import running_median
+    from skincap.cleanup.robust_stats import running_median
 
     ok = np.asarray(present, dtype=bool)
     cur = np.asarray(current, dtype=np.float64)

@@ -14,9 +14,9 @@ from typing import Any, Literal
 
 import numpy as np
 
+from skincap.deform.skeletal.deformers import skin_motion
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
-from skincap.skinning.deformers import skin_motion
 from skincap.synth.cameras import CameraRig, CaptureResult, simulate_capture
 from skincap.synth.markers import (
     MarkerLayout,
