@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import as_trajectories
 from skincap.cleanup.local_frames import neighbour_table
 from skincap.cleanup.robust_stats import nan_median_last, running_median
 from skincap.errors import ValidationError
@@ -35,13 +36,6 @@ __all__ = ["find_label_swaps", "find_spikes", "measurement_noise"]
 _RESIDUAL_GAIN = 1.0 + 34.0 / 36.0
 #: Elements per chunk of the (frames, markers, window) temporaries.
 _CHUNK_ELEMENTS = 1 << 22
-
-
-def _check(positions: np.ndarray) -> np.ndarray:
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise ValidationError(f"positions: expected shape (T, N, 3), got {p.shape}")
-    return p
 
 
 def measurement_noise(positions: np.ndarray) -> np.ndarray:
@@ -63,7 +57,7 @@ def measurement_noise(positions: np.ndarray) -> np.ndarray:
     (N,) float64, metres
         NaN for a marker with fewer than 10 usable residuals.
     """
-    p = _check(positions)
+    p = as_trajectories(positions)
     t, n, _ = p.shape
     if t < 5:
         return np.full(n, np.nan)
@@ -113,7 +107,7 @@ def find_spikes(
     -------
     (T, N) bool
     """
-    p = _check(positions)
+    p = as_trajectories(positions)
     t, n, _ = p.shape
     present = ~np.isnan(p[..., 0])
     if t < window:
@@ -228,7 +222,7 @@ def find_label_swaps(
     list of (i, j, frames)
         Marker columns ``i < j`` and the (F,) frames whose samples should be exchanged.
     """
-    p = _check(positions)
+    p = as_trajectories(positions)
     t, n, _ = p.shape
     if t < 3 or n < 2:
         return []

@@ -8,19 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from skincap._arrays import as_trajectories
 from skincap.errors import ValidationError
 
 __all__ = ["nan_median", "nan_median_last", "running_median"]
 
 #: Elements per chunk of the running median's window stack (bounds its memory).
 _CHUNK_ELEMENTS = 1 << 22
-
-
-def _check(positions: np.ndarray) -> np.ndarray:
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise ValidationError(f"positions: expected shape (T, N, 3), got {p.shape}")
-    return p
 
 
 def nan_median_last(values: np.ndarray, *, min_count: int = 1) -> np.ndarray:
@@ -71,7 +65,7 @@ def running_median(positions: np.ndarray, window: int = 9) -> np.ndarray:
     -------
     (T, N, 3) float64; NaN where missing
     """
-    p = _check(positions)
+    p = as_trajectories(positions)
     if window < 3 or window % 2 == 0:
         raise ValidationError(f"window: expected an odd number >= 3, got {window!r}")
     t, n, _ = p.shape

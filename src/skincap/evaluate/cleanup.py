@@ -9,12 +9,13 @@ percentile, maximum and RMSE over the punched samples.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.cleanup.fill import (
     FILL_METHODS,
     as_csr,
@@ -167,7 +168,7 @@ def evaluate_fill(
     min_neighbours: int = 3,
     rigid_blend: float | None = None,
     fill_own_gaps: bool = True,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Punch seeded gaps into visible data, fill them with each method and score them.
 

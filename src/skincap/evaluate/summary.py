@@ -9,10 +9,10 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import interior_runs
 from skincap.types import MarkerSet, Mesh, Motion, PointCloud, Skeleton
 
 __all__ = [
-    "find_gaps",
     "summarize",
     "summarize_markers",
     "summarize_points",
@@ -22,54 +22,10 @@ __all__ = [
 ]
 
 
-def find_gaps(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Interior gaps of marker trajectories.
-
-    A gap is a maximal run of missing frames with a present sample on both sides;
-    missing runs at the start or end of the take are not gaps (nothing to fill
-    between).
-
-    Parameters
-    ----------
-    missing : (T, N) bool
-        True where marker n is missing in frame t.
-
-    Returns
-    -------
-    marker : (G,) int64
-        Column of each gap.
-    start : (G,) int64
-        First missing frame of each gap.
-    length : (G,) int64
-        Number of missing frames.
-    """
-    missing = np.asarray(missing, dtype=bool)
-    if missing.ndim != 2:
-        raise ValueError(f"missing: expected shape (T, N), got {missing.shape}")
-    t, n = missing.shape
-    if t == 0 or n == 0:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty.copy(), empty.copy()
-    # Pad with "present" so every run of missing samples has a start and an end edge.
-    padded = np.zeros((t + 2, n), dtype=np.int8)
-    padded[1:-1] = missing
-    edges = np.diff(padded, axis=0)  # (T + 1, N): +1 at a run start, -1 one past its end
-    # np.nonzero on the transposed array gives (marker, frame) pairs sorted by marker
-    # then frame, so the k-th run start and the k-th run end belong together.
-    marker, starts = np.nonzero(edges.T == 1)
-    _, ends = np.nonzero(edges.T == -1)
-    interior = (starts > 0) & (ends < t)
-    return (
-        marker[interior].astype(np.int64),
-        starts[interior].astype(np.int64),
-        (ends - starts)[interior].astype(np.int64),
-    )
-
-
 def summarize_markers(markers: MarkerSet) -> dict[str, Any]:
     """Frames, rate, duration, label counts, missing fraction and gaps of ``markers``."""
     missing = markers.missing
-    _, _, lengths = find_gaps(missing)
+    _, _, lengths = interior_runs(missing)
     unlabelled = int(markers.unlabelled.sum())
     model_outputs = markers.meta.get("model_outputs") or {}
     return {

@@ -31,6 +31,7 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.errors import ValidationError
 from skincap.types import MarkerSet, PointCloud
 
@@ -77,7 +78,6 @@ class TrackLike(Protocol):
 
 
 TrackFn = Callable[[PointCloud], TrackLike]
-Progress = Callable[[float, str], None]
 
 
 # ----------------------------------------------------------------- classification

@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.data import path as shipped_file
 
 __all__ = ["run_demo", "DEMO_FRAMES"]
@@ -43,7 +44,7 @@ DEMO_BODY_VERTICES = 8000
 class _Steps:
     """Progress reporting and wall-clock timing of the demo's steps."""
 
-    def __init__(self, progress: Callable[[float, str], None] | None) -> None:
+    def __init__(self, progress: Progress | None) -> None:
         self.progress = progress
         self.timings: dict[str, float] = {}
 
@@ -83,7 +84,7 @@ def run_demo(
     *,
     force: bool = False,
     frames: int = DEMO_FRAMES,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Run the whole chain and write every output plus ``report.html`` into ``output``.
 
@@ -123,7 +124,7 @@ def run_demo(
 
 
 def _run_demo(
-    folder: Path, *, force: bool, frames: int, progress: Callable[[float, str], None] | None
+    folder: Path, *, force: bool, frames: int, progress: Progress | None
 ) -> dict[str, Any]:
     folder.mkdir(parents=True, exist_ok=True)
     steps = _Steps(progress)

@@ -5,7 +5,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from skincap.evaluate.summary import find_gaps, summarize
+from skincap._arrays import interior_runs as find_gaps
+from skincap.evaluate.summary import summarize
 from skincap.types import MarkerSet
 
 
