@@ -65,6 +65,7 @@ def _steady(state):  # pragma: no cover - runs compiled
 # ------------------------------------------------------------------ frame start and end
 @numba.njit(**JIT)
 def begin_frame(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.begin_frame`."""
     m = state.known.size
     for j in range(m):
         state.known[j] = False
@@ -76,6 +77,7 @@ def begin_frame(state, t, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def commit_frame(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.commit_frame`."""
     prev = state.positions[t - 1]
     for j in range(state.known.size):
         known = state.known[j]
@@ -91,6 +93,7 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
 # ------------------------------------------------------------------ body points
 @numba.njit(**JIT)
 def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.continue_body_chains`."""
     points, body, body_vel = state.points, state.body, state.body_vel
     pa, a, b = state.offsets[t - 1], state.offsets[t], state.offsets[t + 1]
     eps = p.body_chain_gate * p.gamma
@@ -228,6 +231,7 @@ def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol): 
 
 @numba.njit(**JIT)
 def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.rigid_with_body`."""
     window = p.rigid_window
     if t < window:
         return False
@@ -359,6 +363,7 @@ def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs c
 
 @numba.njit(**JIT)
 def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.match_traces`."""
     a, b = state.offsets[t], state.offsets[t + 1]
     if rows.size == 0 or b == a:
         return False
@@ -427,6 +432,7 @@ def _link_limit(s, ja, jb, gamma, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.reject_overstretched`."""
     cur, s, gamma = state.cur, state.arclength, p.gamma
     idx = _measured(state.known)
     n = idx.size
@@ -481,6 +487,7 @@ def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.reject_odd_motion`."""
     cur, prev, known = state.cur, state.positions[t - 1], state.known
     m = known.size
     odd = np.zeros(m, np.bool_)
@@ -505,6 +512,7 @@ def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
 # ------------------------------------------------------------------ predictions
 @numba.njit(**JIT)
 def residual_predictions(state, t, v_pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.residual_predictions`."""
     m = state.known.size
     found = state.known & _steady(state)
     resid = np.zeros((m, 3))
@@ -516,6 +524,7 @@ def residual_predictions(state, t, v_pred, p):  # pragma: no cover - runs compil
 
 @numba.njit(**JIT)
 def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.gap_predictions`."""
     known, cur = state.known, state.cur
     m = known.size
     prev = state.positions[t - 1]
@@ -539,6 +548,7 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def zipper_predictions(state, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.zipper_predictions`."""
     cur, known, spacing = state.cur, state.known, state.spacing
     m = known.size
     pred = np.zeros((m, 3))
@@ -578,6 +588,7 @@ def zipper_predictions(state, p):  # pragma: no cover - runs compiled
 # ------------------------------------------------------------------ after matching
 @numba.njit(**JIT)
 def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.swap_onto_curve`."""
     a, b = state.offsets[t], state.offsets[t + 1]
     known, cur, taken, gamma = state.known, state.cur, state.taken, p.gamma
     m = known.size
@@ -629,6 +640,7 @@ def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.place_invented`."""
     known, cur = state.known, state.cur
     m = known.size
     if known.all():
@@ -653,6 +665,7 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
 # ------------------------------------------------------------------ a frame
 @numba.njit(**JIT)
 def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.match_measured`."""
     steady = _steady(state)
     match_traces(state, t, np.nonzero(steady)[0], v_pred, False, p)
     reject_overstretched(state, t, p)
@@ -683,6 +696,7 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
     found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, True, p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
@@ -698,6 +712,7 @@ def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def track_frame(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.track_frame`."""
     has_points = state.offsets[t + 1] > state.offsets[t]
     v_pred = begin_frame(state, t, p)
     continue_body_chains(state, t, v_pred, p)
@@ -716,5 +731,6 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def track_frames(state, t0, t1, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.track_frames`."""
     for t in range(t0, t1):
         track_frame(state, t, p)

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, fields
 
 from skincap.errors import ValidationError
-from skincap.tracking.init import _RIGID_PARTNERS, _RIGID_RADIUS, _RIGID_RANGE
+from skincap.tracking.body_points import _RIGID_PARTNERS, _RIGID_RADIUS, _RIGID_RANGE
 
 __all__ = ["TrackSettings"]
 
