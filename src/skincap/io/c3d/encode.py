@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skincap.errors import FormatError
-from skincap.io.c3d_content import TYPE_SIZES, C3dGroup, C3dParameter, HeaderEvents
+from skincap.io.c3d.content import TYPE_SIZES, C3dGroup, C3dParameter, HeaderEvents
 from skincap.io.narrowing import check_float32
 
 __all__ = ["C3dFrames", "encode_c3d", "char_parameter", "number_parameter"]
