@@ -478,7 +478,8 @@ def _read_static_mesh(path: Path, units: str | None) -> Mesh:
 def _gltf_layers(path: Path) -> list[Layer]:
     """The mesh of a glTF, skinned by its first animation, and the skin's joints."""
     from skincap.deform.skeletal.deformers import make_deformer
-    from skincap.io.gltf.reader import read_gltf, read_gltf_animation
+    from skincap.io.gltf.animation import read_gltf_animation
+    from skincap.io.gltf.reader import read_gltf
 
     mesh = read_gltf(path)
     anim = read_gltf_animation(path) if mesh.skin is not None else None
