@@ -415,7 +415,7 @@ def _load_file(path: Path, units: str | None) -> list[Layer]:
         options = {"units": units} if units and ext == ".trc" else {}
         return [_marker_layer(name, io.read(path, **options), path)]
     if ext == ".csv":
-        from skincap.tracking.outputs import is_rope_curve_csv
+        from skincap.io.rope_curve import is_rope_curve_csv
 
         if is_rope_curve_csv(path):
             return [_read_rope_curve(path)]
@@ -607,7 +607,7 @@ def _fan_triangles(counts: np.ndarray, indices: np.ndarray, path: Path) -> np.nd
 
 
 def _read_rope_curve(path: Path) -> CurveLayer:
-    from skincap.tracking.outputs import read_rope_curve
+    from skincap.io.rope_curve import read_rope_curve
 
     curves, rate = read_rope_curve(path)
     return CurveLayer(path.name, rate, path, curves=curves)
