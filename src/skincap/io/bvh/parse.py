@@ -173,15 +173,14 @@ def _parse_hierarchy(tok: _Tokens) -> list[_Joint]:
                     f"expected JOINT, End Site or '}}' in joint {joints[stack[-1]].name!r}, found {found!r}",
                     line,
                 )
-            word = tok.peek()
-            if word is None:
+            if tok.peek() is None:
                 raise tok.error(
                     f"file ends inside joint {joints[stack[-1]].name!r} (opened on line {joints[stack[-1]].line}); missing '}}' or MOTION"
                 )
     if not joints:
-        found = tok.peek()
+        first = tok.peek()
         raise tok.error(
-            "expected ROOT after HIERARCHY" + (f", found {quote_excerpt(found)}" if found else "")
+            "expected ROOT after HIERARCHY" + (f", found {quote_excerpt(first)}" if first else "")
         )
     if tok.peek() is not None:
         raise tok.error(f"unexpected {tok.peek()!r} after the hierarchy; expected ROOT or MOTION")
@@ -367,8 +366,10 @@ def _parse_motion(
             path, "motion rows given but the hierarchy has no channels", line=first_line
         )
     else:
-        data = _parse_plain_decimals(body, n_channels)
-        if data is None:  # exponents, nan, odd spacing...: the general parser
+        plain = _parse_plain_decimals(body, n_channels)
+        if plain is not None:
+            data = plain
+        else:  # exponents, nan, odd spacing...: the general parser
             try:
                 data = np.loadtxt(io.StringIO(body), dtype=np.float64, comments=None, ndmin=2)
             except (ValueError, TypeError, OverflowError):

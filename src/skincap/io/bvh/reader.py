@@ -189,8 +189,8 @@ def _read(
         translations[:, pos_joint, pos_axis] = data[:, pos_col]
     rotations = np.zeros((t, len(joints), 4))
     rotations[..., 3] = 1.0
-    for seq, (ks, cols) in rot_groups.items():
-        angles = data[:, np.asarray(cols)]  # (T, k, len(seq)) degrees
+    for seq, (ks, group_cols) in rot_groups.items():
+        angles = data[:, np.asarray(group_cols)]  # (T, k, len(seq)) degrees
         rotations[:, ks] = euler_to_quat(angles, seq, degrees=True)
 
     if up == "auto":
@@ -223,8 +223,8 @@ def _read(
     translations *= scale
     translations = to_y_up(translations, up)
     if up != "y":
-        c = matrix_to_quat(up_rotation(up))  # file frame -> Y-up
-        rotations = quat_multiply(quat_multiply(c, rotations), quat_conjugate(c))
+        turn = matrix_to_quat(up_rotation(up))  # file frame -> Y-up
+        rotations = quat_multiply(quat_multiply(turn, rotations), quat_conjugate(turn))
     skeleton = Skeleton(names=names, parents=parents, offsets=offsets)
     return Motion(
         skeleton=skeleton,

@@ -36,7 +36,7 @@ __all__ = ["write_bvh"]
 # ------------------------------------------------------------------------- writer
 def _dfs_order(parents: np.ndarray) -> list[int]:
     children: list[list[int]] = [[] for _ in range(parents.size)]
-    roots = []
+    roots: list[int] = []
     for k, p in enumerate(parents):
         (roots if p < 0 else children[p]).append(k)
     order: list[int] = []
@@ -148,8 +148,8 @@ def write_bvh(
     translations = from_y_up(motion.translations, up_key) / scale  # (T, J, 3)
     rotations = motion.rotations
     if up_key != "y":
-        c = matrix_to_quat(up_rotation(up_key))
-        rotations = quat_multiply(quat_multiply(quat_conjugate(c), rotations), c)
+        turn = matrix_to_quat(up_rotation(up_key))  # Y-up -> file frame
+        rotations = quat_multiply(quat_multiply(quat_conjugate(turn), rotations), turn)
     t = motion.n_frames
 
     height = _skeleton_height(parents, offsets)
@@ -203,7 +203,7 @@ def write_bvh(
                     f"rotations: joint {names[k]!r} rotates by up to {math.degrees(angle.max()):.3g} degrees "
                     "but has no rotation channels; BVH cannot store that"
                 )
-    for seq, (ks, cols) in rot_groups.items():
+    for seq, (ks, group_cols) in rot_groups.items():
         q = rotations[:, ks]  # (T, k, 4)
         if len(seq) == 3:
             angles = quat_to_euler(q, seq, degrees=True)  # (T, k, 3)
@@ -215,7 +215,7 @@ def write_bvh(
                     f"rotations: joint {names[bad]!r} rotates by up to {math.degrees(residual.max()):.3g} degrees "
                     f"about an axis it has no channel for (channels {channels[bad]}); BVH cannot store that"
                 )
-        data[:, np.asarray(cols)] = angles
+        data[:, np.asarray(group_cols)] = angles
 
     frame_time = float(motion.meta.get("frame_time", 1.0 / motion.rate))
     if (
@@ -305,7 +305,7 @@ def _write_hierarchy(
     decimals: int,
 ) -> None:
     children: list[list[int]] = [[] for _ in range(sk.n_joints)]
-    roots = []
+    roots: list[int] = []
     for k, p in enumerate(sk.parents):
         (roots if p < 0 else children[p]).append(k)
 

@@ -105,8 +105,8 @@ def _analog_samples(layout: C3dLayout, data: bytes, n_frames: int) -> tuple[np.n
     n_analog = layout.n_analog_per_frame
     if not n_analog:
         return np.zeros((0, 0)), 0
-    used = layout.params.get(("ANALOG", "USED"))
-    channels = int(used[0])  # the scan checked it divides n_analog
+    used = layout.params[("ANALOG", "USED")]
+    channels = int(used[0])  # the scan checked it is there and divides n_analog
     ratio = n_analog // channels
     words = 4 * layout.n_points + n_analog
     is_float = layout.scale < 0
@@ -286,8 +286,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         if i in taken or len(lab) < 2 or lab.startswith("*") or lab[-1] != "O":
             continue
         quad = [label_index.get(lab[:-1] + s) for s in BONE_SUFFIXES]
-        if all(q is not None and q not in taken for q in quad):
-            bone_cols.extend(quad)  # type: ignore[arg-type]
+        found = [q for q in quad if q is not None and q not in taken]
+        if len(found) == len(quad):
+            bone_cols.extend(found)
     if bone_cols:
         output_cols["bones"] = bone_cols
         taken.update(bone_cols)

@@ -90,14 +90,14 @@ def write_c3d(
     meta = markers.meta
     units = str(units if units is not None else meta.get("source_units", "mm"))
     scale = unit_scale(units)
-    up = str(up if up is not None else meta.get("up", "z")).lower()
-    if up not in ("y", "z"):
-        raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
+    up_key = str(up if up is not None else meta.get("up", "z")).lower()
+    if up_key not in ("y", "z"):
+        raise ValidationError(f"up: expected 'y' or 'z', got {up_key!r}")
     t, n = markers.n_frames, markers.n_markers
     if t == 0:
         raise ValidationError("markers: a C3D needs at least one frame")
 
-    pos = from_y_up(markers.positions, up) / scale  # (T, N, 3) file units
+    pos = from_y_up(markers.positions, up_key) / scale  # (T, N, 3) file units
     miss = markers.missing
     res = np.zeros((t, n)) if markers.residuals is None else markers.residuals / scale
     res = np.where(np.isnan(res), 0.0, res)
@@ -131,9 +131,8 @@ def write_c3d(
                 f"meta['model_outputs'][{g!r}]: labels {sorted(clash)[:5]} are also marker labels"
             )
         labels.extend(names)
-        m = np.isnan(arr).any(axis=2)
         out_pos.append(arr)
-        out_miss.append(m)
+        out_miss.append(np.asarray(np.isnan(arr).any(axis=2)))
         out_res.append(np.zeros((t, len(names))))
         groups[gname] = names
     all_pos = np.concatenate(out_pos, axis=1)
@@ -215,9 +214,9 @@ def write_c3d(
     if not (
         isinstance(screen, tuple | list)
         and len(screen) == 2
-        and str(screen[1]).upper().lstrip("+") == up.upper()
+        and str(screen[1]).upper().lstrip("+") == up_key.upper()
     ):
-        screen = ("+X", "+Z" if up == "z" else "+Y")
+        screen = ("+X", "+Z" if up_key == "z" else "+Y")
     point += [text("X_SCREEN", str(screen[0])), text("Y_SCREEN", str(screen[1]))]
     source_groups = list(content.groups) if content is not None else []
     source_point = next((g for g in source_groups if g.name.upper() == "POINT"), None)
@@ -332,7 +331,7 @@ def _source_descriptions(content: C3dContent) -> dict[str, str]:
         while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
             if p.type != -1:
                 break
-            out.extend(p.value)  # type: ignore[arg-type]
+            out.extend(p.value)
             k += 1
         return out
 

@@ -28,7 +28,7 @@ __all__ = ["read_gltf"]
 WEIGHT_SUM_TOLERANCE = 1e-2
 
 
-def _triangles(g: GltfDocument, mode: int, idx: np.ndarray, where: str) -> np.ndarray | None:
+def _triangles(g: GltfDocument, mode: int, idx: np.ndarray, where: str) -> np.ndarray:
     if mode == 4:
         if idx.size % 3:
             raise g.fail(f"{where}: {idx.size} indices is not a multiple of 3")
@@ -43,7 +43,7 @@ def _triangles(g: GltfDocument, mode: int, idx: np.ndarray, where: str) -> np.nd
         return np.stack(
             [np.full(k.size, idx[0] if idx.size else 0), idx[k + 1], idx[k + 2]], axis=1
         )
-    return None
+    raise g.fail(f"{where}: mode {mode} draws no triangles")  # points and lines are skipped
 
 
 def read_gltf(path: str | os.PathLike[str]) -> Mesh:
@@ -195,8 +195,8 @@ def _read_gltf(p: Path) -> Mesh:
     distinct = set(skins_used)
     if distinct and distinct != {None}:
         if len(distinct) == 1:
-            skin_i = skins_used[0]
-            skin, skin_meta = _build_skin(g, int(skin_i), parent, world, joints_l, weights_l)
+            only_skin = next(s for s in distinct if s is not None)
+            skin, skin_meta = _build_skin(g, int(only_skin), parent, world, joints_l, weights_l)
             meta.update(skin_meta)
         else:
             warnings.warn(

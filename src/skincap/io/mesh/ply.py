@@ -128,7 +128,7 @@ def _ply_binary(
     # Lists: fast path when every row has the same list lengths as the first row.
     first_counts: list[int] = []
     q = pos
-    fields: list[tuple[str, str]] = []
+    fields: list[tuple[str, Any]] = []
     for i, (_name, t, item) in enumerate(el.props):
         if item is None:
             fields.append((f"p{i}", endian + t))
