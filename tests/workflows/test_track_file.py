@@ -27,12 +27,14 @@ def scene(tmp_path_factory):
 
 def test_track_file_writes_the_four_outputs_from_a_points_file(scene, tmp_path):
     path, cloud, rope = scene
-    first = cloud.points[cloud.offsets[0] : cloud.offsets[1]]
     ids = cloud.ids[cloud.offsets[0] : cloud.offsets[1]]
     rope_rows = np.flatnonzero((ids >= 0) & (ids < ROPE))
     calls = []
     report = track_file(
-        path, tmp_path / "out", markers=rope_rows.tolist(), progress=lambda d, n: calls.append((d, n))
+        path,
+        tmp_path / "out",
+        markers=rope_rows.tolist(),
+        progress=lambda d, n: calls.append((d, n)),
     )
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == sorted(OUTPUT_NAMES)
     assert report == json.loads((tmp_path / "out" / "report.json").read_text())
@@ -50,7 +52,9 @@ def test_track_file_writes_the_four_outputs_from_a_points_file(scene, tmp_path):
     assert curves.shape == (cloud.n_frames, 50, 3) and rate == cloud.rate
     # the resampled curve starts and ends on the tracked end markers
     ends = np.isfinite(tracked.positions[:, [0, -1]]).all(axis=(1, 2))
-    np.testing.assert_allclose(curves[ends][:, [0, -1]], tracked.positions[ends][:, [0, -1]], atol=1e-6)
+    np.testing.assert_allclose(
+        curves[ends][:, [0, -1]], tracked.positions[ends][:, [0, -1]], atol=1e-6
+    )
     done = [d for d, _ in calls]
     assert calls[0] == (0.0, cloud.n_frames) and done == sorted(done)
     assert done[-1] == pytest.approx(cloud.n_frames)

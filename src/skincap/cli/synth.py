@@ -7,8 +7,7 @@ from typing import Annotated
 
 import typer
 
-from skincap.cli._app import _user_errors, app, err, out
-from skincap.errors import FormatError, ValidationError
+from skincap.cli._app import _user_errors, app, out, stage_progress
 
 
 @app.command()
@@ -80,69 +79,29 @@ def synth(
 
     Example: skincap synth --motion jumprope --rope jump --frames 1000 -o take1
     """
-    from rich.progress import Progress
+    from skincap.workflows.synth_folder import synth_folder
 
-    from skincap.io.output_safety import guard_outputs
-    from skincap.synth.generate import generate_capture
-    from skincap.synth.inputs import build_body, build_motion
-    from skincap.workflows.synth_folder import OUTPUT_FILES, write_synth_outputs
-
-    motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
-    with (
-        _user_errors(),
-        guard_outputs(
-            [motion_file], [output / name for name in OUTPUT_FILES], folders=[output], force=force
-        ),
-    ):
-        if frames is not None and seconds is not None:
-            raise FormatError(output, "give --frames or --seconds, not both")
-        if frames is not None and frames < 1 or seconds is not None and seconds <= 0:
-            raise FormatError(output, "--frames/--seconds must be positive")
-        if markers not in ("dense", "sparse") or rope not in ("none", "jump", "whip"):
-            raise FormatError(
-                output, "--markers must be dense or sparse; --rope none, jump or whip"
-            )
-        if soft_tissue < 0 or noise_mm < 0:
-            raise FormatError(output, "--soft-tissue and --noise-mm must not be negative")
-        if spikes < 0 or swaps < 0:
-            raise FormatError(output, "--spikes and --swaps must not be negative")
-        with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
-            task = progress.add_task("body", total=1.0)
-
-            def report(fraction: float, label: str) -> None:
-                progress.update(task, completed=0.1 + 0.8 * fraction, description=label)
-
-            progress.update(task, description=f"{body} body")
-            mesh = build_body(body, n_vertices=vertices, seed=seed)
-            progress.update(task, completed=0.05, description="motion")
-            take = build_motion(
-                mesh, motion, frames=frames, seconds=seconds, rate=rate, units=units, seed=seed
-            )
-            result = generate_capture(
-                mesh,
-                take,
-                markers=markers,  # type: ignore[arg-type]
-                rope=rope,  # type: ignore[arg-type]
-                bulge=soft_tissue,
-                jiggle=soft_tissue,
-                breathing=soft_tissue,
-                noise_mm=noise_mm,
-                seed=seed,
-                progress=report,
-            )
-            corruption = None
-            if spikes or swaps or prop:
-                from skincap.synth.corrupt import corrupt_capture
-
-                try:
-                    result.capture, corruption = corrupt_capture(
-                        result.capture, spikes=spikes, swaps=swaps, prop=prop, seed=seed + 1
-                    )
-                except ValidationError as exc:
-                    raise FormatError(output, str(exc)) from None
-            progress.update(task, completed=0.9, description="writing")
-            output.mkdir(parents=True, exist_ok=True)
-            write_synth_outputs(result, output, force=force, corruption=corruption)
+    with _user_errors(), stage_progress("body") as progress:
+        result = synth_folder(
+            output,
+            body=body,
+            motion=motion,
+            markers=markers,
+            rope=rope,
+            frames=frames,
+            seconds=seconds,
+            rate=rate,
+            vertices=vertices,
+            noise_mm=noise_mm,
+            soft_tissue=soft_tissue,
+            units=units,
+            spikes=spikes,
+            swaps=swaps,
+            prop=prop,
+            seed=seed,
+            force=force,
+            progress=progress,
+        )
     s = result.summary
     out.print(
         f"synth: {s['frames']} frames, {s['markers']} markers + {s['rope_markers']} rope markers -> "

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -92,7 +93,9 @@ def read_rope_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, float]:
     """
     p = Path(path)
     try:
-        table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
+        with warnings.catch_warnings():  # an empty table is reported below, as a FormatError
+            warnings.simplefilter("ignore", UserWarning)
+            table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
     except ValueError as exc:
         raise FormatError(p, f"rope curve table: {exc}") from None
     if table.size == 0:

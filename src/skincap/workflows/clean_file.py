@@ -102,18 +102,18 @@ def read_marker_surface(
 
 
 def clean_file(
-    src: Path,
-    output: Path,
+    src: str | os.PathLike[str],
+    output: str | os.PathLike[str],
     *,
     method: str = "local_pca",
     rigid_blend: float | None = None,
     reference_frame: int | None = None,
-    surface: Path | None = None,
+    surface: str | os.PathLike[str] | None = None,
     smooth: bool = True,
     lam: float = 0.02,
     iterations: int = 10,
-    report: Path | None = None,
-    fragment_truth: Path | None = None,
+    report: str | os.PathLike[str] | None = None,
+    fragment_truth: str | os.PathLike[str] | None = None,
     recover_hidden: bool = True,
     force: bool = False,
     progress: Progress | None = None,
@@ -122,17 +122,17 @@ def clean_file(
 
     Parameters
     ----------
-    src : Path
+    src : path-like
         Capture (``.c3d``/``.trc``/``.csv``): labelled markers and ``*N`` fragments.
-    output : Path
+    output : path-like
         The cleaned ``.c3d``.
     method, rigid_blend, reference_frame, smooth, lam, iterations, recover_hidden
         As :func:`skincap.cleanup.pipeline.clean_markers`.
-    surface : Path, optional
+    surface : path-like, optional
         A user marker surface (:func:`read_marker_surface`).
-    report : Path, optional
+    report : path-like, optional
         Also write the returned report there as JSON.
-    fragment_truth : Path, optional
+    fragment_truth : path-like, optional
         ``fragment,truth`` CSV (:func:`skincap.io.synth_truth.read_fragment_truth`):
         the report then counts wrong merges.
     force : bool
@@ -153,6 +153,7 @@ def clean_file(
     from skincap.io.synth_truth import read_fragment_truth
     from skincap.types import MarkerSet
 
+    src, output = Path(src), Path(output)
     inputs = [src, surface, fragment_truth]
     outputs = [output] if report is None else [output, report]
     with guard_outputs(inputs, outputs, force=force):

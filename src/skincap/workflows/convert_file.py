@@ -7,6 +7,7 @@ joint world positions, and meshes between OBJ and PLY (glTF read).
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -21,8 +22,8 @@ MESH_OUTPUTS = (".obj", ".ply")
 
 
 def convert_file(
-    src: Path,
-    dst: Path,
+    src: str | os.PathLike[str],
+    dst: str | os.PathLike[str],
     *,
     force: bool = False,
     units: str | None = None,
@@ -47,6 +48,7 @@ def convert_file(
     """
     from skincap.io.output_safety import guard_outputs
 
+    src, dst = Path(src), Path(dst)
     with guard_outputs([src], [dst], force=force):
         return _convert_checked(src, dst, force=force, units=units, points=points)
 

@@ -17,6 +17,7 @@ This module composes :mod:`skincap.deform.skeletal` with :mod:`skincap.io`.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -58,13 +59,13 @@ def skin_output_files(output: Path) -> list[Path]:
 
 
 def skin_file(
-    mesh_path: Path,
-    motion_path: Path,
-    output: Path,
+    mesh_path: str | os.PathLike[str],
+    motion_path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
     *,
     method: str = "lbs",
     weights: str | None = None,
-    name_map: Path | None = None,
+    name_map: str | os.PathLike[str] | None = None,
     units: str | None = None,
     mesh_units: str | None = None,
     max_influences: int = 4,
@@ -76,18 +77,18 @@ def skin_file(
 
     Parameters
     ----------
-    mesh_path : Path
+    mesh_path : path-like
         MakeHuman ``.obj`` (rig beside it), skinned ``.glb``/``.gltf``, or a bare
         ``.obj``/``.ply`` (:func:`skincap.io.read_mesh`).
-    motion_path : Path
+    motion_path : path-like
         A BVH motion.
-    output : Path
+    output : path-like
         By extension (:data:`SKIN_OUTPUTS`), or a folder for an OBJ sequence.
     method : {"lbs", "dqs"}
         Deformer of baked outputs (``.glb`` is always LBS).
     weights : {"auto", "file"}, optional
         Bone heat or the file's weights; default: the file's for a rigged mesh.
-    name_map : Path, optional
+    name_map : path-like, optional
         JSON ``{bvh_joint: mesh_joint}`` overriding the built-in name maps.
     units, mesh_units : str, optional
         Length units of the BVH (guessed when omitted) and of the mesh.
@@ -109,6 +110,8 @@ def skin_file(
     """
     from skincap.io.output_safety import guard_outputs
 
+    mesh_path, motion_path, output = Path(mesh_path), Path(motion_path), Path(output)
+    name_map = None if name_map is None else Path(name_map)
     with guard_outputs(
         [*mesh_input_files(mesh_path), motion_path, name_map],
         skin_output_files(output),

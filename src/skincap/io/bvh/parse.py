@@ -173,10 +173,12 @@ def _parse_hierarchy(tok: _Tokens) -> list[_Joint]:
                     f"expected JOINT, End Site or '}}' in joint {joints[stack[-1]].name!r}, found {found!r}",
                     line,
                 )
-            if tok.peek() is None:
+            next_word = tok.peek()
+            if next_word is None:
                 raise tok.error(
                     f"file ends inside joint {joints[stack[-1]].name!r} (opened on line {joints[stack[-1]].line}); missing '}}' or MOTION"
                 )
+            word = next_word
     if not joints:
         first = tok.peek()
         raise tok.error(
