@@ -25,6 +25,7 @@ is first searched (the numba twin searches brute force).
 
 from __future__ import annotations
 
+import threading
 import weakref
 
 import numpy as np
@@ -55,8 +56,12 @@ __all__ = [
 
 
 # ------------------------------------------------------------------ search helpers
-class _FrameTrees:
-    """The KD-tree of the frame last searched (one frame is searched several times)."""
+class _FrameTrees(threading.local):
+    """The KD-tree of the frame last searched (one frame is searched several times).
+
+    One per thread (takes tracked in parallel threads each keep their own), keyed on
+    the points array itself and the frame's bounds.
+    """
 
     def __init__(self) -> None:
         self.key: tuple[int, int] = (-1, -1)
