@@ -7,7 +7,8 @@ import dataclasses
 import pytest
 
 from skincap.errors import ValidationError
-from skincap.synth.capture_settings import CaptureSettings, settings_with
+from skincap.synth._settings import settings_with
+from skincap.synth.capture_settings import CaptureSettings
 
 
 def test_defaults_are_the_studio_of_the_papers() -> None:
@@ -70,11 +71,11 @@ def test_bad_values_are_refused_by_name(bad: dict) -> None:
 
 def test_keywords_replace_fields_of_the_given_settings() -> None:
     base = CaptureSettings(rope="jump", noise_mm=0.0)
-    s = settings_with(base, {"swap_rate": 0.2}, caller="f")
+    s = settings_with(CaptureSettings, base, {"swap_rate": 0.2}, caller="f")
     assert (s.rope, s.noise_mm, s.swap_rate) == ("jump", 0.0, 0.2)
-    assert settings_with(base, {}, caller="f") is base
-    assert settings_with(None, {}, caller="f") == CaptureSettings()
+    assert settings_with(CaptureSettings, base, {}, caller="f") is base
+    assert settings_with(CaptureSettings, None, {}, caller="f") == CaptureSettings()
     with pytest.raises(TypeError, match="f\\(\\) got an unexpected keyword argument 'noise'"):
-        settings_with(None, {"noise": 1.0}, caller="f")
+        settings_with(CaptureSettings, None, {"noise": 1.0}, caller="f")
     with pytest.raises(ValidationError, match="settings"):
-        settings_with({"noise_mm": 1.0}, {}, caller="f")  # type: ignore[arg-type]
+        settings_with(CaptureSettings, {"noise_mm": 1.0}, {}, caller="f")  # type: ignore[arg-type]

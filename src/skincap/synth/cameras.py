@@ -34,7 +34,8 @@ import numpy as np
 
 from skincap.errors import ValidationError
 from skincap.geometry.raycast import occluded_from_viewpoints, segments_near_capsules
-from skincap.synth.capture_settings import CaptureSettings, settings_with
+from skincap.synth._settings import settings_with
+from skincap.synth.capture_settings import CaptureSettings
 from skincap.synth.markers import _greedy_blue_noise, vertex_normals, voronoi_dual
 from skincap.synth.reconstruction import (
     Confusions,
@@ -599,7 +600,7 @@ def simulate_capture(
     -------
     CaptureResult
     """
-    cfg = settings_with(settings, options, caller="simulate_capture")
+    cfg = settings_with(CaptureSettings, settings, options, caller="simulate_capture")
     pos, nrm, body_labels, extra, truth_labels = _capture_inputs(
         true_positions, normals, labels, extra_points, extra_labels
     )

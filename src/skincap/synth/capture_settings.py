@@ -8,15 +8,14 @@ and swaps). Values are checked once, when the object is built.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 
 from skincap.errors import ValidationError
 
-__all__ = ["CaptureSettings", "settings_with"]
+__all__ = ["CaptureSettings"]
 
 
 @dataclass(frozen=True)
@@ -118,27 +117,3 @@ class CaptureSettings:
             raise ValidationError(
                 f"facing_limit_deg: expected (0, 180], got {self.facing_limit_deg!r}"
             )
-
-
-_FIELDS = frozenset(f.name for f in dataclasses.fields(CaptureSettings))
-
-
-def settings_with(
-    settings: CaptureSettings | None, options: dict[str, Any], *, caller: str
-) -> CaptureSettings:
-    """``settings`` (default :class:`CaptureSettings`) with keyword ``options`` replaced.
-
-    Keeps the keyword API of the capture functions (``noise_mm=0.2`` beside or instead
-    of ``settings=``); a name that is no field is the ``TypeError`` Python gives for an
-    unexpected keyword argument.
-    """
-    unknown = sorted(set(options) - _FIELDS)
-    if unknown:
-        raise TypeError(f"{caller}() got an unexpected keyword argument {unknown[0]!r}")
-    if settings is None:
-        settings = CaptureSettings()
-    elif not isinstance(settings, CaptureSettings):
-        raise ValidationError(
-            f"settings: expected a CaptureSettings, got {type(settings).__name__}"
-        )
-    return dataclasses.replace(settings, **options) if options else settings

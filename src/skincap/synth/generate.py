@@ -18,8 +18,9 @@ from skincap._arrays import Progress
 from skincap.deform.skeletal.deformers import skin_motion
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
+from skincap.synth._settings import settings_with
 from skincap.synth.cameras import CameraRig, CaptureResult, simulate_capture
-from skincap.synth.capture_settings import CaptureSettings, settings_with
+from skincap.synth.capture_settings import CaptureSettings
 from skincap.synth.markers import (
     MarkerLayout,
     dense_marker_layout,
@@ -127,7 +128,7 @@ def generate_capture(
     -------
     SynthCapture
     """
-    cfg = settings_with(settings, options, caller="generate_capture")
+    cfg = settings_with(CaptureSettings, settings, options, caller="generate_capture")
     if body.skin is None:
         raise ValidationError("body: needs a skin (skinned mesh)")
     rng = np.random.default_rng(seed)
