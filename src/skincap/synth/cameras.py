@@ -33,10 +33,10 @@ from typing import Any
 import numpy as np
 
 from skincap.errors import ValidationError
-from skincap.geometry.raycast import occluded_from_viewpoints, segments_near_capsules
+from skincap.geometry.raycast import segments_near_capsules
+from skincap.geometry.viewpoint_occlusion import occluded_from_viewpoints
 from skincap.synth._settings import settings_with
 from skincap.synth.capture_settings import CaptureSettings
-from skincap.synth.markers import _greedy_blue_noise, vertex_normals, voronoi_dual
 from skincap.synth.reconstruction import (
     Confusions,
     Fragments,
@@ -49,6 +49,7 @@ from skincap.synth.reconstruction import (
     reconstructed,
     shuffled_point_cloud,
 )
+from skincap.synth.surface_sampling import greedy_blue_noise, vertex_normals, voronoi_dual
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = [
@@ -301,7 +302,7 @@ def occlusion_proxy(
     """A coarse remesh of a closed mesh for fast occlusion tests.
 
     Blue-noise vertex subset (about ``n_vertices``), geodesic Voronoi regions and their
-    dual triangulation (:func:`~skincap.synth.markers.voronoi_dual`): the proxy's
+    dual triangulation (:func:`~skincap.synth.surface_sampling.voronoi_dual`): the proxy's
     vertices lie on the surface and it keeps the topology (a limb close to the torso
     does not fuse with it). Chords cut corners by roughly ``s^2 / (8 R)`` (spacing
     ``s``, curvature radius ``R``): a few millimetres at 2500 vertices for a body.
@@ -333,12 +334,12 @@ def occlusion_proxy(
     nrm = vertex_normals(v, f)[used]
     r = float(np.sqrt(area.sum() / (0.3 * k)))  # a first guess; refined from the count
     none = np.zeros(used.size, dtype=bool)
-    pick = _greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
+    pick = greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
     for _ in range(6):
         if abs(pick.size - k) <= 0.05 * k:
             break
         r *= float(np.sqrt(pick.size / k))
-        pick = _greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
+        pick = greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
     ids = used[pick]
     _, tri, stats = voronoi_dual(v, f, ids)
     return OcclusionProxy(ids, tri, {**stats, "spacing": r})

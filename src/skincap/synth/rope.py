@@ -91,6 +91,16 @@ class RopeResult:
 
 
 # ----------------------------------------------------------------------------- hands
+def _hand_clock(n_frames: int, rate: float, hang_seconds: float) -> tuple[int, float, np.ndarray]:
+    """Checked frame count and rate, and (T,) seconds since the hands started moving
+    (0 through the ``hang_seconds`` window in which they are exactly still)."""
+    n_frames = check_count("n_frames", n_frames, minimum=1)
+    rate = check_positive("rate", rate)
+    hang_seconds = check_nonnegative("hang_seconds", hang_seconds)
+    t = np.arange(n_frames, dtype=np.float64) / rate
+    return n_frames, rate, np.clip(t - hang_seconds, 0.0, None)
+
+
 def jump_rope_hands(
     n_frames: int,
     rate: float,
@@ -134,16 +144,11 @@ def jump_rope_hands(
     (T, 2, 3) float64, metres
         Left hand (+X) then right hand (-X), per frame.
     """
-    n_frames = check_count("n_frames", n_frames, minimum=1)
-    rate = check_positive("rate", rate)
+    n_frames, rate, tau = _hand_clock(n_frames, rate, hang_seconds)
     height = check_positive("height", height)
     shoulder_width = check_positive("shoulder_width", shoulder_width)
     frequency = check_positive("frequency", frequency)
-    hang_seconds = check_nonnegative("hang_seconds", hang_seconds)
     rng = np.random.default_rng(seed)
-
-    t = np.arange(n_frames, dtype=np.float64) / rate
-    tau = np.clip(t - hang_seconds, 0.0, None)  # time since the hands started moving
     # Wind-up: one slow, wide arm circle (0.65 turns/s, 0.45 m) brings the rope from
     # behind the heels over the head; within 2.5 s the circles shrink to 0.15 m wrist
     # circles at the skipping rate. Small fast circles alone cannot start a resting
@@ -211,14 +216,10 @@ def whip_hand(
     (T, 3) float64, metres
         The right hand's position per frame.
     """
-    n_frames = check_count("n_frames", n_frames, minimum=1)
-    rate = check_positive("rate", rate)
+    n_frames, rate, tau = _hand_clock(n_frames, rate, hang_seconds)
     height = check_positive("height", height)
     frequency = check_positive("frequency", frequency)
-    hang_seconds = check_nonnegative("hang_seconds", hang_seconds)
     rng = np.random.default_rng(seed)
-    t = np.arange(n_frames, dtype=np.float64) / rate
-    tau = np.clip(t - hang_seconds, 0.0, None)
     ease = _smoothstep(tau / 0.4)
     f = frequency * (1.0 + 0.05 * np.sin(2.0 * np.pi * rng.uniform(0.1, 0.3) * tau))
     phase = 2.0 * np.pi * np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) / rate)])
