@@ -238,6 +238,14 @@ def _axial_frames(tangent: np.ndarray, normal: np.ndarray, n: int) -> np.ndarray
     return frames_from_axes(np.tile(tangent, (n, 1)), np.tile(normal, (n, 1)))
 
 
+def _vertical_keys(b: _Stature, rows: list[tuple[float, float, float, float]]) -> KeyEllipses:
+    """Key ellipses stacked up the body's axis from ``(y, a, b, z)`` rows: height y
+    (metres), half-width and half-depth a, b and centroid z (metres at 1.75 m)."""
+    c = np.array([[0.0, y, z * b.s] for y, _, _, z in rows])
+    r = b.radii([(a, bb) for _, a, bb, _ in rows])
+    return KeyEllipses.from_frames(c, _axial_frames(_EY, _EX, len(rows)), r)
+
+
 def _torso(b: _Stature) -> BodyPart:
     """Hips to shoulders, eight key ellipses."""
     pos, height, s = b.pos, b.height, b.s
@@ -254,14 +262,12 @@ def _torso(b: _Stature) -> BodyPart:
         (y_sh - 0.02 * height, 0.168, 0.110, 0.000),
         (y_sh + 0.015 * height, 0.140, 0.085, -0.010),
     ]
-    c = np.array([[0.0, y, z * s] for y, _, _, z in torso])
-    r = b.radii([(a, bb) for _, a, bb, _ in torso])
-    fr = _axial_frames(_EY, _EX, len(torso))
+    keys = _vertical_keys(b, torso)
     return BodyPart(
         "torso",
-        Sweep(KeyEllipses.from_frames(c, fr, r), caps=(0.035 * s, 0.045 * s)),
+        Sweep(keys, caps=(0.035 * s, 0.045 * s)),
         ["Hips", "lowerback", "Chest", "Chest2"],
-        np.array([y_hips, y_chest, y_chest2]) + 0.01 * height - c[0, 1],
+        np.array([y_hips, y_chest, y_chest2]) + 0.01 * height - keys.centres[0, 1],
         0.04 * height,
         ["neck", "arm_l", "arm_r", "leg_l", "leg_r"],
     )
@@ -276,16 +282,12 @@ def _neck(b: _Stature) -> BodyPart:
         (y_neck + 0.02 * height, 0.057, 0.060, 0.000),
         (y_head + 0.005 * height, 0.055, 0.060, 0.005),
     ]
-    c = np.array([[0.0, y, z * s] for y, _, _, z in neck])
-    fr = _axial_frames(_EY, _EX, 3)
+    keys = _vertical_keys(b, neck)
     return BodyPart(
         "neck",
-        Sweep(
-            KeyEllipses.from_frames(c, fr, b.radii([(a, bb) for _, a, bb, _ in neck])),
-            caps=(0.02 * s, 0.02 * s),
-        ),
+        Sweep(keys, caps=(0.02 * s, 0.02 * s)),
         ["lowerneck", "Neck"],
-        np.array([y_neck - c[0, 1]]),
+        np.array([y_neck - keys.centres[0, 1]]),
         0.03 * height,
         ["torso", "head"],
     )
@@ -293,20 +295,16 @@ def _neck(b: _Stature) -> BodyPart:
 
 def _head(b: _Stature) -> BodyPart:
     """Jaw to crown, three key ellipses; the top cap reaches the stature."""
-    height, s = b.height, b.s
+    height = b.height
     head = [
         (0.895 * height, 0.060, 0.080, 0.018),
         (0.930 * height, 0.075, 0.098, 0.012),
         (0.955 * height, 0.076, 0.098, 0.008),
     ]
-    c = np.array([[0.0, y, z * s] for y, _, _, z in head])
-    fr = _axial_frames(_EY, _EX, 3)
+    keys = _vertical_keys(b, head)
     return BodyPart(
         "head",
-        Sweep(
-            KeyEllipses.from_frames(c, fr, b.radii([(a, bb) for _, a, bb, _ in head])),
-            caps=(0.025 * height, height - c[-1, 1]),
-        ),
+        Sweep(keys, caps=(0.025 * height, height - keys.centres[-1, 1])),
         ["Head"],
         np.zeros(0),
         0.03 * height,

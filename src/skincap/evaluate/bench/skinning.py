@@ -21,7 +21,7 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -116,12 +116,12 @@ def run_skinning_benchmark(
     """
     _check_sizes(n_vertices, n_influences, n_frames, repeat, n_joints)
     rest, idx, w, m = _random_rig(n_vertices, n_influences, n_joints, n_frames, seed)
-    ms: dict[str, float | None] = {}
-    results: dict[str, np.ndarray] = {}
-    notes: list[str] = []
-    threads = _time_ours(rest, idx, w, m, repeat, ms, results, notes)
-    _time_libigl(rest, idx, w, m, repeat, ms, results, notes)
-    _time_usdskel(rest, idx, w, m, repeat, ms, results, notes)
+    measured = _Measured({}, {}, [])
+    ms, results, notes = measured.ms, measured.results, measured.notes
+    rig = _Rig(rest, idx, w, m)
+    threads = _time_ours(rig, repeat, measured)
+    _time_libigl(rig, repeat, measured)
+    _time_usdskel(rig, repeat, measured)
     default_backend = LinearBlendSkinning(rest[:1], idx[:1], w[:1]).backend
     first: dict[str, dict[str, float] | None] = {"lbs": None, "dqs": None}
     if first_call:
@@ -175,6 +175,23 @@ def run_skinning_benchmark(
     return {**report, "lines": _summary_lines(report)}
 
 
+class _Rig(NamedTuple):
+    """The benchmark's rig: rest (V, 3), indices and weights (V, K), transforms (T, J, 4, 4)."""
+
+    rest: np.ndarray
+    idx: np.ndarray
+    w: np.ndarray
+    m: np.ndarray
+
+
+class _Measured(NamedTuple):
+    """What the contenders fill in: ms per frame, their outputs (T, V, 3), notes."""
+
+    ms: dict[str, float | None]
+    results: dict[str, np.ndarray]
+    notes: list[str]
+
+
 def _check_sizes(
     n_vertices: int, n_influences: int, n_frames: int, repeat: int, n_joints: int
 ) -> None:
@@ -193,19 +210,12 @@ def _check_sizes(
         )
 
 
-def _time_ours(
-    rest: np.ndarray,
-    idx: np.ndarray,
-    w: np.ndarray,
-    m: np.ndarray,
-    repeat: int,
-    ms: dict[str, float | None],
-    results: dict[str, np.ndarray],
-    notes: list[str],
-) -> int | None:
+def _time_ours(rig: _Rig, repeat: int, out: _Measured) -> int | None:
     """Time our LBS and DQS on every backend into ``ms``/``results``; numba's threads."""
+    rest, idx, w, m = rig
+    ms, results, notes = out.ms, out.results, out.notes
     n_frames, n_joints = m.shape[:2]
-    out = np.zeros((n_frames, rest.shape[0], 3))
+    buffer = np.zeros((n_frames, rest.shape[0], 3))
     threads = None
     backends = ["numpy"] + (["numba"] if numba_available() else [])
     if not numba_available():
@@ -221,23 +231,16 @@ def _time_ours(
         for backend in backends:
             deformer = cls(rest, idx, w, n_joints=n_joints, backend=backend)
             key = f"{method}_{backend}"
-            sec = _best_seconds(lambda d=deformer: d.deform(m, out=out), repeat)
+            sec = _best_seconds(lambda d=deformer: d.deform(m, out=buffer), repeat)
             ms[key] = 1e3 * sec / n_frames
-            results[key] = out.copy()
+            results[key] = buffer.copy()
     return threads
 
 
-def _time_libigl(
-    rest: np.ndarray,
-    idx: np.ndarray,
-    w: np.ndarray,
-    m: np.ndarray,
-    repeat: int,
-    ms: dict[str, float | None],
-    results: dict[str, np.ndarray],
-    notes: list[str],
-) -> None:
+def _time_libigl(rig: _Rig, repeat: int, out: _Measured) -> None:
     """libigl's LBS: its ``lbs_matrix`` (built once) times the stacked transforms."""
+    rest, idx, w, m = rig
+    ms, results, notes = out.ms, out.results, out.notes
     n_frames, n_joints = m.shape[:2]
     n_vertices = rest.shape[0]
     ms["igl_lbs"] = ms["igl_dqs"] = None
@@ -266,17 +269,10 @@ def _time_libigl(
         notes.append("igl.dqs: not in libigl's Python bindings (libigl 2.6): not measured")
 
 
-def _time_usdskel(
-    rest: np.ndarray,
-    idx: np.ndarray,
-    w: np.ndarray,
-    m: np.ndarray,
-    repeat: int,
-    ms: dict[str, float | None],
-    results: dict[str, np.ndarray],
-    notes: list[str],
-) -> None:
+def _time_usdskel(rig: _Rig, repeat: int, out: _Measured) -> None:
     """usd-core's ``UsdSkel.SkinPoints``, one pose per call, float32 points."""
+    rest, idx, w, m = rig
+    ms, results, notes = out.ms, out.results, out.notes
     n_frames = m.shape[0]
     n_vertices, n_influences = idx.shape
     ms["usd_lbs"] = ms["usd_dqs"] = None
