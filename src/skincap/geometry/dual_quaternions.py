@@ -31,6 +31,7 @@ from skincap.geometry.rotations import (
     divide_or_nan,
     last_axis_array,
     matrix_to_quat,
+    quat_conjugate,
     quat_multiply,
     quat_to_matrix,
 )
@@ -242,10 +243,7 @@ def dq_conjugate(dq: np.ndarray) -> np.ndarray:
     (..., 8) float64
     """
     dq = _dq("dq", dq)
-    out = -dq
-    out[..., 3] = dq[..., 3]
-    out[..., 7] = dq[..., 7]
-    return out
+    return np.concatenate([quat_conjugate(dq[..., :4]), quat_conjugate(dq[..., 4:])], axis=-1)
 
 
 def dq_normalize(dq: np.ndarray) -> np.ndarray:

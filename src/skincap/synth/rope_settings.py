@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -90,7 +91,7 @@ class RopeSettings:
             raise ValidationError(
                 f"marker_spacing: must not exceed the rope length {length} m, got {spacing}"
             )
-        checked = {
+        checked: dict[str, Any] = {
             "length": length,
             "marker_spacing": spacing,
             "hang_seconds": check_nonnegative("hang_seconds", self.hang_seconds),
