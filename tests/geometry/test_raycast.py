@@ -12,10 +12,10 @@ from skincap.geometry import raycast
 from skincap.geometry.raycast import (
     closest_points_on_mesh,
     first_ray_hits,
-    occluded_from_viewpoints,
     segments_cross_surface,
     segments_near_capsules,
 )
+from skincap.geometry.viewpoint_occlusion import occluded_from_viewpoints
 
 
 def _two_spheres() -> tuple[np.ndarray, np.ndarray]:

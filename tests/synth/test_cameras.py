@@ -231,6 +231,22 @@ def test_extra_points_and_swaps(take, rig, body) -> None:
         assert col_truth[col] == names[np.argmax(counts)] or counts.max() == counts.min()
 
 
+def test_settings_object_and_keywords_give_the_same_capture(take, rig, body) -> None:
+    from skincap.synth.capture_settings import CaptureSettings
+
+    layout, frames, pos, nrm = take
+    sl = slice(0, 12)
+    args = (pos[sl], nrm[sl], layout.labels, rig, frames[sl], body.faces)
+    opts = {"noise_mm": 0.2, "swap_rate": 0.3, "ghost_rate": 0.5, "confusion_distance": 0.05}
+    by_keywords = simulate_capture(*args, seed=2, **opts)
+    by_settings = simulate_capture(*args, settings=CaptureSettings(**opts), seed=2)
+    assert by_keywords.points.points.tobytes() == by_settings.points.points.tobytes()
+    assert by_keywords.markers.labels == by_settings.markers.labels
+    assert by_keywords.stats == by_settings.stats
+    with pytest.raises(TypeError, match="unexpected keyword argument 'noise'"):
+        simulate_capture(*args, noise=0.2)
+
+
 def test_capture_rejects_bad_input(take, rig, body) -> None:
     layout, frames, pos, nrm = take
     with pytest.raises(ValidationError):

@@ -11,7 +11,8 @@ from skincap.errors import UnitWarning, ValidationError
 from skincap.geometry.kinematics import forward_kinematics, joint_positions, rest_positions
 from skincap.geometry.rotations import matrix_to_quat, quat_conjugate, quat_multiply
 from skincap.io.bvh import read_bvh, write_bvh
-from skincap.synth.clips import CLIPS, HOLD_SECONDS, JUMP_HZ, find_landmarks, make_clip
+from skincap.synth.clip_pose import find_landmarks
+from skincap.synth.clips import CLIPS, HOLD_SECONDS, JUMP_HZ, make_clip
 from skincap.synth.skeleton import synth_skeleton
 
 SK = synth_skeleton()

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from skincap.geometry.kinematics import forward_kinematics
-from skincap.synth.clips import HOLD_SECONDS, JUMP_HZ, find_landmarks
+from skincap.synth.clip_pose import find_landmarks
+from skincap.synth.clips import HOLD_SECONDS, JUMP_HZ
 from skincap.synth.generate import hand_joints
 from skincap.synth.inputs import build_body, build_motion
 from skincap.synth.rope import RopeResult, simulate_rope

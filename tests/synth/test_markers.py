@@ -16,8 +16,8 @@ from skincap.synth.markers import (
     dense_marker_layout,
     place_markers,
     sparse_marker_layout,
-    vertex_normals,
 )
+from skincap.synth.surface_sampling import vertex_normals
 from skincap.types import Mesh
 
 DATA = "tests/data/makehuman_base.obj"

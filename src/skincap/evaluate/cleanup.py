@@ -213,21 +213,9 @@ def evaluate_fill(
         samples the method left NaN, excluded from the statistics); plus the
         settings, ``mean_neighbour_distance_mm`` and ``paper_table2``.
     """
-    if not isinstance(markers, MarkerSet):
-        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
-    methods = list(FILL_METHODS if methods is None else methods)
-    bad = [m for m in methods if m not in FILL_METHODS]
-    if bad or not methods:
-        raise ValidationError(f"methods: unknown {bad}; expected some of {', '.join(FILL_METHODS)}")
-    lengths = [int(v) for v in gap_lengths]
-    if not lengths or min(lengths) < 1:
-        raise ValidationError(
-            f"gap_lengths: expected positive frame counts, got {list(gap_lengths)}"
-        )
-    if gaps < 1 or simultaneous < 1:
-        raise ValidationError("gaps and simultaneous must be >= 1")
-    if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
-        raise ValidationError(f"rigid_blend: expected a weight in [0, 1], got {rigid_blend!r}")
+    methods, lengths = _checked_fill_options(
+        markers, methods, gap_lengths, gaps, simultaneous, rigid_blend
+    )
     p = markers.positions
     t, n, _ = p.shape
     ref = p if truth is None else np.asarray(truth, dtype=np.float64)
@@ -249,6 +237,82 @@ def evaluate_fill(
         )
         for length in lengths
     }
+    errors = _fill_punched(
+        markers, plan, methods, csr, mnd, ref, rigid_blend, fill_own_gaps, progress
+    )
+    results = _fill_results(methods, lengths, *errors)
+    best = _best(results, methods)
+    return {
+        "frames": t,
+        "markers": n,
+        "rate": markers.rate,
+        "methods": methods,
+        "gap_lengths": lengths,
+        "gaps_per_length": gaps,
+        "simultaneous": simultaneous,
+        "seed": seed,
+        "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
+        "fill_own_gaps": bool(fill_own_gaps),
+        "scored_against": "measured" if truth is None else "truth",
+        "mean_neighbour_distance_mm": float(np.nanmean(mnd) * 1000.0)
+        if np.isfinite(mnd).any()
+        else None,
+        "results": results,
+        "comparison": best,
+        "paper_table2": PAPER_TABLE2,
+    }
+
+
+def _checked_fill_options(
+    markers: MarkerSet,
+    methods: Sequence[str] | None,
+    gap_lengths: Sequence[int],
+    gaps: int,
+    simultaneous: int,
+    rigid_blend: float | None,
+) -> tuple[list[str], list[int]]:
+    """The methods and gap lengths of :func:`evaluate_fill`, its options checked."""
+    if not isinstance(markers, MarkerSet):
+        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
+    methods = list(FILL_METHODS if methods is None else methods)
+    bad = [m for m in methods if m not in FILL_METHODS]
+    if bad or not methods:
+        raise ValidationError(f"methods: unknown {bad}; expected some of {', '.join(FILL_METHODS)}")
+    lengths = [int(v) for v in gap_lengths]
+    if not lengths or min(lengths) < 1:
+        raise ValidationError(
+            f"gap_lengths: expected positive frame counts, got {list(gap_lengths)}"
+        )
+    if gaps < 1 or simultaneous < 1:
+        raise ValidationError("gaps and simultaneous must be >= 1")
+    if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+        raise ValidationError(f"rigid_blend: expected a weight in [0, 1], got {rigid_blend!r}")
+    return methods, lengths
+
+
+_Errors = dict[str, dict[int, list[np.ndarray]]]
+
+
+def _fill_punched(
+    markers: MarkerSet,
+    plan: dict[int, list[np.ndarray]],
+    methods: list[str],
+    csr: Any,
+    mnd: np.ndarray,
+    ref: np.ndarray,
+    rigid_blend: float | None,
+    fill_own_gaps: bool,
+    progress: Progress | None,
+) -> tuple[_Errors, _Errors, dict[str, dict[int, int]], dict[int, int]]:
+    """Punch each planned round of gaps, fill it with every method, measure the errors.
+
+    Returns, per method and gap length, the errors of the punched samples (metres)
+    and the same divided by the marker's mean neighbour distance ``mnd`` (N,), the
+    samples left unfilled, and the gaps punched per length.
+    """
+    p = markers.positions
+    t, n, _ = p.shape
+    lengths = list(plan)
     n_fills = sum(len(r) for r in plan.values()) * len(methods)
     errs: dict[str, dict[int, list[np.ndarray]]] = {m: {L: [] for L in lengths} for m in methods}
     nerrs: dict[str, dict[int, list[np.ndarray]]] = {m: {L: [] for L in lengths} for m in methods}
@@ -283,6 +347,18 @@ def evaluate_fill(
                 done += 1
                 if progress is not None:
                     progress(done / max(n_fills, 1), f"{method}, {length} frames")
+    return errs, nerrs, unfilled, punched_gaps
+
+
+def _fill_results(
+    methods: list[str],
+    lengths: list[int],
+    errs: _Errors,
+    nerrs: _Errors,
+    unfilled: dict[str, dict[int, int]],
+    punched_gaps: dict[int, int],
+) -> dict[str, Any]:
+    """Statistics per method, per gap length and over all (``"all"``)."""
     results: dict[str, Any] = {}
     for method in methods:
         per: dict[str, Any] = {}
@@ -309,26 +385,7 @@ def evaluate_fill(
             "gaps": int(sum(punched_gaps.values())),
         }
         results[method] = per
-    best = _best(results, methods)
-    return {
-        "frames": t,
-        "markers": n,
-        "rate": markers.rate,
-        "methods": methods,
-        "gap_lengths": lengths,
-        "gaps_per_length": gaps,
-        "simultaneous": simultaneous,
-        "seed": seed,
-        "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
-        "fill_own_gaps": bool(fill_own_gaps),
-        "scored_against": "measured" if truth is None else "truth",
-        "mean_neighbour_distance_mm": float(np.nanmean(mnd) * 1000.0)
-        if np.isfinite(mnd).any()
-        else None,
-        "results": results,
-        "comparison": best,
-        "paper_table2": PAPER_TABLE2,
-    }
+    return results
 
 
 def _best(results: dict[str, Any], methods: list[str]) -> dict[str, Any]:

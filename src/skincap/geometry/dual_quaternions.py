@@ -27,7 +27,14 @@ from __future__ import annotations
 import numpy as np
 
 from skincap.errors import ValidationError
-from skincap.geometry.rotations import matrix_to_quat, quat_multiply, quat_to_matrix
+from skincap.geometry.rotations import (
+    divide_or_nan,
+    last_axis_array,
+    matrix_to_quat,
+    quat_conjugate,
+    quat_multiply,
+    quat_to_matrix,
+)
 
 __all__ = [
     "dq_identity",
@@ -43,12 +50,9 @@ __all__ = [
 
 
 def _dq(name: str, value: np.ndarray) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.ndim == 0 or arr.shape[-1] != 8:
-        raise ValidationError(
-            f"{name}: expected dual quaternions of shape (..., 8) (real x, y, z, w, dual x, y, z, w), got {arr.shape}"
-        )
-    return arr
+    return last_axis_array(
+        name, value, 8, "dual quaternions of shape (..., 8) (real x, y, z, w, dual x, y, z, w)"
+    )
 
 
 def dq_identity(shape: tuple[int, ...] | int = ()) -> np.ndarray:
@@ -91,12 +95,8 @@ def dq_from_quat_translation(quat: np.ndarray, translation: np.ndarray) -> np.nd
     >>> dq_apply(dq, [1.0, 1.0, 1.0])
     array([3., 1., 1.])
     """
-    q = np.asarray(quat, dtype=np.float64)
-    t = np.asarray(translation, dtype=np.float64)
-    if q.ndim == 0 or q.shape[-1] != 4:
-        raise ValidationError(f"quat: expected shape (..., 4) (x, y, z, w), got {q.shape}")
-    if t.ndim == 0 or t.shape[-1] != 3:
-        raise ValidationError(f"translation: expected shape (..., 3), got {t.shape}")
+    q = last_axis_array("quat", quat, 4, "shape (..., 4) (x, y, z, w)")
+    t = last_axis_array("translation", translation, 3, "shape (..., 3)")
     try:
         lead = np.broadcast_shapes(q.shape[:-1], t.shape[:-1])
     except ValueError:
@@ -104,8 +104,7 @@ def dq_from_quat_translation(quat: np.ndarray, translation: np.ndarray) -> np.nd
             f"quat {q.shape} and translation {t.shape}: leading axes do not broadcast"
         ) from None
     n = np.linalg.norm(q, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        q = np.broadcast_to(q / np.where(n > 0, n, np.nan), lead + (4,))
+    q = np.broadcast_to(divide_or_nan(q, n), lead + (4,))
     t = np.broadcast_to(t, lead + (3,))
     tq = np.concatenate([t, np.zeros(lead + (1,))], axis=-1)
     return np.concatenate([q, 0.5 * quat_multiply(tq, q)], axis=-1)
@@ -244,10 +243,7 @@ def dq_conjugate(dq: np.ndarray) -> np.ndarray:
     (..., 8) float64
     """
     dq = _dq("dq", dq)
-    out = -dq
-    out[..., 3] = dq[..., 3]
-    out[..., 7] = dq[..., 7]
-    return out
+    return np.concatenate([quat_conjugate(dq[..., :4]), quat_conjugate(dq[..., 4:])], axis=-1)
 
 
 def dq_normalize(dq: np.ndarray) -> np.ndarray:
@@ -271,8 +267,7 @@ def dq_normalize(dq: np.ndarray) -> np.ndarray:
     r = dq[..., :4]
     d = dq[..., 4:]
     n = np.linalg.norm(r, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / np.where(n > 0, n, np.nan)
+    inv = divide_or_nan(1.0, n)
     r = r * inv
     d = d * inv
     d = d - np.sum(r * d, axis=-1, keepdims=True) * r
@@ -297,9 +292,7 @@ def dq_apply(dq: np.ndarray, points: np.ndarray) -> np.ndarray:
         ``R p + t`` in the unit of ``points``. NaN propagates.
     """
     dq = _dq("dq", dq)
-    p = np.asarray(points, dtype=np.float64)
-    if p.ndim == 0 or p.shape[-1] != 3:
-        raise ValidationError(f"points: expected shape (..., 3), got {p.shape}")
+    p = last_axis_array("points", points, 3, "shape (..., 3)")
     rv, rw = dq[..., :3], dq[..., 3:4]
     dv, dw = dq[..., 4:7], dq[..., 7:8]
     # rotation q p q* (quat_apply's form), then translation 2 vec(d r*)

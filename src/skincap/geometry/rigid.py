@@ -94,40 +94,8 @@ def fit_rigid(
     """
     s = _points("src", src)
     d = _points("dst", dst)
-    if s.shape[-2] != d.shape[-2]:
-        raise ValidationError(
-            f"src and dst must have the same number of points K; got {s.shape} and {d.shape}"
-        )
-    try:
-        lead = np.broadcast_shapes(s.shape[:-2], d.shape[:-2])
-    except ValueError as exc:
-        raise ValidationError(
-            f"src {s.shape} and dst {d.shape} leading axes do not broadcast"
-        ) from exc
+    valid, w, lead = _valid_weighted_points(s, d, weights, mask)
     k = s.shape[-2]
-    valid = np.isfinite(s).all(axis=-1) & np.isfinite(d).all(axis=-1)
-    valid = np.broadcast_to(valid, (*lead, k))
-    if weights is None:
-        w = np.ones((*lead, k))
-    else:
-        w = np.asarray(weights, dtype=np.float64)
-        if w.shape[-1:] != (k,):
-            raise ValidationError(f"weights must have shape (..., {k}); got {w.shape}")
-        if np.any(w < 0):
-            raise ValidationError("weights must be non-negative")
-        valid = valid & np.isfinite(w) & (w > 0)
-    if mask is not None:
-        m = np.asarray(mask)
-        if m.dtype != bool:
-            raise ValidationError(f"mask must be boolean; got dtype {m.dtype}")
-        if m.shape[-1:] != (k,):
-            raise ValidationError(f"mask must have shape (..., {k}); got {m.shape}")
-        valid = valid & m
-    try:
-        lead = np.broadcast_shapes(lead, valid.shape[:-1], w.shape[:-1])
-    except ValueError as exc:
-        raise ValidationError("weights/mask leading axes do not broadcast with the points") from exc
-    valid = np.broadcast_to(valid, (*lead, k))
     ok = valid.sum(axis=-1) >= min_points  # (...)
     w = np.where(valid, np.broadcast_to(w, (*lead, k)), 0.0)  # (..., K)
     # component-first copies (3, ..., K), NaN cleared: every reduction below runs over
@@ -163,6 +131,49 @@ def fit_rigid(
     rot = np.where(ok[..., None, None], rot, np.nan)
     trans = np.where(ok[..., None], trans, np.nan)
     return rot, trans
+
+
+def _valid_weighted_points(
+    s: np.ndarray, d: np.ndarray, weights: np.ndarray | None, mask: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, tuple[int, ...]]:
+    """Checked correspondences of :func:`fit_rigid`: ``valid`` (..., K) bool (finite in
+    both, positive finite weight, in the mask), weights (..., K) (not yet broadcast)
+    and the common leading shape."""
+    if s.shape[-2] != d.shape[-2]:
+        raise ValidationError(
+            f"src and dst must have the same number of points K; got {s.shape} and {d.shape}"
+        )
+    try:
+        lead = np.broadcast_shapes(s.shape[:-2], d.shape[:-2])
+    except ValueError as exc:
+        raise ValidationError(
+            f"src {s.shape} and dst {d.shape} leading axes do not broadcast"
+        ) from exc
+    k = s.shape[-2]
+    valid = np.isfinite(s).all(axis=-1) & np.isfinite(d).all(axis=-1)
+    valid = np.broadcast_to(valid, (*lead, k))
+    if weights is None:
+        w = np.ones((*lead, k))
+    else:
+        w = np.asarray(weights, dtype=np.float64)
+        if w.shape[-1:] != (k,):
+            raise ValidationError(f"weights must have shape (..., {k}); got {w.shape}")
+        if np.any(w < 0):
+            raise ValidationError("weights must be non-negative")
+        valid = valid & np.isfinite(w) & (w > 0)
+    if mask is not None:
+        m = np.asarray(mask)
+        if m.dtype != bool:
+            raise ValidationError(f"mask must be boolean; got dtype {m.dtype}")
+        if m.shape[-1:] != (k,):
+            raise ValidationError(f"mask must have shape (..., {k}); got {m.shape}")
+        valid = valid & m
+    try:
+        lead = np.broadcast_shapes(lead, valid.shape[:-1], w.shape[:-1])
+    except ValueError as exc:
+        raise ValidationError("weights/mask leading axes do not broadcast with the points") from exc
+    valid = np.broadcast_to(valid, (*lead, k))
+    return valid, w, lead
 
 
 def _rotation_svd(h: np.ndarray) -> np.ndarray:

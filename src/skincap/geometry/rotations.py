@@ -41,20 +41,28 @@ __all__ = [
 ]
 
 
-def _quat(name: str, q: np.ndarray) -> np.ndarray:
-    arr = np.asarray(q, dtype=np.float64)
-    if arr.ndim == 0 or arr.shape[-1] != 4:
-        raise ValidationError(
-            f"{name}: expected quaternions of shape (..., 4) (x, y, z, w), got {arr.shape}"
-        )
+def last_axis_array(name: str, value: object, size: int, what: str) -> np.ndarray:
+    """``value`` as float64 with a last axis of ``size``, else a ValidationError that
+    names the argument, says ``what`` it must hold and gives the shape it has."""
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.ndim == 0 or arr.shape[-1] != size:
+        raise ValidationError(f"{name}: expected {what}, got {arr.shape}")
     return arr
+
+
+def divide_or_nan(numerator: np.ndarray | float, denominator: np.ndarray) -> np.ndarray:
+    """``numerator / denominator``, NaN (without a warning) where ``denominator <= 0``
+    or is NaN: a zero quaternion has no direction."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return numerator / np.where(denominator > 0, denominator, np.nan)
+
+
+def _quat(name: str, q: np.ndarray) -> np.ndarray:
+    return last_axis_array(name, q, 4, "quaternions of shape (..., 4) (x, y, z, w)")
 
 
 def _vec3(name: str, v: np.ndarray) -> np.ndarray:
-    arr = np.asarray(v, dtype=np.float64)
-    if arr.ndim == 0 or arr.shape[-1] != 3:
-        raise ValidationError(f"{name}: expected vectors of shape (..., 3), got {arr.shape}")
-    return arr
+    return last_axis_array(name, v, 3, "vectors of shape (..., 3)")
 
 
 def quat_identity(shape: tuple[int, ...] | int = ()) -> np.ndarray:
@@ -141,8 +149,7 @@ def quat_inverse(q: np.ndarray) -> np.ndarray:
     """
     q = _quat("q", q)
     n2 = np.sum(q * q, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return quat_conjugate(q) / np.where(n2 > 0, n2, np.nan)
+    return divide_or_nan(quat_conjugate(q), n2)
 
 
 def quat_normalize(q: np.ndarray) -> np.ndarray:
@@ -159,8 +166,7 @@ def quat_normalize(q: np.ndarray) -> np.ndarray:
     """
     q = _quat("q", q)
     n = np.linalg.norm(q, axis=-1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return q / np.where(n > 0, n, np.nan)
+    return divide_or_nan(q, n)
 
 
 def quat_canonical(q: np.ndarray) -> np.ndarray:

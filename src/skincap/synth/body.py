@@ -33,6 +33,7 @@ skeleton's rest pose (identity rotations at the rest joint positions).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -170,16 +171,84 @@ def body_parts(skeleton: Skeleton, *, seed: int = 0, min_radius: float = 0.0) ->
     s = height / _REF_HEIGHT
     rng = np.random.default_rng(seed)
     overall = float(_rng_factors(rng, 1, 0.04)[0])
-    ex, ey, ez = np.eye(3)
 
     def radii(ab: list[tuple[float, float]]) -> np.ndarray:
         r = np.array(ab, dtype=np.float64) * s * overall
         r *= _rng_factors(rng, len(ab), 0.02)[:, None]
         return np.maximum(r, min_radius)
 
-    parts: list[BodyPart] = []
+    # the order of the parts is the order of the random girth draws in ``radii``
+    body = _Stature(pos, height, s, radii)
+    parts = [_torso(body), _neck(body), _head(body)]
+    limbs = _left_arm_and_hand(body) + _left_leg_and_foot(body)
+    for side, mirror in (("l", False), ("r", True)):
+        other = "Right" if mirror else "Left"
+        small = "r" if mirror else "l"
+        big = "R" if mirror else "L"
+        joints = {
+            "arm": [f"{other}Shoulder", f"{other}Elbow"],
+            "hand": [f"{small}hand", f"{big}Fingers"],
+            "leg": [f"{other}Hip", f"{other}Knee"],
+            "foot": [f"{other}Ankle", f"{other}Toe"],
+        }
+        for limb in limbs:
+            keys = limb.keys.mirrored(0) if mirror else limb.keys
+            parts.append(
+                BodyPart(
+                    f"{limb.name}_{side}",
+                    Sweep(keys, caps=limb.caps),
+                    joints[limb.name],
+                    limb.breaks,
+                    limb.width,
+                    [n if n == "torso" else f"{n}_{side}" for n in limb.adjacent],
+                )
+            )
+    return parts
 
-    # ---------------------------------------------------------------- torso
+
+@dataclass(frozen=True)
+class _Stature:
+    """What every part is sized from: rest joint positions (metres), the height, its
+    ratio ``s`` to 1.75 m, and the seeded girths ``radii((a, b) list) -> (K, 2)``."""
+
+    pos: dict[str, np.ndarray]
+    height: float
+    s: float
+    radii: Callable[[list[tuple[float, float]]], np.ndarray]
+
+
+@dataclass(frozen=True)
+class _Limb:
+    """A left limb part before it is mirrored: key ellipses, caps, weight breaks and
+    width, and its neighbours (``torso`` or a limb name of the same side)."""
+
+    name: str
+    keys: KeyEllipses
+    caps: tuple[float, float]
+    breaks: np.ndarray
+    width: float
+    adjacent: tuple[str, ...]
+
+
+_EX, _EY, _EZ = np.eye(3)
+
+
+def _axial_frames(tangent: np.ndarray, normal: np.ndarray, n: int) -> np.ndarray:
+    """(n, 3, 3) the same frame for ``n`` key ellipses along one axis."""
+    return frames_from_axes(np.tile(tangent, (n, 1)), np.tile(normal, (n, 1)))
+
+
+def _vertical_keys(b: _Stature, rows: list[tuple[float, float, float, float]]) -> KeyEllipses:
+    """Key ellipses stacked up the body's axis from ``(y, a, b, z)`` rows: height y
+    (metres), half-width and half-depth a, b and centroid z (metres at 1.75 m)."""
+    c = np.array([[0.0, y, z * b.s] for y, _, _, z in rows])
+    r = b.radii([(a, bb) for _, a, bb, _ in rows])
+    return KeyEllipses.from_frames(c, _axial_frames(_EY, _EX, len(rows)), r)
+
+
+def _torso(b: _Stature) -> BodyPart:
+    """Hips to shoulders, eight key ellipses."""
+    pos, height, s = b.pos, b.height, b.s
     y_hip = pos["LeftHip"][1]
     y_hips, y_chest, y_chest2 = pos["Hips"][1], pos["Chest"][1], pos["Chest2"][1]
     y_sh = pos["LeftShoulder"][1]
@@ -193,67 +262,59 @@ def body_parts(skeleton: Skeleton, *, seed: int = 0, min_radius: float = 0.0) ->
         (y_sh - 0.02 * height, 0.168, 0.110, 0.000),
         (y_sh + 0.015 * height, 0.140, 0.085, -0.010),
     ]
-    c = np.array([[0.0, y, z * s] for y, _, _, z in torso])
-    r = radii([(a, b) for _, a, b, _ in torso])
-    fr = frames_from_axes(np.tile(ey, (len(torso), 1)), np.tile(ex, (len(torso), 1)))
-    caps = (0.035 * s, 0.045 * s)
-    parts.append(
-        BodyPart(
-            "torso",
-            Sweep(KeyEllipses.from_frames(c, fr, r), caps=caps),
-            ["Hips", "lowerback", "Chest", "Chest2"],
-            np.array([y_hips, y_chest, y_chest2]) + 0.01 * height - c[0, 1],
-            0.04 * height,
-            ["neck", "arm_l", "arm_r", "leg_l", "leg_r"],
-        )
+    keys = _vertical_keys(b, torso)
+    return BodyPart(
+        "torso",
+        Sweep(keys, caps=(0.035 * s, 0.045 * s)),
+        ["Hips", "lowerback", "Chest", "Chest2"],
+        np.array([y_hips, y_chest, y_chest2]) + 0.01 * height - keys.centres[0, 1],
+        0.04 * height,
+        ["neck", "arm_l", "arm_r", "leg_l", "leg_r"],
     )
 
-    # ----------------------------------------------------------------- neck
+
+def _neck(b: _Stature) -> BodyPart:
+    """Neck base to skull, three key ellipses."""
+    pos, height, s = b.pos, b.height, b.s
     y_neck, y_head = pos["Neck"][1], pos["Head"][1]
     neck = [
         (y_neck - 0.03 * height, 0.068, 0.070, -0.005),
         (y_neck + 0.02 * height, 0.057, 0.060, 0.000),
         (y_head + 0.005 * height, 0.055, 0.060, 0.005),
     ]
-    c = np.array([[0.0, y, z * s] for y, _, _, z in neck])
-    fr = frames_from_axes(np.tile(ey, (3, 1)), np.tile(ex, (3, 1)))
-    parts.append(
-        BodyPart(
-            "neck",
-            Sweep(
-                KeyEllipses.from_frames(c, fr, radii([(a, b) for _, a, b, _ in neck])),
-                caps=(0.02 * s, 0.02 * s),
-            ),
-            ["lowerneck", "Neck"],
-            np.array([y_neck - c[0, 1]]),
-            0.03 * height,
-            ["torso", "head"],
-        )
+    keys = _vertical_keys(b, neck)
+    return BodyPart(
+        "neck",
+        Sweep(keys, caps=(0.02 * s, 0.02 * s)),
+        ["lowerneck", "Neck"],
+        np.array([y_neck - keys.centres[0, 1]]),
+        0.03 * height,
+        ["torso", "head"],
     )
 
-    # ----------------------------------------------------------------- head
+
+def _head(b: _Stature) -> BodyPart:
+    """Jaw to crown, three key ellipses; the top cap reaches the stature."""
+    height = b.height
     head = [
         (0.895 * height, 0.060, 0.080, 0.018),
         (0.930 * height, 0.075, 0.098, 0.012),
         (0.955 * height, 0.076, 0.098, 0.008),
     ]
-    c = np.array([[0.0, y, z * s] for y, _, _, z in head])
-    fr = frames_from_axes(np.tile(ey, (3, 1)), np.tile(ex, (3, 1)))
-    parts.append(
-        BodyPart(
-            "head",
-            Sweep(
-                KeyEllipses.from_frames(c, fr, radii([(a, b) for _, a, b, _ in head])),
-                caps=(0.025 * height, height - c[-1, 1]),
-            ),
-            ["Head"],
-            np.zeros(0),
-            0.03 * height,
-            ["neck"],
-        )
+    keys = _vertical_keys(b, head)
+    return BodyPart(
+        "head",
+        Sweep(keys, caps=(0.025 * height, height - keys.centres[-1, 1])),
+        ["Head"],
+        np.zeros(0),
+        0.03 * height,
+        ["neck"],
     )
 
-    # ------------------------------------------------------ left arm and hand
+
+def _left_arm_and_hand(b: _Stature) -> list[_Limb]:
+    """Upper arm and forearm along +X from the shoulder, then the hand to the fingertips."""
+    pos, height, s = b.pos, b.height, b.s
     sh, el, wr = pos["LeftShoulder"], pos["LeftElbow"], pos["LeftWrist"]
     kn = pos["LFingers"]
     l1, l2 = el[0] - sh[0], wr[0] - el[0]
@@ -267,9 +328,8 @@ def body_parts(skeleton: Skeleton, *, seed: int = 0, min_radius: float = 0.0) ->
         (l1 + l2, 0.021, 0.030),
     ]
     c = np.array([[sh[0] + x, sh[1], sh[2]] for x, _, _ in arm])
-    fr = frames_from_axes(np.tile(ex, (len(arm), 1)), np.tile(ey, (len(arm), 1)))
-    arm_l = KeyEllipses.from_frames(c, fr, radii([(a, b) for _, a, b in arm]))
-    arm_caps = (0.04 * s, 0.01 * s)
+    fr = _axial_frames(_EX, _EY, len(arm))
+    arm_l = KeyEllipses.from_frames(c, fr, b.radii([(a, bb) for _, a, bb in arm]))
     hand = [
         (0.0, 0.021, 0.030),
         (0.03 * s, 0.018, 0.040),
@@ -278,12 +338,20 @@ def body_parts(skeleton: Skeleton, *, seed: int = 0, min_radius: float = 0.0) ->
         (0.165 * s, 0.009, 0.032),
     ]
     c = np.array([[wr[0] + x, wr[1], wr[2]] for x, _, _ in hand])
-    fr = frames_from_axes(np.tile(ex, (len(hand), 1)), np.tile(ey, (len(hand), 1)))
-    hand_l = KeyEllipses.from_frames(c, fr, radii([(a, b) for _, a, b in hand]))
+    fr = _axial_frames(_EX, _EY, len(hand))
+    hand_l = KeyEllipses.from_frames(c, fr, b.radii([(a, bb) for _, a, bb in hand]))
     tip = pos["LFingers_end"][0] + 0.005 * height
     hand_caps = (0.01 * s, max(tip - c[-1, 0], 0.01 * s))
+    return [
+        _Limb("arm", arm_l, (0.04 * s, 0.01 * s), np.array([l1]), 0.045 * height,
+              ("torso", "hand")),
+        _Limb("hand", hand_l, hand_caps, np.array([kn[0] - wr[0]]), 0.02 * height, ("arm",)),
+    ]  # fmt: skip
 
-    # ------------------------------------------------------ left leg and foot
+
+def _left_leg_and_foot(b: _Stature) -> list[_Limb]:
+    """Thigh and shin down from the hip, then the foot forward to the toe tip."""
+    pos, height, s = b.pos, b.height, b.s
     hp, knee, ank, toe = pos["LeftHip"], pos["LeftKnee"], pos["LeftAnkle"], pos["LeftToe"]
     d1, d2 = hp[1] - knee[1], knee[1] - ank[1]
     leg = [  # (depth below the hip joint, a (side), b (front-back), z of the centroid)
@@ -297,9 +365,8 @@ def body_parts(skeleton: Skeleton, *, seed: int = 0, min_radius: float = 0.0) ->
         (d1 + d2, 0.032, 0.034, 0.000),
     ]
     c = np.array([[hp[0], hp[1] - y, hp[2] + z * s] for y, _, _, z in leg])
-    fr = frames_from_axes(np.tile(-ey, (len(leg), 1)), np.tile(ex, (len(leg), 1)))
-    leg_l = KeyEllipses.from_frames(c, fr, radii([(a, b) for _, a, b, _ in leg]))
-    leg_caps = (0.06 * s, 0.03 * s)
+    fr = _axial_frames(-_EY, _EX, len(leg))
+    leg_l = KeyEllipses.from_frames(c, fr, b.radii([(a, bb) for _, a, bb, _ in leg]))
     foot = [  # (z from the ankle, a (half-width), b (half-height; the sole is at y = 0))
         (-0.045 * s, 0.030, 0.035),
         (0.0, 0.034, 0.048),
@@ -307,62 +374,18 @@ def body_parts(skeleton: Skeleton, *, seed: int = 0, min_radius: float = 0.0) ->
         (toe[2] - ank[2], 0.046, 0.022),
         (0.175 * s, 0.040, 0.016),
     ]
-    r = radii([(a, b) for _, a, b in foot])
+    r = b.radii([(a, bb) for _, a, bb in foot])
     c = np.array([[ank[0], rb, ank[2] + z] for (z, _, _), rb in zip(foot, r[:, 1], strict=True)])
-    fr = frames_from_axes(np.tile(ez, (len(foot), 1)), np.tile(ex, (len(foot), 1)))
+    fr = _axial_frames(_EZ, _EX, len(foot))
     foot_l = KeyEllipses.from_frames(c, fr, r)
     toe_tip = pos["LeftToe_end"][2] + 0.007 * height
     foot_caps = (0.025 * s, max(toe_tip - c[-1, 2], 0.01 * s))
-
-    for side, mirror in (("l", False), ("r", True)):
-        other = "Right" if mirror else "Left"
-        small = "r" if mirror else "l"
-        big = "R" if mirror else "L"
-
-        def keys(k: KeyEllipses, mirror: bool = mirror) -> KeyEllipses:
-            return k.mirrored(0) if mirror else k
-
-        parts.append(
-            BodyPart(
-                f"arm_{side}",
-                Sweep(keys(arm_l), caps=arm_caps),
-                [f"{other}Shoulder", f"{other}Elbow"],
-                np.array([l1]),
-                0.045 * height,
-                ["torso", f"hand_{side}"],
-            )
-        )
-        parts.append(
-            BodyPart(
-                f"hand_{side}",
-                Sweep(keys(hand_l), caps=hand_caps),
-                [f"{small}hand", f"{big}Fingers"],
-                np.array([kn[0] - wr[0]]),
-                0.02 * height,
-                [f"arm_{side}"],
-            )
-        )
-        parts.append(
-            BodyPart(
-                f"leg_{side}",
-                Sweep(keys(leg_l), caps=leg_caps),
-                [f"{other}Hip", f"{other}Knee"],
-                np.array([d1]),
-                0.05 * height,
-                ["torso", f"foot_{side}"],
-            )
-        )
-        parts.append(
-            BodyPart(
-                f"foot_{side}",
-                Sweep(keys(foot_l), caps=foot_caps),
-                [f"{other}Ankle", f"{other}Toe"],
-                np.array([toe[2] - ank[2] + 0.045 * s]),
-                0.03 * height,
-                [f"leg_{side}"],
-            )
-        )
-    return parts
+    return [
+        _Limb("leg", leg_l, (0.06 * s, 0.03 * s), np.array([d1]), 0.05 * height,
+              ("torso", "foot")),
+        _Limb("foot", foot_l, foot_caps, np.array([toe[2] - ank[2] + 0.045 * s]),
+              0.03 * height, ("leg",)),
+    ]  # fmt: skip
 
 
 def _part_box(part: BodyPart, margin: float) -> np.ndarray:

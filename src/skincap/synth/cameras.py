@@ -31,13 +31,25 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
-from skincap.geometry.raycast import occluded_from_viewpoints, segments_near_capsules
-from skincap.synth.markers import _greedy_blue_noise, vertex_normals, voronoi_dual
+from skincap.geometry.raycast import segments_near_capsules
+from skincap.geometry.viewpoint_occlusion import occluded_from_viewpoints
+from skincap.synth._settings import settings_with
+from skincap.synth.capture_settings import CaptureSettings
+from skincap.synth.reconstruction import (
+    Confusions,
+    Fragments,
+    Samples,
+    chain_pieces,
+    confusions,
+    draw_ghosts,
+    fragment_columns,
+    noisy_samples,
+    reconstructed,
+    shuffled_point_cloud,
+)
+from skincap.synth.surface_sampling import greedy_blue_noise, vertex_normals, voronoi_dual
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = [
@@ -290,7 +302,7 @@ def occlusion_proxy(
     """A coarse remesh of a closed mesh for fast occlusion tests.
 
     Blue-noise vertex subset (about ``n_vertices``), geodesic Voronoi regions and their
-    dual triangulation (:func:`~skincap.synth.markers.voronoi_dual`): the proxy's
+    dual triangulation (:func:`~skincap.synth.surface_sampling.voronoi_dual`): the proxy's
     vertices lie on the surface and it keeps the topology (a limb close to the torso
     does not fuse with it). Chords cut corners by roughly ``s^2 / (8 R)`` (spacing
     ``s``, curvature radius ``R``): a few millimetres at 2500 vertices for a body.
@@ -322,12 +334,12 @@ def occlusion_proxy(
     nrm = vertex_normals(v, f)[used]
     r = float(np.sqrt(area.sum() / (0.3 * k)))  # a first guess; refined from the count
     none = np.zeros(used.size, dtype=bool)
-    pick = _greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
+    pick = greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
     for _ in range(6):
         if abs(pick.size - k) <= 0.05 * k:
             break
         r *= float(np.sqrt(pick.size / k))
-        pick = _greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
+        pick = greedy_blue_noise(v[used], nrm, np.full(used.size, r), pri, none)
     ids = used[pick]
     _, tri, stats = voronoi_dual(v, f, ids)
     return OcclusionProxy(ids, tri, {**stats, "spacing": r})
@@ -484,32 +496,50 @@ class CaptureResult:
     stats: dict[str, Any]
 
 
-def _close_pair_onsets(
-    pos: np.ndarray, seen: np.ndarray, distance: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Frames and marker pairs that come within ``distance`` (not so in the frame before).
+def _capture_inputs(
+    true_positions: np.ndarray,
+    normals: np.ndarray,
+    labels: Sequence[str],
+    extra_points: np.ndarray | None,
+    extra_labels: Sequence[str] | None,
+) -> tuple[np.ndarray, np.ndarray, list[str], np.ndarray, list[str]]:
+    """Checked body positions and normals, body labels, extra points, all truth labels."""
+    pos = _array("true_positions", true_positions, (None, None, 3))
+    t_n, n_b, _ = pos.shape
+    nrm = _array("normals", normals, (t_n, n_b, 3))
+    body_labels = [str(s) for s in labels]
+    if len(body_labels) != n_b or len(set(body_labels)) != n_b:
+        raise ValidationError(f"labels: expected {n_b} unique labels, got {len(body_labels)}")
+    if extra_points is not None:
+        extra = _array("extra_points", extra_points, (t_n, None, 3))
+    else:
+        extra = np.zeros((t_n, 0, 3))
+    n_x = extra.shape[1]
+    xl = [f"extra_{k:02d}" for k in range(n_x)] if extra_labels is None else list(extra_labels)
+    if len(xl) != n_x:
+        raise ValidationError(f"extra_labels: expected {n_x} labels, got {len(xl)}")
+    truth_labels = body_labels + [str(s) for s in xl]
+    if len(set(truth_labels)) != len(truth_labels):
+        raise ValidationError("labels, extra_labels: must be unique together")
+    return pos, nrm, body_labels, extra, truth_labels
 
-    One 4-D KD-tree over all frames (time as a far-apart fourth coordinate), no loop.
-    """
-    t_idx, n_idx = np.nonzero(seen)
-    if t_idx.size < 2:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty, empty
-    gap = 10.0 * distance + 1.0
-    coords = np.concatenate([pos[t_idx, n_idx], (t_idx * gap)[:, None]], axis=1)
-    pairs = cKDTree(coords).query_pairs(distance, output_type="ndarray")
-    if pairs.size == 0:
-        empty = np.zeros(0, dtype=np.int64)
-        return empty, empty, empty
-    t = t_idx[pairs[:, 0]]
-    a = np.minimum(n_idx[pairs[:, 0]], n_idx[pairs[:, 1]])
-    b = np.maximum(n_idx[pairs[:, 0]], n_idx[pairs[:, 1]])
-    n = seen.shape[1]
-    key = (t * n + a) * n + b
-    prev = ((t - 1) * n + a) * n + b
-    onset = ~np.isin(prev, key)
-    order = np.argsort(key[onset], kind="stable")
-    return t[onset][order], a[onset][order], b[onset][order]
+
+def _fragment_stats(
+    seen_body: np.ndarray, frags: Fragments, n_ghost: int, conf: Confusions, samples: Samples
+) -> dict[str, Any]:
+    """Counts of the reconstruction; ``seen_body`` (T, N) bool of the body markers."""
+    holes = int((~seen_body).sum())
+    return {
+        "n_fragments": int(frags.n_columns - n_ghost),
+        "n_columns": int(frags.n_columns),
+        "n_labelled": int(frags.labelled.sum()),
+        "n_ghosts": n_ghost,
+        "n_swaps": int(conf.swapped.size),
+        "n_confusion_breaks": int(conf.is_break.sum()),
+        "holes": holes,
+        "missing_fraction": holes / max(seen_body.size, 1),
+        "n_points": int(samples.frame.size),
+    }
 
 
 def simulate_capture(
@@ -520,23 +550,15 @@ def simulate_capture(
     occluder_vertices: np.ndarray,
     faces: np.ndarray,
     *,
+    settings: CaptureSettings | None = None,
     rate: float = 120.0,
-    min_cameras: int = 2,
-    facing_limit_deg: float = 80.0,
-    noise_mm: float = 0.5,
-    marginal_dropout: float = 0.1,
-    confusion_distance: float = 0.025,
-    confusion_share: float = 0.5,
-    swap_rate: float = 0.05,
-    ghost_rate: float = 0.1,
-    ghost_frames: float = 3.0,
     extra_points: np.ndarray | None = None,
     extra_labels: Sequence[str] | None = None,
     extra_segments: np.ndarray | None = None,
-    extra_radius: float = 0.01,
     proxy: OcclusionProxy | bool | None = None,
     seed: int | np.random.Generator | None = 0,
     progress: Callable[[float], object] | None = None,
+    **options: Any,
 ) -> CaptureResult:
     """Simulate an optical capture of markers on a moving body.
 
@@ -552,228 +574,80 @@ def simulate_capture(
     occluder_vertices : (T, V, 3) float, metres
         The posed body (closed, outward-oriented).
     faces : (F, 3) int
+    settings : CaptureSettings, optional
+        The camera model: ``min_cameras``, ``facing_limit_deg``, ``noise_mm``,
+        ``marginal_dropout``, ``confusion_distance``, ``confusion_share``,
+        ``swap_rate``, ``ghost_rate``, ``ghost_frames``, ``extra_radius`` (the other
+        fields belong to :func:`~skincap.synth.generate.generate_capture`).
     rate : float, default 120
         Frame rate, Hz.
-    min_cameras : int, default 2
-        Cameras that must see a marker for it to be reconstructed.
-    facing_limit_deg : float, default 80
-    noise_mm : float, default 0.5
-        Standard deviation of the Gaussian noise per coordinate, millimetres.
-    marginal_dropout : float, default 0.1
-        Probability that a marker seen by exactly ``min_cameras`` cameras is still
-        lost in a frame (a two-ray reconstruction is fragile): flicker.
-    confusion_distance : float, default 0.025
-        Two reconstructed markers closer than this (metres) may be confused.
-    confusion_share : float, default 0.5
-        Probability that a confusion (a pair coming closer than
-        ``confusion_distance``) breaks both trajectories.
-    swap_rate : float, default 0.05
-        Probability that a confusion swaps the two trajectories instead: each
-        fragment continues on the other marker.
-    ghost_rate : float, default 0.1
-        Expected ghost tracks starting per frame.
-    ghost_frames : float, default 3
-        Mean ghost length in frames (geometric).
     extra_points : (T, M, 3) float, optional
         Other markers (rope tape): omnidirectional (no facing test), never labelled.
     extra_labels : sequence of M str, optional
         Their true labels (default ``extra_00``...).
     extra_segments : (T, K, 2, 3) float, optional
-        Extra occluders (rope capsule axes), metres; ``extra_radius`` their radius.
+        Extra occluders (rope capsule axes), metres; ``settings.extra_radius`` their
+        radius.
     proxy : see :func:`visibility`
     seed : int or Generator
         The same seed gives the same bytes.
     progress : callable, optional
         Fraction of the visibility pass done.
+    **options
+        Any :class:`CaptureSettings` field by name (``noise_mm=0.2``), replacing the
+        one in ``settings``.
 
     Returns
     -------
     CaptureResult
     """
-    pos = _array("true_positions", true_positions, (None, None, 3))
+    cfg = settings_with(CaptureSettings, settings, options, caller="simulate_capture")
+    pos, nrm, body_labels, extra, truth_labels = _capture_inputs(
+        true_positions, normals, labels, extra_points, extra_labels
+    )
     t_n, n_b, _ = pos.shape
-    nrm = _array("normals", normals, (t_n, n_b, 3))
-    labels = [str(s) for s in labels]
-    if len(labels) != n_b or len(set(labels)) != n_b:
-        raise ValidationError(f"labels: expected {n_b} unique labels, got {len(labels)}")
-    if extra_points is not None:
-        extra = _array("extra_points", extra_points, (t_n, None, 3))
-    else:
-        extra = np.zeros((t_n, 0, 3))
     n_x = extra.shape[1]
-    xl = [f"extra_{k:02d}" for k in range(n_x)] if extra_labels is None else list(extra_labels)
-    if len(xl) != n_x:
-        raise ValidationError(f"extra_labels: expected {n_x} labels, got {len(xl)}")
-    truth_labels = labels + [str(s) for s in xl]
-    if len(set(truth_labels)) != len(truth_labels):
-        raise ValidationError("labels, extra_labels: must be unique together")
-    for name, val, lo, hi in (
-        ("noise_mm", noise_mm, 0.0, np.inf),
-        ("marginal_dropout", marginal_dropout, 0.0, 1.0),
-        ("confusion_distance", confusion_distance, 0.0, np.inf),
-        ("confusion_share", confusion_share, 0.0, 1.0),
-        ("swap_rate", swap_rate, 0.0, 1.0),
-        ("ghost_rate", ghost_rate, 0.0, np.inf),
-    ):
-        if not (lo <= float(val) <= hi):
-            raise ValidationError(f"{name}: expected a value in [{lo}, {hi}], got {val!r}")
-    if float(ghost_frames) < 1:
-        raise ValidationError(f"ghost_frames: expected >= 1, got {ghost_frames!r}")
-    if int(min_cameras) < 1:
-        raise ValidationError(f"min_cameras: expected >= 1, got {min_cameras!r}")
     rng = _rng(seed)
 
-    vis_b = visibility(
-        pos, nrm, rig, occluder_vertices, faces, facing_limit_deg=facing_limit_deg,
-        extra_segments=extra_segments, extra_radius=extra_radius, proxy=proxy,
+    vis = visibility(
+        pos, nrm, rig, occluder_vertices, faces, facing_limit_deg=cfg.facing_limit_deg,
+        extra_segments=extra_segments, extra_radius=cfg.extra_radius, proxy=proxy,
         progress=progress,
     )  # fmt: skip
     if n_x:
         vis_x = visibility(
             extra, None, rig, occluder_vertices, faces, extra_segments=None, proxy=proxy
         )
-        vis = np.concatenate([vis_b, vis_x], axis=1)
-    else:
-        vis = vis_b
+        vis = np.concatenate([vis, vis_x], axis=1)
     allpos = np.concatenate([pos, extra], axis=1)  # (T, N_all, 3)
     n_all = allpos.shape[1]
-    n_cams = vis.sum(axis=2)
-    seen = n_cams >= int(min_cameras)
-    flicker = (n_cams == int(min_cameras)) & (rng.random((t_n, n_all)) < float(marginal_dropout))
-    seen &= ~flicker
+    seen = reconstructed(vis, cfg, rng)
+    conf = confusions(allpos, seen, cfg, rng)
+    piece_of, n_pieces, chain = chain_pieces(seen, conf)
+    ghosts = draw_ghosts(t_n, n_b, cfg, rng)
+    samples = noisy_samples(allpos, n_b, seen, piece_of, n_pieces, chain, ghosts, cfg.noise_mm, rng)
+    n_ghost = int(ghosts.start.size)
+    frags = fragment_columns(samples, n_ghost, t_n, n_all, body_labels)
+    s_col = frags.column[samples.group]
 
-    # confusions: pairs coming close; a share breaks, a few swap
-    ct, ca, cb = _close_pair_onsets(allpos, seen, float(confusion_distance))
-    u = rng.random(ct.size)
-    is_swap = (u < float(swap_rate)) & (ct > 0)
-    is_swap &= seen[np.maximum(ct - 1, 0), ca] & seen[np.maximum(ct - 1, 0), cb]
-    # one swap per marker and frame
-    ends = np.concatenate([ct[is_swap] * n_all + ca[is_swap], ct[is_swap] * n_all + cb[is_swap]])
-    _, inv, cnt = np.unique(ends, return_inverse=True, return_counts=True)
-    clash = (cnt[inv] > 1).reshape(2, -1).any(axis=0)
-    sw = np.nonzero(is_swap)[0][~clash]
-    is_break = (u < float(swap_rate) + float(confusion_share) * (1 - float(swap_rate))) & ~is_swap
-    brk = np.zeros((t_n, n_all), dtype=bool)
-    brk[ct[is_break], ca[is_break]] = True
-    brk[ct[is_break], cb[is_break]] = True
-    brk[ct[sw], ca[sw]] = True
-    brk[ct[sw], cb[sw]] = True
-    brk &= seen
-
-    # pieces: runs of reconstructed frames per marker, cut at breaks
-    prev_seen = np.zeros_like(seen)
-    prev_seen[1:] = seen[:-1]
-    start = seen & (~prev_seen | brk)
-    piece_of = (np.cumsum(start.T.ravel()).reshape(n_all, t_n) - 1).T  # (T, N_all)
-    piece_of = np.where(seen, piece_of, -1)
-    n_pieces = int(start.sum())
-    # swaps link a piece's end to the other marker's next piece
-    succ_a = piece_of[ct[sw] - 1, ca[sw]]
-    succ_b = piece_of[ct[sw] - 1, cb[sw]]
-    nxt_a = piece_of[ct[sw], ca[sw]]
-    nxt_b = piece_of[ct[sw], cb[sw]]
-    links = sp.coo_matrix(
-        (np.ones(2 * sw.size), (np.concatenate([succ_a, succ_b]), np.concatenate([nxt_b, nxt_a]))),
-        shape=(n_pieces, n_pieces),
-    )
-    _, chain = connected_components(links, directed=False)
-
-    # ghosts: short tracks a few centimetres from a body marker
-    n_ghost = int(rng.poisson(float(ghost_rate) * t_n)) if n_b else 0
-    g_start = rng.integers(0, t_n, n_ghost)
-    g_len = rng.geometric(1.0 / float(ghost_frames), n_ghost)
-    g_len = np.minimum(g_len, t_n - g_start)
-    g_anchor = rng.integers(0, max(n_b, 1), n_ghost)
-    g_dir = rng.normal(size=(n_ghost, 3))
-    g_dir /= np.maximum(np.linalg.norm(g_dir, axis=1, keepdims=True), 1e-12)
-    g_off = g_dir * rng.uniform(0.01, 0.05, (n_ghost, 1))
-
-    # samples: (frame, truth index or -1, chain or ghost id)
-    st, sn = np.nonzero(seen)
-    s_chain = chain[piece_of[st, sn]]
-    n_chain = int(chain.max()) + 1 if n_pieces else 0
-    gk, gi = np.arange(n_ghost).repeat(g_len), np.zeros(0, dtype=np.int64)
-    first = np.cumsum(g_len) - g_len
-    gi = np.arange(gk.size) - first[gk]
-    gt = g_start[gk] + gi
-    sample_t = np.concatenate([st, gt])
-    sample_truth = np.concatenate([sn, np.full(gt.size, -1)])
-    sample_group = np.concatenate([s_chain, n_chain + gk])
-    true_xyz = np.concatenate(
-        [allpos[st, sn], pos[gt, g_anchor[gk]] + g_off[gk] if n_b else np.zeros((0, 3))]
-    )
-    noisy = true_xyz + rng.normal(scale=float(noise_mm) / 1000.0, size=true_xyz.shape)
-
-    # fragments: order by first frame, then by the first sample's truth
-    n_group = n_chain + n_ghost
-    g_first = np.full(n_group, t_n, dtype=np.int64)
-    np.minimum.at(g_first, sample_group, sample_t)
-    first_truth = np.full(n_group, -1, dtype=np.int64)
-    at_first = sample_t == g_first[sample_group]
-    first_truth[sample_group[at_first]] = sample_truth[at_first]
-    order = np.lexsort((np.arange(n_group), first_truth, g_first))
-    column = np.empty(n_group, dtype=np.int64)
-    column[order] = np.arange(n_group)
-    s_col = column[sample_group]
-    # majority truth per fragment (ghost groups: -1)
-    is_ghost_group = np.zeros(n_group, dtype=bool)
-    is_ghost_group[n_chain:] = True
-    body = sample_truth >= 0
-    votes = sp.coo_matrix(
-        (np.ones(int(body.sum())), (s_col[body], sample_truth[body])), shape=(n_group, n_all)
-    ).tocsr()
-    votes.sum_duplicates()
-    majority = np.asarray(votes.argmax(axis=1)).ravel() if n_all else np.zeros(n_group, int)
-    majority = np.where(is_ghost_group[order], -1, majority)
-    # labels: frame-0 body fragments keep their marker's label
-    col_first = g_first[order]
-    col_first_truth = first_truth[order]
-    labelled = (col_first == 0) & (col_first_truth >= 0) & (col_first_truth < n_b)
-    col_labels: list[str] = []
-    k = 0
-    for c in range(n_group):  # string building only
-        if labelled[c]:
-            col_labels.append(labels[col_first_truth[c]])
-        else:
-            k += 1
-            col_labels.append(f"*{k}")
-    positions = np.full((t_n, n_group, 3), np.nan)
-    positions[sample_t, s_col] = noisy
+    positions = np.full((t_n, frags.n_columns, 3), np.nan)
+    positions[samples.frame, s_col] = samples.noisy
     markers = MarkerSet(
         positions=positions,
-        labels=col_labels,
+        labels=frags.labels,
         rate=rate,
         meta={"source": "skincap.synth.simulate_capture", "up": "Y", "source_units": "m"},
     )
     names = np.array(truth_labels + ["ghost"], dtype=object)
-    fragment_truth = {lab: str(names[m]) for lab, m in zip(col_labels, majority, strict=True)}
-
-    # point cloud: frame by frame, shuffled within each frame
-    shuffle = rng.random(sample_t.size)
-    p_order = np.lexsort((shuffle, sample_t))
-    counts = np.bincount(sample_t, minlength=t_n)
-    points = PointCloud(
-        points=noisy[p_order],
-        offsets=np.concatenate([[0], np.cumsum(counts)]),
-        rate=rate,
-        ids=s_col[p_order],
-        meta={"id_labels": col_labels, "up": "Y", "source_units": "m"},
-    )
-    p_truth = sample_truth[p_order]
-    holes = int((~seen[:, :n_b]).sum())
+    fragment_truth = {
+        lab: str(names[m]) for lab, m in zip(frags.labels, frags.majority, strict=True)
+    }
+    points, p_truth = shuffled_point_cloud(samples, s_col, frags.labels, t_n, rate, rng)
     stats = {
         "n_frames": t_n,
         "n_markers": n_b,
         "n_extra": n_x,
-        "n_fragments": int(n_group - n_ghost),
-        "n_columns": int(n_group),
-        "n_labelled": int(labelled.sum()),
-        "n_ghosts": int(n_ghost),
-        "n_swaps": int(sw.size),
-        "n_confusion_breaks": int(is_break.sum()),
-        "holes": holes,
-        "missing_fraction": holes / max(t_n * n_b, 1),
-        "n_points": int(sample_t.size),
+        **_fragment_stats(seen[:, :n_b], frags, n_ghost, conf, samples),
     }
     return CaptureResult(
         markers=markers,

@@ -58,14 +58,19 @@ from typing import Any
 
 import numpy as np
 
-from skincap.deform.skeletal.name_maps import CONVENTIONS, detect_convention
 from skincap.errors import ValidationError
-from skincap.geometry.kinematics import rest_positions
 from skincap.geometry.rotations import (
-    matrix_to_quat,
     quat_apply,
-    quat_conjugate,
-    quat_multiply,
+)
+from skincap.synth.clip_pose import (
+    X_AXIS,
+    Y_AXIS,
+    Z_AXIS,
+    ClipPose,
+    axis_angle,
+    nlerp,
+    quintic,
+    unit,
 )
 from skincap.types import Motion, Skeleton
 
@@ -75,7 +80,6 @@ __all__ = [
     "HOLD_SECONDS",
     "BLEND_SECONDS",
     "make_clip",
-    "find_landmarks",
 ]
 
 #: Names of the built-in clips.
@@ -87,308 +91,9 @@ HOLD_SECONDS = 0.5
 #: Duration of the blend from the T-pose into the action, seconds.
 BLEND_SECONDS = 0.6
 
-#: The next landmark down each segment's chain (its segment end).
-_SEGMENT_END = {
-    "hips": "spine",
-    "spine": "chest",
-    "chest": "upper_chest",
-    "upper_chest": "neck",
-    "neck": "neck_upper",
-    "neck_upper": "head",
-    **{
-        f"{a}_{s}": f"{b}_{s}"
-        for s in ("l", "r")
-        for a, b in (
-            ("clavicle", "upperarm"),
-            ("upperarm", "forearm"),
-            ("forearm", "hand"),
-            ("thigh", "shin"),
-            ("shin", "foot"),
-            ("foot", "toe"),
-        )
-    },
-}
-
-_X = np.array([1.0, 0.0, 0.0])
-_Y = np.array([0.0, 1.0, 0.0])
-_Z = np.array([0.0, 0.0, 1.0])
-
-
-# ------------------------------------------------------------------ small maths
-def _unit(v: np.ndarray) -> np.ndarray:
-    """Unit vectors along the last axis (zero vectors stay zero)."""
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.where(n > 0, n, 1.0)
-
-
-def _axis_angle(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Quaternions (..., 4) of rotations by ``angle`` (radians) about unit ``axis`` (..., 3)."""
-    axis = np.asarray(axis, dtype=np.float64)
-    half = 0.5 * np.asarray(angle, dtype=np.float64)[..., None]
-    axis, half = np.broadcast_arrays(axis, half)
-    return np.concatenate([axis * np.sin(half), np.cos(half[..., :1])], axis=-1)
-
-
-def _swing(u: np.ndarray, v: np.ndarray, weight: np.ndarray | float = 1.0) -> np.ndarray:
-    """The shortest rotation carrying direction ``u`` onto ``v``, scaled by ``weight``.
-
-    ``u``, ``v`` (..., 3) need not be unit; ``weight`` (...) in 0..1 turns only that
-    share of the angle (0 gives the exact identity). Antiparallel vectors turn about
-    an axis perpendicular to ``u``.
-    """
-    u = _unit(np.asarray(u, dtype=np.float64))
-    v = _unit(np.asarray(v, dtype=np.float64))
-    u, v = np.broadcast_arrays(u, v)
-    axis = np.cross(u, v)
-    sin = np.linalg.norm(axis, axis=-1)
-    cos = np.sum(u * v, axis=-1)
-    angle = np.arctan2(sin, cos)
-    # antiparallel: any axis perpendicular to u
-    fallback = np.cross(u, np.where(np.abs(u[..., :1]) < 0.9, _X, _Y))
-    axis = np.where((sin < 1e-12)[..., None], fallback, axis)
-    return _axis_angle(_unit(axis), angle * weight)
-
-
-def _quintic(s: np.ndarray) -> np.ndarray:
-    """Minimum-jerk smoothstep ``10 s^3 - 15 s^4 + 6 s^5`` on ``s`` clipped to 0..1."""
-    s = np.clip(s, 0.0, 1.0)
-    return s * s * s * (10.0 + s * (-15.0 + 6.0 * s))
-
-
-def _nlerp(a: np.ndarray, b: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Directions from ``a`` to ``b`` (3,) at weights ``w`` (T,): normalised lerp, (T, 3)."""
-    w = np.asarray(w)[..., None]
-    return _unit((1.0 - w) * a + w * b)
-
-
-# ------------------------------------------------------------------ landmarks
-def find_landmarks(skeleton: Skeleton) -> dict[str, int]:
-    """Joint index of each body landmark the skeleton has.
-
-    Parameters
-    ----------
-    skeleton : Skeleton
-
-    Returns
-    -------
-    dict of str to int
-        Keys from :data:`skincap.deform.skeletal.name_maps.LANDMARKS` (``hips``, ``spine``,
-        ``chest``, ``upper_chest``, ``neck``, ``neck_upper``, ``head``, and per side
-        ``clavicle_l``, ``upperarm_l``, ``forearm_l``, ``hand_l``, ``thigh_l``,
-        ``shin_l``, ``foot_l``, ``toe_l``...). The skeleton's own convention is tried
-        first, then the others; landmarks found under no convention are absent.
-        ``hips`` falls back to the root joint.
-    """
-    names = skeleton.names
-    index = {n: k for k, n in enumerate(names)}
-    detected = detect_convention(names)
-    order = ([detected] if detected else []) + [c for c in CONVENTIONS if c != detected]
-    found: dict[str, int] = {}
-    for conv in order:
-        for landmark, value in CONVENTIONS[conv].items():
-            if landmark in found:
-                continue
-            for name in (value,) if isinstance(value, str) else value:
-                if name in index:
-                    found[landmark] = index[name]
-                    break
-    if "hips" not in found:
-        found["hips"] = int(np.nonzero(skeleton.parents < 0)[0][0])
-    return found
-
-
-class _Pose:
-    """Local rotations and root position of T frames, built segment by segment.
-
-    All world rotations are identity in the rest pose, so a segment's rest direction
-    in world coordinates is also its direction in its own joint frame.
-    """
-
-    def __init__(self, skeleton: Skeleton, n_frames: int) -> None:
-        self.skeleton = skeleton
-        self.parents = skeleton.parents
-        self.rest = rest_positions(skeleton)  # (J, 3)
-        self.lm = find_landmarks(skeleton)
-        self.n = n_frames
-        self.local = np.zeros((n_frames, skeleton.n_joints, 4))
-        self.local[..., 3] = 1.0
-        self.root = int(np.nonzero(self.parents < 0)[0][0])
-        self.root_offset = np.zeros((n_frames, 3))  # displacement from the rest, metres
-
-    # ---------------------------------------------------------------- queries
-    def has(self, *landmarks: str) -> bool:
-        return all(k in self.lm for k in landmarks)
-
-    def chain(self, j: int) -> list[int]:
-        out = [j]
-        while self.parents[out[-1]] >= 0:
-            out.append(int(self.parents[out[-1]]))
-        return out[::-1]
-
-    def world(self, j: int) -> np.ndarray:
-        """(T, 4) world rotation of joint ``j`` (identity for j = -1)."""
-        w = np.zeros((self.n, 4))
-        w[:, 3] = 1.0
-        if j < 0:
-            return w
-        for k in self.chain(j):
-            w = quat_multiply(w, self.local[:, k])
-        return w
-
-    def position(self, j: int) -> np.ndarray:
-        """(T, 3) world position of joint ``j``, metres."""
-        chain = self.chain(j)
-        p = self.skeleton.offsets[chain[0]] + self.root_offset
-        w = self.local[:, chain[0]]
-        for k in chain[1:]:
-            p = p + quat_apply(w, self.skeleton.offsets[k])
-            w = quat_multiply(w, self.local[:, k])
-        return p
-
-    def segment(self, landmark: str) -> np.ndarray:
-        """(3,) rest vector of a landmark's segment: joint to its segment end, metres."""
-        j = self.lm[landmark]
-        end = _SEGMENT_END.get(landmark)
-        if end is not None and end in self.lm:
-            v = self.rest[self.lm[end]] - self.rest[j]
-            if np.linalg.norm(v) > 1e-6:
-                return v
-        # fall back to the descendants: the first one away from the joint
-        for k in range(j + 1, self.skeleton.n_joints):
-            if j in self.chain(k):
-                v = self.rest[k] - self.rest[j]
-                if np.linalg.norm(v) > 1e-6:
-                    return v
-        return _Y.copy()
-
-    # ---------------------------------------------------------------- setters
-    def turn(self, landmark: str, q: np.ndarray) -> None:
-        """Compose a local rotation ``q`` (T, 4) or (4,) onto a landmark's joint."""
-        if landmark in self.lm:
-            j = self.lm[landmark]
-            self.local[:, j] = quat_multiply(self.local[:, j], q)
-
-    def turn_world(self, landmark: str, q: np.ndarray) -> None:
-        """Turn a landmark's segment by the world rotation ``q`` (T, 4) about its joint."""
-        if landmark not in self.lm:
-            return
-        j = self.lm[landmark]
-        wp = self.world(int(self.parents[j]))
-        # W_new = q W_cur  =>  L_new = Wp* q Wp L_old
-        self.local[:, j] = quat_multiply(
-            quat_multiply(quat_conjugate(wp), quat_multiply(q, wp)), self.local[:, j]
-        )
-
-    def aim(self, landmark: str, target: np.ndarray, weight: np.ndarray | float = 1.0) -> None:
-        """Swing a landmark's segment towards the world direction ``target`` (T, 3) or (3,).
-
-        ``weight`` (T,) in 0..1 turns that share of the way (the minimal swing; the
-        segment's twist is kept).
-        """
-        if landmark not in self.lm:
-            return
-        j = self.lm[landmark]
-        current = quat_apply(self.world(j), self.segment(landmark))  # (T, 3)
-        self.turn_world(landmark, _swing(current, target, weight))
-
-    def leg_ik(self, side: str, ankle: np.ndarray, foot: np.ndarray | None = None) -> None:
-        """Two-bone IK: put the ankle at ``ankle`` (T, 3), knee forward, foot at ``foot``.
-
-        The knee bends about the axis perpendicular to the thigh nearest to the
-        body's left-right axis; the thigh then swings the hip-to-ankle line onto the
-        target. ``foot`` (T, 4) is the foot's world rotation (identity: flat as at
-        rest). Targets beyond reach leave the knee straight (the ankle falls short).
-        """
-        thigh, shin, foot_lm = f"thigh_{side}", f"shin_{side}", f"foot_{side}"
-        if not self.has(thigh, shin, foot_lm):
-            return
-        a0 = self.rest[self.lm[shin]] - self.rest[self.lm[thigh]]  # hip -> knee (3,)
-        b0 = self.rest[self.lm[foot_lm]] - self.rest[self.lm[shin]]  # knee -> ankle
-        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
-        hip = self.position(self.lm[thigh])  # (T, 3)
-        dist = np.linalg.norm(ankle - hip, axis=-1)
-        # interior knee angle now and at rest (law of cosines)
-        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
-        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
-        bend = np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)  # (T,) radians
-        hinge = _unit(_X - np.dot(_X, a0) / (l1 * l1) * a0)  # knee axis, shin goes back
-        self.local[:, self.lm[shin]] = _axis_angle(hinge, bend)
-        reach = a0 + quat_apply(self.local[:, self.lm[shin]], b0)  # (T, 3) thigh frame
-        self.local[:, self.lm[thigh]] = np.array([0.0, 0.0, 0.0, 1.0])
-        wp = self.world(int(self.parents[self.lm[thigh]]))
-        self.turn_world(thigh, _swing(quat_apply(wp, reach), ankle - hip))
-        w_foot = np.array([0.0, 0.0, 0.0, 1.0]) if foot is None else foot
-        w_shin = self.world(int(self.parents[self.lm[foot_lm]]))
-        self.local[:, self.lm[foot_lm]] = quat_multiply(quat_conjugate(w_shin), w_foot)
-
-    def arm_ik(self, side: str, wrist: np.ndarray, pole: np.ndarray) -> None:
-        """Two-bone IK: put the wrist at ``wrist`` (T, 3), the elbow towards ``pole``.
-
-        The elbow is a hinge that bends the forearm forward (towards ``+Z`` in the
-        T-pose, about the axis perpendicular to the upper arm and ``Z``); its angle
-        comes from the shoulder-to-wrist distance (law of cosines). The upper arm is
-        then turned so that the shoulder-to-wrist line points at the target and the
-        elbow lies on the side of that line towards ``pole`` (T, 3) or (3,), a world
-        direction (e.g. back and out: elbows by the sides). Targets beyond reach leave
-        the arm straight, pointing at the target. The hand keeps its local rotation.
-        A pole along the shoulder-to-target line is ill-defined: keep it well apart.
-        """
-        up, fore, hand = f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"
-        if not self.has(up, fore, hand):
-            return
-        a0 = self.rest[self.lm[fore]] - self.rest[self.lm[up]]  # shoulder -> elbow (3,)
-        b0 = self.rest[self.lm[hand]] - self.rest[self.lm[fore]]  # elbow -> wrist
-        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
-        shoulder = self.position(self.lm[up])  # (T, 3)
-        reach_vec = wrist - shoulder
-        dist = np.linalg.norm(reach_vec, axis=-1)
-        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
-        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
-        bend = np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)  # (T,) radians
-        hinge = _unit(np.cross(a0, _Z))  # forearm bends towards +Z at rest
-        self.local[:, self.lm[fore]] = _axis_angle(hinge, bend)
-        # the same two directions in the upper arm's rest frame and in the world:
-        # shoulder-to-wrist, and the side of that line the elbow is on
-        r = _unit(a0 + quat_apply(self.local[:, self.lm[fore]], b0))  # (T, 3)
-        o_rest = _unit(np.cross(r, hinge))
-        n = _unit(reach_vec)
-        pole = np.broadcast_to(np.asarray(pole, dtype=np.float64), n.shape)
-        o_world = _unit(pole - np.sum(pole * n, axis=-1, keepdims=True) * n)
-        frame_rest = np.stack([r, o_rest, np.cross(r, o_rest)], axis=-1)  # (T, 3, 3) columns
-        frame_world = np.stack([n, o_world, np.cross(n, o_world)], axis=-1)
-        world = matrix_to_quat(frame_world @ np.swapaxes(frame_rest, -1, -2))
-        wp = self.world(int(self.parents[self.lm[up]]))
-        self.local[:, self.lm[up]] = quat_multiply(quat_conjugate(wp), world)
-
-    # ---------------------------------------------------------------- output
-    def motion(self, rate: float, meta: dict[str, Any]) -> Motion:
-        q = self.local / np.linalg.norm(self.local, axis=-1, keepdims=True)
-        translations = np.broadcast_to(
-            self.skeleton.offsets, (self.n,) + self.skeleton.offsets.shape
-        ).copy()
-        translations[:, self.root] += self.root_offset
-        channels = [
-            (
-                ("Xposition", "Yposition", "Zposition", "Zrotation", "Yrotation", "Xrotation")
-                if p < 0
-                else ()
-                if leaf
-                else ("Zrotation", "Yrotation", "Xrotation")
-            )
-            for p, leaf in zip(self.parents, self.skeleton.is_leaf, strict=True)
-        ]
-        return Motion(
-            skeleton=self.skeleton,
-            rotations=q,
-            translations=translations,
-            rate=rate,
-            channels=channels,
-            meta=meta,
-        )
-
 
 # ------------------------------------------------------------------ clip parts
-def _sway(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _sway(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     """Subtle trunk sway (below one degree) from random low frequencies and phases."""
     freq = rng.uniform(0.12, 0.45, size=(2, 2))  # Hz, (axis, component)
     phase = rng.uniform(0.0, 2.0 * np.pi, size=(2, 2))
@@ -396,8 +101,8 @@ def _sway(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator)
     waves = (amp[..., None] * np.sin(2 * np.pi * freq[..., None] * t + phase[..., None])).sum(
         axis=1
     )  # (2, T)
-    for axis, wave in zip((_X, _Z), waves, strict=True):
-        pose.turn("spine", _axis_angle(axis, env * wave))
+    for axis, wave in zip((X_AXIS, Z_AXIS), waves, strict=True):
+        pose.turn("spine", axis_angle(axis, env * wave))
 
 
 def _sided_dir(v: tuple[float, float, float], side: str) -> np.ndarray:
@@ -405,14 +110,14 @@ def _sided_dir(v: tuple[float, float, float], side: str) -> np.ndarray:
     d = np.array(v, dtype=np.float64)
     if side == "r":
         d[0] = -d[0]
-    return _unit(d)
+    return unit(d)
 
 
-def _clip_tpose(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_tpose(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     """Nothing moves."""
 
 
-def _clip_flex(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_flex(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     _sway(pose, t, env, rng)
     start = HOLD_SECONDS + BLEND_SECONDS
     period = 1.5  # s per curl
@@ -425,31 +130,31 @@ def _clip_flex(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Gener
         pose.aim(f"upperarm_{s}", _sided_dir((0.35, -0.93, 0.2), s), env)
         if not pose.has(f"forearm_{s}"):
             continue
-        upper = _unit(
+        upper = unit(
             quat_apply(pose.world(pose.lm[f"upperarm_{s}"]), pose.segment(f"upperarm_{s}"))
         )
-        forward = _unit(_Z - np.sum(upper * _Z, axis=-1, keepdims=True) * upper)
+        forward = unit(Z_AXIS - np.sum(upper * Z_AXIS, axis=-1, keepdims=True) * upper)
         target = np.cos(angle)[:, None] * upper + np.sin(angle)[:, None] * forward
         pose.aim(f"forearm_{s}", target)
 
 
-def _clip_twist(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_twist(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     _sway(pose, t, env, rng)
     start = HOLD_SECONDS + BLEND_SECONDS
-    ramp = _quintic((t - start) / 0.5)
+    ramp = quintic((t - start) / 0.5)
     angle = np.radians(90.0) * ramp * np.sin(2 * np.pi * 0.5 * (t - start))
     for s in ("l", "r"):
         if not pose.has(f"upperarm_{s}"):
             continue
         pose.aim(f"upperarm_{s}", _sided_dir((1.0, -0.15, 0.25), s), env)
         if pose.has(f"forearm_{s}"):
-            axis = _unit(pose.segment(f"forearm_{s}"))
+            axis = unit(pose.segment(f"forearm_{s}"))
             # pronation turns the left palm (down in the T-pose) backwards: about +axis
-            pose.turn(f"forearm_{s}", _axis_angle(axis, angle if s == "l" else -angle))
+            pose.turn(f"forearm_{s}", axis_angle(axis, angle if s == "l" else -angle))
 
 
 def _legs_planted(
-    pose: _Pose, foot_lift: np.ndarray | None = None, toe_down: np.ndarray | None = None
+    pose: ClipPose, foot_lift: np.ndarray | None = None, toe_down: np.ndarray | None = None
 ) -> None:
     """Solve both legs so the ankles sit at rest (+ ``foot_lift`` (T,) metres up)."""
     for s in ("l", "r"):
@@ -458,11 +163,11 @@ def _legs_planted(
         ankle = np.broadcast_to(pose.rest[pose.lm[f"foot_{s}"]], (pose.n, 3)).copy()
         if foot_lift is not None:
             ankle[:, 1] += foot_lift
-        foot = None if toe_down is None else _axis_angle(_X, toe_down)
+        foot = None if toe_down is None else axis_angle(X_AXIS, toe_down)
         pose.leg_ik(s, ankle, foot)
 
 
-def _legs(pose: _Pose) -> list[tuple[float, float, np.ndarray]]:
+def _legs(pose: ClipPose) -> list[tuple[float, float, np.ndarray]]:
     """Thigh and shin lengths and the rest hip-minus-ankle vector (3,) of each leg."""
     legs = []
     for s in ("l", "r"):
@@ -472,7 +177,7 @@ def _legs(pose: _Pose) -> list[tuple[float, float, np.ndarray]]:
     return legs
 
 
-def _pelvis_for_knee(pose: _Pose, knee: np.ndarray, back: float) -> np.ndarray:
+def _pelvis_for_knee(pose: ClipPose, knee: np.ndarray, back: float) -> np.ndarray:
     """(T, 3) pelvis displacement giving knee flexion ``knee`` (T,) radians with feet at rest.
 
     The hip moves back by ``back`` times the shortening of the leg, and down so that
@@ -497,14 +202,14 @@ def _pelvis_for_knee(pose: _Pose, knee: np.ndarray, back: float) -> np.ndarray:
     return out
 
 
-def _clip_squat(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_squat(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     period = 1.75
     depth = env * 0.5 * (1.0 - np.cos(2 * np.pi * (t - HOLD_SECONDS) / period))
     depth = np.where(t >= HOLD_SECONDS, depth, 0.0)
     pose.root_offset = _pelvis_for_knee(pose, np.radians(105.0) * depth, back=0.55)
     _sway(pose, t, env, rng)
-    pose.turn("spine", _axis_angle(_X, np.radians(20.0) * depth))
-    pose.turn("chest", _axis_angle(_X, np.radians(12.0) * depth))
+    pose.turn("spine", axis_angle(X_AXIS, np.radians(20.0) * depth))
+    pose.turn("chest", axis_angle(X_AXIS, np.radians(12.0) * depth))
     for s in ("l", "r"):
         pose.aim(f"upperarm_{s}", _sided_dir((0.2, -0.25, 1.0), s), env)
     _legs_planted(pose)
@@ -516,19 +221,19 @@ def _pulse(t: np.ndarray, start: float, period: float, width: float) -> np.ndarr
     return np.where((t >= start) & (u < 1.0), np.sin(np.pi * np.minimum(u, 1.0)) ** 2, 0.0)
 
 
-def _clip_punch(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_punch(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     _sway(pose, t, env, rng)
     start = HOLD_SECONDS + BLEND_SECONDS + 0.15
     period, width = 1.2, 0.45
     hit = {"l": _pulse(t, start, period, width), "r": _pulse(t, start + period / 2, period, width)}
     # torso turns into the punch: a right punch turns the chest to the left (+Y)
     turn = np.radians(22.0) * (hit["r"] - hit["l"])
-    pose.turn("spine", _axis_angle(_Y, 0.6 * turn))
-    pose.turn("chest", _axis_angle(_Y, 0.4 * turn))
+    pose.turn("spine", axis_angle(Y_AXIS, 0.6 * turn))
+    pose.turn("chest", axis_angle(Y_AXIS, 0.4 * turn))
     trunk = pose.world(pose.lm["upper_chest"]) if pose.has("upper_chest") else pose.world(pose.root)
     for s in ("l", "r"):
-        upper = _nlerp(_sided_dir((0.3, -0.65, 0.55), s), _sided_dir((0.05, 0.05, 1.0), s), hit[s])
-        fore = _nlerp(_sided_dir((-0.3, 0.75, 0.55), s), _sided_dir((-0.05, 0.05, 1.0), s), hit[s])
+        upper = nlerp(_sided_dir((0.3, -0.65, 0.55), s), _sided_dir((0.05, 0.05, 1.0), s), hit[s])
+        fore = nlerp(_sided_dir((-0.3, 0.75, 0.55), s), _sided_dir((-0.05, 0.05, 1.0), s), hit[s])
         pose.aim(f"upperarm_{s}", quat_apply(trunk, upper), env)
         pose.aim(f"forearm_{s}", quat_apply(trunk, fore), env)
 
@@ -616,7 +321,9 @@ def _hop_profile(t: np.ndarray, passes: np.ndarray) -> tuple[np.ndarray, np.ndar
     return lift, squash
 
 
-def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_jumprope(
+    pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator
+) -> None:
     """Skipping a rope: arms down from the T-pose, a wind-up circle, then hops.
 
     The wrists follow prescribed circles in the sagittal plane (two-bone arm IK,
@@ -630,7 +337,7 @@ def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.G
     tau = t - start
     _, turns = _rope_turns(tau)
     decay = _smooth3(tau / _WIND_SECONDS)  # 0 -> 1: wind-up -> skipping
-    grow = _quintic(tau / _GROW_SECONDS)
+    grow = quintic(tau / _GROW_SECONDS)
     # angles in the sagittal plane: 0 = up, 90 deg = forward. The circle passes
     # through the hands' start (its bottom) and grows from nothing while the hands
     # start at 270 deg and turn forward: they first rise (lifting the rope from
@@ -647,15 +354,15 @@ def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.G
     passes = start + np.interp(pass_turns, turns_grid, tau_grid, right=np.inf)
     passes = passes[np.isfinite(passes)]
     lift, squash = _hop_profile(t, passes)
-    ramp = _quintic((t - start) / 1.0)
+    ramp = quintic((t - start) / 1.0)
     foot_lift = _HOP * lift  # metres
     knee = np.radians(8.0) * env + np.radians(30.0) * ramp * squash
     pose.root_offset = _pelvis_for_knee(pose, knee, back=0.3)
     pose.root_offset[:, 1] += foot_lift
-    pose.turn("spine", _axis_angle(_X, np.radians(4.0) * env))
+    pose.turn("spine", axis_angle(X_AXIS, np.radians(4.0) * env))
 
     hold = t < HOLD_SECONDS
-    lower = _quintic((t - HOLD_SECONDS) / _LOWER_SECONDS)  # (T,) 0 -> 1
+    lower = quintic((t - HOLD_SECONDS) / _LOWER_SECONDS)  # (T,) 0 -> 1
     for side in ("l", "r"):
         up, fore, hand = f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"
         if not pose.has(up, fore, hand):
@@ -685,9 +392,9 @@ def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.G
         dist = np.linalg.norm(stance, axis=-1)
         floor = _ARM_FLOOR * length
         stance *= ((1.0 + (floor / np.maximum(dist, 1e-9)) ** 8) ** 0.125)[:, None]
-        d0 = _unit(arm)
-        d1 = _unit(stance)
-        direction = _unit((1.0 - lower)[:, None] * d0 + lower[:, None] * d1)
+        d0 = unit(arm)
+        d1 = unit(stance)
+        direction = unit((1.0 - lower)[:, None] * d0 + lower[:, None] * d1)
         reach = (1.0 - lower) * length + lower * np.linalg.norm(stance, axis=-1)
         wrist = shoulder + direction * reach[:, None]
         # pole (where the elbow points): straight back as the arm leaves the T-pose
@@ -695,29 +402,29 @@ def _clip_jumprope(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.G
         # sides; it keeps well away from the shoulder-to-wrist line all along the
         # wind-up and skipping circles
         back = np.array([0.3 * sx, 0.0, -1.0])
-        down_back = _unit(np.array([0.0, -1.5, -1.0]))
-        pole = _nlerp(back, down_back, _quintic(2.0 * lower))
+        down_back = unit(np.array([0.0, -1.5, -1.0]))
+        pole = nlerp(back, down_back, quintic(2.0 * lower))
         before = pose.local.copy()
         pose.arm_ik(side, wrist, pole)
         pose.local[hold] = before[hold]  # the T-pose is held exactly
     _legs_planted(pose, foot_lift, np.radians(8.0) * lift)
 
 
-def _clip_breathe(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+def _clip_breathe(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
     _sway(pose, t, env, rng)
     breath = np.where(
         t >= HOLD_SECONDS, 0.5 * (1.0 - np.cos(2 * np.pi * 0.25 * (t - HOLD_SECONDS))), 0.0
     )
-    pose.turn("chest", _axis_angle(_X, -np.radians(1.5) * breath))
-    pose.turn("upper_chest", _axis_angle(_X, -np.radians(1.0) * breath))
-    pose.turn("neck", _axis_angle(_X, np.radians(2.5) * breath))
-    pose.turn("clavicle_l", _axis_angle(_Z, np.radians(2.0) * breath))
-    pose.turn("clavicle_r", _axis_angle(_Z, -np.radians(2.0) * breath))
+    pose.turn("chest", axis_angle(X_AXIS, -np.radians(1.5) * breath))
+    pose.turn("upper_chest", axis_angle(X_AXIS, -np.radians(1.0) * breath))
+    pose.turn("neck", axis_angle(X_AXIS, np.radians(2.5) * breath))
+    pose.turn("clavicle_l", axis_angle(Z_AXIS, np.radians(2.0) * breath))
+    pose.turn("clavicle_r", axis_angle(Z_AXIS, -np.radians(2.0) * breath))
     for s in ("l", "r"):
         pose.aim(f"upperarm_{s}", _sided_dir((0.45, -0.9, 0.05), s), env)
 
 
-_CLIP_FUNCS: dict[str, Callable[[_Pose, np.ndarray, np.ndarray, np.random.Generator], None]] = {
+_CLIP_FUNCS: dict[str, Callable[[ClipPose, np.ndarray, np.ndarray, np.random.Generator], None]] = {
     "tpose": _clip_tpose,
     "flex": _clip_flex,
     "twist": _clip_twist,
@@ -814,8 +521,8 @@ def make_clip(
         raise ValidationError(f"seed: expected a non-negative integer, got {seed!r}")
     n = _n_frames(frames, seconds, r)
     t = np.arange(n) / r  # (T,) seconds
-    env = _quintic((t - HOLD_SECONDS) / BLEND_SECONDS)  # (T,) 0 during the hold
-    pose = _Pose(skeleton, n)
+    env = quintic((t - HOLD_SECONDS) / BLEND_SECONDS)  # (T,) 0 during the hold
+    pose = ClipPose(skeleton, n)
     rng = np.random.default_rng(int(seed))
     _CLIP_FUNCS[name](pose, t, env, rng)
     return pose.motion(

@@ -8,8 +8,9 @@ as an un-indexed :class:`~skincap.types.PointCloud`, plus the truth.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 
@@ -17,7 +18,9 @@ from skincap._arrays import Progress
 from skincap.deform.skeletal.deformers import skin_motion
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
+from skincap.synth._settings import settings_with
 from skincap.synth.cameras import CameraRig, CaptureResult, simulate_capture
+from skincap.synth.capture_settings import CaptureSettings
 from skincap.synth.markers import (
     MarkerLayout,
     dense_marker_layout,
@@ -28,7 +31,7 @@ from skincap.synth.rope import RopeResult, rope_occluders, simulate_rope
 from skincap.synth.soft_tissue import SoftTissue
 from skincap.types import MarkerSet, Mesh, MeshAnimation, Motion
 
-__all__ = ["SynthCapture", "generate_capture", "hand_joints"]
+__all__ = ["CaptureSettings", "SynthCapture", "generate_capture", "hand_joints"]
 
 #: Names of the hand joints in the skeleton conventions skincap knows, per side.
 _HAND_NAMES = {
@@ -97,19 +100,11 @@ def hand_joints(motion: Motion) -> tuple[int, int]:
 def generate_capture(
     body: Mesh,
     motion: Motion,
+    settings: CaptureSettings | None = None,
     *,
-    markers: Literal["dense", "sparse"] = "dense",
-    rope: Literal["none", "jump", "whip"] = "none",
-    bulge: float = 1.0,
-    jiggle: float = 1.0,
-    breathing: float = 1.0,
-    noise_mm: float = 0.5,
-    n_cameras: int = 12,
-    n_cameras_up: int = 2,
-    rope_length: float = 2.8,
-    rope_marker_spacing: float = 0.12,
     seed: int = 0,
     progress: Progress | None = None,
+    **options: Any,
 ) -> SynthCapture:
     """Generate a capture of ``body`` moving with ``motion``.
 
@@ -119,32 +114,23 @@ def generate_capture(
         A closed skinned mesh in its bind pose (metres, Y up, facing +Z).
     motion : Motion
         On ``body.skin.skeleton`` (same joint names), starting in the bind pose.
-    markers : {"dense", "sparse"}
-        Park & Hodgins' ~350-marker grid with its marker surface, or ~41 markers on
-        bony landmarks (CMU-like labels).
-    rope : {"none", "jump", "whip"}
-        A rope held in both hands (jump rope) or in the right hand (whip); its tape
-        markers join the un-indexed capture and occlude body markers.
-    bulge, jiggle, breathing : float
-        Soft-tissue amplitudes (1 = realistic, 0 = off).
-    noise_mm : float
-        Gaussian noise of reconstructed points, millimetres.
-    n_cameras, n_cameras_up : int
-        The camera ring, and how many of its cameras sit low aimed up.
+    settings : CaptureSettings, optional
+        Marker set, rope, soft-tissue amplitudes, camera ring and camera model (see
+        :class:`~skincap.synth.capture_settings.CaptureSettings`; defaults when omitted).
     seed : int
         Every random choice derives from it: the same seed gives the same capture.
     progress : callable(fraction, label), optional
+    **options
+        Any :class:`CaptureSettings` field by name (``markers="sparse"``,
+        ``rope="jump"``, ``noise_mm=0.2``), replacing the one in ``settings``.
 
     Returns
     -------
     SynthCapture
     """
+    cfg = settings_with(CaptureSettings, settings, options, caller="generate_capture")
     if body.skin is None:
         raise ValidationError("body: needs a skin (skinned mesh)")
-    if markers not in ("dense", "sparse"):
-        raise ValidationError(f"markers: expected 'dense' or 'sparse', got {markers!r}")
-    if rope not in ("none", "jump", "whip"):
-        raise ValidationError(f"rope: expected 'none', 'jump' or 'whip', got {rope!r}")
     rng = np.random.default_rng(seed)
     seeds = rng.integers(0, 2**31 - 1, size=6)
 
@@ -152,60 +138,23 @@ def generate_capture(
         if progress is not None:
             progress(fraction, label)
 
-    # --- skin: DQS + soft tissue ---------------------------------------------------
     step(0.0, "skinning")
-    frames = np.concatenate(list(skin_motion(body, motion, method="dqs").iter_chunks(128)), axis=0)
-    step(0.15, "soft tissue")
-    if bulge or jiggle or breathing:
-        tissue = SoftTissue(
-            body, bulge=bulge, jiggle=jiggle, breathing=breathing, seed=int(seeds[0])
-        )
-        frames += tissue.displacements(motion, frames)
-    skin = MeshAnimation(body, frames, motion.rate, meta={"deformer": "dqs+soft_tissue"})
-
-    # --- markers on the skin --------------------------------------------------------
+    skin = _moving_skin(body, motion, cfg, int(seeds[0]), step)
+    frames = skin.frames
     step(0.25, "markers")
-    layout: MarkerLayout
-    if markers == "dense":
-        layout = dense_marker_layout(body, seed=int(seeds[1]))
-    else:
-        layout = sparse_marker_layout(body, body.skin)
+    layout = _marker_layout(body, cfg.markers, int(seeds[1]))
     true_positions, normals = place_markers(layout, frames, body.faces)
-
-    # --- rope ---------------------------------------------------------------------------
-    rope_result: RopeResult | None = None
+    rope_result = None
     extra_points = extra_labels = extra_segments = None
-    if rope != "none":
+    if cfg.rope != "none":
         step(0.35, "rope")
-        left, right = hand_joints(motion)
-        world = forward_kinematics(motion)[:, :, :3, 3]  # (T, J, 3)
-        hands = np.stack(
-            [world[:, right], world[:, left]], axis=1
-        )  # (T, 2, 3), first end right hand
-        rope_result = simulate_rope(
-            hands,
-            motion.rate,
-            mode=rope,
-            length=rope_length,
-            marker_spacing=rope_marker_spacing,
-            seed=int(seeds[2]),
-        )
+        rope_result = _held_rope(motion, cfg, int(seeds[2]))
         extra_points, extra_labels = rope_result.markers, rope_result.labels
         a, b, _radius = rope_occluders(rope_result.particles)
         extra_segments = np.stack([a, b], axis=2)  # (T, P - 1, 2, 3)
 
-    # --- cameras ----------------------------------------------------------------------
     step(0.45, "camera model")
-    # The ring stands on the floor under the take: centred on where the body is on
-    # average, its floor at the lowest skin point (the MakeHuman bind pose has its
-    # origin at the hips, retargeted takes stand on y = 0).
-    centroid = frames.mean(axis=1)  # (T, 3)
-    center = (
-        float(centroid[:, 0].mean()),
-        float(frames[..., 1].min()),
-        float(centroid[:, 2].mean()),
-    )
-    rig = CameraRig.ring(n=n_cameras, n_up=n_cameras_up, center=center, seed=int(seeds[3]))
+    rig = _camera_ring_under(frames, cfg, int(seeds[3]))
     result: CaptureResult = simulate_capture(
         true_positions,
         normals,
@@ -213,8 +162,8 @@ def generate_capture(
         rig,
         frames,
         body.faces,
+        settings=cfg,
         rate=motion.rate,
-        noise_mm=noise_mm,
         extra_points=extra_points,
         extra_labels=extra_labels,
         extra_segments=extra_segments,
@@ -222,7 +171,6 @@ def generate_capture(
         progress=lambda f: step(0.45 + 0.5 * f, "camera model"),
     )
 
-    # --- truth --------------------------------------------------------------------------
     truth_positions = (
         true_positions
         if extra_points is None
@@ -237,32 +185,9 @@ def generate_capture(
         surface = Mesh(
             true_positions[0], layout.surface_faces, meta={"labels": list(layout.labels)}
         )
-
     capture = result.markers
     capture.meta.update({"source": "skincap.synth", "seed": seed})
-    stats = dict(result.stats)
-    summary = {
-        "frames": int(motion.n_frames),
-        "rate": float(motion.rate),
-        "markers": int(true_positions.shape[1]),
-        "marker_set": markers,
-        "rope_markers": 0 if rope_result is None else len(rope_result.labels),
-        "rope": rope,
-        "fragments": int(capture.n_markers),
-        "labelled_fragments": int((~capture.unlabelled).sum()),
-        "missing_fraction": float(stats.get("missing_fraction", np.nan)),
-        "ghosts": int(stats.get("n_ghosts", 0)),
-        "swaps": int(stats.get("n_swaps", 0)),
-        "points": int(result.points.points.shape[0]),
-        "mesh_vertices": int(body.n_vertices),
-        "cameras": int(n_cameras),
-        "noise_mm": float(noise_mm),
-        "soft_tissue": {"bulge": bulge, "jiggle": jiggle, "breathing": breathing},
-        "seed": int(seed),
-        "camera_stats": {k: v for k, v in stats.items() if isinstance(v, int | float | str)},
-    }
-    if rope_result is not None:
-        summary["rope_max_length_error"] = float(rope_result.meta.get("max_length_error", np.nan))
+    summary = _summary(body, motion, cfg, seed, true_positions, result, rope_result)
     step(1.0, "done")
     return SynthCapture(
         capture=capture,
@@ -276,3 +201,95 @@ def generate_capture(
         rope=rope_result,
         summary=summary,
     )
+
+
+def _moving_skin(
+    body: Mesh,
+    motion: Motion,
+    cfg: CaptureSettings,
+    seed: int,
+    step: Callable[[float, str], None],
+) -> MeshAnimation:
+    """DQS skinning plus soft tissue, (T, V, 3) metres in memory."""
+    frames = np.concatenate(list(skin_motion(body, motion, method="dqs").iter_chunks(128)), axis=0)
+    step(0.15, "soft tissue")
+    if cfg.bulge or cfg.jiggle or cfg.breathing:
+        tissue = SoftTissue(
+            body, bulge=cfg.bulge, jiggle=cfg.jiggle, breathing=cfg.breathing, seed=seed
+        )
+        frames += tissue.displacements(motion, frames)
+    return MeshAnimation(body, frames, motion.rate, meta={"deformer": "dqs+soft_tissue"})
+
+
+def _marker_layout(body: Mesh, markers: str, seed: int) -> MarkerLayout:
+    """The dense grid (seeded) or the sparse landmark set on ``body``."""
+    if markers == "dense":
+        return dense_marker_layout(body, seed=seed)
+    return sparse_marker_layout(body, body.skin)
+
+
+def _held_rope(motion: Motion, cfg: CaptureSettings, seed: int) -> RopeResult:
+    """The rope simulated from the hands of ``motion`` (first end in the right hand)."""
+    left, right = hand_joints(motion)
+    world = forward_kinematics(motion)[:, :, :3, 3]  # (T, J, 3)
+    hands = np.stack([world[:, right], world[:, left]], axis=1)  # (T, 2, 3)
+    return simulate_rope(
+        hands,
+        motion.rate,
+        mode=cfg.rope,
+        length=cfg.rope_length,
+        marker_spacing=cfg.rope_marker_spacing,
+        seed=seed,
+    )
+
+
+def _camera_ring_under(frames: np.ndarray, cfg: CaptureSettings, seed: int) -> CameraRig:
+    """The camera ring standing on the floor under the take.
+
+    Centred on where the body is on average, its floor at the lowest skin point (the
+    MakeHuman bind pose has its origin at the hips, retargeted takes stand on y = 0).
+    """
+    centroid = frames.mean(axis=1)  # (T, 3)
+    center = (
+        float(centroid[:, 0].mean()),
+        float(frames[..., 1].min()),
+        float(centroid[:, 2].mean()),
+    )
+    return CameraRig.ring(n=cfg.n_cameras, n_up=cfg.n_cameras_up, center=center, seed=seed)
+
+
+def _summary(
+    body: Mesh,
+    motion: Motion,
+    cfg: CaptureSettings,
+    seed: int,
+    true_positions: np.ndarray,
+    result: CaptureResult,
+    rope_result: RopeResult | None,
+) -> dict[str, Any]:
+    """The counts written to ``summary.json``."""
+    capture = result.markers
+    stats = dict(result.stats)
+    summary = {
+        "frames": int(motion.n_frames),
+        "rate": float(motion.rate),
+        "markers": int(true_positions.shape[1]),
+        "marker_set": cfg.markers,
+        "rope_markers": 0 if rope_result is None else len(rope_result.labels),
+        "rope": cfg.rope,
+        "fragments": int(capture.n_markers),
+        "labelled_fragments": int((~capture.unlabelled).sum()),
+        "missing_fraction": float(stats.get("missing_fraction", np.nan)),
+        "ghosts": int(stats.get("n_ghosts", 0)),
+        "swaps": int(stats.get("n_swaps", 0)),
+        "points": int(result.points.points.shape[0]),
+        "mesh_vertices": int(body.n_vertices),
+        "cameras": int(cfg.n_cameras),
+        "noise_mm": float(cfg.noise_mm),
+        "soft_tissue": {"bulge": cfg.bulge, "jiggle": cfg.jiggle, "breathing": cfg.breathing},
+        "seed": int(seed),
+        "camera_stats": {k: v for k, v in stats.items() if isinstance(v, int | float | str)},
+    }
+    if rope_result is not None:
+        summary["rope_max_length_error"] = float(rope_result.meta.get("max_length_error", np.nan))
+    return summary

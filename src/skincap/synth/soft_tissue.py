@@ -29,7 +29,7 @@ later), ``phi`` drawn from ``seed``.
 Regions
 -------
 Joints are grouped into body segments by the nearest landmark at or above them
-(:func:`skincap.synth.clips.find_landmarks`, which knows the CMU, Biovision and
+(:func:`skincap.synth.clip_pose.find_landmarks`, which knows the CMU, Biovision and
 MakeHuman names: ``upperarm01.L`` and ``upperarm02.L`` are both upper arm), with a
 keyword fallback for other rigs (``upperarm``/``arm``, ``forearm``/``lowerarm``,
 ``upleg``/``upperleg``/``thigh``, ``lowerleg``/``shin``/``leg``, ``spine``/``chest``/
@@ -52,7 +52,7 @@ from scipy.signal import lfilter
 
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
-from skincap.synth.clips import find_landmarks
+from skincap.synth.clip_pose import find_landmarks
 from skincap.types import Mesh, Motion, Skeleton
 
 __all__ = ["SoftTissue", "vertex_normals", "JIGGLE_REGIONS"]

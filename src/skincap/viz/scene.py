@@ -113,7 +113,27 @@ class Layer(abc.ABC):
 
 
 @dataclass
-class MarkerLayer(Layer):
+class _FramesArrayLayer(Layer):
+    """A layer whose frames are the rows of one (T, K, 3) array, NaN where missing."""
+
+    @abc.abstractmethod
+    def _frames(self) -> np.ndarray:
+        """The (T, K, 3) float64 array, metres."""
+
+    def points_at(self, k: int) -> np.ndarray:
+        return _finite(self._frames()[k])
+
+    @property
+    def n_frames(self) -> int:
+        return int(self._frames().shape[0])
+
+    def finite_points(self) -> np.ndarray:
+        pts = self._frames()[:: max(1, self.n_frames // 200)].reshape(-1, 3)
+        return pts[np.isfinite(pts).all(axis=1)]
+
+
+@dataclass
+class MarkerLayer(_FramesArrayLayer):
     """Labelled markers. ``positions`` (T, N, 3) float64 metres, NaN where missing;
     ``labels`` N strings; ``invented`` (T, N) bool, True where software made the sample."""
 
@@ -123,16 +143,8 @@ class MarkerLayer(Layer):
 
     kind: ClassVar[LayerKind] = "markers"
 
-    def points_at(self, k: int) -> np.ndarray:
-        return _finite(self.positions[k])
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.positions.shape[0])
-
-    def finite_points(self) -> np.ndarray:
-        pts = self.positions[:: max(1, self.n_frames // 200)].reshape(-1, 3)
-        return pts[np.isfinite(pts).all(axis=1)]
+    def _frames(self) -> np.ndarray:
+        return self.positions
 
 
 @dataclass
@@ -202,23 +214,15 @@ class MeshLayer(Layer):
 
 
 @dataclass
-class CurveLayer(Layer):
+class CurveLayer(_FramesArrayLayer):
     """A polyline per frame: ``curves`` (T, K, 3) float64 metres (NaN rows are gaps)."""
 
     curves: np.ndarray
 
     kind: ClassVar[LayerKind] = "curve"
 
-    def points_at(self, k: int) -> np.ndarray:
-        return _finite(self.curves[k])
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.curves.shape[0])
-
-    def finite_points(self) -> np.ndarray:
-        pts = self.curves[:: max(1, self.n_frames // 200)].reshape(-1, 3)
-        return pts[np.isfinite(pts).all(axis=1)]
+    def _frames(self) -> np.ndarray:
+        return self.curves
 
 
 @dataclass

@@ -113,16 +113,39 @@ def write_demo_report(
 
     Parameters are the demo's intermediate results (see :func:`skincap.workflows.demo.run_demo`).
     """
-    from skincap import __version__ as version
-    from skincap.evaluate.tracking import plot_gap_repair, target_summary
+    from skincap.evaluate.tracking import plot_gap_repair
 
     figs = folder / "figures"
     figs.mkdir(exist_ok=True)
-    sections: list[Section] = []
-
-    syn = figures["synthetic"]
     before, after, filled = labelled_missing_maps(take.capture, cleaned)
-    sections.append(
+    # the figures are drawn in page order
+    maps = plot_missing_maps(before, after, filled, take.capture.rate, figs / "missing_maps.png",
+                             force=force)  # fmt: skip
+    fill_png = plot_fill_errors(fill_eval, figs / "fill_errors.png", force=force)
+    gap_png = plot_gap_repair(track_eval, figs / "rope_gap_repair.png", force=force)
+    sections = [
+        _synthetic_section(figures["synthetic"], before),
+        _cleanup_section(figures["cleanup"], before, after, filled, maps),
+        _fill_section(fill_eval, fill_png),
+        _tracking_section(figures["tracking"], track_eval, gap_png),
+        _skinning_section(figures["skinning"], artefacts),
+        _frames_section(pictures),
+        _timings_section(timings, figures.get("total_seconds")),
+        _look_section(folder),
+    ]
+    return write_html_report(
+        folder / "report.html",
+        "skincap demo report",
+        "Everything on this page was computed by `skincap demo` in this run, from data "
+        "skincap generates (with exact truth) or ships (real captures).",
+        sections,
+        force=force,
+    )
+
+
+def _synthetic_section(syn: dict[str, Any], before: np.ndarray) -> Section:
+    """The synthetic capture: its counts."""
+    return (
         Section("1. The synthetic capture")
         .text(
             "A procedural soft-tissue body jumps rope under a ring of cameras; markers are "
@@ -153,10 +176,12 @@ def write_demo_report(
         )
     )
 
-    cl = figures["cleanup"]
-    maps = plot_missing_maps(before, after, filled, take.capture.rate, figs / "missing_maps.png",
-                             force=force)  # fmt: skip
-    sections.append(
+
+def _cleanup_section(
+    cl: dict[str, Any], before: np.ndarray, after: np.ndarray, filled: np.ndarray, maps: Path
+) -> Section:
+    """Cleanup: merging and filling against truth, the missing-data maps."""
+    return (
         Section("2. Cleanup (Park & Hodgins §4)")
         .text(
             "The marker surface is built automatically from the capture; fragments are "
@@ -203,7 +228,9 @@ def write_demo_report(
         )
     )
 
-    fill_png = plot_fill_errors(fill_eval, figs / "fill_errors.png", force=force)
+
+def _fill_section(fill_eval: dict[str, Any], fill_png: Path) -> Section:
+    """Hole filling: every method against gap length."""
     lengths = [int(v) for v in fill_eval["gap_lengths"]]
     rows = []
     for method, per in fill_eval["results"].items():
@@ -218,7 +245,7 @@ def write_demo_report(
             per["all"]["mm"]["mean"],
         ]
         rows.append(row)
-    sections.append(
+    return (
         Section("3. Hole filling against gap length, every method")
         .text(
             f"Gaps of {', '.join(map(str, lengths))} frames, {fill_eval['gaps_per_length']} per "
@@ -239,9 +266,12 @@ def write_demo_report(
         .figure(fill_png, "Mean fill error against gap length (log scale), paper's range shaded.")
     )
 
-    tr = figures["tracking"]
+
+def _tracking_section(tr: dict[str, Any], track_eval: dict[str, Any], gap_png: Path) -> Section:
+    """Rope tracking: detection and gap repair against the targets."""
+    from skincap.evaluate.tracking import target_summary
+
     targets = target_summary(track_eval)
-    gap_png = plot_gap_repair(track_eval, figs / "rope_gap_repair.png", force=force)
     # the F1 of the automatic run is in the first table; the gap-repair trials start
     # the tracker from the truth's still window, so only their own targets go here
     target_rows = [
@@ -250,7 +280,7 @@ def write_demo_report(
         for name, t in targets.items()
         if name != "f1"
     ]  # fmt: skip
-    sections.append(
+    return (
         Section("4. Rope tracking (Porter)")
         .text(
             "The rope is found automatically among the un-indexed points (a still chain "
@@ -279,11 +309,13 @@ def write_demo_report(
         .figure(gap_png, "Mean rope gap-repair error against gap size.")
     )
 
-    sk = figures["skinning"]
+
+def _skinning_section(sk: dict[str, Any], artefacts: list[dict[str, Any]]) -> Section:
+    """Skinning: the walk and the LBS/DQS artefact table."""
     art_rows = {}
     for row in artefacts:
         art_rows.setdefault(row["case"], {})[row["method"]] = row
-    sections.append(
+    return (
         Section("5. Skinning: the MakeHuman body walks a CMU capture")
         .text(
             f"The CC0 MakeHuman body ({sk['vertices']} vertices, {sk['joints']} joints) is "
@@ -307,9 +339,12 @@ def write_demo_report(
         )
     )
 
+
+def _frames_section(pictures: dict[str, list]) -> Section:
+    """Rendered frames of the capture, the cleanup, the rope and the walk."""
     frame_pairs = pictures.get("capture", [])
     walk_frames = pictures.get("walk", [])
-    sections.append(
+    return (
         Section("6. Rendered frames")
         .text(
             "Raw capture (fragments grey, labelled markers in their label's colour) beside "
@@ -319,8 +354,12 @@ def write_demo_report(
         .figures(walk_frames)
     )
 
-    total = figures.get("total_seconds")
-    sections.append(
+
+def _timings_section(timings: dict[str, float], total: float | None) -> Section:
+    """Timings of the run and the machine."""
+    from skincap import __version__ as version
+
+    return (
         Section("7. Timings")
         .table(
             ["step", "seconds"],
@@ -333,18 +372,12 @@ def write_demo_report(
             note=True,
         )
     )
-    sections.append(
-        Section("8. Look at it").code(
-            f"skincap view {folder / 'synth' / 'capture.c3d'} {folder / 'cleaned.c3d'} "
-            f"{folder / 'track' / 'rope_curve.csv'}\n"
-            f"skincap view {folder / 'walk.glb'}"
-        )
-    )
-    return write_html_report(
-        folder / "report.html",
-        "skincap demo report",
-        "Everything on this page was computed by `skincap demo` in this run, from data "
-        "skincap generates (with exact truth) or ships (real captures).",
-        sections,
-        force=force,
+
+
+def _look_section(folder: Path) -> Section:
+    """The commands that open the outputs in the viewer."""
+    return Section("8. Look at it").code(
+        f"skincap view {folder / 'synth' / 'capture.c3d'} {folder / 'cleaned.c3d'} "
+        f"{folder / 'track' / 'rope_curve.csv'}\n"
+        f"skincap view {folder / 'walk.glb'}"
     )

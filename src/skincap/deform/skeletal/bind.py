@@ -91,6 +91,88 @@ def _inverse(rw: np.ndarray) -> np.ndarray:
     return out
 
 
+def _target_skeleton(
+    file_skin: Skin | None, skeleton: Skeleton | Motion | None, weights: str
+) -> tuple[Skeleton, np.ndarray]:
+    """The skeleton to bind to and its default bind-pose world transforms (J, 4, 4)."""
+    if weights == "file" and file_skin is None:
+        raise ValidationError(
+            "mesh: has no skin to take weights from (weights='file'); use weights='auto'"
+        )
+    if skeleton is None:
+        if file_skin is None:
+            raise ValidationError("skeleton: required for a mesh without a skin")
+        target = file_skin.skeleton
+        default_rest = file_skin.bind_matrices
+    elif isinstance(skeleton, (Skeleton, Motion)):
+        target = skeleton.skeleton if isinstance(skeleton, Motion) else skeleton
+        default_rest = rest_transforms(skeleton)
+    else:
+        raise ValidationError(
+            f"skeleton: expected a Skeleton, a Motion or None, got {type(skeleton).__name__}"
+        )
+    return target, default_rest
+
+
+def _bind_matrices(
+    file_skin: Skin | None,
+    file_to_target: np.ndarray | None,
+    default_rest: np.ndarray,
+    rest_world: np.ndarray | None,
+    n_j: int,
+    *,
+    keep_file_binds: bool,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse-bind (J, 4, 4) and bind-pose world transforms (J, 4, 4) of the target.
+
+    Without ``rest_world``, the file's bind matrices are kept, by joint name, when
+    ``keep_file_binds`` (the file knows where the mesh was bound), and its
+    inverse-bind matrices are copied exactly (no round trip through ``inv(inv())``).
+    """
+    if rest_world is not None:
+        rw = _check_rest_world(rest_world, n_j)
+        return _inverse(rw), rw
+    rw = np.array(default_rest, dtype=np.float64)
+    if not keep_file_binds or file_skin is None or file_to_target is None:
+        return _inverse(rw), rw
+    present = file_to_target >= 0
+    rw[file_to_target[present]] = file_skin.bind_matrices[present]
+    inverse_bind = _inverse(rw)
+    inverse_bind[file_to_target[present]] = file_skin.inverse_bind[present]
+    return inverse_bind, rw
+
+
+def _file_weights(
+    file_skin: Skin, file_to_target: np.ndarray, max_influences: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The file's weights on the target's joints, (V, K) indices and weights."""
+    idx = file_skin.joint_indices
+    w = file_skin.joint_weights
+    mapped = file_to_target[idx]
+    missing = (mapped < 0) & (w > 0)
+    if missing.any():
+        j = int(idx[missing][0])
+        raise ValidationError(
+            f"skeleton: joint '{file_skin.skeleton.names[j]}' of the mesh's skin weights "
+            f"{int(missing.any(axis=1).sum())} vertices but is not in the skeleton"
+        )
+    return limit_influences(np.maximum(mapped, 0), w, max_influences)
+
+
+def _check_skeleton_on_mesh(mesh: Mesh, joint_positions: np.ndarray, n_j: int) -> None:
+    """At least half the joints (J, 3) inside the mesh's bounds grown by 10 %."""
+    bounds = mesh.bounds
+    pad = 0.1 * (bounds[1] - bounds[0])
+    inside = ((joint_positions >= bounds[0] - pad) & (joint_positions <= bounds[1] + pad)).all(
+        axis=1
+    )
+    if inside.sum() * 2 < n_j:
+        raise ValidationError(
+            f"skeleton: only {int(inside.sum())} of {n_j} joints lie within the mesh's bounds "
+            f"{np.round(bounds, 3).tolist()} m; scale and place it first (fit_skeleton_to_mesh)"
+        )
+
+
 def bind_mesh(
     mesh: Mesh,
     skeleton: Skeleton | Motion | None = None,
@@ -156,24 +238,8 @@ def bind_mesh(
             f"max_influences: expected a positive integer, got {max_influences!r}"
         )
     file_skin = mesh.skin
-    if weights == "file" and file_skin is None:
-        raise ValidationError(
-            "mesh: has no skin to take weights from (weights='file'); use weights='auto'"
-        )
-    if skeleton is None:
-        if file_skin is None:
-            raise ValidationError("skeleton: required for a mesh without a skin")
-        target = file_skin.skeleton
-        default_rest = file_skin.bind_matrices
-    elif isinstance(skeleton, (Skeleton, Motion)):
-        target = skeleton.skeleton if isinstance(skeleton, Motion) else skeleton
-        default_rest = rest_transforms(skeleton)
-    else:
-        raise ValidationError(
-            f"skeleton: expected a Skeleton, a Motion or None, got {type(skeleton).__name__}"
-        )
+    target, default_rest = _target_skeleton(file_skin, skeleton, weights)
     n_j = target.n_joints
-
     # joints of the file's skin, by name, in the target skeleton (-1: absent)
     file_to_target = None
     if file_skin is not None:
@@ -181,50 +247,19 @@ def bind_mesh(
         file_to_target = np.array(
             [where.get(name, -1) for name in file_skin.skeleton.names], dtype=np.int64
         )
-
-    keep_file_binds = False
-    if rest_world is None:
-        rw = np.array(default_rest, dtype=np.float64)
-        keep_file_binds = file_skin is not None and (skeleton is None or weights == "file")
-        if keep_file_binds and skeleton is not None:
-            # the file knows where the mesh was bound: keep its matrices by name
-            present = file_to_target >= 0
-            rw[file_to_target[present]] = file_skin.bind_matrices[present]
-    else:
-        rw = _check_rest_world(rest_world, n_j)
-    inverse_bind = _inverse(rw)
-    if keep_file_binds:
-        # exactly the file's inverse-bind matrices (no round trip through inv(inv()))
-        present = file_to_target >= 0
-        inverse_bind[file_to_target[present]] = file_skin.inverse_bind[present]
-
+    inverse_bind, rw = _bind_matrices(
+        file_skin, file_to_target, default_rest, rest_world, n_j,
+        keep_file_binds=file_skin is not None and (skeleton is None or weights == "file"),
+    )  # fmt: skip
     if weights == "file":
         if file_skin is None or file_to_target is None:  # pragma: no cover - checked above
             raise ValidationError("mesh: has no skin to take weights from (weights='file')")
-        idx = file_skin.joint_indices
-        w = file_skin.joint_weights
-        mapped = file_to_target[idx]
-        missing = (mapped < 0) & (w > 0)
-        if missing.any():
-            j = int(idx[missing][0])
-            raise ValidationError(
-                f"skeleton: joint '{file_skin.skeleton.names[j]}' of the mesh's skin weights "
-                f"{int(missing.any(axis=1).sum())} vertices but is not in the skeleton"
-            )
-        indices, joint_weights = limit_influences(np.maximum(mapped, 0), w, m)
+        indices, joint_weights = _file_weights(file_skin, file_to_target, m)
     else:
-        pos = rw[:, :3, 3]
-        bounds = mesh.bounds
-        pad = 0.1 * (bounds[1] - bounds[0])
-        inside = ((pos >= bounds[0] - pad) & (pos <= bounds[1] + pad)).all(axis=1)
-        if inside.sum() * 2 < n_j:
-            raise ValidationError(
-                f"skeleton: only {int(inside.sum())} of {n_j} joints lie within the mesh's bounds "
-                f"{np.round(bounds, 3).tolist()} m; scale and place it first (fit_skeleton_to_mesh)"
-            )
+        _check_skeleton_on_mesh(mesh, rw[:, :3, 3], n_j)
         indices, joint_weights = bone_heat_weights(
             mesh,
-            pos,
+            rw[:, :3, 3],
             target.parents,
             max_influences=m,
             bones=bones,

@@ -506,22 +506,10 @@ def retarget(
     pairs = [pairs[i] for i in order]
     remap = {old: new for new, old in enumerate(order)}
     keys = {k: remap[v] for k, v in keys.items()}
-    n_pairs = len(pairs)
-
-    s_owner = np.full(src.n_joints, -1)
-    t_owner = np.full(tgt.n_joints, -1)
-    for i, (s, ts) in enumerate(pairs):
-        s_owner[s] = i
-        t_owner[list(ts)] = i
-    if t_owner[0] < 0:
-        raise ValidationError(
-            f"name_map: the target root {tgt.names[0]!r} is not driven by any source joint; "
-            f"map the source root {src.names[0]!r} to it"
-        )
+    s_owner, t_owner = _pair_owners(src, tgt, pairs)
     parent_pair = np.array(
         [_paired_ancestor(src.parents, s_owner, s) for s, _ in pairs], dtype=np.int64
     )
-
     # rest geometry: source zero pose, target bind pose
     src_rest = rest_positions(src)  # (Js, 3)
     heads = bind[:, :3, 3]  # (Jt, 3)
@@ -529,99 +517,13 @@ def retarget(
     bind_rot = u @ vt  # (Jt, 3, 3)
     s_start = np.array([src_rest[s] for s, _ in pairs])  # (P, 3)
     t_start = np.array([heads[list(ts)].mean(axis=0) for _, ts in pairs])  # (P, 3)
-
-    children: list[list[int]] = [[] for _ in range(n_pairs)]
-    for i in range(n_pairs):
-        if parent_pair[i] >= 0:
-            children[parent_pair[i]].append(i)
-
-    def ends_of(i: int, origin: int) -> list[int]:
-        out: list[int] = []
-        for c in children[i]:
-            if (
-                np.linalg.norm(s_start[c] - s_start[origin]) < _ZERO_LENGTH
-                or np.linalg.norm(t_start[c] - t_start[origin]) < _ZERO_LENGTH
-            ):
-                out.extend(ends_of(c, origin))
-            else:
-                out.append(c)
-        return out
-
-    ends = [ends_of(i, i) for i in range(n_pairs)]
-
-    # ---- rest alignment A (world, 3x3), top-down
-    align = np.zeros((n_pairs, 3, 3))
-    lateral = None
-    if "thigh_l" in keys and "thigh_r" in keys:
-        ls = s_start[keys["thigh_l"]] - s_start[keys["thigh_r"]]
-        lt = t_start[keys["thigh_l"]] - t_start[keys["thigh_r"]]
-        ls[1] = lt[1] = 0.0
-        if np.linalg.norm(ls) > _ZERO_LENGTH and np.linalg.norm(lt) > _ZERO_LENGTH:
-            lateral = (lt, ls)
-    for i in range(n_pairs):
-        par = parent_pair[i]
-        a_par = np.eye(3) if par < 0 else align[par]
-        e = ends[i]
-        if par < 0 and lateral is not None:
-            lt, ls = lateral  # a turn about the vertical: the facing only
-            yaw = np.arctan2(np.cross(lt, ls)[1], float(lt @ ls))
-            align[i] = _axis_angle_matrix(np.array([0.0, 1.0, 0.0]), np.asarray(yaw))
-            continue
-        if not e:
-            align[i] = a_par
-            continue
-        us = _unit((t_start[e] - t_start[i]) @ a_par.T)  # target dirs after parent's A
-        vs = _unit(s_start[e] - s_start[i])
-        if len(e) == 1:
-            align[i] = _swing(us[0], vs[0]) @ a_par
-            continue
-        # the end continuing the chain from the parent is aligned exactly
-        incoming = s_start[i] - (s_start[par] if par >= 0 else s_start[i])
-        if np.linalg.norm(incoming) > _ZERO_LENGTH:
-            primary = int(np.argmax(vs @ _unit(incoming)))
-        else:
-            primary = int(np.argmax(vs[:, 1]))
-        sw = _swing(us[primary], vs[primary])
-        tw = _twist_to_fit(vs[primary], us @ sw.T, vs)
-        align[i] = tw @ sw @ a_par
-
-    # ---- source world rotations and positions per frame
+    ends = _segment_ends(parent_pair, s_start, t_start)
+    align = _rest_alignment(parent_pair, ends, s_start, t_start, keys)
     world = forward_kinematics(source)  # (T, Js, 4, 4)
-    src_rot = world[:, :, :3, :3]
     src_pos = world[:, :, :3, 3]
+    drive = _drive(world[:, :, :3, :3], src_pos, src.parents, pairs, ends, align, s_start)
+    tgt_world = _target_world(tgt.parents, t_owner, drive, bind_rot)
     n_frames = source.n_frames
-    drive = np.zeros((n_pairs, n_frames, 3, 3))  # D(t) @ A per pair
-    for i, (s, _) in enumerate(pairs):
-        d = src_rot[:, s]  # (T, 3, 3); source rest world rotation is the identity
-        e = ends[i]
-        if len(e) == 1:
-            end_joint = pairs[e[0]][0]
-            if src.parents[end_joint] != s:
-                # unpaired source joints inside the segment: follow its actual end
-                rest_dir = s_start[e[0]] - s_start[i]
-                predicted = np.einsum("tab,b->ta", d, rest_dir)
-                actual = src_pos[:, end_joint] - src_pos[:, s]
-                d = _swing(predicted, actual) @ d
-        drive[i] = d @ align[i]
-
-    # ---- target world rotations
-    has_paired_below = np.zeros(tgt.n_joints, dtype=bool)
-    for j in range(tgt.n_joints - 1, -1, -1):
-        p = tgt.parents[j]
-        if p >= 0 and (has_paired_below[j] or t_owner[j] >= 0):
-            has_paired_below[p] = True
-    tgt_world = np.zeros((n_frames, tgt.n_joints, 3, 3))
-    for j in range(tgt.n_joints):
-        p = tgt.parents[j]
-        i = t_owner[j]
-        if i < 0 and has_paired_below[j]:
-            i = _paired_ancestor(tgt.parents, t_owner, j)  # chain bone
-        if i >= 0:
-            tgt_world[:, j] = drive[i] @ bind_rot[j]
-        elif p >= 0:
-            tgt_world[:, j] = tgt_world[:, p] @ (bind_rot[p].T @ bind_rot[j])
-        else:
-            tgt_world[:, j] = bind_rot[j]
 
     # ---- scale and root translation
     s_val = _scale(scale, src, tgt, pairs, keys, src_rest, heads)
@@ -657,6 +559,153 @@ def retarget(
     )
     out.translations[:, 0] = root
     return out
+
+
+def _pair_owners(
+    src: Skeleton, tgt: Skeleton, pairs: list[tuple[int, tuple[int, ...]]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pair index of every source (Js,) and target (Jt,) joint, -1 where unpaired."""
+    s_owner = np.full(src.n_joints, -1)
+    t_owner = np.full(tgt.n_joints, -1)
+    for i, (s, ts) in enumerate(pairs):
+        s_owner[s] = i
+        t_owner[list(ts)] = i
+    if t_owner[0] < 0:
+        raise ValidationError(
+            f"name_map: the target root {tgt.names[0]!r} is not driven by any source joint; "
+            f"map the source root {src.names[0]!r} to it"
+        )
+    return s_owner, t_owner
+
+
+def _segment_ends(
+    parent_pair: np.ndarray, s_start: np.ndarray, t_start: np.ndarray
+) -> list[list[int]]:
+    """Per pair, the child pairs that end its segment: zero-length children (at the
+    same place in either rest pose) are looked through to their own children."""
+    n_pairs = parent_pair.size
+    children: list[list[int]] = [[] for _ in range(n_pairs)]
+    for i in range(n_pairs):
+        if parent_pair[i] >= 0:
+            children[parent_pair[i]].append(i)
+
+    def ends_of(i: int, origin: int) -> list[int]:
+        out: list[int] = []
+        for c in children[i]:
+            if (
+                np.linalg.norm(s_start[c] - s_start[origin]) < _ZERO_LENGTH
+                or np.linalg.norm(t_start[c] - t_start[origin]) < _ZERO_LENGTH
+            ):
+                out.extend(ends_of(c, origin))
+            else:
+                out.append(c)
+        return out
+
+    return [ends_of(i, i) for i in range(n_pairs)]
+
+
+def _rest_alignment(
+    parent_pair: np.ndarray,
+    ends: list[list[int]],
+    s_start: np.ndarray,
+    t_start: np.ndarray,
+    keys: dict[str, int],
+) -> np.ndarray:
+    """Rest alignment A (P, 3, 3) per pair, world, top-down: turns the target's rest
+    segments onto the source's; the root turns about the vertical only (the facing,
+    from the hips' lateral axis when both thighs are paired)."""
+    n_pairs = parent_pair.size
+    align = np.zeros((n_pairs, 3, 3))
+    lateral = None
+    if "thigh_l" in keys and "thigh_r" in keys:
+        ls = s_start[keys["thigh_l"]] - s_start[keys["thigh_r"]]
+        lt = t_start[keys["thigh_l"]] - t_start[keys["thigh_r"]]
+        ls[1] = lt[1] = 0.0
+        if np.linalg.norm(ls) > _ZERO_LENGTH and np.linalg.norm(lt) > _ZERO_LENGTH:
+            lateral = (lt, ls)
+    for i in range(n_pairs):
+        par = parent_pair[i]
+        a_par = np.eye(3) if par < 0 else align[par]
+        e = ends[i]
+        if par < 0 and lateral is not None:
+            lt, ls = lateral  # a turn about the vertical: the facing only
+            yaw = np.arctan2(np.cross(lt, ls)[1], float(lt @ ls))
+            align[i] = _axis_angle_matrix(np.array([0.0, 1.0, 0.0]), np.asarray(yaw))
+            continue
+        if not e:
+            align[i] = a_par
+            continue
+        us = _unit((t_start[e] - t_start[i]) @ a_par.T)  # target dirs after parent's A
+        vs = _unit(s_start[e] - s_start[i])
+        if len(e) == 1:
+            align[i] = _swing(us[0], vs[0]) @ a_par
+            continue
+        # the end continuing the chain from the parent is aligned exactly
+        incoming = s_start[i] - (s_start[par] if par >= 0 else s_start[i])
+        if np.linalg.norm(incoming) > _ZERO_LENGTH:
+            primary = int(np.argmax(vs @ _unit(incoming)))
+        else:
+            primary = int(np.argmax(vs[:, 1]))
+        sw = _swing(us[primary], vs[primary])
+        tw = _twist_to_fit(vs[primary], us @ sw.T, vs)
+        align[i] = tw @ sw @ a_par
+    return align
+
+
+def _drive(
+    src_rot: np.ndarray,
+    src_pos: np.ndarray,
+    src_parents: np.ndarray,
+    pairs: list[tuple[int, tuple[int, ...]]],
+    ends: list[list[int]],
+    align: np.ndarray,
+    s_start: np.ndarray,
+) -> np.ndarray:
+    """(P, T, 3, 3) world rotation ``D(t) @ A`` each pair imposes on its target joints.
+
+    ``src_rot`` (T, Js, 3, 3) and ``src_pos`` (T, Js, 3) are the source's world frames;
+    a segment with unpaired source joints inside follows its actual end.
+    """
+    drive = np.zeros((len(pairs), src_rot.shape[0], 3, 3))
+    for i, (s, _) in enumerate(pairs):
+        d = src_rot[:, s]  # (T, 3, 3); source rest world rotation is the identity
+        e = ends[i]
+        if len(e) == 1:
+            end_joint = pairs[e[0]][0]
+            if src_parents[end_joint] != s:
+                # unpaired source joints inside the segment: follow its actual end
+                rest_dir = s_start[e[0]] - s_start[i]
+                predicted = np.einsum("tab,b->ta", d, rest_dir)
+                actual = src_pos[:, end_joint] - src_pos[:, s]
+                d = _swing(predicted, actual) @ d
+        drive[i] = d @ align[i]
+    return drive
+
+
+def _target_world(
+    parents: np.ndarray, t_owner: np.ndarray, drive: np.ndarray, bind_rot: np.ndarray
+) -> np.ndarray:
+    """(T, Jt, 3, 3) target world rotations: paired joints (and the chain bones above
+    a paired joint) follow their pair; the rest keep their bind pose under their parent."""
+    n_j = parents.size
+    has_paired_below = np.zeros(n_j, dtype=bool)
+    for j in range(n_j - 1, -1, -1):
+        p = parents[j]
+        if p >= 0 and (has_paired_below[j] or t_owner[j] >= 0):
+            has_paired_below[p] = True
+    tgt_world = np.zeros((drive.shape[1], n_j, 3, 3))
+    for j in range(n_j):
+        p = parents[j]
+        i = t_owner[j]
+        if i < 0 and has_paired_below[j]:
+            i = _paired_ancestor(parents, t_owner, j)  # chain bone
+        if i >= 0:
+            tgt_world[:, j] = drive[i] @ bind_rot[j]
+        elif p >= 0:
+            tgt_world[:, j] = tgt_world[:, p] @ (bind_rot[p].T @ bind_rot[j])
+        else:
+            tgt_world[:, j] = bind_rot[j]
+    return tgt_world
 
 
 def _scale(

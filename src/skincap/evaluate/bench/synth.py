@@ -23,7 +23,7 @@ def run_synth_benchmark(
     dict with ``seconds`` per stage, ``total_s``, ``take_s`` (its duration at 120 Hz),
     ``summary`` (the take's counts) and ``lines`` to print.
     """
-    from skincap.synth.generate import generate_capture
+    from skincap.synth.generate import CaptureSettings, generate_capture
     from skincap.synth.inputs import build_body, build_motion
 
     stamps: list[tuple[float, str]] = []
@@ -37,9 +37,8 @@ def run_synth_benchmark(
         if not stamps or stamps[-1][1] != label:
             stamps.append((time.perf_counter(), label))
 
-    take = generate_capture(
-        body, motion, markers="dense", rope="jump", seed=seed, progress=progress
-    )
+    settings = CaptureSettings(markers="dense", rope="jump")
+    take = generate_capture(body, motion, settings, seed=seed, progress=progress)
     t2 = time.perf_counter()
     stages: dict[str, float] = {"body": t_body, "motion": t1 - t0 - t_body}
     for (start, label), (end, _) in zip(stamps, [*stamps[1:], (t2, "")], strict=True):

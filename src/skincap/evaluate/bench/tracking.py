@@ -134,12 +134,9 @@ def run_track_benchmark(
     from skincap.tracking.tracker import _resolve_backend, track_rope
 
     cloud, rope, first = jump_rope_scene(
-        frames=frames,
-        rate=rate,
-        points_per_frame=points_per_frame,
-        rope_markers=rope_markers,
-        seed=seed,
-    )
+        frames=frames, rate=rate, points_per_frame=points_per_frame,
+        rope_markers=rope_markers, seed=seed,
+    )  # fmt: skip
 
     # steady state: "auto" is the compiled kernel once it is in the cache
     used = _resolve_backend("numba" if backend == "auto" and numba_available() else backend)
@@ -158,19 +155,15 @@ def run_track_benchmark(
 
     track = ours()  # compiles the kernel (or loads it from numba's cache)
     ref = reference()
-    same = bool(
-        np.array_equal(track.point_index, ref.point_index)
-        and np.array_equal(track.invented, ref.invented)
-        and np.allclose(track.positions, ref.positions, rtol=0.0, atol=1e-9)
-    )
+    same = _same_tracks(track, ref)
     base_pos, _ = naive()
     track_s = best_time(ours, repeat)
     ref_s = track_s if used == "numpy" else best_time(reference, repeat)
     base_s = best_time(naive, max(1, repeat))
 
-    first: dict[str, float] | None = None
+    first_call_s: dict[str, float] | None = None
     if first_call:
-        first = first_call_in_fresh_process(
+        first_call_s = first_call_in_fresh_process(
             "from skincap.tracking.init import init_rope\n"
             "from skincap.tracking.tracker import track_rope",
             "from skincap.synth.scenes import jump_rope_scene\n"
@@ -178,18 +171,7 @@ def run_track_benchmark(
             f"points_per_frame={points_per_frame}, rope_markers={rope_markers}, seed={seed})",
             "track_rope(cloud, init_rope(cloud, markers=first))",
         )
-
-    # Pair our traces (ordered along the rope by the tracker) with the truth columns.
-    from skincap.evaluate.tracking import match_traces_to_truth
-
-    truth_of_trace, _ = match_traces_to_truth(
-        track.positions, track.invented, rope, max_distance=np.inf
-    )
-    ok = truth_of_trace >= 0
-    track_err = float(
-        np.linalg.norm(track.positions[:, ok] - rope[:, truth_of_trace[ok]], axis=2).mean()
-    )
-    base_err = float(np.linalg.norm(base_pos - rope, axis=2).mean())
+    track_err, base_err = _mean_errors(track, base_pos, rope)
     duration = frames / rate
     result: dict[str, Any] = {
         "frames": frames,
@@ -213,10 +195,47 @@ def run_track_benchmark(
         "numpy_realtime": duration / ref_s,
         "speedup_vs_numpy": ref_s / track_s,
         "same_as_numpy": same,
-        "first_call": first,
+        "first_call": first_call_s,
         "default_backend": default_backend,
     }
-    result["lines"] = [
+    result["lines"] = _summary_lines(result)
+    return result
+
+
+def _same_tracks(a: Any, b: Any) -> bool:
+    """Both trackers took the same points and invented the same markers."""
+    return bool(
+        np.array_equal(a.point_index, b.point_index)
+        and np.array_equal(a.invented, b.invented)
+        and np.allclose(a.positions, b.positions, rtol=0.0, atol=1e-9)
+    )
+
+
+def _mean_errors(track: Any, base_pos: np.ndarray, rope: np.ndarray) -> tuple[float, float]:
+    """Mean distance (metres) of our traces and of the baseline's to the exact rope.
+
+    Our traces (ordered along the rope by the tracker) are first paired with the
+    truth columns; ``rope`` and ``base_pos`` are (T, M, 3).
+    """
+    from skincap.evaluate.tracking import match_traces_to_truth
+
+    truth_of_trace, _ = match_traces_to_truth(
+        track.positions, track.invented, rope, max_distance=np.inf
+    )
+    ok = truth_of_trace >= 0
+    track_err = float(
+        np.linalg.norm(track.positions[:, ok] - rope[:, truth_of_trace[ok]], axis=2).mean()
+    )
+    return track_err, float(np.linalg.norm(base_pos - rope, axis=2).mean())
+
+
+def _summary_lines(result: dict[str, Any]) -> list[str]:
+    """The printable summary of :func:`run_track_benchmark`'s result."""
+    frames, rate, used = result["frames"], result["rate"], result["backend"]
+    rope_markers, same = result["rope_markers"], result["same_as_numpy"]
+    track_err, base_err = result["track_error_m"], result["baseline_error_m"]
+    first = result["first_call"]
+    lines = [
         f"track: {frames} frames at {rate:g} Hz, {result['points_per_frame']:.0f} points/frame, "
         f"{rope_markers} rope markers (analytic jump-rope scene)",
         f"track_rope ({used}): {result['track_fps']:.0f} frames/s = "
@@ -230,7 +249,7 @@ def run_track_benchmark(
         f"track_rope is {result['speedup']:.2f}x the naive baseline's speed",
     ]
     if first is not None:
-        result["lines"].append(
+        lines.append(
             f"first call in a fresh process (import + track the take, backend='auto'): "
             f"cold cache {first['cold_s']:.2f} s (CPU {first['cold_cpu_s']:.2f} s; the NumPy "
             f"reference while the kernel compiles in the background), warm cache "
@@ -238,4 +257,4 @@ def run_track_benchmark(
             + ("met" if max(first["cold_s"], first["warm_s"]) <= 5.0 else "MISSED")
             + ")"
         )
-    return result
+    return lines
