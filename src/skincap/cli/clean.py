@@ -224,6 +224,7 @@ def clean(
 
         from skincap import io
         from skincap.cleanup.pipeline import clean_markers
+        from skincap.cleanup.settings import CleanSettings, FillSettings, SmoothSettings
         from skincap.types import MarkerSet
 
         if method not in FILL_METHODS:
@@ -249,19 +250,20 @@ def clean(
             def progress(fraction: float, label: str) -> None:
                 bar.update(task, completed=fraction, description=label)
 
-            cleaned, summary = clean_markers(
-                markers,
-                method=method,
-                rigid_blend=rigid_blend,
+            settings = CleanSettings(
                 reference_frame=reference_frame,
-                surface=user_surface,
-                smooth=not no_smooth,
-                lam=lam,
-                iterations=iterations,
-                fragment_truth=truth,
                 recover_hidden=not no_hidden,
+                fill=FillSettings(method=method, rigid_blend=rigid_blend),
+                smooth=SmoothSettings(enabled=not no_smooth, lam=lam, iterations=iterations),
+            )
+            cleaned, clean_report = clean_markers(
+                markers,
+                settings,
+                surface=user_surface,
+                fragment_truth=truth,
                 progress=progress,
             )
+        summary = clean_report.as_dict()
         summary["input"] = str(src)
         summary["output"] = str(output)
         io.write(cleaned, output, force=force)
