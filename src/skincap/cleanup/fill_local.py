@@ -275,9 +275,60 @@ def fill_local_pca(
         for the rigid fallback).
     """
     p = np.array(positions, dtype=np.float64)
-    t, n, _ = p.shape
     present = ~np.isnan(p[..., 0])
     gaps, queries = _anchor_queries(present, target, anchor_ends, anchor_window)
+    sums = _sum_group_estimates(
+        p,
+        present,
+        target,
+        neighbours,
+        queries,
+        variance=variance,
+        missing_data=missing_data,
+        rigid_frame=rigid_frame,
+        centre_weight=estimated_centre_weight if weighted else None,
+        progress=progress,
+    )
+    done = sums.weight > 0
+    p[done] = sums.total[done] / sums.weight[done][:, None]
+    if queries.frame.size:
+        _anchor_gaps(
+            p,
+            done,
+            gaps,
+            (
+                queries.end,
+                queries.frame,
+                queries.weight,
+                sums.q_total,
+                sums.q_weight,
+                sums.q_rot,
+            ),
+            sums.rot_at,
+            sums.sample_id,
+            spread,
+        )
+    return p
+
+
+def _sum_group_estimates(
+    p: np.ndarray,
+    present: np.ndarray,
+    target: np.ndarray,
+    neighbours: CSR,
+    queries: _AnchorQueries,
+    *,
+    variance: float,
+    missing_data: bool,
+    rigid_frame: float | None,
+    centre_weight: float | None,
+    progress: Progress | None,
+) -> _Sums:
+    """Every group's estimates of its targets and anchor queries, summed with weights:
+    1 each, or (``centre_weight`` given) the inverse predictive variance, times
+    ``centre_weight`` where the group's centre was itself estimated. Arguments as in
+    :func:`fill_local_pca`."""
+    t, n, _ = p.shape
     sums = _Sums.empty(target, queries.frame.size)
     groups = _local_groups(target, neighbours)
     for gi, members in enumerate(groups):
@@ -302,33 +353,13 @@ def fill_local_pca(
         if res is None:
             continue
         rows, est, var, centre_obs, rot = res
-        # weights: inverse predictive variance, less where the centre was estimated
         w = (
-            1.0 / var * np.where(centre_obs, 1.0, estimated_centre_weight)[:, None]
-            if weighted
+            1.0 / var * np.where(centre_obs, 1.0, centre_weight)[:, None]
+            if centre_weight is not None
             else np.ones(var.shape)
         )
         sums.add_group(target, members, (rows, est, w, rot), mine, q_member, queries.marker)
-    done = sums.weight > 0
-    p[done] = sums.total[done] / sums.weight[done][:, None]
-    if queries.frame.size:
-        _anchor_gaps(
-            p,
-            done,
-            gaps,
-            (
-                queries.end,
-                queries.frame,
-                queries.weight,
-                sums.q_total,
-                sums.q_weight,
-                sums.q_rot,
-            ),
-            sums.rot_at,
-            sums.sample_id,
-            spread,
-        )
-    return p
+    return sums
 
 
 def _member_queries(

@@ -28,8 +28,8 @@ def fill_pca(
     displacement of its present markers from their own temporal means (a centroid
     that does not jump when a marker drops out), and put back at the end. Without
     this, a walk's or a run's translation takes most of the variance and the kept
-    components miss the limbs (RMSE on the real files, 30-120-frame gaps: kt walking
-    58.8 -> 10.9 mm, cmu_85_02 151 -> 105 mm, aml run 76 -> 43 mm).
+    components miss the limbs (the punched-gap errors with and without are in
+    ``docs/results.md``).
 
     The take is then a (T, 3N) matrix; columns are centred and scaled to unit variance
     over their present samples, missing entries are initialised by linear
