@@ -257,11 +257,11 @@ def _continues_known(
 
 class _Leftovers(NamedTuple):
     """The leftover columns of the first merge: ``left`` (T, L, 3) metres (NaN where
-    missing), ``present`` (T, L) bool, ``count`` (L,) frames present."""
+    missing), ``present`` (T, L) bool, ``frames`` (L,) frames present."""
 
     left: np.ndarray
     present: np.ndarray
-    count: np.ndarray
+    frames: np.ndarray
 
 
 class _Candidates(NamedTuple):
@@ -388,7 +388,7 @@ def _accepted(
     known marker. Returns their indices into ``c`` (G,), and (C,) bool ``strict`` and
     ``common`` (passed clearance and rivals; False where it continues a known marker)."""
     spread, fit, clearance, fitted = ride
-    s, count = c.spacing, frags.count[c.cols]
+    s, count = c.spacing, frags.frames[c.cols]
     strict = (spread <= settings.max_spread * s) & (fit <= settings.max_fit * s)
     loose = (
         ~strict
@@ -624,7 +624,7 @@ def find_hidden_markers(
     left = pos[:, n:]
     present = np.isfinite(left).all(axis=2)  # (T, L)
     frags = _Leftovers(left, present, present.sum(axis=0))
-    if not (frags.count >= settings.min_frames).any() or n < settings.k:
+    if not (frags.frames >= settings.min_frames).any() or n < settings.k:
         return []
     est, _ = estimate_missing(pos[:, :n], surface, surface.reference, temporal=True)
     cands = _neighbourhoods(frags, est, neighbour_spacing(surface), settings)

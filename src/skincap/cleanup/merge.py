@@ -483,9 +483,9 @@ def _join_chains(
         state.target[f] = i
         state.cur[frames, i] = runs.positions[frames, f]
         col = runs.column[f]
-        if state.res is not None:
+        if state.res is not None and markers.residuals is not None:
             state.res[frames, i] = markers.residuals[frames, col]
-        if state.inv is not None:
+        if state.inv is not None and markers.invented is not None:
             state.inv[frames, i] = markers.invented[frames, col]
         merged_now += 1
     return merged_now
@@ -506,14 +506,14 @@ def _assemble(
     rest = np.where(removed[:, left, None], np.nan, pos[:, left])
     out_res = (
         None
-        if state.res is None
+        if state.res is None or markers.residuals is None
         else np.concatenate(
             [state.res, np.where(removed[:, left], np.nan, markers.residuals[:, left])], 1
         )
     )
     out_inv = (
         None
-        if state.inv is None
+        if state.inv is None or markers.invented is None
         else np.concatenate([state.inv, markers.invented[:, left] & ~removed[:, left]], axis=1)
     )
     labels = list(markers.labels)
