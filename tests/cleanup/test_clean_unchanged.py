@@ -50,7 +50,7 @@ def _clean(markers: MarkerSet) -> dict[str, Any]:
         "positions": cleaned.positions,
         "invented": np.asarray(cleaned.invented, dtype=bool),
         "labels": np.array([str(lab) for lab in cleaned.labels]),
-        "report": np.array(json.dumps(report, sort_keys=True, default=str)),
+        "report": np.array(json.dumps(report.as_dict(), sort_keys=True, default=str)),
     }
 
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from skincap.cleanup.fill import motion_neighbours
+from skincap.cleanup.neighbours import motion_neighbours
 from skincap.errors import OutputExistsError, ValidationError
 from skincap.evaluate.bench.cleanup import run_clean_benchmark, synthetic_dense_take
 from skincap.evaluate.cleanup import (

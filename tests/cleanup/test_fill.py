@@ -7,13 +7,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap import io
-from skincap.cleanup.fill import (
-    FILL_METHODS,
-    as_csr,
-    fill_gaps,
-    mean_neighbour_distance,
-    motion_neighbours,
-)
+from skincap.cleanup.fill import FILL_METHODS, fill_gaps
+from skincap.cleanup.neighbours import as_csr, mean_neighbour_distance, motion_neighbours
+from skincap.cleanup.settings import FillSettings
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.evaluate.bench.cleanup import synthetic_dense_take
 from skincap.evaluate.cleanup import evaluate_fill
@@ -40,7 +36,7 @@ def test_measured_samples_unchanged_and_invented_exact(take, method):
     markers, _ = take
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
-        out, invented = fill_gaps(markers, method=method)
+        out, invented = fill_gaps(markers, settings=FillSettings(method=method))
     measured = ~markers.missing
     np.testing.assert_array_equal(out[measured], markers.positions[measured])
     np.testing.assert_array_equal(invented, markers.missing & ~np.isnan(out[..., 0]))
@@ -53,7 +49,7 @@ def test_interpolators_exact_on_straight_lines():
     pos[10:30, 0] = np.nan
     m = MarkerSet(pos, ["a", "b"], 100.0)
     for method in ("linear", "pchip", "spline"):
-        out, inv = fill_gaps(m, method=method)
+        out, inv = fill_gaps(m, settings=FillSettings(method=method))
         np.testing.assert_allclose(out[:, 0], pos[:, 1], atol=1e-12)
         assert inv[10:30, 0].all() and inv.sum() == 20
 
@@ -64,7 +60,7 @@ def test_rigid_fill_exact_on_rigid_motion():
     gappy[40:90, 2] = np.nan
     gappy[0:15, 5] = np.nan  # an edge run: filled from one side
     m = MarkerSet(gappy, [f"m{i}" for i in range(8)], 100.0)
-    out, inv = fill_gaps(m, method="rigid")
+    out, inv = fill_gaps(m, settings=FillSettings(method="rigid"))
     np.testing.assert_allclose(out, pos, atol=1e-9)
     assert inv.sum() == 65
 
@@ -75,7 +71,7 @@ def test_local_pca_exact_on_rigid_motion():
     gappy[40:90, 2] = np.nan
     m = MarkerSet(gappy, [f"m{i}" for i in range(8)], 100.0)
     for method in ("local_pca", "local_pca_weighted", "local_pca_missing"):
-        out, _ = fill_gaps(m, method=method)
+        out, _ = fill_gaps(m, settings=FillSettings(method=method))
         np.testing.assert_allclose(out, pos, atol=1e-6)
 
 
@@ -87,7 +83,7 @@ def test_local_pca_accuracy_on_deforming_take(take):
         warnings.simplefilter("ignore", SkincapWarning)
         csr = motion_neighbours(markers.positions)
         for method in ("local_pca", "local_pca_weighted", "local_pca_missing", "linear", "rigid"):
-            out, _ = fill_gaps(markers, method=method, neighbours=csr)
+            out, _ = fill_gaps(markers, settings=FillSettings(method=method), neighbours=csr)
             e = np.linalg.norm(out - truth, axis=-1)[miss]
             errs[method] = float(np.sqrt(np.nanmean(e**2)))
     # measured: local PCA 1.07-1.19 mm (noise 0.5 mm), linear 50 mm, rigid 1.19 mm
@@ -104,7 +100,7 @@ def test_max_gap_leaves_long_runs_unfilled():
     for method in ("linear", "rigid", "local_pca"):
         with warnings.catch_warnings():
             warnings.simplefilter("error", SkincapWarning)  # skipped runs are not failures
-            out, inv = fill_gaps(m, method=method, max_gap=30)
+            out, inv = fill_gaps(m, settings=FillSettings(method=method, max_gap=30))
         assert inv[10:20, 0].all() and not inv[:, 1].any()
         assert np.isnan(out[40:100, 1]).all()
 
@@ -114,16 +110,16 @@ def test_warns_when_samples_cannot_be_filled():
     pos[10:20, :3] = np.nan  # marker 0 has one present neighbour: no rigid frame
     m = MarkerSet(pos, ["a", "b", "c", "d"], 100.0)
     with pytest.warns(SkincapWarning, match="unfilled"):
-        out, inv = fill_gaps(m, method="rigid")
+        out, inv = fill_gaps(m, settings=FillSettings(method="rigid"))
     assert not inv[10:20].any() and np.isnan(out[10:20, :3]).all()
 
 
 def test_validation():
     m = MarkerSet(_rigid_cluster(), [f"m{i}" for i in range(8)], 100.0)
     with pytest.raises(ValidationError, match="method"):
-        fill_gaps(m, method="cubic")
+        fill_gaps(m, settings=FillSettings(method="cubic"))
     with pytest.raises(ValidationError, match="max_gap"):
-        fill_gaps(m, max_gap=0)
+        fill_gaps(m, settings=FillSettings(max_gap=0))
     with pytest.raises(ValidationError, match="offsets"):
         as_csr((np.array([0, 1]), np.array([1])), 8)
     with pytest.raises(ValidationError, match="own neighbour"):
@@ -135,7 +131,7 @@ def test_validation():
 def test_no_gaps_is_a_copy():
     pos = _rigid_cluster()
     m = MarkerSet(pos, [f"m{i}" for i in range(8)], 100.0)
-    out, inv = fill_gaps(m, method="local_pca")
+    out, inv = fill_gaps(m, settings=FillSettings(method="local_pca"))
     np.testing.assert_array_equal(out, pos)
     assert not inv.any() and out is not m.positions
 
@@ -190,8 +186,8 @@ def test_anchored_fill_joins_the_gap_ends(method):
     pos[s:e, 0] = np.nan
     m = MarkerSet(pos, [f"m{i}" for i in range(8)], 100.0)
     nb = (np.arange(9) * 7, np.array([j for i in range(8) for j in range(8) if j != i]))
-    anchored, inv = fill_gaps(m, method=method, neighbours=nb)
-    free, _ = fill_gaps(m, method=method, neighbours=nb, anchor_ends=False)
+    anchored, inv = fill_gaps(m, settings=FillSettings(method=method), neighbours=nb)
+    free, _ = fill_gaps(m, settings=FillSettings(method=method, anchor_ends=False), neighbours=nb)
     assert inv[s:e, 0].all() and inv.sum() == e - s
     err_a = np.linalg.norm(anchored[s:e, 0] - truth[s:e, 0], axis=1)
     err_f = np.linalg.norm(free[s:e, 0] - truth[s:e, 0], axis=1)
@@ -211,8 +207,10 @@ def test_anchored_fill_one_sided_gap_takes_the_end_offset():
     pos[170:, 0] = np.nan  # a run to the end of the take: anchored from its start only
     m = MarkerSet(pos, [f"m{i}" for i in range(8)], 100.0)
     nb = (np.arange(9) * 7, np.array([j for i in range(8) for j in range(8) if j != i]))
-    anchored, _ = fill_gaps(m, method="local_pca", neighbours=nb)
-    free, _ = fill_gaps(m, method="local_pca", neighbours=nb, anchor_ends=False)
+    anchored, _ = fill_gaps(m, settings=FillSettings(method="local_pca"), neighbours=nb)
+    free, _ = fill_gaps(
+        m, settings=FillSettings(method="local_pca", anchor_ends=False), neighbours=nb
+    )
     err_a = np.linalg.norm(anchored[170:, 0] - truth[170:, 0], axis=1)
     err_f = np.linalg.norm(free[170:, 0] - truth[170:, 0], axis=1)
     assert err_a[0] < 0.001 and err_a[0] < 0.2 * err_f[0]
@@ -239,7 +237,8 @@ def test_rigid_weights_follow_each_gaps_spreads():
 
 
 def test_spreads_measure_what_one_side_cannot_explain():
-    from skincap.cleanup.fill import fill_local_pca, fill_rigid
+    from skincap.cleanup.fill_local import fill_local_pca
+    from skincap.cleanup.fill_rigid import fill_rigid
 
     nb = (np.arange(9) * 7, np.array([j for i in range(8) for j in range(8) if j != i]))
     s, e = 120, 170
@@ -260,17 +259,25 @@ def test_rigid_blend_extremes_and_validation(take):
     nb = motion_neighbours(markers.positions)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
-        pure, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=0.0)
-        rigid, _ = fill_gaps(markers, method="rigid_weighted", neighbours=nb)
-        plain, _ = fill_gaps(markers, method="rigid", neighbours=nb)
-        ones, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=1.0)
-        ones_plain, _ = fill_gaps(
-            markers, method="local_pca", neighbours=nb, rigid_blend=1.0, rigid_weighted=False
+        pure, _ = fill_gaps(
+            markers, settings=FillSettings(method="local_pca", rigid_blend=0.0), neighbours=nb
         )
-        auto, _ = fill_gaps(markers, method="local_pca", neighbours=nb)
+        rigid, _ = fill_gaps(markers, settings=FillSettings(method="rigid_weighted"), neighbours=nb)
+        plain, _ = fill_gaps(markers, settings=FillSettings(method="rigid"), neighbours=nb)
+        ones, _ = fill_gaps(
+            markers, settings=FillSettings(method="local_pca", rigid_blend=1.0), neighbours=nb
+        )
+        ones_plain, _ = fill_gaps(
+            markers,
+            settings=FillSettings(method="local_pca", rigid_blend=1.0, rigid_weighted=False),
+            neighbours=nb,
+        )
+        auto, _ = fill_gaps(markers, settings=FillSettings(method="local_pca"), neighbours=nb)
         # blending also weighs the local frames by rigidity: the PCA end of the blend
         # is the fill with a vanishing rigid weight, not the paper's rigid_blend=0
-        pca_end, _ = fill_gaps(markers, method="local_pca", neighbours=nb, rigid_blend=1e-12)
+        pca_end, _ = fill_gaps(
+            markers, settings=FillSettings(method="local_pca", rigid_blend=1e-12), neighbours=nb
+        )
     miss = markers.missing & ~np.isnan(rigid[..., 0]) & ~np.isnan(pure[..., 0])
     # the blend's rigid fill weighs its donors; rigid_weighted=False is the Vicon-style one
     np.testing.assert_allclose(ones[miss], rigid[miss])
@@ -283,13 +290,13 @@ def test_rigid_blend_extremes_and_validation(take):
         atol=1e-9,
     )
     with pytest.raises(ValidationError):
-        fill_gaps(markers, method="local_pca", rigid_blend=1.5)
+        fill_gaps(markers, settings=FillSettings(method="local_pca", rigid_blend=1.5))
 
 
 def test_whole_body_pca_is_not_swamped_by_the_body_travelling():
     """The same swinging limbs, standing or travelling 5 m: the travel is taken out
     first, so the fill of a 40-frame gap is (nearly) the same in both takes."""
-    from skincap.cleanup.fill import fill_pca
+    from skincap.cleanup.fill_pca import fill_pca
 
     rng = np.random.default_rng(3)
     t = np.arange(400) / 100.0
@@ -316,7 +323,7 @@ def test_only_fills_the_masked_samples(take, method):
     only[:, cols] = missing[:, cols]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
-        out, invented = fill_gaps(markers, method=method, only=only)
+        out, invented = fill_gaps(markers, settings=FillSettings(method=method), only=only)
     assert invented.any() and not (invented & ~only).any()
     assert np.isnan(out[missing & ~only]).all()
     err = np.linalg.norm(out[invented] - truth[invented], axis=-1)
@@ -327,10 +334,10 @@ def test_only_fills_the_masked_samples(take, method):
     if method == "linear":
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SkincapWarning)
-            whole, _ = fill_gaps(markers, method=method)
+            whole, _ = fill_gaps(markers, settings=FillSettings(method=method))
         np.testing.assert_array_equal(out[invented], whole[invented])
     with pytest.raises(ValidationError, match="only"):
-        fill_gaps(markers, method=method, only=only[:-1])
+        fill_gaps(markers, settings=FillSettings(method=method), only=only[:-1])
 
 
 def test_evaluate_fill_can_leave_the_takes_own_gaps_open(take):

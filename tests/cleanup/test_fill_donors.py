@@ -11,7 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap import io
-from skincap.cleanup.fill import fill_gaps, fill_rigid
+from skincap.cleanup.fill import fill_gaps
+from skincap.cleanup.fill_rigid import fill_rigid
+from skincap.cleanup.settings import FillSettings
 from skincap.errors import SkincapWarning
 from skincap.evaluate.cleanup import evaluate_fill
 from skincap.types import MarkerSet
@@ -73,7 +75,9 @@ def test_weighted_rigid_is_exact_on_rigid_motion_and_noise_tolerant():
     gappy[40:160, 0] = np.nan
     gappy[0:20, 4] = np.nan  # an edge run: one side only
     m = MarkerSet(gappy, [f"m{i}" for i in range(6)], 100.0)
-    out, inv = fill_gaps(m, method="rigid_weighted", neighbours=(offsets, indices))
+    out, inv = fill_gaps(
+        m, settings=FillSettings(method="rigid_weighted"), neighbours=(offsets, indices)
+    )
     np.testing.assert_allclose(out, rigid_only, atol=1e-9)
     assert inv.sum() == 140
     # 0.5 mm noise on equally rigid donors: the noise floor keeps the weights near
@@ -82,7 +86,9 @@ def test_weighted_rigid_is_exact_on_rigid_motion_and_noise_tolerant():
     noisy = MarkerSet(gappy + rng.normal(0.0, 0.0005, gappy.shape), m.labels, 100.0)
     err = {}
     for method in ("rigid", "rigid_weighted"):
-        out, _ = fill_gaps(noisy, method=method, neighbours=(offsets, indices))
+        out, _ = fill_gaps(
+            noisy, settings=FillSettings(method=method), neighbours=(offsets, indices)
+        )
         err[method] = np.linalg.norm(out[40:160, 0] - rigid_only[40:160, 0], axis=1).mean()
     assert err["rigid_weighted"] < 1.1 * err["rigid"] and err["rigid"] < 0.003, err
 
@@ -94,9 +100,13 @@ def test_local_pca_blend_uses_the_weighted_donors():
     m = MarkerSet(gappy, [f"m{i}" for i in range(8)], 100.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
-        new, _ = fill_gaps(m, method="local_pca", neighbours=nb, rigid_blend=1.0)
+        new, _ = fill_gaps(
+            m, settings=FillSettings(method="local_pca", rigid_blend=1.0), neighbours=nb
+        )
         old, _ = fill_gaps(
-            m, method="local_pca", neighbours=nb, rigid_blend=1.0, rigid_weighted=False
+            m,
+            settings=FillSettings(method="local_pca", rigid_blend=1.0, rigid_weighted=False),
+            neighbours=nb,
         )
     e_new = np.linalg.norm(new[100:180, 0] - truth[100:180, 0], axis=1).max()
     e_old = np.linalg.norm(old[100:180, 0] - truth[100:180, 0], axis=1).max()

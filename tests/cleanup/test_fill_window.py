@@ -10,7 +10,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap import io
-from skincap.cleanup.fill import fill_gaps, fill_local_pca, fill_local_window
+from skincap.cleanup.fill import fill_gaps
+from skincap.cleanup.fill_local import fill_local_pca, fill_local_window
+from skincap.cleanup.settings import FillSettings
 from skincap.errors import SkincapWarning, UnitWarning
 from skincap.evaluate.cleanup import evaluate_fill
 from skincap.types import MarkerSet
@@ -105,7 +107,9 @@ def test_window_fill_through_fill_gaps() -> None:
     markers = MarkerSet(pos, [f"m{i}" for i in range(6)], 100.0)
     for blend in (0.0, None):
         out, invented = fill_gaps(
-            markers, method="local_pca_window", neighbours=_csr(), rigid_blend=blend
+            markers,
+            settings=FillSettings(method="local_pca_window", rigid_blend=blend),
+            neighbours=_csr(),
         )
         assert np.array_equal(invented, np.isnan(pos[..., 0]))
         assert np.array_equal(out[~invented], pos[~invented])

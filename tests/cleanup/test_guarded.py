@@ -64,7 +64,7 @@ def test_running_median_is_exact_on_steady_motion_up_to_a_gap() -> None:
 @pytest.mark.slow
 def test_spike_is_found_among_its_neighbours() -> None:
     markers, _ = synthetic_dense_take(60, 300, missing=0.0, seed=3)
-    from skincap.cleanup.fill import motion_neighbours
+    from skincap.cleanup.neighbours import motion_neighbours
 
     nb = motion_neighbours(markers.positions, k=6)
     spiky, truth = inject_spikes(markers, 6, seed=1)
@@ -114,7 +114,7 @@ def test_label_swap_is_found_between_close_markers() -> None:
     i = int(np.argmin(d.min(axis=1)))
     j = int(np.argmin(d[i]))
     swapped, swaps = inject_label_swaps(markers, [(i, j)], seed=4)
-    from skincap.cleanup.fill import motion_neighbours
+    from skincap.cleanup.neighbours import motion_neighbours
 
     found = find_label_swaps(swapped.positions, motion_neighbours(swapped.positions))
     ((a, b, s, e),) = swaps
@@ -207,25 +207,23 @@ def test_spikes_are_flagged_replaced_and_counted(corrupted: dict) -> None:
     assert inv[spikes].all()
     err = np.linalg.norm(out.positions[:, :n] - corrupted["truth"], axis=-1)
     assert np.nanmax(err[spikes]) < 0.006  # a 4-6 cm spike replaced within 6 mm
-    assert report["guard"]["outlier_samples"] >= spikes.sum()
-    assert report["guard"]["outliers_replaced"] >= spikes.sum()
-    counted = sum(v["outliers"] for k, v in report["markers"].items())
-    assert counted == report["guard"]["outlier_samples"]
+    assert report.guard.outlier_samples >= spikes.sum()
+    assert report.guard.outliers_replaced >= spikes.sum()
+    counted = sum(v["outliers"] for k, v in report.markers.items())
+    assert counted == report.guard.outlier_samples
 
 
 @pytest.mark.slow
 def test_swaps_are_repaired_flagged_and_counted(corrupted: dict) -> None:
     out, truth, report = corrupted["cleaned"], corrupted["truth"], corrupted["report"]
     n = truth.shape[1]
-    assert report["guard"]["label_swaps_repaired"] == len(corrupted["swaps"])
+    assert report.guard.label_swaps_repaired == len(corrupted["swaps"])
     for a, b, s, e in corrupted["swaps"]:
         err = np.linalg.norm(out.positions[s:e, [a, b]] - truth[s:e, [a, b]], axis=-1)
         assert np.nanmax(err) < 0.003
         assert out.invented[s:e, [a, b]].all()
-    assert report["guard"]["relabelled_samples"] == sum(
-        2 * (e - s) for _, _, s, e in corrupted["swaps"]
-    )
-    assert out.invented[:, :n].sum() >= report["guard"]["relabelled_samples"]
+    assert report.guard.relabelled_samples == sum(2 * (e - s) for _, _, s, e in corrupted["swaps"])
+    assert out.invented[:, :n].sum() >= report.guard.relabelled_samples
 
 
 @pytest.mark.slow
@@ -234,16 +232,16 @@ def test_measured_samples_stay_and_neighbours_are_unmoved(corrupted: dict) -> No
     measured = ~np.isnan(taken.positions[..., 0]) & ~out.invented
     moved = np.linalg.norm(out.positions - taken.positions, axis=-1)[measured]
     assert moved.max() <= 0.0015 + 1e-9
-    assert report["guard"]["largest_move_mm"] == pytest.approx(1000 * moved.max(), abs=1e-6)
+    assert report.guard.largest_move_mm == pytest.approx(1000 * moved.max(), abs=1e-6)
     # the take's noise is 0.5 mm: the bound 3 sigma is the 1.5 mm cap here
-    assert report["guard"]["noise_median_mm"] == pytest.approx(0.5, rel=0.15)
+    assert report.guard.noise_median_mm == pytest.approx(0.5, rel=0.15)
 
 
 @pytest.mark.slow
 def test_rigid_prop_fills_are_continuous_or_left_out(corrupted: dict) -> None:
     taken, out, report = corrupted["input"], corrupted["cleaned"], corrupted["report"]
     prop = corrupted["prop"]
-    limit = report["fill"]["acceleration_limit_mm_per_frame2"] / 1000
+    limit = report.fill.acceleration_limit_mm_per_frame2 / 1000
     d2 = second_difference(out.positions)
     filled = out.invented & np.isfinite(d2)
     assert (d2[filled] <= limit * (1 + 1e-9)).all()
@@ -252,7 +250,7 @@ def test_rigid_prop_fills_are_continuous_or_left_out(corrupted: dict) -> None:
     # each prop hole is either filled (flagged) or counted unfilled
     got = out.positions[:, prop, 0]
     assert (out.invented[:, prop][holes] | np.isnan(got[holes])).all()
-    counted = sum(report["markers"][taken.labels[c]]["unfilled"] for c in prop)
+    counted = sum(report.markers[taken.labels[c]]["unfilled"] for c in prop)
     assert counted == int(np.isnan(got).sum())
 
 
@@ -290,7 +288,7 @@ def test_real_capture_keeps_measured_samples_and_fills_continuous(
     moved = np.linalg.norm(new - raw, axis=-1)[kept]
     assert moved.size == 0 or moved.max() <= 0.002
     # a measured sample missing from the output is a spike removed and left unfilled
-    assert (measured & ~kept).sum() <= report["guard"]["outlier_samples"]
+    assert (measured & ~kept).sum() <= report.guard.outlier_samples
     d2 = second_difference(new)
     triple = np.zeros_like(measured)
     triple[1:-1] = kept[:-2] & kept[1:-1] & kept[2:]
@@ -298,7 +296,7 @@ def test_real_capture_keeps_measured_samples_and_fills_continuous(
         ref = np.percentile(d2[triple], 99.9)
         filled = inv & np.isfinite(d2)
         assert not filled.any() or d2[filled].max() <= 3 * ref
-    guard = report["guard"]
+    guard = report.guard
     for key in (
         "filled_samples",
         "unfilled_samples",
@@ -306,8 +304,8 @@ def test_real_capture_keeps_measured_samples_and_fills_continuous(
         "relabelled_fragments",
         "largest_move_mm",
     ):
-        assert key in guard
-    assert guard["unfilled_samples"] == sum(v["unfilled"] for v in report["markers"].values())
+        assert key in report.as_dict()["guard"]
+    assert guard.unfilled_samples == sum(v["unfilled"] for v in report.markers.values())
     assert out.n_frames == markers.n_frames
 
 
@@ -323,4 +321,4 @@ def test_tiny_and_static_takes_clean_without_error(frames: int) -> None:
     expected = np.zeros((int(filled.sum()), 3))
     expected[:, 0] = 0.05
     np.testing.assert_allclose(out.positions[filled], expected, atol=1e-9)
-    assert report["guard"]["largest_move_mm"] == 0.0
+    assert report.guard.largest_move_mm == 0.0

@@ -11,6 +11,7 @@ from scipy.spatial.transform import Rotation
 from skincap.cleanup.hidden import find_hidden_markers
 from skincap.cleanup.merge import merge_fragments
 from skincap.cleanup.pipeline import clean_markers
+from skincap.cleanup.settings import CleanSettings, FillSettings, HiddenSettings, SmoothSettings
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import SkincapWarning
 from skincap.types import MarkerSet
@@ -49,7 +50,7 @@ def test_a_marker_hidden_in_the_reference_frame_is_found() -> None:
     assert report.merged == 0  # no labelled marker owns it
     assert find_hidden_markers(merged, surface) == [[n]]
     # too short a fragment is not enough evidence
-    assert find_hidden_markers(merged, surface, min_frames=80) == []
+    assert find_hidden_markers(merged, surface, settings=HiddenSettings(min_frames=80)) == []
 
 
 def test_a_chain_riding_with_the_skin_is_not_skin() -> None:
@@ -67,23 +68,34 @@ def test_clean_labels_hidden_markers_against_the_truth() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
         cleaned, report = clean_markers(
-            take.capture, method="linear", smooth=False, fragment_truth=truth
+            take.capture,
+            settings=CleanSettings(
+                fill=FillSettings(method="linear"), smooth=SmoothSettings(enabled=False)
+            ),
+            fragment_truth=truth,
         )
-        _, off = clean_markers(take.capture, method="linear", smooth=False, recover_hidden=False)
-    hidden = report["hidden"]
+        _, off = clean_markers(
+            take.capture,
+            settings=CleanSettings(
+                recover_hidden=False,
+                fill=FillSettings(method="linear"),
+                smooth=SmoothSettings(enabled=False),
+            ),
+        )
+    hidden = report.hidden
     known = {truth.get(lab, lab) for lab in take.capture.labels if not lab.startswith("*")}
-    assert hidden["new_markers"] >= 2 and off["hidden"]["new_markers"] == 0
-    for new, frags in hidden["markers"].items():
+    assert hidden.new_markers >= 2 and off.hidden.new_markers == 0
+    for new, frags in hidden.markers.items():
         true = {truth[f] for f in frags}
         # one true body marker per new label, one hidden in the reference frame
         assert len(true) == 1
         (label,) = true
         assert label not in known and label != "ghost" and not label.startswith("rope_")
-        assert new in cleaned.labels[: report["surface"]["markers"]]
-    assert hidden["recovered"] == hidden["new_markers"] and hidden["wrong_markers"] == 0
+        assert new in cleaned.labels[: report.surface.markers]
+    assert hidden.recovered == hidden.new_markers and hidden.wrong_markers == 0
     # the new columns follow the true trajectory where measured
     names = list(take.truth.labels)
-    for new, frags in hidden["markers"].items():
+    for new, frags in hidden.markers.items():
         col = list(cleaned.labels).index(new)
         err = np.linalg.norm(
             cleaned.positions[:, col] - take.truth.positions[:, names.index(truth[frags[0]])],

@@ -9,7 +9,6 @@ import numpy as np
 from cleanup_takes import dense_jumprope_take
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup import hidden as hidden_module
 from skincap.cleanup.hidden import (
     _continues_known,
     _grow_in_time,
@@ -18,6 +17,7 @@ from skincap.cleanup.hidden import (
 )
 from skincap.cleanup.merge import merge_fragments
 from skincap.cleanup.pipeline import clean_markers
+from skincap.cleanup.settings import CleanSettings, FillSettings, HiddenSettings, SmoothSettings
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import SkincapWarning
 from skincap.types import MarkerSet
@@ -64,10 +64,12 @@ def test_a_marker_on_a_fold_is_found_by_the_looser_spread_test() -> None:
     markers, n, _ = _sheet(fold=0.9)
     merged, surface = _first_merge(markers, n)
     # the neighbourhood is not rigid across the fold: the strict test alone refuses
-    assert find_hidden_markers(merged, surface, loose_spread=0.0) == []
+    assert find_hidden_markers(merged, surface, settings=HiddenSettings(loose_spread=0.0)) == []
     assert find_hidden_markers(merged, surface) == [[n]]
     # too short for the looser test
-    assert find_hidden_markers(merged, surface, loose_min_frames=FRAMES) == []
+    assert (
+        find_hidden_markers(merged, surface, settings=HiddenSettings(loose_min_frames=FRAMES)) == []
+    )
 
 
 def test_a_point_straying_on_rigid_skin_is_not_a_marker() -> None:
@@ -76,7 +78,9 @@ def test_a_point_straying_on_rigid_skin_is_not_a_marker() -> None:
     markers, n, _ = _sheet(fold=0.0, circle=0.01)
     merged, surface = _first_merge(markers, n)
     assert find_hidden_markers(merged, surface) == []
-    assert find_hidden_markers(merged, surface, spread_ratio=np.inf) == [[n]]
+    assert find_hidden_markers(merged, surface, settings=HiddenSettings(spread_ratio=np.inf)) == [
+        [n]
+    ]
 
 
 def test_continuity_in_time_rules_markers_in_and_out() -> None:
@@ -117,33 +121,29 @@ def test_more_hidden_markers_recovered_on_the_synthetic_take() -> None:
     without a wrong merge."""
     take = dense_jumprope_take()
     truth = take.fragment_truth
-    defaults = dict(hidden_module.find_hidden_markers.__kwdefaults__)
     reports = []
-    try:
-        for change in (
-            {"loose_spread": 0.0, "rule_out_gap": 0, "min_seed_frames": 10},
-            {"min_seed_frames": 10},
-            {},
-        ):
-            hidden_module.find_hidden_markers.__kwdefaults__ = {**defaults, **change}
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", SkincapWarning)
-                reports.append(
-                    clean_markers(
-                        take.capture, method="linear", smooth=False, fragment_truth=truth
-                    )[1]
-                )
-    finally:
-        hidden_module.find_hidden_markers.__kwdefaults__ = defaults
+    for change in (
+        {"loose_spread": 0.0, "rule_out_gap": 0, "min_seed_frames": 10},
+        {"min_seed_frames": 10},
+        {},
+    ):
+        settings = CleanSettings(
+            hidden=HiddenSettings(**change),
+            fill=FillSettings(method="linear"),
+            smooth=SmoothSettings(enabled=False),
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkincapWarning)
+            reports.append(clean_markers(take.capture, settings, fragment_truth=truth)[1])
     before, seeded_short, after = reports
-    assert before["hidden"]["recovered"] == 2
-    assert seeded_short["hidden"]["recovered"] == 4
-    assert after["hidden"]["recovered"] == 3
+    assert before.hidden.recovered == 2
+    assert seeded_short.hidden.recovered == 4
+    assert after.hidden.recovered == 3
     for report in reports:
-        assert report["hidden"]["wrong_markers"] == 0
-        assert report["hidden"]["wrong_fragments"] == 0
-        assert report["merge"]["wrongly_merged"] == 0
-    assert after["merge"]["merged"] >= before["merge"]["merged"]
+        assert report.hidden.wrong_markers == 0
+        assert report.hidden.wrong_fragments == 0
+        assert report.merge.wrongly_merged == 0
+    assert after.merge.merged >= before.merge.merged
 
 
 def test_a_group_grows_by_continuity_in_time() -> None:

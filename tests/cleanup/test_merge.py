@@ -10,6 +10,7 @@ from cleanup_takes import dense_jumprope_take
 from scipy.spatial.transform import Rotation
 
 from skincap.cleanup.merge import merge_fragments, neighbour_spacing
+from skincap.cleanup.settings import MergeSettings
 from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.io import read
@@ -77,7 +78,7 @@ def test_overlapping_or_far_fragments_are_not_merged() -> None:
     # tight tolerances (0.05 % of the spacing) against 1 mm of noise: nothing merges
     pos[:, 25:] += np.random.default_rng(0).normal(scale=1e-3, size=pos[:, 25:].shape)
     markers3 = MarkerSet(positions=pos, labels=markers.labels, rate=markers.rate)
-    _, report = merge_fragments(markers3, surface, alpha1=5e-4, alpha2=5e-4)
+    _, report = merge_fragments(markers3, surface, settings=MergeSettings(alpha1=5e-4, alpha2=5e-4))
     assert report.merged == 0 and report.wrongly_merged is None
 
 
@@ -122,9 +123,11 @@ def test_real_unlabelled_file(data_dir) -> None:  # noqa: ANN001
     # times farther, inside the default rival margin (rival_ratio 0.2, and a single
     # frame needs a four times larger one, short_frames 4): refused too
     assert merge_fragments(cap, surface, anchors)[1].merged == 0
-    assert merge_fragments(cap, surface, anchors, min_frames=1)[1].merged == 0
+    assert (
+        merge_fragments(cap, surface, anchors, settings=MergeSettings(min_frames=1))[1].merged == 0
+    )
     merged, report = merge_fragments(
-        cap, surface, anchors, min_frames=1, rival_ratio=0.7, short_frames=1
+        cap, surface, anchors, settings=MergeSettings(min_frames=1, rival_ratio=0.7, short_frames=1)
     )
     assert report.fragments_before > 0 and report.merged > 0
     assert report.fragments_after < report.fragments_before
@@ -149,7 +152,7 @@ def test_validation() -> None:
     with pytest.raises(ValidationError, match="anchor"):
         merge_fragments(markers, surface, np.arange(10))
     with pytest.raises(ValidationError, match="alpha1"):
-        merge_fragments(markers, surface, alpha1=0.0)
+        merge_fragments(markers, surface, settings=MergeSettings(alpha1=0.0))
 
 
 def test_beyond_the_paper_fewer_wrong_merges() -> None:
@@ -163,9 +166,7 @@ def test_beyond_the_paper_fewer_wrong_merges() -> None:
     _, paper = merge_fragments(
         cap,
         surface,
-        neighbour_check=False,
-        robust_spacing=False,
-        min_frames=1,
+        settings=MergeSettings(neighbour_check=False, robust_spacing=False, min_frames=1),
         fragment_truth=take.fragment_truth,
     )
     _, ours = merge_fragments(cap, surface, fragment_truth=take.fragment_truth)
@@ -190,11 +191,17 @@ def test_prediction_factor_refuses_fragments_the_fit_cannot_explain() -> None:
     anchors = np.flatnonzero([not lab.startswith("*") for lab in cap.labels])
     surface = build_marker_surface(cap.positions[:, anchors], reference_frame=0)
     _, off = merge_fragments(
-        cap, surface, prediction_factor=None, fragment_truth=take.fragment_truth
+        cap,
+        surface,
+        settings=MergeSettings(prediction_factor=None),
+        fragment_truth=take.fragment_truth,
     )
     _, on = merge_fragments(cap, surface, fragment_truth=take.fragment_truth)
     _, tight = merge_fragments(
-        cap, surface, prediction_factor=0.5, fragment_truth=take.fragment_truth
+        cap,
+        surface,
+        settings=MergeSettings(prediction_factor=0.5),
+        fragment_truth=take.fragment_truth,
     )
     assert on.wrongly_merged < off.wrongly_merged
     assert 0.97 * off.merged <= on.merged <= off.merged

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from skincap.cleanup.hidden import _joins_in_time
 from skincap.cleanup.merge import _prediction_error, merge_fragments
+from skincap.cleanup.settings import MergeSettings
 from skincap.cleanup.surface import build_marker_surface
 from skincap.errors import ValidationError
 from skincap.types import MarkerSet
@@ -61,9 +62,14 @@ def test_a_fragment_between_two_missing_markers_is_left_unmerged() -> None:
     surface = build_marker_surface(markers.positions[:, :n], reference_frame=0)
     # the prediction test alone would refuse H on a rigid sheet; off, to test the margin
     _, loose = merge_fragments(
-        markers, surface, prediction_factor=None, rival_ratio=0.7, fragment_truth=truth
+        markers,
+        surface,
+        settings=MergeSettings(prediction_factor=None, rival_ratio=0.7),
+        fragment_truth=truth,
     )
-    _, strict = merge_fragments(markers, surface, prediction_factor=None, fragment_truth=truth)
+    _, strict = merge_fragments(
+        markers, surface, settings=MergeSettings(prediction_factor=None), fragment_truth=truth
+    )
     # a margin of 0.7 takes H (0.4 spacings from A, 0.6 from B) for A: wrong
     assert loose.assignments.get("*1") == f"M{A:02d}" and loose.wrongly_merged == 1
     # the default margin (0.2) leaves it, and A's and B's own fragments still merge
@@ -77,7 +83,7 @@ def test_rival_ratio_is_checked() -> None:
     surface = build_marker_surface(markers.positions[:, :n], reference_frame=0)
     for bad in (0.0, 1.5):
         with pytest.raises(ValidationError, match="rival_ratio"):
-            merge_fragments(markers, surface, rival_ratio=bad)
+            merge_fragments(markers, surface, settings=MergeSettings(rival_ratio=bad))
 
 
 def test_fragments_of_two_hidden_markers_are_not_one_marker() -> None:
@@ -128,7 +134,9 @@ def test_a_short_fragment_needs_a_wider_margin() -> None:
     markers, pos = _pair_missing(ghost, frames)
     surface = build_marker_surface(markers.positions[:, :49], reference_frame=0)
     truth = {"*1": "ghost"}
-    _, loose = merge_fragments(markers, surface, short_frames=1, fragment_truth=truth)
+    _, loose = merge_fragments(
+        markers, surface, settings=MergeSettings(short_frames=1), fragment_truth=truth
+    )
     _, strict = merge_fragments(markers, surface, fragment_truth=truth)
     assert loose.assignments == {"*1": f"M{A:02d}"} and loose.wrongly_merged == 1
     assert strict.merged == 0
@@ -153,7 +161,9 @@ def test_a_marker_misplaced_in_the_reference_pose_is_calibrated() -> None:
     assert np.linalg.norm(surface.reference[A] - pos[0, A]) > 0.025
     assert error[A] < 2e-3  # measured from the calibrated place, not the reference one
     truth = {"*1": f"M{A:02d}"}
-    _, off = merge_fragments(markers, surface, calibrate=False, fragment_truth=truth)
+    _, off = merge_fragments(
+        markers, surface, settings=MergeSettings(calibrate=False), fragment_truth=truth
+    )
     _, on = merge_fragments(markers, surface, fragment_truth=truth)
     assert off.merged == 0
     assert on.assignments == truth and on.wrongly_merged == 0

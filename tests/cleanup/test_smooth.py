@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from skincap.cleanup.fill import motion_neighbours
+from skincap.cleanup.neighbours import motion_neighbours
 from skincap.cleanup.smooth import (
     butterworth_equivalent_cutoff,
     cutoff_frequency,

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from skincap._arrays import as_trajectories, missing_runs
 from skincap.cleanup.smooth import smooth_trajectories
 from skincap.errors import ValidationError
 
@@ -76,12 +77,8 @@ def measured_acceleration_limit(
 
 def _run_bounds(fill: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Runs of True per column of (T, N): (column, start, end) with end exclusive."""
-    t, n = fill.shape
-    pad = np.zeros((n, 1), dtype=np.int8)
-    step = np.diff(np.concatenate([pad, fill.T.astype(np.int8), pad], axis=1), axis=1)
-    col, start = np.nonzero(step == 1)
-    _, end = np.nonzero(step == -1)
-    return col, start, end
+    col, start, length = missing_runs(fill)
+    return col, start, start + length
 
 
 def _hermite(p: np.ndarray, fill: np.ndarray, known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -207,9 +204,7 @@ def condition_fills(
     dropped : (T, N) bool
         Filled samples removed because no version of their run stayed within ``limit``.
     """
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise ValidationError(f"positions: expected shape (T, N, 3), got {p.shape}")
+    p = as_trajectories(positions)
     f = np.asarray(fill, dtype=bool) & ~np.isnan(p[..., 0])
     if f.shape != p.shape[:2]:
         raise ValidationError(f"fill: expected shape {p.shape[:2]}, got {f.shape}")

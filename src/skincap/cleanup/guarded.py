@@ -34,6 +34,7 @@ import numpy as np
 from skincap._arrays import Progress
 from skincap.cleanup.continuity import condition_fills, measured_acceleration_limit
 from skincap.cleanup.outliers import find_label_swaps, find_spikes, measurement_noise
+from skincap.cleanup.settings import CleanSettings
 from skincap.errors import SkincapWarning
 from skincap.types import MarkerSet
 
@@ -42,6 +43,7 @@ __all__ = [
     "MAX_MOVE",
     "MAX_MOVE_NOISE",
     "UNFILLED_WARNING",
+    "GuardSummary",
     "GuardedFill",
     "guarded_fill_smooth",
 ]
@@ -55,6 +57,40 @@ MAX_MOVE = 0.0015
 ACCELERATION_FACTOR = 2.5
 #: Warn when more than this fraction of the markers' samples is left unfilled.
 UNFILLED_WARNING = 0.01
+
+
+@dataclass(frozen=True)
+class GuardSummary:
+    """Take-wide counts of :func:`guarded_fill_smooth` (the ``guard`` part of the clean report).
+
+    Attributes
+    ----------
+    filled_samples, unfilled_samples : int
+        Marker samples filled; left missing (after the continuity check).
+    unfilled_warning : bool
+        Whether more than :data:`UNFILLED_WARNING` of the samples are left unfilled.
+    outlier_samples, outliers_replaced : int
+        Spikes found (and removed); those of them filled again.
+    relabelled_fragments : int
+        Fragments merged into markers plus two per repaired label swap.
+    label_swaps_repaired, relabelled_samples : int
+        Label swaps exchanged back; samples they moved.
+    largest_move_mm : float
+        Largest move of a kept (unflagged) measured sample, mm.
+    noise_median_mm : float or None
+        Median of the markers' measurement noise σ, mm (None when none is known).
+    """
+
+    filled_samples: int
+    unfilled_samples: int
+    unfilled_warning: bool
+    outlier_samples: int
+    outliers_replaced: int
+    relabelled_fragments: int
+    label_swaps_repaired: int
+    relabelled_samples: int
+    largest_move_mm: float
+    noise_median_mm: float | None
 
 
 @dataclass
@@ -113,24 +149,24 @@ class GuardedFill:
     def largest_move_mm(self) -> float:
         return float(1000 * np.nanmax(self.moved)) if np.isfinite(self.moved).any() else 0.0
 
-    def summary(self, merged_fragments: int) -> dict[str, Any]:
+    def summary(self, merged_fragments: int) -> GuardSummary:
         """Take-wide counts: what ``clean`` prints and ``--json`` gives."""
-        return {
-            "filled_samples": int(self.filled.sum()),
-            "unfilled_samples": int(self.unfilled.sum()),
-            "unfilled_warning": bool(self.unfilled.sum() > UNFILLED_WARNING * self.unfilled.size),
-            "outlier_samples": int(self.outliers.sum()),
-            "outliers_replaced": int((self.outliers & self.filled).sum()),
-            "relabelled_fragments": int(merged_fragments + 2 * self.swaps),
-            "label_swaps_repaired": int(self.swaps),
-            "relabelled_samples": int(self.relabelled.sum()),
-            "largest_move_mm": self.largest_move_mm(),
-            "noise_median_mm": (
+        return GuardSummary(
+            filled_samples=int(self.filled.sum()),
+            unfilled_samples=int(self.unfilled.sum()),
+            unfilled_warning=bool(self.unfilled.sum() > UNFILLED_WARNING * self.unfilled.size),
+            outlier_samples=int(self.outliers.sum()),
+            outliers_replaced=int((self.outliers & self.filled).sum()),
+            relabelled_fragments=int(merged_fragments + 2 * self.swaps),
+            label_swaps_repaired=int(self.swaps),
+            relabelled_samples=int(self.relabelled.sum()),
+            largest_move_mm=self.largest_move_mm(),
+            noise_median_mm=(
                 float(1000 * np.median(self.noise[np.isfinite(self.noise)]))
                 if np.isfinite(self.noise).any()
                 else None
             ),
-        }
+        )
 
     def per_marker(self) -> dict[str, dict[str, Any]]:
         """Per marker: filled, unfilled, replaced outliers, relabelled, largest move."""
@@ -161,14 +197,8 @@ def _noise_bound(noise: np.ndarray) -> np.ndarray:
 def guarded_fill_smooth(
     body: MarkerSet,
     neighbours: Any,
+    settings: CleanSettings = CleanSettings(),
     *,
-    method: str = "local_pca",
-    rigid_blend: float | None = None,
-    smooth: bool = True,
-    lam: float = 0.02,
-    iterations: int = 10,
-    repair_swaps: bool = True,
-    remove_spikes: bool = True,
     progress: Progress | None = None,
 ) -> GuardedFill:
     """Repair swaps, remove spikes, fill, smooth within the noise and keep fills continuous.
@@ -180,10 +210,10 @@ def guarded_fill_smooth(
         ``invented`` (if any) marks samples an earlier cleanup made up: they are kept
         as they are and never counted as measured.
     neighbours : MarkerSurface or CSR (offsets, indices)
-    method, rigid_blend : see :func:`skincap.cleanup.fill.fill_gaps`
-    smooth, lam, iterations : see :func:`skincap.cleanup.smooth.smooth_local`
-    repair_swaps, remove_spikes : bool
-        Steps 1 and 2 of the module docstring.
+    settings : CleanSettings
+        ``repair_swaps`` and ``remove_spikes`` (steps 1 and 2 of the module
+        docstring), ``fill`` (:func:`skincap.cleanup.fill.fill_gaps`) and ``smooth``
+        (:func:`skincap.cleanup.smooth.smooth_local`); the merge settings are not used.
     progress : callable(fraction, label), optional
 
     Returns
@@ -204,7 +234,7 @@ def guarded_fill_smooth(
     res = None if body.residuals is None else np.array(body.residuals, dtype=np.float64)
     relabelled = np.zeros((t, n), dtype=bool)
     swaps = []
-    if repair_swaps and n >= 2:
+    if settings.repair_swaps and n >= 2:
         swaps = find_label_swaps(pos, neighbours, candidates=measured)
         for i, j, frames in swaps:
             pos[frames, i], pos[frames, j] = p0[frames, j], p0[frames, i]
@@ -218,7 +248,7 @@ def guarded_fill_smooth(
         # a swapped-in sample is measured data, not the column's own
         measured = ~np.isnan(pos[..., 0]) & ~prior & ~relabelled
     outliers = np.zeros((t, n), dtype=bool)
-    if remove_spikes:
+    if settings.remove_spikes:
         outliers = find_spikes(pos, neighbours, candidates=measured)
         pos[outliers] = np.nan
         measured &= ~outliers
@@ -228,15 +258,15 @@ def guarded_fill_smooth(
         # the final unfilled count (after continuity) is what the caller reports
         warnings.simplefilter("ignore", SkincapWarning)
         filled_pos, fill_mask = fill_gaps(
-            work, method=method, neighbours=neighbours, rigid_blend=rigid_blend, progress=progress
+            work, settings.fill, neighbours=neighbours, progress=progress
         )
     noise = measurement_noise(np.where(measured[..., None], pos, np.nan))
-    if smooth:
+    if settings.smooth.enabled:
         filled_pos = smooth_local(
             filled_pos,
             neighbours,
-            lam=lam,
-            iterations=iterations,
+            lam=settings.smooth.lam,
+            iterations=settings.smooth.iterations,
             mask=measured,
             max_move=_noise_bound(noise),
         )

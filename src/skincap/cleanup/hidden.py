@@ -13,10 +13,13 @@ again.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from skincap.cleanup.local_frames import estimate_missing
 from skincap.cleanup.merge import neighbour_spacing
+from skincap.cleanup.settings import HiddenSettings
 from skincap.cleanup.surface import MarkerSurface
 from skincap.errors import ValidationError
 from skincap.geometry.rigid import fit_rigid
@@ -252,25 +255,296 @@ def _continues_known(
     return bool(np.any(dist <= radius))
 
 
+class _Leftovers(NamedTuple):
+    """The leftover columns of the first merge: ``left`` (T, L, 3) metres (NaN where
+    missing), ``present`` (T, L) bool, ``frames`` (L,) frames present."""
+
+    left: np.ndarray
+    present: np.ndarray
+    frames: np.ndarray
+
+
+class _Candidates(NamedTuple):
+    """Leftover columns long enough to judge, with their skin neighbourhood.
+
+    ``cols`` (C,) columns of ``left``; ``mid`` (C,) middle present frame; ``here``
+    (C, 3) metres, the sample there; ``nb`` (C, k) the ``k`` markers nearest to it
+    there (measured or estimated); ``spacing`` (C,) metres, their median spacing;
+    ``d_nb`` (C, k) metres, their distances to it there.
+    """
+
+    cols: np.ndarray
+    mid: np.ndarray
+    here: np.ndarray
+    nb: np.ndarray
+    spacing: np.ndarray
+    d_nb: np.ndarray
+
+
+def _neighbourhoods(
+    frags: _Leftovers, est: np.ndarray, spacing: np.ndarray, settings: HiddenSettings
+) -> _Candidates | None:
+    """Step 1: the candidates (at least ``min_frames`` frames) and their neighbourhoods;
+    None when none has ``k`` known neighbours."""
+    left, present, count = frags
+    k = settings.k
+    cand = np.flatnonzero(count >= settings.min_frames)
+    if cand.size == 0 or est.shape[1] < k:
+        return None
+    order = np.cumsum(present[:, cand], axis=0)  # (T, Cc)
+    mid = np.argmax(order >= ((count[cand] + 1) // 2)[None, :], axis=0)  # (Cc,)
+    here = left[mid, cand]  # (Cc, 3)
+    d_mid = np.linalg.norm(est[mid] - here[:, None, :], axis=2)  # (Cc, N)
+    d_mid = np.where(np.isfinite(d_mid), d_mid, np.inf)
+    nb = np.argsort(d_mid, axis=1, kind="stable")[:, :k]  # (Cc, k)
+    has_k = np.isfinite(np.take_along_axis(d_mid, nb, axis=1)).all(axis=1)
+    s = np.nanmedian(np.where(np.isfinite(spacing[nb]), spacing[nb], np.nan), axis=1)
+    has_k &= np.isfinite(s) & (s > 0)
+    if not has_k.any():
+        return None
+    d_nb = np.take_along_axis(d_mid[has_k], nb[has_k], axis=1)  # (C, k)
+    return _Candidates(cand[has_k], mid[has_k], here[has_k], nb[has_k], s[has_k], d_nb)
+
+
+def _ride_with_skin(
+    frags: _Leftovers, est: np.ndarray, c: _Candidates
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Step 2: how each candidate rides with its neighbourhood over its whole span.
+
+    Every frame's neighbourhood is fitted rigidly to the middle frame's. Returns, per
+    candidate (C,): the worst spread (metres the carried fragment strays from its
+    middle-frame sample), the worst fit residual (metres), the clearance (nearest
+    approach to a neighbour, metres) and the frames fitted.
+    """
+    rc, rt = np.nonzero(frags.present[:, c.cols].T)  # rows (candidate, frame)
+    src = est[rt[:, None], c.nb[rc]]  # (R, k, 3), NaN where the neighbour is unknown
+    dst = est[c.mid[rc][:, None], c.nb[rc]]  # (R, k, 3)
+    rot, tr = fit_rigid(src, dst)
+    moved = np.einsum("rij,rkj->rki", rot, src) + tr[:, None]
+    resid = np.nanmean(np.linalg.norm(moved - dst, axis=2), axis=1) if src.size else np.zeros(0)
+    frag = frags.left[rt, c.cols[rc]]  # (R, 3)
+    carried = np.einsum("rij,rj->ri", rot, frag) + tr
+    dev = np.linalg.norm(carried - c.here[rc], axis=1)
+    near = np.linalg.norm(src - frag[:, None], axis=2)
+    near = np.min(np.where(np.isfinite(near), near, np.inf), axis=1)
+    bad = ~np.isfinite(dev) | ~np.isfinite(resid)
+    worst = np.zeros((2, c.cols.size))
+    np.maximum.at(worst[0], rc, np.where(bad, np.inf, dev))
+    np.maximum.at(worst[1], rc, np.where(bad, np.inf, resid))
+    clearance = np.full(c.cols.size, np.inf)
+    np.minimum.at(clearance, rc, near)
+    fitted = np.bincount(rc[~bad], minlength=c.cols.size)
+    return worst[0], worst[1], clearance, fitted
+
+
+def _has_unmeasured_rival(
+    frags: _Leftovers,
+    est: np.ndarray,
+    meas_pos: np.ndarray,
+    measured: np.ndarray,
+    c: _Candidates,
+    settings: HiddenSettings,
+) -> np.ndarray:
+    """Step 3: (C,) bool, a known marker within ``rival_radius`` in the middle frame,
+    never measured while the candidate is and not ruled out in time, could own it."""
+    rc, rt = np.nonzero(frags.present[:, c.cols].T)
+    seen_with = np.zeros(c.nb.shape, dtype=bool)
+    np.logical_or.at(seen_with, rc, measured[rt[:, None], c.nb[rc]])
+    riv_c, riv_j = np.nonzero(~seen_with & (c.d_nb <= settings.rival_radius * c.spacing[:, None]))
+    if settings.rule_out_gap > 0 and riv_c.size:
+        # a rival measured next to the fragment in time and elsewhere is not its owner
+        out = np.array(
+            [
+                _ruled_out(
+                    est,
+                    meas_pos[:, c.nb[i, j]],
+                    frags.left[:, c.cols[i]],
+                    c.nb[i],
+                    settings.rule_out_gap,
+                    settings.rule_out_radius * c.spacing[i],
+                )
+                for i, j in zip(riv_c.tolist(), riv_j.tolist(), strict=True)
+            ],
+            dtype=bool,
+        )
+        riv_c = riv_c[~out]
+    rival = np.zeros(c.cols.size, dtype=bool)
+    rival[riv_c] = True
+    return rival
+
+
+def _accepted(
+    frags: _Leftovers,
+    est: np.ndarray,
+    known: np.ndarray,
+    measured: np.ndarray,
+    c: _Candidates,
+    ride: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray],
+    rival: np.ndarray,
+    settings: HiddenSettings,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 4: the candidates taken for skin markers (strict test and not a rope link,
+    or the loose test), clear of known markers, without a rival and not continuing a
+    known marker. Returns their indices into ``c`` (G,), and (C,) bool ``strict`` and
+    ``common`` (passed clearance and rivals; False where it continues a known marker)."""
+    spread, fit, clearance, fitted = ride
+    s, count = c.spacing, frags.frames[c.cols]
+    strict = (spread <= settings.max_spread * s) & (fit <= settings.max_fit * s)
+    loose = (
+        ~strict
+        & (spread <= settings.loose_spread * s)
+        & (fit <= settings.loose_spread * s)
+        & (spread <= settings.spread_ratio * fit)
+        & (count >= settings.loose_min_frames)
+    )
+    common = (clearance >= settings.min_clearance * s) & (2 * fitted >= count) & ~rival
+    if not ((strict | loose) & common).any():
+        return np.zeros(0, dtype=np.int64), strict, common
+    g = np.flatnonzero(strict & common)
+    chain = _in_chain(frags.left, frags.present, c.cols[g], c.mid[g], s[g], settings.min_frames)
+    g = np.sort(np.concatenate([g[~chain], np.flatnonzero(loose & common)]))
+    if settings.rule_out_gap > 0 and g.size:
+        cont = np.array(
+            [
+                _continues_known(
+                    est,
+                    known,
+                    measured,
+                    frags.left[:, c.cols[i]],
+                    c.nb[i],
+                    settings.rule_out_gap,
+                    settings.rule_out_radius * s[i],
+                )
+                for i in g.tolist()
+            ],
+            dtype=bool,
+        )
+        common[g[cont]] = False  # never grown into a group either
+        g = g[~cont]
+    return g, strict, common
+
+
+def _clear_in_reference(
+    frags: _Leftovers,
+    est: np.ndarray,
+    meas_pos: np.ndarray,
+    measured: np.ndarray,
+    surface: MarkerSurface,
+    c: _Candidates,
+    g: np.ndarray,
+    settings: HiddenSettings,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Step 5: each accepted fragment carried into the reference pose by its
+    neighbourhood, and dropped when a known marker never measured with it sits within
+    ``rival_radius`` there (unless ruled out in time). Returns the kept ``g`` (G',)
+    and their reference-pose positions (G', 3) metres."""
+    ref = surface.reference
+    r_rot, r_tr = fit_rigid(est[c.mid[g][:, None], c.nb[g]], ref[c.nb[g]])
+    at_ref = np.einsum("gij,gj->gi", r_rot, c.here[g]) + r_tr
+    keep = np.isfinite(at_ref).all(axis=1)
+    g, at_ref = g[keep], at_ref[keep]
+    present = frags.present[:, c.cols[g]]
+    with_g = present.T.astype(np.float64) @ measured.astype(np.float64)  # (G, N)
+    d_ref = np.linalg.norm(ref[None, :, :] - at_ref[:, None, :], axis=2)  # (G, N), NaN unknown
+    radius = settings.rival_radius * c.spacing[g][:, None]
+    near_ref = np.where(np.isfinite(d_ref), d_ref, np.inf) <= radius
+    rg, rn = np.nonzero(near_ref & (with_g == 0))
+    if settings.rule_out_gap > 0 and rg.size:
+        out = np.array(
+            [
+                _ruled_out(
+                    est,
+                    meas_pos[:, b],
+                    frags.left[:, c.cols[g[a]]],
+                    c.nb[g[a]],
+                    settings.rule_out_gap,
+                    settings.rule_out_radius * c.spacing[g[a]],
+                )
+                for a, b in zip(rg.tolist(), rn.tolist(), strict=True)
+            ],
+            dtype=bool,
+        )
+        rg = rg[~out]
+    keep = np.ones(g.size, dtype=bool)
+    keep[rg] = False
+    return g[keep], at_ref[keep]
+
+
+class _Groups(NamedTuple):
+    """One entry per new marker: member columns of the merged capture (>= N, seed
+    first), the frames taken (T,) bool and the samples so far (T, 3) metres."""
+
+    members: list[list[int]]
+    taken: list[np.ndarray]
+    track: list[np.ndarray]
+
+
+def _group_into_markers(
+    frags: _Leftovers,
+    est: np.ndarray,
+    c: _Candidates,
+    g: np.ndarray,
+    at_ref: np.ndarray,
+    strict: np.ndarray,
+    n: int,
+    settings: HiddenSettings,
+) -> _Groups:
+    """Step 6: the accepted fragments grouped into markers, seeds first (strict ones,
+    each kind longest first); see :func:`find_hidden_markers`."""
+    left, present, count = frags
+    cols = c.cols[g]
+    s = c.spacing
+    seeds: list[int] = []
+    groups = _Groups([], [], [])
+    order = np.lexsort((-count[cols], ~strict[g]))
+    for j in order.tolist():
+        dist = [float(np.linalg.norm(at_ref[j] - at_ref[sd])) / s[g[sd]] for sd in seeds]
+        apart = [not np.any(groups.taken[q] & present[:, cols[j]]) for q in range(len(seeds))]
+        near_seed = [q for q, d in enumerate(dist) if d <= settings.group_radius]
+        if (
+            len(near_seed) == 1
+            and apart[near_seed[0]]
+            and _joins_in_time(
+                est,
+                left[:, cols[j]],
+                groups.track[near_seed[0]],
+                c.nb[g[j]],
+                settings.group_radius * s[g[j]],
+            )
+        ):
+            q = near_seed[0]
+            groups.members[q].append(int(cols[j]) + n)
+            groups.taken[q] |= present[:, cols[j]]
+            groups.track[q] = np.where(present[:, cols[j], None], left[:, cols[j]], groups.track[q])
+        elif (
+            count[cols[j]] >= settings.min_seed_frames
+            and not near_seed
+            and not any(
+                d <= settings.rival_radius
+                and a
+                and not _ruled_out(
+                    est,
+                    groups.track[q],
+                    left[:, cols[j]],
+                    c.nb[g[j]],
+                    settings.rule_out_gap,
+                    settings.rule_out_radius * s[g[j]],
+                )
+                for q, (d, a) in enumerate(zip(dist, apart, strict=True))
+            )
+        ):
+            seeds.append(j)
+            groups.members.append([int(cols[j]) + n])
+            groups.taken.append(present[:, cols[j]].copy())
+            groups.track.append(left[:, cols[j]].copy())
+        # else ambiguous: it could be a seed's marker or a new one; left over
+    return groups
+
+
 def find_hidden_markers(
     merged: MarkerSet,
     surface: MarkerSurface,
-    *,
-    k: int = 8,
-    min_frames: int = 10,
-    max_spread: float = 0.1,
-    max_fit: float = 0.1,
-    min_clearance: float = 0.45,
-    group_radius: float = 0.5,
-    rival_radius: float = 1.5,
-    loose_spread: float = 0.5,
-    spread_ratio: float = 2.0,
-    loose_min_frames: int = 20,
-    rule_out_gap: int = 5,
-    rule_out_radius: float = 0.7,
-    min_seed_frames: int = 15,
-    grow: bool = True,
-    grow_gap: int = 5,
+    settings: HiddenSettings = HiddenSettings(),
 ) -> list[list[int]]:
     """Leftover fragments that are skin markers hidden in the reference frame.
 
@@ -333,30 +607,9 @@ def find_hidden_markers(
         positions (T, C, 3) metres, NaN where missing.
     surface : MarkerSurface
         The surface over the first ``surface.n_markers`` columns.
-    k : int, default 8
-        Markers in a fragment's neighbourhood (at least 3).
-    min_frames : int, default 10
-        Shorter leftover columns are not considered.
-    max_spread, max_fit, min_clearance, group_radius, rival_radius : float
-        Thresholds in units of the neighbourhood's median spacing
-        (:func:`neighbour_spacing`).
-    loose_spread, rule_out_radius : float, defaults 0.5 and 0.7
-        Likewise, in spacings.
-    spread_ratio : float, default 2.0
-        Largest spread over fit residual for the long fragments above.
-    loose_min_frames : int, default 20
-        Shortest fragment taken by the looser spread test (a ghost lasts about
-        three frames).
-    rule_out_gap : int, default 5
-        Frames within which continuity in time is trusted (0: not used).
-    min_seed_frames : int, default 15
-        Shortest fragment that starts a new marker; shorter ones (at least
-        ``min_frames``) can only join one.
-    grow : bool, default True
-    grow_gap : int, default 5
-        Frames within which continuity in time extends a group. At 5 on the
-        synthetic takes (seeds 0-4) 518 more leftover samples went to their
-        hidden marker, none wrong; at 15 one 14-sample fragment went wrong.
+    settings : HiddenSettings
+        The thresholds named above (in units of the neighbourhood's median spacing,
+        :func:`neighbour_spacing`), each documented there.
 
     Returns
     -------
@@ -366,210 +619,44 @@ def find_hidden_markers(
     """
     n = surface.n_markers
     pos = merged.positions
-    t_count, c_count, _ = pos.shape
-    if k < 3 or min_frames < 1:
-        raise ValidationError(
-            f"need k >= 3 and min_frames >= 1; got k={k}, min_frames={min_frames}"
-        )
-    if c_count < n:
-        raise ValidationError(f"merged has {c_count} columns but the surface {n} markers")
+    if pos.shape[1] < n:
+        raise ValidationError(f"merged has {pos.shape[1]} columns but the surface {n} markers")
     left = pos[:, n:]
     present = np.isfinite(left).all(axis=2)  # (T, L)
-    count = present.sum(axis=0)
-    cand = np.flatnonzero(count >= min_frames)
-    if cand.size == 0 or n < k:
+    frags = _Leftovers(left, present, present.sum(axis=0))
+    if not (frags.frames >= settings.min_frames).any() or n < settings.k:
         return []
     est, _ = estimate_missing(pos[:, :n], surface, surface.reference, temporal=True)
-    spacing = neighbour_spacing(surface)
-    # middle present frame of each candidate
-    order = np.cumsum(present[:, cand], axis=0)  # (T, Cc)
-    mid = np.argmax(order >= ((count[cand] + 1) // 2)[None, :], axis=0)  # (Cc,)
-    here = left[mid, cand]  # (Cc, 3)
-    d_mid = np.linalg.norm(est[mid] - here[:, None, :], axis=2)  # (Cc, N)
-    d_mid = np.where(np.isfinite(d_mid), d_mid, np.inf)
-    nb = np.argsort(d_mid, axis=1, kind="stable")[:, :k]  # (Cc, k)
-    has_k = np.isfinite(np.take_along_axis(d_mid, nb, axis=1)).all(axis=1)
-    s = np.nanmedian(np.where(np.isfinite(spacing[nb]), spacing[nb], np.nan), axis=1)
-    has_k &= np.isfinite(s) & (s > 0)
-    cand, mid, here, nb, s = cand[has_k], mid[has_k], here[has_k], nb[has_k], s[has_k]
-    if cand.size == 0:
+    cands = _neighbourhoods(frags, est, neighbour_spacing(surface), settings)
+    if cands is None:
         return []
-    rc, rt = np.nonzero(present[:, cand].T)  # rows (candidate, frame)
-    src = est[rt[:, None], nb[rc]]  # (R, k, 3), NaN where the neighbour is unknown
-    dst = est[mid[rc][:, None], nb[rc]]  # (R, k, 3)
-    rot, tr = fit_rigid(src, dst)
-    moved = np.einsum("rij,rkj->rki", rot, src) + tr[:, None]
-    resid = np.nanmean(np.linalg.norm(moved - dst, axis=2), axis=1) if src.size else np.zeros(0)
-    frag = left[rt, cand[rc]]  # (R, 3)
-    carried = np.einsum("rij,rj->ri", rot, frag) + tr
-    dev = np.linalg.norm(carried - here[rc], axis=1)
-    near = np.linalg.norm(src - frag[:, None], axis=2)
-    near = np.min(np.where(np.isfinite(near), near, np.inf), axis=1)
-    bad = ~np.isfinite(dev) | ~np.isfinite(resid)
-    worst = np.zeros((3, cand.size))
-    np.maximum.at(worst[0], rc, np.where(bad, np.inf, dev))
-    np.maximum.at(worst[1], rc, np.where(bad, np.inf, resid))
-    clearance = np.full(cand.size, np.inf)
-    np.minimum.at(clearance, rc, near)
-    fitted = np.bincount(rc[~bad], minlength=cand.size)
-    # a known marker near it that is never measured while it is could own it
     measured = np.isfinite(pos[:, :n]).all(axis=2)  # (T, N)
-    seen_with = np.zeros((cand.size, k), dtype=bool)
-    np.logical_or.at(seen_with, rc, measured[rt[:, None], nb[rc]])
-    d_nb = np.take_along_axis(d_mid[has_k], nb, axis=1)  # (Cc, k)
-    riv_c, riv_j = np.nonzero(~seen_with & (d_nb <= rival_radius * s[:, None]))
     # (T, N, 3) the known markers' measured samples only
     meas_pos = np.where(measured[..., None], pos[:, :n], np.nan)
-    if rule_out_gap > 0 and riv_c.size:
-        # a rival measured next to the fragment in time and elsewhere is not its owner
-        out = np.array(
-            [
-                _ruled_out(
-                    est,
-                    meas_pos[:, nb[c, j]],
-                    left[:, cand[c]],
-                    nb[c],
-                    rule_out_gap,
-                    rule_out_radius * s[c],
-                )
-                for c, j in zip(riv_c.tolist(), riv_j.tolist(), strict=True)
-            ],
-            dtype=bool,
-        )
-        riv_c = riv_c[~out]
-    rival = np.zeros(cand.size, dtype=bool)
-    rival[riv_c] = True
-    strict = (worst[0] <= max_spread * s) & (worst[1] <= max_fit * s)
-    loose = (
-        ~strict
-        & (worst[0] <= loose_spread * s)
-        & (worst[1] <= loose_spread * s)
-        & (worst[0] <= spread_ratio * worst[1])
-        & (count[cand] >= loose_min_frames)
-    )
-    common = (clearance >= min_clearance * s) & (2 * fitted >= count[cand]) & ~rival
-    good = (strict | loose) & common
-    if not good.any():
-        return []
-    g = np.flatnonzero(strict & common)
-    g = g[~_in_chain(left, present, cand[g], mid[g], s[g], min_frames)]
-    g = np.sort(np.concatenate([g, np.flatnonzero(loose & common)]))
-    if rule_out_gap > 0 and g.size:
-        cont = np.array(
-            [
-                _continues_known(
-                    est,
-                    pos[:, :n],
-                    measured,
-                    left[:, cand[i]],
-                    nb[i],
-                    rule_out_gap,
-                    rule_out_radius * s[i],
-                )
-                for i in g.tolist()
-            ],
-            dtype=bool,
-        )
-        common[g[cont]] = False  # never grown into a group either
-        g = g[~cont]
+    ride = _ride_with_skin(frags, est, cands)
+    rival = _has_unmeasured_rival(frags, est, meas_pos, measured, cands, settings)
+    g, strict, common = _accepted(frags, est, pos[:, :n], measured, cands, ride, rival, settings)
     if g.size == 0:
         return []
-    # each accepted fragment carried into the reference pose by its neighbourhood
-    ref = surface.reference
-    r_rot, r_tr = fit_rigid(est[mid[g][:, None], nb[g]], ref[nb[g]])
-    at_ref = np.einsum("gij,gj->gi", r_rot, here[g]) + r_tr
-    keep = np.isfinite(at_ref).all(axis=1)
-    g, at_ref = g[keep], at_ref[keep]
-    # the same rival test in the reference pose, against every known marker there
-    with_g = present[:, cand[g]].T.astype(np.float64) @ measured.astype(np.float64)  # (G, N)
-    d_ref = np.linalg.norm(ref[None, :, :] - at_ref[:, None, :], axis=2)  # (G, N), NaN unknown
-    near_ref = np.where(np.isfinite(d_ref), d_ref, np.inf) <= rival_radius * s[g][:, None]
-    rg, rn = np.nonzero(near_ref & (with_g == 0))
-    if rule_out_gap > 0 and rg.size:
-        out = np.array(
-            [
-                _ruled_out(
-                    est,
-                    meas_pos[:, b],
-                    left[:, cand[g[a]]],
-                    nb[g[a]],
-                    rule_out_gap,
-                    rule_out_radius * s[g[a]],
-                )
-                for a, b in zip(rg.tolist(), rn.tolist(), strict=True)
-            ],
-            dtype=bool,
-        )
-        rg = rg[~out]
-    keep = np.ones(g.size, dtype=bool)
-    keep[rg] = False
-    g, at_ref = g[keep], at_ref[keep]
-    cols = cand[g]
-    seeds: list[int] = []
-    groups: list[list[int]] = []
-    taken: list[np.ndarray] = []
-    track: list[np.ndarray] = []  # (T, 3) each group's samples so far
-    # seeds: fragments that passed the strict test first (their carry into the
-    # reference pose is the surer), each kind longest first
-    order = np.lexsort((-count[cols], ~strict[g]))
-    for j in order.tolist():
-        dist = [float(np.linalg.norm(at_ref[j] - at_ref[sd])) / s[g[sd]] for sd in seeds]
-        apart = [not np.any(taken[q] & present[:, cols[j]]) for q in range(len(seeds))]
-        near_seed = [q for q, d in enumerate(dist) if d <= group_radius]
-        if (
-            len(near_seed) == 1
-            and apart[near_seed[0]]
-            and _joins_in_time(
-                est,
-                left[:, cols[j]],
-                track[near_seed[0]],
-                nb[g[j]],
-                group_radius * s[g[j]],
-            )
-        ):
-            q = near_seed[0]
-            groups[q].append(int(cols[j]) + n)
-            taken[q] |= present[:, cols[j]]
-            track[q] = np.where(present[:, cols[j], None], left[:, cols[j]], track[q])
-        elif (
-            count[cols[j]] >= min_seed_frames
-            and not near_seed
-            and not any(
-                d <= rival_radius
-                and a
-                and not _ruled_out(
-                    est,
-                    track[q],
-                    left[:, cols[j]],
-                    nb[g[j]],
-                    rule_out_gap,
-                    rule_out_radius * s[g[j]],
-                )
-                for q, (d, a) in enumerate(zip(dist, apart, strict=True))
-            )
-        ):
-            seeds.append(j)
-            groups.append([int(cols[j]) + n])
-            taken.append(present[:, cols[j]].copy())
-            track.append(left[:, cols[j]].copy())
-        # else ambiguous: it could be a seed's marker or a new one; left over
-    if grow and groups:
+    g, at_ref = _clear_in_reference(frags, est, meas_pos, measured, surface, cands, g, settings)
+    groups = _group_into_markers(frags, est, cands, g, at_ref, strict, n, settings)
+    if settings.grow and groups.members:
         _grow_in_time(
-            groups,
-            track,
-            taken,
+            groups.members,
+            groups.track,
+            groups.taken,
             est,
             left,
             present,
-            cand,
-            nb,
-            s,
+            cands.cols,
+            cands.nb,
+            cands.spacing,
             common,
             n,
-            grow_gap,
-            group_radius,
+            settings.grow_gap,
+            settings.group_radius,
         )
-    return groups
+    return groups.members
 
 
 def _grow_in_time(

@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skincap._arrays import Progress
+from skincap._arrays import Progress, as_trajectories
 from skincap.cleanup.surface import MarkerSurface
 from skincap.errors import ValidationError
 from skincap.geometry.rigid import fit_rigid
@@ -257,9 +257,7 @@ def local_reference_coordinates(reference: np.ndarray, surface: MarkerSurface) -
 
 
 def _check_positions(positions: np.ndarray) -> np.ndarray:
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[2] != 3:
-        raise ValidationError(f"positions must have shape (T, N, 3); got {pos.shape}")
+    pos = as_trajectories(positions)
     if np.isinf(pos).any():
         raise ValidationError("positions must not contain inf (use NaN for missing)")
     return pos

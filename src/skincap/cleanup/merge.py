@@ -23,12 +23,13 @@ and passes repeat until nothing changes.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from skincap._arrays import Progress
+from skincap._arrays import Progress, missing_runs
 from skincap.cleanup.local_frames import estimate_missing, neighbour_table
+from skincap.cleanup.settings import MergeSettings
 from skincap.cleanup.surface import MarkerSurface
 from skincap.errors import ValidationError
 from skincap.geometry.rigid import fit_rigid
@@ -294,27 +295,330 @@ def _rivals(
     return np.concatenate([table, near], axis=1), np.concatenate([valid, near_ok], axis=1)
 
 
+class _Runs(NamedTuple):
+    """Every contiguous run of a fragment column: one unlabelled trajectory each.
+
+    ``column`` (F,) the column of ``markers`` holding run f, ``start``/``end`` (F,) its
+    frames ``[start, end)``, ``present`` (T, F) bool, ``positions`` (T, F, 3) metres
+    (NaN outside the run), ``per_column`` (Fc,) runs in each fragment column,
+    ``frag_cols`` (Fc,) the fragment columns.
+    """
+
+    column: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
+    present: np.ndarray
+    positions: np.ndarray
+    per_column: np.ndarray
+    frag_cols: np.ndarray
+
+    @property
+    def length(self) -> np.ndarray:
+        return self.end - self.start
+
+
+def _fragment_runs(pos: np.ndarray, frag_cols: np.ndarray) -> _Runs:
+    """Step 1: the runs of the fragment columns (a gappy ``*N`` column holds several)."""
+    t_count = pos.shape[0]
+    col_present = np.isfinite(pos[:, frag_cols]).all(axis=2)  # (T, Fc)
+    # runs of *present* samples, sorted by column then start
+    run_col, run_start, run_len = missing_runs(col_present)
+    run_end = run_start + run_len
+    frags = frag_cols[run_col]  # (F,) column of each run
+    frames_idx = np.arange(t_count)[:, None]
+    present = (frames_idx >= run_start[None, :]) & (frames_idx < run_end[None, :])  # (T, F)
+    positions = np.where(present[..., None], pos[:, frags], np.nan)  # (T, F, 3)
+    per_column = np.bincount(run_col, minlength=frag_cols.size)
+    return _Runs(frags, run_start, run_end, present, positions, per_column, frag_cols)
+
+
+class _Candidates(NamedTuple):
+    """Fragment-marker pairs of one pass: run ``fi`` (P,), marker ``ci`` (P,), whether
+    the pair passes the paper's tests (``ok``), and its mean distance to the marker's
+    estimate (``mean_d``, metres, inf when never estimated)."""
+
+    fi: np.ndarray
+    ci: np.ndarray
+    ok: np.ndarray
+    mean_d: np.ndarray
+
+
+def _candidates(
+    runs: _Runs,
+    open_f: np.ndarray,
+    est: np.ndarray,
+    anchor_present: np.ndarray,
+    eps1: np.ndarray,
+    eps2: np.ndarray,
+) -> _Candidates | None:
+    """Step 2: pairs of an open fragment and a missing marker near it (eq. 3).
+
+    Loose candidates (within ε² in the fragment's first frame) compete in the ambiguity
+    test; strict ones (ε¹ there, ε² in every frame estimated, estimates in at least
+    half its frames, no overlap in time with the marker) may win.
+    """
+    first = runs.start
+    f0 = first[open_f]
+    p0 = runs.positions[f0, open_f]  # (Fo, 3)
+    d0 = np.linalg.norm(est[f0] - p0[:, None, :], axis=2)  # (Fo, N), NaN if no estimate
+    cand = (d0 < np.maximum(eps1, eps2)[None, :]) & ~anchor_present[f0]
+    cf, ci = np.nonzero(cand)
+    fi = open_f[cf]
+    if fi.size == 0:
+        return None
+    strict = d0[cf, ci] < eps1[ci]
+    # no temporal overlap with the marker's current trajectory
+    free = ~_overlaps(runs.present[:, fi], anchor_present[:, ci])
+    fi, ci, strict = fi[free], ci[free], strict[free]
+    # ε² in every frame the fragment spans
+    dist = np.linalg.norm(est[:, ci] - runs.positions[:, fi], axis=2)  # (T, P)
+    checked = np.isfinite(dist)
+    within = np.where(checked, dist < eps2[ci][None, :], True).all(axis=0)
+    enough = 2 * checked.sum(axis=0) >= runs.length[fi]
+    ok = strict & within & enough
+    mean_d = np.where(checked, dist, 0.0).sum(axis=0) / np.maximum(checked.sum(axis=0), 1)
+    mean_d = np.where(checked.any(axis=0), mean_d, np.inf)
+    return _Candidates(fi, ci, ok, mean_d)
+
+
+def _accept_beyond_paper(
+    cands: _Candidates,
+    runs: _Runs,
+    est: np.ndarray,
+    anchor_present: np.ndarray,
+    surface: MarkerSurface,
+    spacing: np.ndarray,
+    rivals: tuple[np.ndarray, np.ndarray],
+    settings: MergeSettings,
+) -> np.ndarray:
+    """Step 3a: ``ok`` narrowed by the neighbour-identity margin and the prediction test
+    (``settings.neighbour_check``, ``prediction_factor``); (P,) bool."""
+    ok = cands.ok.copy()
+    if not (settings.neighbour_check and ok.any()):
+        return ok
+    fi, ci = cands.fi, cands.ci
+    okp = np.flatnonzero(ok)
+    e90_all, calibrated = _prediction_error(
+        est, anchor_present, surface, calibrate=settings.calibrate
+    )
+    d_mark, d_other, worse = _neighbour_identity_margin(
+        est,
+        anchor_present,
+        surface,
+        runs.positions,
+        runs.present,
+        fi[okp],
+        ci[okp],
+        rivals,
+        calibrated,
+    )
+    # short fragments are weak evidence: the margin grows as they shrink
+    length = runs.length[fi[okp]]
+    short_frames = settings.short_frames
+    margin = settings.rival_ratio * np.minimum(1.0, length / max(short_frames, 1))
+    by_fit = d_mark < margin * d_other
+    by_time = (cands.mean_d[okp] < 0.5 * margin * d_other) & (d_mark < 2.5 * margin * d_other)
+    ok[okp] = ~worse & (by_fit | by_time)
+    if settings.prediction_factor is not None:
+        e90 = e90_all[ci[okp]]
+        floor = 0.1 * spacing[ci[okp]]
+        scale = np.where(np.isfinite(e90), np.maximum(e90, floor), np.inf)
+        ok[okp] &= d_mark <= settings.prediction_factor * scale
+        # a short fragment is too little evidence for a marker its
+        # neighbours predict poorly (a ghost near the estimate fits as well)
+        short = length < short_frames
+        ok[okp] &= ~short | (np.nan_to_num(e90, nan=np.inf) <= 0.2 * spacing[ci[okp]])
+    return ok
+
+
+def _clear_winners(
+    cands: _Candidates, ok: np.ndarray, ambiguity_ratio: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Step 3b: per fragment, its best valid match when clearly closer than any other
+    marker whose estimate comes near (valid or not). Returns run, marker and mean
+    distance (W,) of the winners."""
+    order = np.lexsort((cands.mean_d, cands.fi))
+    fi, ci, mean_d, ok = cands.fi[order], cands.ci[order], cands.mean_d[order], ok[order]
+    head = np.ones(fi.size, dtype=bool)
+    head[1:] = fi[1:] != fi[:-1]
+    same_next = np.zeros(fi.size, dtype=bool)
+    same_next[:-1] = fi[1:] == fi[:-1]
+    second = np.full(fi.size, np.inf)
+    second[:-1] = np.where(same_next[:-1], mean_d[1:], np.inf)
+    clear = head & ok & (mean_d < ambiguity_ratio * second)
+    return fi[clear], ci[clear], mean_d[clear]
+
+
+@dataclass
+class _MergeState:
+    """What the passes build: the anchors' samples so far ``cur`` (T, N, 3), their
+    residuals and invented flags (T, N) (None when the input has none), and the anchor
+    index each run joined, ``target`` (F,) int, -1 while open."""
+
+    cur: np.ndarray
+    res: np.ndarray | None
+    inv: np.ndarray | None
+    target: np.ndarray
+
+
+def _join_chains(
+    state: _MergeState,
+    markers: MarkerSet,
+    runs: _Runs,
+    winners: tuple[np.ndarray, np.ndarray, np.ndarray],
+    anchor_present: np.ndarray,
+) -> int:
+    """Step 3c: per marker, closest first, join the winners that do not overlap (a
+    chain of fragments may join one marker in one pass); in place on ``state``.
+    Returns how many joined."""
+    fi, ci, mean_d = winners
+    order = np.argsort(mean_d, kind="stable")
+    taken = anchor_present.copy()
+    merged_now = 0
+    for f, i in zip(fi[order].tolist(), ci[order].tolist(), strict=True):
+        frames = runs.present[:, f]
+        if np.any(taken[frames, i]):
+            continue
+        taken[frames, i] = True
+        state.target[f] = i
+        state.cur[frames, i] = runs.positions[frames, f]
+        col = runs.column[f]
+        if state.res is not None and markers.residuals is not None:
+            state.res[frames, i] = markers.residuals[frames, col]
+        if state.inv is not None and markers.invented is not None:
+            state.inv[frames, i] = markers.invented[frames, col]
+        merged_now += 1
+    return merged_now
+
+
+def _assemble(
+    markers: MarkerSet, anchors: np.ndarray, runs: _Runs, state: _MergeState
+) -> tuple[MarkerSet, np.ndarray]:
+    """Step 4: anchor columns then the leftover columns with their unmerged runs
+    (all-NaN columns dropped). Returns the capture and the input columns kept."""
+    pos = markers.positions
+    t_count, c_count, _ = pos.shape
+    gone = runs.present[:, state.target >= 0]  # (T, Fm)
+    removed = np.zeros((t_count, c_count), dtype=bool)
+    np.logical_or.at(removed.T, runs.column[state.target >= 0], gone.T)
+    left = np.unique(runs.column[state.target < 0])
+    keep_cols = np.concatenate([anchors, left])
+    rest = np.where(removed[:, left, None], np.nan, pos[:, left])
+    out_res = (
+        None
+        if state.res is None or markers.residuals is None
+        else np.concatenate(
+            [state.res, np.where(removed[:, left], np.nan, markers.residuals[:, left])], 1
+        )
+    )
+    out_inv = (
+        None
+        if state.inv is None or markers.invented is None
+        else np.concatenate([state.inv, markers.invented[:, left] & ~removed[:, left]], axis=1)
+    )
+    labels = list(markers.labels)
+    out = MarkerSet(
+        positions=np.concatenate([state.cur, rest], axis=1),
+        labels=[labels[c] for c in keep_cols],
+        rate=markers.rate,
+        meta=dict(markers.meta),
+        residuals=out_res,
+        invented=out_inv,
+    )
+    return out, keep_cols
+
+
+def _report(
+    labels: list[str],
+    anchors: np.ndarray,
+    runs: _Runs,
+    target: np.ndarray,
+    kept_columns: int,
+    passes: int,
+    settings: MergeSettings,
+    fragment_truth: dict[str, str] | None,
+) -> MergeReport:
+    """Step 5: Table 1's counts and the assignments, wrong merges counted with truth."""
+    col_of = {int(c): k for k, c in enumerate(runs.frag_cols.tolist())}
+    frags = runs.column
+
+    def run_name(f: int) -> str:
+        col = int(frags[f])
+        if runs.per_column[col_of[col]] == 1:
+            return labels[col]
+        return f"{labels[col]}[{int(runs.start[f])}:{int(runs.end[f])}]"
+
+    merged_runs = np.flatnonzero(target >= 0).tolist()
+    assignments = {run_name(f): labels[anchors[target[f]]] for f in merged_runs}
+    left_run = target < 0
+    wrong: int | None = None
+    left_count = int(left_run.sum())
+    left_frames: int | None = None
+    if fragment_truth is not None:
+
+        def truth(label: str) -> str:
+            return fragment_truth.get(label, label)
+
+        anchor_truth = {truth(labels[a]) for a in anchors.tolist()}
+        wrong = sum(
+            truth(labels[frags[f]]) != truth(labels[anchors[target[f]]]) for f in merged_runs
+        )
+        should = np.array(
+            [truth(labels[c]) in anchor_truth for c in frags[left_run].tolist()], dtype=bool
+        )
+        left_count = int(should.sum())
+        left_frames = int(runs.length[left_run][should].sum())
+    merged_count = len(assignments)
+    return MergeReport(
+        trajectories_before=len(labels),
+        trajectories_after=int(kept_columns),
+        fragments_before=int(frags.size),
+        fragments_after=int(left_run.sum()),
+        merged=merged_count,
+        wrongly_merged=wrong,
+        wrong_rate=None if wrong is None else (wrong / merged_count if merged_count else 0.0),
+        left_unmerged=left_count,
+        left_unmerged_frames=left_frames,
+        passes=passes,
+        alpha1=float(settings.alpha1),
+        alpha2=float(settings.alpha2),
+        assignments=assignments,
+    )
+
+
+def _check_anchors(markers: MarkerSet, surface: MarkerSurface, anchors: Any) -> np.ndarray:
+    """The anchor columns as (N,) int64, checked against the capture and the surface."""
+    c_count = markers.positions.shape[1]
+    if anchors is None:
+        anchors = np.flatnonzero([not str(lab).startswith("*") for lab in markers.labels])
+    anchors = np.asarray(anchors, dtype=np.int64)
+    n = anchors.size
+    if surface.n_markers != n:
+        raise ValidationError(
+            f"surface has {surface.n_markers} markers but {n} anchor columns were given"
+        )
+    if n and (anchors.min() < 0 or anchors.max() >= c_count or np.unique(anchors).size != n):
+        raise ValidationError(f"anchors must be distinct columns in 0..{c_count - 1}")
+    return anchors
+
+
 def merge_fragments(
     markers: MarkerSet,
     surface: MarkerSurface,
     anchors: np.ndarray | None = None,
+    settings: MergeSettings = MergeSettings(),
     *,
-    alpha1: float = 0.5,
-    alpha2: float = 0.6,
-    ambiguity_ratio: float = 0.7,
-    rival_ratio: float = 0.2,
-    calibrate: bool = True,
-    short_frames: int = 4,
-    max_passes: int = 10,
-    temporal: bool = True,
-    robust_spacing: bool = True,
-    neighbour_check: bool = True,
-    prediction_factor: float | None = 2.0,
-    min_frames: int = 2,
     fragment_truth: dict[str, str] | None = None,
     progress: Progress | None = None,
 ) -> tuple[MarkerSet, MergeReport]:
     """Merge unlabelled fragments into the markers of the marker surface.
+
+    The method is the module docstring's, run as named steps: the fragment columns'
+    runs (:func:`_fragment_runs`); then passes of estimate -> candidates
+    (:func:`_candidates`, eq. 3) -> accept (:func:`_accept_beyond_paper`,
+    :func:`_clear_winners`) -> join (:func:`_join_chains`) until nothing joins or
+    ``settings.max_passes``; then assemble the output (:func:`_assemble`) and count
+    (:func:`_report`).
 
     Parameters
     ----------
@@ -327,72 +631,21 @@ def merge_fragments(
     anchors : (N,) int, optional
         Columns of ``markers`` that are the surface's vertices. Default: every column
         whose label does not start with ``*``.
-    alpha1, alpha2 : float, default 0.5, 0.6
-        Tolerances α¹ (first frame) and α² (every frame) of eq. 3.
-    ambiguity_ratio : float, default 0.7
-        A fragment matching two markers joins the closer only when its mean distance
-        is below this fraction of the other's.
-    max_passes : int, default 10
-    min_frames : int, default 2
-        Fragments shorter than this are left unmerged. A single-frame fragment is
-        the weakest evidence there is (one distance, no motion) and on the synthetic
-        jump-rope take one in seven of them went to the wrong marker; left alone, its
-        sample is filled by the hole filler instead.
-    robust_spacing : bool, default True
-        Scale ε¹ and ε² by the median neighbour distance instead of the mean (see
-        :func:`neighbour_spacing`).
-    neighbour_check : bool, default True
-        Beyond the paper: refuse a fragment that lies nearly as close to where one
+    settings : MergeSettings
+        Tolerances and the tests beyond the paper (each field documented there).
+        Fragments shorter than ``settings.min_frames`` stay unmerged: a single-frame
+        fragment is the weakest evidence there is (one distance, no motion); left
+        alone, its sample is filled by the hole filler instead.
+        ``neighbour_check`` refuses a fragment that lies nearly as close to where one
         of the marker's *missing neighbours* should be (its estimate, or where the
         marker's neighbourhood fit puts it when it has none) as to the marker: the
         mean distance to the marker must be below ``rival_ratio`` times the mean
-        distance to the nearest missing neighbour, and no missing neighbour may be
-        nearer in any frame. A neighbour without an estimate never competes in the
-        paper's test, yet it is the likeliest owner of a fragment near a crease.
-        Left unmerged, the samples are filled by the hole filler instead.
-    rival_ratio : float, default 0.2
-        The margin of ``neighbour_check``: a fragment joins its marker only when the
-        marker's neighbourhood fit explains it five times better than any missing
-        rival does -- or, where the skin deforms and that fit is off, when the
-        marker's temporal estimate (the shape of the frames bracketing the gap)
-        explains it ten times better (half the ratio) and the fit still twice as
-        well (2.5 times the ratio). The fit's error is a fair share of the spacing
-        where the skin deforms, so a fragment of an adjacent marker missing at the
-        same time (or of one hidden in the reference frame, beside such a rival)
-        passes a margin of 0.7 (the paper's kind of ambiguity test) yet not these.
-        Measured on five synthetic jump-rope takes (300 frames seeds 0-3, 600
-        frames seed 4; ground truth, ``clean_markers``' final merge): a margin of
-        0.7 merged 291/345/341/422/515 fragments of which 0/8/4/2/11 wrongly;
-        these margins with ``calibrate`` and ``short_frames`` 302/342/311/395/515,
-        none wrongly; on two takes not used to choose them (300 frames, seeds 5
-        and 6) 1 of 269 wrongly (a neighbour's fragment at the take's last frames,
-        the marker fitted from only three measured neighbours) and none of 319.
-    calibrate : bool, default True
-        With ``neighbour_check``: the neighbourhood fit predicts the marker (and its
-        rivals) from where its neighbourhood puts it across the frames it was
-        measured in, not from its reference-pose position alone (see
-        :func:`_prediction_error`). A marker hidden in the reference frame and
-        placed there by its neighbours from another frame can sit half a spacing
-        off; its fragments then failed the margin.
-    short_frames : int, default 4
-        A fragment shorter than this is weaker evidence: its margin shrinks in
-        proportion (a two-frame fragment needs twice the margin) and, with
-        ``prediction_factor``, its marker must be predicted by its neighbours
-        within a fifth of its spacing (90th percentile). Ghosts are mostly one to
-        three frames long and, riding a nearby marker, can sit near a missing
-        marker's estimate for a frame or two.
-    prediction_factor : float or None, default 2.0
-        Beyond the paper, with ``neighbour_check``: a fragment's mean distance to
-        where the marker's neighbourhood fit puts it must stay within this many times
-        the fit's usual error *for this marker* -- the 90th percentile of that
-        distance over the frames where the marker was measured, at least a tenth of
-        its spacing. Where the skin barely deforms the fit is tight and a nearby
-        marker's fragment (one hidden in the reference frame, or a neighbour missing
-        at the same time) no longer fits inside the fixed ε². None: off.
-    temporal : bool, default True
-        Estimate from the neighbourhood shape in the frames bracketing each gap
-        (see :func:`~skincap.cleanup.local_frames.estimate_missing`) instead of the
-        reference pose alone; fewer wrong merges around creases (elbow, armpit).
+        distance to the nearest missing neighbour (or, where the skin deforms and the
+        fit is off, the temporal estimate must explain it with half that ratio and
+        the fit with 2.5 times it), and no missing neighbour may be nearer in any
+        frame. A neighbour without an estimate never competes in the paper's test,
+        yet it is the likeliest owner of a fragment near a crease. The figures that
+        chose these margins are in ``docs/results.md``.
     fragment_truth : dict of str to str, optional
         True label per fragment (and anchor) label, e.g. ``take.fragment_truth``;
         used only to count wrong merges in the report.
@@ -405,227 +658,44 @@ def merge_fragments(
         over, same frames and rate; residuals and invented flags follow their samples.
     report : MergeReport
     """
+    anchors = _check_anchors(markers, surface, anchors)
     pos = markers.positions
-    t_count, c_count, _ = pos.shape
-    labels = list(markers.labels)
-    if anchors is None:
-        anchors = np.flatnonzero([not str(lab).startswith("*") for lab in labels])
-    anchors = np.asarray(anchors, dtype=np.int64)
     n = anchors.size
-    if surface.n_markers != n:
-        raise ValidationError(
-            f"surface has {surface.n_markers} markers but {n} anchor columns were given"
-        )
-    if n and (anchors.min() < 0 or anchors.max() >= c_count or np.unique(anchors).size != n):
-        raise ValidationError(f"anchors must be distinct columns in 0..{c_count - 1}")
-    if not (
-        0 < alpha1
-        and 0 < alpha2
-        and 0 < ambiguity_ratio <= 1
-        and 0 < rival_ratio <= 1
-        and short_frames >= 1
-        and max_passes >= 1
-        and min_frames >= 1
-    ):
-        raise ValidationError(
-            "need alpha1 > 0, alpha2 > 0, 0 < ambiguity_ratio <= 1, 0 < rival_ratio <= 1, "
-            "short_frames >= 1, max_passes >= 1, "
-            "min_frames >= 1"
-        )
-    is_anchor = np.zeros(c_count, dtype=bool)
+    is_anchor = np.zeros(pos.shape[1], dtype=bool)
     is_anchor[anchors] = True
-    frag_cols = np.flatnonzero(~is_anchor)
-    # every contiguous run of a fragment column is one trajectory (a gappy *N column
-    # holds several)
-    col_present = np.isfinite(pos[:, frag_cols]).all(axis=2)  # (T, Fc)
-    pad = np.zeros((frag_cols.size, 1), dtype=np.int8)
-    step = np.diff(np.concatenate([pad, col_present.T.astype(np.int8), pad], axis=1), axis=1)
-    run_col, run_start = np.nonzero(step == 1)  # sorted by column, then frame
-    _, run_end = np.nonzero(step == -1)
-    frags = frag_cols[run_col]  # (F,) column of each run
-    frames_idx = np.arange(t_count)[:, None]
-    frag_present = (frames_idx >= run_start[None, :]) & (frames_idx < run_end[None, :])  # (T, F)
-    frag_pos = np.where(frag_present[..., None], pos[:, frags], np.nan)  # (T, F, 3)
-    runs_per_col = np.bincount(run_col, minlength=frag_cols.size)
-
-    cur = pos[:, anchors].copy()  # (T, N, 3)
-    res = None if markers.residuals is None else markers.residuals[:, anchors].copy()
-    inv = None if markers.invented is None else markers.invented[:, anchors].copy()
-    has_data = np.ones(frags.size, dtype=bool)
-    first = run_start  # (F,)
-    length = run_end - run_start
-    target = np.full(frags.size, -1, dtype=np.int64)  # anchor index each run joined
-
-    mnd = neighbour_spacing(surface, robust=robust_spacing)
-    eps1 = alpha1 * mnd  # ε¹, eq. 3 (NaN for markers without neighbours: never matched)
-    eps2 = alpha2 * mnd  # ε²
-    rivals = _rivals(surface, mnd)
+    runs = _fragment_runs(pos, np.flatnonzero(~is_anchor))
+    state = _MergeState(
+        cur=pos[:, anchors].copy(),  # (T, N, 3)
+        res=None if markers.residuals is None else markers.residuals[:, anchors].copy(),
+        inv=None if markers.invented is None else markers.invented[:, anchors].copy(),
+        target=np.full(runs.column.size, -1, dtype=np.int64),
+    )
+    spacing = neighbour_spacing(surface, robust=settings.robust_spacing)
+    eps1 = settings.alpha1 * spacing  # ε¹, eq. 3 (NaN without neighbours: never matched)
+    eps2 = settings.alpha2 * spacing  # ε²
+    rivals = _rivals(surface, spacing)
     passes = 0
-    for passes in range(1, max_passes + 1):
-        open_f = np.flatnonzero((target < 0) & has_data & (length >= min_frames))
+    for passes in range(1, settings.max_passes + 1):
+        open_f = np.flatnonzero((state.target < 0) & (runs.length >= settings.min_frames))
         if open_f.size == 0 or n == 0:
             break
-        est, _ = estimate_missing(cur, surface, surface.reference, temporal=temporal)
-        anchor_present = np.isfinite(cur).all(axis=2)  # (T, N)
-        # ε¹ at each open fragment's first frame, against every missing marker
-        f0 = first[open_f]
-        p0 = frag_pos[f0, open_f]  # (Fo, 3)
-        d0 = np.linalg.norm(est[f0] - p0[:, None, :], axis=2)  # (Fo, N), NaN if no estimate
-        # loose candidates (within ε²) compete; strict ones (ε¹, then ε² everywhere) win
-        cand = (d0 < np.maximum(eps1, eps2)[None, :]) & ~anchor_present[f0]
-        cf, ci = np.nonzero(cand)
-        fi = open_f[cf]
-        if fi.size == 0:
+        est, _ = estimate_missing(state.cur, surface, surface.reference, temporal=settings.temporal)
+        anchor_present = np.isfinite(state.cur).all(axis=2)  # (T, N)
+        cands = _candidates(runs, open_f, est, anchor_present, eps1, eps2)
+        if cands is None:
             break
-        strict = d0[cf, ci] < eps1[ci]
-        # no temporal overlap with the marker's current trajectory
-        free = ~_overlaps(frag_present[:, fi], anchor_present[:, ci])
-        fi, ci, strict = fi[free], ci[free], strict[free]
-        # ε² in every frame the fragment spans
-        dist = np.linalg.norm(est[:, ci] - frag_pos[:, fi], axis=2)  # (T, P)
-        checked = np.isfinite(dist)
-        within = np.where(checked, dist < eps2[ci][None, :], True).all(axis=0)
-        enough = 2 * checked.sum(axis=0) >= length[fi]
-        ok = strict & within & enough
-        mean_d = np.where(checked, dist, 0.0).sum(axis=0) / np.maximum(checked.sum(axis=0), 1)
-        mean_d = np.where(checked.any(axis=0), mean_d, np.inf)
-        if neighbour_check and ok.any():
-            okp = np.flatnonzero(ok)
-            e90_all, calibrated = _prediction_error(
-                est, anchor_present, surface, calibrate=calibrate
-            )
-            d_mark, d_other, worse = _neighbour_identity_margin(
-                est,
-                anchor_present,
-                surface,
-                frag_pos,
-                frag_present,
-                fi[okp],
-                ci[okp],
-                rivals,
-                calibrated,
-            )
-            # short fragments are weak evidence: the margin grows as they shrink
-            margin = rival_ratio * np.minimum(1.0, length[fi[okp]] / max(short_frames, 1))
-            by_fit = d_mark < margin * d_other
-            by_time = (mean_d[okp] < 0.5 * margin * d_other) & (d_mark < 2.5 * margin * d_other)
-            ok[okp] = ~worse & (by_fit | by_time)
-            if prediction_factor is not None:
-                e90 = e90_all[ci[okp]]
-                floor = 0.1 * mnd[ci[okp]]
-                scale = np.where(np.isfinite(e90), np.maximum(e90, floor), np.inf)
-                ok[okp] &= d_mark <= prediction_factor * scale
-                # a short fragment is too little evidence for a marker its
-                # neighbours predict poorly (a ghost near the estimate fits as well)
-                short = length[fi[okp]] < short_frames
-                ok[okp] &= ~short | (np.nan_to_num(e90, nan=np.inf) <= 0.2 * mnd[ci[okp]])
-        # per fragment: the best valid match must be clearly closer than any other
-        # marker whose estimate comes near (valid or not)
-        order = np.lexsort((mean_d, fi))
-        fi, ci, mean_d, ok = fi[order], ci[order], mean_d[order], ok[order]
-        head = np.ones(fi.size, dtype=bool)
-        head[1:] = fi[1:] != fi[:-1]
-        same_next = np.zeros(fi.size, dtype=bool)
-        same_next[:-1] = fi[1:] == fi[:-1]
-        second = np.full(fi.size, np.inf)
-        second[:-1] = np.where(same_next[:-1], mean_d[1:], np.inf)
-        clear = head & ok & (mean_d < ambiguity_ratio * second)
-        fi, ci, mean_d = fi[clear], ci[clear], mean_d[clear]
-        # chains: per marker, closest first, keep fragments that do not overlap
-        order = np.argsort(mean_d, kind="stable")
-        taken = anchor_present.copy()
-        merged_now = 0
-        for f, i in zip(fi[order].tolist(), ci[order].tolist(), strict=True):
-            frames = frag_present[:, f]
-            if np.any(taken[frames, i]):
-                continue
-            taken[frames, i] = True
-            target[f] = i
-            cur[frames, i] = frag_pos[frames, f]
-            col = frags[f]
-            if res is not None:
-                res[frames, i] = markers.residuals[frames, col]
-            if inv is not None:
-                inv[frames, i] = markers.invented[frames, col]
-            merged_now += 1
+        ok = _accept_beyond_paper(
+            cands, runs, est, anchor_present, surface, spacing, rivals, settings
+        )
+        winners = _clear_winners(cands, ok, settings.ambiguity_ratio)
+        merged_now = _join_chains(state, markers, runs, winners, anchor_present)
         if progress is not None:
-            progress(passes / max_passes, "merging fragments")
+            progress(passes / settings.max_passes, "merging fragments")
         if merged_now == 0:
             break
-
-    # leftover columns keep their unmerged runs; all-NaN columns are dropped
-    gone = frag_present[:, target >= 0]  # (T, Fm)
-    removed = np.zeros((t_count, c_count), dtype=bool)
-    np.logical_or.at(removed.T, frags[target >= 0], gone.T)
-    left_run = target < 0
-    left = np.unique(frags[left_run])
-    keep_cols = np.concatenate([anchors, left])
-    rest = np.where(removed[:, left, None], np.nan, pos[:, left])
-    out_pos = np.concatenate([cur, rest], axis=1)
-    out_res = (
-        None
-        if res is None
-        else np.concatenate(
-            [res, np.where(removed[:, left], np.nan, markers.residuals[:, left])], 1
-        )
-    )
-    out_inv = (
-        None
-        if inv is None
-        else np.concatenate([inv, markers.invented[:, left] & ~removed[:, left]], axis=1)
-    )
-    out = MarkerSet(
-        positions=out_pos,
-        labels=[labels[c] for c in keep_cols],
-        rate=markers.rate,
-        meta=dict(markers.meta),
-        residuals=out_res,
-        invented=out_inv,
-    )
-
-    col_of = {int(c): k for k, c in enumerate(frag_cols.tolist())}
-
-    def run_name(f: int) -> str:
-        col = int(frags[f])
-        if runs_per_col[col_of[col]] == 1:
-            return labels[col]
-        return f"{labels[col]}[{int(run_start[f])}:{int(run_end[f])}]"
-
-    merged_runs = np.flatnonzero(target >= 0).tolist()
-    assignments = {run_name(f): labels[anchors[target[f]]] for f in merged_runs}
-    wrong: int | None = None
-    left_count = int(left_run.sum())
-    left_frames: int | None = None
-    if fragment_truth is not None:
-        anchor_truth = {fragment_truth.get(labels[a], labels[a]) for a in anchors.tolist()}
-        wrong = sum(
-            fragment_truth.get(labels[frags[f]], labels[frags[f]])
-            != fragment_truth.get(labels[anchors[target[f]]], labels[anchors[target[f]]])
-            for f in merged_runs
-        )
-        should = np.array(
-            [
-                fragment_truth.get(labels[c], labels[c]) in anchor_truth
-                for c in frags[left_run].tolist()
-            ],
-            dtype=bool,
-        )
-        left_count = int(should.sum())
-        left_frames = int(length[left_run][should].sum())
-    merged_count = len(assignments)
-    report = MergeReport(
-        trajectories_before=int(c_count),
-        trajectories_after=int(keep_cols.size),
-        fragments_before=int(frags.size),
-        fragments_after=int(left_run.sum()),
-        merged=merged_count,
-        wrongly_merged=wrong,
-        wrong_rate=None if wrong is None else (wrong / merged_count if merged_count else 0.0),
-        left_unmerged=left_count,
-        left_unmerged_frames=left_frames,
-        passes=passes,
-        alpha1=float(alpha1),
-        alpha2=float(alpha2),
-        assignments=assignments,
+    out, keep_cols = _assemble(markers, anchors, runs, state)
+    labels = [str(lab) for lab in markers.labels]
+    report = _report(
+        labels, anchors, runs, state.target, keep_cols.size, passes, settings, fragment_truth
     )
     return out, report

@@ -2,7 +2,8 @@
 
 :func:`clean_markers` runs the four steps on a capture of labelled markers and
 unlabelled fragments and returns the cleaned :class:`~skincap.types.MarkerSet` (filled
-samples flagged in ``invented``) and a JSON-ready report. Between merging and filling,
+samples flagged in ``invented``) and a typed
+:class:`~skincap.cleanup.report.CleanReport`. Between merging and filling,
 label swaps are swapped back and spikes removed; smoothing keeps measured samples
 within their noise and fills are kept only where continuous
 (:mod:`skincap.cleanup.guarded`).
@@ -10,14 +11,22 @@ within their noise and fills are kept only where continuous
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import replace
 
 import numpy as np
 
-from skincap._arrays import Progress
-from skincap.cleanup.guarded import MAX_MOVE, MAX_MOVE_NOISE, guarded_fill_smooth
+from skincap._arrays import Progress, missing_runs
+from skincap.cleanup.guarded import MAX_MOVE, MAX_MOVE_NOISE, GuardedFill, guarded_fill_smooth
 from skincap.cleanup.hidden import find_hidden_markers
-from skincap.cleanup.merge import merge_fragments
+from skincap.cleanup.merge import MergeReport, merge_fragments
+from skincap.cleanup.report import (
+    CleanReport,
+    FillSummary,
+    HiddenReport,
+    SmoothSummary,
+    SurfaceSummary,
+)
+from skincap.cleanup.settings import CleanSettings
 from skincap.cleanup.surface import (
     MarkerSurface,
     build_marker_surface,
@@ -44,14 +53,9 @@ def invented_runs(invented: np.ndarray, labels: list[str]) -> dict[str, list[lis
     dict of str to list of [start, end)
         Only markers with at least one invented sample; frames numbered from 0.
     """
-    inv = np.asarray(invented, dtype=bool)
-    n = inv.shape[1]
-    pad = np.zeros((n, 1), dtype=np.int8)
-    step = np.diff(np.concatenate([pad, inv.T.astype(np.int8), pad], axis=1), axis=1)  # (N, T+1)
-    marker, start = np.nonzero(step == 1)  # sorted by marker, then frame
-    _, end = np.nonzero(step == -1)
+    marker, start, length = missing_runs(invented)  # runs of True, by marker then frame
     out: dict[str, list[list[int]]] = {}
-    for m, s, e in zip(marker.tolist(), start.tolist(), end.tolist(), strict=True):
+    for m, s, e in zip(marker.tolist(), start.tolist(), (start + length).tolist(), strict=True):
         out.setdefault(str(labels[m]), []).append([s, e])
     return out
 
@@ -64,27 +68,58 @@ def _surface(positions: np.ndarray, reference_frame: int) -> MarkerSurface:
     return build_marker_surface(pos, reference_frame=reference_frame)
 
 
-def _add_hidden_markers(
-    markers: MarkerSet,
-    anchors: np.ndarray,
-    merged: MarkerSet,
-    groups: list[list[int]],
-    fragment_truth: dict[str, str] | None,
-) -> tuple[MarkerSet, np.ndarray, dict[str, str] | None, dict[str, Any]]:
+def _automatic_surface(
+    markers: MarkerSet, settings: CleanSettings, progress: Progress | None
+) -> tuple[MarkerSurface, np.ndarray, int]:
+    """The marker surface over the labelled columns (and, with promotion, the fragments
+    seen in the reference frame that move with at least three skin neighbours).
+
+    Returns the surface, its columns of ``markers`` (N,) and the reference frame.
+    """
+    pos = markers.positions
+    labels = [str(lab) for lab in markers.labels]
+    labelled = np.flatnonzero([not lab.startswith("*") for lab in labels])
+    promote = settings.promote_fragments
+    if promote is None:
+        promote = labelled.size == 0
+    reference_frame = settings.reference_frame
+    if reference_frame is None:
+        reference_frame = choose_reference_frame(pos[:, labelled] if labelled.size else pos)
+    t_count = pos.shape[0]
+    if not 0 <= reference_frame < t_count:
+        raise ValidationError(f"reference_frame {reference_frame} is outside 0..{t_count - 1}")
+    seen = np.isfinite(pos[reference_frame]).all(axis=1)
+    fragment = np.array([lab.startswith("*") for lab in labels], dtype=bool)
+    promoted = np.flatnonzero(fragment & seen) if promote else np.zeros(0, int)
+    anchors = np.concatenate([labelled, promoted])
+    if progress is not None:
+        progress(0.0, "building the marker surface")
+    surface = _surface(pos[:, anchors], reference_frame)
+    if promoted.size:
+        # a promoted fragment stays only when it moves with >= 3 skin neighbours
+        # (rope markers and ghosts seen in the reference frame do not)
+        cv, overlap = pair_distance_cv(pos[:, anchors], surface.edges)
+        firm = surface.edges[(overlap >= 10) & (cv <= 0.2)]
+        firm_deg = np.bincount(firm.ravel(), minlength=anchors.size)
+        keep = np.ones(anchors.size, dtype=bool)
+        keep[labelled.size :] = firm_deg[labelled.size :] >= 3
+        if not keep.all():
+            anchors = anchors[keep]
+            surface = _surface(pos[:, anchors], reference_frame)
+    return surface, anchors, reference_frame
+
+
+def _hidden_columns(
+    markers: MarkerSet, merged: MarkerSet, groups: list[list[int]]
+) -> tuple[MarkerSet, dict[str, list[str]]]:
     """The capture with one new marker column per group of leftover fragments.
 
     ``groups`` index columns of ``merged`` (a first merge's output); each group's
     samples move out of their fragment columns into a new column ``U<n>`` named after
     the group's first (longest) fragment ``*<n>``, appended after the capture's
-    columns and to ``anchors``. Returns the new capture, anchors, the truth extended
-    with each new label (its first fragment's truth) and the ``hidden`` report.
+    columns. Returns the new capture and new label -> its fragments' labels.
     """
     labels = [str(lab) for lab in markers.labels]
-    hidden: dict[str, Any] = {"enabled": True, "new_markers": len(groups), "markers": {}}
-    if not groups:
-        if fragment_truth is not None:
-            hidden.update(recovered=0, wrong_markers=0, wrong_fragments=0)
-        return markers, anchors, fragment_truth, hidden
     column_of = {lab: c for c, lab in enumerate(labels)}
     pos = markers.positions.copy()
     res = None if markers.residuals is None else markers.residuals.copy()
@@ -93,7 +128,7 @@ def _add_hidden_markers(
     new_pos = np.full((t_count, len(groups), 3), np.nan)
     new_res = None if res is None else np.full((t_count, len(groups)), np.nan)
     new_inv = None if inv is None else np.zeros((t_count, len(groups)), dtype=bool)
-    new_labels: list[str] = []
+    new_markers: dict[str, list[str]] = {}
     taken = set(labels)
     for g, members in enumerate(groups):
         names = [str(merged.labels[m]) for m in members]
@@ -102,8 +137,7 @@ def _add_hidden_markers(
         while name in taken:
             name, k = f"{base}_{k}", k + 1
         taken.add(name)
-        new_labels.append(name)
-        hidden["markers"][name] = names
+        new_markers[name] = names
         for m, lab in zip(members, names, strict=True):
             col = column_of[lab]
             rows = np.isfinite(merged.positions[:, m]).all(axis=1)
@@ -117,33 +151,68 @@ def _add_hidden_markers(
                 inv[rows, col] = False
     out = MarkerSet(
         positions=np.concatenate([pos, new_pos], axis=1),
-        labels=labels + new_labels,
+        labels=labels + list(new_markers),
         rate=markers.rate,
         meta=dict(markers.meta),
         residuals=None if res is None else np.concatenate([res, new_res], axis=1),
         invented=None if inv is None else np.concatenate([inv, new_inv], axis=1),
     )
-    c_count = len(labels)
+    return out, new_markers
+
+
+def _score_hidden(
+    new_markers: dict[str, list[str]],
+    known_labels: list[str],
+    fragment_truth: dict[str, str],
+) -> tuple[dict[str, str], HiddenReport]:
+    """The truth extended with each new label (its seed fragment's truth), and the
+    hidden-marker report with the truth counts. ``known_labels``: the surface's
+    markers before the hidden ones were added."""
+    fragment_truth = dict(fragment_truth)
+    known = {fragment_truth.get(lab, lab) for lab in known_labels}
+    seen: set[str] = set()
+    wrong_markers = wrong_fragments = 0
+    for name, names in new_markers.items():
+        truth = fragment_truth.get(names[0], names[0])
+        fragment_truth[name] = truth
+        wrong_fragments += sum(fragment_truth.get(f, f) != truth for f in names[1:])
+        is_marker = truth in markers_in_truth(fragment_truth) and truth not in known
+        if not is_marker or truth in seen:
+            wrong_markers += 1
+        seen.add(truth)
+    report = HiddenReport(
+        enabled=True,
+        new_markers=len(new_markers),
+        markers=new_markers,
+        recovered=len(new_markers) - wrong_markers,
+        wrong_markers=wrong_markers,
+        wrong_fragments=wrong_fragments,
+    )
+    return fragment_truth, report
+
+
+def _add_hidden_markers(
+    markers: MarkerSet,
+    anchors: np.ndarray,
+    merged: MarkerSet,
+    groups: list[list[int]],
+    fragment_truth: dict[str, str] | None,
+) -> tuple[MarkerSet, np.ndarray, dict[str, str] | None, HiddenReport]:
+    """The capture with the hidden markers' columns (:func:`_hidden_columns`) appended
+    after its columns and to ``anchors``, the truth extended with their labels and the
+    hidden-marker report."""
+    if not groups:
+        scored = fragment_truth is not None
+        zero = 0 if scored else None
+        return markers, anchors, fragment_truth, HiddenReport(True, 0, {}, zero, zero, zero)
+    out, new_markers = _hidden_columns(markers, merged, groups)
+    known_labels = [str(markers.labels[a]) for a in anchors.tolist()]
+    c_count = markers.n_markers
     anchors = np.concatenate([anchors, np.arange(c_count, c_count + len(groups))])
-    if fragment_truth is not None:
-        fragment_truth = dict(fragment_truth)
-        known = {fragment_truth.get(labels[a], labels[a]) for a in anchors[: -len(groups)]}
-        seen: set[str] = set()
-        wrong_markers = wrong_fragments = 0
-        for name, names in hidden["markers"].items():
-            truth = fragment_truth.get(names[0], names[0])
-            fragment_truth[name] = truth
-            wrong_fragments += sum(fragment_truth.get(f, f) != truth for f in names[1:])
-            is_marker = truth in markers_in_truth(fragment_truth) and truth not in known
-            if not is_marker or truth in seen:
-                wrong_markers += 1
-            seen.add(truth)
-        hidden.update(
-            recovered=len(groups) - wrong_markers,
-            wrong_markers=wrong_markers,
-            wrong_fragments=wrong_fragments,
-        )
-    return out, anchors, fragment_truth, hidden
+    if fragment_truth is None:
+        return out, anchors, None, HiddenReport(True, len(groups), new_markers)
+    fragment_truth, report = _score_hidden(new_markers, known_labels, fragment_truth)
+    return out, anchors, fragment_truth, report
 
 
 def markers_in_truth(fragment_truth: dict[str, str]) -> set[str]:
@@ -151,181 +220,14 @@ def markers_in_truth(fragment_truth: dict[str, str]) -> set[str]:
     return {v for v in fragment_truth.values() if v != "ghost" and not v.startswith("rope_")}
 
 
-def clean_markers(
-    markers: MarkerSet,
-    *,
-    method: str = "local_pca",
-    rigid_blend: float | None = None,
-    reference_frame: int | None = None,
-    surface: MarkerSurface | None = None,
-    smooth: bool = True,
-    lam: float = 0.02,
-    iterations: int = 10,
-    alpha1: float = 0.5,
-    alpha2: float = 0.6,
-    keep_fragments: bool = True,
-    promote_fragments: bool | None = None,
-    recover_hidden: bool = True,
-    fragment_truth: dict[str, str] | None = None,
-    progress: Progress | None = None,
-) -> tuple[MarkerSet, dict[str, Any]]:
-    """Clean a capture: marker surface, merge fragments, fill holes, smooth.
-
-    Parameters
-    ----------
-    markers : MarkerSet
-        Positions (T, C, 3) metres, NaN where missing; labelled columns plus ``*N``
-        unlabelled fragments.
-    method : str, default "local_pca"
-        Hole-filling method of :func:`skincap.cleanup.fill.fill_gaps`.
-    rigid_blend : float in [0, 1], optional
-        Local methods: the rigid fill's weight in the filled samples
-        (:func:`~skincap.cleanup.fill.fill_gaps`); None (default) per gap, 0 the
-        paper's local PCA alone.
-    reference_frame : int, optional
-        Reference pose; default the first frame with the most labelled markers.
-        Labelled markers missing there are placed by their neighbours from the
-        nearest frame where they are seen (see
-        :func:`~skincap.cleanup.surface.complete_reference_pose`).
-    surface : MarkerSurface, optional
-        A ready surface over the labelled columns (in column order), e.g. a user
-        surface; then no fragment is promoted.
-    smooth : bool, default True
-        Run :func:`skincap.cleanup.smooth.smooth_local` after filling.
-    lam, iterations : float, int
-        Smoothing damping λ and number of Δ⁴ updates.
-    alpha1, alpha2 : float
-        Merge tolerances of eq. 3.
-    keep_fragments : bool, default True
-        Keep the fragments left unmerged (unfilled, after the markers) in the output.
-    promote_fragments : bool, optional
-        Default: only when the capture has no labelled column (an unlabelled file).
-        Let fragments present in the reference frame that move with at least three
-        skin neighbours (distance CV <= 0.2 over >= 10 shared frames) become marker
-        columns. Off: only the labelled columns are markers. Beware: the tape markers
-        of a rope keep their mutual distances too, so they pass this test.
-    recover_hidden : bool, default True
-        Beyond the paper (which assumed a complete reference frame): with an
-        automatic surface over labelled columns, give the markers hidden in the
-        reference frame a label. A first merge runs; the leftover fragments that ride
-        with a skin neighbourhood over their whole span and never come near a known
-        marker (:func:`~skincap.cleanup.hidden.find_hidden_markers`) become new marker
-        columns labelled ``U<n>`` after their longest fragment ``*<n>``; then the
-        surface is rebuilt and the merge runs again from the start, so fragments
-        that had gone to a neighbour of the hidden marker now go to it.
-    fragment_truth : dict of str to str, optional
-        Ground truth for the merge report's wrong-merge count.
-    progress : callable(fraction, label), optional
-
-    Returns
-    -------
-    cleaned : MarkerSet
-        Marker columns (merged, filled, smoothed) then, with ``keep_fragments``, the
-        leftover fragments. ``invented`` (T, C') is True on filled samples (and on
-        samples the input already flagged). NaN where nothing could be filled.
-    report : dict
-        ``surface`` (markers, edges, faces, reference_frame, mean neighbour distance),
-        ``hidden`` (new markers -> their fragments; with truth, how many hidden
-        markers were recovered and how many fragments or markers were wrong),
-        ``merge`` (:class:`~skincap.cleanup.merge.MergeReport` fields), ``fill``
-        (method, holes before, invented, filled and unfilled samples, fills dropped
-        as unstable, the second-difference limit), ``guard`` (take-wide: filled,
-        unfilled (and whether above the warning threshold), outliers found and
-        replaced, relabelled fragments (merged + 2 per repaired swap), largest move of
-        a kept measured sample in mm, median noise), ``markers`` (the same per marker
-        column, :meth:`~skincap.cleanup.guarded.GuardedFill.per_marker`), ``smooth``
-        (λ, iterations, the noise bound) and ``invented`` (label -> [start, end)
-        runs).
-
-    Warns
-    -----
-    SkincapWarning
-        When more than 1 % of the markers' samples are left unfilled.
-    """
-    if not isinstance(markers, MarkerSet):
-        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
-    pos = markers.positions
-    t_count, c_count, _ = pos.shape
-    if t_count == 0:
-        raise ValidationError("markers has no frames")
-    labels = [str(lab) for lab in markers.labels]
-    labelled = np.flatnonzero([not lab.startswith("*") for lab in labels])
-
-    def step(base: float, span: float) -> Progress | None:
-        if progress is None:
-            return None
-        return lambda f, label: progress(base + span * f, label)
-
-    auto_surface = surface is None
-    if surface is not None:
-        if surface.n_markers != labelled.size:
-            raise ValidationError(
-                f"surface has {surface.n_markers} vertices but the capture has "
-                f"{labelled.size} labelled markers"
-            )
-        anchors = labelled
-    else:
-        if promote_fragments is None:
-            promote_fragments = labelled.size == 0
-        if reference_frame is None:
-            reference_frame = choose_reference_frame(pos[:, labelled] if labelled.size else pos)
-        if not 0 <= reference_frame < t_count:
-            raise ValidationError(f"reference_frame {reference_frame} is outside 0..{t_count - 1}")
-        seen = np.isfinite(pos[reference_frame]).all(axis=1)
-        fragment = np.array([lab.startswith("*") for lab in labels], dtype=bool)
-        promoted = np.flatnonzero(fragment & seen) if promote_fragments else np.zeros(0, int)
-        anchors = np.concatenate([labelled, promoted])
-        if progress is not None:
-            progress(0.0, "building the marker surface")
-        surface = _surface(pos[:, anchors], reference_frame)
-        if promoted.size:
-            # a promoted fragment stays only when it moves with >= 3 skin neighbours
-            # (rope markers and ghosts seen in the reference frame do not)
-            cv, overlap = pair_distance_cv(pos[:, anchors], surface.edges)
-            firm = surface.edges[(overlap >= 10) & (cv <= 0.2)]
-            firm_deg = np.bincount(firm.ravel(), minlength=anchors.size)
-            keep = np.ones(anchors.size, dtype=bool)
-            keep[labelled.size :] = firm_deg[labelled.size :] >= 3
-            if not keep.all():
-                anchors = anchors[keep]
-                surface = _surface(pos[:, anchors], reference_frame)
-
-    hidden: dict[str, Any] = {"enabled": False, "new_markers": 0, "markers": {}}
-    if recover_hidden and auto_surface and labelled.size and reference_frame is not None:
-        first, _ = merge_fragments(markers, surface, anchors, alpha1=alpha1, alpha2=alpha2)
-        groups = find_hidden_markers(first, surface)
-        markers, anchors, fragment_truth, hidden = _add_hidden_markers(
-            markers, anchors, first, groups, fragment_truth
-        )
-        if groups:
-            surface = _surface(markers.positions[:, anchors], reference_frame)
-
-    merged, merge_report = merge_fragments(
-        markers,
-        surface,
-        anchors,
-        alpha1=alpha1,
-        alpha2=alpha2,
-        fragment_truth=fragment_truth,
-        progress=step(0.05, 0.25),
-    )
-    n = anchors.size
-    body = merged.select(np.arange(n))
-    if progress is not None:
-        progress(0.3, "filling holes")
-    guarded = guarded_fill_smooth(
-        body,
-        surface.neighbours,
-        method=method,
-        rigid_blend=rigid_blend,
-        smooth=smooth,
-        lam=lam,
-        iterations=iterations,
-        progress=step(0.3, 0.5),
-    )
-    filled, invented, holes = guarded.positions, guarded.invented, guarded.holes
+def _cleaned_capture(
+    markers: MarkerSet, merged: MarkerSet, n: int, guarded: GuardedFill, keep_fragments: bool
+) -> MarkerSet:
+    """The marker columns as filled and smoothed, then (``keep_fragments``) the leftover
+    fragments as the merge left them; residuals NaN on invented and unfilled samples."""
+    filled, invented = guarded.positions, guarded.invented
     out_pos = filled
-    out_labels = list(body.labels)
+    out_labels = list(merged.labels[:n])
     out_inv = invented
     out_res = (
         None
@@ -346,7 +248,7 @@ def clean_markers(
             out_res = np.concatenate([out_res, rest.residuals], axis=1)
         else:
             out_res = None
-    cleaned = MarkerSet(
+    return MarkerSet(
         positions=out_pos,
         labels=out_labels,
         rate=markers.rate,
@@ -354,45 +256,169 @@ def clean_markers(
         residuals=out_res,
         invented=out_inv,
     )
-    if progress is not None:
-        progress(1.0, "done")
+
+
+def _clean_report(
+    markers: MarkerSet,
+    surface: MarkerSurface,
+    hidden: HiddenReport,
+    merge: MergeReport,
+    guarded: GuardedFill,
+    settings: CleanSettings,
+) -> CleanReport:
+    """The report of one run; ``markers`` is the input capture."""
+    n = surface.n_markers
     mnd = surface.mean_neighbour_distance
-    report: dict[str, Any] = {
-        "frames": int(t_count),
-        "rate": float(markers.rate),
-        "surface": {
-            "markers": int(n),
-            "edges": int(surface.edges.shape[0]),
-            "faces": int(surface.faces.shape[0]),
-            "reference_frame": int(surface.reference_frame),
-            "mean_neighbour_distance_m": (
+    fill, smooth = settings.fill, settings.smooth
+    counts = guarded.counts
+    return CleanReport(
+        frames=int(markers.n_frames),
+        rate=float(markers.rate),
+        surface=SurfaceSummary(
+            markers=int(n),
+            edges=int(surface.edges.shape[0]),
+            faces=int(surface.faces.shape[0]),
+            reference_frame=int(surface.reference_frame),
+            mean_neighbour_distance_m=(
                 float(np.nanmedian(mnd)) if np.isfinite(mnd).any() else None
             ),
-            "markers_without_neighbours": int((surface.degree == 0).sum()),
-        },
-        "hidden": hidden,
+            markers_without_neighbours=int((surface.degree == 0).sum()),
+        ),
+        hidden=hidden,
         # counted on the input: the hidden markers' columns are made of its fragments
-        "merge": {**merge_report.as_dict(), "trajectories_before": int(c_count)},
-        "fill": {
-            "method": method,
-            "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
-            "holes_before": holes,
-            "invented_samples": int(invented.sum()),
-            "filled_samples": guarded.counts["filled"],
-            "unfilled_samples": guarded.counts["unfilled"],
-            "unfilled_fraction": guarded.counts["unfilled_fraction"],
-            "unstable_fills_dropped": guarded.counts["dropped"],
-            "acceleration_limit_mm_per_frame2": guarded.limit_mm,
-        },
-        "guard": guarded.summary(merge_report.merged),
-        "markers": guarded.per_marker(),
-        "smooth": {
-            "enabled": bool(smooth),
-            "lambda": float(lam),
-            "iterations": int(iterations),
-            "max_move_noise_multiple": MAX_MOVE_NOISE,
-            "max_move_mm": 1000 * MAX_MOVE,
-        },
-        "invented": invented_runs(invented, list(body.labels)),
-    }
-    return cleaned, report
+        merge=replace(merge, trajectories_before=int(markers.n_markers)),
+        fill=FillSummary(
+            method=fill.method,
+            rigid_blend="per gap" if fill.rigid_blend is None else float(fill.rigid_blend),
+            holes_before=guarded.holes,
+            invented_samples=int(guarded.invented.sum()),
+            filled_samples=counts["filled"],
+            unfilled_samples=counts["unfilled"],
+            unfilled_fraction=counts["unfilled_fraction"],
+            unstable_fills_dropped=counts["dropped"],
+            acceleration_limit_mm_per_frame2=guarded.limit_mm,
+        ),
+        guard=guarded.summary(merge.merged),
+        markers=guarded.per_marker(),
+        smooth=SmoothSummary(
+            enabled=bool(smooth.enabled),
+            lam=float(smooth.lam),
+            iterations=int(smooth.iterations),
+            max_move_noise_multiple=MAX_MOVE_NOISE,
+            max_move_mm=1000 * MAX_MOVE,
+        ),
+        invented=invented_runs(guarded.invented, guarded.labels),
+    )
+
+
+def clean_markers(
+    markers: MarkerSet,
+    settings: CleanSettings = CleanSettings(),
+    *,
+    surface: MarkerSurface | None = None,
+    fragment_truth: dict[str, str] | None = None,
+    progress: Progress | None = None,
+) -> tuple[MarkerSet, CleanReport]:
+    """Clean a capture: marker surface, merge fragments, fill holes, smooth.
+
+    The steps: the marker surface (:func:`_automatic_surface`, unless one is given);
+    with ``settings.recover_hidden``, a first merge and the markers hidden in the
+    reference frame (:func:`~skincap.cleanup.hidden.find_hidden_markers`,
+    :func:`_add_hidden_markers`); the merge
+    (:func:`~skincap.cleanup.merge.merge_fragments`); swap and spike repair, filling,
+    smoothing and continuity (:func:`~skincap.cleanup.guarded.guarded_fill_smooth`);
+    then the output (:func:`_cleaned_capture`) and the report (:func:`_clean_report`).
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Positions (T, C, 3) metres, NaN where missing; labelled columns plus ``*N``
+        unlabelled fragments.
+    settings : CleanSettings
+        Every option, by stage (see :mod:`skincap.cleanup.settings`). The reference
+        pose defaults to the first frame with the most labelled markers; labelled
+        markers missing there are placed by their neighbours from the nearest frame
+        where they are seen
+        (:func:`~skincap.cleanup.surface.complete_reference_pose`). Fragments are
+        promoted to markers by default only when the capture has no labelled column;
+        beware: the tape markers of a rope keep their mutual distances too, so they
+        pass the promotion test. Beyond the paper (which assumed a complete reference
+        frame), ``recover_hidden`` gives the markers hidden in the reference frame a
+        label: a first merge runs; the leftover fragments that ride with a skin
+        neighbourhood over their whole span and never come near a known marker
+        become new marker columns labelled ``U<n>`` after their longest fragment
+        ``*<n>``; then the surface is rebuilt and the merge runs again from the
+        start, so fragments that had gone to a neighbour of the hidden marker now go
+        to it.
+    surface : MarkerSurface, optional
+        A ready surface over the labelled columns (in column order), e.g. a user
+        surface; then no fragment is promoted, no hidden marker recovered and
+        ``settings.reference_frame`` is not used.
+    fragment_truth : dict of str to str, optional
+        Ground truth for the merge report's wrong-merge count.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    cleaned : MarkerSet
+        Marker columns (merged, filled, smoothed) then, with ``keep_fragments``, the
+        leftover fragments. ``invented`` (T, C') is True on filled samples (and on
+        samples the input already flagged). NaN where nothing could be filled.
+    report : CleanReport
+        Surface, hidden markers, merge (Table 1), fill, guard (take-wide counts),
+        per-marker counts, smoothing and the invented runs; ``report.as_dict()`` is
+        the JSON of ``skincap clean --report``.
+
+    Warns
+    -----
+    SkincapWarning
+        When more than 1 % of the markers' samples are left unfilled.
+    """
+    if not isinstance(markers, MarkerSet):
+        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
+    if markers.n_frames == 0:
+        raise ValidationError("markers has no frames")
+    labelled = np.flatnonzero([not str(lab).startswith("*") for lab in markers.labels])
+
+    def step(base: float, span: float) -> Progress | None:
+        if progress is None:
+            return None
+        return lambda f, label: progress(base + span * f, label)
+
+    source = markers
+    hidden = HiddenReport(enabled=False, new_markers=0, markers={})
+    if surface is not None:
+        if surface.n_markers != labelled.size:
+            raise ValidationError(
+                f"surface has {surface.n_markers} vertices but the capture has "
+                f"{labelled.size} labelled markers"
+            )
+        anchors = labelled
+    else:
+        surface, anchors, reference_frame = _automatic_surface(markers, settings, progress)
+        if settings.recover_hidden and labelled.size:
+            first, _ = merge_fragments(markers, surface, anchors, settings.merge)
+            groups = find_hidden_markers(first, surface, settings.hidden)
+            markers, anchors, fragment_truth, hidden = _add_hidden_markers(
+                markers, anchors, first, groups, fragment_truth
+            )
+            if groups:
+                surface = _surface(markers.positions[:, anchors], reference_frame)
+    merged, merge_report = merge_fragments(
+        markers,
+        surface,
+        anchors,
+        settings.merge,
+        fragment_truth=fragment_truth,
+        progress=step(0.05, 0.25),
+    )
+    n = anchors.size
+    if progress is not None:
+        progress(0.3, "filling holes")
+    guarded = guarded_fill_smooth(
+        merged.select(np.arange(n)), surface.neighbours, settings, progress=step(0.3, 0.5)
+    )
+    cleaned = _cleaned_capture(source, merged, n, guarded, settings.keep_fragments)
+    if progress is not None:
+        progress(1.0, "done")
+    return cleaned, _clean_report(source, surface, hidden, merge_report, guarded, settings)

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import as_trajectories
 from skincap.errors import ValidationError
 from skincap.geometry.rigid import apply_rigid, fit_rigid
 
@@ -280,9 +281,7 @@ def smooth_local(
     neighbour does not shake the marker's local trajectory.
     """
     _check_lam_n(lam, iterations)
-    p = np.asarray(positions, dtype=np.float64)
-    if p.ndim != 3 or p.shape[2] != 3:
-        raise ValidationError(f"positions: expected shape (T, N, 3), got {p.shape}")
+    p = as_trajectories(positions)
     t, n, _ = p.shape
     present = ~np.isnan(p[..., 0])
     if t < 5:
@@ -336,8 +335,8 @@ def local_trajectories(
     rot : (T, N, 3, 3) or None, tr : (T, N, 3) or None
         The frames (NaN where undetermined); None when no marker has 3 neighbours.
     """
-    from skincap.cleanup.fill import as_csr
     from skincap.cleanup.local_frames import fit_frames_robust
+    from skincap.cleanup.neighbours import as_csr
 
     p = np.asarray(positions, dtype=np.float64)
     t, n, _ = p.shape

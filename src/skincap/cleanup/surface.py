@@ -44,6 +44,7 @@ import numpy as np
 from scipy import sparse
 from scipy.spatial import cKDTree
 
+from skincap._arrays import as_trajectories
 from skincap.errors import ValidationError
 from skincap.types import Mesh
 
@@ -242,6 +243,14 @@ def surface_from_faces(
     return _assemble(e, f, ref, reference_frame)
 
 
+def _trajectories_with_frames(positions: np.ndarray) -> np.ndarray:
+    """``positions`` as (T, N, 3) float64 with T > 0, or :class:`ValidationError`."""
+    pos = as_trajectories(positions)
+    if pos.shape[0] == 0:
+        raise ValidationError("positions: expected at least one frame, got 0")
+    return pos
+
+
 def choose_reference_frame(positions: np.ndarray) -> int:
     """The first frame in which the most markers are present.
 
@@ -253,9 +262,7 @@ def choose_reference_frame(positions: np.ndarray) -> int:
     -------
     int
     """
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[0] == 0:
-        raise ValidationError(f"positions must have shape (T, N, 3) with T > 0; got {pos.shape}")
+    pos = _trajectories_with_frames(positions)
     present = np.isfinite(pos).all(axis=2).sum(axis=1)
     return int(np.argmax(present))
 
@@ -442,6 +449,54 @@ def _greedy_manifold(pts: np.ndarray, tri: np.ndarray, order: np.ndarray) -> np.
     return np.asarray(accepted, dtype=np.int64)
 
 
+def _on_body(ref: np.ndarray, present: np.ndarray, body: Mesh) -> tuple[np.ndarray, np.ndarray]:
+    """The present markers (``present`` (P,) rows of ``ref`` (N, 3) metres) snapped to
+    their closest points on the body mesh, and the mesh's unit normals there (N, 3),
+    NaN for absent markers."""
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    geom = ref.copy()
+    _, face, bary = closest_points_on_mesh(body.vertices, body.faces, ref[present])
+    corners = body.vertices[body.faces[face]]  # (P, 3, 3)
+    geom[present] = np.einsum("pk,pki->pi", bary, corners)
+    fn = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals = np.full((ref.shape[0], 3), np.nan)
+    normals[present] = fn / np.linalg.norm(fn, axis=1, keepdims=True)
+    return geom, normals
+
+
+def _triangulate(
+    geom: np.ndarray,
+    tree: cKDTree,
+    kept: np.ndarray,
+    normals: np.ndarray | None,
+    max_normal_angle: float,
+    ball_slack: float,
+) -> np.ndarray:
+    """Faces (F, 3) over the kept edges (E, 2): candidate triangles whose shrunk
+    circumball holds no marker and whose normal agrees with its corners' surface
+    normals (the mesh's, else PCA normals over ``kept``), smallest ball first, kept
+    while the surface stays manifold. ``geom`` (N, 3) metres; ``tree`` over its
+    present rows."""
+    tri = _candidate_triangles(kept, geom.shape[0])
+    if not tri.shape[0]:
+        return np.zeros((0, 3), np.int64)
+    centre, radius, unit = _circumballs(geom, tri)
+    # empty ball: nothing strictly inside (the three corners lie on the sphere)
+    inside = tree.query_ball_point(
+        centre, np.maximum(radius * (1.0 - ball_slack), 0.0), return_length=True
+    )
+    good = (inside == 0) & np.isfinite(radius)
+    if normals is None:
+        normals = _pca_normals(geom, kept)
+    cos_tri = np.abs(np.einsum("fi,fki->fk", unit, normals[tri]))  # (F, 3), NaN if unknown
+    cos_min = np.cos(np.radians(max_normal_angle))
+    good &= np.all(np.where(np.isnan(cos_tri), 1.0, cos_tri) >= cos_min, axis=1)
+    tri, radius = tri[good], radius[good]
+    order = np.argsort(radius, kind="stable")
+    return tri[_greedy_manifold(geom, tri, order)]
+
+
 def build_marker_surface(
     positions: np.ndarray,
     *,
@@ -494,9 +549,7 @@ def build_marker_surface(
     ValidationError
         Bad shapes, a reference frame out of range, or non-finite ``k``/thresholds.
     """
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim != 3 or pos.shape[2] != 3 or pos.shape[0] == 0:
-        raise ValidationError(f"positions must have shape (T, N, 3) with T > 0; got {pos.shape}")
+    pos = _trajectories_with_frames(positions)
     if np.isinf(pos).any():
         raise ValidationError("positions must not contain inf (use NaN for missing)")
     if k < 1 or min_neighbours < 0 or not (max_cv > 0) or min_overlap < 2:
@@ -514,17 +567,7 @@ def build_marker_surface(
     if present.size < 2:
         return _assemble(np.zeros((0, 2), np.int64), np.zeros((0, 3)), ref, reference_frame)
 
-    geom = ref.copy()
-    mesh_normals = None
-    if body is not None:
-        from skincap.geometry.raycast import closest_points_on_mesh
-
-        _, face, bary = closest_points_on_mesh(body.vertices, body.faces, ref[present])
-        corners = body.vertices[body.faces[face]]  # (P, 3, 3)
-        geom[present] = np.einsum("pk,pki->pi", bary, corners)
-        fn = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-        mesh_normals = np.full((n, 3), np.nan)
-        mesh_normals[present] = fn / np.linalg.norm(fn, axis=1, keepdims=True)
+    geom, mesh_normals = (ref.copy(), None) if body is None else _on_body(ref, present, body)
 
     # 2. candidates: k nearest in the reference pose
     tree = cKDTree(geom[present])
@@ -551,22 +594,7 @@ def build_marker_surface(
         kept = kept[gap <= 0.3 * length]
 
     # 4. triangulation over kept edges
-    tri = _candidate_triangles(kept, n)
-    faces = np.zeros((0, 3), np.int64)
-    if tri.shape[0]:
-        centre, radius, unit = _circumballs(geom, tri)
-        # empty ball: nothing strictly inside (the three corners lie on the sphere)
-        inside = tree.query_ball_point(
-            centre, np.maximum(radius * (1.0 - ball_slack), 0.0), return_length=True
-        )
-        good = (inside == 0) & np.isfinite(radius)
-        normals = mesh_normals if mesh_normals is not None else _pca_normals(geom, kept)
-        cos_tri = np.abs(np.einsum("fi,fki->fk", unit, normals[tri]))  # (F, 3), NaN if unknown
-        cos_min = np.cos(np.radians(max_normal_angle))
-        good &= np.all(np.where(np.isnan(cos_tri), 1.0, cos_tri) >= cos_min, axis=1)
-        tri, radius = tri[good], radius[good]
-        order = np.argsort(radius, kind="stable")
-        faces = tri[_greedy_manifold(geom, tri, order)]
+    faces = _triangulate(geom, tree, kept, mesh_normals, max_normal_angle, ball_slack)
 
     edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [0, 2]]])
     edges = _unique_edges(edges)

@@ -16,13 +16,9 @@ from typing import Any
 import numpy as np
 
 from skincap._arrays import Progress
-from skincap.cleanup.fill import (
-    FILL_METHODS,
-    as_csr,
-    fill_gaps,
-    mean_neighbour_distance,
-    motion_neighbours,
-)
+from skincap.cleanup.fill import FILL_METHODS, fill_gaps
+from skincap.cleanup.neighbours import as_csr, mean_neighbour_distance, motion_neighbours
+from skincap.cleanup.settings import FillSettings
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.types import MarkerSet
 
@@ -178,7 +174,7 @@ def evaluate_fill(
         The take (T, N, 3) metres, NaN where missing. Its own gaps stay (and are filled
         too); only punched samples are scored.
     methods : sequence of str, optional
-        Default: every method of :data:`~skincap.cleanup.fill.FILL_METHODS`.
+        Default: every method of :data:`~skincap.cleanup.methods.FILL_METHODS`.
     gap_lengths : sequence of int, frames
     gaps : int
         Gaps per length.
@@ -188,7 +184,7 @@ def evaluate_fill(
         The same seed punches the same gaps.
     neighbours : CSR, MarkerSurface or None
         Neighbourhoods for the local methods, the rigid donors and the normalisation;
-        None: :func:`~skincap.cleanup.fill.motion_neighbours`.
+        None: :func:`~skincap.cleanup.neighbours.motion_neighbours`.
     truth : (T, N, 3) float, metres, optional
         What punched samples are scored against (a synthetic take's noise-free truth);
         default: the measured samples themselves.
@@ -334,9 +330,8 @@ def _fill_punched(
                     warnings.simplefilter("ignore", SkincapWarning)
                     filled, _ = fill_gaps(
                         take,
-                        method=method,
+                        settings=FillSettings(method=method, rigid_blend=rigid_blend),
                         neighbours=csr,
-                        rigid_blend=rigid_blend,
                         only=None if fill_own_gaps else mask,
                     )
                 e = np.linalg.norm(filled[tt, nn] - ref[tt, nn], axis=-1)

@@ -127,7 +127,8 @@ def clean_file(
     output : path-like
         The cleaned ``.c3d``.
     method, rigid_blend, reference_frame, smooth, lam, iterations, recover_hidden
-        As :func:`skincap.cleanup.pipeline.clean_markers`.
+        The CLI's options, checked here with its error lines, then passed on as a
+        :class:`~skincap.cleanup.settings.CleanSettings`.
     surface : path-like, optional
         A user marker surface (:func:`read_marker_surface`).
     report : path-like, optional
@@ -142,12 +143,13 @@ def clean_file(
     Returns
     -------
     dict
-        :func:`~skincap.cleanup.pipeline.clean_markers`' report with ``input`` and
-        ``output`` added.
+        :func:`~skincap.cleanup.pipeline.clean_markers`' report as a dict
+        (:meth:`~skincap.cleanup.report.CleanReport.as_dict`) with ``input`` and ``output`` added.
     """
     from skincap import io
     from skincap.cleanup.methods import FILL_METHODS
     from skincap.cleanup.pipeline import clean_markers
+    from skincap.cleanup.settings import CleanSettings, FillSettings, SmoothSettings
     from skincap.io.json_file import write_json
     from skincap.io.output_safety import guard_outputs
     from skincap.io.synth_truth import read_fragment_truth
@@ -176,19 +178,16 @@ def clean_file(
             None if surface is None else read_marker_surface(surface, markers, reference_frame)
         )
         truth = None if fragment_truth is None else read_fragment_truth(fragment_truth)
-        cleaned, summary = clean_markers(
-            markers,
-            method=method,
-            rigid_blend=rigid_blend,
+        settings = CleanSettings(
             reference_frame=reference_frame,
-            surface=user_surface,
-            smooth=smooth,
-            lam=lam,
-            iterations=iterations,
-            fragment_truth=truth,
             recover_hidden=recover_hidden,
-            progress=progress,
+            fill=FillSettings(method=method, rigid_blend=rigid_blend),
+            smooth=SmoothSettings(enabled=smooth, lam=lam, iterations=iterations),
         )
+        cleaned, clean_report = clean_markers(
+            markers, settings, surface=user_surface, fragment_truth=truth, progress=progress
+        )
+        summary = clean_report.as_dict()
         summary["input"] = str(src)
         summary["output"] = str(output)
         io.write(cleaned, output, force=force)

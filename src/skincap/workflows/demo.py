@@ -245,29 +245,29 @@ def _clean(
             progress=steps.within(0.3, 0.42, "cleanup"),
         )
         write_c3d(cleaned, folder / "cleaned.c3d", force=force)
-        _write_json(folder / "clean_report.json", report, force)
+        _write_json(folder / "clean_report.json", report.as_dict(), force)
     outputs += [folder / "cleaned.c3d", folder / "clean_report.json"]
     from skincap.workflows.demo_report import labelled_missing_maps
 
     before, after, filled = labelled_missing_maps(take.capture, cleaned)
-    merge = report["merge"]
+    merge, fill = report.merge, report.fill
     figures["cleanup"] = {
         # over the raw capture's labelled columns, as the report's table and figure
         "labelled_missing_before": float(before.mean()),
         "labelled_missing_after": float(after.mean()),
         "labelled_filled": float(filled.mean()),
-        "surface_edges": report["surface"].get("edges"),
-        "trajectories_before": merge["trajectories_before"],
-        "trajectories_after": merge["trajectories_after"],
-        "fragments_before": merge["fragments_before"],
-        "fragments_after": merge["fragments_after"],
-        "merged": merge["merged"],
-        "wrongly_merged": merge["wrongly_merged"],
-        "wrong_rate": merge["wrong_rate"],
-        "left_unmerged": merge["left_unmerged"],
-        "holes_before": report["fill"]["holes_before"],
-        "invented_samples": report["fill"]["invented_samples"],
-        "unfilled_samples": report["fill"]["unfilled_samples"],
+        "surface_edges": report.surface.edges,
+        "trajectories_before": merge.trajectories_before,
+        "trajectories_after": merge.trajectories_after,
+        "fragments_before": merge.fragments_before,
+        "fragments_after": merge.fragments_after,
+        "merged": merge.merged,
+        "wrongly_merged": merge.wrongly_merged,
+        "wrong_rate": merge.wrong_rate,
+        "left_unmerged": merge.left_unmerged,
+        "holes_before": fill.holes_before,
+        "invented_samples": fill.invented_samples,
+        "unfilled_samples": fill.unfilled_samples,
     }
     return cleaned
 

@@ -17,8 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from skincap.cleanup.fill import fill_gaps, motion_neighbours
+from skincap.cleanup.fill import fill_gaps
+from skincap.cleanup.neighbours import motion_neighbours
 from skincap.cleanup.pipeline import clean_markers
+from skincap.cleanup.settings import CleanSettings, FillSettings, SmoothSettings
 from skincap.cleanup.smooth import smooth_local
 from skincap.errors import SkincapWarning
 from skincap.types import MarkerSet
@@ -114,17 +116,26 @@ def run_clean_benchmark(
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", SkincapWarning)
             t_lin, (lin, _) = _timed(
-                lambda m=markers, c=csr: fill_gaps(m, method="linear", neighbours=c)
+                lambda m=markers, c=csr: fill_gaps(
+                    m, settings=FillSettings(method="linear"), neighbours=c
+                )
             )
             for method in methods:
                 t_fill, (filled, _) = _timed(
-                    lambda m=markers, c=csr, k=method: fill_gaps(m, method=k, neighbours=c)
+                    lambda m=markers, c=csr, k=method: fill_gaps(
+                        m, settings=FillSettings(method=k), neighbours=c
+                    )
                 )
                 t_smooth = 0.0
                 if smooth:
                     t_smooth, _ = _timed(lambda f=filled, c=csr: smooth_local(f, c))
                 t_clean, _ = _timed(
-                    lambda m=markers, k=method: clean_markers(m, method=k, smooth=smooth)
+                    lambda m=markers, k=method: clean_markers(
+                        m,
+                        settings=CleanSettings(
+                            fill=FillSettings(method=k), smooth=SmoothSettings(enabled=smooth)
+                        ),
+                    )
                 )
                 err = np.linalg.norm(filled - truth, axis=-1)[missing]
                 err_lin = np.linalg.norm(lin - truth, axis=-1)[missing]
