@@ -1,0 +1,252 @@
+"""Inverse kinematics: the body model's pose per frame from its measured markers.
+
+Pose of frame t: the root origin ``o_0`` (metres) and every segment's world rotation
+``R_s`` (the anatomical frame). Segment origins follow the tree,
+``o_s = o_parent + R_parent d_s`` (``d_s`` the calibrated joint offset, so bone lengths
+are constant), and a marker sits at ``x_m = o_seg(m) + R_seg(m) l_m``.
+
+The fit minimises ``sum_m w_m |x_m - y_m|^2`` over the measured markers ``y_m`` (a
+missing marker has ``w_m = 0`` in that frame) by Levenberg-Marquardt, batched over
+frames: the Jacobian of a marker with respect to a rotation increment ``dw_a``
+(``R_a <- exp(dw_a) R_a``) of any segment ``a`` on its path to the root is
+``-[v]_x`` with ``v`` the world vector that segment carries on the path (its child's
+joint offset, or the marker's own offset); with respect to the root origin it is
+the identity. Each frame's normal equations are solved together (``np.linalg.solve``
+over a ``(T, P, P)`` stack), with a per-frame damping that grows on a rejected step.
+
+Frames start from the previous frame's solution where the calibration gave no pose
+(warm start): a segment seen by too few markers keeps the pose it had -- its
+undetermined directions are damped, never NaN. ``smooth`` optionally adds a temporal
+term pulling every pose towards the mean of its neighbours' initial poses.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from skincap.errors import ValidationError
+
+__all__ = ["solve_poses", "model_markers", "segment_origins", "fill_poses"]
+
+Progress = Callable[[float, str], None]
+
+
+def segment_origins(parents: np.ndarray, offsets: np.ndarray, rotations: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """(T, S, 3) world origins of the segments (loop over segments, batched over frames)."""
+    out = np.empty(rotations.shape[:2] + (3,))
+    out[:, 0] = root
+    for s in range(1, parents.size):
+        p = parents[s]
+        out[:, s] = out[:, p] + rotations[:, p] @ offsets[s]
+    return out
+
+
+def model_markers(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    marker_offsets: np.ndarray,
+    rotations: np.ndarray,
+    root: np.ndarray,
+) -> np.ndarray:
+    """(T, M, 3) model marker positions for poses ``rotations (T, S, 3, 3)``, ``root (T, 3)``."""
+    origins = segment_origins(parents, offsets, rotations, root)
+    return origins[:, marker_segments] + np.einsum(
+        "tmij,mj->tmi", rotations[:, marker_segments], marker_offsets
+    )
+
+
+def fill_poses(rotations: np.ndarray, root: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Replace NaN poses by the previous frame's (then the next's); a segment never
+    posed takes its parent's rotation (the root: identity)."""
+    rot = rotations.copy()
+    org = root.copy()
+    t = rot.shape[0]
+    idx = np.arange(t)
+
+    def ffill(ok: np.ndarray) -> np.ndarray:
+        last = np.where(ok, idx, -1)
+        np.maximum.accumulate(last, out=last)
+        first = int(np.argmax(ok))
+        return np.where(last < 0, first, last)
+
+    ok = np.isfinite(org).all(axis=1)
+    org = org[ffill(ok)] if ok.any() else np.zeros_like(org)
+    for s in range(rot.shape[1]):
+        ok = np.isfinite(rot[:, s]).all(axis=(1, 2))
+        if ok.any():
+            rot[:, s] = rot[ffill(ok), s]
+        else:
+            rot[:, s] = rot[:, parents[s]] if parents[s] >= 0 else np.eye(3)
+    return rot, org
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices of rotation vectors (..., 3) (Rodrigues)."""
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    k = np.zeros(w.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+class _Paths:
+    """For every (marker, segment-on-its-path) pair: which local vector that segment carries."""
+
+    def __init__(self, parents: np.ndarray, offsets: np.ndarray, mseg: np.ndarray, moff: np.ndarray) -> None:
+        pair_m, pair_s, pair_v = [], [], []
+        for m, s in enumerate(mseg):
+            pair_m.append(m)
+            pair_s.append(s)
+            pair_v.append(moff[m])
+            child = s
+            while parents[child] >= 0:
+                p = parents[child]
+                pair_m.append(m)
+                pair_s.append(p)
+                pair_v.append(offsets[child])
+                child = p
+        self.marker = np.array(pair_m, dtype=np.int64)
+        self.segment = np.array(pair_s, dtype=np.int64)
+        self.local = np.array(pair_v, dtype=np.float64).reshape(-1, 3)
+
+
+def _cost(resid: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return np.einsum("tm,tmi,tmi->t", w, resid, resid)
+
+
+def solve_poses(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    marker_offsets: np.ndarray,
+    measured: np.ndarray,
+    init_rotations: np.ndarray,
+    init_root: np.ndarray,
+    *,
+    iterations: int = 12,
+    tolerance: float = 1e-10,
+    chunk: int = 512,
+    progress: Progress | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares poses of a marker model, all frames at once.
+
+    Parameters
+    ----------
+    parents : (S,) int, -1 for the root, parents first
+    offsets : (S, 3) float, metres, each segment's origin in its parent's frame
+    marker_segments : (M,) int
+    marker_offsets : (M, 3) float, metres, in the segment's frame
+    measured : (T, M, 3) float, metres, NaN where missing
+    init_rotations : (T, S, 3, 3) float, NaN allowed (filled from neighbouring frames)
+    init_root : (T, 3) float, NaN allowed
+    iterations : int
+        Most Levenberg-Marquardt steps per frame.
+    tolerance : float
+        Stop a frame when its cost (m^2) improves by less than this.
+    chunk : int
+        Frames solved together (memory: about ``chunk * 3M * (3 + 3S)`` floats).
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    rotations : (T, S, 3, 3) float64
+        World rotations, never NaN.
+    root : (T, 3) float64, metres
+    """
+    parents = np.asarray(parents, dtype=np.int64)
+    offsets = np.asarray(offsets, dtype=np.float64)
+    mseg = np.asarray(marker_segments, dtype=np.int64)
+    moff = np.asarray(marker_offsets, dtype=np.float64)
+    y = np.asarray(measured, dtype=np.float64)
+    t_all, m, _ = y.shape
+    s = parents.size
+    if mseg.shape != (m,) or moff.shape != (m, 3):
+        raise ValidationError(f"marker_segments/offsets: expected ({m},) and ({m}, 3), got {mseg.shape} and {moff.shape}")
+    if init_rotations.shape != (t_all, s, 3, 3) or init_root.shape != (t_all, 3):
+        raise ValidationError("init_rotations/init_root: shapes do not match the frames and segments")
+    rot, root = fill_poses(np.asarray(init_rotations, float), np.asarray(init_root, float), parents)
+    paths = _Paths(parents, offsets, mseg, moff)
+    n_par = 3 + 3 * s
+    out_rot = np.empty_like(rot)
+    out_root = np.empty_like(root)
+    for start in range(0, t_all, chunk):
+        sl = slice(start, min(start + chunk, t_all))
+        out_rot[sl], out_root[sl] = _solve_chunk(
+            parents, offsets, mseg, moff, paths, y[sl], rot[sl], root[sl], n_par, iterations, tolerance
+        )
+        if progress is not None:
+            progress(sl.stop / t_all, "inverse kinematics")
+    return out_rot, out_root
+
+
+def _solve_chunk(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    mseg: np.ndarray,
+    moff: np.ndarray,
+    paths: _Paths,
+    y: np.ndarray,
+    rot: np.ndarray,
+    root: np.ndarray,
+    n_par: int,
+    iterations: int,
+    tolerance: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    t, m, _ = y.shape
+    seen = np.isfinite(y).all(axis=2)
+    w = seen.astype(np.float64)  # (T, M)
+    y0 = np.where(seen[..., None], y, 0.0)
+    lam = np.full(t, 1e-3)
+    x = model_markers(parents, offsets, mseg, moff, rot, root)
+    cost = _cost(x - y0, w)
+    rows = 3 * paths.marker  # (Q,) first Jacobian row of each pair's marker
+    cols = 3 + 3 * paths.segment
+    # damping floor: keeps directions no marker constrains (a hidden hand) where they are
+    floor = 1e-6
+    for _ in range(iterations):
+        resid = (x - y0) * w[..., None]  # (T, M, 3), zero where missing
+        v = np.einsum("tqij,qj->tqi", rot[:, paths.segment], paths.local)  # (T, Q, 3)
+        jac = np.zeros((t, 3 * m, n_par))
+        eye_rows = (3 * np.arange(m)[:, None] + np.arange(3)).reshape(-1)
+        jac[:, eye_rows, np.tile(np.arange(3), m)] = 1.0
+        # -[v]x : d x / d w = w x v = -v x w
+        vx, vy, vz = v[..., 0], v[..., 1], v[..., 2]
+        # -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
+        jac[:, rows + 0, cols + 1] = vz
+        jac[:, rows + 0, cols + 2] = -vy
+        jac[:, rows + 1, cols + 0] = -vz
+        jac[:, rows + 1, cols + 2] = vx
+        jac[:, rows + 2, cols + 0] = vy
+        jac[:, rows + 2, cols + 1] = -vx
+        jw = jac * np.repeat(w, 3, axis=1)[..., None]
+        h = np.einsum("tri,trj->tij", jw, jac)  # (T, P, P)
+        g = np.einsum("tri,tr->ti", jw, resid.reshape(t, -1))  # (T, P)
+        diag = np.einsum("tii->ti", h)
+        damp = lam[:, None] * diag + floor
+        h_d = h.copy()
+        h_d[:, np.arange(n_par), np.arange(n_par)] += damp
+        step = -np.linalg.solve(h_d, g[..., None])[..., 0]  # (T, P)
+        new_root = root + step[:, :3]
+        new_rot = _exp(step[:, 3:].reshape(t, -1, 3)) @ rot
+        new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
+        new_cost = _cost(new_x - y0, w)
+        better = new_cost <= cost
+        gain = cost - new_cost
+        root = np.where(better[:, None], new_root, root)
+        rot = np.where(better[:, None, None, None], new_rot, rot)
+        x = np.where(better[:, None, None], new_x, x)
+        cost = np.where(better, new_cost, cost)
+        lam = np.where(better, np.maximum(lam / 10.0, 1e-9), lam * 10.0)
+        if np.all(~better | (gain < tolerance)):
+            break
+    # re-orthonormalise (products of many small rotations drift by rounding)
+    u, _, vt = np.linalg.svd(rot)
+    rot = u @ vt
+    return rot, root
