@@ -265,9 +265,11 @@ class _Calibrator:
             y = to_local(rp, tp, np.stack([self.marker(m) for m in child_markers], axis=1))
             pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
             c = None
-            if (np.isfinite(y).all(axis=2).any(axis=1)).sum() >= MIN_CALIBRATION_FRAMES:
+            if (np.isfinite(y).all(axis=2).any(axis=1)).sum() >= MIN_CALIBRATION_FRAMES and np.isfinite(pp).all():
+                # the range of motion seen from the prior centre: a fitted centre is
+                # meaningless when the markers hardly move
+                s2 = jc.direction_spread(y, pp)
                 c0, _ = jc.sphere_centre(y)
-                s2 = jc.direction_spread(y, c0)
                 spread = [round(float(v), 2) for v in s2]
                 if kind == "ball" and s2[1] >= self.min_spread:
                     c, method = c0, "sphere fit"

@@ -46,7 +46,7 @@ __all__ = [
 
 #: Least RMS spread of the relative rotation (degrees) along a principal axis that
 #: counts as motion about that axis for the functional methods.
-MIN_SPREAD_DEG = 10.0
+MIN_SPREAD_DEG = 5.0
 
 
 def _frames(rotations: np.ndarray, translations: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:

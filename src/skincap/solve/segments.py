@@ -48,18 +48,48 @@ def cluster_frames(
     if seen[start].sum() < 3:
         raise ValidationError("points: no frame shows three markers of the cluster")
     ref = p[start] - np.nanmean(p[start], axis=0)
+    use = np.ones(p.shape[1], dtype=bool)
     for _ in range(max(1, iterations)):
-        rot, trans = fit_rigid(ref, p)  # (T, 3, 3), (T, 3)
+        rot, trans = fit_rigid(ref, p, mask=use)  # (T, 3, 3), (T, 3)
         local = to_local(rot, trans, p)  # (T, K, 3)
         fitted = np.isfinite(local).all(axis=2)
         new = np.full_like(ref, np.nan)
         have = fitted.any(axis=0)
         if have.any():
             new[have] = np.nanmedian(local[:, have], axis=0)
-        new -= np.nanmean(new, axis=0)
+        new -= np.nanmean(new[use], axis=0)
         ref = new
-    rot, trans = fit_rigid(ref, p)
+        use = _rigid_members(local, ref)
+    rot, trans = fit_rigid(ref, p, mask=use)
     return ref, rot, trans
+
+
+#: A marker whose RMS distance from its place in the cluster exceeds both this
+#: (metres) and RIGID_FACTOR times the cluster's median does not steer the frame.
+RIGID_FLOOR_M = 0.003
+RIGID_FACTOR = 2.5
+
+
+def _rigid_members(local: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """(K,) bool: markers that move rigidly with the cluster (skin over a joint does not).
+
+    Keeps at least three (the most rigid) so the frame stays defined.
+    """
+    d2 = np.sum((local - ref) ** 2, axis=2)  # (T, K)
+    seen = np.isfinite(d2)
+    count = seen.sum(axis=0)
+    rms = np.full(ref.shape[0], np.inf)
+    ok = count > 0
+    rms[ok] = np.sqrt(np.where(seen, d2, 0.0).sum(axis=0)[ok] / count[ok])
+    finite = np.isfinite(rms)
+    if finite.sum() <= 3:
+        return finite if finite.sum() == 3 else np.ones(ref.shape[0], dtype=bool)
+    limit = max(RIGID_FLOOR_M, RIGID_FACTOR * float(np.median(rms[finite])))
+    use = rms <= limit
+    if use.sum() < 3:
+        use = np.zeros_like(use)
+        use[np.argsort(rms)[:3]] = True
+    return use
 
 
 def to_local(rotations: np.ndarray, translations: np.ndarray, points: np.ndarray) -> np.ndarray:
