@@ -5,7 +5,7 @@ module registers one verb (or one family of verbs) on it when imported. Importin
 package imports them all, so ``app`` below has every command.
 """
 
-from skincap.cli import clean, render, track, view  # noqa: F401  (registers their verbs)
+from skincap.cli import clean, render, solve, track, view  # noqa: F401  (registers their verbs)
 from skincap.cli._app import app, main
 
 __all__ = ["app", "main"]

@@ -22,16 +22,13 @@ term pulling every pose towards the mean of its neighbours' initial poses.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.errors import ValidationError
 
 __all__ = ["solve_poses", "model_markers", "segment_origins", "fill_poses"]
-
-Progress = Callable[[float, str], None]
-
 
 def segment_origins(parents: np.ndarray, offsets: np.ndarray, rotations: np.ndarray, root: np.ndarray) -> np.ndarray:
     """(T, S, 3) world origins of the segments (loop over segments, batched over frames)."""

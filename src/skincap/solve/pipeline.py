@@ -8,12 +8,12 @@ model's markers per frame and the residual report.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.errors import ValidationError
 from skincap.solve.calibrate import BodyModel, calibrate
 from skincap.solve.ik import model_markers, solve_poses
@@ -22,9 +22,6 @@ from skincap.solve.templates import Template, load_template
 from skincap.types import MarkerSet, Motion
 
 __all__ = ["SolveResult", "solve_markers", "residual_report"]
-
-Progress = Callable[[float, str], None]
-
 
 @dataclass(eq=False)
 class SolveResult:
