@@ -7,11 +7,26 @@ Registered on :data:`skincap.cli._app.app` / ``eval_app`` / ``bench_app`` when
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
-from skincap.cli._app import _user_errors, app, frame_progress, out, print_json
+from skincap.cli._app import _user_errors, app, err, out, print_json
+
+
+def _percent_progress() -> Any:
+    """A transient progress bar on stderr in percent (hidden off a terminal)."""
+    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
+
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TaskProgressColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    )
 
 
 @app.command()
@@ -56,11 +71,11 @@ def solve(
 
     outputs = [p for p in (output, markers_out, report) if p is not None]
     with _user_errors(), guard_outputs([input_file], outputs, force=force):
-        with frame_progress() as progress:
-            task = progress.add_task("solving", total=1.0)
+        with _percent_progress() as progress:
+            task = progress.add_task("calibration", total=100.0)
 
             def advance(fraction: float, label: str) -> None:
-                progress.update(task, completed=fraction, description=label)
+                progress.update(task, completed=100.0 * fraction, description=label)
 
             summary = solve_file(
                 input_file,
@@ -78,5 +93,7 @@ def solve(
     out.print(
         f"{input_file} -> {output}: {summary['frames']} frames, {summary['joints']} joints, "
         f"{summary['markers']} markers ({summary['template']}), RMS residual "
-        f"{summary['rms_m'] * 100:.2f} cm, max {summary['max_m'] * 100:.2f} cm"
+        f"{summary['rms_m'] * 100:.2f} cm, max {summary['max_m'] * 100:.2f} cm",
+        markup=False,
+        soft_wrap=True,
     )
