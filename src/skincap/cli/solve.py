@@ -11,7 +11,17 @@ from typing import Annotated, Any
 
 import typer
 
-from skincap.cli._app import _user_errors, app, err, out, print_json
+from skincap.cli._app import (
+    _user_errors,
+    app,
+    bench_app,
+    err,
+    eval_app,
+    out,
+    print_bench_results,
+    print_json,
+)
+from skincap.errors import ValidationError
 
 
 def _percent_progress() -> Any:
@@ -97,3 +107,94 @@ def solve(
         markup=False,
         soft_wrap=True,
     )
+
+
+@eval_app.command("solve")
+def eval_solve(
+    input_dir: Annotated[
+        Path | None, typer.Argument(help="A folder written by 'skincap synth --markers sparse'.")
+    ] = None,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path("eval_solve"),
+    synth: Annotated[
+        str | None,
+        typer.Option("--synth", help="A clip (flex, squat, punch...) or .bvh: make a sparse take in memory."),
+    ] = None,
+    real: Annotated[
+        list[Path] | None, typer.Option("--real", help="A real labelled capture (repeatable).")
+    ] = None,
+    template: Annotated[str, typer.Option(help="Template of the --real captures.")] = "cmu41",
+    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
+    vertices: Annotated[int, typer.Option(help="Procedural body vertices of a --synth take.")] = 8000,
+    seed: Annotated[int, typer.Option(help="Seed of a --synth take.")] = 0,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+) -> None:
+    """Measure the solver against issue #17's targets and print the table.
+
+    On a synthetic sparse take (perfectly labelled, with the capture's occlusion,
+    noise and soft tissue): joint-position error per joint against truth/motion.bvh,
+    knee/elbow flexion-angle error, marker residual, --template auto. On real captures:
+    the marker residual and its distribution per marker. Writes DIR/solve_eval.json.
+
+    Example: skincap eval solve take1 --real walk.c3d -o eval_solve
+    """
+    from skincap.io.output_safety import guard_outputs
+    from skincap.workflows.solve import evaluate_solve
+
+    inputs = [input_dir, *(real or [])]
+    with _user_errors(), guard_outputs(inputs, [output / "solve_eval.json"], force=force):
+        if input_dir is not None and synth is not None:
+            raise ValidationError("give a synth folder or --synth, not both")
+        with _percent_progress() as progress:
+            task = progress.add_task("eval solve", total=100.0)
+
+            def advance(fraction: float, label: str) -> None:
+                progress.update(task, completed=100.0 * fraction, description=label)
+
+            result = evaluate_solve(
+                output, synth_dir=input_dir, synth_motion=synth, real=list(real or []),
+                real_template=template, frames=frames, vertices=vertices, seed=seed,
+                force=force, progress=advance,
+            )  # fmt: skip
+    if json_output:
+        print_json(result)
+        return
+    from rich.table import Table
+
+    table = Table(title="skeleton solving against issue #17's targets", title_justify="left")
+    for col in ("measure", "measured", "target", "met"):
+        table.add_column(col)
+    for row in result["table"]:
+        table.add_row(row["measure"], row["measured"], row["target"], row["met"])
+    out.print(table)
+    syn = result.get("synthetic")
+    if syn:
+        per = ", ".join(f"{k} {v['mean_m'] * 1000:.0f}" for k, v in syn["joint_errors"].items())
+        out.print(f"joint error per joint (mm, mean): {per}", markup=False, soft_wrap=True)
+    out.print(f"wrote {result['outputs'][0]}", markup=False, soft_wrap=True)
+
+
+@bench_app.command("solve")
+def bench_solve(
+    input_file: Annotated[
+        Path | None, typer.Argument(help="A labelled capture (default: a synthetic 41-marker take).")
+    ] = None,
+    template: Annotated[str, typer.Option(help="Template of INPUT.")] = "cmu41",
+    frames: Annotated[int, typer.Option(help="Frames of the synthetic take (120 Hz).")] = 600,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the measurements as JSON.")] = False,
+) -> None:
+    """IK frames per second (and against SciPy frame by frame), and a one-minute C3D -> BVH solve.
+
+    Example: skincap bench solve walk.c3d --template cmu41
+    """
+    from skincap.evaluate.bench.solve import run_solve_benchmark
+    from skincap.workflows.solve import read_labelled_markers, synth_take_in_memory
+
+    with _user_errors():
+        if input_file is None:
+            markers, _ = synth_take_in_memory("punch", frames=frames, vertices=8000, seed=0)
+            template = "synth-sparse"
+        else:
+            markers = read_labelled_markers(input_file)
+        results = run_solve_benchmark(markers, template=template)
+    print_bench_results(results, json_output)

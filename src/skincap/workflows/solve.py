@@ -20,7 +20,7 @@ from skincap.io import read, write
 from skincap.io._common import atomic_output
 from skincap.types import MarkerSet
 
-__all__ = ["solve_file", "read_labelled_markers"]
+__all__ = ["solve_file", "read_labelled_markers", "read_synth_take", "synth_take_in_memory", "evaluate_solve"]
 
 
 def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
@@ -110,3 +110,109 @@ def solve_file(
         "max_m": rep["overall"]["max_m"],
         "outputs": outputs,
     }
+
+
+def read_synth_take(folder: str | os.PathLike[str]) -> tuple[MarkerSet, Any]:
+    """The labelled take and the true motion of a ``skincap synth --markers sparse`` folder.
+
+    Returns
+    -------
+    markers : MarkerSet
+        ``capture.c3d`` with each fragment moved to its true marker (``truth/fragments.csv``).
+    truth : Motion
+        ``truth/motion.bvh`` (metres).
+    """
+    import csv
+
+    from skincap.evaluate.solve import labelled_from_fragments
+    from skincap.io.bvh import read_bvh
+
+    root = Path(folder)
+    if not root.is_dir():
+        raise FormatError(root, "not a folder (expected one written by skincap synth)")
+    for name in ("capture.c3d", "truth/fragments.csv", "truth/motion.bvh"):
+        if not (root / name).is_file():
+            raise FormatError(root / name, "missing: the folder was not written by skincap synth")
+    capture = read(root / "capture.c3d")
+    with open(root / "truth" / "fragments.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows or set(rows[0]) != {"fragment", "truth"}:
+        raise FormatError(root / "truth" / "fragments.csv", "expected the columns fragment,truth")
+    mapping = {r["fragment"]: r["truth"] for r in rows}
+    truth = read_bvh(root / "truth" / "motion.bvh", units="m")
+    return labelled_from_fragments(capture, mapping), truth
+
+
+def synth_take_in_memory(motion: str, *, frames: int, vertices: int, seed: int, progress: Progress | None = None) -> tuple[MarkerSet, Any]:
+    """A sparse-marker synthetic take made in memory: (labelled markers, true motion)."""
+    from skincap.evaluate.solve import labelled_from_fragments
+    from skincap.synth.generate import generate_capture
+    from skincap.synth.inputs import build_body, build_motion
+
+    body = build_body("procedural", n_vertices=vertices, seed=seed)
+    clip = build_motion(body, motion, frames=frames, seed=seed, units="cmu" if motion.endswith(".bvh") else None)
+    take = generate_capture(body, clip, markers="sparse", seed=seed, progress=progress)
+    return labelled_from_fragments(take.capture, take.fragment_truth), take.motion
+
+
+def evaluate_solve(
+    output_dir: str | os.PathLike[str],
+    *,
+    synth_dir: str | os.PathLike[str] | None = None,
+    synth_motion: str | None = None,
+    real: list[str | os.PathLike[str]] = (),  # type: ignore[assignment]
+    real_template: str = "cmu41",
+    frames: int = 600,
+    vertices: int = 8000,
+    seed: int = 0,
+    auto: bool = True,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """``skincap eval solve``: measure the solver and write ``DIR/solve_eval.json``.
+
+    Returns the result with ``table`` (the issue's targets, one row each).
+    """
+    from skincap.evaluate.solve import evaluate_auto, evaluate_real, evaluate_synthetic, targets_table
+
+    out = Path(output_dir)
+    report_path = out / "solve_eval.json"
+    synthetic = auto_result = None
+    source = None
+    if synth_dir is not None or synth_motion is not None:
+        if synth_dir is not None:
+            markers, truth = read_synth_take(synth_dir)
+            source = os.fspath(synth_dir)
+        else:
+            def sub(f: float, label: str) -> None:
+                if progress is not None:
+                    progress(0.5 * f, f"synth: {label}")
+
+            markers, truth = synth_take_in_memory(str(synth_motion), frames=frames, vertices=vertices, seed=seed, progress=sub)
+            source = f"synth {synth_motion} (sparse, {frames} frames, seed {seed})"
+        if progress is not None:
+            progress(0.5, "solving the synthetic take")
+        synthetic = evaluate_synthetic(markers, truth)
+        if auto:
+            if progress is not None:
+                progress(0.7, "--template auto")
+            auto_result = evaluate_auto(markers, truth)
+    reals: dict[str, Any] = {}
+    for path in real:
+        if progress is not None:
+            progress(0.85, f"solving {Path(path).name}")
+        reals[Path(path).name] = evaluate_real(read_labelled_markers(path), real_template)
+    if synthetic is None and not reals:
+        raise ValidationError("give a synth folder, --synth MOTION or --real FILE (at least one)")
+    result = {
+        "synthetic_source": source,
+        "synthetic": synthetic,
+        "auto": auto_result,
+        "real": reals,
+        "table": targets_table(synthetic, reals, auto_result),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_output(report_path, force=force) as tmp:
+        tmp.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    result["outputs"] = [os.fspath(report_path)]
+    return result
