@@ -66,22 +66,42 @@ class AutoResult:
     spread_m: np.ndarray
 
 
-def distance_spread(positions: np.ndarray) -> np.ndarray:
+def distance_spread(positions: np.ndarray, *, chunk: int = 32) -> np.ndarray:
     """(N, N) standard deviation of each pair's distance over the frames both are seen.
 
     Parameters
     ----------
     positions : (T, N, 3) float, metres, NaN where missing
+    chunk : int
+        Frames per step (memory ~ ``chunk * N^2 * 3`` floats; dense sets have N ~ 350).
+
+    Returns
+    -------
+    (N, N) float64, metres; NaN for pairs seen together in fewer than 3 frames.
     """
     p = np.asarray(positions, dtype=np.float64)
-    d = np.linalg.norm(p[:, :, None] - p[:, None, :], axis=3)  # (T, N, N), NaN where missing
-    seen = np.isfinite(d)
-    n = seen.sum(axis=0)
-    d0 = np.where(seen, d, 0.0)
+    n_markers = p.shape[1]
+    count = np.zeros((n_markers, n_markers))
+    total = np.zeros((n_markers, n_markers))
+    square = np.zeros((n_markers, n_markers))
+    # accumulate sums relative to a first estimate of each pair's distance (no cancellation)
+    ref = None
+    for start in range(0, p.shape[0], chunk):
+        blk = p[start : start + chunk]
+        d = np.linalg.norm(blk[:, :, None] - blk[:, None, :], axis=3)  # (t, N, N), NaN where missing
+        seen = np.isfinite(d)
+        if ref is None:
+            with np.errstate(invalid="ignore"):
+                first = np.where(seen.any(axis=0), np.nanmax(np.where(seen, d, -np.inf), axis=0), 0.0)
+            ref = np.where(np.isfinite(first), first, 0.0)
+        dev = np.where(seen, d - ref, 0.0)
+        count += seen.sum(axis=0)
+        total += dev.sum(axis=0)
+        square += (dev**2).sum(axis=0)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mean = d0.sum(axis=0) / n
-        var = np.where(seen, (d - mean) ** 2, 0.0).sum(axis=0) / n
-    return np.where(n >= 3, np.sqrt(var), np.nan)
+        mean = total / count
+        var = np.maximum(square / count - mean**2, 0.0)
+    return np.where(count >= 3, np.sqrt(var), np.nan)
 
 
 def auto_template(
