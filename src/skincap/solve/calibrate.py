@@ -183,7 +183,11 @@ class _Calibrator:
         return self.positions[:, self.columns[label]]
 
     def point(self, names: list[str], where: str) -> np.ndarray:
-        """(T, 3) mean of markers and ``@segment`` centres; NaN where any is missing."""
+        """(T, 3) mean of markers and ``@segment`` centres.
+
+        A list of markers averages those seen in each frame; a list with a joint
+        centre is NaN where any part is missing.
+        """
         parts = []
         for n in names:
             if n.startswith("@"):
@@ -198,7 +202,16 @@ class _Calibrator:
                 parts.append(self.marker(n))
             else:
                 raise ValidationError(f"{where}: needs marker {n}, which the capture does not have")
-        return np.mean(parts, axis=0)
+        stack = np.stack(parts)  # (P, T, 3)
+        seen = np.isfinite(stack).all(axis=2)  # (P, T)
+        if len(parts) == 1 or names[0].startswith("@"):
+            return np.mean(stack, axis=0)  # joint centres and single markers: exact or NaN
+        # a centroid of markers uses those seen in the frame (a hidden one would
+        # otherwise blank the frame); with none seen it is NaN
+        count = seen.sum(axis=0)
+        total = np.where(seen[..., None], stack, 0.0).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(count[:, None] > 0, total / count[:, None], np.nan)
 
     def prior(self, spec: SegmentSpec) -> np.ndarray:
         assert spec.centre is not None  # checked by the template parser
