@@ -24,7 +24,9 @@ def test_recovers_exact_poses_from_a_perturbed_start():
     rot, root = _poses(rng, 300)
     y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
     kick = Rotation.from_rotvec(rng.normal(scale=0.15, size=(300 * 4, 3))).as_matrix().reshape(300, 4, 3, 3)
-    got_rot, got_root = solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, kick @ rot, root + 0.03, iterations=30)
+    got_rot, got_root = solve_poses(
+        PARENTS, OFFSETS, SEG, LOCAL, y, kick @ rot, root + 0.03, iterations=30, tolerance=1e-16
+    )
     fit = model_markers(PARENTS, OFFSETS, SEG, LOCAL, got_rot, got_root)
     assert np.abs(fit - y).max() < 1e-7
     np.testing.assert_allclose(got_rot, rot, atol=1e-6)
@@ -39,7 +41,7 @@ def test_missing_markers_drop_out_and_poses_never_go_nan():
     y[40:60, 8:11] = np.nan  # segment 3 unseen for 20 frames
     init = rot.copy()
     init[40:60, 3] = np.nan  # and no initial pose for it there: warm start fills it
-    got_rot, got_root = solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, init, root)
+    got_rot, got_root = solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, init, root, tolerance=1e-16)
     assert np.isfinite(got_rot).all() and np.isfinite(got_root).all()
     seen = np.ones(120, dtype=bool)
     seen[40:60] = False
