@@ -223,9 +223,17 @@ class _Calibrator:
             left, right = jc.harrington_hip_centres(la, ra, lp, rp)
             return left if pr["harrington"] == "left" else right
         start = self.point(list(pr["from"]), where)
-        if "towards" not in pr:
+        if "towards_line" in pr:
+            # towards the nearest point of a line (e.g. shoulder centre -> mid-wrist):
+            # from a marker on a joint's skin, that direction points into the joint
+            a = self.point(_as_list(pr["towards_line"][0]), where)
+            b = self.point(_as_list(pr["towards_line"][1]), where)
+            d = _unit(b - a)
+            towards = a + d * np.einsum("ti,ti->t", start - a, d)[:, None]
+        elif "towards" in pr:
+            towards = self.point(list(pr["towards"]), where)
+        else:
             return start
-        towards = self.point(list(pr["towards"]), where)
         if "fraction" in pr:
             return start + float(pr["fraction"]) * (towards - start)
         return start + float(pr.get("distance", 0.0)) * _unit(towards - start)

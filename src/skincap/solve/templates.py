@@ -26,7 +26,9 @@ writes one for their own set in the same form)::
   ``[P, J, D]`` orients the axis along the mean of ``(J - P) x (D - J)``). ``prior``
   is the regression used when the range of motion is too small and to place a centre
   on a hinge axis: ``{"harrington": "left"|"right", "asis": [L, R], "psis": [L, R]}``
-  or ``{"from": POINTS, "towards": POINTS, "distance": metres | "fraction": f}``.
+  or ``{"from": POINTS, "towards": POINTS, "distance": metres | "fraction": f}``
+  (``"towards_line": [POINTS, POINTS]`` instead of ``towards``: towards the nearest
+  point of that line, e.g. from the elbow marker towards the shoulder-wrist line).
 * ``axes``: the anatomical frame. The first entry's axis is exact (``FROM`` -> ``TO``),
   the second is orthogonalised; the third follows (right-handed). A second entry may
   be ``"hinge:SEGMENT"`` (that segment's joint axis, ``"-hinge:..."`` reversed) or
