@@ -144,3 +144,23 @@ def test_blender_imports_the_solved_bvh(tmp_path, solved):
     heads = r["heads"]
     got = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)
     np.testing.assert_allclose(got, ref[:, cols], atol=1e-3)
+
+
+def test_markers_never_seen_and_bad_markers_out_write_nothing(tmp_path):
+    from skincap.io.c3d import write_c3d
+    from skincap.types import MarkerSet
+
+    full = read(DATA / "cmu_85_02.c3d")
+    pos = full.positions.copy()
+    for label in ("Male:LHEE", "Male:LMT5", "Male:LTOE"):
+        pos[:, full.labels.index(label)] = np.nan
+    hidden = tmp_path / "hidden.c3d"
+    write_c3d(MarkerSet(pos, full.labels, full.rate), hidden)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run("solve", hidden, "-o", out / "x.bvh")
+    assert result.exit_code == 2
+    assert "segment foot_l has none of its template markers (LHEE, LMT5, LTOE)" in " ".join(result.stderr.split())
+    result = run("solve", DATA / "cmu_85_02.c3d", "-o", out / "x.bvh", "--markers-out", out / "m.xyz")
+    assert result.exit_code == 2 and "--markers-out: expected .c3d, .trc, .csv" in result.stderr
+    assert list(out.iterdir()) == []

@@ -165,6 +165,7 @@ class _Calibrator:
         self.columns = match_markers(markers.labels, template)
         self.labels = markers.labels
         self.positions = markers.positions
+        self.seen = np.isfinite(markers.positions).all(axis=2).any(axis=0)  # (N,)
         self.n_frames = markers.n_frames
         self.centres: dict[str, np.ndarray] = {}
         self.tech: dict[str, tuple[np.ndarray, np.ndarray]] = {}
@@ -177,7 +178,8 @@ class _Calibrator:
 
     # points -------------------------------------------------------------------
     def present(self, spec: SegmentSpec) -> list[str]:
-        return [m for m in spec.markers if m in self.columns]
+        """The segment's markers in the capture and seen in at least one frame."""
+        return [m for m in spec.markers if m in self.columns and self.seen[self.columns[m]]]
 
     def marker(self, label: str) -> np.ndarray:
         return self.positions[:, self.columns[label]]
@@ -426,7 +428,7 @@ def calibrate(
         if not cal.present(spec):
             raise ValidationError(
                 f"segment {spec.name} has none of its template markers "
-                f"({', '.join(spec.markers)}) in the capture"
+                f"({', '.join(spec.markers)}) in the capture (or they are never seen)"
             )
         cal.technical(spec)
     root = segs[0]
@@ -459,6 +461,11 @@ def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
         p = segs[parents[k]].name
         rel = np.einsum("tji,tj->ti", cal.anat[p], cal.origin[spec.name] - cal.origin[p])
         offsets[k] = _nanmedian0(rel)
+        if not np.isfinite(offsets[k]).all():
+            raise ValidationError(
+                f"segment {spec.name}: its joint centre and segment {p}'s frame are never "
+                "known in the same frame (their markers are not seen together)"
+            )
     labels, columns, seg_of, local = [], [], [], []
     for k, spec in enumerate(segs):
         for m in cal.present(spec):

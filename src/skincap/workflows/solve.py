@@ -20,6 +20,9 @@ from skincap.io import read, write
 from skincap.io._common import atomic_output
 from skincap.types import MarkerSet
 
+#: Extensions ``--markers-out`` writes.
+MARKER_OUTPUTS = (".c3d", ".trc", ".csv")
+
 __all__ = ["solve_file", "read_labelled_markers", "read_synth_take", "synth_take_in_memory", "evaluate_solve"]
 
 
@@ -79,6 +82,10 @@ def solve_file(
     """
     if Path(output_path).suffix.lower() != ".bvh":
         raise ValidationError(f"-o: the solved motion is written as .bvh, got {Path(output_path).name!r}")
+    if markers_out is not None and Path(markers_out).suffix.lower() not in MARKER_OUTPUTS:
+        raise ValidationError(
+            f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
+        )
     markers = read_labelled_markers(input_path)
     from skincap.solve import solve_markers
 
@@ -91,15 +98,21 @@ def solve_file(
     result = solve_markers(markers, tpl, progress=progress)
     rep = result.report()
     rep["input"] = os.fspath(input_path)
-    outputs = [os.fspath(output_path)]
-    write(result.motion, output_path, force=force, units=units)
-    if markers_out is not None:
-        write(result.fitted, markers_out, force=force)
-        outputs.append(os.fspath(markers_out))
-    if report is not None:
-        with atomic_output(report, force=force) as tmp:
-            tmp.write_text(json.dumps(rep, indent=1) + "\n", encoding="utf-8")
-        outputs.append(os.fspath(report))
+    outputs: list[str] = []
+    try:  # all or nothing: a failed write removes what this call wrote before it
+        write(result.motion, output_path, force=force, units=units)
+        outputs.append(os.fspath(output_path))
+        if markers_out is not None:
+            write(result.fitted, markers_out, force=force)
+            outputs.append(os.fspath(markers_out))
+        if report is not None:
+            with atomic_output(report, force=force) as tmp:
+                tmp.write_text(json.dumps(rep, indent=1) + "\n", encoding="utf-8")
+            outputs.append(os.fspath(report))
+    except BaseException:
+        for done in outputs:
+            Path(done).unlink(missing_ok=True)
+        raise
     return {
         "input": os.fspath(input_path),
         "template": rep["template"],
