@@ -30,7 +30,9 @@ def solved(tmp_path_factory):
     bvh = folder / "walk.bvh"
     fitted = folder / "fitted.c3d"
     report = folder / "report.json"
-    result = run("solve", DATA / "cmu_85_02.c3d", "-o", bvh, "--markers-out", fitted, "--report", report)
+    result = run(
+        "solve", DATA / "cmu_85_02.c3d", "-o", bvh, "--markers-out", fitted, "--report", report
+    )
     return result, bvh, fitted, report
 
 
@@ -94,7 +96,10 @@ def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["--template", "pig"], "segment pelvis has none of its template markers (LASI, RASI, LPSI, RPSI)"),
+        (
+            ["--template", "pig"],
+            "segment pelvis has none of its template markers (LASI, RASI, LPSI, RPSI)",
+        ),
         (["--template", "nosuch"], "is neither a file nor one of"),
     ],
 )
@@ -160,7 +165,11 @@ def test_markers_never_seen_and_bad_markers_out_write_nothing(tmp_path):
     out.mkdir()
     result = run("solve", hidden, "-o", out / "x.bvh")
     assert result.exit_code == 2
-    assert "segment foot_l has none of its template markers (LHEE, LMT5, LTOE)" in " ".join(result.stderr.split())
-    result = run("solve", DATA / "cmu_85_02.c3d", "-o", out / "x.bvh", "--markers-out", out / "m.xyz")
+    assert "segment foot_l has none of its template markers (LHEE, LMT5, LTOE)" in " ".join(
+        result.stderr.split()
+    )
+    result = run(
+        "solve", DATA / "cmu_85_02.c3d", "-o", out / "x.bvh", "--markers-out", out / "m.xyz"
+    )
     assert result.exit_code == 2 and "--markers-out: expected .c3d, .trc, .csv" in result.stderr
     assert list(out.iterdir()) == []

@@ -25,7 +25,9 @@ def test_bench_reports_ratios(data_dir):
         warnings.simplefilter("ignore", SkincapWarning)
         take = read(data_dir / "cmu_85_02.c3d")
         short = MarkerSet(take.positions[:240], take.labels, take.rate)
-        res = run_solve_benchmark(short, template="cmu41", reference_frames=1, repeat=1, long_take_seconds=3.0)
+        res = run_solve_benchmark(
+            short, template="cmu41", reference_frames=1, repeat=1, long_take_seconds=3.0
+        )
     assert res["speedup_vs_per_frame"] > 1.0
     assert res["ik_frames_per_second"]["cpu"] > 0
     assert res["one_minute"]["frames"] == 360

@@ -82,7 +82,15 @@ def test_eval_solve_cli_on_a_real_capture(tmp_path, data_dir):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
         res = CliRunner().invoke(
-            app, ["eval", "solve", "--real", str(data_dir / "cmu_85_02.c3d"), "-o", str(tmp_path / "ev")]
+            app,
+            [
+                "eval",
+                "solve",
+                "--real",
+                str(data_dir / "cmu_85_02.c3d"),
+                "-o",
+                str(tmp_path / "ev"),
+            ],
         )
     assert res.exit_code == 0, res.output
     assert "targets" in res.stdout and "marker RMS" in res.stdout

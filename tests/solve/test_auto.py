@@ -30,7 +30,12 @@ def _chain_take(seed=1, n=400):
     """Three rigid 4-marker bodies in a chain with ball joints, moving widely."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) / 100.0
-    rots = [Rotation.from_rotvec(0.6 * np.sin(np.outer(t, rng.uniform(1, 3, 3)) + rng.uniform(0, 6, 3))).as_matrix() for _ in range(3)]
+    rots = [
+        Rotation.from_rotvec(
+            0.6 * np.sin(np.outer(t, rng.uniform(1, 3, 3)) + rng.uniform(0, 6, 3))
+        ).as_matrix()
+        for _ in range(3)
+    ]
     world = [rots[0], rots[0] @ rots[1], rots[0] @ rots[1] @ rots[2]]
     origin = [np.zeros((n, 3))]
     joint = np.array([0.0, -0.4, 0.0])

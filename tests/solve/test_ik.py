@@ -14,7 +14,9 @@ LOCAL = np.random.default_rng(0).normal(scale=0.08, size=(SEG.size, 3))
 
 
 def _poses(rng, t):
-    rot = Rotation.from_rotvec(rng.normal(scale=0.7, size=(t * 4, 3))).as_matrix().reshape(t, 4, 3, 3)
+    rot = (
+        Rotation.from_rotvec(rng.normal(scale=0.7, size=(t * 4, 3))).as_matrix().reshape(t, 4, 3, 3)
+    )
     root = rng.normal(scale=1.0, size=(t, 3))
     return rot, root
 
@@ -23,7 +25,11 @@ def test_recovers_exact_poses_from_a_perturbed_start():
     rng = np.random.default_rng(1)
     rot, root = _poses(rng, 300)
     y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
-    kick = Rotation.from_rotvec(rng.normal(scale=0.15, size=(300 * 4, 3))).as_matrix().reshape(300, 4, 3, 3)
+    kick = (
+        Rotation.from_rotvec(rng.normal(scale=0.15, size=(300 * 4, 3)))
+        .as_matrix()
+        .reshape(300, 4, 3, 3)
+    )
     got_rot, got_root = solve_poses(
         PARENTS, OFFSETS, SEG, LOCAL, y, kick @ rot, root + 0.03, iterations=30, tolerance=1e-16
     )
@@ -49,7 +55,9 @@ def test_missing_markers_drop_out_and_poses_never_go_nan():
     ok = np.isfinite(y).all(axis=2)
     assert np.abs((fit - y)[ok]).max() < 1e-7
     # the hidden segment keeps the pose of the frame before it vanished
-    np.testing.assert_allclose(got_rot[40:60, 3], np.repeat(got_rot[39:40, 3], 20, axis=0), atol=1e-6)
+    np.testing.assert_allclose(
+        got_rot[40:60, 3], np.repeat(got_rot[39:40, 3], 20, axis=0), atol=1e-6
+    )
     # determined segments are exact everywhere
     np.testing.assert_allclose(got_rot[:, :3], rot[:, :3], atol=1e-6)
 
@@ -57,7 +65,9 @@ def test_missing_markers_drop_out_and_poses_never_go_nan():
 def test_rotations_stay_orthonormal():
     rng = np.random.default_rng(3)
     rot, root = _poses(rng, 50)
-    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root) + rng.normal(scale=0.002, size=(50, SEG.size, 3))
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root) + rng.normal(
+        scale=0.002, size=(50, SEG.size, 3)
+    )
     got_rot, _ = solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root)
     eye = np.einsum("tsji,tsjk->tsik", got_rot, got_rot)
     assert np.abs(eye - np.eye(3)).max() < 1e-9

@@ -10,7 +10,9 @@ from skincap.errors import ValidationError
 from skincap.solve import joint_centres as jc
 
 
-def _two_segments(rng, child_rot, t=200, centre_p=(0.03, -0.08, 0.05), centre_c=(-0.01, 0.22, 0.02)):
+def _two_segments(
+    rng, child_rot, t=200, centre_p=(0.03, -0.08, 0.05), centre_c=(-0.01, 0.22, 0.02)
+):
     """Parent moving freely; child turning about a centre fixed in both frames."""
     r_p = Rotation.from_rotvec(rng.normal(scale=0.4, size=(t, 3))).as_matrix()
     t_p = rng.normal(scale=0.5, size=(t, 3))
@@ -112,7 +114,9 @@ def test_harrington_matches_the_published_regression():
     lpsi, rpsi = np.array([[0.05, 1.0, -0.06]]), np.array([[-0.05, 1.0, -0.06]])
     left, right = jc.harrington_hip_centres(lasi, rasi, lpsi, rpsi)
     pw, pd = 0.24, 0.16
-    expected_right = np.array([-(0.33 * pw + 0.0073), 1.0 - 0.30 * pw - 0.0109, 0.1 - 0.24 * pd - 0.0099])
+    expected_right = np.array(
+        [-(0.33 * pw + 0.0073), 1.0 - 0.30 * pw - 0.0109, 0.1 - 0.24 * pd - 0.0099]
+    )
     np.testing.assert_allclose(right[0], expected_right, atol=1e-12)
     np.testing.assert_allclose(left[0], expected_right * [-1, 1, 1], atol=1e-12)
 

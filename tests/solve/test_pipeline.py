@@ -57,7 +57,12 @@ def _exact_take(model, n_frames=600, seed=0):
         world[:, k] = local[:, k] if p < 0 else world[:, p] @ local[:, k]
     root = np.stack([0.5 * np.sin(t), 1.0 + 0.05 * np.sin(3 * t), 0.3 * t], axis=1)
     pos = model_markers(
-        model.segment_parents, model.joint_offsets, model.marker_segments, model.marker_offsets, world, root
+        model.segment_parents,
+        model.joint_offsets,
+        model.marker_segments,
+        model.marker_offsets,
+        world,
+        root,
     )
     origins = segment_origins(model.segment_parents, model.joint_offsets, world, root)
     return pos, origins
@@ -98,7 +103,7 @@ def test_bones_keep_their_length_and_rest_pose_is_a_t_pose(cmu_solved):
     for j in range(1, sk.n_joints):
         length = np.linalg.norm(pos[:, j] - pos[:, sk.parents[j]], axis=1)
         assert np.ptp(length) < 1e-9
-    off = dict(zip(sk.names, sk.offsets))
+    off = dict(zip(sk.names, sk.offsets, strict=True))
     assert off["LeftElbow"][0] > 0.2 and off["RightElbow"][0] < -0.2  # arms along +-x
     assert off["LeftKnee"][1] < -0.3 and off["LeftAnkle"][1] < -0.3  # legs down
 

@@ -26,7 +26,13 @@ from skincap.errors import ValidationError
 
 def _percent_progress() -> Any:
     """A transient progress bar on stderr in percent (hidden off a terminal)."""
-    from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
+    from rich.progress import (
+        BarColumn,
+        Progress,
+        TaskProgressColumn,
+        TextColumn,
+        TimeRemainingColumn,
+    )
 
     return Progress(
         TextColumn("{task.description}"),
@@ -114,17 +120,23 @@ def eval_solve(
     input_dir: Annotated[
         Path | None, typer.Argument(help="A folder written by 'skincap synth --markers sparse'.")
     ] = None,
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path("eval_solve"),
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path(
+        "eval_solve"
+    ),
     synth: Annotated[
         str | None,
-        typer.Option("--synth", help="A clip (flex, squat, punch...) or .bvh: make a sparse take in memory."),
+        typer.Option(
+            "--synth", help="A clip (flex, squat, punch...) or .bvh: make a sparse take in memory."
+        ),
     ] = None,
     real: Annotated[
         list[Path] | None, typer.Option("--real", help="A real labelled capture (repeatable).")
     ] = None,
     template: Annotated[str, typer.Option(help="Template of the --real captures.")] = "cmu41",
     frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
-    vertices: Annotated[int, typer.Option(help="Procedural body vertices of a --synth take.")] = 8000,
+    vertices: Annotated[
+        int, typer.Option(help="Procedural body vertices of a --synth take.")
+    ] = 8000,
     seed: Annotated[int, typer.Option(help="Seed of a --synth take.")] = 0,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
@@ -177,11 +189,14 @@ def eval_solve(
 @bench_app.command("solve")
 def bench_solve(
     input_file: Annotated[
-        Path | None, typer.Argument(help="A labelled capture (default: a synthetic 41-marker take).")
+        Path | None,
+        typer.Argument(help="A labelled capture (default: a synthetic 41-marker take)."),
     ] = None,
     template: Annotated[str, typer.Option(help="Template of INPUT.")] = "cmu41",
     frames: Annotated[int, typer.Option(help="Frames of the synthetic take (120 Hz).")] = 600,
-    json_output: Annotated[bool, typer.Option("--json", help="Print the measurements as JSON.")] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
 ) -> None:
     """IK frames per second (and against SciPy frame by frame), and a one-minute C3D -> BVH solve.
 

@@ -101,7 +101,9 @@ def labelled_from_fragments(capture: MarkerSet, fragment_truth: dict[str, str]) 
     return MarkerSet(pos, labels, capture.rate, meta=dict(capture.meta))
 
 
-def joint_errors(truth: Motion, solved: Motion, joints: tuple[str, ...] = EVAL_JOINTS) -> dict[str, dict[str, float]]:
+def joint_errors(
+    truth: Motion, solved: Motion, joints: tuple[str, ...] = EVAL_JOINTS
+) -> dict[str, dict[str, float]]:
     """Per joint: mean and max distance (metres) between solved and true joint positions."""
     tj = joint_positions(truth)
     sj = joint_positions(solved)
@@ -109,7 +111,9 @@ def joint_errors(truth: Motion, solved: Motion, joints: tuple[str, ...] = EVAL_J
     out = {}
     for name in joints:
         if name in truth.skeleton.names and name in solved.skeleton.names:
-            d = np.linalg.norm(tj[:n, truth.skeleton.index(name)] - sj[:n, solved.skeleton.index(name)], axis=1)
+            d = np.linalg.norm(
+                tj[:n, truth.skeleton.index(name)] - sj[:n, solved.skeleton.index(name)], axis=1
+            )
             out[name] = {"mean_m": float(d.mean()), "max_m": float(d.max())}
     return out
 
@@ -127,7 +131,9 @@ def flexion_errors_deg(truth: Motion, solved: Motion) -> dict[str, dict[str, flo
     n = min(tj.shape[0], sj.shape[0])
     out = {}
     for triple in FLEXION:
-        if all(x in truth.skeleton.names for x in triple) and all(x in solved.skeleton.names for x in triple):
+        if all(x in truth.skeleton.names for x in triple) and all(
+            x in solved.skeleton.names for x in triple
+        ):
             e = np.abs(
                 _included_angle(tj[:n], truth.skeleton.names, triple)
                 - _included_angle(sj[:n], solved.skeleton.names, triple)
@@ -180,7 +186,9 @@ def ik_frames_per_second(result: Any, markers: MarkerSet, repeat: int = 3) -> di
     return {"wall": float(markers.n_frames / wall), "cpu": float(markers.n_frames / max(cpu, 1e-9))}
 
 
-def evaluate_synthetic(markers: MarkerSet, truth: Motion, template: str = "synth-sparse") -> dict[str, Any]:
+def evaluate_synthetic(
+    markers: MarkerSet, truth: Motion, template: str = "synth-sparse"
+) -> dict[str, Any]:
     """Solve a labelled synthetic take and compare it with its true motion."""
     result = solve_markers(markers, template)
     joints = joint_errors(truth, result.motion)
@@ -189,7 +197,9 @@ def evaluate_synthetic(markers: MarkerSet, truth: Motion, template: str = "synth
     tj, sj = joint_positions(truth), joint_positions(result.motion)
     all_angles = []
     for triple in FLEXION:
-        if all(x in truth.skeleton.names for x in triple) and all(x in result.motion.skeleton.names for x in triple):
+        if all(x in truth.skeleton.names for x in triple) and all(
+            x in result.motion.skeleton.names for x in triple
+        ):
             all_angles.append(
                 np.abs(
                     _included_angle(tj, truth.skeleton.names, triple)
@@ -207,7 +217,9 @@ def evaluate_synthetic(markers: MarkerSet, truth: Motion, template: str = "synth
         "flexion_errors": angles,
         "angle_median_deg": float(np.median(np.concatenate(all_angles))) if all_angles else None,
         "residual": residual,
-        "methods": {result.model.template.segment(s).joint: m for s, m in result.model.methods.items()},
+        "methods": {
+            result.model.template.segment(s).joint: m for s, m in result.model.methods.items()
+        },
         "ik_frames_per_second": ik_frames_per_second(result, markers),
         "markers": len(result.model.marker_labels),
     }
@@ -220,13 +232,17 @@ def evaluate_real(markers: MarkerSet, template: str = "cmu41") -> dict[str, Any]
         "frames": markers.n_frames,
         "template": template,
         "residual": residual_distribution(result.residuals, result.model.marker_labels),
-        "methods": {result.model.template.segment(s).joint: m for s, m in result.model.methods.items()},
+        "methods": {
+            result.model.template.segment(s).joint: m for s, m in result.model.methods.items()
+        },
         "ik_frames_per_second": ik_frames_per_second(result, markers),
         "markers": len(result.model.marker_labels),
     }
 
 
-def evaluate_auto(markers: MarkerSet, truth: Motion, template: str = "synth-sparse") -> dict[str, Any]:
+def evaluate_auto(
+    markers: MarkerSet, truth: Motion, template: str = "synth-sparse"
+) -> dict[str, Any]:
     """``--template auto`` on a labelled synthetic take against the true segments and joints."""
     tpl = load_template(template)
     true_segment = {m: s.name for s in tpl.segments for m in s.markers}
@@ -255,11 +271,15 @@ def evaluate_auto(markers: MarkerSet, truth: Motion, template: str = "synth-spar
     per = {}
     for name in EVAL_JOINTS:
         if name in truth.skeleton.names:
-            d = np.linalg.norm(sj[:n] - tj[:n, truth.skeleton.index(name)][:, None], axis=2).mean(axis=0)
+            d = np.linalg.norm(sj[:n] - tj[:n, truth.skeleton.index(name)][:, None], axis=2).mean(
+                axis=0
+            )
             per[name] = float(d.min())
     out["nearest_joint_error_m"] = per
     out["joint_mean_m"] = float(np.mean(list(per.values()))) if per else None
-    out["residual_rms_m"] = residual_distribution(result.residuals, result.model.marker_labels)["rms_m"]
+    out["residual_rms_m"] = residual_distribution(result.residuals, result.model.marker_labels)[
+        "rms_m"
+    ]
     return out
 
 

@@ -88,11 +88,15 @@ def distance_spread(positions: np.ndarray, *, chunk: int = 32) -> np.ndarray:
     ref = None
     for start in range(0, p.shape[0], chunk):
         blk = p[start : start + chunk]
-        d = np.linalg.norm(blk[:, :, None] - blk[:, None, :], axis=3)  # (t, N, N), NaN where missing
+        d = np.linalg.norm(
+            blk[:, :, None] - blk[:, None, :], axis=3
+        )  # (t, N, N), NaN where missing
         seen = np.isfinite(d)
         if ref is None:
             with np.errstate(invalid="ignore"):
-                first = np.where(seen.any(axis=0), np.nanmax(np.where(seen, d, -np.inf), axis=0), 0.0)
+                first = np.where(
+                    seen.any(axis=0), np.nanmax(np.where(seen, d, -np.inf), axis=0), 0.0
+                )
             ref = np.where(np.isfinite(first), first, 0.0)
         dev = np.where(seen, d - ref, 0.0)
         count += seen.sum(axis=0)
@@ -174,7 +178,9 @@ def auto_template(
     root_sub = int(np.argmin(dist))
     order_sub, preds_sub = breadth_first_order(graph, root_sub, directed=False)
     order = [big[int(k)] for k in order_sub]
-    parent_of = {big[int(k)]: (-1 if int(k) == root_sub else big[int(preds_sub[k])]) for k in order_sub}
+    parent_of = {
+        big[int(k)]: (-1 if int(k) == root_sub else big[int(preds_sub[k])]) for k in order_sub
+    }
     for k in range(s):
         if k in framed:
             continue
@@ -183,11 +189,17 @@ def auto_template(
             parent_of[k] = best
             order.append(k)
     new_index = {k: i for i, k in enumerate(order)}
-    parents = np.array([-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order], dtype=np.int64)
-    fit = np.array([0.0 if p < 0 else float(resid[order[i], order[p]]) for i, p in enumerate(parents)])
+    parents = np.array(
+        [-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order], dtype=np.int64
+    )
+    fit = np.array(
+        [0.0 if p < 0 else float(resid[order[i], order[p]]) for i, p in enumerate(parents)]
+    )
     names = [[strip_prefix(labels[m]) for m in groups[k]] for k in order]
     template = _as_template(names, parents, order, framed)
-    return AutoResult(template=template, groups=names, parents=parents, fit_residual_m=fit, spread_m=spread)
+    return AutoResult(
+        template=template, groups=names, parents=parents, fit_residual_m=fit, spread_m=spread
+    )
 
 
 def _joint_residual(a, b, groups, framed, pos) -> float:
@@ -211,7 +223,9 @@ def _joint_residual(a, b, groups, framed, pos) -> float:
         return float(np.sqrt(np.nanmean((dist - np.nanmean(dist, axis=0)) ** 2)))
 
 
-def _as_template(names: list[list[str]], parents: np.ndarray, order: list[int], framed: dict) -> Template:
+def _as_template(
+    names: list[list[str]], parents: np.ndarray, order: list[int], framed: dict
+) -> Template:
     segs: list[SegmentSpec] = []
     children = {i: [c for c in range(len(parents)) if parents[c] == i] for i in range(len(parents))}
     for i, group in enumerate(names):
@@ -245,5 +259,11 @@ def _as_template(names: list[list[str]], parents: np.ndarray, order: list[int], 
         )
     # a root with one marker cannot give its own second axis: use its primary's partner
     if segs[0].axes[1] == ["x", "parent"]:
-        segs[0].axes[1] = ["x", [segs[0].markers[0]], [f"@segment_{children[0][0]}"]] if children[0] else ["x", [segs[0].markers[0]], [segs[0].markers[0]]]
-    return Template(name="auto", description="found from the markers' motion (Kirk et al. 2005)", segments=segs)
+        segs[0].axes[1] = (
+            ["x", [segs[0].markers[0]], [f"@segment_{children[0][0]}"]]
+            if children[0]
+            else ["x", [segs[0].markers[0]], [segs[0].markers[0]]]
+        )
+    return Template(
+        name="auto", description="found from the markers' motion (Kirk et al. 2005)", segments=segs
+    )

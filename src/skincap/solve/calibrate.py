@@ -169,7 +169,9 @@ class _Calibrator:
         self.n_frames = markers.n_frames
         self.centres: dict[str, np.ndarray] = {}
         self.tech: dict[str, tuple[np.ndarray, np.ndarray]] = {}
-        self.axes_local: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # hinge axis in parent, child
+        self.axes_local: dict[
+            str, tuple[np.ndarray, np.ndarray]
+        ] = {}  # hinge axis in parent, child
         self.hinge_world: dict[str, np.ndarray] = {}
         self.methods: dict[str, str] = {}
         self.spreads: dict[str, list[float]] = {}
@@ -282,13 +284,17 @@ class _Calibrator:
             if cp is not None:
                 wp = to_world(rp, tp, cp[None])[:, 0]
                 wc = to_world(rc, tc, cc[None])[:, 0]
-                centre_w = np.where(np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc)
+                centre_w = np.where(
+                    np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc
+                )
         elif parent is not None and child_markers:
             rp, tp = parent
             y = to_local(rp, tp, np.stack([self.marker(m) for m in child_markers], axis=1))
             pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
             c = None
-            if (np.isfinite(y).all(axis=2).any(axis=1)).sum() >= MIN_CALIBRATION_FRAMES and np.isfinite(pp).all():
+            if (
+                np.isfinite(y).all(axis=2).any(axis=1)
+            ).sum() >= MIN_CALIBRATION_FRAMES and np.isfinite(pp).all():
                 # the range of motion seen from the prior centre: a fitted centre is
                 # meaningless when the markers hardly move
                 s2 = jc.direction_spread(y, pp)
@@ -299,7 +305,9 @@ class _Calibrator:
                 elif s2[0] >= self.min_spread and np.isfinite(pp).all():
                     c, axis = jc.sphere_centre(y, pp, hinge=True)
                     self.axes_local[spec.name] = (axis, np.full(3, np.nan))
-                    method = "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"
+                    method = (
+                        "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"
+                    )
             if c is not None:
                 centre_w = to_world(rp, tp, c[None])[:, 0]
                 centre_w = np.where(np.isfinite(centre_w), centre_w, prior_w)
@@ -343,7 +351,9 @@ class _Calibrator:
             except ValidationError:
                 continue
             cross = np.cross(j - p, d - j)
-            ok = np.isfinite(cross).all(axis=1) & np.isfinite(self.hinge_world[spec.name]).all(axis=1)
+            ok = np.isfinite(cross).all(axis=1) & np.isfinite(self.hinge_world[spec.name]).all(
+                axis=1
+            )
             if ok.any() and np.einsum("ti,ti->", cross[ok], self.hinge_world[spec.name][ok]) < 0:
                 self.hinge_world[spec.name] = -self.hinge_world[spec.name]
                 ap, ac = self.axes_local[spec.name]
@@ -352,14 +362,18 @@ class _Calibrator:
     def anatomical(self, spec: SegmentSpec) -> None:
         (a1, from1, to1), second = spec.axes[0], spec.axes[1]
         where = f"segment {spec.name} axes"
-        e1 = _unit(self.point(list(from1) if isinstance(from1, list) else [from1], where) * -1
-                   + self.point(list(to1) if isinstance(to1, list) else [to1], where))
+        e1 = _unit(
+            self.point(list(from1) if isinstance(from1, list) else [from1], where) * -1
+            + self.point(list(to1) if isinstance(to1, list) else [to1], where)
+        )
         a2 = second[0]
         e2 = None
         if len(second) == 3:
-            e2 = _unit(self.point(_as_list(second[2]), where) - self.point(_as_list(second[1]), where))
+            e2 = _unit(
+                self.point(_as_list(second[2]), where) - self.point(_as_list(second[1]), where)
+            )
         elif second[1].lstrip("-").startswith("hinge:"):
-            seg = second[1].lstrip("-")[len("hinge:"):]
+            seg = second[1].lstrip("-")[len("hinge:") :]
             if seg in self.hinge_world:
                 e2 = self.hinge_world[seg] * (-1.0 if second[1].startswith("-") else 1.0)
         if e2 is None:  # "parent", or a hinge whose axis could not be found
@@ -469,7 +483,9 @@ def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
     labels, columns, seg_of, local = [], [], [], []
     for k, spec in enumerate(segs):
         for m in cal.present(spec):
-            loc = _nanmedian0(np.einsum("tji,tj->ti", cal.anat[spec.name], cal.marker(m) - cal.origin[spec.name]))
+            loc = _nanmedian0(
+                np.einsum("tji,tj->ti", cal.anat[spec.name], cal.marker(m) - cal.origin[spec.name])
+            )
             if not np.isfinite(loc).all():
                 continue  # never seen together with its segment's frame
             labels.append(markers.labels[cal.columns[m]])

@@ -22,7 +22,6 @@ term pulling every pose towards the mean of its neighbours' initial poses.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from skincap._arrays import Progress
@@ -30,7 +29,10 @@ from skincap.errors import ValidationError
 
 __all__ = ["solve_poses", "model_markers", "segment_origins", "fill_poses"]
 
-def segment_origins(parents: np.ndarray, offsets: np.ndarray, rotations: np.ndarray, root: np.ndarray) -> np.ndarray:
+
+def segment_origins(
+    parents: np.ndarray, offsets: np.ndarray, rotations: np.ndarray, root: np.ndarray
+) -> np.ndarray:
     """(T, S, 3) world origins of the segments (loop over segments, batched over frames)."""
     out = np.empty(rotations.shape[:2] + (3,))
     out[:, 0] = root
@@ -55,7 +57,9 @@ def model_markers(
     )
 
 
-def fill_poses(rotations: np.ndarray, root: np.ndarray, parents: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fill_poses(
+    rotations: np.ndarray, root: np.ndarray, parents: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Replace NaN poses by the previous frame's (then the next's); a segment never
     posed takes its parent's rotation (the root: identity)."""
     rot = rotations.copy()
@@ -99,7 +103,9 @@ _SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
 class _Paths:
     """For every (marker, segment-on-its-path) pair: which local vector that segment carries."""
 
-    def __init__(self, parents: np.ndarray, offsets: np.ndarray, mseg: np.ndarray, moff: np.ndarray) -> None:
+    def __init__(
+        self, parents: np.ndarray, offsets: np.ndarray, mseg: np.ndarray, moff: np.ndarray
+    ) -> None:
         pair_m, pair_s, pair_v = [], [], []
         for m, s in enumerate(mseg):
             pair_m.append(m)
@@ -170,9 +176,13 @@ def solve_poses(
     t_all, m, _ = y.shape
     s = parents.size
     if mseg.shape != (m,) or moff.shape != (m, 3):
-        raise ValidationError(f"marker_segments/offsets: expected ({m},) and ({m}, 3), got {mseg.shape} and {moff.shape}")
+        raise ValidationError(
+            f"marker_segments/offsets: expected ({m},) and ({m}, 3), got {mseg.shape} and {moff.shape}"
+        )
     if init_rotations.shape != (t_all, s, 3, 3) or init_root.shape != (t_all, 3):
-        raise ValidationError("init_rotations/init_root: shapes do not match the frames and segments")
+        raise ValidationError(
+            "init_rotations/init_root: shapes do not match the frames and segments"
+        )
     rot, root = fill_poses(np.asarray(init_rotations, float), np.asarray(init_root, float), parents)
     paths = _Paths(parents, offsets, mseg, moff)
     n_par = 3 + 3 * s
@@ -181,7 +191,17 @@ def solve_poses(
     for start in range(0, t_all, chunk):
         sl = slice(start, min(start + chunk, t_all))
         out_rot[sl], out_root[sl] = _solve_chunk(
-            parents, offsets, mseg, moff, paths, y[sl], rot[sl], root[sl], n_par, iterations, tolerance
+            parents,
+            offsets,
+            mseg,
+            moff,
+            paths,
+            y[sl],
+            rot[sl],
+            root[sl],
+            n_par,
+            iterations,
+            tolerance,
         )
         if progress is not None:
             progress(sl.stop / t_all, "inverse kinematics")

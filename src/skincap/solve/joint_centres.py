@@ -49,7 +49,9 @@ __all__ = [
 MIN_SPREAD_DEG = 5.0
 
 
-def _frames(rotations: np.ndarray, translations: np.ndarray, name: str) -> tuple[np.ndarray, np.ndarray]:
+def _frames(
+    rotations: np.ndarray, translations: np.ndarray, name: str
+) -> tuple[np.ndarray, np.ndarray]:
     r = np.asarray(rotations, dtype=np.float64)
     t = np.asarray(translations, dtype=np.float64)
     if r.ndim != 3 or r.shape[1:] != (3, 3) or t.shape != (r.shape[0], 3):
@@ -66,7 +68,9 @@ def _system(
     r_p, t_p = _frames(r_parent, t_parent, "parent")
     r_c, t_c = _frames(r_child, t_child, "child")
     if r_p.shape[0] != r_c.shape[0]:
-        raise ValidationError(f"parent and child: different frame counts {r_p.shape[0]} and {r_c.shape[0]}")
+        raise ValidationError(
+            f"parent and child: different frame counts {r_p.shape[0]} and {r_c.shape[0]}"
+        )
     ok = (
         np.isfinite(r_p).all(axis=(1, 2))
         & np.isfinite(r_c).all(axis=(1, 2))
@@ -208,7 +212,9 @@ def sphere_centre(
     return c0, axis
 
 
-def closest_on_line(point_on_line: np.ndarray, direction: np.ndarray, target: np.ndarray) -> np.ndarray:
+def closest_on_line(
+    point_on_line: np.ndarray, direction: np.ndarray, target: np.ndarray
+) -> np.ndarray:
     """(3,) point of the line ``point_on_line + s * direction`` nearest ``target``."""
     d = direction / np.linalg.norm(direction)
     return point_on_line + d * ((target - point_on_line) @ d)

@@ -23,6 +23,7 @@ from skincap.types import MarkerSet, Motion
 
 __all__ = ["SolveResult", "solve_markers", "residual_report"]
 
+
 @dataclass(eq=False)
 class SolveResult:
     """What :func:`solve_markers` returns.
@@ -104,7 +105,12 @@ def solve_markers(
         progress=ik_progress,
     )
     fitted_pos = model_markers(
-        model.segment_parents, model.joint_offsets, model.marker_segments, model.marker_offsets, rot, root
+        model.segment_parents,
+        model.joint_offsets,
+        model.marker_segments,
+        model.marker_offsets,
+        rot,
+        root,
     )
     with np.errstate(invalid="ignore"):
         resid = np.linalg.norm(fitted_pos - measured, axis=2)
@@ -115,7 +121,9 @@ def solve_markers(
         rate=markers.rate,
         meta={k: v for k, v in markers.meta.items() if k in ("source_units", "up", "first_frame")},
     )
-    return SolveResult(motion=motion, model=model, fitted=fitted, rotations=rot, root=root, residuals=resid)
+    return SolveResult(
+        motion=motion, model=model, fitted=fitted, rotations=rot, root=root, residuals=resid
+    )
 
 
 def _stats(r: np.ndarray) -> dict[str, float | None]:
@@ -142,9 +150,7 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
         "joints": skel.n_joints,
         "markers_used": len(model.marker_labels),
         "overall": _stats(r),
-        "per_marker": {
-            label: _stats(r[:, k]) for k, label in enumerate(model.marker_labels)
-        },
+        "per_marker": {label: _stats(r[:, k]) for k, label in enumerate(model.marker_labels)},
         "per_frame_rms_m": [None if not np.isfinite(v) else round(float(v), 6) for v in per_frame],
         "joint_centres": {
             model.template.segments[s].joint: {
@@ -155,7 +161,9 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
             for s in range(1, model.n_segments)
         },
         "bone_lengths_m": {
-            model.template.segments[s].joint: round(float(np.linalg.norm(model.joint_offsets[s])), 6)
+            model.template.segments[s].joint: round(
+                float(np.linalg.norm(model.joint_offsets[s])), 6
+            )
             for s in range(1, model.n_segments)
         },
     }

@@ -71,7 +71,9 @@ def skeleton_of(model: BodyModel) -> tuple[Skeleton, np.ndarray]:
             add(f"{names[last]}_end", last, model.ends.get(spec.name, np.zeros(3)) - pos)
 
     visit(0, -1, np.zeros(3))
-    skel = Skeleton(names=names, parents=np.array(parents, dtype=np.int64), offsets=np.array(offsets))
+    skel = Skeleton(
+        names=names, parents=np.array(parents, dtype=np.int64), offsets=np.array(offsets)
+    )
     return skel, seg_joint
 
 
@@ -96,5 +98,11 @@ def motion_of(model: BodyModel, rotations: np.ndarray, root: np.ndarray, rate: f
         else (() if leaves[k] else ("Zrotation", "Xrotation", "Yrotation"))
         for k, p in enumerate(skel.parents)
     ]
-    return Motion(skeleton=skel, rotations=quats, translations=trans, rate=rate, channels=channels,
-                  meta={"source_units": "cm", "up": "y"})
+    return Motion(
+        skeleton=skel,
+        rotations=quats,
+        translations=trans,
+        rate=rate,
+        channels=channels,
+        meta={"source_units": "cm", "up": "y"},
+    )

@@ -1,7 +1,7 @@
 """Marker-set templates: which markers ride which segment, and how joints and axes are found.
 
-A template is a small JSON file (the built-in ones are in ``solve/templates/``; a user
-writes one for their own set in the same form)::
+A template is a small JSON file (the built-in ones are ``skincap/data/solve_template_*.json``;
+a user writes one for their own set in the same form)::
 
     {"name": "cmu41", "description": "...",
      "segments": [                               # parents before children
@@ -43,10 +43,10 @@ from __future__ import annotations
 import json
 import os
 from dataclasses import dataclass, field
-from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from skincap.data import path as data_path
 from skincap.errors import FormatError, ValidationError
 
 __all__ = [
@@ -57,12 +57,12 @@ __all__ = [
     "strip_prefix",
 ]
 
-#: Built-in template names -> file in ``solve/templates/``.
+#: Built-in template names -> their file among the shipped data (``skincap/data/``).
 BUILTIN_TEMPLATES: dict[str, str] = {
-    "pig": "pig.json",
-    "cmu41": "cmu41.json",
-    "synth-sparse": "synth_sparse.json",
-    "aml62": "aml62.json",
+    "pig": "solve_template_pig.json",
+    "cmu41": "solve_template_cmu41.json",
+    "synth-sparse": "solve_template_synth_sparse.json",
+    "aml62": "solve_template_aml62.json",
 }
 
 _AXES = ("x", "y", "z")
@@ -143,7 +143,9 @@ def _parse(data: Any, source: str) -> Template:
         if parent is not None and parent not in names:
             raise bad(f"segment {name!r}: parent {parent!r} must be an earlier segment")
         if (parent is None) != (k == 0):
-            raise bad(f"segment {name!r}: the first segment, and only it, is the root (parent null)")
+            raise bad(
+                f"segment {name!r}: the first segment, and only it, is the root (parent null)"
+            )
         if joint in joints:
             raise bad(f"segment {name!r}: joint {joint!r} used twice")
         dup = seen_markers.intersection(markers)
@@ -157,16 +159,24 @@ def _parse(data: Any, source: str) -> Template:
             raise bad(f"segment {name!r}: first axis must be [axis, FROM, TO]")
         _points(f"segment {name!r} axis", first[1])
         _points(f"segment {name!r} axis", first[2])
-        if not (isinstance(second, list) and second and second[0] in _AXES and second[0] != first[0]):
+        if not (
+            isinstance(second, list) and second and second[0] in _AXES and second[0] != first[0]
+        ):
             raise bad(f"segment {name!r}: second axis must name another of x, y, z")
         if len(second) == 2:
             ref = second[1]
-            if not (isinstance(ref, str) and (ref == "parent" or ref.lstrip("-").startswith("hinge:"))):
-                raise bad(f"segment {name!r}: second axis reference must be 'parent' or '[-]hinge:SEGMENT'")
+            if not (
+                isinstance(ref, str) and (ref == "parent" or ref.lstrip("-").startswith("hinge:"))
+            ):
+                raise bad(
+                    f"segment {name!r}: second axis reference must be 'parent' or '[-]hinge:SEGMENT'"
+                )
             if ref == "parent" and parent is None:
                 raise bad(f"segment {name!r}: the root cannot take its axis from a parent")
         elif len(second) != 3:
-            raise bad(f"segment {name!r}: second axis must be [axis, FROM, TO] or [axis, REFERENCE]")
+            raise bad(
+                f"segment {name!r}: second axis must be [axis, FROM, TO] or [axis, REFERENCE]"
+            )
         centre = raw.get("centre")
         if parent is not None:
             if not isinstance(centre, dict) or centre.get("kind") not in ("ball", "hinge"):
@@ -191,7 +201,9 @@ def _parse(data: Any, source: str) -> Template:
                 parent_joint=raw.get("parent_joint"),
                 via=[str(v) for v in raw.get("via", [])],
                 fixed_joints=list(raw.get("fixed_joints", [])),
-                end=None if raw.get("end") is None else _points(f"segment {name!r} end", raw["end"]),
+                end=None
+                if raw.get("end") is None
+                else _points(f"segment {name!r} end", raw["end"]),
             )
         )
         names.add(name)
@@ -215,7 +227,7 @@ def load_template(template: str | os.PathLike[str]) -> Template:
     """
     key = os.fspath(template)
     if key in BUILTIN_TEMPLATES:
-        text = resources.files("skincap.solve").joinpath("templates", BUILTIN_TEMPLATES[key]).read_text()
+        text = data_path(BUILTIN_TEMPLATES[key]).read_text(encoding="utf-8")
         source = f"template {key}"
     else:
         path = Path(key)

@@ -23,7 +23,13 @@ from skincap.types import MarkerSet
 #: Extensions ``--markers-out`` writes.
 MARKER_OUTPUTS = (".c3d", ".trc", ".csv")
 
-__all__ = ["solve_file", "read_labelled_markers", "read_synth_take", "synth_take_in_memory", "evaluate_solve"]
+__all__ = [
+    "solve_file",
+    "read_labelled_markers",
+    "read_synth_take",
+    "synth_take_in_memory",
+    "evaluate_solve",
+]
 
 
 def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
@@ -81,7 +87,9 @@ def solve_file(
         ``outputs`` (the files written).
     """
     if Path(output_path).suffix.lower() != ".bvh":
-        raise ValidationError(f"-o: the solved motion is written as .bvh, got {Path(output_path).name!r}")
+        raise ValidationError(
+            f"-o: the solved motion is written as .bvh, got {Path(output_path).name!r}"
+        )
     if markers_out is not None and Path(markers_out).suffix.lower() not in MARKER_OUTPUTS:
         raise ValidationError(
             f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
@@ -156,14 +164,18 @@ def read_synth_take(folder: str | os.PathLike[str]) -> tuple[MarkerSet, Any]:
     return labelled_from_fragments(capture, mapping), truth
 
 
-def synth_take_in_memory(motion: str, *, frames: int, vertices: int, seed: int, progress: Progress | None = None) -> tuple[MarkerSet, Any]:
+def synth_take_in_memory(
+    motion: str, *, frames: int, vertices: int, seed: int, progress: Progress | None = None
+) -> tuple[MarkerSet, Any]:
     """A sparse-marker synthetic take made in memory: (labelled markers, true motion)."""
     from skincap.evaluate.solve import labelled_from_fragments
     from skincap.synth.generate import generate_capture
     from skincap.synth.inputs import build_body, build_motion
 
     body = build_body("procedural", n_vertices=vertices, seed=seed)
-    clip = build_motion(body, motion, frames=frames, seed=seed, units="cmu" if motion.endswith(".bvh") else None)
+    clip = build_motion(
+        body, motion, frames=frames, seed=seed, units="cmu" if motion.endswith(".bvh") else None
+    )
     take = generate_capture(body, clip, markers="sparse", seed=seed, progress=progress)
     return labelled_from_fragments(take.capture, take.fragment_truth), take.motion
 
@@ -186,7 +198,12 @@ def evaluate_solve(
 
     Returns the result with ``table`` (the issue's targets, one row each).
     """
-    from skincap.evaluate.solve import evaluate_auto, evaluate_real, evaluate_synthetic, targets_table
+    from skincap.evaluate.solve import (
+        evaluate_auto,
+        evaluate_real,
+        evaluate_synthetic,
+        targets_table,
+    )
 
     out = Path(output_dir)
     report_path = out / "solve_eval.json"
@@ -197,11 +214,14 @@ def evaluate_solve(
             markers, truth = read_synth_take(synth_dir)
             source = os.fspath(synth_dir)
         else:
+
             def sub(f: float, label: str) -> None:
                 if progress is not None:
                     progress(0.5 * f, f"synth: {label}")
 
-            markers, truth = synth_take_in_memory(str(synth_motion), frames=frames, vertices=vertices, seed=seed, progress=sub)
+            markers, truth = synth_take_in_memory(
+                str(synth_motion), frames=frames, vertices=vertices, seed=seed, progress=sub
+            )
             source = f"synth {synth_motion} (sparse, {frames} frames, seed {seed})"
         if progress is not None:
             progress(0.5, "solving the synthetic take")

@@ -24,9 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from skincap.evaluate.solve import ik_frames_per_second
 from skincap.io import read, write
 from skincap.solve import solve_markers
-from skincap.evaluate.solve import ik_frames_per_second
 from skincap.solve.ik import model_markers
 from skincap.types import MarkerSet
 
@@ -88,7 +88,9 @@ def run_solve_benchmark(
     measured = markers.positions[:, model.marker_columns]
     fps = ik_frames_per_second(result, markers, repeat=repeat)
     wall, cpu = markers.n_frames / fps["wall"], markers.n_frames / fps["cpu"]
-    frames = np.linspace(0, markers.n_frames - 1, min(reference_frames, markers.n_frames)).astype(int)
+    frames = np.linspace(0, markers.n_frames - 1, min(reference_frames, markers.n_frames)).astype(
+        int
+    )
     ref = per_frame_reference(model, measured, frames) / frames.size  # s per frame
     ours = wall / markers.n_frames
     take = one_minute(markers, long_take_seconds)
@@ -111,8 +113,12 @@ def run_solve_benchmark(
     return {
         "ik_frames_per_second": fps,
         "speedup_vs_per_frame": ref / ours,
-        "one_minute": {"frames": take.n_frames, "wall_s": whole_wall, "cpu_s": whole_cpu,
-                       "real_time_ratio": duration / whole_wall},  # fmt: skip
+        "one_minute": {
+            "frames": take.n_frames,
+            "wall_s": whole_wall,
+            "cpu_s": whole_cpu,
+            "real_time_ratio": duration / whole_wall,
+        },  # fmt: skip
         "load_average": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "lines": lines,
     }
