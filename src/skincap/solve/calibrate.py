@@ -272,16 +272,18 @@ class _Calibrator:
             spread = [round(float(v), 2) for v in s]
             pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
             pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
+            fitted: tuple[np.ndarray, np.ndarray] | None = None
             if kind == "ball" and s[1] >= self.min_spread:
                 cp, cc, _ = jc.score_centre(rp, tp, rc, tc)
+                fitted = (cp, cc)
                 method = "SCoRE"
             elif s[0] >= self.min_spread and np.isfinite(pp).all():
                 ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
+                fitted = (cp, cc)
                 self.axes_local[spec.name] = (ap, ac)
                 method = "SARA" if kind == "hinge" else "SARA axis + regression"
-            else:
-                cp = cc = None
-            if cp is not None:
+            if fitted is not None:
+                cp, cc = fitted
                 wp = to_world(rp, tp, cp[None])[:, 0]
                 wc = to_world(rc, tc, cc[None])[:, 0]
                 centre_w = np.where(
@@ -304,6 +306,7 @@ class _Calibrator:
                     c, method = c0, "sphere fit"
                 elif s2[0] >= self.min_spread and np.isfinite(pp).all():
                     c, axis = jc.sphere_centre(y, pp, hinge=True)
+                    assert axis is not None  # hinge=True always returns the axis
                     self.axes_local[spec.name] = (axis, np.full(3, np.nan))
                     method = (
                         "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"

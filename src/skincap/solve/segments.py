@@ -43,9 +43,9 @@ def cluster_frames(
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 3 or p.shape[2] != 3 or p.shape[1] < 3:
         raise ValidationError(f"points: expected (T, K >= 3, 3), got {p.shape}")
-    seen = np.isfinite(p).all(axis=2)  # (T, K)
-    start = int(np.argmax(seen.sum(axis=1)))
-    if seen[start].sum() < 3:
+    counts = np.isfinite(p).all(axis=2).sum(axis=1)  # (T,) markers seen per frame
+    start = int(np.argmax(counts))
+    if counts[start] < 3:
         raise ValidationError("points: no frame shows three markers of the cluster")
     ref = p[start] - np.nanmean(p[start], axis=0)
     use = np.ones(p.shape[1], dtype=bool)

@@ -92,7 +92,7 @@ def motion_of(model: BodyModel, rotations: np.ndarray, root: np.ndarray, rate: f
     trans = np.broadcast_to(skel.offsets, (t, skel.n_joints, 3)).copy()
     trans[:, seg_joint[0]] = root
     leaves = skel.is_leaf
-    channels = [
+    channels: list[tuple[str, ...]] = [
         ("Xposition", "Yposition", "Zposition", "Zrotation", "Xrotation", "Yrotation")
         if p < 0
         else (() if leaves[k] else ("Zrotation", "Xrotation", "Yrotation"))

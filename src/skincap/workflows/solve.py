@@ -237,7 +237,7 @@ def evaluate_solve(
         reals[Path(path).name] = evaluate_real(read_labelled_markers(path), real_template)
     if synthetic is None and not reals:
         raise ValidationError("give a synth folder, --synth MOTION or --real FILE (at least one)")
-    result = {
+    result: dict[str, Any] = {
         "synthetic_source": source,
         "synthetic": synthetic,
         "auto": auto_result,
