@@ -14,10 +14,11 @@ joint offset, or the marker's own offset); with respect to the root origin it is
 the identity. Each frame's normal equations are solved together (``np.linalg.solve``
 over a ``(T, P, P)`` stack), with a per-frame damping that grows on a rejected step.
 
-Frames start from the previous frame's solution where the calibration gave no pose
-(warm start): a segment seen by too few markers keeps the pose it had -- its
-undetermined directions are damped, never NaN. ``smooth`` optionally adds a temporal
-term pulling every pose towards the mean of its neighbours' initial poses.
+Frames start from the calibration's measured poses; where it gave none (a segment
+seen by too few markers) from the last frame that had one (warm start), so such a
+segment keeps the pose it had -- its undetermined directions are damped, never NaN.
+No temporal smoothing and no joint limits are applied (each frame is its own
+least-squares fit).
 """
 
 from __future__ import annotations
