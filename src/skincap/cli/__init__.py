@@ -16,6 +16,7 @@ from skincap.cli import (  # noqa: F401, I001  (registers the verbs in --help or
     clean,
     render,
     track,
+    solve,
     view,
 )
 from skincap.cli._app import app, main

@@ -1,0 +1,215 @@
+"""``skincap solve``, ``skincap eval solve`` and ``skincap bench solve``.
+
+Registered on :data:`skincap.cli._app.app` / ``eval_app`` / ``bench_app`` when
+:mod:`skincap.cli` is imported. Heavy imports stay inside the commands.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from skincap.cli._app import (
+    _user_errors,
+    app,
+    bench_app,
+    err,
+    eval_app,
+    out,
+    print_bench_results,
+    print_json,
+)
+from skincap.errors import ValidationError
+
+
+def _percent_progress() -> Any:
+    """A transient progress bar on stderr in percent (hidden off a terminal)."""
+    from rich.progress import (
+        BarColumn,
+        Progress,
+        TaskProgressColumn,
+        TextColumn,
+        TimeRemainingColumn,
+    )
+
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TaskProgressColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    )
+
+
+@app.command()
+def solve(
+    input_file: Annotated[Path, typer.Argument(help="Labelled markers: .c3d, .trc or .csv.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="The solved motion, .bvh.")],
+    template: Annotated[
+        str,
+        typer.Option(
+            help="Marker set: pig, cmu41, synth-sparse, aml62, auto (found from the "
+            "markers' motion) or a template JSON file."
+        ),
+    ] = "cmu41",
+    units: Annotated[str, typer.Option(help="Length unit of the BVH (m, cm, mm, in).")] = "cm",
+    markers_out: Annotated[
+        Path | None,
+        typer.Option("--markers-out", help="Write the model's markers per frame (.c3d/.trc/.csv)."),
+    ] = None,
+    report: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write a JSON report: per-marker and per-frame RMS residuals, the "
+            "joint-centre method per joint, bone lengths."
+        ),
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
+    ] = False,
+) -> None:
+    """Solve a skeleton from labelled markers: joint centres, inverse kinematics, BVH.
+
+    Calibrates on the take itself (SCoRE/SARA functional joint centres where the
+    joints move enough, the template's regression otherwise, with a warning), then
+    fits every frame by least squares over the markers it sees. The BVH has the
+    Biovision hierarchy and names, Y up, so `skincap skin MESH OUT.bvh` plays it.
+
+    Example: skincap solve walk.c3d -o walk.bvh --template cmu41 --report walk.json
+    """
+    from skincap.io.output_safety import guard_outputs
+    from skincap.workflows.solve import solve_file
+
+    outputs = [p for p in (output, markers_out, report) if p is not None]
+    with _user_errors(), guard_outputs([input_file], outputs, force=force):
+        with _percent_progress() as progress:
+            task = progress.add_task("calibration", total=100.0)
+
+            def advance(fraction: float, label: str) -> None:
+                progress.update(task, completed=100.0 * fraction, description=label)
+
+            summary = solve_file(
+                input_file,
+                output,
+                template=template,
+                units=units,
+                markers_out=markers_out,
+                report=report,
+                force=force,
+                progress=advance,
+            )
+    if json_output:
+        print_json(summary)
+        return
+    out.print(
+        f"{input_file} -> {output}: {summary['frames']} frames, {summary['joints']} joints, "
+        f"{summary['markers']} markers ({summary['template']}), RMS residual "
+        f"{summary['rms_m'] * 100:.2f} cm, max {summary['max_m'] * 100:.2f} cm",
+        markup=False,
+        soft_wrap=True,
+    )
+
+
+@eval_app.command("solve")
+def eval_solve(
+    input_dir: Annotated[
+        Path | None, typer.Argument(help="A folder written by 'skincap synth --markers sparse'.")
+    ] = None,
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path(
+        "eval_solve"
+    ),
+    synth: Annotated[
+        str | None,
+        typer.Option(
+            "--synth", help="A clip (flex, squat, punch...) or .bvh: make a sparse take in memory."
+        ),
+    ] = None,
+    real: Annotated[
+        list[Path] | None, typer.Option("--real", help="A real labelled capture (repeatable).")
+    ] = None,
+    template: Annotated[str, typer.Option(help="Template of the --real captures.")] = "cmu41",
+    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
+    vertices: Annotated[
+        int, typer.Option(help="Procedural body vertices of a --synth take.")
+    ] = 8000,
+    seed: Annotated[int, typer.Option(help="Seed of a --synth take.")] = 0,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+) -> None:
+    """Measure the solver against issue #17's targets and print the table.
+
+    On a synthetic sparse take (perfectly labelled, with the capture's occlusion,
+    noise and soft tissue): joint-position error per joint against truth/motion.bvh,
+    knee/elbow flexion-angle error, marker residual, --template auto. On real captures:
+    the marker residual and its distribution per marker. Writes DIR/solve_eval.json.
+
+    Example: skincap eval solve take1 --real walk.c3d -o eval_solve
+    """
+    from skincap.io.output_safety import guard_outputs
+    from skincap.workflows.solve import evaluate_solve
+
+    inputs = [input_dir, *(real or [])]
+    with _user_errors(), guard_outputs(inputs, [output / "solve_eval.json"], force=force):
+        if input_dir is not None and synth is not None:
+            raise ValidationError("give a synth folder or --synth, not both")
+        with _percent_progress() as progress:
+            task = progress.add_task("eval solve", total=100.0)
+
+            def advance(fraction: float, label: str) -> None:
+                progress.update(task, completed=100.0 * fraction, description=label)
+
+            result = evaluate_solve(
+                output, synth_dir=input_dir, synth_motion=synth, real=list(real or []),
+                real_template=template, frames=frames, vertices=vertices, seed=seed,
+                force=force, progress=advance,
+            )  # fmt: skip
+    if json_output:
+        print_json(result)
+        return
+    from rich.table import Table
+
+    table = Table(title="skeleton solving against issue #17's targets", title_justify="left")
+    for col in ("measure", "measured", "target", "met"):
+        table.add_column(col)
+    for row in result["table"]:
+        table.add_row(row["measure"], row["measured"], row["target"], row["met"])
+    out.print(table)
+    syn = result.get("synthetic")
+    if syn:
+        per = ", ".join(f"{k} {v['mean_m'] * 1000:.0f}" for k, v in syn["joint_errors"].items())
+        out.print(f"joint error per joint (mm, mean): {per}", markup=False, soft_wrap=True)
+    out.print(f"wrote {result['outputs'][0]}", markup=False, soft_wrap=True)
+
+
+@bench_app.command("solve")
+def bench_solve(
+    input_file: Annotated[
+        Path | None,
+        typer.Argument(help="A labelled capture (default: a synthetic 41-marker take)."),
+    ] = None,
+    template: Annotated[str, typer.Option(help="Template of INPUT.")] = "cmu41",
+    frames: Annotated[int, typer.Option(help="Frames of the synthetic take (120 Hz).")] = 600,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """IK frames per second (and against SciPy frame by frame), and a one-minute C3D -> BVH solve.
+
+    Example: skincap bench solve walk.c3d --template cmu41
+    """
+    from skincap.evaluate.bench.solve import run_solve_benchmark
+    from skincap.workflows.solve import read_labelled_markers, synth_take_in_memory
+
+    with _user_errors():
+        if input_file is None:
+            markers, _ = synth_take_in_memory("punch", frames=frames, vertices=8000, seed=0)
+            template = "synth-sparse"
+        else:
+            markers = read_labelled_markers(input_file)
+        results = run_solve_benchmark(markers, template=template)
+    print_bench_results(results, json_output)

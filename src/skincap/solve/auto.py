@@ -1,0 +1,269 @@
+"""``--template auto``: segments, joints and the tree from the markers' own motion.
+
+After Kirk, O'Brien & Forsyth (2005), "Skeletal parameter estimation from optical
+motion capture data":
+
+1. **Segments by distance constancy.** Markers on one rigid segment keep their mutual
+   distances. The cost of a pair is the standard deviation of its distance over the
+   frames where both are seen; markers are grouped by average-linkage clustering on
+   that cost, cut at ``max_spread`` (metres). Groups of one or two markers are kept
+   (they ride a segment their neighbours' joint will frame).
+2. **Joint fits.** For every pair of segments with frames, SCoRE's residual (the RMS
+   distance between the two segments' estimates of the common centre) says how well a
+   joint explains their relative motion; a segment of one or two markers is fitted as
+   a sphere fit in each candidate parent's frame (its residual: the RMS spread of the
+   markers' distances to the centre).
+3. **The tree**: the minimum spanning tree of the fit residuals, rooted at the segment
+   nearest the markers' centroid (the trunk), oriented away from it.
+
+The result is a :class:`~skincap.solve.templates.Template` with generic names
+(``segment_0``, ``joint_0``...), which :func:`skincap.solve.solve_markers` solves like
+any other; its anatomical axes are arbitrary (the bones point along the tree), so the
+BVH's rest pose is not a T-pose and retargeting onto a named rig does not apply.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.cluster.hierarchy import fcluster, linkage
+from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
+from scipy.spatial.distance import squareform
+
+from skincap.errors import ValidationError
+from skincap.solve import joint_centres as jc
+from skincap.solve.segments import cluster_frames, to_local
+from skincap.solve.templates import SegmentSpec, Template, strip_prefix
+from skincap.types import MarkerSet
+
+__all__ = ["AutoResult", "auto_template", "distance_spread"]
+
+#: Frames used for the pairwise statistics (evenly spaced over the take).
+MAX_FRAMES = 400
+
+
+@dataclass(eq=False)
+class AutoResult:
+    """What :func:`auto_template` found.
+
+    Attributes
+    ----------
+    template : Template
+    groups : list of lists of str
+        Marker labels per segment, in template order.
+    parents : (S,) int64, -1 for the root
+    fit_residual_m : (S,) float64
+        Residual of the joint fit joining each segment to its parent (0 for the root).
+    spread_m : (N, N) float64
+        Standard deviation of every pair's distance (NaN where never seen together).
+    """
+
+    template: Template
+    groups: list[list[str]]
+    parents: np.ndarray
+    fit_residual_m: np.ndarray
+    spread_m: np.ndarray
+
+
+def distance_spread(positions: np.ndarray, *, chunk: int = 32) -> np.ndarray:
+    """(N, N) standard deviation of each pair's distance over the frames both are seen.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    chunk : int
+        Frames per step (memory ~ ``chunk * N^2 * 3`` floats; dense sets have N ~ 350).
+
+    Returns
+    -------
+    (N, N) float64, metres; NaN for pairs seen together in fewer than 3 frames.
+    """
+    p = np.asarray(positions, dtype=np.float64)
+    n_markers = p.shape[1]
+    count = np.zeros((n_markers, n_markers))
+    total = np.zeros((n_markers, n_markers))
+    square = np.zeros((n_markers, n_markers))
+    # accumulate sums relative to a first estimate of each pair's distance (no cancellation)
+    ref = None
+    for start in range(0, p.shape[0], chunk):
+        blk = p[start : start + chunk]
+        d = np.linalg.norm(
+            blk[:, :, None] - blk[:, None, :], axis=3
+        )  # (t, N, N), NaN where missing
+        seen = np.isfinite(d)
+        if ref is None:
+            with np.errstate(invalid="ignore"):
+                first = np.where(
+                    seen.any(axis=0), np.nanmax(np.where(seen, d, -np.inf), axis=0), 0.0
+                )
+            ref = np.where(np.isfinite(first), first, 0.0)
+        dev = np.where(seen, d - ref, 0.0)
+        count += seen.sum(axis=0)
+        total += dev.sum(axis=0)
+        square += (dev**2).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = total / count
+        var = np.maximum(square / count - mean**2, 0.0)
+    return np.where(count >= 3, np.sqrt(var), np.nan)
+
+
+def auto_template(
+    markers: MarkerSet, *, max_spread: float = 0.008, min_markers: int = 1
+) -> AutoResult:
+    """Find segments, joints and the tree of an unknown labelled marker set.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Labelled markers, metres (NaN where missing); the labels are only names.
+    max_spread : float
+        Cut of the clustering: markers whose distances vary (standard deviation, metres)
+        more than this on average are not one segment.
+    min_markers : int
+        Drop groups with fewer markers (their markers are not solved).
+
+    Returns
+    -------
+    AutoResult
+
+    Raises
+    ------
+    ValidationError
+        Fewer than three markers, or no group of three markers seen together (no
+        segment gets a frame, so no joint can be fitted).
+    """
+    labels = [s for s in markers.labels if not s.startswith("*")]
+    cols = [markers.labels.index(s) for s in labels]
+    if len(cols) < 3:
+        raise ValidationError("auto template: needs at least three labelled markers")
+    t = markers.n_frames
+    frames = np.unique(np.linspace(0, t - 1, min(t, MAX_FRAMES)).round().astype(int))
+    pos_all = markers.positions[:, cols]
+    spread = distance_spread(pos_all[frames])
+    cost = np.where(np.isfinite(spread), spread, 1.0)  # never seen together: far apart
+    np.fill_diagonal(cost, 0.0)
+    cost = 0.5 * (cost + cost.T)
+    tree = linkage(squareform(cost, checks=False), method="average")
+    group_of = fcluster(tree, t=max_spread, criterion="distance")
+    groups = [np.nonzero(group_of == g)[0] for g in np.unique(group_of)]
+    groups = [g for g in groups if g.size >= min_markers]
+    framed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for k, g in enumerate(groups):
+        if g.size >= 3:
+            try:
+                _, rot, trans = cluster_frames(pos_all[:, g])
+            except ValidationError:
+                continue
+            framed[k] = (rot, trans)
+    if not framed:
+        raise ValidationError("auto template: no group of three rigidly moving markers")
+    s = len(groups)
+    resid = np.full((s, s), np.inf)
+    for a in range(s):
+        for b in range(a + 1, s):
+            resid[a, b] = resid[b, a] = _joint_residual(a, b, groups, framed, pos_all)
+    # the tree over the framed groups; a group of one or two markers has no frame to
+    # carry a child, so it hangs as a leaf off the framed group that explains it best
+    big = sorted(framed)
+    sub = resid[np.ix_(big, big)]
+    # csgraph reads zeros (and values within ~1e-8 of zero) as missing edges: shift by 1 um
+    mst = minimum_spanning_tree(np.where(np.isfinite(sub), sub + 1e-6, 0.0))
+    graph = mst + mst.T
+    centroid = np.nanmean(pos_all.reshape(-1, 3), axis=0)
+    dist = [
+        float(np.linalg.norm(np.nanmean(pos_all[:, groups[k]].reshape(-1, 3), axis=0) - centroid))
+        for k in big
+    ]
+    root_sub = int(np.argmin(dist))
+    order_sub, preds_sub = breadth_first_order(graph, root_sub, directed=False)
+    order = [big[int(k)] for k in order_sub]
+    parent_of = {
+        big[int(k)]: (-1 if int(k) == root_sub else big[int(preds_sub[k])]) for k in order_sub
+    }
+    for k in range(s):
+        if k in framed:
+            continue
+        best = min(big, key=lambda b: resid[k, b])
+        if np.isfinite(resid[k, best]):
+            parent_of[k] = best
+            order.append(k)
+    new_index = {k: i for i, k in enumerate(order)}
+    parents = np.array(
+        [-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order], dtype=np.int64
+    )
+    fit = np.array(
+        [0.0 if p < 0 else float(resid[order[i], order[p]]) for i, p in enumerate(parents)]
+    )
+    names = [[strip_prefix(labels[m]) for m in groups[k]] for k in order]
+    template = _as_template(names, parents, order, framed)
+    return AutoResult(
+        template=template, groups=names, parents=parents, fit_residual_m=fit, spread_m=spread
+    )
+
+
+def _joint_residual(a, b, groups, framed, pos) -> float:
+    if a in framed and b in framed:
+        (ra, ta), (rb, tb) = framed[a], framed[b]
+        try:
+            _, _, rms = jc.score_centre(ra, ta, rb, tb)
+        except ValidationError:
+            return np.inf
+        return rms
+    if a not in framed and b not in framed:
+        return np.inf
+    frame_of, small = (a, b) if a in framed else (b, a)
+    rot, trans = framed[frame_of]
+    y = to_local(rot, trans, pos[:, groups[small]])
+    if (np.isfinite(y).all(axis=2).any(axis=1)).sum() < 10:
+        return np.inf
+    centre, _ = jc.sphere_centre(y)
+    dist = np.linalg.norm(y - centre, axis=2)
+    with np.errstate(invalid="ignore"):
+        return float(np.sqrt(np.nanmean((dist - np.nanmean(dist, axis=0)) ** 2)))
+
+
+def _as_template(
+    names: list[list[str]], parents: np.ndarray, order: list[int], framed: dict
+) -> Template:
+    segs: list[SegmentSpec] = []
+    children = {i: [c for c in range(len(parents)) if parents[c] == i] for i in range(len(parents))}
+    for i, group in enumerate(names):
+        p = int(parents[i])
+        kids = children[i]
+        if p < 0:
+            origin = list(group)
+            primary = ["y", list(group), [f"@segment_{kids[0]}"] if kids else [group[0]]]
+            secondary = ["x", [group[0]], [group[-1]]] if len(group) > 1 else ["x", "parent"]
+            centre = None
+        else:
+            origin = None
+            end = [f"@segment_{kids[0]}"] if kids else list(group)
+            primary = ["y", [f"@segment_{i}"], end]
+            secondary = ["x", "parent"]
+            parent_markers = names[p]
+            centre = {
+                "kind": "ball",
+                "prior": {"from": list(parent_markers), "towards": list(group), "fraction": 0.5},
+            }
+        segs.append(
+            SegmentSpec(
+                name=f"segment_{i}",
+                joint="Root" if p < 0 else f"joint_{i}",
+                parent=None if p < 0 else f"segment_{p}",
+                markers=list(group),
+                axes=[primary, secondary],
+                centre=centre,
+                origin=origin,
+            )
+        )
+    # a root with one marker cannot give its own second axis: use its primary's partner
+    if segs[0].axes[1] == ["x", "parent"]:
+        segs[0].axes[1] = (
+            ["x", [segs[0].markers[0]], [f"@segment_{children[0][0]}"]]
+            if children[0]
+            else ["x", [segs[0].markers[0]], [segs[0].markers[0]]]
+        )
+    return Template(
+        name="auto", description="found from the markers' motion (Kirk et al. 2005)", segments=segs
+    )

@@ -1,0 +1,529 @@
+"""Calibration on the take: segment frames, joint centres, anatomical axes, offsets.
+
+From a labelled capture and a :class:`~skincap.solve.templates.Template`:
+
+1. technical frames of every segment with three or more markers
+   (:func:`skincap.solve.segments.cluster_frames`);
+2. joint centres top-down: SCoRE between two framed segments, SARA for hinges, a
+   common-centre sphere fit in the parent's frame for a child with fewer than three
+   markers, and the template's regression prior when the range of motion is below
+   :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG` (a :class:`SkincapWarning`
+   names the joint) -- a child made of two markers then gets its technical frame from
+   them and its joint centre;
+3. anatomical frames from the template's axes, held constant in the technical frames;
+4. the model's constants: each joint's offset in its parent's anatomical frame (bone
+   lengths constant over the take) and each marker's offset in its segment's frame
+   (medians over the take).
+
+Everything is in metres, Y up; frames are batched over the take.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from skincap.errors import SkincapWarning, ValidationError
+from skincap.solve import joint_centres as jc
+from skincap.solve.segments import cluster_frames, to_local, to_world
+from skincap.solve.templates import SegmentSpec, Template, strip_prefix
+from skincap.types import MarkerSet
+
+__all__ = ["BodyModel", "calibrate", "match_markers", "MIN_CALIBRATION_FRAMES"]
+
+#: Fewest frames with markers a take needs to be calibrated on.
+MIN_CALIBRATION_FRAMES = 10
+
+_AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
+
+
+@dataclass(eq=False)
+class BodyModel:
+    """A calibrated body: rigid segments in a tree, markers fixed on them.
+
+    Attributes
+    ----------
+    segment_names : list of S str
+    segment_parents : (S,) int64, -1 for the root, parents first
+    joint_offsets : (S, 3) float64, metres
+        Each segment's origin (its proximal joint centre) in its parent's anatomical
+        frame; zero for the root.
+    marker_labels : list of M str
+        The capture's labels (prefix kept) of the markers the model uses.
+    marker_columns : (M,) int64
+        Their columns in the capture.
+    marker_segments : (M,) int64
+    marker_offsets : (M, 3) float64, metres, in the segment's anatomical frame
+    init_rotations : (T, S, 3, 3) float64
+        Anatomical frames measured on the calibration take (NaN where not seen).
+    init_origins : (T, 3) float64, metres
+        Root origin measured on the take (NaN where not seen).
+    ends : dict segment -> (3,) end-site position in the segment's frame
+    fixed : dict segment -> list of (joint name, (3,) position in the segment's frame)
+    methods : dict segment -> str, how its proximal joint centre was found
+    spreads_deg : dict segment -> list of float, range of motion used to decide
+    """
+
+    segment_names: list[str]
+    segment_parents: np.ndarray
+    joint_offsets: np.ndarray
+    marker_labels: list[str]
+    marker_columns: np.ndarray
+    marker_segments: np.ndarray
+    marker_offsets: np.ndarray
+    init_rotations: np.ndarray
+    init_origins: np.ndarray
+    template: Template
+    ends: dict[str, np.ndarray] = field(default_factory=dict)
+    fixed: dict[str, list[tuple[str, np.ndarray]]] = field(default_factory=dict)
+    methods: dict[str, str] = field(default_factory=dict)
+    spreads_deg: dict[str, list[float]] = field(default_factory=dict)
+
+    @property
+    def n_segments(self) -> int:
+        return len(self.segment_names)
+
+    def bone_lengths(self) -> dict[str, float]:
+        """Length (metres) from each non-root segment's parent joint to its joint."""
+        return {
+            self.segment_names[s]: float(np.linalg.norm(self.joint_offsets[s]))
+            for s in range(1, self.n_segments)
+        }
+
+
+# --------------------------------------------------------------- small helpers
+def _nanmedian0(x: np.ndarray) -> np.ndarray:
+    """Median over axis 0 ignoring NaN rows; NaN where a column has none (no warning)."""
+    ok = np.isfinite(x).all(axis=tuple(range(1, x.ndim)))
+    if not ok.any():
+        return np.full(x.shape[1:], np.nan)
+    return np.median(x[ok], axis=0)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    n = np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 1e-12, v / np.where(n > 0, n, 1.0), np.nan)
+
+
+def _mean_rotation(r: np.ndarray) -> np.ndarray:
+    """Chordal mean (3, 3) of rotations (T, 3, 3), NaN frames skipped."""
+    ok = np.isfinite(r).all(axis=(1, 2))
+    if not ok.any():
+        return np.full((3, 3), np.nan)
+    return Rotation.from_matrix(r[ok]).mean().as_matrix()
+
+
+def match_markers(labels: list[str], template: Template) -> dict[str, int]:
+    """Template label -> capture column, matching with ``Subject:`` prefixes stripped.
+
+    Raises
+    ------
+    ValidationError
+        No template marker is in the capture (the message lists what the template
+        expects), or two capture columns strip to the same template label.
+    """
+    wanted = set(template.markers)
+    found: dict[str, int] = {}
+    for col, label in enumerate(labels):
+        key = strip_prefix(label)
+        if key in wanted:
+            if key in found:
+                raise ValidationError(
+                    f"markers {labels[found[key]]!r} and {label!r} both match template marker {key!r}"
+                )
+            found[key] = col
+    if not found:
+        raise ValidationError(
+            f"no marker matches template {template.name}; it expects "
+            f"{', '.join(template.markers[:12])}{'...' if len(template.markers) > 12 else ''}"
+        )
+    return found
+
+
+def _right_handed(first: int, second: int, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
+    """(T, 3, 3) frames with column ``first`` = e1 exactly, ``second`` along e2 orthogonalised."""
+    e2 = _unit(e2 - e1 * np.einsum("...i,...i->...", e2, e1)[..., None])
+    third = 3 - first - second
+    # cyclic order x->y->z: e_{k+1} = e_{k+2} x e_k
+    e3 = np.cross(e1, e2) if (second - first) % 3 == 1 else np.cross(e2, e1)
+    out = np.empty(e1.shape[:-1] + (3, 3))
+    out[..., :, first] = e1
+    out[..., :, second] = e2
+    out[..., :, third] = e3
+    return out
+
+
+class _Calibrator:
+    def __init__(self, markers: MarkerSet, template: Template, min_spread_deg: float) -> None:
+        self.template = template
+        self.min_spread = float(min_spread_deg)
+        self.columns = match_markers(markers.labels, template)
+        self.labels = markers.labels
+        self.positions = markers.positions
+        self.seen = np.isfinite(markers.positions).all(axis=2).any(axis=0)  # (N,)
+        self.n_frames = markers.n_frames
+        self.centres: dict[str, np.ndarray] = {}
+        self.tech: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+        self.axes_local: dict[
+            str, tuple[np.ndarray, np.ndarray]
+        ] = {}  # hinge axis in parent, child
+        self.hinge_world: dict[str, np.ndarray] = {}
+        self.methods: dict[str, str] = {}
+        self.spreads: dict[str, list[float]] = {}
+        self.anat: dict[str, np.ndarray] = {}
+        self.origin: dict[str, np.ndarray] = {}
+
+    # points -------------------------------------------------------------------
+    def present(self, spec: SegmentSpec) -> list[str]:
+        """The segment's markers in the capture and seen in at least one frame."""
+        return [m for m in spec.markers if m in self.columns and self.seen[self.columns[m]]]
+
+    def marker(self, label: str) -> np.ndarray:
+        return self.positions[:, self.columns[label]]
+
+    def point(self, names: list[str], where: str) -> np.ndarray:
+        """(T, 3) mean of markers and ``@segment`` centres.
+
+        A list of markers averages those seen in each frame; a list with a joint
+        centre is NaN where any part is missing.
+        """
+        parts = []
+        for n in names:
+            if n.startswith("@"):
+                seg = n[1:]
+                if seg in self.centres:
+                    parts.append(self.centres[seg])
+                elif seg == self.template.segments[0].name and seg in self.origin:
+                    parts.append(self.origin[seg])
+                else:
+                    raise ValidationError(f"{where}: joint centre {n} is not known yet")
+            elif n in self.columns:
+                parts.append(self.marker(n))
+            else:
+                raise ValidationError(f"{where}: needs marker {n}, which the capture does not have")
+        stack = np.stack(parts)  # (P, T, 3)
+        seen = np.isfinite(stack).all(axis=2)  # (P, T)
+        if len(parts) == 1 or names[0].startswith("@"):
+            return np.mean(stack, axis=0)  # joint centres and single markers: exact or NaN
+        # a centroid of markers uses those seen in the frame (a hidden one would
+        # otherwise blank the frame); with none seen it is NaN
+        count = seen.sum(axis=0)
+        total = np.where(seen[..., None], stack, 0.0).sum(axis=0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(count[:, None] > 0, total / count[:, None], np.nan)
+
+    def prior(self, spec: SegmentSpec) -> np.ndarray:
+        assert spec.centre is not None  # checked by the template parser
+        pr = spec.centre["prior"]
+        where = f"joint {spec.joint} (segment {spec.name})"
+        if "harrington" in pr:
+            la, ra = (self.point([m], where) for m in pr["asis"])
+            lp, rp = (self.point([m], where) for m in pr["psis"])
+            left, right = jc.harrington_hip_centres(la, ra, lp, rp)
+            return left if pr["harrington"] == "left" else right
+        start = self.point(list(pr["from"]), where)
+        if "towards_line" in pr:
+            # towards the nearest point of a line (e.g. shoulder centre -> mid-wrist):
+            # from a marker on a joint's skin, that direction points into the joint
+            a = self.point(_as_list(pr["towards_line"][0]), where)
+            b = self.point(_as_list(pr["towards_line"][1]), where)
+            d = _unit(b - a)
+            towards = a + d * np.einsum("ti,ti->t", start - a, d)[:, None]
+        elif "towards" in pr:
+            towards = self.point(list(pr["towards"]), where)
+        else:
+            return start
+        if "fraction" in pr:
+            return start + float(pr["fraction"]) * (towards - start)
+        return start + float(pr.get("distance", 0.0)) * _unit(towards - start)
+
+    # steps --------------------------------------------------------------------
+    def technical(self, spec: SegmentSpec, extra: np.ndarray | None = None) -> None:
+        names = self.present(spec)
+        pts = [self.marker(m) for m in names]
+        if extra is not None:
+            pts.append(extra)
+        if len(pts) < 3:
+            return
+        stack = np.stack(pts, axis=1)  # (T, K, 3)
+        if (np.isfinite(stack).all(axis=2).sum(axis=1) >= 3).sum() < MIN_CALIBRATION_FRAMES:
+            return
+        _, rot, trans = cluster_frames(stack)
+        self.tech[spec.name] = (rot, trans)
+
+    def centre(self, spec: SegmentSpec) -> None:
+        assert spec.parent is not None and spec.centre is not None
+        kind = spec.centre["kind"]
+        prior_w = self.prior(spec)
+        parent = self.tech.get(spec.parent)
+        child_markers = self.present(spec)
+        method = "regression"
+        spread: list[float] = []
+        centre_w = prior_w
+        if parent is not None and spec.name in self.tech:
+            rp, tp = parent
+            rc, tc = self.tech[spec.name]
+            s = jc.motion_spread(rp, rc)
+            spread = [round(float(v), 2) for v in s]
+            pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+            pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
+            fitted: tuple[np.ndarray, np.ndarray] | None = None
+            if kind == "ball" and s[1] >= self.min_spread:
+                cp, cc, _ = jc.score_centre(rp, tp, rc, tc)
+                fitted = (cp, cc)
+                method = "SCoRE"
+            elif s[0] >= self.min_spread and np.isfinite(pp).all():
+                ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
+                fitted = (cp, cc)
+                self.axes_local[spec.name] = (ap, ac)
+                method = "SARA" if kind == "hinge" else "SARA axis + regression"
+            if fitted is not None:
+                cp, cc = fitted
+                wp = to_world(rp, tp, cp[None])[:, 0]
+                wc = to_world(rc, tc, cc[None])[:, 0]
+                centre_w = np.where(
+                    np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc
+                )
+        elif parent is not None and child_markers:
+            rp, tp = parent
+            y = to_local(rp, tp, np.stack([self.marker(m) for m in child_markers], axis=1))
+            pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+            c = None
+            if (
+                np.isfinite(y).all(axis=2).any(axis=1)
+            ).sum() >= MIN_CALIBRATION_FRAMES and np.isfinite(pp).all():
+                # the range of motion seen from the prior centre: a fitted centre is
+                # meaningless when the markers hardly move
+                s2 = jc.direction_spread(y, pp)
+                c0, _ = jc.sphere_centre(y)
+                spread = [round(float(v), 2) for v in s2]
+                if kind == "ball" and s2[1] >= self.min_spread:
+                    c, method = c0, "sphere fit"
+                elif s2[0] >= self.min_spread and np.isfinite(pp).all():
+                    c, axis = jc.sphere_centre(y, pp, hinge=True)
+                    assert axis is not None  # hinge=True always returns the axis
+                    self.axes_local[spec.name] = (axis, np.full(3, np.nan))
+                    method = (
+                        "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"
+                    )
+            if c is not None:
+                centre_w = to_world(rp, tp, c[None])[:, 0]
+                centre_w = np.where(np.isfinite(centre_w), centre_w, prior_w)
+        if method == "regression":
+            why = (
+                "its parent segment has no frame"
+                if parent is None
+                else f"range of motion {', '.join(f'{v:.1f}' for v in spread) or 'unmeasured'} deg "
+                f"is under {self.min_spread:g} deg on the axes it needs"
+            )
+            warnings.warn(
+                f"joint {spec.joint}: centre from the template's regression ({why})",
+                SkincapWarning,
+                stacklevel=4,
+            )
+        self.methods[spec.name] = method
+        self.spreads[spec.name] = spread
+        self.centres[spec.name] = centre_w
+        if spec.name not in self.tech:
+            self.technical(spec, extra=centre_w)
+        if spec.name in self.axes_local:
+            ap, ac = self.axes_local[spec.name]
+            rp, _ = parent  # type: ignore[misc]
+            world = np.einsum("tij,j->ti", rp, ap)
+            if spec.name in self.tech and not np.isfinite(ac).all():
+                rc, _ = self.tech[spec.name]
+                ac = _unit(_nanmedian0(np.einsum("tji,tj->ti", rc, world)))
+                self.axes_local[spec.name] = (ap, ac)
+            self.hinge_world[spec.name] = world
+
+    def orient_hinges(self) -> None:
+        """Sign each hinge axis along the mean flexion direction ``(J - P) x (D - J)``."""
+        for spec in self.template.segments[1:]:
+            if spec.name not in self.hinge_world:
+                continue
+            flex = (spec.centre or {}).get("flexion")
+            if not flex:
+                continue
+            try:
+                p, j, d = (self.point([n] if isinstance(n, str) else n, spec.name) for n in flex)
+            except ValidationError:
+                continue
+            cross = np.cross(j - p, d - j)
+            ok = np.isfinite(cross).all(axis=1) & np.isfinite(self.hinge_world[spec.name]).all(
+                axis=1
+            )
+            if ok.any() and np.einsum("ti,ti->", cross[ok], self.hinge_world[spec.name][ok]) < 0:
+                self.hinge_world[spec.name] = -self.hinge_world[spec.name]
+                ap, ac = self.axes_local[spec.name]
+                self.axes_local[spec.name] = (-ap, -ac)
+
+    def anatomical(self, spec: SegmentSpec) -> None:
+        (a1, from1, to1), second = spec.axes[0], spec.axes[1]
+        where = f"segment {spec.name} axes"
+        e1 = _unit(
+            self.point(list(from1) if isinstance(from1, list) else [from1], where) * -1
+            + self.point(list(to1) if isinstance(to1, list) else [to1], where)
+        )
+        a2 = second[0]
+        e2 = None
+        if len(second) == 3:
+            e2 = _unit(
+                self.point(_as_list(second[2]), where) - self.point(_as_list(second[1]), where)
+            )
+        elif second[1].lstrip("-").startswith("hinge:"):
+            seg = second[1].lstrip("-")[len("hinge:") :]
+            if seg in self.hinge_world:
+                e2 = self.hinge_world[seg] * (-1.0 if second[1].startswith("-") else 1.0)
+        if e2 is None:  # "parent", or a hinge whose axis could not be found
+            if spec.parent is None:
+                raise ValidationError(f"{where}: no second axis")
+            e2 = self.anat[spec.parent][..., :, _AXIS_INDEX[a2]]
+        frames = _right_handed(_AXIS_INDEX[a1], _AXIS_INDEX[a2], e1, e2)  # (T, 3, 3)
+        if spec.parent is None:
+            origin = self.point(list(spec.origin or []), f"segment {spec.name} origin")
+        else:
+            origin = self.centres[spec.name]
+        if spec.name in self.tech:
+            # constant in the technical frame: smoother, and defined wherever the cluster is
+            rt, tt = self.tech[spec.name]
+            rel = _mean_rotation(np.einsum("tji,tjk->tik", rt, frames))
+            o_loc = _nanmedian0(to_local(rt, tt, origin[:, None])[:, 0])
+            if np.isfinite(rel).all() and np.isfinite(o_loc).all():
+                frames = rt @ rel
+                origin = to_world(rt, tt, o_loc[None])[:, 0]
+        self.anat[spec.name] = frames
+        self.origin[spec.name] = origin
+
+
+def _as_list(v: Any) -> list[str]:
+    return list(v) if isinstance(v, list) else [v]
+
+
+def calibrate(
+    markers: MarkerSet, template: Template, *, min_spread_deg: float = jc.MIN_SPREAD_DEG
+) -> BodyModel:
+    """Calibrate a body model on a labelled take.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Labelled capture, metres, Y up (NaN where missing).
+    template : Template
+    min_spread_deg : float
+        Least range of motion for the functional methods (see
+        :func:`skincap.solve.joint_centres.motion_spread`).
+
+    Returns
+    -------
+    BodyModel
+
+    Raises
+    ------
+    ValidationError
+        No template marker in the capture; a segment with no marker; a segment that
+        cannot get a frame (fewer than three points, markers and joint centre, in
+        enough frames); a take with fewer than :data:`MIN_CALIBRATION_FRAMES` frames.
+
+    Warns
+    -----
+    SkincapWarning
+        A joint centre taken from the regression prior, naming the joint and the range
+        of motion measured.
+    """
+    if markers.n_frames < MIN_CALIBRATION_FRAMES:
+        raise ValidationError(
+            f"the take has {markers.n_frames} frames; calibration needs at least {MIN_CALIBRATION_FRAMES}"
+        )
+    cal = _Calibrator(markers, template, min_spread_deg)
+    segs = template.segments
+    for spec in segs:
+        if not cal.present(spec):
+            raise ValidationError(
+                f"segment {spec.name} has none of its template markers "
+                f"({', '.join(spec.markers)}) in the capture (or they are never seen)"
+            )
+        cal.technical(spec)
+    root = segs[0]
+    if root.name not in cal.tech:
+        raise ValidationError(
+            f"segment {root.name} needs three markers seen together in {MIN_CALIBRATION_FRAMES} "
+            f"frames; the capture has {', '.join(cal.present(root))}"
+        )
+    with np.errstate(invalid="ignore"):
+        for spec in segs[1:]:
+            cal.centre(spec)
+    cal.orient_hinges()
+    # the root's origin needs its children's centres; anatomical frames top-down
+    for spec in segs:
+        cal.anatomical(spec)
+        if not np.isfinite(cal.anat[spec.name]).all(axis=(1, 2)).any():
+            raise ValidationError(
+                f"segment {spec.name}: fewer than three points (markers "
+                f"{', '.join(cal.present(spec))} and its joint centre) in any frame: no frame for it"
+            )
+    return _model(cal, markers)
+
+
+def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
+    segs = cal.template.segments
+    index = {s.name: k for k, s in enumerate(segs)}
+    parents = np.array([-1 if s.parent is None else index[s.parent] for s in segs], dtype=np.int64)
+    offsets = np.zeros((len(segs), 3))
+    for k, spec in enumerate(segs[1:], start=1):
+        p = segs[parents[k]].name
+        rel = np.einsum("tji,tj->ti", cal.anat[p], cal.origin[spec.name] - cal.origin[p])
+        offsets[k] = _nanmedian0(rel)
+        if not np.isfinite(offsets[k]).all():
+            raise ValidationError(
+                f"segment {spec.name}: its joint centre and segment {p}'s frame are never "
+                "known in the same frame (their markers are not seen together)"
+            )
+    labels, columns, seg_of, local = [], [], [], []
+    for k, spec in enumerate(segs):
+        for m in cal.present(spec):
+            loc = _nanmedian0(
+                np.einsum("tji,tj->ti", cal.anat[spec.name], cal.marker(m) - cal.origin[spec.name])
+            )
+            if not np.isfinite(loc).all():
+                continue  # never seen together with its segment's frame
+            labels.append(markers.labels[cal.columns[m]])
+            columns.append(cal.columns[m])
+            seg_of.append(k)
+            local.append(loc)
+    ends: dict[str, np.ndarray] = {}
+    fixed: dict[str, list[tuple[str, np.ndarray]]] = {}
+    has_child = set(s.parent for s in segs)
+    for spec in segs:
+        frames, origin = cal.anat[spec.name], cal.origin[spec.name]
+
+        def local_of(names: list[str], _f=frames, _o=origin, _s=spec) -> np.ndarray:
+            pt = cal.point(names, f"segment {_s.name}")
+            return _nanmedian0(np.einsum("tji,tj->ti", _f, pt - _o))
+
+        if spec.fixed_joints:
+            to = local_of(_as_list(spec.axes[0][2]))
+            fixed[spec.name] = [(str(f["name"]), float(f["at"]) * to) for f in spec.fixed_joints]
+        if spec.name not in has_child:
+            ends[spec.name] = local_of(spec.end or _as_list(spec.axes[0][2]))
+    init = np.stack([cal.anat[s.name] for s in segs], axis=1)  # (T, S, 3, 3)
+    return BodyModel(
+        segment_names=[s.name for s in segs],
+        segment_parents=parents,
+        joint_offsets=offsets,
+        marker_labels=labels,
+        marker_columns=np.array(columns, dtype=np.int64),
+        marker_segments=np.array(seg_of, dtype=np.int64),
+        marker_offsets=np.array(local).reshape(-1, 3),
+        init_rotations=init,
+        init_origins=cal.origin[segs[0].name],
+        template=cal.template,
+        ends=ends,
+        fixed=fixed,
+        methods=dict(cal.methods),
+        spreads_deg=dict(cal.spreads),
+    )

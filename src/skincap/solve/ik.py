@@ -1,0 +1,279 @@
+"""Inverse kinematics: the body model's pose per frame from its measured markers.
+
+Pose of frame t: the root origin ``o_0`` (metres) and every segment's world rotation
+``R_s`` (the anatomical frame). Segment origins follow the tree,
+``o_s = o_parent + R_parent d_s`` (``d_s`` the calibrated joint offset, so bone lengths
+are constant), and a marker sits at ``x_m = o_seg(m) + R_seg(m) l_m``.
+
+The fit minimises ``sum_m w_m |x_m - y_m|^2`` over the measured markers ``y_m`` (a
+missing marker has ``w_m = 0`` in that frame) by Levenberg-Marquardt, batched over
+frames: the Jacobian of a marker with respect to a rotation increment ``dw_a``
+(``R_a <- exp(dw_a) R_a``) of any segment ``a`` on its path to the root is
+``-[v]_x`` with ``v`` the world vector that segment carries on the path (its child's
+joint offset, or the marker's own offset); with respect to the root origin it is
+the identity. Each frame's normal equations are solved together (``np.linalg.solve``
+over a ``(T, P, P)`` stack), with a per-frame damping that grows on a rejected step.
+
+Frames start from the calibration's measured poses; where it gave none (a segment
+seen by too few markers) from the last frame that had one (warm start), so such a
+segment keeps the pose it had -- its undetermined directions are damped, never NaN.
+No temporal smoothing and no joint limits are applied (each frame is its own
+least-squares fit).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skincap._arrays import Progress
+from skincap.errors import ValidationError
+
+__all__ = ["solve_poses", "model_markers", "segment_origins", "fill_poses"]
+
+
+def segment_origins(
+    parents: np.ndarray, offsets: np.ndarray, rotations: np.ndarray, root: np.ndarray
+) -> np.ndarray:
+    """(T, S, 3) world origins of the segments (loop over segments, batched over frames)."""
+    out = np.empty(rotations.shape[:2] + (3,))
+    out[:, 0] = root
+    for s in range(1, parents.size):
+        p = parents[s]
+        out[:, s] = out[:, p] + rotations[:, p] @ offsets[s]
+    return out
+
+
+def model_markers(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    marker_offsets: np.ndarray,
+    rotations: np.ndarray,
+    root: np.ndarray,
+) -> np.ndarray:
+    """(T, M, 3) model marker positions for poses ``rotations (T, S, 3, 3)``, ``root (T, 3)``."""
+    origins = segment_origins(parents, offsets, rotations, root)
+    return origins[:, marker_segments] + np.einsum(
+        "tmij,mj->tmi", rotations[:, marker_segments], marker_offsets
+    )
+
+
+def fill_poses(
+    rotations: np.ndarray, root: np.ndarray, parents: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Replace NaN poses by the previous frame's (then the next's); a segment never
+    posed takes its parent's rotation (the root: identity)."""
+    rot = rotations.copy()
+    org = root.copy()
+    t = rot.shape[0]
+    idx = np.arange(t)
+
+    def ffill(ok: np.ndarray) -> np.ndarray:
+        last = np.where(ok, idx, -1)
+        np.maximum.accumulate(last, out=last)
+        first = int(np.argmax(ok))
+        return np.where(last < 0, first, last)
+
+    ok = np.isfinite(org).all(axis=1)
+    org = org[ffill(ok)] if ok.any() else np.zeros_like(org)
+    for s in range(rot.shape[1]):
+        ok = np.isfinite(rot[:, s]).all(axis=(1, 2))
+        if ok.any():
+            rot[:, s] = rot[ffill(ok), s]
+        else:
+            rot[:, s] = rot[:, parents[s]] if parents[s] >= 0 else np.eye(3)
+    return rot, org
+
+
+def _exp(w: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices of rotation vectors (..., 3) (Rodrigues)."""
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    k = np.zeros(w.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+_SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
+
+
+class _Paths:
+    """For every (marker, segment-on-its-path) pair: which local vector that segment carries."""
+
+    def __init__(
+        self, parents: np.ndarray, offsets: np.ndarray, mseg: np.ndarray, moff: np.ndarray
+    ) -> None:
+        pair_m, pair_s, pair_v = [], [], []
+        for m, s in enumerate(mseg):
+            pair_m.append(m)
+            pair_s.append(s)
+            pair_v.append(moff[m])
+            child = s
+            while parents[child] >= 0:
+                p = parents[child]
+                pair_m.append(m)
+                pair_s.append(p)
+                pair_v.append(offsets[child])
+                child = p
+        self.marker = np.array(pair_m, dtype=np.int64)
+        self.segment = np.array(pair_s, dtype=np.int64)
+        self.local = np.array(pair_v, dtype=np.float64).reshape(-1, 3)
+
+
+def _cost(resid: np.ndarray, w: np.ndarray) -> np.ndarray:
+    return np.einsum("tm,tmi,tmi->t", w, resid, resid)
+
+
+def solve_poses(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    marker_offsets: np.ndarray,
+    measured: np.ndarray,
+    init_rotations: np.ndarray,
+    init_root: np.ndarray,
+    *,
+    iterations: int = 12,
+    tolerance: float = 1e-7,
+    chunk: int = 512,
+    progress: Progress | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares poses of a marker model, all frames at once.
+
+    Parameters
+    ----------
+    parents : (S,) int, -1 for the root, parents first
+    offsets : (S, 3) float, metres, each segment's origin in its parent's frame
+    marker_segments : (M,) int
+    marker_offsets : (M, 3) float, metres, in the segment's frame
+    measured : (T, M, 3) float, metres, NaN where missing
+    init_rotations : (T, S, 3, 3) float, NaN allowed (filled from neighbouring frames)
+    init_root : (T, 3) float, NaN allowed
+    iterations : int
+        Most Levenberg-Marquardt steps per frame.
+    tolerance : float
+        Stop a frame when a step improves its cost (sum of squared residuals, m^2) by
+        less than this. The default 1e-7 m^2 changes the RMS residual of the real CMU
+        and synthetic takes by under 1e-7 m against 1e-9 m^2, in 40-60 % fewer steps.
+    chunk : int
+        Frames solved together.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    rotations : (T, S, 3, 3) float64
+        World rotations, never NaN.
+    root : (T, 3) float64, metres
+    """
+    parents = np.asarray(parents, dtype=np.int64)
+    offsets = np.asarray(offsets, dtype=np.float64)
+    mseg = np.asarray(marker_segments, dtype=np.int64)
+    moff = np.asarray(marker_offsets, dtype=np.float64)
+    y = np.asarray(measured, dtype=np.float64)
+    t_all, m, _ = y.shape
+    s = parents.size
+    if mseg.shape != (m,) or moff.shape != (m, 3):
+        raise ValidationError(
+            f"marker_segments/offsets: expected ({m},) and ({m}, 3), got {mseg.shape} and {moff.shape}"
+        )
+    if init_rotations.shape != (t_all, s, 3, 3) or init_root.shape != (t_all, 3):
+        raise ValidationError(
+            "init_rotations/init_root: shapes do not match the frames and segments"
+        )
+    rot, root = fill_poses(np.asarray(init_rotations, float), np.asarray(init_root, float), parents)
+    paths = _Paths(parents, offsets, mseg, moff)
+    n_par = 3 + 3 * s
+    out_rot = np.empty_like(rot)
+    out_root = np.empty_like(root)
+    for start in range(0, t_all, chunk):
+        sl = slice(start, min(start + chunk, t_all))
+        out_rot[sl], out_root[sl] = _solve_chunk(
+            parents,
+            offsets,
+            mseg,
+            moff,
+            paths,
+            y[sl],
+            rot[sl],
+            root[sl],
+            n_par,
+            iterations,
+            tolerance,
+        )
+        if progress is not None:
+            progress(sl.stop / t_all, "inverse kinematics")
+    return out_rot, out_root
+
+
+def _solve_chunk(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    mseg: np.ndarray,
+    moff: np.ndarray,
+    paths: _Paths,
+    y: np.ndarray,
+    rot: np.ndarray,
+    root: np.ndarray,
+    n_par: int,
+    iterations: int,
+    tolerance: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    t, m, _ = y.shape
+    seen = np.isfinite(y).all(axis=2)
+    w_all = seen.astype(np.float64)  # (T, M)
+    y_all = np.where(seen[..., None], y, 0.0)
+    lam_all = np.full(t, 1e-3)
+    x_all = model_markers(parents, offsets, mseg, moff, rot, root)
+    cost_all = _cost(x_all - y_all, w_all)
+    # damping floor: keeps directions no marker constrains (a hidden hand) where they are
+    floor = 1e-6
+    active = np.arange(t)
+    # single precision for the Jacobian products: they only choose the step (the cost and
+    # the poses stay double), and halve the time of the dominant batched matmul
+    jac_all = np.zeros((t, 3 * m, n_par), dtype=np.float32)
+    root_cols = np.tile(np.arange(3), m)
+    all_rows = np.arange(3 * m)
+    rows = 3 * paths.marker  # (Q,) first Jacobian row of each pair's marker
+    cols = 3 + 3 * paths.segment
+    # the six non-zero entries of each pair's 3x3 block, in the order of _SKEW_SIGN
+    skew_rows = (rows[:, None] + np.array([0, 0, 1, 1, 2, 2])).reshape(-1)
+    skew_cols = (cols[:, None] + np.array([1, 2, 0, 2, 0, 1])).reshape(-1)
+    for _ in range(iterations):
+        if active.size == 0:
+            break
+        w, y0, lam = w_all[active], y_all[active], lam_all[active]
+        r_a, o_a, x, cost = rot[active], root[active], x_all[active], cost_all[active]
+        ta = active.size
+        resid = (x - y0) * w[..., None]  # (Ta, M, 3), zero where missing
+        v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
+        v *= w[:, paths.marker, None]  # rows of missing markers stay zero: weights are 0/1
+        jac = jac_all[:ta]
+        jac[:, all_rows, root_cols] = np.repeat(w, 3, axis=1)  # d x / d root origin
+        # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
+        jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
+        jt = jac.transpose(0, 2, 1)
+        h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
+        g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)  # (Ta, P)
+        diag = np.einsum("tii->ti", h)
+        h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
+        step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
+        new_root = o_a + step[:, :3]
+        new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
+        new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
+        new_cost = _cost(new_x - y0, w)
+        better = new_cost <= cost
+        gain = cost - new_cost
+        keep = active[better]
+        root[keep] = new_root[better]
+        rot[keep] = new_rot[better]
+        x_all[keep] = new_x[better]
+        cost_all[keep] = new_cost[better]
+        lam_all[active] = np.where(better, np.maximum(lam / 10.0, 1e-9), lam * 10.0)
+        # a frame is done when a step gains less than the tolerance (or damping is huge)
+        done = (better & (gain < tolerance)) | (lam_all[active] > 1e6)
+        active = active[~done]
+    return rot, root

@@ -1,0 +1,169 @@
+"""Labelled capture -> calibrated body model -> per-frame poses -> solved Motion.
+
+:func:`solve_markers` is the library entry point of ``skincap solve``: calibration on
+the take (:mod:`skincap.solve.calibrate`), batched inverse kinematics
+(:mod:`skincap.solve.ik`), the BVH-ready motion (:mod:`skincap.solve.skeleton`), the
+model's markers per frame and the residual report.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from skincap._arrays import Progress
+from skincap.errors import ValidationError
+from skincap.solve.calibrate import BodyModel, calibrate
+from skincap.solve.ik import model_markers, solve_poses
+from skincap.solve.skeleton import motion_of, skeleton_of
+from skincap.solve.templates import Template, load_template
+from skincap.types import MarkerSet, Motion
+
+__all__ = ["SolveResult", "solve_markers", "residual_report"]
+
+
+@dataclass(eq=False)
+class SolveResult:
+    """What :func:`solve_markers` returns.
+
+    Attributes
+    ----------
+    motion : Motion
+        The solved skeleton (metres, Y up).
+    model : BodyModel
+    fitted : MarkerSet
+        The model's markers per frame (each rigidly on its segment), same labels.
+    rotations : (T, S, 3, 3) float64, world segment frames
+    root : (T, 3) float64, metres
+    residuals : (T, M) float64, metres
+        Distance model -> measured marker; NaN where the marker is missing.
+    """
+
+    motion: Motion
+    model: BodyModel
+    fitted: MarkerSet
+    rotations: np.ndarray
+    root: np.ndarray
+    residuals: np.ndarray
+
+    def report(self) -> dict[str, Any]:
+        return residual_report(self)
+
+
+def solve_markers(
+    markers: MarkerSet,
+    template: Template | str = "cmu41",
+    *,
+    iterations: int = 12,
+    progress: Progress | None = None,
+) -> SolveResult:
+    """Solve a skeleton motion from a labelled marker capture.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Labelled capture in metres, Y up; NaN where a marker is missing.
+    template : Template or str
+        A template, a built-in name (``pig``, ``cmu41``, ``synth-sparse``, ``aml62``)
+        or a JSON file.
+    iterations : int
+        Most Levenberg-Marquardt steps per frame.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    SolveResult
+
+    Raises
+    ------
+    ValidationError
+        The capture does not fit the template (see :func:`~skincap.solve.calibrate.calibrate`).
+    """
+    tpl = template if isinstance(template, Template) else load_template(template)
+    if progress is not None:
+        progress(0.0, "calibration")
+    model = calibrate(markers, tpl)
+    if model.marker_columns.size == 0:
+        raise ValidationError("no template marker was seen with its segment")
+
+    def ik_progress(f: float, label: str) -> None:
+        if progress is not None:
+            progress(0.2 + 0.8 * f, label)
+
+    measured = markers.positions[:, model.marker_columns]
+    rot, root = solve_poses(
+        model.segment_parents,
+        model.joint_offsets,
+        model.marker_segments,
+        model.marker_offsets,
+        measured,
+        model.init_rotations,
+        model.init_origins,
+        iterations=iterations,
+        progress=ik_progress,
+    )
+    fitted_pos = model_markers(
+        model.segment_parents,
+        model.joint_offsets,
+        model.marker_segments,
+        model.marker_offsets,
+        rot,
+        root,
+    )
+    with np.errstate(invalid="ignore"):
+        resid = np.linalg.norm(fitted_pos - measured, axis=2)
+    motion = motion_of(model, rot, root, markers.rate)
+    fitted = MarkerSet(
+        positions=fitted_pos,
+        labels=list(model.marker_labels),
+        rate=markers.rate,
+        meta={k: v for k, v in markers.meta.items() if k in ("source_units", "up", "first_frame")},
+    )
+    return SolveResult(
+        motion=motion, model=model, fitted=fitted, rotations=rot, root=root, residuals=resid
+    )
+
+
+def _stats(r: np.ndarray) -> dict[str, float | None]:
+    r = r[np.isfinite(r)]
+    if r.size == 0:
+        return {"rms_m": None, "max_m": None, "samples": 0}
+    return {"rms_m": float(np.sqrt(np.mean(r**2))), "max_m": float(r.max()), "samples": int(r.size)}
+
+
+def residual_report(result: SolveResult) -> dict[str, Any]:
+    """JSON-ready report: overall, per-marker and per-frame RMS residuals (metres),
+    the joint-centre method and range of motion per joint, bone lengths (metres)."""
+    model = result.model
+    r = result.residuals
+    seen = np.isfinite(r)
+    sq = np.where(seen, r, 0.0) ** 2
+    n_frame = seen.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_frame = np.where(n_frame > 0, np.sqrt(sq.sum(axis=1) / np.maximum(n_frame, 1)), np.nan)
+    skel, seg_joint = skeleton_of(model)
+    return {
+        "template": model.template.name,
+        "frames": int(r.shape[0]),
+        "joints": skel.n_joints,
+        "markers_used": len(model.marker_labels),
+        "overall": _stats(r),
+        "per_marker": {label: _stats(r[:, k]) for k, label in enumerate(model.marker_labels)},
+        "per_frame_rms_m": [None if not np.isfinite(v) else round(float(v), 6) for v in per_frame],
+        "joint_centres": {
+            model.template.segments[s].joint: {
+                "segment": model.segment_names[s],
+                "method": model.methods.get(model.segment_names[s], "root"),
+                "range_of_motion_deg": model.spreads_deg.get(model.segment_names[s], []),
+            }
+            for s in range(1, model.n_segments)
+        },
+        "bone_lengths_m": {
+            model.template.segments[s].joint: round(
+                float(np.linalg.norm(model.joint_offsets[s])), 6
+            )
+            for s in range(1, model.n_segments)
+        },
+    }

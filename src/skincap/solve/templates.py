@@ -1,0 +1,244 @@
+"""Marker-set templates: which markers ride which segment, and how joints and axes are found.
+
+A template is a small JSON file (the built-in ones are ``skincap/data/solve_template_*.json``;
+a user writes one for their own set in the same form)::
+
+    {"name": "cmu41", "description": "...",
+     "segments": [                               # parents before children
+       {"name": "pelvis", "joint": "Hips", "parent": null,
+        "markers": ["LFWT", "RFWT", "LBWT", "RBWT"],
+        "origin": ["@thigh_l", "@thigh_r"],      # root only: where its joint sits
+        "axes": [["y", FROM, TO], ["x", FROM, TO]]},
+       {"name": "thigh_l", "joint": "LeftHip", "parent": "pelvis",
+        "markers": ["LTHI", "LKNE"],
+        "centre": {"kind": "ball", "prior": PRIOR},
+        "axes": [["y", ["@shank_l"], ["@thigh_l"]], ["x", "hinge:shank_l"]]}, ...]}
+
+* ``markers``: labels riding the segment (matched with a ``Subject:`` prefix stripped;
+  a template marker absent from the capture is simply not used).
+* ``joint``: the output BVH joint whose rotation moves the segment; ``parent_joint``
+  (default: the parent segment's joint) and ``via`` (zero-length fixed joints in
+  between, e.g. collars) shape the hierarchy; ``fixed_joints`` ``[{"name", "at"}]``
+  put rotation-less joints inside the segment at fraction ``at`` of its primary axis.
+* ``centre``: the joint between the parent and this segment. ``kind`` ``"ball"``
+  (SCoRE, or a common-centre sphere fit when the segment has under three markers) or
+  ``"hinge"`` (SARA axis, centre the point of it nearest the prior; ``flexion``
+  ``[P, J, D]`` orients the axis along the mean of ``(J - P) x (D - J)``). ``prior``
+  is the regression used when the range of motion is too small and to place a centre
+  on a hinge axis: ``{"harrington": "left"|"right", "asis": [L, R], "psis": [L, R]}``
+  or ``{"from": POINTS, "towards": POINTS, "distance": metres | "fraction": f}``
+  (``"towards_line": [POINTS, POINTS]`` instead of ``towards``: towards the nearest
+  point of that line, e.g. from the elbow marker towards the shoulder-wrist line).
+* ``axes``: the anatomical frame. The first entry's axis is exact (``FROM`` -> ``TO``),
+  the second is orthogonalised; the third follows (right-handed). A second entry may
+  be ``"hinge:SEGMENT"`` (that segment's joint axis, ``"-hinge:..."`` reversed) or
+  ``"parent"`` (the parent's axis of that name). The frames are chosen so that all
+  identity rotations give a T-pose facing +Z with Y up and the body's left on +X.
+* POINTS: a list of marker labels and ``@segment`` (that segment's joint centre), averaged.
+* ``end``: POINTS of a leaf segment's end site.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from skincap.data import path as data_path
+from skincap.errors import FormatError, ValidationError
+
+__all__ = [
+    "BUILTIN_TEMPLATES",
+    "SegmentSpec",
+    "Template",
+    "load_template",
+    "strip_prefix",
+]
+
+#: Built-in template names -> their file among the shipped data (``skincap/data/``).
+BUILTIN_TEMPLATES: dict[str, str] = {
+    "pig": "solve_template_pig.json",
+    "cmu41": "solve_template_cmu41.json",
+    "synth-sparse": "solve_template_synth_sparse.json",
+    "aml62": "solve_template_aml62.json",
+}
+
+_AXES = ("x", "y", "z")
+
+
+@dataclass
+class SegmentSpec:
+    """One segment of a template (see the module docstring for the fields)."""
+
+    name: str
+    joint: str
+    parent: str | None
+    markers: list[str]
+    axes: list[Any]
+    centre: dict[str, Any] | None = None
+    origin: list[str] | None = None
+    parent_joint: str | None = None
+    via: list[str] = field(default_factory=list)
+    fixed_joints: list[dict[str, Any]] = field(default_factory=list)
+    end: list[str] | None = None
+
+
+@dataclass
+class Template:
+    """A validated marker-set template: ``segments`` parents first."""
+
+    name: str
+    description: str
+    segments: list[SegmentSpec]
+
+    @property
+    def markers(self) -> list[str]:
+        return [m for s in self.segments for m in s.markers]
+
+    def segment(self, name: str) -> SegmentSpec:
+        for s in self.segments:
+            if s.name == name:
+                return s
+        raise ValidationError(f"template {self.name}: no segment {name!r}")
+
+
+def strip_prefix(label: str) -> str:
+    """``'Subject:LKNE'`` -> ``'LKNE'`` (the part after the last colon), stripped."""
+    return label.rsplit(":", 1)[-1].strip()
+
+
+def _points(where: str, value: Any) -> list[str]:
+    if isinstance(value, str):
+        value = [value]
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
+        raise ValidationError(f"{where}: expected a list of marker labels or '@segment' names")
+    return list(value)
+
+
+def _parse(data: Any, source: str) -> Template:
+    def bad(what: str) -> FormatError:
+        return FormatError(source, f"template: {what}")
+
+    if not isinstance(data, dict) or not isinstance(data.get("segments"), list):
+        raise bad("expected an object with a 'segments' list")
+    segments: list[SegmentSpec] = []
+    names: set[str] = set()
+    joints: set[str] = set()
+    seen_markers: set[str] = set()
+    for k, raw in enumerate(data["segments"]):
+        if not isinstance(raw, dict):
+            raise bad(f"segment {k}: expected an object")
+        try:
+            name = str(raw["name"])
+            joint = str(raw["joint"])
+            markers = [str(m) for m in raw.get("markers", [])]
+            axes = raw["axes"]
+        except KeyError as exc:
+            raise bad(f"segment {k}: missing field {exc.args[0]!r}") from None
+        parent = raw.get("parent")
+        if name in names:
+            raise bad(f"segment {name!r} appears twice")
+        if parent is not None and parent not in names:
+            raise bad(f"segment {name!r}: parent {parent!r} must be an earlier segment")
+        if (parent is None) != (k == 0):
+            raise bad(
+                f"segment {name!r}: the first segment, and only it, is the root (parent null)"
+            )
+        if joint in joints:
+            raise bad(f"segment {name!r}: joint {joint!r} used twice")
+        dup = seen_markers.intersection(markers)
+        if dup or len(set(markers)) != len(markers):
+            raise bad(f"segment {name!r}: marker(s) {sorted(dup) or markers} on two segments")
+        seen_markers.update(markers)
+        if not isinstance(axes, list) or len(axes) != 2:
+            raise bad(f"segment {name!r}: 'axes' needs two entries")
+        first, second = axes
+        if not (isinstance(first, list) and len(first) == 3 and first[0] in _AXES):
+            raise bad(f"segment {name!r}: first axis must be [axis, FROM, TO]")
+        _points(f"segment {name!r} axis", first[1])
+        _points(f"segment {name!r} axis", first[2])
+        if not (
+            isinstance(second, list) and second and second[0] in _AXES and second[0] != first[0]
+        ):
+            raise bad(f"segment {name!r}: second axis must name another of x, y, z")
+        if len(second) == 2:
+            ref = second[1]
+            if not (
+                isinstance(ref, str) and (ref == "parent" or ref.lstrip("-").startswith("hinge:"))
+            ):
+                raise bad(
+                    f"segment {name!r}: second axis reference must be 'parent' or '[-]hinge:SEGMENT'"
+                )
+            if ref == "parent" and parent is None:
+                raise bad(f"segment {name!r}: the root cannot take its axis from a parent")
+        elif len(second) != 3:
+            raise bad(
+                f"segment {name!r}: second axis must be [axis, FROM, TO] or [axis, REFERENCE]"
+            )
+        centre = raw.get("centre")
+        if parent is not None:
+            if not isinstance(centre, dict) or centre.get("kind") not in ("ball", "hinge"):
+                raise bad(f"segment {name!r}: 'centre' needs kind 'ball' or 'hinge'")
+            prior = centre.get("prior")
+            if not isinstance(prior, dict) or not ("harrington" in prior or "from" in prior):
+                raise bad(f"segment {name!r}: centre 'prior' needs 'harrington' or 'from'")
+            if centre["kind"] == "hinge" and len(centre.get("flexion", [])) != 3:
+                raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
+        origin = raw.get("origin")
+        if parent is None and origin is None:
+            raise bad(f"segment {name!r}: the root needs an 'origin'")
+        segments.append(
+            SegmentSpec(
+                name=name,
+                joint=joint,
+                parent=parent,
+                markers=markers,
+                axes=axes,
+                centre=centre,
+                origin=None if origin is None else _points(f"segment {name!r} origin", origin),
+                parent_joint=raw.get("parent_joint"),
+                via=[str(v) for v in raw.get("via", [])],
+                fixed_joints=list(raw.get("fixed_joints", [])),
+                end=None
+                if raw.get("end") is None
+                else _points(f"segment {name!r} end", raw["end"]),
+            )
+        )
+        names.add(name)
+        joints.update([joint, *segments[-1].via, *(f["name"] for f in segments[-1].fixed_joints)])
+    return Template(
+        name=str(data.get("name", Path(source).stem)),
+        description=str(data.get("description", "")),
+        segments=segments,
+    )
+
+
+def load_template(template: str | os.PathLike[str]) -> Template:
+    """A built-in template by name (:data:`BUILTIN_TEMPLATES`) or a JSON file.
+
+    Raises
+    ------
+    FormatError
+        The file is not valid JSON or not a valid template (names the file and the field).
+    ValidationError
+        Neither a built-in name nor an existing file.
+    """
+    key = os.fspath(template)
+    if key in BUILTIN_TEMPLATES:
+        text = data_path(BUILTIN_TEMPLATES[key]).read_text(encoding="utf-8")
+        source = f"template {key}"
+    else:
+        path = Path(key)
+        if not path.is_file():
+            raise ValidationError(
+                f"template: {key!r} is neither a file nor one of {', '.join(BUILTIN_TEMPLATES)} or auto"
+            )
+        text = path.read_text(encoding="utf-8")
+        source = key
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FormatError(source, f"not JSON: {exc.msg}", line=exc.lineno) from None
+    return _parse(data, source)

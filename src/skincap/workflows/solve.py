@@ -1,0 +1,251 @@
+"""``skincap solve``'s file-in/file-out glue: a labelled capture to a solved BVH.
+
+Reads the capture (C3D, TRC or CSV), solves it with :func:`skincap.solve.solve_markers`
+(or the template found by :func:`skincap.solve.auto.auto_template` for ``"auto"``), and
+writes the BVH, optionally the model's markers (``--markers-out``) and the residual
+report (``--report``). Everything is computed before the first file is written, and
+each file is written to a temporary name and renamed, so a failure leaves no output.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from skincap._arrays import Progress
+from skincap.errors import FormatError, ValidationError
+from skincap.io import read, write
+from skincap.io._common import atomic_output
+from skincap.types import MarkerSet
+
+#: Extensions ``--markers-out`` writes.
+MARKER_OUTPUTS = (".c3d", ".trc", ".csv")
+
+__all__ = [
+    "solve_file",
+    "read_labelled_markers",
+    "read_synth_take",
+    "synth_take_in_memory",
+    "evaluate_solve",
+]
+
+
+def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
+    """The labelled markers of a capture file (``*N`` fragment columns dropped).
+
+    Raises
+    ------
+    FormatError
+        The file holds no markers, or no labelled ones.
+    """
+    data = read(path)
+    if not isinstance(data, MarkerSet):
+        raise FormatError(path, "solve reads labelled markers (C3D, TRC or trajectories CSV)")
+    keep = [k for k, label in enumerate(data.labels) if not label.startswith("*")]
+    if not keep:
+        raise FormatError(path, "has no labelled markers (only '*N' fragments): label it first")
+    return data if len(keep) == data.n_markers else data.select(keep)
+
+
+def solve_file(
+    input_path: str | os.PathLike[str],
+    output_path: str | os.PathLike[str],
+    *,
+    template: str = "cmu41",
+    units: str = "cm",
+    markers_out: str | os.PathLike[str] | None = None,
+    report: str | os.PathLike[str] | None = None,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Solve ``input_path`` and write the BVH (and the optional outputs).
+
+    Parameters
+    ----------
+    input_path : path
+        Labelled capture (.c3d, .trc, .csv).
+    output_path : path
+        The BVH to write.
+    template : str
+        Built-in template name, a JSON file, or ``"auto"``.
+    units : str
+        Length unit of the BVH (``m``, ``cm``, ``mm``, ``in``...).
+    markers_out : path, optional
+        Where to write the model's markers per frame (C3D, TRC or CSV by extension).
+    report : path, optional
+        Where to write the JSON residual report.
+    force : bool
+        Replace existing outputs.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    dict
+        ``frames``, ``joints``, ``markers``, ``rms_m``, ``max_m``, ``template``,
+        ``outputs`` (the files written).
+    """
+    if Path(output_path).suffix.lower() != ".bvh":
+        raise ValidationError(
+            f"-o: the solved motion is written as .bvh, got {Path(output_path).name!r}"
+        )
+    if markers_out is not None and Path(markers_out).suffix.lower() not in MARKER_OUTPUTS:
+        raise ValidationError(
+            f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
+        )
+    markers = read_labelled_markers(input_path)
+    from skincap.solve import solve_markers
+
+    if template == "auto":
+        from skincap.solve.auto import auto_template
+
+        tpl: Any = auto_template(markers).template
+    else:
+        tpl = template
+    result = solve_markers(markers, tpl, progress=progress)
+    rep = result.report()
+    rep["input"] = os.fspath(input_path)
+    outputs: list[str] = []
+    try:  # all or nothing: a failed write removes what this call wrote before it
+        write(result.motion, output_path, force=force, units=units)
+        outputs.append(os.fspath(output_path))
+        if markers_out is not None:
+            write(result.fitted, markers_out, force=force)
+            outputs.append(os.fspath(markers_out))
+        if report is not None:
+            with atomic_output(report, force=force) as tmp:
+                tmp.write_text(json.dumps(rep, indent=1) + "\n", encoding="utf-8")
+            outputs.append(os.fspath(report))
+    except BaseException:
+        for done in outputs:
+            Path(done).unlink(missing_ok=True)
+        raise
+    return {
+        "input": os.fspath(input_path),
+        "template": rep["template"],
+        "frames": rep["frames"],
+        "joints": rep["joints"],
+        "markers": rep["markers_used"],
+        "rms_m": rep["overall"]["rms_m"],
+        "max_m": rep["overall"]["max_m"],
+        "outputs": outputs,
+    }
+
+
+def read_synth_take(folder: str | os.PathLike[str]) -> tuple[MarkerSet, Any]:
+    """The labelled take and the true motion of a ``skincap synth --markers sparse`` folder.
+
+    Returns
+    -------
+    markers : MarkerSet
+        ``capture.c3d`` with each fragment moved to its true marker (``truth/fragments.csv``).
+    truth : Motion
+        ``truth/motion.bvh`` (metres).
+    """
+    import csv
+
+    from skincap.evaluate.solve import labelled_from_fragments
+    from skincap.io.bvh import read_bvh
+
+    root = Path(folder)
+    if not root.is_dir():
+        raise FormatError(root, "not a folder (expected one written by skincap synth)")
+    for name in ("capture.c3d", "truth/fragments.csv", "truth/motion.bvh"):
+        if not (root / name).is_file():
+            raise FormatError(root / name, "missing: the folder was not written by skincap synth")
+    capture = read(root / "capture.c3d")
+    with open(root / "truth" / "fragments.csv", newline="", encoding="utf-8") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows or set(rows[0]) != {"fragment", "truth"}:
+        raise FormatError(root / "truth" / "fragments.csv", "expected the columns fragment,truth")
+    mapping = {r["fragment"]: r["truth"] for r in rows}
+    truth = read_bvh(root / "truth" / "motion.bvh", units="m")
+    return labelled_from_fragments(capture, mapping), truth
+
+
+def synth_take_in_memory(
+    motion: str, *, frames: int, vertices: int, seed: int, progress: Progress | None = None
+) -> tuple[MarkerSet, Any]:
+    """A sparse-marker synthetic take made in memory: (labelled markers, true motion)."""
+    from skincap.evaluate.solve import labelled_from_fragments
+    from skincap.synth.generate import generate_capture
+    from skincap.synth.inputs import build_body, build_motion
+
+    body = build_body("procedural", n_vertices=vertices, seed=seed)
+    clip = build_motion(
+        body, motion, frames=frames, seed=seed, units="cmu" if motion.endswith(".bvh") else None
+    )
+    take = generate_capture(body, clip, markers="sparse", seed=seed, progress=progress)
+    return labelled_from_fragments(take.capture, take.fragment_truth), take.motion
+
+
+def evaluate_solve(
+    output_dir: str | os.PathLike[str],
+    *,
+    synth_dir: str | os.PathLike[str] | None = None,
+    synth_motion: str | None = None,
+    real: list[str | os.PathLike[str]] = (),  # type: ignore[assignment]
+    real_template: str = "cmu41",
+    frames: int = 600,
+    vertices: int = 8000,
+    seed: int = 0,
+    auto: bool = True,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """``skincap eval solve``: measure the solver and write ``DIR/solve_eval.json``.
+
+    Returns the result with ``table`` (the issue's targets, one row each).
+    """
+    from skincap.evaluate.solve import (
+        evaluate_auto,
+        evaluate_real,
+        evaluate_synthetic,
+        targets_table,
+    )
+
+    out = Path(output_dir)
+    report_path = out / "solve_eval.json"
+    synthetic = auto_result = None
+    source = None
+    if synth_dir is not None or synth_motion is not None:
+        if synth_dir is not None:
+            markers, truth = read_synth_take(synth_dir)
+            source = os.fspath(synth_dir)
+        else:
+
+            def sub(f: float, label: str) -> None:
+                if progress is not None:
+                    progress(0.5 * f, f"synth: {label}")
+
+            markers, truth = synth_take_in_memory(
+                str(synth_motion), frames=frames, vertices=vertices, seed=seed, progress=sub
+            )
+            source = f"synth {synth_motion} (sparse, {frames} frames, seed {seed})"
+        if progress is not None:
+            progress(0.5, "solving the synthetic take")
+        synthetic = evaluate_synthetic(markers, truth)
+        if auto:
+            if progress is not None:
+                progress(0.7, "--template auto")
+            auto_result = evaluate_auto(markers, truth)
+    reals: dict[str, Any] = {}
+    for path in real:
+        if progress is not None:
+            progress(0.85, f"solving {Path(path).name}")
+        reals[Path(path).name] = evaluate_real(read_labelled_markers(path), real_template)
+    if synthetic is None and not reals:
+        raise ValidationError("give a synth folder, --synth MOTION or --real FILE (at least one)")
+    result: dict[str, Any] = {
+        "synthetic_source": source,
+        "synthetic": synthetic,
+        "auto": auto_result,
+        "real": reals,
+        "table": targets_table(synthetic, reals, auto_result),
+    }
+    out.mkdir(parents=True, exist_ok=True)
+    with atomic_output(report_path, force=force) as tmp:
+        tmp.write_text(json.dumps(result, indent=1) + "\n", encoding="utf-8")
+    result["outputs"] = [os.fspath(report_path)]
+    return result

@@ -1,0 +1,175 @@
+"""``skincap solve`` as a user runs it: real captures in, BVH out, skinned by ``skincap skin``."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skincap.cli import app
+from skincap.io import read
+from skincap.io.bvh import read_bvh
+
+DATA = Path(__file__).parents[1] / "data"
+BLENDER = shutil.which("blender")
+SCRIPTS = Path(__file__).parents[1] / "io" / "blender_scripts"
+
+
+def run(*args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def solved(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("solve")
+    bvh = folder / "walk.bvh"
+    fitted = folder / "fitted.c3d"
+    report = folder / "report.json"
+    result = run(
+        "solve", DATA / "cmu_85_02.c3d", "-o", bvh, "--markers-out", fitted, "--report", report
+    )
+    return result, bvh, fitted, report
+
+
+def test_solve_writes_bvh_markers_and_report(solved):
+    result, bvh, fitted, report = solved
+    assert result.exit_code == 0, result.output
+    line = result.stdout.strip()
+    assert "810 frames, 24 joints, 41 markers (cmu41), RMS residual" in " ".join(line.split())
+    motion = read_bvh(bvh, units="cm")
+    assert motion.n_frames == 810 and motion.skeleton.names[0] == "Hips"
+    assert 1.5 < motion.translations[0, 0, 1] / 0.55 < 2.0  # hips ~1 m up: centimetres read back
+    markers = read(fitted)
+    assert markers.n_markers == 41 and markers.n_frames == 810
+    rep = json.loads(report.read_text())
+    assert rep["overall"]["rms_m"] < 0.012
+    assert set(rep["joint_centres"]["LeftHip"]) == {"segment", "method", "range_of_motion_deg"}
+    assert len(rep["per_frame_rms_m"]) == 810 and len(rep["per_marker"]) == 41
+    assert rep["bone_lengths_m"]["LeftKnee"] > 0.3
+
+
+def test_units_option_scales_the_file(tmp_path, solved):
+    _, bvh, _, _ = solved
+    metres = tmp_path / "m.bvh"
+    result = run("solve", DATA / "cmu_85_02.c3d", "-o", metres, "--units", "m")
+    assert result.exit_code == 0, result.output
+    a = read_bvh(bvh, units="cm").skeleton.offsets
+    b = read_bvh(metres, units="m").skeleton.offsets
+    np.testing.assert_allclose(a, b, atol=1e-6)
+
+
+@pytest.mark.slow
+def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
+    from skincap.io.c3d import write_c3d
+    from skincap.io.pc2 import read_pc2
+    from skincap.types import MarkerSet
+
+    full = read(DATA / "cmu_85_02.c3d")
+    cut = tmp_path / "cut.c3d"
+    write_c3d(MarkerSet(full.positions[:240], full.labels, full.rate), cut)
+    bvh = tmp_path / "cut.bvh"
+    assert run("solve", cut, "-o", bvh).exit_code == 0
+    mh = tmp_path / "mh"
+    mh.mkdir()
+    for name in ("makehuman_base.obj", "makehuman_default.mhskel", "makehuman_default_weights.mhw"):
+        shutil.copy(DATA / name, mh / name)
+    out = tmp_path / "body.pc2"
+    result = run("skin", mh / "makehuman_base.obj", bvh, "-o", out)
+    assert result.exit_code == 0, result.output
+    frames = read_pc2(out).frames  # (T, V, 3) metres
+    assert frames.shape[0] == 240 and np.isfinite(frames).all()
+    # the body goes where the solved skeleton goes: its centre follows the hips
+    root = read_bvh(bvh, units="cm").translations[:, 0]
+    body = frames.mean(axis=1)
+    for axis in (0, 1, 2):
+        if np.ptp(root[:, axis]) > 0.05:
+            assert np.corrcoef(body[:, axis], root[:, axis])[0, 1] > 0.8  # limbs move too
+    height = np.ptp(frames[0, :, 1])
+    assert 1.2 < height < 2.0
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (
+            ["--template", "pig"],
+            "segment pelvis has none of its template markers (LASI, RASI, LPSI, RPSI)",
+        ),
+        (["--template", "nosuch"], "is neither a file nor one of"),
+    ],
+)
+def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, args, message):
+    out = tmp_path / "x.bvh"
+    result = run("solve", DATA / "cmu_85_02.c3d", "-o", out, "--report", tmp_path / "r.json", *args)
+    assert result.exit_code == 2
+    lines = [s for s in result.stderr.splitlines() if s.startswith("skincap: error:")]
+    assert len(lines) == 1 and message in " ".join(result.stderr.split())
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unlabelled_capture_is_refused(tmp_path):
+    result = run("solve", DATA / "aml_S09_KneeltoRun02_unlabeled.c3d", "-o", tmp_path / "x.bvh")
+    assert result.exit_code == 2
+    assert "has no labelled markers" in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_existing_output_needs_force(tmp_path):
+    out = tmp_path / "x.bvh"
+    out.write_text("keep")
+    result = run("solve", DATA / "cmu_85_02.c3d", "-o", out)
+    assert result.exit_code == 2 and out.read_text() == "keep"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(BLENDER is None, reason="Blender is not on PATH")
+def test_blender_imports_the_solved_bvh(tmp_path, solved):
+    """Blender's own BVH importer puts every bone head where skincap's FK does."""
+    from skincap.geometry.kinematics import joint_positions
+
+    _, bvh, _, _ = solved
+    out = tmp_path / "bvh.npz"
+    frames = [0, 400, 809]
+    cmd = [BLENDER, "-b", "--factory-startup", "--python-exit-code", "1",
+           "--python", str(SCRIPTS / "import_bvh.py"), "--", str(bvh), str(out), *map(str, frames)]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    r = np.load(out)
+    assert r["frame_range"].tolist() == [1.0, 810.0]
+    file_units = read_bvh(bvh, units="m")  # Blender works in the file's numbers
+    ref = joint_positions(file_units)[frames]
+    names = list(file_units.skeleton.names)
+    cols = [names.index(n) for n in r["names"]]
+    assert len(cols) >= 19
+    heads = r["heads"]
+    got = np.stack([heads[..., 0], heads[..., 2], -heads[..., 1]], axis=-1)
+    np.testing.assert_allclose(got, ref[:, cols], atol=1e-3)
+
+
+def test_markers_never_seen_and_bad_markers_out_write_nothing(tmp_path):
+    from skincap.io.c3d import write_c3d
+    from skincap.types import MarkerSet
+
+    full = read(DATA / "cmu_85_02.c3d")
+    pos = full.positions.copy()
+    for label in ("Male:LHEE", "Male:LMT5", "Male:LTOE"):
+        pos[:, full.labels.index(label)] = np.nan
+    hidden = tmp_path / "hidden.c3d"
+    write_c3d(MarkerSet(pos, full.labels, full.rate), hidden)
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run("solve", hidden, "-o", out / "x.bvh")
+    assert result.exit_code == 2
+    assert "segment foot_l has none of its template markers (LHEE, LMT5, LTOE)" in " ".join(
+        result.stderr.split()
+    )
+    result = run(
+        "solve", DATA / "cmu_85_02.c3d", "-o", out / "x.bvh", "--markers-out", out / "m.xyz"
+    )
+    assert result.exit_code == 2 and "--markers-out: expected .c3d, .trc, .csv" in result.stderr
+    assert list(out.iterdir()) == []

@@ -1,0 +1,103 @@
+"""The solve evaluation's measures on cases with known answers."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from skincap.errors import SkincapWarning
+from skincap.evaluate.solve import (
+    flexion_errors_deg,
+    joint_errors,
+    labelled_from_fragments,
+    residual_distribution,
+    targets_table,
+)
+from skincap.types import MarkerSet, Motion, Skeleton
+
+
+def _arm(angles_deg: np.ndarray) -> Motion:
+    sk = Skeleton(
+        ["LeftShoulder", "LeftElbow", "LeftWrist"], np.array([-1, 0, 1]),
+        np.array([[0.0, 1.4, 0.0], [0.3, 0.0, 0.0], [0.25, 0.0, 0.0]]),
+    )  # fmt: skip
+    t = angles_deg.size
+    q = np.zeros((t, 3, 4))
+    q[..., 3] = 1.0
+    q[:, 1] = Rotation.from_euler("y", angles_deg[:, None], degrees=True).as_quat()
+    trans = np.broadcast_to(sk.offsets, (t, 3, 3)).copy()
+    return Motion(sk, q, trans, 100.0)
+
+
+def test_flexion_error_is_the_difference_of_elbow_angles():
+    truth = _arm(np.linspace(0, 90, 50))
+    solved = _arm(np.linspace(0, 90, 50) + 2.0)
+    err = flexion_errors_deg(truth, solved)
+    assert set(err) == {"LeftElbow"}  # the knees and the right arm are absent
+    np.testing.assert_allclose(err["LeftElbow"]["median_deg"], 2.0, atol=1e-9)
+
+
+def test_joint_errors_measure_distances_per_joint():
+    truth = _arm(np.zeros(10))
+    trans = truth.translations.copy()
+    trans[:, 0, 1] += 0.01
+    moved = Motion(truth.skeleton, truth.rotations, trans, 100.0)
+    err = joint_errors(truth, moved)
+    assert set(err) == {"LeftShoulder", "LeftElbow", "LeftWrist"}
+    # only the root's translation moved: every joint follows it by 1 cm
+    for v in err.values():
+        assert abs(v["mean_m"] - 0.01) < 1e-12
+
+
+def test_fragments_go_back_to_their_true_columns():
+    pos = np.full((6, 3, 3), np.nan)
+    pos[:3, 0] = 1.0  # LKNE's first fragment
+    pos[3:, 1] = 2.0  # *1: LKNE again
+    pos[:, 2] = 3.0  # a ghost
+    cap = MarkerSet(pos, ["LKNE", "*1", "*2"], 100.0)
+    out = labelled_from_fragments(cap, {"LKNE": "LKNE", "*1": "LKNE", "*2": "ghost"})
+    assert out.labels == ["LKNE"]
+    np.testing.assert_array_equal(out.positions[:, 0, 0], [1, 1, 1, 2, 2, 2])
+
+
+def test_residual_distribution_and_table(data_dir):
+    r = np.array([[0.01, np.nan], [0.03, 0.02]])
+    dist = residual_distribution(r, ["a", "b"])
+    assert abs(dist["rms_m"] - np.sqrt((0.01**2 + 0.03**2 + 0.02**2) / 3)) < 1e-12
+    assert dist["per_marker"]["b"]["max_m"] == 0.02
+    real = {"x.c3d": {"residual": dist, "ik_frames_per_second": {"wall": 10.0, "cpu": 3000.0},
+                      "markers": 2, "frames": 2}}  # fmt: skip
+    rows = targets_table(None, real, None)
+    assert rows[0]["met"] == "false" and "2.16 cm RMS" in rows[0]["measured"]
+    assert rows[-1]["met"] == "true"  # 3,000 frames/s of CPU time
+
+
+def test_eval_solve_cli_on_a_real_capture(tmp_path, data_dir):
+    from typer.testing import CliRunner
+
+    from skincap.cli import app
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        res = CliRunner().invoke(
+            app,
+            [
+                "eval",
+                "solve",
+                "--real",
+                str(data_dir / "cmu_85_02.c3d"),
+                "-o",
+                str(tmp_path / "ev"),
+            ],
+        )
+    assert res.exit_code == 0, res.output
+    assert "targets" in res.stdout and "marker RMS" in res.stdout
+    import json
+
+    result = json.loads((tmp_path / "ev" / "solve_eval.json").read_text())
+    row = result["table"][0]
+    assert row["measure"] == "marker RMS residual, real (cmu_85_02.c3d)"
+    assert result["real"]["cmu_85_02.c3d"]["residual"]["rms_m"] < 0.012
+    assert result["real"]["cmu_85_02.c3d"]["residual"]["per_marker"]["Male:LKNE"]["p95_m"] < 0.03
