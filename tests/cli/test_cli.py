@@ -284,6 +284,14 @@ def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
     assert read_gltf(folder / "walk.glb").skin.skeleton.n_joints == 163
     assert read_pc2(folder / "walk_dqs.pc2").frames.shape == (240, 13380, 3)
     assert io.read(folder / "formats" / "walking.c3d").n_markers == 12
+    # real capture -> clean -> solve -> skin: the solved BVH plays on the body
+    solve = figures["solve"]
+    assert solve["joints"] > 15 and solve["rms_cm"] < 1.5 and solve["max_cm"] < 8.0
+    solved = io.read(folder / "real" / "solved.bvh")
+    assert solved.n_frames == solve["frames"] == 810
+    assert np.isfinite(solved.rotations).all()
+    assert read_gltf(folder / "real" / "solved_body.glb").skin.skeleton.n_joints == 163
+    assert "A real capture: clean, solve the skeleton, skin" in page
     assert run("demo", "-o", folder, "--frames", "240").exit_code == 2  # outputs exist
 
 

@@ -63,6 +63,7 @@ def demo(
             + ("meets" if verdict["meets_targets"] else "misses")
             + f" the targets (mean <= {FILL_TARGET_MEAN}, max <= {FILL_TARGET_MAX})"
         )
+    sv = figures["solve"]
     lines = [
         f"demo: {len(result['outputs'])} files in {output} ({figures['total_seconds']:.0f} s)",
         f"  cleanup: {cl['merged']} fragments merged, {cl['wrongly_merged']} wrongly "
@@ -71,8 +72,10 @@ def demo(
         f"{cl['labelled_missing_after'] * 100:.1f} % missing",
         fill_line,
         f"  rope: {tr['rope_markers_found']} markers tracked, rope/body F1 {tr['f1']:.3f}",
+        f"  real capture {sv['capture']}: {sv['joints']}-joint skeleton solved, marker residual "
+        f"RMS {sv['rms_cm']:.2f} cm, max {sv['max_cm']:.2f} cm; body skinned in {sv['glb']}",
         f"  report: {result['report']}",
-        "Look at it in the browser (raw against cleaned capture with the rope; the walk):",
+        "Look at it in the browser (raw against cleaned capture with the rope; the walk; the solved body):",
         *(f"  {command}" for command in result["view"]),
     ]
     for line in lines:

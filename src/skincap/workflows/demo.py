@@ -74,9 +74,17 @@ DEMO_INPUTS = (
     "makehuman_default.mhskel",
     "makehuman_default_weights.mhw",
     DEMO_WALK,
+    "cmu_85_02.c3d",
 )
 #: Files and folders the demo writes (checked before anything is written).
-DEMO_OUTPUTS = ("report.html", "cleaned.c3d", "results.json", "walk.glb", "walk_dqs.pc2")
+DEMO_OUTPUTS = (
+    "report.html",
+    "cleaned.c3d",
+    "results.json",
+    "walk.glb",
+    "walk_dqs.pc2",
+    "real/solved.bvh",
+)
 
 
 def run_demo(
@@ -107,7 +115,7 @@ def run_demo(
         ``outputs`` (written paths), ``timings`` (seconds per step), ``figures`` (the
         measured numbers of the report), ``report`` (its path), ``view`` (the
         ``skincap view`` command lines: raw against cleaned capture with the rope;
-        the walking body), ``summaries`` (real inputs).
+        the walking body; the body on the skeleton solved from the real capture), ``summaries`` (real inputs).
     """
     from skincap.errors import ValidationError
 
@@ -143,6 +151,7 @@ def _run_demo(
     track_eval = _track(folder, steps, take, force, outputs, figures)
     body = _skin(folder, steps, force, outputs, figures)
     artefacts = _artefacts(steps, body, figures)
+    _solve_real(folder, steps, body, force, outputs, figures)
     summaries = _convert_real_data(folder, steps, force, outputs)
     pictures = _render(folder, steps, force, outputs)
     figures["total_seconds"] = time.perf_counter() - t_start
@@ -170,6 +179,7 @@ def _run_demo(
         f"skincap view {folder / 'synth' / 'capture.c3d'} {folder / 'cleaned.c3d'} "
         f"{folder / 'track' / 'rope_curve.csv'}",
         f"skincap view {folder / 'walk.glb'}",
+        f"skincap view {folder / 'real' / 'cleaned.c3d'} {folder / 'real' / 'solved_body.glb'}",
     ]
     return {
         "outputs": [str(p) for p in outputs],
@@ -360,6 +370,18 @@ def _skin(folder: Path, steps: _Steps, force: bool, outputs: list[Path], figures
     return body
 
 
+def _solve_real(
+    folder: Path, steps: _Steps, body: Any, force: bool, outputs: list[Path], figures: dict
+) -> None:
+    from skincap.workflows.demo_solve import clean_solve_skin
+
+    with steps.step(0.86, "real capture: clean, solve, skin"):
+        figures["solve"], paths = clean_solve_skin(
+            folder, body, force=force, progress=steps.within(0.86, 0.88, "real capture")
+        )
+    outputs += paths
+
+
 def _artefacts(steps: _Steps, body: Any, figures: dict) -> list[dict[str, Any]]:
     from skincap.deform.skeletal.artefacts import artefact_table
 
@@ -398,7 +420,7 @@ def _render(folder: Path, steps: _Steps, force: bool, outputs: list[Path]) -> di
     from skincap.viz.render import Camera, write_picture
     from skincap.viz.scene import load_scene
 
-    pictures: dict[str, list] = {"capture": [], "walk": []}
+    pictures: dict[str, list] = {"capture": [], "walk": [], "solve": []}
     with steps.step(0.9, "rendering frames"):
         frames_dir = folder / "frames"
         frames_dir.mkdir(exist_ok=True)
@@ -422,6 +444,21 @@ def _render(folder: Path, steps: _Steps, force: bool, outputs: list[Path]) -> di
             )
             pictures["walk"].append((path, f"walk.glb (LBS) at {t:.2f} s"))
             outputs.append(path)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            solved = load_scene([folder / "real" / "cleaned.c3d", folder / "real" / "solved.bvh"])
+            skinned = load_scene([folder / "real" / "solved_body.glb"])
+        for t in (0.25 * solved.duration, 0.6 * solved.duration):
+            for name, scene, what in (
+                ("skeleton", solved, "markers and the solved skeleton"),
+                ("body", skinned, "the MakeHuman body on the solved skeleton"),
+            ):
+                path = frames_dir / f"solve_{name}_{t:05.2f}s.png"
+                write_picture(
+                    scene, path, time=t, camera=Camera(azimuth=40.0), size=(480, 480), force=force
+                )
+                pictures["solve"].append((path, f"{what} at {t:.2f} s"))
+                outputs.append(path)
     return pictures
 
 
