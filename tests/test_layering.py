@@ -141,3 +141,18 @@ def test_algorithm_and_format_packages_never_print(path: str) -> None:
             ):
                 offenders.append(f"{file.relative_to(SRC)}:{node.lineno}")
     assert not offenders, offenders
+
+
+def test_test_file_names_are_unique() -> None:
+    """pytest imports test modules by basename (no packages under tests/): two files of one
+    name in different folders stop collection of the whole suite."""
+    tests = Path(__file__).resolve().parent
+    seen: dict[str, Path] = {}
+    clashes = []
+    for path in sorted(tests.rglob("*.py")):
+        if path.name in ("conftest.py", "__init__.py") or "blender_scripts" in path.parts:
+            continue
+        if path.name in seen:
+            clashes.append(f"{seen[path.name].relative_to(tests)} and {path.relative_to(tests)}")
+        seen[path.name] = path
+    assert not clashes, clashes
