@@ -45,6 +45,10 @@ The clips
 ``breathe``
     Relaxed standing with the arms lowered; chest and shoulders rise and fall at
     0.25 Hz (the breathing deformation itself is soft tissue).
+``rom``
+    A range-of-motion take for near-rigid segmentation (Park & Hodgins §5.2): after
+    the hold, each major joint in turn (neck, trunk, shoulders, elbows, wrists, hips,
+    knees, ankles; both sides together) swings through its range and back.
 
 ``seed`` adds a subtle natural sway of the trunk (random low frequencies and
 phases, below one degree); the prescribed targets (elbow angle, twist range, knee
@@ -79,7 +83,9 @@ __all__ = [
 ]
 
 #: Names of the built-in clips.
-CLIPS: tuple[str, ...] = ("tpose", "flex", "twist", "squat", "punch", "jumprope", "breathe")
+CLIPS: tuple[str, ...] = (
+    "tpose", "flex", "twist", "squat", "punch", "jumprope", "breathe", "rom"
+)  # fmt: skip
 #: Default clip length, seconds.
 DEFAULT_SECONDS = 4.0
 #: The T-pose is held exactly for this long at the start of every clip, seconds.
@@ -717,6 +723,42 @@ def _clip_breathe(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Ge
         pose.aim(f"upperarm_{s}", _sided_dir((0.45, -0.9, 0.05), s), env)
 
 
+#: The range-of-motion clip: (landmark, local axis, angle in degrees) per movement,
+#: left side given (the right mirrors it: Y and Z angles change sign), one movement
+#: after another, both sides at once. Local axes are world axes in the T-pose.
+_ROM_MOVES: tuple[tuple[str, np.ndarray, float], ...] = (
+    ("neck", _X, 30.0),  # nod
+    ("neck_upper", _Y, 45.0),  # look aside
+    ("chest", _X, 25.0),  # bend forward
+    ("chest", _Z, 20.0),  # bend sideways
+    ("upper_chest", _Y, 25.0),  # twist
+    ("clavicle_l", _Z, 15.0),  # shrug
+    ("upperarm_l", _Z, -70.0),  # arms down
+    ("upperarm_l", _Y, -60.0),  # arms forward
+    ("forearm_l", _Y, -100.0),  # elbows bend
+    ("forearm_l", _X, 70.0),  # forearm twist
+    ("hand_l", _Z, 50.0),  # wrists
+    ("thigh_l", _X, -70.0),  # legs forward
+    ("thigh_l", _Z, 30.0),  # legs out
+    ("shin_l", _X, 100.0),  # knees bend
+    ("foot_l", _X, 30.0),  # ankles
+)
+
+
+def _clip_rom(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    """Every major joint through its range, one movement after another (for segmentation)."""
+    span = max(float(t[-1]) - HOLD_SECONDS, 1e-9) if t.size else 1.0
+    slot = span / len(_ROM_MOVES)
+    for k, (landmark, axis, degrees) in enumerate(_ROM_MOVES):
+        s = (t - HOLD_SECONDS - k * slot) / slot
+        bump = np.where((s > 0) & (s < 1), np.sin(np.pi * np.clip(s, 0, 1)) ** 2, 0.0)
+        sides = [("", 1.0)] if not landmark.endswith("_l") else [("l", 1.0), ("r", -1.0)]
+        for side, sign in sides:
+            name = landmark if not side else f"{landmark[:-2]}_{side}"
+            signed = degrees if axis is _X else sign * degrees
+            pose.turn(name, _axis_angle(axis, np.radians(signed) * bump))
+
+
 _CLIP_FUNCS: dict[str, Callable[[_Pose, np.ndarray, np.ndarray, np.random.Generator], None]] = {
     "tpose": _clip_tpose,
     "flex": _clip_flex,
@@ -725,6 +767,7 @@ _CLIP_FUNCS: dict[str, Callable[[_Pose, np.ndarray, np.ndarray, np.random.Genera
     "punch": _clip_punch,
     "jumprope": _clip_jumprope,
     "breathe": _clip_breathe,
+    "rom": _clip_rom,
 }
 
 
