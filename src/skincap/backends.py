@@ -48,15 +48,15 @@ BACKENDS = ("auto", "numba", "numpy")
 #: ``module:function`` that compiles it by running it once on a tiny input of the
 #: production argument types. Only these run in :func:`compile_in_background`.
 WARM_UPS = {
-    "skinning.lbs": "skincap.skinning.deformers:warm_up_lbs",
-    "skinning.dqs": "skincap.skinning.deformers:warm_up_dqs",
-    "tracking": "skincap.tracking._kernel:warm_up",
+    "skinning.lbs": "skincap.deform.skeletal.deformers:warm_up_lbs",
+    "skinning.dqs": "skincap.deform.skeletal.deformers:warm_up_dqs",
+    "tracking": "skincap.tracking.tracker:warm_up_kernel",
 }
 
 #: Where each of those kernels' numba dispatcher comes from (``module:function``).
 DISPATCHERS = {
-    "skinning.lbs": "skincap.skinning.deformers:_lbs_dispatcher",
-    "skinning.dqs": "skincap.skinning.deformers:_dqs_dispatcher",
+    "skinning.lbs": "skincap.deform.skeletal.deformers:_lbs_dispatcher",
+    "skinning.dqs": "skincap.deform.skeletal.deformers:_dqs_dispatcher",
     "tracking": "skincap.tracking.tracker:_track_frames_dispatcher",
 }
 

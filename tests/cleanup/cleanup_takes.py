@@ -10,7 +10,7 @@ from typing import Any
 def dense_jumprope_take() -> Any:
     """150 frames of the dense (Park-Hodgins) marker set, jump rope, seed 0 (~15 s)."""
     from skincap.synth.generate import generate_capture
-    from skincap.synth_files import build_body, build_motion
+    from skincap.synth.inputs import build_body, build_motion
 
     body = build_body("procedural", n_vertices=6000)
     motion = build_motion(body, "jumprope", frames=150)

@@ -17,9 +17,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from skincap.cleanup.benchmark import synthetic_dense_take
 from skincap.cleanup.pipeline import clean_markers
 from skincap.errors import SkincapWarning
+from skincap.evaluate.bench.cleanup import synthetic_dense_take
 from skincap.io import read
 from skincap.synth.corrupt import add_rigid_prop, inject_label_swaps, inject_spikes
 from skincap.types import MarkerSet

@@ -5,15 +5,15 @@ import json
 import numpy as np
 import pytest
 
-from skincap.cleanup.benchmark import run_clean_benchmark, synthetic_dense_take
-from skincap.cleanup.evaluate import (
+from skincap.cleanup.fill import motion_neighbours
+from skincap.errors import OutputExistsError, ValidationError
+from skincap.evaluate.bench.cleanup import run_clean_benchmark, synthetic_dense_take
+from skincap.evaluate.cleanup import (
     evaluate_fill,
     format_fill_table,
     plot_fill_evaluation,
     punch_gaps,
 )
-from skincap.cleanup.fill import motion_neighbours
-from skincap.errors import OutputExistsError, ValidationError
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from skincap.cleanup.outliers import running_median
+from skincap.cleanup.robust_stats import running_median
 from skincap.cleanup.smooth import smooth_trajectories
 
 

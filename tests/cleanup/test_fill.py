@@ -7,8 +7,6 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap import io
-from skincap.cleanup.benchmark import synthetic_dense_take
-from skincap.cleanup.evaluate import evaluate_fill
 from skincap.cleanup.fill import (
     FILL_METHODS,
     as_csr,
@@ -17,6 +15,8 @@ from skincap.cleanup.fill import (
     motion_neighbours,
 )
 from skincap.errors import SkincapWarning, ValidationError
+from skincap.evaluate.bench.cleanup import synthetic_dense_take
+from skincap.evaluate.cleanup import evaluate_fill
 from skincap.types import MarkerSet
 
 

@@ -11,9 +11,9 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap import io
-from skincap.cleanup.evaluate import evaluate_fill
 from skincap.cleanup.fill import fill_gaps, fill_rigid
 from skincap.errors import SkincapWarning
+from skincap.evaluate.cleanup import evaluate_fill
 from skincap.types import MarkerSet
 
 DATA = Path(__file__).resolve().parents[1] / "data"

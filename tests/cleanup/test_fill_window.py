@@ -10,9 +10,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap import io
-from skincap.cleanup.evaluate import evaluate_fill
 from skincap.cleanup.fill import fill_gaps, fill_local_pca, fill_local_window
 from skincap.errors import SkincapWarning, UnitWarning
+from skincap.evaluate.cleanup import evaluate_fill
 from skincap.types import MarkerSet
 
 DATA = Path(__file__).resolve().parents[1] / "data"

@@ -12,7 +12,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skincap.cleanup.benchmark import synthetic_dense_take
 from skincap.cleanup.continuity import condition_fills, second_difference
 from skincap.cleanup.outliers import (
     find_label_swaps,
@@ -23,6 +22,7 @@ from skincap.cleanup.outliers import (
 from skincap.cleanup.pipeline import clean_markers
 from skincap.cleanup.smooth import smooth_local
 from skincap.errors import SkincapWarning
+from skincap.evaluate.bench.cleanup import synthetic_dense_take
 from skincap.io import read
 from skincap.synth.corrupt import add_rigid_prop, inject_label_swaps, inject_spikes
 from skincap.types import MarkerSet

@@ -229,7 +229,7 @@ def test_console_script_exit_status(tmp_path):
     bad = tmp_path / "bad.c3d"
     bad.write_bytes(b"\x00" * 10)
     proc = subprocess.run(
-        [sys.executable, "-m", "skincap.cli", "info", str(bad)],
+        [sys.executable, "-m", "skincap", "info", str(bad)],
         capture_output=True,
         text=True,
         env={**os.environ, "COLUMNS": "200"},
@@ -244,8 +244,8 @@ def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
     import ezc3d
 
     from skincap import io
-    from skincap.export.pc2 import read_pc2
-    from skincap.io.gltf import read_gltf
+    from skincap.io.gltf.reader import read_gltf
+    from skincap.io.pc2 import read_pc2
 
     folder = tmp_path / "demo"
     result = run("demo", "-o", folder, "--frames", "240")

@@ -24,7 +24,7 @@ def run(*args: object):  # noqa: ANN201
 def synth_c3d(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict[str, str]]:
     """A 60-frame dense jump-rope capture written as C3D, with its fragment truth."""
     from skincap.synth.generate import generate_capture
-    from skincap.synth_files import build_body, build_motion
+    from skincap.synth.inputs import build_body, build_motion
 
     body = build_body("procedural", n_vertices=5000)
     motion = build_motion(body, "jumprope", frames=60)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from skincap import cli
+from skincap.cli import _app as cli
 from skincap.errors import FormatError, SkincapWarning, ValidationError, one_line
 from skincap.io._common import atomic_output
 
@@ -69,7 +69,7 @@ _WARNING_SCRIPT = """
 import warnings
 import numpy as np
 import scipy.linalg
-from skincap import cli
+from skincap.cli import _app as cli
 from skincap.errors import SkincapWarning
 with cli._user_errors():
     for _ in range(50):  # one location, many times: shown once
@@ -231,7 +231,7 @@ def test_skin_mesh_with_vertices_and_no_faces_gives_nearest_bone_weights(tmp_pat
     result = skincap("skin", mesh, BVH, "--units", "cmu", "-o", out)
     assert result.returncode == 0, result.stderr[-2000:]
     assert "Traceback" not in result.stderr
-    from skincap.export.pc2 import read_pc2
+    from skincap.io.pc2 import read_pc2
 
     cache = read_pc2(out)
     assert cache.frames.shape[1] == 400 and np.isfinite(cache.frames).all()

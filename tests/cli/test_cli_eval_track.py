@@ -169,7 +169,7 @@ def _tiny_truth(tmp_path):
 
 
 def test_point_truth_reader_reads_and_checks(tmp_path):
-    from skincap.cli_tracking import _read_point_truth
+    from skincap.cli.track import _read_point_truth
 
     cloud, path, _ = _tiny_truth(tmp_path)
     assert _read_point_truth(path, cloud).tolist() == [
@@ -193,7 +193,7 @@ def test_point_truth_reader_reads_and_checks(tmp_path):
 @given(data=st.data())
 def test_point_truth_reader_fuzz(tmp_path, data):
     """Mutated bytes give a label array or a SkincapError, nothing else."""
-    from skincap.cli_tracking import _read_point_truth
+    from skincap.cli.track import _read_point_truth
 
     cloud, path, good = _tiny_truth(tmp_path)
     raw = bytearray(good)

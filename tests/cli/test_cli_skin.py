@@ -28,7 +28,7 @@ def makehuman_dir(tmp_path_factory) -> Path:
 
 
 def test_skin_glb_from_makehuman_and_cmu(tmp_path, makehuman_dir):
-    from skincap.io.gltf import read_gltf
+    from skincap.io.gltf.reader import read_gltf
 
     out = tmp_path / "walk.glb"
     result = run(
@@ -74,12 +74,12 @@ def test_info_sees_the_body_skin_uses(tmp_path, makehuman_dir):
 
 
 def test_skin_dqs_pc2_matches_deformer(tmp_path, makehuman_dir):
-    from skincap.export.pc2 import read_pc2
+    from skincap.deform.skeletal.deformers import make_deformer
+    from skincap.deform.skeletal.pipeline import prepare_skinning
+    from skincap.deform.skeletal.rig import skinning_matrices
     from skincap.io.bvh import read_bvh
     from skincap.io.makehuman import read_makehuman
-    from skincap.skinning.deformers import make_deformer
-    from skincap.skinning.pipeline import prepare_skinning
-    from skincap.skinning.rig import skinning_matrices
+    from skincap.io.pc2 import read_pc2
 
     bvh = DATA / "bvhtoolbox_test_mocapbank.bvh"
     out = tmp_path / "mocap.pc2"
@@ -142,8 +142,8 @@ def test_skin_bare_mesh_gets_automatic_weights(tmp_path):
     assert said == pytest.approx(written, rel=0.05)  # 11.9 said, 11.56 written
     # MakeHuman's body stands arms down; the mocapbank skeleton's zero pose is a T:
     # the warning names the joint furthest outside the body and how far
-    from skincap.skinning.bind import fit_skeleton_to_mesh, transform_skeleton
-    from skincap.skinning.rest_pose import rest_pose_misfit
+    from skincap.deform.skeletal.bind import fit_skeleton_to_mesh, transform_skeleton
+    from skincap.deform.skeletal.rest_pose import rest_pose_misfit
 
     mesh = Mesh(body.vertices, body.faces)
     motion = read_bvh(bvh, units="cm")

@@ -299,7 +299,7 @@ def run_skincap_process(
         resource.setrlimit(resource.RLIMIT_CORE, (0, 0))
 
     exe = Path(sys.executable).parent / "skincap"
-    cmd = [str(exe), *argv] if exe.exists() else [sys.executable, "-m", "skincap.cli", *argv]
+    cmd = [str(exe), *argv] if exe.exists() else [sys.executable, "-m", "skincap", *argv]
     t0 = time.monotonic()
     try:
         proc = subprocess.run(

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from skincap.deform.skeletal import weights
 from skincap.errors import ValidationError
 from skincap.geometry import raycast
 from skincap.geometry.raycast import (
@@ -15,7 +16,6 @@ from skincap.geometry.raycast import (
     segments_cross_surface,
     segments_near_capsules,
 )
-from skincap.skinning import weights
 
 
 def _two_spheres() -> tuple[np.ndarray, np.ndarray]:

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import FormatError, SkincapError, SkincapWarning
-from skincap.io.gltf import read_gltf
+from skincap.io.gltf.reader import read_gltf
 from skincap.types import Mesh
 
 MUTATIONS = mutation_ops(max_size=6)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from skincap.deform.skeletal.deformers import skin_motion
+from skincap.deform.skeletal.rig import motion_from_world, rest_motion
 from skincap.geometry.kinematics import forward_kinematics
-from skincap.skinning.deformers import skin_motion
-from skincap.skinning.rig import motion_from_world, rest_motion
 from skincap.types import Mesh
 
 

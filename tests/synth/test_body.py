@@ -10,12 +10,12 @@ import pytest
 import trimesh
 from scipy.spatial import cKDTree
 
+from skincap.deform.skeletal.deformers import skin_motion
+from skincap.deform.skeletal.rig import rest_motion
 from skincap.errors import UnitWarning, ValidationError
 from skincap.geometry.kinematics import rest_positions
 from skincap.geometry.rotations import euler_to_quat
 from skincap.io.bvh import read_bvh
-from skincap.skinning.deformers import skin_motion
-from skincap.skinning.rig import rest_motion
 from skincap.synth.body import body_parts, procedural_body
 from skincap.synth.skeleton import synth_skeleton
 from skincap.types import Motion

@@ -12,7 +12,8 @@ import pytest
 
 from skincap.geometry.raycast import closest_points_on_mesh
 from skincap.synth.generate import generate_capture
-from skincap.synth_files import OUTPUT_FILES, build_body, build_motion, write_synth_outputs
+from skincap.synth.inputs import build_body, build_motion
+from skincap.workflows.synth_folder import OUTPUT_FILES, write_synth_outputs
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +94,7 @@ def test_same_seed_same_bytes(body, tmp_path):
 
 def test_outputs_read_back(take, tmp_path):
     from skincap import io
-    from skincap.export.pc2 import read_pc2
+    from skincap.io.pc2 import read_pc2
 
     written = write_synth_outputs(take, tmp_path)
     assert {p.relative_to(tmp_path).as_posix() for p in written} == set(OUTPUT_FILES)

@@ -12,8 +12,8 @@ import pytest
 from skincap.geometry.kinematics import forward_kinematics
 from skincap.synth.clips import HOLD_SECONDS, JUMP_HZ, find_landmarks
 from skincap.synth.generate import hand_joints
+from skincap.synth.inputs import build_body, build_motion
 from skincap.synth.rope import RopeResult, simulate_rope
-from skincap.synth_files import build_body, build_motion
 
 RATE = 120.0
 N_FRAMES = 1000

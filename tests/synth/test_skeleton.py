@@ -7,13 +7,13 @@ import warnings
 import numpy as np
 import pytest
 
+from skincap.deform.skeletal.name_maps import detect_convention
+from skincap.deform.skeletal.retarget import retarget
+from skincap.deform.skeletal.rig import rest_motion
 from skincap.errors import UnitWarning, ValidationError
 from skincap.geometry.kinematics import rest_positions
 from skincap.io.bvh import read_bvh
 from skincap.io.makehuman import read_makehuman
-from skincap.skinning.name_maps import detect_convention
-from skincap.skinning.retarget import retarget
-from skincap.skinning.rig import rest_motion
 from skincap.synth.skeleton import synth_skeleton
 
 

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
+from skincap.deform.skeletal.deformers import skin_motion
+from skincap.deform.skeletal.retarget import retarget
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
 from skincap.io.makehuman import read_makehuman
-from skincap.skinning.deformers import skin_motion
-from skincap.skinning.retarget import retarget
 from skincap.synth.clips import make_clip
 from skincap.synth.skeleton import synth_skeleton
 from skincap.synth.soft_tissue import SoftTissue, vertex_normals

@@ -10,7 +10,7 @@ FRAMES = 200
 
 def _take(rope: str):  # type: ignore[no-untyped-def]
     from skincap.synth.generate import generate_capture
-    from skincap.synth_files import build_body, build_motion
+    from skincap.synth.inputs import build_body, build_motion
 
     body = build_body("procedural", n_vertices=3000)
     motion = build_motion(body, "jumprope", frames=FRAMES)

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from skincap.errors import ValidationError
-from skincap.tracking.benchmark import jump_rope_scene, run_track_benchmark, track_greedy_nearest
+from skincap.evaluate.bench.tracking import run_track_benchmark, track_greedy_nearest
+from skincap.synth.scenes import jump_rope_scene
 
 
 def test_scene_points_match_its_truth() -> None:

@@ -1,4 +1,4 @@
-"""Tests of the tracking evaluation harness (skincap.tracking.evaluate).
+"""Tests of the tracking evaluation harness (skincap.evaluate.tracking).
 
 The bookkeeping is tested on a small analytic scene with stand-in trackers written
 here (an oracle that invents at a known offset, and a greedy nearest-neighbour
@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from skincap.errors import OutputExistsError, ValidationError
-from skincap.tracking.evaluate import (
+from skincap.evaluate.tracking import (
     classification_scores,
     classify_points,
     crop_frames,

@@ -109,11 +109,11 @@ Against that noise-free truth instead of the measured samples: local_pca adaptiv
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress, missing_runs
 from skincap.cleanup.methods import FILL_METHODS, FillMethod
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.geometry.rigid import apply_rigid, fit_rigid
@@ -135,7 +135,6 @@ __all__ = [
 ]
 
 
-Progress = Callable[[float, str], None]
 CSR = tuple[np.ndarray, np.ndarray]
 
 
@@ -267,21 +266,10 @@ def mean_neighbour_distance(positions: np.ndarray, neighbours: CSR) -> np.ndarra
 
 
 # ----------------------------------------------------------------------- targets
-def _runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All maximal missing runs (edge runs included): (marker, start, length)."""
-    t, n = missing.shape
-    padded = np.zeros((t + 2, n), dtype=np.int8)
-    padded[1:-1] = missing
-    edges = np.diff(padded, axis=0)
-    marker, starts = np.nonzero(edges.T == 1)
-    _, ends = np.nonzero(edges.T == -1)
-    return marker.astype(np.int64), starts.astype(np.int64), (ends - starts).astype(np.int64)
-
-
 def _targets(missing: np.ndarray, max_gap: int | None, *, interior_only: bool) -> np.ndarray:
     """(T, N) bool: the missing samples a method should fill."""
     t, n = missing.shape
-    marker, start, length = _runs(missing)
+    marker, start, length = missing_runs(missing)
     keep = np.ones(marker.shape, dtype=bool)
     if interior_only:
         keep &= (start > 0) & (start + length < t)
@@ -427,7 +415,7 @@ def fill_rigid(
     t, n, _ = p.shape
     present = ~np.isnan(p[..., 0])
     offsets, indices = neighbours
-    marker, start, length = _runs(~present)
+    marker, start, length = missing_runs(~present)
     end = start + length  # one past the run
     has_target = target[start, marker] if marker.size else np.zeros(0, dtype=bool)
     marker, start, end = marker[has_target], start[has_target], end[has_target]
@@ -929,7 +917,7 @@ def fill_local_pca(
     acc = np.zeros((t, n, 3))
     wacc = np.zeros((t, n))
     # the gaps (runs of missing frames holding a target) and their measured ends
-    g_marker, g_start, g_len = _runs(~present)
+    g_marker, g_start, g_len = missing_runs(~present)
     hit = target[g_start, g_marker] if g_marker.size else np.zeros(0, dtype=bool)
     g_marker, g_start, g_end = g_marker[hit], g_start[hit], (g_start + g_len)[hit]
     if not anchor_ends:
@@ -1116,7 +1104,7 @@ def fill_local_window(
     t = p.shape[0]
     present = ~np.isnan(p[..., 0])
     offsets, indices = neighbours
-    marker, start, length = _runs(~present)
+    marker, start, length = missing_runs(~present)
     keep = target[start, marker] if marker.size else np.zeros(0, dtype=bool)
     for i, s, ln in zip(marker[keep], start[keep], length[keep], strict=True):
         members = np.concatenate([[i], indices[offsets[i] : offsets[i + 1]]])
@@ -1270,7 +1258,7 @@ def _rigid_weights(
         return np.full(tt.size, float(fixed))
     t, n = missing.shape
     # one id per missing run: runs are numbered by marker, then frame
-    marker, start, length = _runs(missing)
+    marker, start, length = missing_runs(missing)
     run_id = np.full((t, n), -1, dtype=np.int64)
     rep = np.repeat(np.arange(marker.size), length)
     first = np.cumsum(length) - length

@@ -26,12 +26,12 @@ smoothing) is flagged ``invented``.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.cleanup.continuity import condition_fills, measured_acceleration_limit
 from skincap.cleanup.outliers import find_label_swaps, find_spikes, measurement_noise
 from skincap.errors import SkincapWarning
@@ -169,7 +169,7 @@ def guarded_fill_smooth(
     iterations: int = 10,
     repair_swaps: bool = True,
     remove_spikes: bool = True,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> GuardedFill:
     """Repair swaps, remove spikes, fill, smooth within the noise and keep fills continuous.
 

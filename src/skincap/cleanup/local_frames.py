@@ -14,10 +14,9 @@ reference position. The frame rotation ``R_i^0`` cancels out of that estimate, s
 
 from __future__ import annotations
 
-from collections.abc import Callable
-
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.cleanup.surface import MarkerSurface
 from skincap.errors import ValidationError
 from skincap.geometry.rigid import fit_rigid
@@ -76,7 +75,7 @@ def fit_frames_robust(
     R : (T, N, 3, 3), t : (T, N, 3)
         ``current ≈ R reference + t``; NaN where fewer than three members are present.
     """
-    from skincap.cleanup.outliers import running_median
+    from skincap.cleanup.robust_stats import running_median
 
     ok = np.asarray(present, dtype=bool)
     cur = np.asarray(current, dtype=np.float64)
@@ -274,7 +273,7 @@ def estimate_missing(
     min_neighbours: int = 3,
     estimated_weight: float = 1.0,
     temporal: bool = False,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Estimate missing markers from their available neighbours (eq. 2), greedily.
 

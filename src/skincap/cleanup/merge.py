@@ -22,12 +22,12 @@ and passes repeat until nothing changes.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.cleanup.local_frames import estimate_missing, neighbour_table
 from skincap.cleanup.surface import MarkerSurface
 from skincap.errors import ValidationError
@@ -312,7 +312,7 @@ def merge_fragments(
     prediction_factor: float | None = 2.0,
     min_frames: int = 2,
     fragment_truth: dict[str, str] | None = None,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> tuple[MarkerSet, MergeReport]:
     """Merge unlabelled fragments into the markers of the marker surface.
 

@@ -10,11 +10,11 @@ within their noise and fills are kept only where continuous
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.cleanup.guarded import MAX_MOVE, MAX_MOVE_NOISE, guarded_fill_smooth
 from skincap.cleanup.hidden import find_hidden_markers
 from skincap.cleanup.merge import merge_fragments
@@ -167,7 +167,7 @@ def clean_markers(
     promote_fragments: bool | None = None,
     recover_hidden: bool = True,
     fragment_truth: dict[str, str] | None = None,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> tuple[MarkerSet, dict[str, Any]]:
     """Clean a capture: marker surface, merge fragments, fill holes, smooth.
 
@@ -251,7 +251,7 @@ def clean_markers(
     labels = [str(lab) for lab in markers.labels]
     labelled = np.flatnonzero([not lab.startswith("*") for lab in labels])
 
-    def step(base: float, span: float) -> Callable[[float, str], None] | None:
+    def step(base: float, span: float) -> Progress | None:
         if progress is None:
             return None
         return lambda f, label: progress(base + span * f, label)

@@ -377,7 +377,7 @@ def _neighbourhood_reference(cur: np.ndarray, ok: np.ndarray, sizes: np.ndarray)
     bend it), after a first alignment on the mean. ``sizes`` (N,) int: members of each
     neighbourhood (its first slots; the rest are padding, NaN in the result, as is
     every neighbourhood of fewer than 3)."""
-    from skincap.cleanup.outliers import nan_median
+    from skincap.cleanup.robust_stats import nan_median
 
     if cur.shape[0] > 120:  # a spread of frames is enough for the mean shape
         pick = np.linspace(0, cur.shape[0] - 1, 120).round().astype(np.int64)

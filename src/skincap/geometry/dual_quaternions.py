@@ -134,7 +134,7 @@ def dq_from_matrices(matrices: np.ndarray, *, atol: float = 1e-6) -> np.ndarray:
     ------
     ValidationError
         Wrong shape, or a matrix is not rigid (scaled, sheared or reflecting): such
-        transforms have no dual quaternion. :class:`~skincap.skinning.deformers.DualQuaternionSkinning`
+        transforms have no dual quaternion. :class:`~skincap.deform.skeletal.deformers.DualQuaternionSkinning`
         separates the non-rigid part first.
     """
     m = np.asarray(matrices, dtype=np.float64)

@@ -10,7 +10,7 @@ extension      read                               write
 ``.bvh``       :func:`skincap.io.bvh.read_bvh`    :func:`skincap.io.bvh.write_bvh`
 ``.obj``       :func:`skincap.io.mesh.read_obj`   :func:`skincap.io.mesh.write_obj`
 ``.ply``       :func:`skincap.io.mesh.read_ply`   :func:`skincap.io.mesh.write_ply`
-``.gltf/.glb`` :func:`skincap.io.gltf.read_gltf`  (export issue)
+``.gltf/.glb`` :func:`skincap.io.gltf.reader.read_gltf`  (export issue)
 ``.mhskel``    :func:`skincap.io.makehuman.read_mhskel`
 ``.mhw``       :func:`skincap.io.makehuman.read_mhw`
 =============  =================================  ======================================
@@ -121,7 +121,7 @@ def _read_by_extension(path: str | os.PathLike[str], **options: Any) -> Any:
 
         return read_ply(path, **options)
     if ext in (".gltf", ".glb"):
-        from skincap.io.gltf import read_gltf
+        from skincap.io.gltf.reader import read_gltf
 
         return read_gltf(path, **options)
     if ext == ".mhskel":

@@ -37,12 +37,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from skincap.deform.skeletal.bind import rest_transforms
+from skincap.deform.skeletal.weights import limit_influences
 from skincap.errors import ValidationError
 from skincap.geometry.isosurface import marching_tetrahedra, relax_on_isosurface
 from skincap.geometry.kinematics import rest_positions
 from skincap.geometry.sweep import KeyEllipses, Sweep, frames_from_axes
-from skincap.skinning.bind import rest_transforms
-from skincap.skinning.weights import limit_influences
 from skincap.synth.skeleton import SYNTH_JOINTS
 from skincap.types import Mesh, Skeleton, Skin
 

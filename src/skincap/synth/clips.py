@@ -4,7 +4,7 @@ Every clip is a :class:`~skincap.types.Motion` on a given skeleton whose zero po
 (all local rotations identity) is a T-pose: arms along ``+-X`` (the left arm along
 ``+X``), facing ``+Z``, ``Y`` up, feet on the floor -- the skeleton of
 :func:`skincap.synth.skeleton.synth_skeleton`. Joints are found by name through the
-built-in naming conventions of :mod:`skincap.skinning.name_maps` (CMU ``bvh11``,
+built-in naming conventions of :mod:`skincap.deform.skeletal.name_maps` (CMU ``bvh11``,
 CMU cgspeed, Biovision, MakeHuman); joints a skeleton lacks are left out of the
 motion (a skeleton without arms gets no arm motion).
 
@@ -62,6 +62,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap.deform.skeletal.name_maps import CONVENTIONS, detect_convention
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import rest_positions
 from skincap.geometry.rotations import (
@@ -70,7 +71,6 @@ from skincap.geometry.rotations import (
     quat_conjugate,
     quat_multiply,
 )
-from skincap.skinning.name_maps import CONVENTIONS, detect_convention
 from skincap.types import Motion, Skeleton
 
 __all__ = [
@@ -178,7 +178,7 @@ def find_landmarks(skeleton: Skeleton) -> dict[str, int]:
     Returns
     -------
     dict of str to int
-        Keys from :data:`skincap.skinning.name_maps.LANDMARKS` (``hips``, ``spine``,
+        Keys from :data:`skincap.deform.skeletal.name_maps.LANDMARKS` (``hips``, ``spine``,
         ``chest``, ``upper_chest``, ``neck``, ``neck_upper``, ``head``, and per side
         ``clavicle_l``, ``upperarm_l``, ``forearm_l``, ``hand_l``, ``thigh_l``,
         ``shin_l``, ``foot_l``, ``toe_l``...). The skeleton's own convention is tried

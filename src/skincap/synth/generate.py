@@ -8,15 +8,15 @@ as an un-indexed :class:`~skincap.types.PointCloud`, plus the truth.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
 
+from skincap._arrays import Progress
+from skincap.deform.skeletal.deformers import skin_motion
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
-from skincap.skinning.deformers import skin_motion
 from skincap.synth.cameras import CameraRig, CaptureResult, simulate_capture
 from skincap.synth.markers import (
     MarkerLayout,
@@ -109,7 +109,7 @@ def generate_capture(
     rope_length: float = 2.8,
     rope_marker_spacing: float = 0.12,
     seed: int = 0,
-    progress: Callable[[float, str], None] | None = None,
+    progress: Progress | None = None,
 ) -> SynthCapture:
     """Generate a capture of ``body`` moving with ``motion``.
 

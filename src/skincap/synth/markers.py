@@ -32,10 +32,10 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
+from skincap.deform.skeletal.name_maps import CONVENTIONS, detect_convention
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import rest_positions
 from skincap.geometry.raycast import closest_points_on_mesh, first_ray_hits
-from skincap.skinning.name_maps import CONVENTIONS, detect_convention
 from skincap.types import Mesh, Skeleton, Skin
 
 __all__ = [

@@ -5,7 +5,7 @@ naming (``tests/data/cmu_131_01_bvh11.bvh``): the same 38 joints in the same
 depth-first order, including the zero-length helper joints (``LHipJoint``,
 ``lowerback``, ``lowerneck``, ``LeftCollar``, ``lhand``) and the end sites, named
 ``<parent>_end`` like :func:`skincap.io.bvh.read_bvh` names them. So
-:mod:`skincap.skinning.retarget`'s built-in ``cmu_bvh11`` map recognises it and any
+:mod:`skincap.deform.skeletal.retarget`'s built-in ``cmu_bvh11`` map recognises it and any
 CMU ``bvh11`` motion plays on it joint for joint.
 
 The proportions are not the capture's but a symmetric adult's, from the classic

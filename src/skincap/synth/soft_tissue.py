@@ -514,7 +514,7 @@ class SoftTissue:
             On the mesh's skeleton (same joint names and order), metres.
         posed : (T, V, 3) float, metres
             The skinned vertices of ``motion`` (e.g. from
-            :func:`skincap.skinning.deformers.skin_motion`); they give the surface
+            :func:`skincap.deform.skeletal.deformers.skin_motion`); they give the surface
             normals. Must be finite.
 
         Returns

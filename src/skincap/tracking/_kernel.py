@@ -12,7 +12,7 @@ rounding (the order of a few additions differs).
 Importing this module imports numba; :func:`track_frames` compiles on its first call
 (about a minute of one core; cached on disk, loaded in about a second afterwards).
 ``track_rope(backend="auto")`` never waits for it: it runs the NumPy reference while
-:func:`warm_up` compiles the kernel in a background process (:mod:`skincap.backends`).
+:func:`skincap.tracking.tracker.warm_up_kernel` compiles the kernel in a background process (:mod:`skincap.backends`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["track_frames", "warm_up"]
+__all__ = ["track_frames"]
 
 _INF = np.inf
 
@@ -1183,17 +1183,3 @@ def track_frames(
             point_index[t, j] = taken[j]
             positions[t, j] = cur[j]
             velocity[j] = cur[j] - prev[j]
-
-
-def warm_up() -> None:
-    """Compile :func:`track_frames` into numba's cache by tracking a tiny analytic take.
-
-    Goes through :func:`~skincap.tracking.tracker.track_rope` so the argument types
-    are exactly those of a real call (run by the background compile).
-    """
-    from skincap.tracking.benchmark import jump_rope_scene
-    from skincap.tracking.init import init_rope
-    from skincap.tracking.tracker import track_rope
-
-    cloud, _, first = jump_rope_scene(frames=90, points_per_frame=40, rope_markers=8, seed=0)
-    track_rope(cloud, init_rope(cloud, markers=first), backend="numba")

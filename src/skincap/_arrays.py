@@ -1,0 +1,82 @@
+"""Small array helpers every layer shares: runs of missing samples, shape checks, progress.
+
+Kept at the ground floor (it imports only :mod:`skincap.errors`) so that io, the
+algorithms and the workflows find a run of gaps, check a ``(T, N, 3)`` array and report
+progress the same way, with the house error messages.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from skincap.errors import ValidationError
+
+__all__ = ["Progress", "missing_runs", "interior_runs", "as_points", "as_trajectories"]
+
+#: A progress callback: ``progress(fraction in [0, 1], message)``. ``None`` where taken
+#: means no reporting. The CLI turns it into a progress bar; library code only calls it.
+Progress = Callable[[float, str], None]
+
+
+def missing_runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every maximal run of missing samples, per column, the take's ends included.
+
+    Parameters
+    ----------
+    missing : (T, N) bool
+        True where column n is missing in frame t.
+
+    Returns
+    -------
+    column : (R,) int64
+    start : (R,) int64
+        First missing frame of each run.
+    length : (R,) int64
+        Number of missing frames. Sorted by column, then start.
+    """
+    missing = np.asarray(missing, dtype=bool)
+    if missing.ndim != 2:
+        raise ValidationError(f"missing: expected shape (T, N), got {missing.shape}")
+    t, n = missing.shape
+    if t == 0 or n == 0:
+        empty = np.zeros(0, dtype=np.int64)
+        return empty, empty.copy(), empty.copy()
+    # Pad with "present" so every run has a start and an end edge.
+    padded = np.zeros((t + 2, n), dtype=np.int8)
+    padded[1:-1] = missing
+    edges = np.diff(padded, axis=0)  # (T + 1, N): +1 at a run start, -1 one past its end
+    # nonzero on the transpose lists (column, frame) sorted by column then frame, so the
+    # k-th start and the k-th end belong to one run.
+    column, starts = np.nonzero(edges.T == 1)
+    _, ends = np.nonzero(edges.T == -1)
+    return column.astype(np.int64), starts.astype(np.int64), (ends - starts).astype(np.int64)
+
+
+def interior_runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The runs of :func:`missing_runs` with a present sample on both sides (the gaps).
+
+    A run at the start or the end of the take has nothing to fill between, so it is not
+    a gap. Same shapes as :func:`missing_runs`.
+    """
+    column, start, length = missing_runs(missing)
+    t = np.asarray(missing).shape[0]
+    inside = (start > 0) & (start + length < t)
+    return column[inside], start[inside], length[inside]
+
+
+def as_points(values: object, name: str = "points") -> np.ndarray:
+    """``values`` as a float64 ``(..., 3)`` array, or :class:`ValidationError` naming ``name``."""
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim < 1 or array.shape[-1] != 3:
+        raise ValidationError(f"{name}: expected shape (..., 3), got {array.shape}")
+    return array
+
+
+def as_trajectories(values: object, name: str = "positions") -> np.ndarray:
+    """``values`` as a float64 ``(T, N, 3)`` array (NaN where missing), or :class:`ValidationError`."""
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim != 3 or array.shape[2] != 3:
+        raise ValidationError(f"{name}: expected shape (T, N, 3), got {array.shape}")
+    return array

@@ -1,0 +1,451 @@
+"""``skincap track`` and ``skincap eval track``: the rope-tracking verbs.
+
+Registered on :data:`skincap.cli._app.app` / :data:`skincap.cli._app.eval_app` when
+:mod:`skincap.cli` is imported. Heavy imports stay inside the commands.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from skincap.cli._app import (
+    _user_errors,
+    app,
+    bench_app,
+    err,
+    eval_app,
+    frame_progress,
+    out,
+    print_bench_results,
+    print_json,
+)
+from skincap.errors import FormatError, ValidationError
+
+if TYPE_CHECKING:
+    import numpy as np
+
+    from skincap.types import MarkerSet, PointCloud
+
+
+# ------------------------------------------------------------------------- track
+def _read_cloud(path: Path) -> PointCloud:
+    """The input as an un-indexed PointCloud: long point CSV, OptiTrack CSV or C3D.
+
+    A MarkerSet (OptiTrack CSV, C3D) must hold only unlabelled ``*N`` points; its
+    labels are dropped (the tracker sees points, not trajectories).
+    """
+    from skincap import io
+    from skincap.types import MarkerSet, PointCloud
+
+    obj = io.read(path)
+    if isinstance(obj, PointCloud):
+        return obj
+    if isinstance(obj, MarkerSet):
+        labelled = [label for label in obj.labels if not label.startswith("*")]
+        if labelled:
+            raise FormatError(
+                path,
+                f"track reads un-indexed points, but {len(labelled)} markers are labelled "
+                f"(e.g. {labelled[0]!r}); give a points CSV or a file of '*N' points",
+            )
+        return PointCloud.from_markerset(obj, keep_ids=False)
+    raise FormatError(path, "track reads a points CSV, an OptiTrack CSV or a C3D of '*N' points")
+
+
+def _parse_numbers(text: str, option: str, *, count: int | None, kind: type) -> list[Any]:
+    try:
+        values = [kind(v) for v in text.replace(" ", "").split(",") if v != ""]
+    except ValueError:
+        raise ValidationError(f"{option}: expected comma-separated numbers, got {text!r}") from None
+    if count is not None and len(values) != count:
+        raise ValidationError(f"{option}: expected {count} numbers, got {len(values)}")
+    return values
+
+
+@app.command()
+def track(
+    input_file: Annotated[
+        Path, typer.Argument(help="Long points CSV, OptiTrack CSV, or C3D of '*N' points.")
+    ],
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    rope_box: Annotated[
+        str | None,
+        typer.Option(help="x0,y0,z0,x1,y1,z1 (metres, Y up): frame-0 points in the box."),
+    ] = None,
+    rope_markers: Annotated[
+        str | None, typer.Option(help="Indices of the rope's points among frame 0's points.")
+    ] = None,
+    rope: Annotated[
+        str | None, typer.Option(help="'auto': find the rope as a still chain of points.")
+    ] = None,
+    window: Annotated[
+        float, typer.Option(help="Seconds at the start where the rope hangs still.")
+    ] = 0.5,
+    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the summary as JSON (counts, written files).")
+    ] = False,
+) -> None:
+    """Separate a rope from the body in un-indexed points and track it (Porter 2012).
+
+    Writes DIR/rope.c3d (rope_00… in order, invented samples flagged),
+    DIR/body_points.csv (the points the rope did not take), DIR/rope_curve.csv
+    (the rope resampled per frame) and DIR/report.json. Select the rope in frame 0
+    with exactly one of --rope-box, --rope-markers or --rope auto.
+
+    Example: skincap track capture_points.csv --rope auto -o tracked
+    """
+    from skincap.io.output_safety import guard_outputs
+    from skincap.tracking.init import init_rope
+    from skincap.tracking.outputs import OUTPUT_NAMES, write_track_outputs
+    from skincap.tracking.tracker import track_rope
+
+    outputs = [output / name for name in OUTPUT_NAMES]
+    with _user_errors(), guard_outputs([input_file], outputs, folders=[output], force=force):
+        given = [rope_box is not None, rope_markers is not None, rope is not None]
+        if sum(given) != 1:
+            raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")
+        if rope is not None and rope != "auto":
+            raise ValidationError(f"--rope: the only choice is 'auto', got {rope!r}")
+        cloud = _read_cloud(input_file)
+        if rope_box is not None:
+            box = _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
+            init = init_rope(cloud, box=box, window_seconds=window)
+        elif rope_markers is not None:
+            idx = _parse_numbers(rope_markers, "--rope-markers", count=None, kind=int)
+            init = init_rope(cloud, markers=idx, window_seconds=window)
+        else:
+            init = init_rope(cloud, auto=True, window_seconds=window)
+        frames = cloud.n_frames
+        with frame_progress() as progress:
+            task = progress.add_task("tracking the rope", total=frames)
+
+            def advance(fraction: float) -> None:
+                progress.update(task, completed=fraction * frames)
+
+            result = track_rope(cloud, init, progress=advance)
+        report = write_track_outputs(cloud, result, output, force=force)
+    if json_output:
+        print_json(
+            {
+                "input": str(input_file),
+                "outputs": [str(p) for p in outputs],
+                "frames": report["frames"],
+                "rope_markers": len(report["rope_markers"]),
+                "rope_points": report["rope_points"],
+                "invented_samples": report["invented_samples"],
+                "lost_traces": len(report["lost_traces"]),
+            }
+        )
+        return
+    out.print(
+        f"{input_file} -> {output}: {report['frames']} frames, "
+        f"{len(report['rope_markers'])} rope markers, {report['rope_points']} rope points, "
+        f"{report['invented_samples']} invented samples, {len(report['lost_traces'])} lost traces"
+    )
+
+
+# -------------------------------------------------------------------- eval track
+_EVAL_OUTPUTS = ("track_eval.json", "track_eval.png")
+#: The files ``eval track`` reads from a ``skincap synth`` folder.
+_SYNTH_INPUTS = ("capture_points.csv", "truth/markers.c3d", "truth/points.csv")
+_DEFAULT_GAPS = "10,20,30,40,50,60,70,80,90,100,110,120"
+
+
+def _parse_gaps(text: str) -> list[int]:
+    try:
+        gaps = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ValidationError(
+            f"--gaps: expected frame counts like 10,20,30, got {text!r}"
+        ) from None
+    if not gaps or min(gaps) < 1:
+        raise ValidationError(f"--gaps: expected positive frame counts, got {text!r}")
+    return gaps
+
+
+def _read_point_truth(path: Path, cloud: PointCloud) -> np.ndarray:
+    """Read ``truth/points.csv`` (``row,frame,truth``) and check it against the cloud."""
+    import numpy as np
+
+    from skincap.io._common import check_readable
+
+    check_readable(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 text (byte {exc.start})") from None
+    lines = text.splitlines()
+    if not lines or lines[0].strip() != "row,frame,truth":
+        raise FormatError(path, "expected the header 'row,frame,truth'", line=1)
+    body = lines[1:]
+    if len(body) != cloud.points.shape[0]:
+        raise FormatError(
+            path,
+            f"has {len(body)} rows, capture_points.csv has {cloud.points.shape[0]} points",
+        )
+    fields = [line.split(",") for line in body]
+    bad = next((i for i, f in enumerate(fields) if len(f) != 3), None)
+    if bad is not None:
+        raise FormatError(path, "expected 3 fields: row,frame,truth", line=bad + 2)
+    cols = np.array(fields, dtype=str).reshape(-1, 3)
+    try:
+        rows = cols[:, 0].astype(np.int64)
+        frames = cols[:, 1].astype(np.int64)
+    except (ValueError, OverflowError):
+        num = np.char.isdigit(cols[:, 0]) & np.char.isdigit(cols[:, 1])
+        num &= (np.char.str_len(cols[:, 0]) < 19) & (np.char.str_len(cols[:, 1]) < 19)
+        first = int(np.flatnonzero(~num)[0]) if (~num).any() else 0
+        raise FormatError(path, "row and frame must be integers", line=first + 2) from None
+    wrong = (rows != np.arange(rows.size)) | (frames != cloud.frame_index)
+    if wrong.any():
+        i = int(np.flatnonzero(wrong)[0])
+        raise FormatError(
+            path, f"row {i} does not match capture_points.csv (row or frame differs)", line=i + 2
+        )
+    return cols[:, 2]
+
+
+def _read_synth_folder(folder: Path) -> tuple[PointCloud, np.ndarray, MarkerSet]:
+    """The un-indexed cloud, per-point truth and clean markers of a ``skincap synth`` folder."""
+    import numpy as np
+
+    from skincap.io.c3d import read_c3d
+    from skincap.io.csv import read_points_csv
+
+    if not folder.is_dir():
+        raise FormatError(folder, "not a folder (expected one written by skincap synth)")
+    cloud = read_points_csv(folder / "capture_points.csv")
+    truth_path = folder / "truth" / "markers.c3d"
+    truth = read_c3d(truth_path)
+    point_truth = _read_point_truth(folder / "truth" / "points.csv", cloud)
+    if truth.n_frames != cloud.n_frames:
+        raise FormatError(
+            truth_path, f"has {truth.n_frames} frames, capture_points.csv {cloud.n_frames}"
+        )
+    # The truth must describe these points: rope points lie on their true markers.
+    rope = np.char.startswith(point_truth, "rope_")
+    if not rope.any():
+        raise FormatError(
+            folder / "truth" / "points.csv",
+            "no rope_NN points: make the take with --rope jump|whip",
+        )
+    index = {label: i for i, label in enumerate(truth.labels)}
+    labels = point_truth[rope]
+    unknown = sorted(set(labels.tolist()) - set(index))
+    if unknown:
+        raise FormatError(truth_path, f"has no marker {unknown[0]!r} named in truth/points.csv")
+    names, which = np.unique(labels, return_inverse=True)
+    col = np.array([index[name] for name in names.tolist()], dtype=np.int64)[which]
+    dist = np.linalg.norm(
+        cloud.points[rope] - truth.positions[cloud.frame_index[rope], col], axis=1
+    )
+    median = float(np.nanmedian(dist)) if np.isfinite(dist).any() else float("inf")
+    if median > 0.01:
+        raise FormatError(
+            truth_path,
+            f"rope points lie {median * 1000:.0f} mm (median) from their true markers: "
+            "not the truth of capture_points.csv",
+        )
+    return cloud, point_truth, truth
+
+
+def _synth_take(rope: str, frames: int, markers: str, vertices: int, seed: int, report: Any) -> Any:
+    from skincap.synth.generate import generate_capture
+    from skincap.synth.inputs import build_body, build_motion
+
+    body = build_body("procedural", n_vertices=vertices, seed=seed)
+    motion = build_motion(body, "jumprope", frames=frames, seed=seed)
+    return generate_capture(body, motion, markers=markers, rope=rope, seed=seed, progress=report)
+
+
+def _cm(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.2f}"
+
+
+def _print_eval_table(result: dict[str, Any]) -> None:
+    from rich.table import Table
+
+    rows = result["gap_repair"]
+    single = {r["gap"]: r for r in rows.get("single", [])}
+    adjacent = {r["gap"]: r for r in rows.get("adjacent", [])}
+    table = Table(
+        title="gap repair (mean error over the gap, cm; lost/trials)", title_justify="left"
+    )
+    table.add_column("gap (frames)", justify="right")
+    table.add_column("one marker", justify="right")
+    table.add_column("lost", justify="right")
+    table.add_column("two adjacent", justify="right")
+    table.add_column("lost", justify="right")
+    for gap in sorted(set(single) | set(adjacent)):
+        s, a = single.get(gap), adjacent.get(gap)
+        table.add_row(
+            str(gap),
+            _cm(s["mean_error_m"]) if s else "",
+            f"{s['lost']}/{s['trials']}" if s else "",
+            _cm(a["mean_error_m"]) if a else "",
+            f"{a['lost']}/{a['trials']}" if a else "",
+        )
+    out.print(table)
+    c = result["classification"]
+    out.print(
+        f"rope/body classification: precision {c['precision']:.4f}, recall {c['recall']:.4f}, "
+        f"F1 {c['f1']:.4f} ({c['false_positive']} body points taken, "
+        f"{c['false_negative']} rope points missed; {result['followed']} of "
+        f"{result['rope_markers']} rope markers tracked)",
+        markup=False,
+        soft_wrap=True,
+    )
+    b = result["baseline"]
+    out.print(
+        f"tracking without hold-back: {100 * b['followed_2cm_fraction']:.1f}% of rope marker "
+        f"samples followed within 2 cm; gap trials are drawn where the marker is measured "
+        f"(from the take and --seed only, whatever the tracking)",
+        markup=False,
+        soft_wrap=True,
+    )
+    for name, t in result["targets"].items():
+        mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
+        value = t["value"]
+        shown = "-" if value is None else f"{value:.4g}"
+        thesis = f"; thesis {t['thesis']}" if t["thesis"] else ""
+        out.print(f"target {name}: {shown} ({t['target']}{thesis}): {mark}", markup=False)
+
+
+@eval_app.command("track")
+def eval_track(
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    input_dir: Annotated[
+        Path | None,
+        typer.Argument(help="A folder written by 'skincap synth --rope jump|whip'."),
+    ] = None,
+    synth: Annotated[
+        str | None,
+        typer.Option("--synth", help="jump or whip: generate a jump-rope take in memory instead."),
+    ] = None,
+    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
+    markers: Annotated[
+        str, typer.Option(help="Body markers of a --synth take: dense or sparse.")
+    ] = "dense",
+    vertices: Annotated[
+        int, typer.Option(help="Procedural body vertices of a --synth take.")
+    ] = 6000,
+    gaps: Annotated[
+        str,
+        typer.Option(
+            help="Gap sizes in frames, evaluated in order until the tracker loses the marker."
+        ),
+    ] = _DEFAULT_GAPS,
+    starts: Annotated[int, typer.Option(help="Start frames (trials) per gap size and case.")] = 8,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the start frames (and of a --synth take).")
+    ] = 0,
+    all_gaps: Annotated[
+        bool, typer.Option("--all-gaps", help="Run every gap size, even after the tracker lost it.")
+    ] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace outputs of an earlier run.")
+    ] = False,
+) -> None:
+    """Measure rope tracking against ground truth as the thesis does (Fig. 4.4).
+
+    Holds back one rope marker's points, and separately two adjacent markers', for
+    gaps of 10, 20, 30, ... frames at seeded start frames until the tracker loses
+    them (> 0.5 m off), and measures the repaired positions over the gap; classifies
+    every point as rope or body against the truth (precision, recall, F1). Writes
+    OUTPUT/track_eval.json and OUTPUT/track_eval.png and prints a table with the
+    targets beside the thesis' figures.
+
+    Example: skincap eval track --synth jump --frames 600 --starts 8 -o eval_jump
+    """
+    from rich.progress import Progress
+
+    from skincap.evaluate.tracking import evaluate_tracking, plot_gap_repair
+    from skincap.io._common import atomic_output
+    from skincap.io.output_safety import guard_outputs
+
+    paths = [output / name for name in _EVAL_OUTPUTS]
+    inputs = [] if input_dir is None else [input_dir / name for name in _SYNTH_INPUTS]
+    with _user_errors(), guard_outputs(inputs, paths, folders=[output], force=force):
+        if (input_dir is None) == (synth is None):
+            raise ValidationError(
+                "give a folder made by skincap synth or --synth jump|whip (one of them)"
+            )
+        if synth is not None and synth not in ("jump", "whip"):
+            raise ValidationError(f"--synth: expected jump or whip, got {synth!r}")
+        if markers not in ("dense", "sparse"):
+            raise ValidationError(f"--markers: expected dense or sparse, got {markers!r}")
+        if frames < 2 or starts < 1:
+            raise ValidationError("--frames must be at least 2 and --starts at least 1")
+        gap_sizes = _parse_gaps(gaps)
+        with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
+            task = progress.add_task("reading", total=1.0)
+            if input_dir is not None:
+                cloud, point_truth, truth = _read_synth_folder(input_dir)
+                source = str(input_dir)
+            else:
+
+                def made(fraction: float, label: str) -> None:
+                    progress.update(task, completed=0.3 * fraction, description=f"synth: {label}")
+
+                take = _synth_take(synth, frames, markers, vertices, seed, made)
+                cloud, point_truth, truth = take.points, take.point_truth, take.truth
+                source = f"synth {synth} ({markers} markers, {frames} frames, seed {seed})"
+            lo = 0.3 if input_dir is None else 0.05
+
+            def evaluated(fraction: float, label: str) -> None:
+                progress.update(task, completed=lo + (1 - lo) * fraction, description=label)
+
+            result = evaluate_tracking(
+                cloud,
+                point_truth,
+                truth,
+                gaps=gap_sizes,
+                starts=starts,
+                seed=seed,
+                stop_when_lost=not all_gaps,
+                progress=evaluated,
+            )
+        result = {"source": source, **result}
+        output.mkdir(parents=True, exist_ok=True)
+        with atomic_output(paths[0], force=force) as tmp:
+            tmp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        plot_gap_repair(result, paths[1], force=force, title=f"Gap repair: {source}")
+    if json_output:
+        print(json.dumps(result, indent=2, allow_nan=False))
+        return
+    _print_eval_table(result)
+    out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
+
+
+# ------------------------------------------------------------------- bench track
+@bench_app.command("track")
+def bench_track(
+    frames: Annotated[int, typer.Option(help="Frames of the scene (120 Hz).")] = 1200,
+    points: Annotated[int, typer.Option(help="Points per frame (rope and body).")] = 400,
+    rope_markers: Annotated[int, typer.Option(help="Tape markers on the rope.")] = 24,
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 3,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """track_rope's frames per second against real time and a naive nearest-neighbour tracker.
+
+    Example: skincap bench track --frames 1200 --points 400
+    """
+    from skincap.evaluate.bench.tracking import run_track_benchmark
+
+    with _user_errors():
+        if frames < 2 or rope_markers < 3 or points <= rope_markers or repeat < 1:
+            raise ValidationError(
+                "bench track: need --frames >= 2, --rope-markers >= 3, --points > --rope-markers, --repeat >= 1"
+            )
+        results = run_track_benchmark(
+            frames=frames, points_per_frame=points, rope_markers=rope_markers, repeat=repeat
+        )
+    print_bench_results(results, json_output)

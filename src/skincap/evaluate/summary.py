@@ -1,0 +1,138 @@
+"""Summaries of skincap objects: what ``skincap info`` reports.
+
+Each ``summarize_*`` returns a plain, JSON-ready dict (numbers, strings, lists).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from skincap._arrays import interior_runs
+from skincap.types import MarkerSet, Mesh, Motion, PointCloud, Skeleton
+
+__all__ = [
+    "summarize",
+    "summarize_markers",
+    "summarize_points",
+    "summarize_motion",
+    "summarize_mesh",
+    "mesh_height",
+]
+
+
+def summarize_markers(markers: MarkerSet) -> dict[str, Any]:
+    """Frames, rate, duration, label counts, missing fraction and gaps of ``markers``."""
+    missing = markers.missing
+    _, _, lengths = interior_runs(missing)
+    unlabelled = int(markers.unlabelled.sum())
+    model_outputs = markers.meta.get("model_outputs") or {}
+    return {
+        "kind": "markers",
+        "frames": markers.n_frames,
+        "rate": markers.rate,
+        "duration": markers.duration,
+        "markers": markers.n_markers,
+        "labelled": markers.n_markers - unlabelled,
+        "unlabelled": unlabelled,
+        "missing_fraction": float(missing.mean()) if missing.size else 0.0,
+        "gaps": int(lengths.size),
+        "longest_gap": int(lengths.max()) if lengths.size else 0,
+        "source_units": markers.meta.get("source_units"),
+        "up": markers.meta.get("up"),
+        "first_frame": markers.meta.get("first_frame", 0),
+        "model_outputs": {k: len(v) for k, v in model_outputs.items()},
+    }
+
+
+def summarize_points(cloud: PointCloud) -> dict[str, Any]:
+    """Frames, rate and points-per-frame statistics of an un-indexed ``cloud``."""
+    counts = cloud.counts
+    return {
+        "kind": "points",
+        "frames": cloud.n_frames,
+        "rate": cloud.rate,
+        "duration": cloud.n_frames / cloud.rate,
+        "points": int(cloud.points.shape[0]),
+        "points_per_frame_min": int(counts.min()) if counts.size else 0,
+        "points_per_frame_mean": float(counts.mean()) if counts.size else 0.0,
+        "points_per_frame_max": int(counts.max()) if counts.size else 0,
+        "has_ids": cloud.ids is not None,
+    }
+
+
+def _skeleton_height(skeleton: Skeleton) -> float:
+    """Rest-pose vertical (Y) extent of the joints, metres."""
+    world = np.zeros((skeleton.n_joints, 3))
+    for j, p in enumerate(skeleton.parents):
+        world[j] = skeleton.offsets[j] + (world[p] if p >= 0 else 0.0)
+    return float(np.ptp(world[:, 1]))
+
+
+def summarize_motion(motion: Motion) -> dict[str, Any]:
+    """Joints, frames, rate, units and channel orders of ``motion``."""
+    sk = motion.skeleton
+    channels = motion.channels or []
+    end_sites = sum(1 for c in channels if not c)
+    orders = sorted({"".join(c[0] for c in ch if c.endswith("rotation")) for ch in channels if ch})
+    return {
+        "kind": "motion",
+        "joints": sk.n_joints - end_sites,
+        "end_sites": end_sites,
+        "frames": motion.n_frames,
+        "rate": motion.rate,
+        "frame_time": motion.frame_time,
+        "duration": motion.duration,
+        "source_units": motion.meta.get("source_units"),
+        "height_m": _skeleton_height(sk),
+        "root": sk.names[0],
+        "rotation_orders": orders,
+        "channels": int(sum(len(c) for c in channels)),
+    }
+
+
+def mesh_height(mesh: Mesh) -> float:
+    """The mesh's vertical (Y) extent, metres: a standing body's height."""
+    if mesh.n_vertices == 0:
+        return 0.0
+    lo, hi = mesh.bounds
+    return float(hi[1] - lo[1])
+
+
+def summarize_mesh(mesh: Mesh) -> dict[str, Any]:
+    """Vertices, faces, bounds, height, groups and skin joints of ``mesh``.
+
+    ``mesh`` as :func:`skincap.io.read_mesh` gives it (a MakeHuman body with its rig,
+    in metres), so the counts are the ones ``skincap skin`` works with.
+    """
+    b = mesh.bounds
+    out: dict[str, Any] = {
+        "kind": "mesh",
+        "vertices": mesh.n_vertices,
+        "faces": mesh.n_faces,
+        "polygons": mesh.n_polygons,
+        "bounds_min": b[0].tolist(),
+        "bounds_max": b[1].tolist(),
+        "size_m": (b[1] - b[0]).tolist(),
+        "height_m": mesh_height(mesh),
+        "groups": len(mesh.groups),
+        "skin_joints": mesh.skin.skeleton.n_joints if mesh.skin is not None else 0,
+        "source_units": mesh.meta.get("source_units"),
+    }
+    if mesh.skin is not None:
+        out["max_influences"] = int(mesh.skin.joint_weights.shape[1])
+    return out
+
+
+def summarize(obj: object) -> dict[str, Any]:
+    """Dispatch to the summary of ``obj``'s type."""
+    if isinstance(obj, MarkerSet):
+        return summarize_markers(obj)
+    if isinstance(obj, PointCloud):
+        return summarize_points(obj)
+    if isinstance(obj, Motion):
+        return summarize_motion(obj)
+    if isinstance(obj, Mesh):
+        return summarize_mesh(obj)
+    raise TypeError(f"no summary for {type(obj).__name__}")

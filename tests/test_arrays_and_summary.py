@@ -1,0 +1,50 @@
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from skincap._arrays import interior_runs as find_gaps
+from skincap.evaluate.summary import summarize
+from skincap.types import MarkerSet
+
+
+def _gaps_reference(missing):
+    """Per-column scan: the plain version find_gaps must agree with."""
+    out = []
+    t, n = missing.shape
+    for c in range(n):
+        f = 0
+        while f < t:
+            if missing[f, c]:
+                s = f
+                while f < t and missing[f, c]:
+                    f += 1
+                if s > 0 and f < t:
+                    out.append((c, s, f - s))
+            else:
+                f += 1
+    return sorted(out)
+
+
+@settings(max_examples=200, deadline=None)
+@given(arrays(bool, st.tuples(st.integers(0, 30), st.integers(0, 5))))
+def test_find_gaps_matches_scan(missing):
+    m, s, length = find_gaps(missing)
+    assert sorted(zip(m.tolist(), s.tolist(), length.tolist(), strict=True)) == _gaps_reference(
+        missing
+    )
+
+
+def test_marker_summary_counts():
+    p = np.zeros((10, 3, 3))
+    p[2:5, 0] = np.nan  # interior gap of 3
+    p[0:2, 1] = np.nan  # leading run: not a gap
+    p[7, 2] = np.nan  # interior gap of 1
+    s = summarize(MarkerSet(p, ["a", "*1", "c"], 100.0))
+    assert s["kind"] == "markers"
+    assert (s["markers"], s["labelled"], s["unlabelled"]) == (3, 2, 1)
+    assert (s["gaps"], s["longest_gap"]) == (2, 3)
+    assert s["missing_fraction"] == 6 / 30
+    assert s["duration"] == 0.1

@@ -1,0 +1,138 @@
+"""load_scene: every kind of file skincap reads or writes becomes drawable layers."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from skincap.errors import FormatError, SkincapWarning
+from skincap.io.bvh import read_bvh
+from skincap.io.c3d import read_c3d
+from skincap.io.csv import write_points_csv
+from skincap.io.mesh import write_obj
+from skincap.io.pc2 import write_pc2
+from skincap.types import Mesh, MeshAnimation, PointCloud
+from skincap.viz.scene import MarkerLayer, load_scene, scene_from_objects
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def test_real_c3d_and_bvh_on_one_clock():
+    c3d = DATA / "kt_optitrack_walking.c3d"
+    bvh = DATA / "cmu_131_01_bvh11.bvh"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the BVH unit guess
+        scene = load_scene([c3d, bvh])
+    markers, skeleton = scene.layers
+    ref = read_c3d(c3d)
+    assert markers.kind == "markers" and skeleton.kind == "skeleton"
+    np.testing.assert_array_equal(markers.positions, ref.positions)
+    assert markers.labels == list(ref.labels)
+    assert scene.rate == max(ref.rate, skeleton.rate)
+    # the scene clock maps a time to each layer's own nearest frame
+    t = 1.0
+    assert scene.layer_frame(markers, t) == round(t * ref.rate)
+    assert scene.layer_frame(markers, 1e6) == markers.n_frames - 1
+    lo, hi = scene.bounds()
+    assert (hi > lo).all()
+
+
+def test_points_csv_and_rope_curve(tmp_path):
+    rng = np.random.default_rng(0)
+    counts = np.array([3, 0, 5, 4])
+    pts = rng.normal(size=(counts.sum(), 3))
+    cloud = PointCloud(points=pts, offsets=np.concatenate([[0], np.cumsum(counts)]), rate=120.0)
+    write_points_csv(cloud, tmp_path / "points.csv")
+    curve = tmp_path / "rope_curve.csv"
+    rows = ["frame,s,x,y,z"] + [f"{f},{k * 0.1},{k},{f},0" for f in range(4) for k in range(6)]
+    curve.write_text("\n".join(rows) + "\n")
+    (tmp_path / "report.json").write_text('{"rate": 60.0}')
+    scene = load_scene([tmp_path / "points.csv", curve])
+    points, rope = scene.layers
+    assert points.kind == "points" and points.n_frames == 4
+    np.testing.assert_allclose(points.cloud.frame(2), pts[3:8])
+    assert rope.kind == "curve" and rope.curves.shape == (4, 6, 3) and rope.rate == 60.0
+    np.testing.assert_array_equal(rope.curves[3, :, 0], np.arange(6))
+    ragged = tmp_path / "bad" / "rope_curve.csv"
+    ragged.parent.mkdir()
+    ragged.write_text("frame,s,x,y,z\n0,0,0,0,0\n0,1,1,0,0\n1,0,0,0,0\n")
+    with pytest.raises(FormatError, match="same number of samples"):
+        load_scene([ragged])
+
+
+def test_point_cache_with_its_mesh_and_folder_loading(tmp_path):
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    mesh = Mesh(vertices=verts, faces=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]))
+    frames = verts[None] + np.linspace(0, 1, 10)[:, None, None] * np.array([0, 0.5, 0])
+    write_obj(mesh, tmp_path / "tet.obj")
+    write_pc2(MeshAnimation(rest=mesh, frames=frames, rate=24.0), tmp_path / "tet.pc2")
+    (tmp_path / "notes.csv").write_text("something,else\n1,2\n")
+    with pytest.warns(SkincapWarning) as record:
+        scene = load_scene([tmp_path])
+    messages = " ".join(str(w.message) for w in record)
+    assert "notes.csv" in messages and "30 Hz" in messages  # skipped file; PC2 rate fallback
+    (layer,) = scene.layers  # the OBJ is shown once, animated by its cache
+    assert layer.kind == "mesh" and layer.frames.shape == (10, 4, 3) and layer.rate == 30.0
+    np.testing.assert_allclose(layer.frames, frames, atol=1e-6)
+    scene = load_scene([tmp_path / "tet.pc2"], rate=24.0)
+    assert scene.layers[0].rate == 24.0
+
+
+def test_errors_name_the_file(tmp_path):
+    with pytest.raises(FormatError, match="no such file"):
+        load_scene([tmp_path / "missing.c3d"])
+    (tmp_path / "x.txt").write_text("hello")
+    with pytest.raises(FormatError, match="x.txt"):
+        load_scene([tmp_path / "x.txt"])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(FormatError, match="no file skincap shows"):
+        load_scene([empty])
+    lonely = tmp_path / "lonely.pc2"
+    lonely.write_bytes(b"POINTCACHE2\x00")
+    with pytest.raises(FormatError, match="lonely.obj"):
+        load_scene([lonely])
+
+
+def test_overlay_names_stay_unique_and_invented_flags_survive():
+    markers = read_c3d(DATA / "kt_optitrack_walking.c3d")
+    motion = read_bvh(DATA / "cmu_131_01_bvh11.bvh", units="cmu")
+    scene = scene_from_objects([("take", markers), ("take", markers), ("walk", motion)])
+    assert [lay.name for lay in scene.layers] == ["take", "take (2)", "walk"]
+    first = scene.layers[0]
+    assert isinstance(first, MarkerLayer)
+    assert first.invented.shape == markers.positions.shape[:2] and not first.invented.any()
+
+
+def _tet_animation():
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    mesh = Mesh(vertices=verts, faces=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]))
+    frames = verts[None] + np.linspace(0, 1, 6)[:, None, None] * np.array([0.2, 0.5, 0])
+    return mesh, frames
+
+
+def test_obj_sequence_folder_is_one_animated_mesh(tmp_path):
+    from skincap.io.obj_sequence import write_obj_sequence
+
+    mesh, frames = _tet_animation()
+    write_obj_sequence(MeshAnimation(rest=mesh, frames=frames, rate=24.0), tmp_path / "seq")
+    scene = load_scene([tmp_path / "seq"], rate=24.0)
+    (layer,) = scene.layers
+    assert layer.kind == "mesh" and layer.frames.shape == (6, 4, 3)
+    np.testing.assert_allclose(layer.frames, frames, atol=1e-6)
+
+
+def test_usd_stage_points_play_back(tmp_path):
+    pytest.importorskip("pxr", reason="USD needs usd-core (skincap[usd])")
+    from skincap.io.usd import write_usd
+
+    mesh, frames = _tet_animation()
+    write_usd(MeshAnimation(rest=mesh, frames=frames, rate=24.0), tmp_path / "tet.usda")
+    scene = load_scene([tmp_path / "tet.usda"])
+    (layer,) = scene.layers
+    assert layer.rate == 24.0 and layer.frames.shape == (6, 4, 3)
+    np.testing.assert_allclose(layer.frames, frames, atol=1e-6)
+    np.testing.assert_array_equal(np.sort(layer.faces, axis=1), np.sort(mesh.faces, axis=1))
