@@ -9,11 +9,12 @@ B-spline, compactly supported on ``[0, 2)``::
     φ(u) = (2 - u)³/6                   for 1 ≤ u < 2
     φ(u) = 0                            for u ≥ 2
 
-The radial cubic B-spline is not guaranteed positive definite in 3-D, so the system is
-solved with a tiny ridge (``1e-10`` of the diagonal) and falls back to least squares
-when it is singular; interpolation is exact to rounding whenever the kernel matrix is
-invertible, which it is for centres spread at the spacing σ is chosen from
-(:func:`dilation_from_spacing`).
+The radial cubic B-spline is not positive definite in 3-D: its kernel matrix can have
+eigenvalues near zero or below it (on a dense capture's parts the smallest are about
+1e-4 of the largest, and they cross zero as the centres move). The system is solved
+through its eigen-decomposition with the near-zero modes left out (:func:`fit_rbf`),
+so interpolation is exact for a well-conditioned matrix and stays bounded for a
+near-singular one.
 
 Every function takes a validity mask so that a batch of frames with different missing
 centres is one array operation: an invalid centre gets weight 0 and does not constrain
@@ -84,9 +85,16 @@ def fit_rbf(
     sigma: np.ndarray | float,
     mask: np.ndarray | None = None,
     *,
-    ridge: float = 1e-10,
+    cutoff: float = 1e-3,
 ) -> np.ndarray:
     """Weights that make the cubic B-spline RBF interpolate ``values`` at ``centres`` (eq. 7).
+
+    The kernel matrix is symmetric but, the radial cubic B-spline not being positive
+    definite in 3-D, it can have eigenvalues near (or below) zero, where a plain solve
+    gives huge weights that swing the surface between the centres. The system is
+    solved through its eigen-decomposition, leaving out the modes whose eigenvalue
+    is below ``cutoff`` times the largest in magnitude: exact interpolation whenever the
+    matrix is well conditioned, and the best bounded approximation otherwise.
 
     Parameters
     ----------
@@ -97,8 +105,8 @@ def fit_rbf(
         The dilation σ (positive).
     mask : (..., K) bool, optional
         False (or a non-finite centre or value) excludes a centre: its weight is 0.
-    ridge : float
-        Added to the diagonal, relative to φ(0); keeps a near-singular system stable.
+    cutoff : float
+        Relative eigenvalue below which a mode is left out (0 = plain solve).
 
     Returns
     -------
@@ -112,6 +120,9 @@ def fit_rbf(
             f"centres must be (..., K, 3) and values (..., K, D) with the same K; "
             f"got {c.shape} and {r.shape}"
         )
+    cut = float(cutoff)
+    if not (0 <= cut < 1):
+        raise ValidationError(f"cutoff must be in [0, 1); got {cutoff!r}")
     lead = np.broadcast_shapes(c.shape[:-2], r.shape[:-2])
     k = c.shape[-2]
     s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), lead)
@@ -126,22 +137,15 @@ def fit_rbf(
     phi = _kernel_matrix(c0, c0, s_safe)  # (..., K, K)
     pair = valid[..., :, None] & valid[..., None, :]
     eye = np.eye(k, dtype=bool)
-    phi = np.where(pair, phi, 0.0) + np.where(eye & ~valid[..., :, None], 1.0, 0.0)
-    phi = phi + float(ridge) * (2.0 / 3.0) * np.eye(k)
-    try:
-        w = np.linalg.solve(phi, r0)
-    except np.linalg.LinAlgError:
-        w = _solve_each(phi, r0)
+    # an excluded centre gets a lone diagonal entry φ(0): it decouples with weight 0
+    phi = np.where(pair, phi, 0.0) + np.where(eye & ~valid[..., :, None], 2.0 / 3.0, 0.0)
+    lam, vec = np.linalg.eigh(phi)  # (..., K), (..., K, K)
+    scale = np.abs(lam).max(axis=-1, keepdims=True)
+    keep = np.abs(lam) > cut * scale
+    inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+    coeff = np.einsum("...jk,...jd->...kd", vec, r0) * inv[..., None]
+    w = np.einsum("...ik,...kd->...id", vec, coeff)
     return np.where(valid[..., None], w, 0.0)
-
-
-def _solve_each(phi: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """Least squares per batch: the fallback when some kernel matrix is singular."""
-    k, d = phi.shape[-1], rhs.shape[-1]
-    flat_phi = phi.reshape(-1, k, k)
-    flat_rhs = rhs.reshape(-1, k, d)
-    pinv = np.linalg.pinv(flat_phi)
-    return np.einsum("bij,bjd->bid", pinv, flat_rhs).reshape(rhs.shape)
 
 
 def evaluate_rbf(
