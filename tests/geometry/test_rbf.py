@@ -17,13 +17,13 @@ def _grid_points(rng: np.random.Generator, n: int = 30) -> np.ndarray:
 
 
 def test_kernel_values_and_support() -> None:
-    u = np.array([0.0, 0.5, 1.0, 1.5, 2.0, 3.0])
+    u = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5])
     expected = [2 / 3, 23 / 48, 1 / 6, 1 / 48, 0.0, 0.0]
     np.testing.assert_allclose(cubic_bspline(u), expected)
     # C2 at the knots: second differences small and continuous
-    x = np.linspace(0, 2.5, 2501)
+    x = np.linspace(0, 1.25, 2501)
     d2 = np.diff(cubic_bspline(x), 2) / (x[1] - x[0]) ** 2
-    assert np.abs(np.diff(d2)).max() < 0.01
+    assert np.abs(np.diff(d2)).max() < 0.05
 
 
 def test_dilation_is_twice_the_largest_nearest_neighbour_distance() -> None:

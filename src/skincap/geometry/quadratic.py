@@ -60,7 +60,7 @@ def fit_quadratic(
     current: np.ndarray,
     weights: np.ndarray | None = None,
     *,
-    linear_regularisation: float = 1e-6,
+    linear_regularisation: float = 1e-9,
     quadratic_regularisation: float = 1e-4,
 ) -> np.ndarray:
     """Least-squares quadratic field with ``current ≈ A q(reference)``, batched (eq. 6).

@@ -3,16 +3,20 @@
 Given centres ``c_i`` and values ``r_i``, find weights ``w_i`` with
 ``Σ_i w_i φ(||c_i - c_j|| / σ) = r_j`` for every centre ``j`` (eq. 7), then evaluate
 ``f(x) = Σ_i w_i φ(||c_i - x|| / σ)`` anywhere (the sum in eq. 8). φ is the cubic
-B-spline, compactly supported on ``[0, 2)``::
+B-spline scaled to the support ``[0, 1)``, so σ is the radius of influence::
 
-    φ(u) = (2 - u)³/6 - 4 (1 - u)³/6   for 0 ≤ u < 1
-    φ(u) = (2 - u)³/6                   for 1 ≤ u < 2
-    φ(u) = 0                            for u ≥ 2
+    φ(u) = B(2u),  B(s) = (2 - s)³/6 - 4 (1 - s)³/6  for 0 ≤ s < 1
+                   B(s) = (2 - s)³/6                 for 1 ≤ s < 2,   0 beyond
+
+The paper does not say how the kernel is scaled by σ. With the B-spline's own
+support ``[0, 2)`` (radius 2σ = four nearest-member distances) the kernel matrix of a
+marker lattice has eigenvalues ~1e-4 of the largest and crosses zero as the centres
+move (vertex errors of 10-25 mm on a synthetic take); with radius σ (two such
+distances, each centre reaching its neighbours) the smallest is ~4e-2.
 
 The radial cubic B-spline is not positive definite in 3-D: its kernel matrix can have
-eigenvalues near zero or below it. With the paper's σ even a regular lattice has
-eigenvalues ~7e-4 of the largest, and on a capture's parts some cross zero as the
-centres move (a plain solve then gave 25 mm vertex errors). The system is solved
+eigenvalues near zero or below it (coincident centres, or a too wide support, above).
+The system is solved
 through its eigen-decomposition with the near-zero modes left out (:func:`fit_rbf`),
 so interpolation is exact for a well-conditioned matrix and stays bounded for a
 near-singular one.
@@ -33,7 +37,7 @@ __all__ = ["cubic_bspline", "dilation_from_spacing", "evaluate_rbf", "fit_rbf"]
 
 
 def cubic_bspline(u: np.ndarray) -> np.ndarray:
-    """The cubic B-spline kernel φ(u), support ``[0, 2)``, ``φ(0) = 2/3``.
+    """The cubic B-spline kernel φ(u) = B(2u), support ``[0, 1)``, ``φ(0) = 2/3``.
 
     Parameters
     ----------
@@ -44,9 +48,9 @@ def cubic_bspline(u: np.ndarray) -> np.ndarray:
     -------
     (...) float64
     """
-    u = np.abs(np.asarray(u, dtype=np.float64))
-    a = np.clip(2.0 - u, 0.0, None)
-    b = np.clip(1.0 - u, 0.0, None)
+    s = 2.0 * np.abs(np.asarray(u, dtype=np.float64))
+    a = np.clip(2.0 - s, 0.0, None)
+    b = np.clip(1.0 - s, 0.0, None)
     return (a * a * a - 4.0 * b * b * b) / 6.0
 
 
@@ -86,7 +90,7 @@ def fit_rbf(
     sigma: np.ndarray | float,
     mask: np.ndarray | None = None,
     *,
-    cutoff: float = 1e-4,
+    cutoff: float = 1e-6,
 ) -> np.ndarray:
     """Weights that make the cubic B-spline RBF interpolate ``values`` at ``centres`` (eq. 7).
 
@@ -107,10 +111,8 @@ def fit_rbf(
     mask : (..., K) bool, optional
         False (or a non-finite centre or value) excludes a centre: its weight is 0.
     cutoff : float
-        Relative eigenvalue below which a mode is left out (0 = plain solve). The
-        default 1e-4 keeps every mode of a well-spread set (≥ ~7e-4 with the paper's
-        σ) and drops those of coincident or zero-crossing configurations (1e-5 let
-        two parts of a synthetic take swing by 10 mm).
+        Relative eigenvalue below which a mode is left out (0 = plain solve); the
+        default drops only (nearly) coincident centres.
 
     Returns
     -------
