@@ -723,33 +723,38 @@ def _clip_breathe(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Ge
         pose.aim(f"upperarm_{s}", _sided_dir((0.45, -0.9, 0.05), s), env)
 
 
-#: The range-of-motion clip: (landmark, local axis, angle in degrees) per movement,
-#: left side given (the right mirrors it: Y and Z angles change sign), one movement
-#: after another, both sides at once. Local axes are world axes in the T-pose.
-_ROM_MOVES: tuple[tuple[str, np.ndarray, float], ...] = (
-    ("neck", _X, 30.0),  # nod
-    ("neck_upper", _Y, 45.0),  # look aside
-    ("chest", _X, 25.0),  # bend forward
-    ("chest", _Z, 20.0),  # bend sideways
-    ("upper_chest", _Y, 25.0),  # twist
-    ("clavicle_l", _Z, 15.0),  # shrug
-    ("upperarm_l", _Z, -70.0),  # arms down
-    ("upperarm_l", _Y, -60.0),  # arms forward
-    ("forearm_l", _Y, -100.0),  # elbows bend
-    ("forearm_l", _X, 70.0),  # forearm twist
-    ("hand_l", _Z, 50.0),  # wrists
-    ("thigh_l", _X, -70.0),  # legs forward
-    ("thigh_l", _Z, 30.0),  # legs out
-    ("shin_l", _X, 100.0),  # knees bend
-    ("foot_l", _X, 30.0),  # ankles
+#: The range-of-motion clip: (slot, landmark, local axis, angle in degrees) per
+#: movement, left side given (the right mirrors it: Y and Z angles change sign); the
+#: slots follow one another, both sides move at once, and joints sharing a slot turn
+#: by different angles, so every segment's rotation sequence is its own. Nine slots
+#: keep a 4 s clip within the smoothness of the other clips. Local axes are world
+#: axes in the T-pose.
+_ROM_MOVES: tuple[tuple[int, str, np.ndarray, float], ...] = (
+    (0, "neck", _X, 30.0),  # nod ...
+    (0, "chest", _X, 20.0),  # ... and bend forward
+    (1, "neck_upper", _Y, 45.0),  # look aside ...
+    (1, "upper_chest", _Y, 25.0),  # ... and twist
+    (2, "chest", _Z, 20.0),  # bend sideways ...
+    (2, "clavicle_l", _Z, 15.0),  # ... and shrug
+    (3, "upperarm_l", _Z, -70.0),  # arms down
+    (4, "upperarm_l", _Y, -60.0),  # arms forward
+    (5, "forearm_l", _Y, -80.0),  # elbows bend ...
+    (5, "hand_l", _Z, 50.0),  # ... and wrists
+    (6, "forearm_l", _X, 70.0),  # forearm twist
+    (7, "thigh_l", _X, -70.0),  # march: thighs forward ...
+    (7, "shin_l", _X, 80.0),  # ... knees bent ...
+    (7, "foot_l", _X, -20.0),  # ... toes clear of the floor
+    (8, "thigh_l", _Z, 30.0),  # legs out ...
+    (8, "foot_l", _X, -45.0),  # ... toes up
 )
 
 
 def _clip_rom(pose: _Pose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
-    """Every major joint through its range, one movement after another (for segmentation)."""
+    """Every major joint through its range, one slot after another (for segmentation)."""
+    n_slots = max(m[0] for m in _ROM_MOVES) + 1
     span = max(float(t[-1]) - HOLD_SECONDS, 1e-9) if t.size else 1.0
-    slot = span / len(_ROM_MOVES)
-    for k, (landmark, axis, degrees) in enumerate(_ROM_MOVES):
+    slot = span / n_slots
+    for k, landmark, axis, degrees in _ROM_MOVES:
         s = (t - HOLD_SECONDS - k * slot) / slot
         bump = np.where((s > 0) & (s < 1), np.sin(np.pi * np.clip(s, 0, 1)) ** 2, 0.0)
         sides = [("", 1.0)] if not landmark.endswith("_l") else [("l", 1.0), ("r", -1.0)]
