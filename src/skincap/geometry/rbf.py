@@ -49,9 +49,16 @@ def cubic_bspline(u: np.ndarray) -> np.ndarray:
     (...) float64
     """
     s = 2.0 * np.abs(np.asarray(u, dtype=np.float64))
-    a = np.clip(2.0 - s, 0.0, None)
-    b = np.clip(1.0 - s, 0.0, None)
-    return (a * a * a - 4.0 * b * b * b) / 6.0
+    a = np.maximum(2.0 - s, 0.0)  # in place below: this runs on (frames, vertices, members)
+    b = np.maximum(np.subtract(1.0, s, out=s), 0.0, out=s)
+    cube_a = np.multiply(a, a)
+    cube_a *= a
+    cube_b = np.multiply(b, b)
+    cube_b *= b
+    cube_b *= 4.0
+    cube_a -= cube_b
+    cube_a *= 1.0 / 6.0
+    return cube_a
 
 
 def dilation_from_spacing(centres: np.ndarray, *, factor: float = 2.0) -> float:
