@@ -365,3 +365,19 @@ def test_round_trip_through_bvh(tmp_path, clips):
     write_bvh(m, tmp_path / "jump.bvh")
     back = read_bvh(tmp_path / "jump.bvh", units="m")
     np.testing.assert_allclose(joint_positions(back), joint_positions(m), atol=1e-5)
+
+
+def test_rom_moves_every_major_joint_in_turn(clips):
+    from skincap.synth.clips import _ROM_MOVES
+
+    motion = clips["rom"]
+    q = motion.rotations  # (T, J, 4) local
+    angle = np.degrees(2 * np.arctan2(np.linalg.norm(q[..., :3], axis=-1), np.abs(q[..., 3])))
+    peaks = []
+    for landmark in dict.fromkeys(m[1] for m in _ROM_MOVES):
+        sides = [landmark] if not landmark.endswith("_l") else [landmark, landmark[:-2] + "_r"]
+        for name in sides:
+            j = LM[name]
+            assert angle[:, j].max() >= 14.0, name  # every listed joint goes through a range
+            peaks.append(int(np.argmax(angle[:, j])))
+    assert len(set(peaks)) >= 6  # slot after slot, not all at once

@@ -20,7 +20,7 @@ def synth(
     motion: Annotated[
         str,
         typer.Option(
-            help="A clip (tpose, flex, twist, squat, punch, jumprope, breathe) or a .bvh file."
+            help="A clip (tpose, flex, twist, squat, punch, jumprope, breathe, rom) or a .bvh file."
         ),
     ] = "jumprope",
     markers: Annotated[

@@ -1,0 +1,1 @@
+"""Deformers: every one takes a rest mesh and per-frame inputs and yields a MeshAnimation."""

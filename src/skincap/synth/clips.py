@@ -45,6 +45,10 @@ The clips
 ``breathe``
     Relaxed standing with the arms lowered; chest and shoulders rise and fall at
     0.25 Hz (the breathing deformation itself is soft tissue).
+``rom``
+    A range-of-motion take for near-rigid segmentation (Park & Hodgins §5.2): after
+    the hold, each major joint in turn (neck, trunk, shoulders, elbows, wrists, hips,
+    knees, ankles; both sides together) swings through its range and back.
 
 ``seed`` adds a subtle natural sway of the trunk (random low frequencies and
 phases, below one degree); the prescribed targets (elbow angle, twist range, knee
@@ -83,7 +87,9 @@ __all__ = [
 ]
 
 #: Names of the built-in clips.
-CLIPS: tuple[str, ...] = ("tpose", "flex", "twist", "squat", "punch", "jumprope", "breathe")
+CLIPS: tuple[str, ...] = (
+    "tpose", "flex", "twist", "squat", "punch", "jumprope", "breathe", "rom"
+)  # fmt: skip
 #: Default clip length, seconds.
 DEFAULT_SECONDS = 4.0
 #: The T-pose is held exactly for this long at the start of every clip, seconds.
@@ -424,6 +430,47 @@ def _clip_breathe(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random
         pose.aim(f"upperarm_{s}", _sided_dir((0.45, -0.9, 0.05), s), env)
 
 
+#: The range-of-motion clip: (slot, landmark, local axis, angle in degrees) per
+#: movement, left side given (the right mirrors it: Y and Z angles change sign); the
+#: slots follow one another, both sides move at once, and joints sharing a slot turn
+#: by different angles, so every segment's rotation sequence is its own. Nine slots
+#: keep a 4 s clip within the smoothness of the other clips. Local axes are world
+#: axes in the T-pose.
+_ROM_MOVES: tuple[tuple[int, str, np.ndarray, float], ...] = (
+    (0, "neck", X_AXIS, 30.0),  # nod ...
+    (0, "chest", X_AXIS, 20.0),  # ... and bend forward
+    (1, "neck_upper", Y_AXIS, 45.0),  # look aside ...
+    (1, "upper_chest", Y_AXIS, 25.0),  # ... and twist
+    (2, "chest", Z_AXIS, 20.0),  # bend sideways ...
+    (2, "clavicle_l", Z_AXIS, 15.0),  # ... and shrug
+    (3, "upperarm_l", Z_AXIS, -70.0),  # arms down
+    (4, "upperarm_l", Y_AXIS, -60.0),  # arms forward
+    (5, "forearm_l", Y_AXIS, -80.0),  # elbows bend ...
+    (5, "hand_l", Z_AXIS, 50.0),  # ... and wrists
+    (6, "forearm_l", X_AXIS, 70.0),  # forearm twist
+    (7, "thigh_l", X_AXIS, -70.0),  # march: thighs forward ...
+    (7, "shin_l", X_AXIS, 80.0),  # ... knees bent ...
+    (7, "foot_l", X_AXIS, -20.0),  # ... toes clear of the floor
+    (8, "thigh_l", Z_AXIS, 30.0),  # legs out ...
+    (8, "foot_l", X_AXIS, -45.0),  # ... toes up
+)
+
+
+def _clip_rom(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random.Generator) -> None:
+    """Every major joint through its range, one slot after another (for segmentation)."""
+    n_slots = max(m[0] for m in _ROM_MOVES) + 1
+    span = max(float(t[-1]) - HOLD_SECONDS, 1e-9) if t.size else 1.0
+    slot = span / n_slots
+    for k, landmark, axis, degrees in _ROM_MOVES:
+        s = (t - HOLD_SECONDS - k * slot) / slot
+        bump = np.where((s > 0) & (s < 1), np.sin(np.pi * np.clip(s, 0, 1)) ** 2, 0.0)
+        sides = [("", 1.0)] if not landmark.endswith("_l") else [("l", 1.0), ("r", -1.0)]
+        for side, sign in sides:
+            name = landmark if not side else f"{landmark[:-2]}_{side}"
+            signed = degrees if axis is X_AXIS else sign * degrees
+            pose.turn(name, axis_angle(axis, np.radians(signed) * bump))
+
+
 _CLIP_FUNCS: dict[str, Callable[[ClipPose, np.ndarray, np.ndarray, np.random.Generator], None]] = {
     "tpose": _clip_tpose,
     "flex": _clip_flex,
@@ -432,6 +479,7 @@ _CLIP_FUNCS: dict[str, Callable[[ClipPose, np.ndarray, np.ndarray, np.random.Gen
     "punch": _clip_punch,
     "jumprope": _clip_jumprope,
     "breathe": _clip_breathe,
+    "rom": _clip_rom,
 }
 
 

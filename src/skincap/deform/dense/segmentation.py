@@ -1,0 +1,301 @@
+"""Near-rigid segmentation of the marker surface (Park & Hodgins 2006, §5.2; James & Twigg 2005).
+
+1. **Rotation sequences.** For every marker-surface triangle and every frame of a
+   range-of-motion take, the rotation that carries the triangle's reference frame
+   (first edge, normal) onto its frame at that time.
+2. **Mean shift.** Triangles are points in the space of their rotation sequences
+   (flattened matrices over a subsample of frames, so ``||R_a - R_b||`` averaged over
+   time is the distance); a Gaussian mean shift moves each to its mode and triangles
+   whose modes meet form a group (James & Twigg's clustering).
+3. **Automatic fix-up** (the paper's manual step): every group is split into
+   pieces connected on the surface; pieces smaller than ``min_triangles`` and
+   triangles with no rotation (a corner never seen) join the adjacent group whose
+   rotations they follow best; then adjacent groups are merged, cheapest first by
+   Ward's criterion on their mean rotation sequences, until ``n_parts`` remain. Every
+   part is connected on the marker surface by construction.
+
+Markers take the part most of their triangles belong to; a marker on triangles of
+several parts is a boundary marker (see :mod:`.weights`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+
+from skincap.errors import ValidationError
+
+__all__ = ["Segmentation", "segment_marker_surface", "triangle_rotations"]
+
+
+@dataclass(eq=False)
+class Segmentation:
+    """Near-rigid parts of a marker surface.
+
+    Attributes
+    ----------
+    triangle_parts : (F,) int64
+        Part of every marker-surface triangle, ``0 … P-1``.
+    marker_parts : (N,) int64
+        Part of every marker (the majority of its triangles; -1 for a marker on none).
+    n_parts : int
+    mean_shift_groups : int
+        Groups mean shift found before the fix-up (the paper's Fig. 5a).
+    bandwidth : float
+        The mean-shift bandwidth used.
+    """
+
+    triangle_parts: np.ndarray
+    marker_parts: np.ndarray
+    n_parts: int
+    mean_shift_groups: int
+    bandwidth: float
+
+
+def _triangle_frames(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    a, b, c = p[..., faces[:, 0], :], p[..., faces[:, 1], :], p[..., faces[:, 2], :]
+    e1 = b - a
+    n = np.cross(e1, c - a)
+    e1 = e1 / np.linalg.norm(e1, axis=-1, keepdims=True)
+    n = n / np.linalg.norm(n, axis=-1, keepdims=True)
+    return np.stack([e1, np.cross(n, e1), n], axis=-1)  # columns: (..., F, 3, 3)
+
+
+def triangle_rotations(positions: np.ndarray, reference: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Rotation of every triangle from the reference pose to every frame.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference : (N, 3) float, metres
+    faces : (F, 3) int, marker indices
+
+    Returns
+    -------
+    (T, F, 3, 3) float64
+        ``R`` with ``frame_t = R @ frame_ref`` (frames built from the first edge and the
+        normal); NaN where a corner is missing or the triangle is degenerate.
+    """
+    f = np.asarray(faces, dtype=np.int64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ref_frames = _triangle_frames(np.asarray(reference, float), f)  # (F, 3, 3)
+        cur = _triangle_frames(np.asarray(positions, float), f)  # (T, F, 3, 3)
+    return np.einsum("tfab,fcb->tfac", cur, ref_frames)
+
+
+def _mean_shift(x: np.ndarray, bandwidth: float, iterations: int = 40) -> np.ndarray:
+    """Gaussian mean shift of the rows of ``x``; returns a group id per row."""
+    sq = (x * x).sum(1)
+    y = x.copy()
+    for _ in range(iterations):
+        d2 = np.maximum((y * y).sum(1)[:, None] + sq[None, :] - 2.0 * y @ x.T, 0.0)
+        w = np.exp(-d2 / (2.0 * bandwidth**2))
+        y_new = (w @ x) / w.sum(1, keepdims=True)
+        moved = np.sqrt(((y_new - y) ** 2).sum(1)).max()
+        y = y_new
+        if moved < 1e-4 * bandwidth:
+            break
+    # modes closer than half a bandwidth are one group (single linkage over modes)
+    d2 = np.maximum((y * y).sum(1)[:, None] + (y * y).sum(1)[None, :] - 2.0 * y @ y.T, 0.0)
+    close = sparse.csr_matrix(d2 < (0.5 * bandwidth) ** 2)
+    return connected_components(close, directed=False)[1]
+
+
+def _triangle_adjacency(faces: np.ndarray) -> sparse.csr_matrix:
+    """(F, F) triangles sharing an edge."""
+    n_f = faces.shape[0]
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    owner = np.tile(np.arange(n_f), 3)
+    _, inv = np.unique(edges, axis=0, return_inverse=True)
+    inc = sparse.csr_matrix((np.ones(owner.size), (inv.ravel(), owner)), shape=(inv.max() + 1, n_f))
+    adj = (inc.T @ inc).tocsr()
+    adj.setdiag(0)
+    adj.eliminate_zeros()
+    return (adj > 0).astype(np.float64).tocsr()
+
+
+def segment_marker_surface(
+    positions: np.ndarray,
+    reference: np.ndarray,
+    faces: np.ndarray,
+    *,
+    n_parts: int = 17,
+    bandwidth: float = 0.05,
+    min_triangles: int = 4,
+    max_frames: int = 200,
+    progress: Callable[[float], None] | None = None,
+) -> Segmentation:
+    """Split the marker surface into ``n_parts`` connected near-rigid parts, automatically.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+        A range-of-motion take (every major joint moved).
+    reference : (N, 3) float, metres
+        The reference pose.
+    faces : (F, 3) int
+        Marker-surface triangles.
+    n_parts : int, default 17
+        Target number of parts (the paper's 17). Fewer come out only when the surface
+        has fewer connected pieces to merge.
+    bandwidth : float
+        Mean-shift bandwidth in rotation-matrix distance (``||R_a - R_b||_F``, RMS over
+        frames; 0.05 is about 2°). Halved (up to four times) while the fix-up cannot
+        reach ``n_parts``.
+    min_triangles : int
+        Pieces smaller than this are merged into a neighbour.
+    max_frames : int
+        Frames of the take used (evenly subsampled).
+    progress : callable(fraction), optional
+
+    Returns
+    -------
+    Segmentation
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if x.ndim != 3 or x.shape[2] != 3 or ref.shape != x.shape[1:]:
+        raise ValidationError(
+            f"positions (T, N, 3) and reference (N, 3) expected; got {x.shape} and {ref.shape}"
+        )
+    if f.shape[0] < 2 or f.min() < 0 or f.max() >= ref.shape[0]:
+        raise ValidationError(
+            f"faces: need at least two triangles over the {ref.shape[0]} markers; got {f.shape[0]}"
+        )
+    if int(n_parts) < 1:
+        raise ValidationError(f"n_parts must be at least 1; got {n_parts}")
+    n_f = f.shape[0]
+    step = max(1, x.shape[0] // int(max_frames))
+    rot = triangle_rotations(x[::step], ref, f)  # (T', F, 3, 3)
+    if progress:
+        progress(0.2)
+    feat = rot.transpose(1, 0, 2, 3).reshape(n_f, -1) / np.sqrt(rot.shape[0])
+    seen = np.isfinite(feat)
+    col_ok = seen.all(axis=0)  # frames every triangle has; others dropped
+    good = seen.any(axis=1)
+    if col_ok.sum() >= 9:
+        feat = np.where(col_ok[None, :], feat, 0.0)[:, col_ok]
+    else:  # fill a triangle's unseen frames with the identity, the reference pose
+        ident = np.tile(np.eye(3).ravel(), rot.shape[0]) / np.sqrt(rot.shape[0])
+        feat = np.where(seen, feat, ident[None, :])
+    adj = _triangle_adjacency(f)
+    width = float(bandwidth)
+    for _ in range(5):  # a narrower bandwidth until the fix-up can reach n_parts
+        labels = np.full(n_f, -1)
+        labels[good] = _mean_shift(feat[good], width)
+        tri_parts, n_groups = _fix_up(labels, adj, feat, int(min_triangles), int(n_parts))
+        if int(tri_parts.max()) + 1 >= int(n_parts):
+            break
+        width *= 0.5
+    if progress:
+        progress(1.0)
+    return Segmentation(
+        triangle_parts=tri_parts,
+        marker_parts=_marker_majority(f, tri_parts, ref.shape[0]),
+        n_parts=int(tri_parts.max()) + 1,
+        mean_shift_groups=n_groups,
+        bandwidth=width,
+    )
+
+
+def _fix_up(
+    labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, min_triangles: int, n_parts: int
+) -> tuple[np.ndarray, int]:
+    """Connected pieces, small ones absorbed, merged down to ``n_parts``; and the group count."""
+    n_groups = int(labels.max()) + 1
+    # split every group into surface-connected pieces
+    rows, cols = adj.nonzero()
+    keep = labels >= 0
+    inner = (labels[rows] == labels[cols]) & keep[rows]
+    same = sparse.csr_matrix((np.ones(inner.sum()), (rows[inner], cols[inner])), shape=adj.shape)
+    _, piece = connected_components(same, directed=False)
+    piece = np.where(keep, piece, -1)
+    piece = _relabel(piece)
+    piece = _absorb_small(piece, adj, feat, min_triangles)
+    piece = _merge_to_target(piece, adj, feat, int(n_parts))
+    return _relabel(piece), n_groups
+
+
+def _relabel(labels: np.ndarray) -> np.ndarray:
+    out = np.full(labels.shape, -1)
+    ok = labels >= 0
+    out[ok] = np.unique(labels[ok], return_inverse=True)[1]
+    return out
+
+
+def _group_means(labels: np.ndarray, feat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    n_g = int(labels.max()) + 1
+    ok = labels >= 0
+    member = sparse.csr_matrix((np.ones(ok.sum()), (labels[ok], np.flatnonzero(ok))), shape=(n_g, feat.shape[0]))
+    size = np.asarray(member.sum(axis=1)).ravel()
+    return (member @ feat) / np.maximum(size, 1)[:, None], size
+
+
+def _group_adjacency(labels: np.ndarray, adj: sparse.csr_matrix) -> sparse.csr_matrix:
+    n_g = int(labels.max()) + 1
+    ok = labels >= 0
+    member = sparse.csr_matrix((np.ones(ok.sum()), (labels[ok], np.flatnonzero(ok))), shape=(n_g, adj.shape[0]))
+    g = (member @ adj @ member.T).tocsr()
+    g.setdiag(0)
+    g.eliminate_zeros()
+    return g
+
+
+def _absorb_small(labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, min_size: int) -> np.ndarray:
+    """Unassigned triangles, then pieces under ``min_size``, join the adjacent group they follow best."""
+    labels = labels.copy()
+    rows, cols = adj.nonzero()
+    while (labels < 0).any() and (labels >= 0).any():  # grows the labelled region by a ring
+        means, _ = _group_means(labels, feat)
+        sel = (labels[rows] < 0) & (labels[cols] >= 0)
+        if not sel.any():
+            break
+        r, target = rows[sel], labels[cols[sel]]
+        cost = ((feat[r] - means[target]) ** 2).sum(1)
+        order = np.lexsort((cost, r))
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = r[order][1:] != r[order][:-1]
+        labels[r[order][first]] = target[order][first]
+    labels = _relabel(labels)
+    while int(labels.max()) + 1 > 1:  # one small piece at a time, smallest first
+        means, size = _group_means(labels, feat)
+        g = _group_adjacency(labels, adj)
+        small = np.flatnonzero((size < min_size) & (np.diff(g.indptr) > 0))
+        if not small.size:
+            break
+        piece = small[np.argmin(size[small])]
+        nbrs = g.indices[g.indptr[piece] : g.indptr[piece + 1]]
+        best = nbrs[np.argmin(((means[nbrs] - means[piece]) ** 2).sum(1))]
+        labels[labels == piece] = best
+        labels = _relabel(labels)
+    return labels
+
+
+def _merge_to_target(labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, target: int) -> np.ndarray:
+    """Merge adjacent groups, smallest Ward cost first, until ``target`` remain."""
+    labels = _relabel(labels)
+    while int(labels.max()) + 1 > target:
+        means, size = _group_means(labels, feat)
+        g = _group_adjacency(labels, adj)
+        a, b = g.nonzero()
+        upper = a < b
+        a, b = a[upper], b[upper]
+        if not a.size:
+            break
+        ward = size[a] * size[b] / (size[a] + size[b]) * ((means[a] - means[b]) ** 2).sum(1)
+        k = int(np.argmin(ward))
+        labels[labels == b[k]] = a[k]
+        labels = _relabel(labels)
+    return labels
+
+
+def _marker_majority(faces: np.ndarray, tri_parts: np.ndarray, n_markers: int) -> np.ndarray:
+    n_p = int(tri_parts.max()) + 1
+    votes = np.zeros((n_markers, n_p))
+    np.add.at(votes, (faces.ravel(), np.repeat(tri_parts, 3)), 1.0)
+    return np.where(votes.sum(1) > 0, np.argmax(votes, axis=1), -1)

@@ -1,0 +1,196 @@
+"""Radial basis interpolation with the cubic B-spline kernel (Park & Hodgins 2006, eqs. 7-8), batched.
+
+Given centres ``c_i`` and values ``r_i``, find weights ``w_i`` with
+``Σ_i w_i φ(||c_i - c_j|| / σ) = r_j`` for every centre ``j`` (eq. 7), then evaluate
+``f(x) = Σ_i w_i φ(||c_i - x|| / σ)`` anywhere (the sum in eq. 8). φ is the cubic
+B-spline scaled to the support ``[0, 1)``, so σ is the radius of influence::
+
+    φ(u) = B(2u),  B(s) = (2 - s)³/6 - 4 (1 - s)³/6  for 0 ≤ s < 1
+                   B(s) = (2 - s)³/6                 for 1 ≤ s < 2,   0 beyond
+
+The paper does not say how the kernel is scaled by σ. With the B-spline's own
+support ``[0, 2)`` (radius 2σ = four nearest-member distances) the kernel matrix of a
+marker lattice has eigenvalues ~1e-4 of the largest and crosses zero as the centres
+move (vertex errors of 10-25 mm on a synthetic take); with radius σ (two such
+distances, each centre reaching its neighbours) the smallest is ~4e-2.
+
+The radial cubic B-spline is not positive definite in 3-D: its kernel matrix can have
+eigenvalues near zero or below it (coincident centres, or a too wide support, above).
+The system is solved
+through its eigen-decomposition with the near-zero modes left out (:func:`fit_rbf`),
+so interpolation is exact for a well-conditioned matrix and stays bounded for a
+near-singular one.
+
+Every function takes a validity mask so that a batch of frames with different missing
+centres is one array operation: an invalid centre gets weight 0 and does not constrain
+the others.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from skincap.errors import ValidationError
+
+__all__ = ["cubic_bspline", "dilation_from_spacing", "evaluate_rbf", "fit_rbf"]
+
+
+def cubic_bspline(u: np.ndarray) -> np.ndarray:
+    """The cubic B-spline kernel φ(u) = B(2u), support ``[0, 1)``, ``φ(0) = 2/3``.
+
+    Parameters
+    ----------
+    u : (...) float
+        Scaled distances ``||x - c|| / σ`` (non-negative).
+
+    Returns
+    -------
+    (...) float64
+    """
+    s = 2.0 * np.abs(np.asarray(u, dtype=np.float64))
+    a = np.maximum(2.0 - s, 0.0)  # in place below: this runs on (frames, vertices, members)
+    b = np.maximum(np.subtract(1.0, s, out=s), 0.0, out=s)
+    cube_a = np.multiply(a, a)
+    cube_a *= a
+    cube_b = np.multiply(b, b)
+    cube_b *= b
+    cube_b *= 4.0
+    cube_a -= cube_b
+    cube_a *= 1.0 / 6.0
+    return cube_a
+
+
+def dilation_from_spacing(centres: np.ndarray, *, factor: float = 2.0) -> float:
+    """σ = ``factor`` × the largest nearest-neighbour distance among ``centres`` (eq. 7).
+
+    Park & Hodgins set σ to twice the maximum distance between two nearest member
+    markers of a part. NaN rows are ignored.
+
+    Parameters
+    ----------
+    centres : (K, 3) float, metres
+
+    Returns
+    -------
+    float, metres (NaN with fewer than two valid centres)
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    if c.ndim != 2 or c.shape[1] != 3:
+        raise ValidationError(f"centres must have shape (K, 3); got {c.shape}")
+    c = c[np.isfinite(c).all(axis=1)]
+    if c.shape[0] < 2:
+        return float("nan")
+    d, _ = cKDTree(c).query(c, k=2)
+    return float(factor) * float(d[:, 1].max())
+
+
+def _kernel_matrix(a: np.ndarray, b: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    diff = a[..., :, None, :] - b[..., None, :, :]
+    dist = np.sqrt(np.einsum("...ijx,...ijx->...ij", diff, diff))
+    return cubic_bspline(dist / sigma[..., None, None])
+
+
+def fit_rbf(
+    centres: np.ndarray,
+    values: np.ndarray,
+    sigma: np.ndarray | float,
+    mask: np.ndarray | None = None,
+    *,
+    cutoff: float = 1e-6,
+) -> np.ndarray:
+    """Weights that make the cubic B-spline RBF interpolate ``values`` at ``centres`` (eq. 7).
+
+    The kernel matrix is symmetric but, the radial cubic B-spline not being positive
+    definite in 3-D, it can have eigenvalues near (or below) zero, where a plain solve
+    gives huge weights that swing the surface between the centres. The system is
+    solved through its eigen-decomposition, leaving out the modes whose eigenvalue
+    is below ``cutoff`` times the largest in magnitude: exact interpolation whenever the
+    matrix is well conditioned, and the best bounded approximation otherwise.
+
+    Parameters
+    ----------
+    centres : (..., K, 3) float, metres
+    values : (..., K, D) float
+        Values to interpolate (the residuals, metres, D = 3).
+    sigma : float or (...) float, metres
+        The dilation σ (positive).
+    mask : (..., K) bool, optional
+        False (or a non-finite centre or value) excludes a centre: its weight is 0.
+    cutoff : float
+        Relative eigenvalue below which a mode is left out (0 = plain solve); the
+        default drops only (nearly) coincident centres.
+
+    Returns
+    -------
+    weights : (..., K, D) float64
+        Zero for excluded centres and for batches with a non-positive or NaN σ.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    r = np.asarray(values, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-1] != 3 or r.ndim < 2 or r.shape[-2] != c.shape[-2]:
+        raise ValidationError(
+            f"centres must be (..., K, 3) and values (..., K, D) with the same K; "
+            f"got {c.shape} and {r.shape}"
+        )
+    cut = float(cutoff)
+    if not (0 <= cut < 1):
+        raise ValidationError(f"cutoff must be in [0, 1); got {cutoff!r}")
+    lead = np.broadcast_shapes(c.shape[:-2], r.shape[:-2])
+    k = c.shape[-2]
+    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), lead)
+    valid = np.isfinite(c).all(-1) & np.isfinite(r).all(-1)
+    if mask is not None:
+        valid = valid & np.asarray(mask, dtype=bool)
+    valid = np.broadcast_to(valid, (*lead, k)) & (np.isfinite(s) & (s > 0))[..., None]
+    c0 = np.broadcast_to(np.where(np.isfinite(c), c, 0.0), (*lead, k, 3))
+    r_finite = np.where(np.isfinite(r), r, 0.0)
+    r0 = np.where(valid[..., None], np.broadcast_to(r_finite, (*lead, k, r.shape[-1])), 0.0)
+    s_safe = np.where(np.isfinite(s) & (s > 0), s, 1.0)
+    phi = _kernel_matrix(c0, c0, s_safe)  # (..., K, K)
+    pair = valid[..., :, None] & valid[..., None, :]
+    eye = np.eye(k, dtype=bool)
+    # an excluded centre gets a lone diagonal entry φ(0): it decouples with weight 0
+    phi = np.where(pair, phi, 0.0) + np.where(eye & ~valid[..., :, None], 2.0 / 3.0, 0.0)
+    lam, vec = np.linalg.eigh(phi)  # (..., K), (..., K, K)
+    scale = np.abs(lam).max(axis=-1, keepdims=True)
+    keep = np.abs(lam) > cut * scale
+    inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+    coeff = np.einsum("...jk,...jd->...kd", vec, r0) * inv[..., None]
+    w = np.einsum("...ik,...kd->...id", vec, coeff)
+    return np.where(valid[..., None], w, 0.0)
+
+
+def evaluate_rbf(
+    centres: np.ndarray,
+    weights: np.ndarray,
+    sigma: np.ndarray | float,
+    points: np.ndarray,
+) -> np.ndarray:
+    """``f(x) = Σ_i w_i φ(||c_i - x|| / σ)`` at every point, batched.
+
+    Parameters
+    ----------
+    centres : (..., K, 3) float, metres (non-finite centres must have zero weight)
+    weights : (..., K, D) float (from :func:`fit_rbf`)
+    sigma : float or (...) float, metres
+    points : (..., M, 3) float, metres
+
+    Returns
+    -------
+    (..., M, D) float64
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    w = np.asarray(weights, dtype=np.float64)
+    x = np.asarray(points, dtype=np.float64)
+    if c.shape[-1] != 3 or x.shape[-1] != 3 or w.shape[-2] != c.shape[-2]:
+        raise ValidationError(
+            f"centres (..., K, 3), weights (..., K, D), points (..., M, 3) expected; "
+            f"got {c.shape}, {w.shape}, {x.shape}"
+        )
+    lead = np.broadcast_shapes(c.shape[:-2], w.shape[:-2], x.shape[:-2])
+    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), lead)
+    s_safe = np.where(np.isfinite(s) & (s > 0), s, 1.0)
+    c0 = np.where(np.isfinite(c), c, 0.0)
+    phi = _kernel_matrix(x, c0, s_safe)  # (..., M, K)
+    return np.einsum("...mk,...kd->...md", phi, w)

@@ -1,0 +1,134 @@
+"""The dense-marker deformer (Park & Hodgins eqs. 6-9) against analytic motions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from skincap.deform.dense.deformer import METHODS, DenseDeformer, fit_part_motion, held_frames
+from skincap.deform.dense.parts import part_frames
+from skincap.errors import ValidationError
+from skincap.geometry.quadratic import QUADRATIC_TERMS, apply_quadratic
+
+
+def _blob(rng: np.random.Generator, n: int, centre: tuple[float, float, float]) -> np.ndarray:
+    return np.asarray(centre) + 0.08 * rng.normal(size=(n, 3))
+
+
+def _three_parts(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Reference markers of three parts (20 each) and hard weights α, 3 boundary markers shared."""
+    ref = np.concatenate([_blob(rng, 20, (0, 0, 0)), _blob(rng, 20, (0.3, 0, 0)), _blob(rng, 20, (0.6, 0, 0))])
+    alpha = np.zeros((60, 3))
+    alpha[np.arange(60), np.arange(60) // 20] = 1.0
+    alpha[[19, 39, 5]] = [[0.6, 0.4, 0.0], [0.0, 0.7, 0.3], [0.8, 0.0, 0.2]]
+    return ref, alpha
+
+
+def _rigid(rng: np.random.Generator, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
+    return Rotation.random(n_frames, random_state=int(rng.integers(1 << 30))).as_matrix(), rng.normal(size=(n_frames, 3))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_rigid_motion_is_reproduced_exactly_by_every_variant(method: str) -> None:
+    rng = np.random.default_rng(0)
+    ref, alpha = _three_parts(rng)
+    rot, trans = _rigid(rng, 7)
+    markers = np.einsum("tab,nb->tna", rot, ref) + trans[:, None]
+    markers[2, [0, 1, 25]] = np.nan  # missing markers change nothing under a rigid motion
+    vertices = _blob(rng, 200, (0.3, 0.0, 0.0))
+    beta = rng.random((200, 3))
+    deformer = DenseDeformer(part_frames(ref, alpha), vertices, beta)
+    out = np.concatenate(list(deformer.deform(markers, method, chunk=3)))
+    expected = np.einsum("tab,nb->tna", rot, vertices) + trans[:, None]
+    np.testing.assert_allclose(out, expected, atol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["quadratic", "quadratic_rbf"])
+def test_a_pure_quadratic_field_is_reproduced_exactly(method: str) -> None:
+    rng = np.random.default_rng(1)
+    ref = _blob(rng, 30, (0, 0, 0))
+    parts = part_frames(ref, np.ones((30, 1)))
+    a = np.zeros((3, QUADRATIC_TERMS))
+    a[:, :3] = np.eye(3) + 0.1 * rng.normal(size=(3, 3))
+    a[:, 3:9] = 0.5 * rng.normal(size=(3, 6))
+
+    def field(points: np.ndarray) -> np.ndarray:  # the field acts in the part's frame
+        local = parts.to_local(points, np.zeros(len(points), dtype=int))
+        return apply_quadratic(a, local) @ parts.axes[0] + parts.origin[0]
+
+    rot, trans = _rigid(rng, 4)
+    markers = np.einsum("tab,nb->tna", rot, field(ref)) + trans[:, None]
+    vertices = _blob(rng, 100, (0, 0, 0))
+    expected = np.einsum("tab,nb->tna", rot, field(vertices)) + trans[:, None]
+    deformer = DenseDeformer(parts, vertices, np.ones((100, 1)))
+    out = np.concatenate(list(deformer.deform(markers, method, quadratic_regularisation=0.0)))
+    np.testing.assert_allclose(out, expected, atol=1e-9)
+    rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
+    assert np.abs(rigid - expected).max() > 1e-3  # the field is far from rigid
+
+
+@pytest.mark.parametrize("method", ["rigid_rbf", "quadratic_rbf"])
+def test_rbf_variants_pass_through_every_marker(method: str) -> None:
+    rng = np.random.default_rng(2)
+    ref = np.stack(np.meshgrid(np.arange(5), np.arange(4), np.arange(2), indexing="ij"), -1)
+    ref = 0.05 * ref.reshape(-1, 3).astype(float) + 0.004 * rng.normal(size=(40, 3))
+    parts = part_frames(ref, np.ones((40, 1)))
+    rot, trans = _rigid(rng, 5)
+    wobble = ref + 0.004 * rng.normal(size=(5, 40, 3))  # non-rigid, non-quadratic
+    markers = np.einsum("tab,tnb->tna", rot, wobble) + trans[:, None]
+    deformer = DenseDeformer(parts, ref, np.ones((40, 1)))  # the markers as vertices
+    out = np.concatenate(list(deformer.deform(markers, method)))
+    np.testing.assert_allclose(out, markers, atol=1e-9)
+    rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
+    assert np.abs(rigid - markers).max() > 1e-3
+
+
+def test_a_part_without_three_markers_is_held_and_never_nan() -> None:
+    rng = np.random.default_rng(3)
+    ref, alpha = _three_parts(rng)
+    rot, trans = _rigid(rng, 6)
+    markers = np.einsum("tab,nb->tna", rot, ref) + trans[:, None]
+    markers[3:5, 40:60] = np.nan  # part 2 unseen in frames 3-4 (its boundary marker 5 too)
+    markers[3:5, 5] = np.nan
+    present = np.isfinite(markers[:, part_frames(ref, alpha).members]).all(-1)
+    src = held_frames(present & part_frames(ref, alpha).valid)
+    np.testing.assert_array_equal(src[:, 2], [0, 1, 2, 2, 2, 5])
+    vertices = _blob(rng, 50, (0.6, 0.0, 0.0))
+    beta = np.zeros((50, 3))
+    beta[:, 2] = 1.0
+    deformer = DenseDeformer(part_frames(ref, alpha), vertices, beta)
+    out = np.concatenate(list(deformer.deform(markers, "quadratic_rbf", chunk=2)))
+    assert np.isfinite(out).all()
+    held = np.einsum("ab,nb->na", rot[2], vertices) + trans[2]
+    np.testing.assert_allclose(out[3], held, atol=1e-9)
+    np.testing.assert_allclose(out[4], held, atol=1e-9)
+
+
+def test_a_part_never_seen_gives_nan_only_where_it_alone_rules() -> None:
+    rng = np.random.default_rng(4)
+    ref, alpha = _three_parts(rng)
+    markers = np.repeat(ref[None], 3, axis=0)
+    markers[:, 40:60] = np.nan
+    markers[:, 5] = np.nan
+    beta = np.array([[0, 0, 1.0], [0, 0.5, 0.5]])
+    deformer = DenseDeformer(part_frames(ref, alpha), ref[[50, 30]], beta)
+    out = np.concatenate(list(deformer.deform(markers)))
+    assert np.isnan(out[:, 0]).all()
+    np.testing.assert_allclose(out[:, 1], np.repeat(ref[None, 30], 3, axis=0), atol=1e-9)
+
+
+def test_bad_inputs_are_refused() -> None:
+    rng = np.random.default_rng(5)
+    ref, alpha = _three_parts(rng)
+    parts = part_frames(ref, alpha)
+    with pytest.raises(ValidationError, match="method"):
+        fit_part_motion(ref[None], parts, "cubic")
+    with pytest.raises(ValidationError, match="positions"):
+        fit_part_motion(ref, parts)
+    with pytest.raises(ValidationError, match="vertex_weights"):
+        DenseDeformer(parts, ref, np.ones((60, 2)))
+    with pytest.raises(ValidationError, match="no part"):
+        DenseDeformer(parts, ref, np.zeros((60, 3)))
+    with pytest.raises(ValidationError, match="no member"):
+        part_frames(ref, np.concatenate([alpha, np.zeros((60, 1))], axis=1))

@@ -1,0 +1,109 @@
+"""Marker and vertex part weights (§5.2) and the automatic near-rigid segmentation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from skincap.deform.dense.segmentation import segment_marker_surface, triangle_rotations
+from skincap.deform.dense.weights import (
+    candidates_from_marker_parts,
+    candidates_from_triangle_parts,
+    marker_part_weights,
+    vertex_part_weights,
+)
+from skincap.errors import ValidationError
+
+
+def _strip(nx: int = 12, ny: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """A flat strip of markers 4 cm apart along x, triangulated."""
+    x, y = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    ref = np.stack([0.04 * x.ravel(), 0.04 * y.ravel(), np.zeros(x.size)], axis=1)
+    idx = np.arange(nx * ny).reshape(nx, ny)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return ref, faces
+
+
+def _hinge(ref: np.ndarray, n_frames: int = 40, hinge_x: float = 0.22) -> np.ndarray:
+    """The half of the strip beyond ``hinge_x`` bends up to 80° about the y axis there."""
+    angle = np.radians(80.0) * np.sin(np.linspace(0, np.pi, n_frames)) ** 2
+    rot = Rotation.from_rotvec(angle[:, None] * [0.0, -1.0, 0.0]).as_matrix()  # (T, 3, 3)
+    pivot = np.array([hinge_x, 0.0, 0.0])
+    moved = np.einsum("tab,nb->tna", rot, ref - pivot) + pivot
+    outer = ref[:, 0] > hinge_x
+    return np.where(outer[None, :, None], moved, ref[None])
+
+
+def test_triangle_rotations_of_a_rigid_motion_are_that_rotation() -> None:
+    ref, faces = _strip()
+    rot = Rotation.random(3, random_state=0).as_matrix()
+    pos = np.einsum("tab,nb->tna", rot, ref) + 1.0
+    got = triangle_rotations(pos, ref, faces)
+    np.testing.assert_allclose(got, np.repeat(rot[:, None], faces.shape[0], axis=1), atol=1e-12)
+
+
+def test_a_hinged_strip_splits_at_the_hinge_into_two_connected_parts() -> None:
+    ref, faces = _strip()
+    pos = _hinge(ref)
+    seg = segment_marker_surface(pos, ref, faces, n_parts=2)
+    assert seg.n_parts == 2
+    outer = ref[:, 0] > 0.22
+    inner_part = np.bincount(seg.marker_parts[~outer]).argmax()
+    # every marker away from the hinge row is on its side's part
+    away = np.abs(ref[:, 0] - 0.22) > 0.05
+    assert (seg.marker_parts[away & ~outer] == inner_part).all()
+    assert (seg.marker_parts[away & outer] != inner_part).all()
+
+
+def test_boundary_markers_follow_the_part_they_move_with() -> None:
+    ref, faces = _strip()
+    pos = _hinge(ref)
+    truth = (ref[:, 0] > 0.22).astype(int)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    cand = candidates_from_marker_parts(truth, edges)
+    assert (cand.sum(1) == 2).sum() > 0  # the rows either side of the hinge
+    alpha = marker_part_weights(pos, ref, cand)
+    np.testing.assert_allclose(alpha.sum(1), 1.0)
+    # a boundary marker rigidly on the inner side weighs (almost) only for it
+    boundary = cand.sum(1) == 2
+    np.testing.assert_allclose(alpha[boundary & (truth == 0), 0], 1.0, atol=1e-6)
+    np.testing.assert_allclose(alpha[boundary & (truth == 1), 1], 1.0, atol=1e-6)
+    inside = cand.sum(1) == 1
+    np.testing.assert_array_equal(alpha[inside], cand[inside].astype(float))
+
+
+def test_a_marker_between_two_motions_is_shared() -> None:
+    ref, faces = _strip()
+    pos = _hinge(ref)
+    truth = (ref[:, 0] > 0.22).astype(int)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    cand = candidates_from_marker_parts(truth, edges)
+    mid = np.flatnonzero(cand.sum(1) == 2)[0]
+    inner = _hinge(ref, hinge_x=10.0)  # the inner part's (static) motion
+    pos = pos.copy()
+    pos[:, mid] = 0.5 * (pos[:, mid] + inner[:, mid])  # halfway between the two motions
+    alpha = marker_part_weights(pos, ref, cand, noise_floor=0.02)
+    assert 0.2 < alpha[mid, 0] < 0.8 and 0.2 < alpha[mid, 1] < 0.8
+
+
+def test_vertex_weights_interpolate_the_nearest_triangle() -> None:
+    ref, faces = _strip()
+    alpha = np.zeros((ref.shape[0], 2))
+    alpha[:, 0] = ref[:, 0] / ref[:, 0].max()
+    alpha[:, 1] = 1.0 - alpha[:, 0]
+    vertices = np.array([[0.1, 0.05, 0.003], [0.3, 0.07, -0.002]])
+    beta = vertex_part_weights(vertices, ref, faces, alpha)
+    np.testing.assert_allclose(beta[:, 0], vertices[:, 0] / ref[:, 0].max(), atol=1e-12)
+    np.testing.assert_allclose(beta.sum(1), 1.0)
+
+
+def test_candidates_from_triangles_and_bad_input() -> None:
+    ref, faces = _strip(3, 2)
+    cand = candidates_from_triangle_parts(faces, np.arange(faces.shape[0]) % 2, ref.shape[0])
+    assert cand.shape == (6, 2) and cand.any(1).all()
+    with pytest.raises(ValidationError, match="triangle_parts"):
+        candidates_from_triangle_parts(faces, np.zeros(1), ref.shape[0])
+    with pytest.raises(ValidationError, match="faces"):
+        segment_marker_surface(np.zeros((2, 6, 3)), np.zeros((6, 3)), faces[:1])

@@ -1,0 +1,85 @@
+"""Cubic B-spline RBF (eq. 7): the kernel, exact interpolation, masks, stability."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skincap.errors import ValidationError
+from skincap.geometry.rbf import cubic_bspline, dilation_from_spacing, evaluate_rbf, fit_rbf
+
+
+def _grid_points(rng: np.random.Generator, n: int = 30) -> np.ndarray:
+    """Points spread like a marker grid: a jittered lattice, ~5 cm apart."""
+    g = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(2), indexing="ij"), -1)
+    pts = 0.05 * g.reshape(-1, 3).astype(float)[:n]
+    return pts + 0.005 * rng.normal(size=pts.shape)
+
+
+def test_kernel_values_and_support() -> None:
+    u = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.5])
+    expected = [2 / 3, 23 / 48, 1 / 6, 1 / 48, 0.0, 0.0]
+    np.testing.assert_allclose(cubic_bspline(u), expected)
+    # C2 at the knots: second differences small and continuous
+    x = np.linspace(0, 1.25, 2501)
+    d2 = np.diff(cubic_bspline(x), 2) / (x[1] - x[0]) ** 2
+    assert np.abs(np.diff(d2)).max() < 0.05
+
+
+def test_dilation_is_twice_the_largest_nearest_neighbour_distance() -> None:
+    pts = np.array([[0, 0, 0], [0.1, 0, 0], [0.1, 0.3, 0]], dtype=float)
+    assert dilation_from_spacing(pts) == pytest.approx(2 * 0.3)
+    assert np.isnan(dilation_from_spacing(pts[:1]))
+
+
+def test_interpolates_its_centres_exactly() -> None:
+    rng = np.random.default_rng(0)
+    c = _grid_points(rng)
+    values = 0.003 * rng.normal(size=(c.shape[0], 3))
+    sigma = dilation_from_spacing(c)
+    w = fit_rbf(c, values, sigma)
+    np.testing.assert_allclose(evaluate_rbf(c, w, sigma, c), values, atol=1e-12)
+    # and decays to zero beyond the support
+    far = c.mean(0) + np.array([[10.0, 0, 0]])
+    assert np.abs(evaluate_rbf(c, w, sigma, far)).max() == 0.0
+
+
+def test_masked_centres_get_zero_weight_and_do_not_constrain() -> None:
+    rng = np.random.default_rng(1)
+    c = _grid_points(rng)
+    values = 0.003 * rng.normal(size=c.shape)
+    mask = np.ones(c.shape[0], dtype=bool)
+    mask[[2, 7]] = False
+    sigma = dilation_from_spacing(c)
+    w = fit_rbf(c, values, sigma, mask)
+    assert (w[~mask] == 0).all()
+    np.testing.assert_allclose(evaluate_rbf(c, w, sigma, c[mask]), values[mask], atol=1e-12)
+    alone = fit_rbf(c[mask], values[mask], sigma)
+    np.testing.assert_allclose(w[mask], alone, atol=1e-12)
+
+
+def test_batched_fit_equals_separate_fits() -> None:
+    rng = np.random.default_rng(2)
+    c = np.stack([_grid_points(rng), _grid_points(rng)])
+    values = 0.003 * rng.normal(size=c.shape)
+    sigma = np.array([0.12, 0.2])
+    w = fit_rbf(c, values, sigma)
+    for b in range(2):
+        np.testing.assert_allclose(w[b], fit_rbf(c[b], values[b], sigma[b]), atol=1e-12)
+
+
+def test_near_singular_kernel_stays_bounded() -> None:
+    # two nearly coincident centres with different values: a plain solve explodes
+    c = np.array([[0, 0, 0], [1e-9, 0, 0], [0.05, 0, 0], [0, 0.05, 0]], dtype=float)
+    values = np.array([[0.001, 0, 0], [-0.001, 0, 0], [0, 0, 0], [0, 0, 0]])
+    w = fit_rbf(c, values, 0.1)
+    assert np.abs(w).max() < 1.0
+    got = evaluate_rbf(c, w, 0.1, c)
+    np.testing.assert_allclose(got[:2].mean(0), 0.0, atol=1e-6)  # the average of the two
+
+
+def test_bad_arguments_are_refused() -> None:
+    with pytest.raises(ValidationError, match="same K"):
+        fit_rbf(np.zeros((4, 3)), np.zeros((5, 3)), 0.1)
+    with pytest.raises(ValidationError, match="cutoff"):
+        fit_rbf(np.zeros((4, 3)), np.zeros((4, 3)), 0.1, cutoff=2.0)
