@@ -35,7 +35,9 @@ def test_pure_quadratic_field_is_recovered_exactly(seed: int, k: int) -> None:
     rng = np.random.default_rng(seed)
     ref = 0.1 * rng.normal(size=(k, 3))
     a = _field(rng)
-    got = fit_quadratic(ref, apply_quadratic(a, ref), linear_regularisation=0, quadratic_regularisation=0)
+    got = fit_quadratic(
+        ref, apply_quadratic(a, ref), linear_regularisation=0, quadratic_regularisation=0
+    )
     np.testing.assert_allclose(got, a, atol=1e-7 * np.abs(a).max())
 
 
@@ -70,7 +72,9 @@ def test_batched_with_missing_points_equals_one_by_one() -> None:
     got = fit_quadratic(ref, cur, linear_regularisation=0, quadratic_regularisation=0)
     for b in range(2):
         keep = np.isfinite(cur[b]).all(1)
-        one = fit_quadratic(ref[b, keep], cur[b, keep], linear_regularisation=0, quadratic_regularisation=0)
+        one = fit_quadratic(
+            ref[b, keep], cur[b, keep], linear_regularisation=0, quadratic_regularisation=0
+        )
         np.testing.assert_allclose(got[b], one, atol=1e-9)
         np.testing.assert_allclose(got[b], fields[b], atol=1e-7)
 

@@ -108,7 +108,9 @@ def fit_quadratic(
     else:
         w = np.asarray(weights, dtype=np.float64)
         if w.shape[-1:] != (k,) or np.any(~(w >= 0)):
-            raise ValidationError(f"weights must be non-negative with shape (..., {k}); got {w.shape}")
+            raise ValidationError(
+                f"weights must be non-negative with shape (..., {k}); got {w.shape}"
+            )
         lead = np.broadcast_shapes(lead, w.shape[:-1])
     valid = np.isfinite(ref).all(-1) & np.isfinite(cur).all(-1)
     w = np.where(valid, w, 0.0)
@@ -121,14 +123,17 @@ def fit_quadratic(
     safe_total = np.where(total > 0, total, 1.0)
     s2 = np.einsum("...k,...k->...", w, (q[..., :3] ** 2).sum(-1)) / safe_total  # (...) m²
     s2 = np.where(s2 > 0, s2, 1.0)
-    gamma2 = np.concatenate(
-        [
-            np.broadcast_to((lam_lin * s2)[..., None], (*lead, 3)),
-            np.broadcast_to((lam_quad * s2 * s2)[..., None], (*lead, 6)),
-            np.full((*lead, 1), lam_lin),
-        ],
-        axis=-1,
-    ) * total[..., None]  # (..., 10)
+    gamma2 = (
+        np.concatenate(
+            [
+                np.broadcast_to((lam_lin * s2)[..., None], (*lead, 3)),
+                np.broadcast_to((lam_quad * s2 * s2)[..., None], (*lead, 6)),
+                np.full((*lead, 1), lam_lin),
+            ],
+            axis=-1,
+        )
+        * total[..., None]
+    )  # (..., 10)
     n_terms = QUADRATIC_TERMS
     qqt = np.einsum("...k,...ka,...kb->...ab", w, q, q)  # (..., 10, 10)
     pqt = np.einsum("...k,...kx,...ka->...xa", w, c, q)  # (..., 3, 10)

@@ -18,7 +18,9 @@ def _blob(rng: np.random.Generator, n: int, centre: tuple[float, float, float]) 
 
 def _three_parts(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Reference markers of three parts (20 each) and hard weights α, 3 boundary markers shared."""
-    ref = np.concatenate([_blob(rng, 20, (0, 0, 0)), _blob(rng, 20, (0.3, 0, 0)), _blob(rng, 20, (0.6, 0, 0))])
+    ref = np.concatenate(
+        [_blob(rng, 20, (0, 0, 0)), _blob(rng, 20, (0.3, 0, 0)), _blob(rng, 20, (0.6, 0, 0))]
+    )
     alpha = np.zeros((60, 3))
     alpha[np.arange(60), np.arange(60) // 20] = 1.0
     alpha[[19, 39, 5]] = [[0.6, 0.4, 0.0], [0.0, 0.7, 0.3], [0.8, 0.0, 0.2]]
@@ -26,7 +28,9 @@ def _three_parts(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _rigid(rng: np.random.Generator, n_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    return Rotation.random(n_frames, random_state=int(rng.integers(1 << 30))).as_matrix(), rng.normal(size=(n_frames, 3))
+    return Rotation.random(
+        n_frames, random_state=int(rng.integers(1 << 30))
+    ).as_matrix(), rng.normal(size=(n_frames, 3))
 
 
 @pytest.mark.parametrize("method", METHODS)

@@ -21,7 +21,12 @@ def _strip(nx: int = 12, ny: int = 4) -> tuple[np.ndarray, np.ndarray]:
     x, y = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
     ref = np.stack([0.04 * x.ravel(), 0.04 * y.ravel(), np.zeros(x.size)], axis=1)
     idx = np.arange(nx * ny).reshape(nx, ny)
-    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[1:, :-1].ravel(),
+        idx[1:, 1:].ravel(),
+        idx[:-1, 1:].ravel(),
+    )
     faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     return ref, faces
 

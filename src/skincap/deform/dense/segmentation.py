@@ -65,7 +65,9 @@ def _triangle_frames(p: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.stack([e1, np.cross(n, e1), n], axis=-1)  # columns: (..., F, 3, 3)
 
 
-def triangle_rotations(positions: np.ndarray, reference: np.ndarray, faces: np.ndarray) -> np.ndarray:
+def triangle_rotations(
+    positions: np.ndarray, reference: np.ndarray, faces: np.ndarray
+) -> np.ndarray:
     """Rotation of every triangle from the reference pose to every frame.
 
     Parameters
@@ -231,7 +233,9 @@ def _relabel(labels: np.ndarray) -> np.ndarray:
 def _group_means(labels: np.ndarray, feat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     n_g = int(labels.max()) + 1
     ok = labels >= 0
-    member = sparse.csr_matrix((np.ones(ok.sum()), (labels[ok], np.flatnonzero(ok))), shape=(n_g, feat.shape[0]))
+    member = sparse.csr_matrix(
+        (np.ones(ok.sum()), (labels[ok], np.flatnonzero(ok))), shape=(n_g, feat.shape[0])
+    )
     size = np.asarray(member.sum(axis=1)).ravel()
     return (member @ feat) / np.maximum(size, 1)[:, None], size
 
@@ -239,14 +243,18 @@ def _group_means(labels: np.ndarray, feat: np.ndarray) -> tuple[np.ndarray, np.n
 def _group_adjacency(labels: np.ndarray, adj: sparse.csr_matrix) -> sparse.csr_matrix:
     n_g = int(labels.max()) + 1
     ok = labels >= 0
-    member = sparse.csr_matrix((np.ones(ok.sum()), (labels[ok], np.flatnonzero(ok))), shape=(n_g, adj.shape[0]))
+    member = sparse.csr_matrix(
+        (np.ones(ok.sum()), (labels[ok], np.flatnonzero(ok))), shape=(n_g, adj.shape[0])
+    )
     g = (member @ adj @ member.T).tocsr()
     g.setdiag(0)
     g.eliminate_zeros()
     return g
 
 
-def _absorb_small(labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, min_size: int) -> np.ndarray:
+def _absorb_small(
+    labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, min_size: int
+) -> np.ndarray:
     """Unassigned triangles, then pieces under ``min_size``, join the adjacent group they follow best."""
     labels = labels.copy()
     rows, cols = adj.nonzero()
@@ -276,7 +284,9 @@ def _absorb_small(labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, 
     return labels
 
 
-def _merge_to_target(labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, target: int) -> np.ndarray:
+def _merge_to_target(
+    labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, target: int
+) -> np.ndarray:
     """Merge adjacent groups, smallest Ward cost first, until ``target`` remain."""
     labels = _relabel(labels)
     while int(labels.max()) + 1 > target:
