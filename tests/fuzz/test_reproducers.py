@@ -161,7 +161,7 @@ def test_harness_kills_a_hang_at_its_time_limit(tmp_path, monkeypatch):
     verdict = judge(outcome, inputs=[p])
     assert verdict.outcome == "timeout"
     # the stack faulthandler wrote before the kill names where it hung
-    assert "at skincap/cli.py:" in verdict.violations[0]
+    assert "at skincap/cli/info.py:" in verdict.violations[0]
 
 
 def test_harness_enforces_its_memory_limit(tmp_path, monkeypatch):
