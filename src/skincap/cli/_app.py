@@ -712,6 +712,21 @@ def synth(
         typer.Option("--prop", help="Add a 4-marker rigid prop moving on its own beside the body."),
     ] = False,
     seed: Annotated[int, typer.Option(help="Random seed: the same seed gives the same bytes.")] = 0,
+    real_markers: Annotated[
+        Path | None,
+        typer.Option(
+            help="A labelled capture (C3D, TRC, CSV) to use as the body instead of a "
+            "synthetic one: its real markers, with a PBD-simulated rope (--rope whip|jump) "
+            "in the performer's hands."
+        ),
+    ] = None,
+    hands: Annotated[
+        str | None,
+        typer.Option(
+            help="With --real-markers: marker names of the left[:right] hand, e.g. "
+            "LWRA,LWRB:RWRA,RWRB (found by name when omitted); a whip is held in the last."
+        ),
+    ] = None,
     force: Annotated[
         bool, typer.Option("--force", help="Replace outputs of an earlier run.")
     ] = False,
@@ -724,14 +739,27 @@ def synth(
     --spikes, --swaps and --prop put real-world corruption into capture.c3d; the
     un-indexed capture_points.csv is left as the cameras saw it).
 
+    With --real-markers the body is a real labelled capture (its markers un-indexed in
+    capture_points.csv, with the take's own gaps) and the rope, held by the hand
+    markers, is simulated by position-based dynamics; there is no skin or motion truth.
+
     Example: skincap synth --motion jumprope --rope jump --frames 1000 -o take1
+
+    Example: skincap synth --real-markers walk.c3d --rope whip --seconds 4 -o real_whip
     """
+    from skincap.workflows.synth_folder import OUTPUT_FILES
+
+    if real_markers is not None:
+        _synth_on_real_markers(
+            real_markers, output, rope, hands, frames, seconds, noise_mm, seed, force
+        )
+        return
     from rich.progress import Progress
 
     from skincap.io.output_safety import guard_outputs
     from skincap.synth.generate import generate_capture
     from skincap.synth.inputs import build_body, build_motion
-    from skincap.workflows.synth_folder import OUTPUT_FILES, write_synth_outputs
+    from skincap.workflows.synth_folder import write_synth_outputs
 
     motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
     with (
@@ -793,6 +821,79 @@ def synth(
     out.print(
         f"synth: {s['frames']} frames, {s['markers']} markers + {s['rope_markers']} rope markers -> "
         f"{s['fragments']} fragments, {100 * s['missing_fraction']:.1f}% missing, {s['ghosts']} ghosts; wrote {output}",
+        markup=False,
+        soft_wrap=True,
+    )
+
+
+def _synth_on_real_markers(
+    source: Path,
+    output: Path,
+    rope: str,
+    hands: str | None,
+    frames: int | None,
+    seconds: float | None,
+    noise_mm: float,
+    seed: int,
+    force: bool,
+) -> None:
+    """``skincap synth --real-markers``: a PBD rope in a real capture's hands."""
+    from skincap.io.output_safety import guard_outputs
+    from skincap.synth.real_capture import real_capture_with_rope
+    from skincap.types import MarkerSet
+    from skincap.workflows.synth_folder import OUTPUT_FILES, write_synth_outputs
+
+    with (
+        _user_errors(),
+        guard_outputs(
+            [source], [output / name for name in OUTPUT_FILES], folders=[output], force=force
+        ),
+    ):
+        if rope not in ("whip", "jump"):
+            raise FormatError(output, "--real-markers needs --rope whip or --rope jump")
+        if frames is not None and seconds is not None:
+            raise FormatError(output, "give --frames or --seconds, not both")
+        if frames is not None and frames < 2 or seconds is not None and seconds <= 0:
+            raise FormatError(output, "--frames must be at least 2 and --seconds positive")
+        if noise_mm < 0:
+            raise FormatError(output, "--noise-mm must not be negative")
+        markers = _read(source)
+        if not isinstance(markers, MarkerSet) or all(
+            label.startswith("*") for label in markers.labels
+        ):
+            raise FormatError(source, "--real-markers needs a capture of labelled markers")
+        n = markers.n_frames
+        if frames is not None:
+            n = min(n, frames)
+        elif seconds is not None:
+            n = min(n, max(2, int(round(seconds * markers.rate))))
+        markers = MarkerSet(
+            markers.positions[:n], markers.labels, markers.rate, meta=dict(markers.meta)
+        )
+        groups = None
+        if hands is not None:
+            groups = [[n for n in part.split(",") if n.strip()] for part in hands.split(":")]
+            if not 1 <= len(groups) <= 2 or not all(groups):
+                raise FormatError(output, f"--hands: expected L1,L2[:R1,R2], got {hands!r}")
+        try:
+            result = real_capture_with_rope(
+                markers,
+                rope=rope,  # type: ignore[arg-type]
+                hands=groups,
+                noise_mm=noise_mm,
+                seed=seed,
+            )
+        except ValidationError as exc:
+            raise FormatError(source, str(exc)) from None
+        result.summary["source"] = source.name
+        output.mkdir(parents=True, exist_ok=True)
+        write_synth_outputs(result, output, force=force)
+    s = result.summary
+    out.print(
+        f"synth: {s['frames']} frames of {source}, {s['markers']} real markers + "
+        f"{s['rope_markers']} rope markers ({s['rope']}, held by "
+        f"{' and '.join('+'.join(h) for h in s['hands'])}) -> {s['fragments']} fragments, "
+        f"{s['ghosts']} ghosts; wrote {output}",
         markup=False,
         soft_wrap=True,
     )

@@ -19,6 +19,10 @@ Layout of the output folder::
                             gives truth/mesh.pc2 back (soft tissue 0)
     truth/corruption.json   spikes, label swaps and prop markers put into capture.c3d
                             (``--spikes``, ``--swaps``, ``--prop``; empty lists otherwise)
+
+A take built on a real capture's markers (``--real-markers``,
+:mod:`skincap.synth.real_capture`) has no skin, motion or marker surface: the
+marker_surface, motion, mesh and body files are not written.
 """
 
 from __future__ import annotations
@@ -132,16 +136,17 @@ def write_synth_outputs(
     if result.marker_surface is not None:
         write_ply(result.marker_surface, root / "truth" / "marker_surface.ply", force=force)
         done(root / "truth" / "marker_surface.ply")
-    write_bvh(result.motion, root / "truth" / "motion.bvh", force=force, units="m")
-    done(root / "truth" / "motion.bvh")
-    write_obj(result.skin.rest, root / "truth" / "mesh.obj", force=force, units="m", up="y")
-    done(root / "truth" / "mesh.obj")
-    write_pc2(result.skin, root / "truth" / "mesh.pc2", force=force)
-    done(root / "truth" / "mesh.pc2")
-    # the rigged body, so the skin can be made again from motion.bvh (the procedural
-    # body has no other file with its weights)
-    write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
-    done(root / "truth" / "body.glb")
+    if result.motion is not None and result.skin is not None:
+        write_bvh(result.motion, root / "truth" / "motion.bvh", force=force, units="m")
+        done(root / "truth" / "motion.bvh")
+        write_obj(result.skin.rest, root / "truth" / "mesh.obj", force=force, units="m", up="y")
+        done(root / "truth" / "mesh.obj")
+        write_pc2(result.skin, root / "truth" / "mesh.pc2", force=force)
+        done(root / "truth" / "mesh.pc2")
+        # the rigged body, so the skin can be made again from motion.bvh (the procedural
+        # body has no other file with its weights)
+        write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
+        done(root / "truth" / "body.glb")
     _write_text(
         root / "truth" / "corruption.json",
         json.dumps(corruption_record(result.capture.labels, corruption), indent=1) + "\n",
