@@ -155,7 +155,10 @@ def real_capture_with_rope(
     noise_mm : float
         Gaussian noise of the rope's points, mm (the body's points are left as recorded).
     hang_seconds : float
-        The opening window in which the rope is kept whole (the tracker's initialisation).
+        The opening window in which the rope hangs still and is kept whole (the tracker's
+        initialisation, Porter §3.4): the performer holds the take's first pose this
+        long before the take plays (frames prepended, the first frame's markers
+        repeated), as a performer starts from a still pose.
     seed : int
         Every random choice derives from it.
     progress : callable(fraction, label), optional
@@ -164,7 +167,8 @@ def real_capture_with_rope(
     -------
     SynthCapture
         ``skin`` and ``motion`` are None, ``marker_surface`` None. ``truth`` holds the
-        body markers as recorded (NaN in their own gaps) then ``rope_00``…
+        body markers as recorded (NaN in their own gaps) then ``rope_00``…; frame
+        ``summary["still_frames"]`` is the take's first frame.
     """
     if rope not in ("whip", "jump"):
         raise ValidationError(f"rope: expected 'whip' or 'jump', got {rope!r}")
@@ -172,9 +176,16 @@ def real_capture_with_rope(
         raise ValidationError(
             "dropout must be in [0, 0.5), ghosts_per_frame, noise_mm and hang_seconds >= 0"
         )
+    if markers.n_frames < 2 or markers.n_markers < 1:
+        raise ValidationError(
+            f"markers: need at least 2 frames and 1 marker, got {markers.positions.shape[:2]}"
+        )
+    n_still = int(round(hang_seconds * markers.rate))
+    body_xyz = np.concatenate(
+        [np.repeat(markers.positions[:1], n_still, axis=0), markers.positions], axis=0
+    )  # (T, N, 3): the first pose held, then the take
+    markers = MarkerSet(body_xyz, markers.labels, markers.rate, meta=markers.meta)
     t_n, n_body = markers.n_frames, markers.n_markers
-    if t_n < 2 or n_body < 1:
-        raise ValidationError(f"markers: need at least 2 frames and 1 marker, got {t_n}, {n_body}")
     body_labels = [
         f"unlabelled_{label[1:]}" if label.startswith("*") else label for label in markers.labels
     ]
@@ -218,8 +229,24 @@ def real_capture_with_rope(
         n_rope = 22 if rope_markers is None else int(rope_markers)
     body_y = markers.positions[..., 1]
     floor = float(np.nanmin(body_y)) - 0.02 if np.isfinite(body_y).any() else None
+    # what does not hang free at the start lies on the floor, away from the body
+    centre = (
+        np.nanmean(markers.positions[0], axis=0)
+        if np.isfinite(markers.positions[0]).any()
+        else held[0].mean(axis=0)
+    )
+    away = held[0].mean(axis=0) - centre
+    if rope == "jump":
+        axis = held[0, 1] - held[0, 0]
+        away -= axis * (away @ axis) / max(float(axis @ axis), 1e-12)
     rope_sim = simulate_rope_pbd(
-        held, markers.rate, mode=rope, length=length, n_markers=n_rope, floor=floor
+        held,
+        markers.rate,
+        mode=rope,
+        length=length,
+        n_markers=n_rope,
+        floor=floor,
+        lay_direction=away,
     )
     rope_xyz = rope_sim.markers  # (T, R, 3)
 
@@ -306,6 +333,7 @@ def real_capture_with_rope(
         "marker_set": "real",
         "source": str(markers.meta.get("path", markers.meta.get("source", ""))),
         "hands": [[markers.labels[c] for c in g] for g in groups[::-1]],
+        "still_frames": n_still,
         "rope_markers": int(n_rope),
         "rope": rope,
         "rope_simulator": "pbd",

@@ -45,6 +45,7 @@ def simulate_rope_pbd(
     iterations: int = 5,
     damping: float = 0.5,
     floor: float | None = None,
+    lay_direction: np.ndarray | None = None,
     settle_seconds: float = 1.0,
 ) -> RopeResult:
     """Simulate a rope held by one hand (whip) or two (jump) with PBD; place its markers.
@@ -76,6 +77,9 @@ def simulate_rope_pbd(
         Velocity damping rate ``k``, 1/s.
     floor : float or None
         Height of the floor (y), metres; None for none.
+    lay_direction : (3,) float, optional
+        Horizontal direction in which the part of the starting rope that would reach
+        below the floor is laid along it (default +Z).
     settle_seconds : float
         Time the rope hangs at the first frame's hands before frame 0, seconds.
 
@@ -124,6 +128,8 @@ def simulate_rope_pbd(
     keep = 1.0 - min(damping * dt, 1.0)
 
     x = _hanging_start(held[0], mode, n_particles, rest)
+    if floor is not None:
+        x = _laid_on_floor(x, floor, lay_direction)
     x_prev = x.copy()
     out = np.empty((h.shape[0], n_particles, 3))  # every frame is written below
 
@@ -201,6 +207,18 @@ def _link_halves(inv_mass: np.ndarray) -> list[tuple[slice, slice, np.ndarray, n
         share_b = np.divide(wb, w, out=np.zeros_like(w), where=w > 0)[:, None]
         halves.append((a, b, share_a, share_b))
     return halves
+
+
+def _laid_on_floor(x: np.ndarray, floor: float, direction: np.ndarray | None) -> np.ndarray:
+    """(P, 3) the chain with what reaches below ``floor`` laid along it, arc length kept."""
+    lay = np.array([0.0, 0.0, 1.0]) if direction is None else np.asarray(direction, float)
+    lay = lay * np.array([1.0, 0.0, 1.0])
+    norm = np.linalg.norm(lay)
+    lay = np.array([0.0, 0.0, 1.0]) if norm < 1e-9 else lay / norm
+    depth = np.maximum(floor - x[:, 1], 0.0)  # (P,) metres below the floor
+    laid = x + depth[:, None] * lay
+    laid[:, 1] = np.maximum(x[:, 1], floor)
+    return laid
 
 
 def _project_distances(
