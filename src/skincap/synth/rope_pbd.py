@@ -123,6 +123,10 @@ def simulate_rope_pbd(
         inv_mass[-1] = 0.0
 
     halves = _link_halves(inv_mass)
+    # long-range attachments: no particle farther from a held end than the rope between
+    held_ends = [0] if mode == "whip" else [0, n_particles - 1]
+    arc = rest * np.arange(n_particles)
+    reach = [arc, arc[::-1]][: len(held_ends)]
     substeps = max(1, math.ceil(1.0 / (rate * substep_seconds)))
     dt = 1.0 / (rate * substeps)
     keep = 1.0 - min(damping * dt, 1.0)
@@ -146,6 +150,7 @@ def simulate_rope_pbd(
         x = x + velocity + _GRAVITY * dt * dt
         pin(x, target)
         _project_distances(x, halves, rest, int(iterations))
+        _attach_long_range(x, held_ends, reach)
         if floor is not None:
             below = x[:, 1] < floor
             if below.any():
@@ -219,6 +224,22 @@ def _laid_on_floor(x: np.ndarray, floor: float, direction: np.ndarray | None) ->
     laid = x + depth[:, None] * lay
     laid[:, 1] = np.maximum(x[:, 1], floor)
     return laid
+
+
+def _attach_long_range(x: np.ndarray, ends: list[int], reach: list[np.ndarray]) -> None:
+    """Long-range attachments (Kim, Chentanez & Müller 2012), in place.
+
+    A particle farther from a held end than the rest arc length between them is moved
+    straight back onto that sphere: one unilateral constraint per particle and held
+    end, which keeps a PBD chain from stretching under a hard-accelerating hand
+    without more iterations.
+    """
+    for end, limit in zip(ends, reach, strict=True):
+        d = x - x[end]  # (P, 3)
+        dist = np.sqrt(np.einsum("ij,ij->i", d, d))
+        over = dist > limit
+        if over.any():
+            x[over] = x[end] + d[over] * (limit[over] / dist[over])[:, None]
 
 
 def _project_distances(
