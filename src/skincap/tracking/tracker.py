@@ -66,6 +66,7 @@ is first searched.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -74,7 +75,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.backends import numba_available, resolve_backend
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.tracking.curve import fill_interior_on_curve, rest_arclength, settle_single_gaps
 from skincap.tracking.init import (
     _RIGID_PARTNERS,
@@ -83,6 +84,7 @@ from skincap.tracking.init import (
     RopeInit,
     gated_assignment,
 )
+from skincap.tracking.physical import bound_invented
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = ["RopeTrack", "track_rope"]
@@ -135,7 +137,9 @@ class RopeTrack:
     Attributes
     ----------
     positions : (T, M, 3) float64, metres
-        Rope markers in order along the rope; never NaN (invented where unseen).
+        Rope markers in order along the rope; invented where unseen, within the
+        distance the rope's length allows from the measured markers (10 % stretch,
+        :mod:`skincap.tracking.physical`); NaN where the trace is lost.
     invented : (T, M) bool
         True where the sample is a temporary marker rather than a measured point.
     point_index : (T, M) int64
@@ -143,7 +147,8 @@ class RopeTrack:
         No point appears twice.
     lost_frames : (T, M) bool
         True where the trace had more than ``max_temp_markers`` consecutive
-        temporary markers (it is still invented along the rope there).
+        temporary markers, or no place the rope's length allows: ``positions`` is NaN
+        there (the tracker goes on predicting it internally, so it can be found again).
     labels : list of M str
         ``rope_00``, ``rope_01``….
     rate : float, Hz
@@ -184,12 +189,12 @@ class RopeTrack:
         return mask
 
     def to_markerset(self) -> MarkerSet:
-        """The rope as labelled markers, invented samples flagged (no NaN)."""
+        """The rope as labelled markers, invented samples flagged, lost samples NaN."""
         return MarkerSet(
             positions=self.positions.copy(),
             labels=list(self.labels),
             rate=self.rate,
-            invented=self.invented.copy(),
+            invented=self.invented & np.isfinite(self.positions).all(axis=2),
             meta=dict(self.meta),
         )
 
@@ -1082,7 +1087,9 @@ def track_rope(
     Returns
     -------
     RopeTrack
-        Positions never NaN; ``invented`` where a temporary marker was used;
+        Positions NaN only where a trace is lost (a SkincapWarning counts them),
+        invented samples bounded by the rope's length; ``invented`` where a temporary
+        marker was used;
         ``point_index`` the taken points (each at most once); ``lost_frames``.
 
     Raises
@@ -1160,6 +1167,7 @@ def track_rope(
         )  # fmt: skip
     if progress is not None:
         progress(1.0)
+    positions, moved = _physical_output(positions, invented, lost_frames, spacing, init.labels)
     return RopeTrack(
         positions=positions,
         invented=invented,
@@ -1168,8 +1176,41 @@ def track_rope(
         labels=init.labels,
         rate=cloud.rate,
         init=init,
-        meta={k: v for k, v in cloud.meta.items() if k != "id_labels"},
+        meta={
+            **{k: v for k, v in cloud.meta.items() if k != "id_labels"},
+            "invented_bounded": int(moved.sum()),
+        },
     )
+
+
+def _physical_output(
+    positions: np.ndarray,
+    invented: np.ndarray,
+    lost_frames: np.ndarray,
+    spacing: np.ndarray,
+    labels: list[str],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tracked positions as reported: invented samples bounded, lost samples NaN.
+
+    Both backends track with their own (unbounded) predictions; what leaves the
+    tracker is physical (:func:`skincap.tracking.physical.bound_invented`), and a lost
+    trace is NaN with a :class:`~skincap.errors.SkincapWarning` that counts them.
+    """
+    bounded, moved = bound_invented(positions, invented, spacing)
+    unplaced = ~np.isfinite(bounded).all(axis=2)  # (T, M) no position the rope allows
+    lost_frames |= unplaced
+    bounded[lost_frames] = np.nan
+    if lost_frames.any():
+        lost = np.flatnonzero(lost_frames.any(axis=0))
+        first = [int(np.argmax(lost_frames[:, j])) for j in lost]
+        where = ", ".join(f"{labels[j]} from frame {f}" for j, f in zip(lost, first, strict=True))
+        warnings.warn(
+            f"rope: {lost.size} of {len(labels)} traces lost ({where}); "
+            f"{int(lost_frames.sum())} samples are NaN",
+            SkincapWarning,
+            stacklevel=3,
+        )
+    return bounded, moved
 
 
 def warm_up_kernel() -> None:
