@@ -107,8 +107,9 @@ def naming_file(path: str | os.PathLike[str]) -> Iterator[None]:
         yield
     except SkincapError as exc:
         if getattr(exc, "path", None) is None and not isinstance(exc, MissingDependencyError):
-            exc.path = os.fspath(path)  # type: ignore[attr-defined]
-            exc.args = (f"{exc.path}: {exc}",)
+            name = os.fspath(path)
+            exc.path = name  # type: ignore[attr-defined]
+            exc.args = (f"{name}: {exc}",)
         raise
 
 

@@ -6,12 +6,9 @@ import json
 import shutil
 
 import pytest
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from skincap.cli import app
-from skincap.errors import FormatError, SkincapError
 
 
 def run(*args):
@@ -154,63 +151,3 @@ def test_bench_track_small():
     assert "real time" in result.stdout and "naive" in result.stdout
     bad = run("bench", "track", "--points", "5", "--rope-markers", "10")
     assert bad.exit_code == 2 and bad.stderr.startswith("skincap: error:")
-
-
-def _tiny_truth(tmp_path):
-    import numpy as np
-
-    from skincap.types import PointCloud
-
-    cloud = PointCloud(points=np.zeros((5, 3)), offsets=np.array([0, 2, 2, 5]), rate=120.0)
-    text = "row,frame,truth\n0,0,rope_00\n1,0,LASI\n2,2,ghost\n3,2,rope_01\n4,2,RASI\n"
-    path = tmp_path / "points.csv"
-    path.write_bytes(text.encode())
-    return cloud, path, text.encode()
-
-
-def test_point_truth_reader_reads_and_checks(tmp_path):
-    from skincap.cli.track import _read_point_truth
-
-    cloud, path, _ = _tiny_truth(tmp_path)
-    assert _read_point_truth(path, cloud).tolist() == [
-        "rope_00",
-        "LASI",
-        "ghost",
-        "rope_01",
-        "RASI",
-    ]
-    path.write_text("row,frame,truth\n0,0,a\n1,1,b\n2,2,c\n3,2,d\n4,2,e\n")
-    with pytest.raises(FormatError, match="line 3"):  # row 1 is in frame 0
-        _read_point_truth(path, cloud)
-    path.write_text("row,frame,truth\n0,0,a\n1,0,b\n2,2,c\n3,99999999999999999999999,d\n4,2,e\n")
-    with pytest.raises(FormatError, match="line 5"):
-        _read_point_truth(path, cloud)
-
-
-@settings(
-    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
-)
-@given(data=st.data())
-def test_point_truth_reader_fuzz(tmp_path, data):
-    """Mutated bytes give a label array or a SkincapError, nothing else."""
-    from skincap.cli.track import _read_point_truth
-
-    cloud, path, good = _tiny_truth(tmp_path)
-    raw = bytearray(good)
-    for _ in range(data.draw(st.integers(1, 4))):
-        op = data.draw(st.sampled_from(["flip", "insert", "delete", "truncate"]))
-        pos = data.draw(st.integers(0, max(0, len(raw) - 1)))
-        if op == "flip" and raw:
-            raw[pos] = data.draw(st.integers(0, 255))
-        elif op == "insert":
-            raw.insert(pos, data.draw(st.integers(0, 255)))
-        elif op == "delete" and raw:
-            del raw[pos]
-        else:
-            del raw[pos:]
-    path.write_bytes(bytes(raw))
-    try:
-        got = _read_point_truth(path, cloud)
-    except SkincapError:
-        return
-    assert got.shape == (5,)

@@ -87,14 +87,14 @@ def test_c3d_analog_rate_sized_allocation_is_refused(tmp_path, rate, words):
 def test_c3d_checks_are_what_keeps_ezc3d_from_crashing(tmp_path, monkeypatch):
     """Without the checks the first reproducer kills the CLI (ezc3d 1.7.2): the harness
     sees the signal, and the checks are what prevents it."""
-    import skincap.io.c3d
+    import skincap.io.c3d.reader
 
     p = _c3d(tmp_path, *C3D_REPRODUCERS[0][:3])
-    monkeypatch.setattr(skincap.io.c3d, "check_before_ezc3d", lambda path, data: None)
+    monkeypatch.setattr(skincap.io.c3d.reader, "check_before_ezc3d", lambda path, data: None)
     outcome = run_cli(["info", str(p)])  # the child inherits the patched module
     verdict = judge(outcome, inputs=[p])
     assert verdict.outcome == "signal", (verdict, outcome.stderr[-500:])
-    assert "SIGSEGV at skincap/io/c3d.py:" in verdict.violations[0]  # the call into ezc3d
+    assert "SIGSEGV at skincap/io/c3d/reader.py:" in verdict.violations[0]  # the call into ezc3d
 
 
 def test_mhw_vertex_index_2_pow_31_and_5e7(tmp_path):

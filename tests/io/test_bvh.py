@@ -571,7 +571,7 @@ def test_fuzz_mutated_bytes(tmp_path: Path, edits: list[tuple[str, int, int]]) -
     st.sampled_from([" ", "\t", "  "]),
 )
 def test_fast_decimal_parser_equals_float(values: list[float], decimals: int, sep: str) -> None:
-    from skincap.io.bvh import _parse_plain_decimals
+    from skincap.io.bvh.parse import _parse_plain_decimals
 
     n = len(values) - len(values) % 3
     tokens = [f"{v:.{decimals}f}" for v in values[:n]]

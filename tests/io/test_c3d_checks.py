@@ -15,7 +15,7 @@ import pytest
 
 from skincap.errors import FormatError
 from skincap.io.c3d import read_c3d
-from skincap.io.c3d_checks import MAX_SAMPLES_PER_FRAME, check_before_ezc3d
+from skincap.io.c3d.checks import MAX_SAMPLES_PER_FRAME, check_before_ezc3d
 
 DATA = Path(__file__).parents[1] / "data"
 CHAR, BYTE, INT, FLOAT = -1, 1, 2, 4

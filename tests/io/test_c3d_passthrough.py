@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from skincap.cli import app
 from skincap.errors import FormatError, SkincapWarning, UnitWarning
 from skincap.io.c3d import read_c3d, write_c3d
-from skincap.io.c3d_content import C3dContent
+from skincap.io.c3d.content import C3dContent
 from skincap.io.csv import write_vicon_csv
 from skincap.io.trc import write_trc
 from skincap.types import MarkerSet
@@ -236,7 +236,7 @@ def test_long_takes_keep_every_frame(n_frames, tmp_path):
 
 def test_carried_parameters_keep_type_shape_case_lock_and_bytes(tmp_path):
     """A vendor group with every parameter type goes out record for record."""
-    from skincap.io.c3d_content import C3dGroup, C3dParameter
+    from skincap.io.c3d.content import C3dGroup, C3dParameter
 
     floats = np.arange(24, dtype=np.float64).reshape(2, 3, 4) / 8.0
     vendor = C3dGroup(

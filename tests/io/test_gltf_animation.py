@@ -10,7 +10,8 @@ from skinned_cylinder import RATE, lbs_reference
 
 from skincap.errors import FormatError
 from skincap.geometry.kinematics import forward_kinematics
-from skincap.io.gltf.reader import read_gltf, read_gltf_animation
+from skincap.io.gltf.animation import read_gltf_animation
+from skincap.io.gltf.reader import read_gltf
 from skincap.io.gltf.writer import write_glb
 from skincap.viz.scene import load_scene
 

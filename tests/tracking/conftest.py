@@ -32,3 +32,21 @@ def rope_truth_indices(take) -> np.ndarray:  # type: ignore[no-untyped-def]
     cloud = take.points
     labels = take.point_truth[: cloud.offsets[1]].astype(str)
     return np.nonzero(np.char.startswith(labels, "rope_"))[0]
+
+
+def blank_state(cloud, spacing, *, gamma: float = 0.03, **settings):  # type: ignore[no-untyped-def]
+    """(TrackState, StepParams) for hand-made step tests: M = len(spacing) + 1 traces,
+    every result and carried array zero (positions), -1 (indices) or False, all traces
+    steady; ``settings`` are TrackSettings fields."""
+    from skincap.tracking.init import RopeInit
+    from skincap.tracking.settings import TrackSettings
+    from skincap.tracking.state import start_tracking
+
+    spacing = np.asarray(spacing, dtype=np.float64)
+    m = spacing.size + 1
+    init = RopeInit(np.full(m, -1), np.zeros((m, 3)), spacing, gamma, 10)
+    state, params = start_tracking(cloud, init, TrackSettings(**settings))
+    state.body[:] = False
+    state.temp_count[:] = 0
+    state.invented[:] = False
+    return state, params

@@ -146,7 +146,7 @@ def test_settle_single_gaps_leaves_runs_stretched_links_and_batches() -> None:
 
 def test_kernel_settle_matches_the_reference() -> None:
     pytest.importorskip("numba")
-    from skincap.tracking._kernel import _settle
+    from skincap.tracking._numba_curve import settle as _settle
 
     rng = np.random.default_rng(3)
     m = 12

@@ -7,14 +7,8 @@ import pytest
 
 from conftest import rope_truth_indices
 from skincap.errors import ValidationError
-from skincap.tracking.init import (
-    RopeInit,
-    body_like,
-    find_rope_chain,
-    follow_points,
-    gated_assignment,
-    init_rope,
-)
+from skincap.tracking.body_points import body_like, follow_points
+from skincap.tracking.init import RopeInit, find_rope_chain, gated_assignment, init_rope
 from skincap.types import PointCloud
 
 

@@ -1,11 +1,23 @@
 """The command line: ``skincap VERB ...``, the only layer that parses arguments or prints.
 
-``_app`` holds the Typer application, the consoles and the error handling; each other
-module registers one verb (or one family of verbs) on it when imported. Importing this
-package imports them all, so ``app`` below has every command.
+``_app`` holds the Typer application, the consoles, the error handling and the
+progress bars; each other module registers one verb (or one family of verbs) on it
+when imported, and the work itself is done in :mod:`skincap.workflows`. Importing
+this package imports them all, in the order ``skincap --help`` lists them.
 """
 
-from skincap.cli import clean, render, track, view  # noqa: F401  (registers their verbs)
+from skincap.cli import (  # noqa: F401, I001  (registers the verbs in --help order)
+    info,
+    convert,
+    skin,
+    synth,
+    demo,
+    bench,
+    clean,
+    render,
+    track,
+    view,
+)
 from skincap.cli._app import app, main
 
 __all__ = ["app", "main"]

@@ -8,140 +8,24 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 
 from skincap.cleanup.methods import FILL_METHODS
-from skincap.cli._app import _user_errors, app, bench_app, err, eval_app, out, print_bench_results
+from skincap.cli._app import (
+    _user_errors,
+    app,
+    bench_app,
+    err,
+    eval_app,
+    out,
+    print_bench_results,
+    stage_progress,
+)
 from skincap.errors import FormatError
 
-if TYPE_CHECKING:
-    import numpy as np
-
-    from skincap.cleanup.surface import MarkerSurface
-    from skincap.types import MarkerSet
-
-
 # -------------------------------------------------------------------------- clean
-def _read_edge_csv(path: Path, labels: list[str]) -> np.ndarray:
-    """Edge list CSV: one ``label_a,label_b`` pair per line (an optional header line)."""
-    import numpy as np
-
-    from skincap.io._common import check_readable
-
-    check_readable(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
-    index = {lab: i for i, lab in enumerate(labels)}
-    pairs: list[tuple[int, int]] = []
-    for number, line in enumerate(text.splitlines(), start=1):
-        cells = [c.strip() for c in line.split(",")]
-        if not line.strip():
-            continue
-        if len(cells) != 2:
-            raise FormatError(path, f"expected two labels per line, got {len(cells)}", line=number)
-        if cells[0] not in index or cells[1] not in index:
-            if number == 1 and not pairs:
-                continue  # a header line
-            unknown = cells[0] if cells[0] not in index else cells[1]
-            raise FormatError(path, f"unknown marker label {unknown!r}", line=number)
-        pairs.append((index[cells[0]], index[cells[1]]))
-    if not pairs:
-        raise FormatError(path, "no edges")
-    return np.asarray(pairs, dtype=np.int64)
-
-
-def _read_surface(path: Path, markers: MarkerSet, reference_frame: int | None) -> MarkerSurface:
-    """A user marker surface over the labelled columns: PLY/OBJ triangles or an edge CSV.
-
-    Mesh vertices are matched to the labelled markers by order when the counts agree,
-    else each vertex to the nearest labelled marker in the reference frame (each
-    marker at most once, within 5 cm).
-    """
-    import numpy as np
-    from scipy.spatial import cKDTree
-
-    from skincap import io
-    from skincap.cleanup.surface import (
-        choose_reference_frame,
-        surface_from_edges,
-        surface_from_faces,
-    )
-
-    labelled = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
-    if not labelled:
-        raise FormatError(path, "the capture has no labelled markers to put a surface on")
-    pos = markers.positions[:, labelled]
-    frame = choose_reference_frame(pos) if reference_frame is None else reference_frame
-    if not 0 <= frame < markers.n_frames:
-        raise FormatError(path, f"--reference-frame {frame} is outside 0..{markers.n_frames - 1}")
-    ref = pos[frame]
-    ext = path.suffix.lower()
-    if ext == ".csv":
-        labels = [str(markers.labels[i]) for i in labelled]
-        return surface_from_edges(_read_edge_csv(path, labels), ref, reference_frame=frame)
-    if ext not in (".ply", ".obj"):
-        raise FormatError(path, f"a surface is a .ply, .obj or edge-list .csv, not {ext!r}")
-    mesh = io.read(path)
-    if not hasattr(mesh, "faces"):
-        raise FormatError(path, "not a mesh")
-    if mesh.n_vertices == len(labelled):
-        vertex_to_marker = np.arange(mesh.n_vertices)
-    else:
-        ok = np.isfinite(ref).all(axis=1)
-        if ok.sum() < mesh.n_vertices:
-            raise FormatError(
-                path,
-                f"{mesh.n_vertices} vertices but only {int(ok.sum())} labelled markers "
-                f"in reference frame {frame}",
-            )
-        rows = np.flatnonzero(ok)
-        dist, near = cKDTree(ref[rows]).query(mesh.vertices)
-        vertex_to_marker = rows[near]
-        if np.unique(vertex_to_marker).size != vertex_to_marker.size or np.any(dist > 0.05):
-            raise FormatError(
-                path,
-                "surface vertices do not match the markers one to one (by order or within "
-                f"5 cm in reference frame {frame})",
-            )
-    faces = vertex_to_marker[mesh.faces]
-    return surface_from_faces(faces, ref, reference_frame=frame)
-
-
-def _read_fragment_truth(path: Path) -> dict[str, str]:
-    """``fragment,truth`` CSV (``skincap synth``'s truth/fragments.csv): label -> true label."""
-    from skincap.io._common import check_readable
-
-    check_readable(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
-    truth: dict[str, str] = {}
-    for number, line in enumerate(text.splitlines(), start=1):
-        if not line.strip():
-            continue
-        cells = [c.strip() for c in line.split(",")]
-        if len(cells) != 2 or not cells[0] or not cells[1]:
-            raise FormatError(path, "expected 'fragment,truth' on every line", line=number)
-        if number == 1 and cells == ["fragment", "truth"]:
-            continue
-        truth[cells[0]] = cells[1]
-    if not truth:
-        raise FormatError(path, "no fragment rows")
-    return truth
-
-
-def _write_json(path: Path, data: dict[str, Any], *, force: bool) -> None:
-    from skincap.io._common import atomic_output
-
-    with atomic_output(path, force=force) as tmp:
-        tmp.write_text(json.dumps(data, indent=1) + "\n", encoding="utf-8")
-
-
 #: ``--rigid-blend``, shared by ``clean`` and ``eval fill``.
 RigidBlendOption = Annotated[
     float | None,
@@ -215,58 +99,25 @@ def clean(
 
     Example: skincap clean take.c3d -o take_clean.c3d --report take_clean.json
     """
-    from skincap.io.output_safety import guard_outputs
+    from skincap.workflows.clean_file import clean_file
 
-    inputs = [src, surface, fragment_truth]
-    outputs = [output] if report is None else [output, report]
-    with _user_errors(), guard_outputs(inputs, outputs, force=force):
-        from rich.progress import Progress
-
-        from skincap import io
-        from skincap.cleanup.pipeline import clean_markers
-        from skincap.types import MarkerSet
-
-        if method not in FILL_METHODS:
-            raise FormatError(output, f"--method must be one of {', '.join(FILL_METHODS)}")
-        if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
-            raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
-        if output.suffix.lower() != ".c3d":
-            raise FormatError(output, "the cleaned capture is written as .c3d")
-        markers = io.read(src)
-        if not isinstance(markers, MarkerSet):
-            raise FormatError(src, "not a marker capture (labelled trajectories)")
-        if markers.n_frames == 0:
-            raise FormatError(src, "no frames")
-        if reference_frame is not None and not 0 <= reference_frame < markers.n_frames:
-            raise FormatError(
-                src, f"--reference-frame {reference_frame} is outside 0..{markers.n_frames - 1}"
-            )
-        user_surface = None if surface is None else _read_surface(surface, markers, reference_frame)
-        truth = None if fragment_truth is None else _read_fragment_truth(fragment_truth)
-        with Progress(console=err, transient=True, disable=not err.is_terminal) as bar:
-            task = bar.add_task("cleaning", total=1.0)
-
-            def progress(fraction: float, label: str) -> None:
-                bar.update(task, completed=fraction, description=label)
-
-            cleaned, summary = clean_markers(
-                markers,
-                method=method,
-                rigid_blend=rigid_blend,
-                reference_frame=reference_frame,
-                surface=user_surface,
-                smooth=not no_smooth,
-                lam=lam,
-                iterations=iterations,
-                fragment_truth=truth,
-                recover_hidden=not no_hidden,
-                progress=progress,
-            )
-        summary["input"] = str(src)
-        summary["output"] = str(output)
-        io.write(cleaned, output, force=force)
-        if report is not None:
-            _write_json(report, summary, force=force)
+    with _user_errors(), stage_progress("cleaning") as progress:
+        summary = clean_file(
+            src,
+            output,
+            method=method,
+            rigid_blend=rigid_blend,
+            reference_frame=reference_frame,
+            surface=surface,
+            smooth=not no_smooth,
+            lam=lam,
+            iterations=iterations,
+            report=report,
+            fragment_truth=fragment_truth,
+            recover_hidden=not no_hidden,
+            force=force,
+            progress=progress,
+        )
     if json_output:
         print(json.dumps(clean_summary(summary), indent=2))
     else:
@@ -374,6 +225,7 @@ def eval_fill(
 
         from skincap import io
         from skincap.evaluate.cleanup import evaluate_fill, format_fill_table, plot_fill_evaluation
+        from skincap.io.json_file import write_json
         from skincap.types import MarkerSet
 
         chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
@@ -413,7 +265,7 @@ def eval_fill(
             )
         result["input"] = str(src)
         output.mkdir(parents=True, exist_ok=True)
-        _write_json(json_path, result, force=force)
+        write_json(json_path, result, force=force)
         plot_fill_evaluation(result, png_path, force=force)
     table = Table(title=f"{src}: punched-gap fill errors", title_justify="left")
     for name in (

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
 
@@ -18,44 +18,15 @@ from skincap.cli._app import (
     bench_app,
     err,
     eval_app,
-    frame_progress,
+    frame_bar,
     out,
     print_bench_results,
     print_json,
 )
-from skincap.errors import FormatError, ValidationError
-
-if TYPE_CHECKING:
-    import numpy as np
-
-    from skincap.types import MarkerSet, PointCloud
+from skincap.errors import ValidationError
 
 
 # ------------------------------------------------------------------------- track
-def _read_cloud(path: Path) -> PointCloud:
-    """The input as an un-indexed PointCloud: long point CSV, OptiTrack CSV or C3D.
-
-    A MarkerSet (OptiTrack CSV, C3D) must hold only unlabelled ``*N`` points; its
-    labels are dropped (the tracker sees points, not trajectories).
-    """
-    from skincap import io
-    from skincap.types import MarkerSet, PointCloud
-
-    obj = io.read(path)
-    if isinstance(obj, PointCloud):
-        return obj
-    if isinstance(obj, MarkerSet):
-        labelled = [label for label in obj.labels if not label.startswith("*")]
-        if labelled:
-            raise FormatError(
-                path,
-                f"track reads un-indexed points, but {len(labelled)} markers are labelled "
-                f"(e.g. {labelled[0]!r}); give a points CSV or a file of '*N' points",
-            )
-        return PointCloud.from_markerset(obj, keep_ids=False)
-    raise FormatError(path, "track reads a points CSV, an OptiTrack CSV or a C3D of '*N' points")
-
-
 def _parse_numbers(text: str, option: str, *, count: int | None, kind: type) -> list[Any]:
     try:
         values = [kind(v) for v in text.replace(" ", "").split(",") if v != ""]
@@ -99,36 +70,35 @@ def track(
 
     Example: skincap track capture_points.csv --rope auto -o tracked
     """
-    from skincap.io.output_safety import guard_outputs
-    from skincap.tracking.init import init_rope
-    from skincap.tracking.outputs import OUTPUT_NAMES, write_track_outputs
-    from skincap.tracking.tracker import track_rope
+    from skincap.workflows.track_file import OUTPUT_NAMES, track_file
 
     outputs = [output / name for name in OUTPUT_NAMES]
-    with _user_errors(), guard_outputs([input_file], outputs, folders=[output], force=force):
+    with _user_errors(), frame_bar("tracking the rope") as advance:
         given = [rope_box is not None, rope_markers is not None, rope is not None]
         if sum(given) != 1:
             raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")
         if rope is not None and rope != "auto":
             raise ValidationError(f"--rope: the only choice is 'auto', got {rope!r}")
-        cloud = _read_cloud(input_file)
-        if rope_box is not None:
-            box = _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
-            init = init_rope(cloud, box=box, window_seconds=window)
-        elif rope_markers is not None:
-            idx = _parse_numbers(rope_markers, "--rope-markers", count=None, kind=int)
-            init = init_rope(cloud, markers=idx, window_seconds=window)
-        else:
-            init = init_rope(cloud, auto=True, window_seconds=window)
-        frames = cloud.n_frames
-        with frame_progress() as progress:
-            task = progress.add_task("tracking the rope", total=frames)
-
-            def advance(fraction: float) -> None:
-                progress.update(task, completed=fraction * frames)
-
-            result = track_rope(cloud, init, progress=advance)
-        report = write_track_outputs(cloud, result, output, force=force)
+        box = (
+            None
+            if rope_box is None
+            else _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
+        )
+        idx = (
+            None
+            if rope_markers is None
+            else _parse_numbers(rope_markers, "--rope-markers", count=None, kind=int)
+        )
+        report = track_file(
+            input_file,
+            output,
+            box=box,
+            markers=idx,
+            auto=rope is not None,
+            window_seconds=window,
+            force=force,
+            progress=advance,
+        )
     if json_output:
         print_json(
             {
@@ -159,8 +129,6 @@ def track(
 
 # -------------------------------------------------------------------- eval track
 _EVAL_OUTPUTS = ("track_eval.json", "track_eval.png")
-#: The files ``eval track`` reads from a ``skincap synth`` folder.
-_SYNTH_INPUTS = ("capture_points.csv", "truth/markers.c3d", "truth/points.csv")
 _DEFAULT_GAPS = "10,20,30,40,50,60,70,80,90,100,110,120"
 
 
@@ -174,92 +142,6 @@ def _parse_gaps(text: str) -> list[int]:
     if not gaps or min(gaps) < 1:
         raise ValidationError(f"--gaps: expected positive frame counts, got {text!r}")
     return gaps
-
-
-def _read_point_truth(path: Path, cloud: PointCloud) -> np.ndarray:
-    """Read ``truth/points.csv`` (``row,frame,truth``) and check it against the cloud."""
-    import numpy as np
-
-    from skincap.io._common import check_readable
-
-    check_readable(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, f"not UTF-8 text (byte {exc.start})") from None
-    lines = text.splitlines()
-    if not lines or lines[0].strip() != "row,frame,truth":
-        raise FormatError(path, "expected the header 'row,frame,truth'", line=1)
-    body = lines[1:]
-    if len(body) != cloud.points.shape[0]:
-        raise FormatError(
-            path,
-            f"has {len(body)} rows, capture_points.csv has {cloud.points.shape[0]} points",
-        )
-    fields = [line.split(",") for line in body]
-    bad = next((i for i, f in enumerate(fields) if len(f) != 3), None)
-    if bad is not None:
-        raise FormatError(path, "expected 3 fields: row,frame,truth", line=bad + 2)
-    cols = np.array(fields, dtype=str).reshape(-1, 3)
-    try:
-        rows = cols[:, 0].astype(np.int64)
-        frames = cols[:, 1].astype(np.int64)
-    except (ValueError, OverflowError):
-        num = np.char.isdigit(cols[:, 0]) & np.char.isdigit(cols[:, 1])
-        num &= (np.char.str_len(cols[:, 0]) < 19) & (np.char.str_len(cols[:, 1]) < 19)
-        first = int(np.flatnonzero(~num)[0]) if (~num).any() else 0
-        raise FormatError(path, "row and frame must be integers", line=first + 2) from None
-    wrong = (rows != np.arange(rows.size)) | (frames != cloud.frame_index)
-    if wrong.any():
-        i = int(np.flatnonzero(wrong)[0])
-        raise FormatError(
-            path, f"row {i} does not match capture_points.csv (row or frame differs)", line=i + 2
-        )
-    return cols[:, 2]
-
-
-def _read_synth_folder(folder: Path) -> tuple[PointCloud, np.ndarray, MarkerSet]:
-    """The un-indexed cloud, per-point truth and clean markers of a ``skincap synth`` folder."""
-    import numpy as np
-
-    from skincap.io.c3d import read_c3d
-    from skincap.io.csv import read_points_csv
-
-    if not folder.is_dir():
-        raise FormatError(folder, "not a folder (expected one written by skincap synth)")
-    cloud = read_points_csv(folder / "capture_points.csv")
-    truth_path = folder / "truth" / "markers.c3d"
-    truth = read_c3d(truth_path)
-    point_truth = _read_point_truth(folder / "truth" / "points.csv", cloud)
-    if truth.n_frames != cloud.n_frames:
-        raise FormatError(
-            truth_path, f"has {truth.n_frames} frames, capture_points.csv {cloud.n_frames}"
-        )
-    # The truth must describe these points: rope points lie on their true markers.
-    rope = np.char.startswith(point_truth, "rope_")
-    if not rope.any():
-        raise FormatError(
-            folder / "truth" / "points.csv",
-            "no rope_NN points: make the take with --rope jump|whip",
-        )
-    index = {label: i for i, label in enumerate(truth.labels)}
-    labels = point_truth[rope]
-    unknown = sorted(set(labels.tolist()) - set(index))
-    if unknown:
-        raise FormatError(truth_path, f"has no marker {unknown[0]!r} named in truth/points.csv")
-    names, which = np.unique(labels, return_inverse=True)
-    col = np.array([index[name] for name in names.tolist()], dtype=np.int64)[which]
-    dist = np.linalg.norm(
-        cloud.points[rope] - truth.positions[cloud.frame_index[rope], col], axis=1
-    )
-    median = float(np.nanmedian(dist)) if np.isfinite(dist).any() else float("inf")
-    if median > 0.01:
-        raise FormatError(
-            truth_path,
-            f"rope points lie {median * 1000:.0f} mm (median) from their true markers: "
-            "not the truth of capture_points.csv",
-        )
-    return cloud, point_truth, truth
 
 
 def _synth_take(rope: str, frames: int, markers: str, vertices: int, seed: int, report: Any) -> Any:
@@ -374,11 +256,12 @@ def eval_track(
     from rich.progress import Progress
 
     from skincap.evaluate.tracking import evaluate_tracking, plot_gap_repair
-    from skincap.io._common import atomic_output
+    from skincap.io.json_file import write_json
     from skincap.io.output_safety import guard_outputs
+    from skincap.io.synth_truth import SYNTH_TRACK_INPUTS, read_synth_folder
 
     paths = [output / name for name in _EVAL_OUTPUTS]
-    inputs = [] if input_dir is None else [input_dir / name for name in _SYNTH_INPUTS]
+    inputs = [] if input_dir is None else [input_dir / name for name in SYNTH_TRACK_INPUTS]
     with _user_errors(), guard_outputs(inputs, paths, folders=[output], force=force):
         if (input_dir is None) == (synth is None):
             raise ValidationError(
@@ -394,7 +277,7 @@ def eval_track(
         with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("reading", total=1.0)
             if input_dir is not None:
-                cloud, point_truth, truth = _read_synth_folder(input_dir)
+                cloud, point_truth, truth = read_synth_folder(input_dir)
                 source = str(input_dir)
             else:
 
@@ -421,8 +304,7 @@ def eval_track(
             )
         result = {"source": source, **result}
         output.mkdir(parents=True, exist_ok=True)
-        with atomic_output(paths[0], force=force) as tmp:
-            tmp.write_text(json.dumps(result, indent=2, allow_nan=False) + "\n", encoding="utf-8")
+        write_json(paths[0], result, force=force, indent=2, allow_nan=False)
         plot_gap_repair(result, paths[1], force=force, title=f"Gap repair: {source}")
     if json_output:
         print(json.dumps(result, indent=2, allow_nan=False))

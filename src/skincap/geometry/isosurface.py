@@ -83,7 +83,7 @@ def _check_field(values: object) -> np.ndarray:
     return f
 
 
-def _check_grid(origin: object, spacing: object) -> tuple[np.ndarray, float]:
+def _check_grid(origin: object, spacing: float) -> tuple[np.ndarray, float]:
     o = np.asarray(origin, dtype=np.float64)
     if o.shape != (3,) or not np.isfinite(o).all():
         raise ValidationError(f"origin: expected 3 finite numbers, got shape {o.shape}")

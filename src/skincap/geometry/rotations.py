@@ -385,6 +385,8 @@ def euler_to_quat(angles: np.ndarray, seq: str, *, degrees: bool = True) -> np.n
         qi[..., axes[i]] = np.sin(half[..., i])
         qi[..., 3] = np.cos(half[..., i])
         q = qi if q is None else quat_multiply(q, qi)
+    if q is None:  # pragma: no cover - _check_seq allows 1 to 3 axes
+        raise ValidationError(f"seq: expected 1 to 3 axes, got {seq!r}")
     return q
 
 

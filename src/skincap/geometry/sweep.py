@@ -523,10 +523,10 @@ class Sweep:
         )
         start_apex, end_apex = n_grid * na, n_grid * na + 1
         j1 = np.arange(na)
-        start = np.stack([np.full(na, start_apex), (j1 + 1) % na, j1], -1)
+        start_cap = np.stack([np.full(na, start_apex), (j1 + 1) % na, j1], -1)
         last = (n_grid - 1) * na
-        end = np.stack([np.full(na, end_apex), last + j1, last + (j1 + 1) % na], -1)
-        faces = np.concatenate([side, start, end]).astype(np.int64)
+        end_cap = np.stack([np.full(na, end_apex), last + j1, last + (j1 + 1) % na], -1)
+        faces = np.concatenate([side, start_cap, end_cap]).astype(np.int64)
         return vertices, faces
 
     # ------------------------------------------------------------- point queries

@@ -15,6 +15,11 @@ extension      read                               write
 ``.mhw``       :func:`skincap.io.makehuman.read_mhw`
 =============  =================================  ======================================
 
+Files of skincap's own verbs have their own modules, outside the dispatch: the truth
+files of a ``skincap synth`` folder (:mod:`skincap.io.synth_truth`), ``track``'s
+``rope_curve.csv`` (:mod:`skincap.io.rope_curve`), marker edge lists
+(:mod:`skincap.io.edge_csv`) and JSON reports (:mod:`skincap.io.json_file`).
+
 The modules are imported on first use, so importing :mod:`skincap.io` stays cheap.
 """
 

@@ -38,14 +38,19 @@ UNIT_TO_METRES: dict[str, float] = {
 UP_AXES = ("y", "z")
 
 
-def unit_scale(unit: str, *, argument: str = "units") -> float:
-    """Metres per ``unit``; ValidationError naming ``argument`` for an unknown unit."""
-    key = unit.strip().lower()
-    if key not in UNIT_TO_METRES:
+def unit_scale(unit: str, *, argument: str = "units", format_name: str = "") -> float:
+    """Metres per ``unit`` (a key of :data:`UNIT_TO_METRES`, any case and spacing).
+
+    An unknown unit (or not a string) raises ValidationError naming ``argument``, and
+    the format when ``format_name`` is given (``"unknown BVH length unit 'furlong'"``).
+    """
+    if not isinstance(unit, str) or unit.strip().lower() not in UNIT_TO_METRES:
+        kind = f"{format_name} " if format_name else ""
         raise ValidationError(
-            f"{argument}: unknown length unit {unit!r}, expected one of {sorted(UNIT_TO_METRES)}"
+            f"{argument}: unknown {kind}length unit {unit!r}, "
+            f"expected one of {sorted(UNIT_TO_METRES)}"
         )
-    return UNIT_TO_METRES[key]
+    return UNIT_TO_METRES[unit.strip().lower()]
 
 
 # A Z-up right-handed frame becomes Y-up by a -90 degree turn about X:

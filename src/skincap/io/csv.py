@@ -26,7 +26,7 @@ from skincap.io._common import (
     from_y_up,
     to_y_up,
 )
-from skincap.io.c3d_content import warn_dropped_c3d_content
+from skincap.io.c3d.content import warn_dropped_c3d_content
 from skincap.io.trc import format_float_fields, parse_float_rows, read_text_lines
 from skincap.types import MarkerSet, PointCloud
 

@@ -293,7 +293,7 @@ def _dense_weights(
             unknown.append(bname)
             continue
         arr = _weight_pairs(path, bname, pairs, n_vertices)
-        np.add.at(dense, (arr[:, 0].astype(np.int64), bone_index[bname]), arr[:, 1])
+        np.add.at(dense[:, bone_index[bname]], arr[:, 0].astype(np.int64), arr[:, 1])
     if unknown:
         warnings.warn(
             f"{path}: weights for {len(unknown)} bone(s) not in the skeleton ignored: {sorted(unknown)[:5]}",

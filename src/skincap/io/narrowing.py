@@ -15,7 +15,7 @@ import numpy as np
 
 from skincap.errors import FormatError
 
-__all__ = ["FLOAT32_MAX", "check_float32", "check_int_range"]
+__all__ = ["FLOAT32_MAX", "check_float32", "check_int_range", "frame_vertex_axis"]
 
 #: The largest finite float32.
 FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -23,6 +23,16 @@ FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 def _first(bad: np.ndarray) -> tuple[int, ...]:
     return tuple(int(i) for i in np.unravel_index(int(np.argmax(bad.ravel())), bad.shape))
+
+
+def frame_vertex_axis(first_frame: int) -> Callable[[tuple[int, ...]], str]:
+    """``where`` of :func:`check_float32` for a block of frames (T, V, 3) starting at
+    ``first_frame``: ``"frame 12, vertex 3, z"``."""
+
+    def where(idx: tuple[int, ...]) -> str:
+        return f"frame {first_frame + idx[0]}, vertex {idx[1]}, {'xyz'[idx[2]]}"
+
+    return where
 
 
 def check_float32(

@@ -45,7 +45,7 @@ import numpy as np
 
 from skincap.errors import FormatError, ValidationError
 from skincap.io._common import atomic_output, check_readable, from_y_up, to_y_up, unit_scale
-from skincap.io.narrowing import check_float32
+from skincap.io.narrowing import check_float32, frame_vertex_axis
 from skincap.types import MeshAnimation
 
 __all__ = ["write_pc2", "read_pc2", "PC2Cache", "PC2_SIGNATURE"]
@@ -78,7 +78,7 @@ def _frame_number(animation: MeshAnimation, start_frame: float | None) -> float:
     if start_frame is None:
         start_frame = animation.meta.get("first_frame", animation.rest.meta.get("first_frame", 0))
     try:
-        value = float(start_frame)  # type: ignore[arg-type]
+        value = float(start_frame)
     except (TypeError, ValueError):
         raise ValidationError(
             f"start_frame: expected a frame number, got {start_frame!r}"
@@ -173,14 +173,7 @@ def write_pc2(
                     f"frames: frame {written + bad} has NaN or infinite positions; PC2 cannot store missing points"
                 )
             out = from_y_up(block, up) * scale
-            check_float32(
-                out,
-                path,
-                lambda idx, first=written: (
-                    f"frame {first + idx[0]}, vertex {idx[1]}, {'xyz'[idx[2]]}"
-                ),
-                unit=units,
-            )
+            check_float32(out, path, frame_vertex_axis(written), unit=units)
             fh.write(np.ascontiguousarray(out, dtype="<f4").tobytes())
             written += block.shape[0]
 

@@ -33,7 +33,7 @@ from skincap.io._common import (
     to_y_up,
     unit_scale,
 )
-from skincap.io.c3d_content import warn_dropped_c3d_content
+from skincap.io.c3d.content import warn_dropped_c3d_content
 from skincap.types import MarkerSet
 
 __all__ = ["read_trc", "write_trc"]

@@ -28,7 +28,7 @@ import numpy as np
 
 from skincap.errors import FormatError, MissingDependencyError, ValidationError
 from skincap.io._common import atomic_output
-from skincap.io.narrowing import check_float32
+from skincap.io.narrowing import check_float32, frame_vertex_axis
 from skincap.types import MeshAnimation
 
 __all__ = ["write_usd", "USD_SUFFIXES"]
@@ -155,12 +155,7 @@ def write_usd(
             if not np.isfinite(block).all():
                 bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
                 raise ValidationError(f"frames: frame {done + bad} has NaN or infinite positions")
-            check_float32(
-                block,
-                path,
-                lambda idx, first=done: f"frame {first + idx[0]}, vertex {idx[1]}, {'xyz'[idx[2]]}",
-                unit="m",
-            )
+            check_float32(block, path, frame_vertex_axis(done), unit="m")
             f32 = np.ascontiguousarray(block, dtype=np.float32)
             bounds = np.stack([f32.min(axis=1), f32.max(axis=1)], axis=1)  # (t, 2, 3)
             # usd-core takes one time sample per call: the loop only hands over arrays

@@ -22,14 +22,13 @@ from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
+from skincap.tracking.body_points import body_like
 from skincap.tracking.curve import fill_interior_on_curve, rest_arclength
 from skincap.types import PointCloud
 
 __all__ = [
     "RopeInit",
-    "body_like",
     "find_rope_chain",
-    "follow_points",
     "gated_assignment",
     "init_rope",
 ]
@@ -327,8 +326,28 @@ def find_rope_chain(
     chains = _grow_chains(
         pc, tree, sa, sb, uniformity, dist[:, 1] if k > 1 else np.full(n, np.inf)
     )  # (S, L) int, -1 padded
+    found = _join_seed_chains(pc, chains, sa, sb)
+    best = found[0][1] if found else np.zeros(0, np.int64)
+    best = _bridge_chains(pc, best, [c for _, c in found[1:]], min_markers, uniformity)
+    if best.size < min_markers:
+        raise ValidationError(
+            f"rope auto: the longest chain has {best.size} points, fewer than "
+            f"min_markers={min_markers}; select the rope with a box or point indices"
+        )
+    return cand[best.astype(np.int64)]
+
+
+def _join_seed_chains(
+    pc: np.ndarray, chains: np.ndarray, sa: np.ndarray, sb: np.ndarray
+) -> list[tuple[float, np.ndarray]]:
+    """Each directed seed ``a -> b`` joined with its reverse, longest first.
+
+    ``chains`` (S, L) int, -1 padded, is each seed's forward growth over the still
+    points ``pc`` (N, 3); the chain of a seed is reverse(grow(b -> a)) + grow(a -> b).
+    Returns (total length in metres, (C,) indices into ``pc``) for every chain that
+    visits no point twice, sorted by length, longest first.
+    """
     lengths = (chains >= 0).sum(axis=1)
-    # pair each directed seed with its reverse: chain = reverse(grow(b->a)) + grow(a->b)
     key = {(int(x), int(y)): r for r, (x, y) in enumerate(zip(sa, sb, strict=True))}
     found: list[tuple[float, np.ndarray]] = []
     for r in range(sa.size):
@@ -343,14 +362,7 @@ def find_rope_chain(
             continue
         found.append((float(np.linalg.norm(np.diff(pc[chain], axis=0), axis=1).sum()), chain))
     found.sort(key=lambda item: -item[0])
-    best = found[0][1] if found else np.zeros(0, np.int64)
-    best = _bridge_chains(pc, best, [c for _, c in found[1:]], min_markers, uniformity)
-    if best.size < min_markers:
-        raise ValidationError(
-            f"rope auto: the longest chain has {best.size} points, fewer than "
-            f"min_markers={min_markers}; select the rope with a box or point indices"
-        )
-    return cand[best.astype(np.int64)]
+    return found
 
 
 def _bridge_chains(
@@ -478,137 +490,6 @@ def _grow_chains(
     return out
 
 
-# ------------------------------------------------------------------- body rejection
-#: Frames of the take (seconds) over which frame 0's points are followed for rigidity.
-_RIGID_SECONDS = 5.0
-#: A pair is rigid when its distance varies by less than this many spacings.
-_RIGID_RANGE = 0.1
-#: Partners searched within this many spacings of a chain point.
-_RIGID_RADIUS = 3.0
-#: A chain point with at least this many rigid partners off the chain is a body marker.
-_RIGID_PARTNERS = 2
-#: A link stretched beyond (1 + this) times its rest length is not along a rope.
-_STRETCH = 0.25
-
-
-def follow_points(cloud: PointCloud, n_frames: int, gate: float) -> np.ndarray:
-    """Follow every frame-0 point by unambiguous nearest neighbours (no identities).
-
-    Each point predicts its next position at constant velocity and takes the
-    nearest point of the next frame when that lies within ``gate``, no other point
-    lies within twice that distance of the prediction, and no other followed point
-    takes it. The first frame without such a match ends the point's run for good.
-
-    Parameters
-    ----------
-    cloud : PointCloud
-    n_frames : int
-        Frames to follow from frame 0 (clipped to the take).
-    gate : float, metres
-
-    Returns
-    -------
-    (F, N0, 3) float64, metres
-        Positions of frame 0's ``N0`` points; NaN from the frame a run ends.
-    """
-    n_frames = int(min(max(1, n_frames), cloud.n_frames))
-    p0 = cloud.frame(0)
-    n0 = p0.shape[0]
-    out = np.full((n_frames, n0, 3), np.nan)
-    out[0] = p0
-    pos = p0.copy()
-    vel = np.zeros_like(p0)
-    alive = np.ones(n0, dtype=bool)
-    for t in range(1, n_frames):
-        frame = cloud.frame(t)
-        rows = np.nonzero(alive)[0]
-        if rows.size == 0 or frame.shape[0] < 2:
-            break
-        d, i = cKDTree(frame).query(pos[rows] + vel[rows], k=2)
-        ok = (d[:, 0] < gate) & (d[:, 1] > 2.0 * d[:, 0])
-        took, count = np.unique(i[ok, 0], return_counts=True)
-        ok[ok] &= np.isin(i[ok, 0], took[count == 1])
-        alive[rows[~ok]] = False
-        got = rows[ok]
-        new = frame[i[ok, 0]]
-        vel[got] = new - pos[got]
-        pos[got] = new
-        out[t, got] = new
-    return out
-
-
-def body_like(
-    cloud: PointCloud, chain: np.ndarray, spacing: float, *, seconds: float = _RIGID_SECONDS
-) -> np.ndarray:
-    """Flag chain points that move rigidly with body points (beyond the thesis).
-
-    A hand marker at the end of a held rope, or a body marker the chain took where a
-    rope marker is hidden, moves rigidly with its neighbours on the body; a rope
-    marker does not (rope markers keep their distance only to their own neighbours
-    along the rope, which are in the chain). Frame 0's points are followed
-    (:func:`follow_points`, gate a quarter of the spacing) for ``seconds``; a chain
-    point is body-like when at least two points off the chain, within three
-    spacings of it in frame 0, keep their distance to it within a tenth of the
-    spacing over all frames both are followed, and those frames include the chain
-    point moving at least half a spacing away from where it started. A point never
-    followed that far gives no evidence and stays in the chain.
-
-    A body marker that does not move (a shin beside the rope's middle) is caught by
-    the rope's length instead: two rope markers about ``k`` spacings apart in frame
-    0 never get farther apart than ``k`` spacings of rope (25 % tolerance). A point
-    whose links to both chain neighbours (its one link, at an end) stretch beyond
-    that while followed is body-like (an interior point only: one link stretched at
-    an end may be the following's mistake where the held end is among hand markers).
-
-    Parameters
-    ----------
-    cloud : PointCloud
-    chain : (C,) int
-        Indices of the chain's points among frame 0's points.
-    spacing : float, metres
-        The chain's median link.
-    seconds : float
-
-    Returns
-    -------
-    (C,) bool
-        True for a body-like point.
-    """
-    chain = np.asarray(chain, dtype=np.int64)
-    n_follow = int(round(seconds * cloud.rate))
-    traj = follow_points(cloud, n_follow, 0.25 * spacing)  # (F, N0, 3)
-    p0 = traj[0]
-    off_chain = np.ones(p0.shape[0], dtype=bool)
-    off_chain[chain] = False
-    out = np.zeros(chain.size, dtype=bool)
-    near = cKDTree(p0).query_ball_point(p0[chain], r=_RIGID_RADIUS * spacing)
-    for c, (point, partners) in enumerate(zip(chain.tolist(), near, strict=True)):
-        q = np.asarray([k for k in partners if off_chain[k]], dtype=np.int64)
-        if q.size == 0:
-            continue
-        both = np.isfinite(traj[:, point, 0])[:, None] & np.isfinite(traj[:, q, 0])  # (F, Q)
-        moved = np.linalg.norm(traj[:, point] - p0[point], axis=1)  # (F,) NaN when lost
-        far = np.nan_to_num(moved, nan=0.0) >= 0.5 * spacing
-        d = np.linalg.norm(traj[:, q] - traj[:, point][:, None], axis=2)  # (F, Q)
-        hi = np.where(both, d, -np.inf).max(axis=0)
-        lo = np.where(both, d, np.inf).min(axis=0)
-        seen_moving = (both & far[:, None]).any(axis=0)
-        rigid = seen_moving & (hi - lo < _RIGID_RANGE * spacing)
-        out[c] = int(rigid.sum()) >= _RIGID_PARTNERS
-    # Links a rope cannot make: the chord between two rope markers never exceeds
-    # the rope between them (k spacings for a link of about k spacings in frame 0).
-    rest = np.flatnonzero(~out)  # the chain without its rigid (hand) points
-    if rest.size >= 3:
-        kept = chain[rest]
-        a, b = traj[:, kept[:-1]], traj[:, kept[1:]]  # (F, C'-1, 3)
-        chord = np.nan_to_num(np.linalg.norm(b - a, axis=2), nan=0.0).max(axis=0)
-        k = np.maximum(1.0, np.rint(np.linalg.norm(p0[kept[1:]] - p0[kept[:-1]], axis=1) / spacing))
-        stretched = chord > (1.0 + _STRETCH) * k * spacing
-        # interior points only: ends answer to the rigidity test (a held end follows a hand)
-        out[rest[1:-1]] |= stretched[:-1] & stretched[1:]
-    return out
-
-
 # ------------------------------------------------------------------------------ init
 def _insert_unseen(
     sel: np.ndarray, mean: np.ndarray, spacing: np.ndarray
@@ -666,6 +547,65 @@ def _adopt_at_inserted(
     return out
 
 
+def _select_rope_points(
+    cloud: PointCloud,
+    box: Sequence[float] | np.ndarray | None,
+    markers: Sequence[int] | np.ndarray | None,
+    window_seconds: float,
+) -> tuple[np.ndarray, str, np.ndarray]:
+    """The rope's points among frame 0's: inside ``box``, the given ``markers``, or
+    (neither given) found automatically without its body-like points.
+
+    Returns the (K,) int64 indices, the method (``box``, ``markers``, ``auto``) and the
+    (R,) int64 body-like points dropped from the automatic chain.
+    """
+    p0 = cloud.frame(0)
+    n0 = p0.shape[0]
+    rejected = np.zeros(0, dtype=np.int64)
+    if box is not None:
+        b = np.asarray(box, dtype=np.float64).reshape(-1)
+        if b.shape != (6,) or not np.all(np.isfinite(b)):
+            raise ValidationError(
+                f"box: expected 6 finite numbers x0,y0,z0,x1,y1,z1 (metres), got {b.tolist()}"
+            )
+        lo = np.minimum(b[:3], b[3:])
+        hi = np.maximum(b[:3], b[3:])
+        sel = np.nonzero(np.all((p0 >= lo) & (p0 <= hi), axis=1))[0]
+        method = "box"
+    elif markers is not None:
+        sel = np.asarray(markers).reshape(-1)
+        if sel.size and not np.issubdtype(sel.dtype, np.integer):
+            raise ValidationError("markers: expected integer point indices")
+        sel = sel.astype(np.int64)
+        bad = (sel < 0) | (sel >= n0)
+        if bad.any():
+            raise ValidationError(
+                f"markers: index {int(sel[bad][0])} is out of range: frame 0 has {n0} points"
+            )
+        if np.unique(sel).size != sel.size:
+            raise ValidationError("markers: an index is given twice")
+        method = "markers"
+    else:
+        sel = find_rope_chain(cloud, window_seconds=window_seconds)
+        if sel.size >= 2:
+            link = float(np.median(np.linalg.norm(np.diff(p0[sel], axis=0), axis=1)))
+            body = body_like(cloud, sel, link)
+            rejected = sel[body]
+            sel = sel[~body]
+        method = "auto"
+    return sel, method, rejected
+
+
+def _default_gamma(start: np.ndarray) -> float:
+    """γ, metres: ``GAMMA_FRACTION`` of the median nearest-neighbour distance of the
+    selected points ``start`` (K, 3)."""
+    nn, _ = cKDTree(start).query(start, k=2)
+    gamma = GAMMA_FRACTION * float(np.median(nn[:, 1]))
+    if not gamma > 0:
+        raise ValidationError("rope: the selected points coincide; cannot derive γ")
+    return gamma
+
+
 def init_rope(
     cloud: PointCloud,
     *,
@@ -719,7 +659,6 @@ def init_rope(
         selected or surviving the window.
     """
     chosen = sum([box is not None, markers is not None, bool(auto)])
-    rejected = np.zeros(0, dtype=np.int64)
     if chosen != 1:
         raise ValidationError(
             "rope: give exactly one of box=, markers= or auto=True to select the rope"
@@ -727,48 +666,14 @@ def init_rope(
     if cloud.n_frames < 2:
         raise ValidationError(f"cloud: need at least 2 frames to track, got {cloud.n_frames}")
     p0 = cloud.frame(0)
-    n0 = p0.shape[0]
-    if box is not None:
-        b = np.asarray(box, dtype=np.float64).reshape(-1)
-        if b.shape != (6,) or not np.all(np.isfinite(b)):
-            raise ValidationError(
-                f"box: expected 6 finite numbers x0,y0,z0,x1,y1,z1 (metres), got {b.tolist()}"
-            )
-        lo = np.minimum(b[:3], b[3:])
-        hi = np.maximum(b[:3], b[3:])
-        sel = np.nonzero(np.all((p0 >= lo) & (p0 <= hi), axis=1))[0]
-        method = "box"
-    elif markers is not None:
-        sel = np.asarray(markers).reshape(-1)
-        if sel.size and not np.issubdtype(sel.dtype, np.integer):
-            raise ValidationError("markers: expected integer point indices")
-        sel = sel.astype(np.int64)
-        bad = (sel < 0) | (sel >= n0)
-        if bad.any():
-            raise ValidationError(
-                f"markers: index {int(sel[bad][0])} is out of range: frame 0 has {n0} points"
-            )
-        if np.unique(sel).size != sel.size:
-            raise ValidationError("markers: an index is given twice")
-        method = "markers"
-    else:
-        sel = find_rope_chain(cloud, window_seconds=window_seconds)
-        if sel.size >= 2:
-            link = float(np.median(np.linalg.norm(np.diff(p0[sel], axis=0), axis=1)))
-            body = body_like(cloud, sel, link)
-            rejected = sel[body]
-            sel = sel[~body]
-        method = "auto"
+    sel, method, rejected = _select_rope_points(cloud, box, markers, window_seconds)
     if sel.size < 3:
         raise ValidationError(
             f"rope: {sel.size} points selected in frame 0 ({method}); need at least 3"
         )
     start = p0[sel]
     if gamma is None:
-        nn, _ = cKDTree(start).query(start, k=2)
-        gamma = GAMMA_FRACTION * float(np.median(nn[:, 1]))
-        if not gamma > 0:
-            raise ValidationError("rope: the selected points coincide; cannot derive γ")
+        gamma = _default_gamma(start)
     n_window = _window_frames(cloud, window_seconds)
     if max_temp_markers is None:
         max_temp_markers = max(1, int(round(cloud.rate)))

@@ -415,7 +415,7 @@ def _load_file(path: Path, units: str | None) -> list[Layer]:
         options = {"units": units} if units and ext == ".trc" else {}
         return [_marker_layer(name, io.read(path, **options), path)]
     if ext == ".csv":
-        from skincap.tracking.outputs import is_rope_curve_csv
+        from skincap.io.rope_curve import is_rope_curve_csv
 
         if is_rope_curve_csv(path):
             return [_read_rope_curve(path)]
@@ -478,7 +478,8 @@ def _read_static_mesh(path: Path, units: str | None) -> Mesh:
 def _gltf_layers(path: Path) -> list[Layer]:
     """The mesh of a glTF, skinned by its first animation, and the skin's joints."""
     from skincap.deform.skeletal.deformers import make_deformer
-    from skincap.io.gltf.reader import read_gltf, read_gltf_animation
+    from skincap.io.gltf.animation import read_gltf_animation
+    from skincap.io.gltf.reader import read_gltf
 
     mesh = read_gltf(path)
     anim = read_gltf_animation(path) if mesh.skin is not None else None
@@ -606,7 +607,7 @@ def _fan_triangles(counts: np.ndarray, indices: np.ndarray, path: Path) -> np.nd
 
 
 def _read_rope_curve(path: Path) -> CurveLayer:
-    from skincap.tracking.outputs import read_rope_curve
+    from skincap.io.rope_curve import read_rope_curve
 
     curves, rate = read_rope_curve(path)
     return CurveLayer(path.name, rate, path, curves=curves)

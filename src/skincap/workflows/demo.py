@@ -312,8 +312,8 @@ def _track(
 ) -> dict:
     from skincap.evaluate.tracking import classify_points, evaluate_tracking
     from skincap.tracking.init import init_rope
-    from skincap.tracking.outputs import write_track_outputs
     from skincap.tracking.tracker import track_rope
+    from skincap.workflows.track_file import write_track_outputs
 
     with steps.step(0.55, "rope tracking"):
         init = init_rope(take.points, auto=True)

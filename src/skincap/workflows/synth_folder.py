@@ -34,12 +34,13 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import Progress
 from skincap.errors import OutputExistsError
 from skincap.io._common import atomic_output
 from skincap.synth.corrupt import CorruptionTruth
 from skincap.synth.generate import SynthCapture
 
-__all__ = ["write_synth_outputs", "OUTPUT_FILES"]
+__all__ = ["synth_folder", "write_synth_outputs", "OUTPUT_FILES"]
 
 OUTPUT_FILES = (
     "capture.c3d",
@@ -170,3 +171,200 @@ def _jsonable(value: Any) -> Any:
     if isinstance(value, float) and not np.isfinite(value):
         return None
     return value
+
+
+def synth_folder(
+    output: str | os.PathLike[str],
+    *,
+    body: str = "procedural",
+    motion: str = "jumprope",
+    markers: str = "dense",
+    rope: str = "none",
+    frames: int | None = None,
+    seconds: float | None = None,
+    rate: float = 120.0,
+    vertices: int = 20_000,
+    noise_mm: float = 0.5,
+    soft_tissue: float = 1.0,
+    units: str | None = None,
+    spikes: int = 0,
+    swaps: int = 0,
+    prop: bool = False,
+    seed: int = 0,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> SynthCapture:
+    """Generate a synthetic capture with exact ground truth and write it to ``output``.
+
+    Parameters
+    ----------
+    output : path-like
+        The folder (created); its files are :data:`OUTPUT_FILES`.
+    body : {"procedural", "makehuman"}
+        Swept elliptic sections of ``vertices`` vertices, or the shipped CC0 rig.
+    motion : str
+        A built-in clip (:func:`skincap.synth.inputs.build_motion`) or a ``.bvh`` file
+        (length unit ``units``, guessed when None).
+    markers : {"dense", "sparse"}
+        About 350 markers (Park & Hodgins) or about 41 landmarks.
+    rope : {"none", "jump", "whip"}
+    frames, seconds : optional
+        Length (at most one); default the clip's 4 s or the whole BVH. ``rate`` (Hz)
+        is the capture rate of built-in clips.
+    noise_mm, soft_tissue : float
+        Gaussian noise of the reconstructed markers (mm) and the scale of bulge,
+        jiggle and breathing (0 switches them off).
+    spikes, swaps, prop
+        Real-world corruption put into ``capture.c3d`` (and recorded in
+        ``truth/corruption.json``).
+    seed : int
+        The same seed gives the same bytes.
+    force : bool
+        Replace outputs of an earlier run (checked before anything is generated).
+    progress : Progress, optional
+
+    Returns
+    -------
+    SynthCapture
+        What was written; ``summary`` holds the figures of ``summary.json``.
+
+    Raises
+    ------
+    FormatError
+        An option out of range (named as the CLI option), or corruption the take
+        cannot hold.
+    """
+    from skincap.errors import FormatError, ValidationError
+    from skincap.io.output_safety import guard_outputs
+    from skincap.synth.generate import generate_capture
+    from skincap.synth.inputs import build_body, build_motion
+
+    root = Path(output)
+    motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
+    report = progress if progress is not None else (lambda fraction, label: None)
+    with guard_outputs(
+        [motion_file], [root / name for name in OUTPUT_FILES], folders=[root], force=force
+    ):
+        if frames is not None and seconds is not None:
+            raise FormatError(root, "give --frames or --seconds, not both")
+        if frames is not None and frames < 1 or seconds is not None and seconds <= 0:
+            raise FormatError(root, "--frames/--seconds must be positive")
+        if markers not in ("dense", "sparse") or rope not in ("none", "jump", "whip"):
+            raise FormatError(root, "--markers must be dense or sparse; --rope none, jump or whip")
+        if soft_tissue < 0 or noise_mm < 0:
+            raise FormatError(root, "--soft-tissue and --noise-mm must not be negative")
+        if spikes < 0 or swaps < 0:
+            raise FormatError(root, "--spikes and --swaps must not be negative")
+        report(0.0, f"{body} body")
+        mesh = build_body(body, n_vertices=vertices, seed=seed)
+        report(0.05, "motion")
+        take = build_motion(
+            mesh, motion, frames=frames, seconds=seconds, rate=rate, units=units, seed=seed
+        )
+        result = generate_capture(
+            mesh,
+            take,
+            markers=markers,  # type: ignore[arg-type]
+            rope=rope,  # type: ignore[arg-type]
+            bulge=soft_tissue,
+            jiggle=soft_tissue,
+            breathing=soft_tissue,
+            noise_mm=noise_mm,
+            seed=seed,
+            progress=lambda fraction, label: report(0.1 + 0.8 * fraction, label),
+        )
+        corruption = None
+        if spikes or swaps or prop:
+            from skincap.synth.corrupt import corrupt_capture
+
+            try:
+                result.capture, corruption = corrupt_capture(
+                    result.capture, spikes=spikes, swaps=swaps, prop=prop, seed=seed + 1
+                )
+            except ValidationError as exc:
+                raise FormatError(root, str(exc)) from None
+        report(0.9, "writing")
+        root.mkdir(parents=True, exist_ok=True)
+        write_synth_outputs(result, root, force=force, corruption=corruption)
+    return result
+
+
+def real_rope_folder(
+    output: str | os.PathLike[str],
+    source: str | os.PathLike[str],
+    *,
+    rope: str,
+    hands: str | None = None,
+    frames: int | None = None,
+    seconds: float | None = None,
+    noise_mm: float = 0.5,
+    seed: int = 0,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> SynthCapture:
+    """``skincap synth --real-markers``: a PBD rope in a real capture's hands, written out.
+
+    Reads the labelled capture ``source`` (C3D, TRC, CSV), keeps its first ``frames``
+    (or ``seconds``), builds the take with
+    :func:`skincap.synth.real_capture.real_capture_with_rope` (``hands`` as the CLI
+    gives it: ``L1,L2[:R1,R2]``, found by name when None) and writes it with
+    :func:`write_synth_outputs` (no skin, motion or marker surface files).
+
+    Raises
+    ------
+    FormatError
+        An option out of range (named as the CLI option), a capture that is not
+        labelled markers, or hands that cannot be found.
+    """
+    from skincap import io
+    from skincap.errors import FormatError, ValidationError
+    from skincap.io.output_safety import guard_outputs
+    from skincap.synth.real_capture import real_capture_with_rope
+    from skincap.types import MarkerSet
+
+    root = Path(output)
+    report = progress if progress is not None else (lambda fraction, label: None)
+    with guard_outputs(
+        [Path(source)], [root / name for name in OUTPUT_FILES], folders=[root], force=force
+    ):
+        if rope not in ("whip", "jump"):
+            raise FormatError(root, "--real-markers needs --rope whip or --rope jump")
+        if frames is not None and seconds is not None:
+            raise FormatError(root, "give --frames or --seconds, not both")
+        if frames is not None and frames < 2 or seconds is not None and seconds <= 0:
+            raise FormatError(root, "--frames must be at least 2 and --seconds positive")
+        if noise_mm < 0:
+            raise FormatError(root, "--noise-mm must not be negative")
+        groups = None
+        if hands is not None:
+            groups = [[n for n in part.split(",") if n.strip()] for part in hands.split(":")]
+            if not 1 <= len(groups) <= 2 or not all(groups):
+                raise FormatError(root, f"--hands: expected L1,L2[:R1,R2], got {hands!r}")
+        report(0.0, "reading")
+        markers = io.read(source)
+        if not isinstance(markers, MarkerSet) or all(
+            label.startswith("*") for label in markers.labels
+        ):
+            raise FormatError(source, "--real-markers needs a capture of labelled markers")
+        n = markers.n_frames
+        if frames is not None:
+            n = min(n, frames)
+        elif seconds is not None:
+            n = min(n, max(2, int(round(seconds * markers.rate))))
+        markers = MarkerSet(markers.positions[:n], markers.labels, markers.rate, meta=markers.meta)
+        try:
+            result = real_capture_with_rope(
+                markers,
+                rope=rope,  # type: ignore[arg-type]
+                hands=groups,
+                noise_mm=noise_mm,
+                seed=seed,
+                progress=lambda fraction, label: report(0.05 + 0.85 * fraction, label),
+            )
+        except ValidationError as exc:
+            raise FormatError(source, str(exc)) from None
+        result.summary["source"] = Path(source).name
+        report(0.9, "writing")
+        root.mkdir(parents=True, exist_ok=True)
+        write_synth_outputs(result, root, force=force)
+    return result

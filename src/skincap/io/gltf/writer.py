@@ -179,7 +179,7 @@ def _check_inputs(mesh: Mesh, motion: Motion) -> Skin:
         raise ValidationError(
             f"mesh: needs vertices and triangles, got {mesh.n_vertices} vertices and {mesh.n_faces} triangles"
         )
-    skel = mesh.skin.skeleton
+    skel = skin.skeleton
     mnames, snames = motion.skeleton.names, skel.names
     if mnames != snames:
         if len(mnames) != len(snames):

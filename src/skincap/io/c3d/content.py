@@ -211,7 +211,7 @@ class C3dContent:
             p = self.parameter("ANALOG", "LABELS" + (str(k) if k > 1 else ""))
             if p is None or p.type != -1:
                 break
-            out.extend(p.value)  # type: ignore[arg-type]
+            out.extend(p.value)
             k += 1
         return out[: self.n_analog_channels]
 

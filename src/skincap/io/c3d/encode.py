@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from skincap.errors import FormatError
-from skincap.io.c3d_content import TYPE_SIZES, C3dGroup, C3dParameter, HeaderEvents
+from skincap.io.c3d.content import TYPE_SIZES, C3dGroup, C3dParameter, HeaderEvents
 from skincap.io.narrowing import check_float32
 
 __all__ = ["C3dFrames", "encode_c3d", "char_parameter", "number_parameter"]
@@ -200,11 +200,11 @@ def encode_c3d(
     """
     t, n = frames.invalid.shape
     channels = frames.analogs.shape[0]
-    params, data_start_at = _parameter_section(groups, target)
-    data_block = 2 + len(params) // _BLOCK  # header is block 1, parameters from block 2
+    section, data_start_at = _parameter_section(groups, target)
+    data_block = 2 + len(section) // _BLOCK  # header is block 1, parameters from block 2
     if data_start_at is None:
         raise FormatError(target, "internal: POINT:DATA_START missing")
-    params = bytearray(params)
+    params = bytearray(section)
     struct.pack_into("<H", params, data_start_at, data_block)
 
     header = bytearray(_BLOCK)

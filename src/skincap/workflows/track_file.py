@@ -1,39 +1,141 @@
-"""Files of ``skincap track``: the rope, the body points, the rope curve, a report.
+"""``skincap track`` as a file-in, folder-out workflow: read points, track the rope, write.
 
-This is the composition layer between the tracker and :mod:`skincap.io` (the CLI
-calls it); the tracking algorithms themselves never import io.
+The output folder holds (:data:`OUTPUT_NAMES`):
+
+``rope.c3d``
+    The rope markers ``rope_00…`` in order along the rope, invented samples flagged
+    (C3D camera mask, read back as ``MarkerSet.invented``).
+``body_points.csv``
+    Every point the rope did not take, in skincap's long point format (with the
+    input's ids when it had them), ready for body labelling.
+``rope_curve.csv``
+    The rope resampled at equal arc length per frame (:mod:`skincap.io.rope_curve`).
+``report.json``
+    :func:`track_report`.
+
+This module composes :mod:`skincap.tracking` with :mod:`skincap.io`; the tracking
+algorithms themselves never touch files.
 """
 
 from __future__ import annotations
 
-import json
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from skincap.errors import FormatError, ValidationError
-from skincap.io._common import atomic_output
+from skincap.errors import FormatError, OutputExistsError, ValidationError
+from skincap.io.json_file import write_json
+from skincap.io.rope_curve import write_rope_curve
 from skincap.tracking.curve import resample_by_arclength
 from skincap.tracking.tracker import RopeTrack
-from skincap.types import PointCloud
+from skincap.types import MarkerSet, PointCloud
+from skincap.workflows.progress import FrameProgress
 
 __all__ = [
     "OUTPUT_NAMES",
-    "ROPE_CURVE_HEADER",
+    "read_track_points",
+    "track_file",
     "track_report",
     "write_track_outputs",
-    "read_rope_curve",
-    "is_rope_curve_csv",
 ]
 
 #: The files written into the output folder.
 OUTPUT_NAMES = ("rope.c3d", "body_points.csv", "rope_curve.csv", "report.json")
-#: First line of ``rope_curve.csv``.
-ROPE_CURVE_HEADER = "frame,s,x,y,z"
-#: Rate of a ``rope_curve.csv`` without a ``report.json`` beside it, Hz.
-DEFAULT_CURVE_RATE = 120.0
+
+
+def read_track_points(path: str | os.PathLike[str]) -> PointCloud:
+    """The input of ``track`` as an un-indexed PointCloud: long point CSV, OptiTrack CSV or C3D.
+
+    A MarkerSet (OptiTrack CSV, C3D) must hold only unlabelled ``*N`` points; its
+    labels are dropped (the tracker sees points, not trajectories).
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read, holds labelled markers, or is not a capture.
+    """
+    from skincap import io
+
+    obj = io.read(path)
+    if isinstance(obj, PointCloud):
+        return obj
+    if isinstance(obj, MarkerSet):
+        labelled = [label for label in obj.labels if not label.startswith("*")]
+        if labelled:
+            raise FormatError(
+                path,
+                f"track reads un-indexed points, but {len(labelled)} markers are labelled "
+                f"(e.g. {labelled[0]!r}); give a points CSV or a file of '*N' points",
+            )
+        return PointCloud.from_markerset(obj, keep_ids=False)
+    raise FormatError(path, "track reads a points CSV, an OptiTrack CSV or a C3D of '*N' points")
+
+
+def track_file(
+    input_file: str | os.PathLike[str],
+    folder: str | os.PathLike[str],
+    *,
+    box: Sequence[float] | None = None,
+    markers: Sequence[int] | None = None,
+    auto: bool = False,
+    window_seconds: float = 0.5,
+    force: bool = False,
+    progress: FrameProgress | None = None,
+) -> dict[str, Any]:
+    """Track the rope in ``input_file`` and write :data:`OUTPUT_NAMES` into ``folder``.
+
+    Parameters
+    ----------
+    input_file : path-like
+        Long points CSV, OptiTrack CSV or C3D of ``*N`` points (:func:`read_track_points`).
+    folder : path-like
+        Created if missing.
+    box, markers, auto
+        Exactly one selects the rope in frame 0: a box ``x0,y0,z0,x1,y1,z1`` (metres,
+        Y up), indices among frame 0's points, or ``auto=True``
+        (:func:`skincap.tracking.init.init_rope`).
+    window_seconds : float
+        Seconds at the start where the rope hangs still.
+    force : bool
+        Replace existing outputs; otherwise an existing one is refused before
+        anything is read.
+    progress : FrameProgress, optional
+        Called with the frames tracked so far.
+
+    Returns
+    -------
+    dict
+        The report (:func:`track_report`).
+    """
+    from skincap.io.output_safety import guard_outputs
+    from skincap.tracking.init import init_rope
+    from skincap.tracking.tracker import track_rope
+
+    out = Path(folder)
+    outputs = [out / name for name in OUTPUT_NAMES]
+    with guard_outputs([input_file], outputs, folders=[out], force=force):
+        if sum([box is not None, markers is not None, auto]) != 1:
+            raise ValidationError("track_file: give exactly one of box, markers or auto=True")
+        cloud = read_track_points(input_file)
+        if box is not None:
+            init = init_rope(cloud, box=box, window_seconds=window_seconds)
+        elif markers is not None:
+            init = init_rope(cloud, markers=markers, window_seconds=window_seconds)
+        else:
+            init = init_rope(cloud, auto=True, window_seconds=window_seconds)
+        frames = cloud.n_frames
+        if progress is not None:
+            progress(0.0, frames)
+
+        def advance(fraction: float) -> None:
+            if progress is not None:
+                progress(fraction * frames, frames)
+
+        result = track_rope(cloud, init, progress=advance)
+        return write_track_outputs(cloud, result, out, force=force)
 
 
 def _body_cloud(cloud: PointCloud, track: RopeTrack) -> PointCloud:
@@ -137,8 +239,9 @@ def write_track_outputs(
         input's ids when it had them), ready for body labelling.
     ``rope_curve.csv``
         ``frame,s,x,y,z``: the rope resampled at ``curve_samples`` points of equal
-        arc length per frame (``s`` metres from the first marker), Y up, metres;
-        through the markers that are not lost (NaN rows where fewer than two are left).
+        arc length per frame (``s`` metres from the first marker), Y up, metres
+        (:func:`skincap.io.rope_curve.write_rope_curve`); through the markers that are
+        not lost (NaN rows where fewer than two are left).
     ``report.json``
         :func:`track_report`.
 
@@ -160,7 +263,6 @@ def write_track_outputs(
     dict
         The report.
     """
-    from skincap.errors import OutputExistsError
     from skincap.io.c3d import write_c3d
     from skincap.io.csv import write_points_csv
 
@@ -175,76 +277,7 @@ def write_track_outputs(
     write_c3d(track.to_markerset(), out / "rope.c3d", force=force)
     write_points_csv(_body_cloud(cloud, track), out / "body_points.csv", force=force)
     s, pts = _resample_finite(track.positions, curve_samples)
-    t_frames, n = s.shape
-    table = np.column_stack([np.repeat(np.arange(t_frames), n), s.ravel(), pts.reshape(-1, 3)])
-    lines = [ROPE_CURVE_HEADER]
-    if table.size:
-        cols = [np.char.mod("%d", table[:, 0].astype(np.int64))]
-        cols += [np.char.mod("%.9g", table[:, c]) for c in range(1, 5)]
-        lines.extend(",".join(r) for r in np.stack(cols, axis=1).tolist())
-    with atomic_output(out / "rope_curve.csv", force=force) as tmp:
-        tmp.write_text("\n".join(lines) + "\n", encoding="utf-8", newline="\n")
+    write_rope_curve(out / "rope_curve.csv", s, pts, force=force)
     report = track_report(cloud, track)
-    with atomic_output(out / "report.json", force=force) as tmp:
-        tmp.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+    write_json(out / "report.json", report, force=force, indent=2)
     return report
-
-
-def is_rope_curve_csv(path: str | os.PathLike[str]) -> bool:
-    """True when the file's first line is the ``rope_curve.csv`` header."""
-    p = Path(path)
-    try:
-        with p.open("rb") as fh:
-            first = fh.readline(256).decode("utf-8", errors="replace").strip().lower()
-    except OSError as exc:
-        raise FormatError(p, f"cannot read: {exc.strerror}") from None
-    return first.replace(" ", "") == ROPE_CURVE_HEADER
-
-
-def read_rope_curve(path: str | os.PathLike[str]) -> tuple[np.ndarray, float]:
-    """Read a ``rope_curve.csv`` written by :func:`write_track_outputs`.
-
-    Returns
-    -------
-    curves : (T, K, 3) float64, metres
-        The resampled rope per frame (NaN for frames the file lacks).
-    rate : float, Hz
-        From the ``report.json`` beside it, else :data:`DEFAULT_CURVE_RATE`.
-
-    Raises
-    ------
-    FormatError
-        No rows, rows without 5 columns, decreasing frames, or frames with different
-        sample counts.
-    """
-    p = Path(path)
-    try:
-        table = np.loadtxt(p, delimiter=",", skiprows=1, ndmin=2)
-    except ValueError as exc:
-        raise FormatError(p, f"rope curve table: {exc}") from None
-    if table.size == 0:
-        raise FormatError(p, "rope curve has no rows")
-    if table.shape[1] != 5:
-        raise FormatError(
-            p, f"rope curve rows need 5 columns (frame,s,x,y,z), got {table.shape[1]}"
-        )
-    frames = table[:, 0].astype(np.int64)
-    if (np.diff(frames) < 0).any() or frames[0] < 0:
-        raise FormatError(p, "rope curve frames must start at >= 0 and not decrease")
-    counts = np.bincount(frames)
-    k = int(counts.max())
-    if (counts[counts > 0] != k).any():
-        raise FormatError(p, "rope curve: every frame needs the same number of samples")
-    curves = np.full((counts.size, k, 3), np.nan)
-    slot = np.arange(frames.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    curves[frames, slot] = table[:, 2:5]
-    rate = DEFAULT_CURVE_RATE
-    report = p.with_name("report.json")
-    if report.is_file():
-        try:
-            value = json.loads(report.read_text(encoding="utf-8")).get("rate")
-            if isinstance(value, (int, float)) and value > 0:
-                rate = float(value)
-        except (OSError, ValueError, AttributeError):
-            pass
-    return curves, rate

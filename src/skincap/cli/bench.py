@@ -1,0 +1,69 @@
+"""``skincap bench io|skin|synth``: speed ratios against peers measured in the same run.
+
+``bench clean`` and ``bench track`` live beside their verbs (:mod:`skincap.cli.clean`,
+:mod:`skincap.cli.track`)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+import typer
+
+from skincap.cli._app import _user_errors, bench_app, print_bench_results
+
+
+@bench_app.command("io")
+def bench_io(
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """BVH read and FK against bvhio, our C3D read against raw ezc3d, as ratios.
+
+    Example: skincap bench io --repeat 3
+    """
+    from skincap.evaluate.bench.common import run_io_benchmarks
+
+    with _user_errors():
+        results = run_io_benchmarks(repeat=repeat)
+    print_bench_results(results, json_output)
+
+
+@bench_app.command("skin")
+def bench_skin(
+    vertices: Annotated[int, typer.Option(help="Mesh vertices.")] = 50_000,
+    influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
+    frames: Annotated[int, typer.Option(help="Frames per timed batch.")] = 64,
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """LBS and DQS milliseconds per frame (numba and NumPy) against libigl and UsdSkel, as ratios.
+
+    Example: skincap bench skin --vertices 50000 --influences 4
+    """
+    from skincap.evaluate.bench.skinning import run_skinning_benchmark
+
+    with _user_errors():
+        results = run_skinning_benchmark(
+            n_vertices=vertices, n_influences=influences, n_frames=frames, repeat=repeat
+        )
+    print_bench_results(results, json_output)
+
+
+@bench_app.command("synth")
+def bench_synth(
+    frames: Annotated[int, typer.Option(help="Frames of the take (120 Hz).")] = 1000,
+    vertices: Annotated[int, typer.Option(help="Procedural body vertices.")] = 20_000,
+) -> None:
+    """Time a dense jump-rope synthetic take stage by stage, against the take's duration.
+
+    Example: skincap bench synth --frames 1000
+    """
+    from skincap.evaluate.bench.synth import run_synth_benchmark
+
+    with _user_errors():
+        results = run_synth_benchmark(frames=frames, vertices=vertices)
+    print_bench_results(results, json_output=False)

@@ -1,0 +1,385 @@
+"""``read_c3d``: a C3D file into a :class:`~skincap.types.MarkerSet` (see :mod:`skincap.io.c3d`)."""
+
+from __future__ import annotations
+
+import os
+import warnings
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from skincap.errors import (
+    FormatError,
+    MissingDependencyError,
+    UnitWarning,
+    ValidationError,
+)
+from skincap.io._common import (
+    UNIT_TO_METRES,
+    check_readable,
+    unit_scale,
+    up_rotation,
+)
+from skincap.io.c3d.checks import check_before_ezc3d
+from skincap.io.c3d.content import (
+    C3dContent,
+    C3dGroup,
+    HeaderEvents,
+)
+from skincap.io.c3d.scan import (
+    BONE_SUFFIXES,
+    MODEL_OUTPUT_GROUPS,
+    C3dLayout,
+    decode_floats,
+    scan_c3d,
+)
+from skincap.types import MarkerSet
+
+__all__ = ["read_c3d"]
+
+
+# ---------------------------------------------------------------------------- read
+def _import_ezc3d() -> Any:
+    try:
+        import ezc3d  # noqa: F401
+        from ezc3d import ezc3d as swig
+    except ImportError:  # pragma: no cover - ezc3d is a core dependency
+        raise MissingDependencyError("ezc3d", "c3d", "reading and writing C3D files") from None
+    return swig
+
+
+def _labels(layout: C3dLayout, key: str) -> list[str]:
+    """POINT:<key>, <key>2, <key>3… concatenated."""
+    out: list[str] = []
+    first = layout.params.get(("POINT", key))
+    if not isinstance(first, list):
+        return out
+    out.extend(first)
+    k = 2
+    while isinstance(layout.params.get(("POINT", f"{key}{k}")), list):
+        out.extend(layout.params[("POINT", f"{key}{k}")])
+        k += 1
+    return out
+
+
+def _unique_labels(raw: list[str]) -> tuple[list[str], dict[str, str]]:
+    """Deterministic unique labels: empty -> point_<i>, repeats -> name_2, name_3…"""
+    out: list[str] = []
+    renamed: dict[str, str] = {}
+    real = set(raw)
+    taken: set[str] = set()
+    for i, lab in enumerate(raw):
+        base = lab if lab else f"point_{i + 1}"
+        new = base
+        k = 2
+        # never take a label already used, nor one a later column really has
+        while new in taken or (new != lab and new in real):
+            new = f"{base}_{k}"
+            k += 1
+        if new != lab:
+            renamed[new] = lab
+        taken.add(new)
+        out.append(new)
+    return out, renamed
+
+
+def _up_from_screen(layout: C3dLayout, path: Path) -> tuple[str, bool]:
+    """Source up axis from POINT:Y_SCREEN; (axis, guessed)."""
+    ys = layout.params.get(("POINT", "Y_SCREEN"))
+    if not isinstance(ys, list) or not ys or not ys[0].strip():
+        return "z", True
+    val = ys[0].strip().upper().lstrip("+")
+    if val in ("Z", "Y"):
+        return val.lower(), False
+    warnings.warn(
+        f"{path}: POINT:Y_SCREEN is {ys[0]!r}; skincap handles Y or Z up only, assuming Z up",
+        UnitWarning,
+        stacklevel=3,
+    )
+    return "z", True
+
+
+def _analog_samples(layout: C3dLayout, data: bytes, n_frames: int) -> tuple[np.ndarray, int]:
+    """Analog samples as stored, (C, n_frames * ratio) float64, and the ratio."""
+    n_analog = layout.n_analog_per_frame
+    if not n_analog:
+        return np.zeros((0, 0)), 0
+    used = layout.params[("ANALOG", "USED")]
+    channels = int(used[0])  # the scan checked it is there and divides n_analog
+    ratio = n_analog // channels
+    words = 4 * layout.n_points + n_analog
+    is_float = layout.scale < 0
+    size = 4 if is_float else 2
+    block = data[layout.data_offset : layout.data_offset + n_frames * words * size]
+    if is_float:
+        with np.errstate(invalid="ignore"):  # NaN samples are carried as they are
+            flat = decode_floats(block, layout.processor)
+    else:
+        fmt = layout.params.get(("ANALOG", "FORMAT"))
+        unsigned = isinstance(fmt, list) and bool(fmt) and fmt[0].strip().upper() == "UNSIGNED"
+        ie = ">" if layout.processor == "mips" else "<"
+        flat = np.frombuffer(block, dtype=f"{ie}{'u2' if unsigned else 'i2'}").astype(np.float64)
+    frames = flat.reshape(n_frames, words)[:, 4 * layout.n_points :]  # (T, ratio * C)
+    # each frame holds `ratio` sub-frames of every channel: -> (C, T * ratio)
+    samples = frames.reshape(n_frames, ratio, channels).transpose(2, 0, 1)
+    return samples.reshape(channels, n_frames * ratio), ratio
+
+
+def _header_events(layout: C3dLayout, data: bytes) -> HeaderEvents | None:
+    """The header's event block (bytes 294-467), or None when it holds no event."""
+    ie = ">" if layout.processor == "mips" else "<"
+    w = np.frombuffer(data[294:302], dtype=f"{ie}u2").astype(np.int64)
+    count = int(w[3])
+    if not 0 < count <= 18:
+        return None
+    return HeaderEvents(
+        count=count,
+        times=decode_floats(data[304:376], layout.processor),
+        display=bytes(data[376:394]),
+        labels=bytes(data[396:468]),
+        label_range_present=int(w[0]),
+        label_range_block=int(w[1]),
+    )
+
+
+def _content(layout: C3dLayout, data: bytes, n_frames: int) -> C3dContent:
+    """meta["c3d"]: the file's parameters, analog samples and header events."""
+    analogs, ratio = _analog_samples(layout, data, n_frames)
+    groups = tuple(
+        C3dGroup(name=name, description=desc, locked=locked, parameters=tuple(params.values()))
+        for name, desc, locked, params in layout.records.values()
+    )
+    return C3dContent(
+        groups=groups,
+        analogs=analogs,
+        analog_ratio=ratio,
+        n_frames=n_frames,
+        first_frame=layout.first_frame,
+        events=_header_events(layout, data),
+        processor=layout.processor,
+    )
+
+
+def _guess_units(xyz: np.ndarray) -> str:
+    """'m' when every coordinate (NaN ignored) is within 20 units of the origin, else 'mm'."""
+    if xyz.size == 0:
+        return "mm"
+    biggest = float(np.fmax.reduce(np.abs(xyz).ravel()))  # NaN only when all are NaN
+    return "m" if biggest < 20.0 else "mm"
+
+
+def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "auto") -> MarkerSet:
+    """Read the labelled marker trajectories of a C3D file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The ``.c3d`` file (Intel, DEC or MIPS; integer or float data).
+    up : {"auto", "y", "z"}
+        The file's up axis. ``"auto"`` reads ``POINT:Y_SCREEN`` (``"+Z"`` means Z up,
+        ``"+Y"`` Y up) and assumes Z up when it is absent (``meta["up_guessed"]``).
+
+    Returns
+    -------
+    MarkerSet
+        ``positions`` (T, N, 3) float64 metres, Y up, NaN where missing (residual < 0
+        or exactly (0, 0, 0)); ``residuals`` (T, N) float64 metres, NaN where missing;
+        ``invented`` (T, N) bool for files written by skincap with invented samples,
+        else None; ``rate`` the exact POINT:RATE (the float32 in the file printed at
+        its shortest round-trip precision, so 59.94 stays 59.94). ``meta`` holds
+        ``source_units``, ``up``, ``first_frame`` (the header's own frame number),
+        ``model_outputs`` ({group: {label: (T, 3) float64}} in the file's units,
+        NaN where missing), ``model_output_units``, ``descriptions``,
+        ``renamed_labels``, ``zeros_as_missing``, ``point_scale``, ``screen_axes``.
+
+    Raises
+    ------
+    FormatError
+        Missing, truncated, corrupted or inconsistent file (with the byte offset).
+
+    Warns
+    -----
+    UnitWarning
+        ``POINT:UNITS`` empty or unknown: the unit is guessed (mm unless every
+        coordinate is within 20 units of the origin, then m).
+    """
+    p = check_readable(path)
+    if up not in ("auto", "y", "z"):
+        raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise FormatError(p, f"cannot read: {exc.strerror}") from None
+    check_before_ezc3d(p, data)
+    layout = scan_c3d(p, data)
+    swig = _import_ezc3d()
+    try:
+        c3d = swig.c3d(str(p), swig.Options(False, False))
+        points = c3d.get_points()
+        residuals = c3d.get_point_residuals()
+        n_frames = int(c3d.header().nbFrames())
+        rate_ez = float(c3d.header().frameRate())
+    except (RuntimeError, OSError, ValueError, IndexError, MemoryError, TypeError) as exc:
+        raise FormatError(p, f"ezc3d could not read the file: {exc}") from None
+    word = 4 if layout.scale < 0 else 2
+    frame_bytes = (4 * layout.n_points + layout.n_analog_per_frame) * word
+    # ezc3d stops quietly at the end of a truncated file: hold it to the header's count
+    declared = max(n_frames, layout.last_frame - layout.first_frame + 1)
+    need = layout.data_offset + declared * frame_bytes
+    if need > len(data):
+        raise FormatError(
+            p,
+            f"truncated: {declared} frames of {frame_bytes} bytes from byte {layout.data_offset} need {need} bytes, the file has {len(data)}",
+            offset=len(data),
+        )
+    n = layout.n_points
+    if points.shape != (4, n, n_frames) or residuals.shape != (1, n, n_frames):
+        raise FormatError(
+            p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})"
+        )
+
+    raw_labels = _labels(layout, "LABELS")
+    if len(raw_labels) < n:
+        raw_labels = raw_labels + [""] * (n - len(raw_labels))
+    raw_labels = [s.strip() for s in raw_labels[:n]]
+    descriptions = _labels(layout, "DESCRIPTIONS")
+    descriptions = (descriptions + [""] * n)[:n]
+
+    # work on ezc3d's (component, N, T) planes; one transposed copy at the end
+    xyz = points[:3]  # (3, N, T) file units, view
+    res_nt = residuals[0]  # (N, T)
+    if np.isinf(xyz).any():
+        raise FormatError(p, "point data contains infinite coordinates")
+    nan_nt = np.isnan(xyz[0]) | np.isnan(xyz[1]) | np.isnan(xyz[2])
+    neg_nt = res_nt < 0
+    zero_nt = (xyz[0] == 0.0) & (xyz[1] == 0.0) & (xyz[2] == 0.0)
+    invalid_nt = nan_nt | neg_nt  # the C3D rule
+    missing_nt = invalid_nt | zero_nt  # plus exporters' (0, 0, 0)
+    n_zero = int((zero_nt & ~invalid_nt).sum())
+
+    # model outputs -------------------------------------------------------------
+    label_index = {lab: i for i, lab in enumerate(raw_labels) if lab}
+    group_names = list(MODEL_OUTPUT_GROUPS)
+    tg = layout.params.get(("POINT", "TYPE_GROUPS"))
+    if isinstance(tg, list):
+        for g in tg:
+            g = g.strip().upper()
+            if g and g not in group_names and isinstance(layout.params.get(("POINT", g)), list):
+                group_names.append(g)
+    output_cols: dict[str, list[int]] = {}
+    taken: set[int] = set()
+    for g in group_names:
+        listed = _labels(layout, g)
+        if not listed:
+            continue
+        cols = [
+            label_index[s.strip()]
+            for s in listed
+            if s.strip() in label_index and label_index[s.strip()] not in taken
+        ]
+        if cols:
+            output_cols[g.lower()] = cols
+            taken.update(cols)
+    bone_cols = []
+    for i, lab in enumerate(raw_labels):
+        if i in taken or len(lab) < 2 or lab.startswith("*") or lab[-1] != "O":
+            continue
+        quad = [label_index.get(lab[:-1] + s) for s in BONE_SUFFIXES]
+        found = [q for q in quad if q is not None and q not in taken]
+        if len(found) == len(quad):
+            bone_cols.extend(found)
+    if bone_cols:
+        output_cols["bones"] = bone_cols
+        taken.update(bone_cols)
+
+    units_raw = layout.params.get(("POINT", "UNITS"))
+    units_str = units_raw[0].strip().lower() if isinstance(units_raw, list) and units_raw else ""
+    marker_cols = np.array([i for i in range(n) if i not in taken], dtype=np.int64)
+    all_markers = marker_cols.size == n
+    m_xyz = xyz if all_markers else xyz[:, marker_cols]  # (3, N', T)
+    m_miss = missing_nt if all_markers else missing_nt[marker_cols]  # (N', T)
+    units_guessed = units_str not in UNIT_TO_METRES
+    if units_guessed:
+        guess = _guess_units(m_xyz)
+        what = "empty" if not units_str else f"{units_str!r}, not a known length unit"
+        warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=2)
+        units_str = guess
+    scale = unit_scale(units_str)
+
+    up_src, up_guessed = _up_from_screen(layout, p) if up == "auto" else (up, False)
+
+    model_outputs: dict[str, dict[str, np.ndarray]] = {}
+    model_units: dict[str, str] = {}
+    for g, cols in output_cols.items():
+        arr = np.ascontiguousarray(xyz[:, cols].transpose(2, 1, 0))  # (T, k, 3)
+        arr[invalid_nt[cols].T] = np.nan
+        model_outputs[g] = {raw_labels[c]: arr[:, k] for k, c in enumerate(cols)}
+        unit_param = MODEL_OUTPUT_GROUPS.get(g.upper(), g.upper().rstrip("S") + "_UNITS")
+        u = layout.params.get(("POINT", unit_param))
+        if g == "bones":
+            model_units[g] = units_str
+        elif isinstance(u, list) and u and u[0].strip():
+            model_units[g] = u[0].strip()
+
+    t_n, n_m = n_frames, int(marker_cols.size)
+    rot = up_rotation(up_src)  # each row picks one source axis, with a sign
+    mpos = np.zeros((t_n, n_m, 3))  # (T, N', 3) metres, Y up
+    for k in range(3):  # three coordinates, not a loop over data
+        axis = int(np.argmax(np.abs(rot[k])))
+        np.multiply(m_xyz[axis].T, rot[k, axis] * scale, out=mpos[..., k])
+    mmiss = m_miss.T  # (T, N')
+    mpos[mmiss] = np.nan
+    mres = np.zeros((t_n, n_m))
+    np.multiply((res_nt if all_markers else res_nt[marker_cols]).T, scale, out=mres)
+    mres[mmiss] = np.nan
+    labels, renamed = _unique_labels([raw_labels[i] for i in marker_cols])
+
+    invented = None
+    sk = layout.params.get(("SKINCAP", "INVENTED_CAMERA_MASK"))
+    if sk is not None and len(sk) >= 1:
+        try:
+            masks = c3d.get_point_camera_masks()  # (7, N, T) bool
+        except (RuntimeError, ValueError) as exc:
+            raise FormatError(p, f"ezc3d could not read the camera masks: {exc}") from None
+        bits = (masks.astype(np.int64) << np.arange(7)[:, None, None]).sum(axis=0).T  # (T, N)
+        invented = (bits[:, marker_cols] == int(round(float(sk[0])))) & ~mmiss
+
+    rate_p = layout.params.get(("POINT", "RATE"))
+    rate32 = (
+        float(rate_p[0])
+        if isinstance(rate_p, np.ndarray) and rate_p.size and rate_p[0] > 0
+        else rate_ez
+    )
+    if not (np.isfinite(rate32) and rate32 > 0):
+        raise FormatError(p, f"frame rate {rate32} is not a positive number", offset=20)
+    rate = float(str(np.float32(rate32)))
+
+    xs = layout.params.get(("POINT", "X_SCREEN"))
+    ys = layout.params.get(("POINT", "Y_SCREEN"))
+    meta: dict[str, Any] = {
+        "source_format": "c3d",
+        "source_path": str(p),
+        "source_units": units_str,
+        "units_guessed": units_guessed,
+        "up": up_src,
+        "up_guessed": up_guessed,
+        "first_frame": int(layout.first_frame),
+        "point_scale": abs(float(layout.scale)),
+        "model_outputs": model_outputs,
+        "model_output_units": model_units,
+        "descriptions": [descriptions[i] for i in marker_cols],
+        "renamed_labels": renamed,
+        "zeros_as_missing": n_zero,
+        "c3d": _content(layout, data, n_frames),
+    }
+    if isinstance(xs, list) and xs and isinstance(ys, list) and ys:
+        meta["screen_axes"] = (xs[0].strip(), ys[0].strip())
+    return MarkerSet(
+        positions=mpos,
+        labels=labels,
+        rate=rate,
+        residuals=mres,
+        invented=invented,
+        meta=meta,
+    )

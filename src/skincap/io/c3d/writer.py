@@ -1,0 +1,361 @@
+"""``write_c3d``: a :class:`~skincap.types.MarkerSet` to C3D, the source's content kept
+(see :mod:`skincap.io.c3d`).
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+
+from skincap.errors import (
+    FormatError,
+    SkincapWarning,
+    ValidationError,
+)
+from skincap.io._common import (
+    UNIT_TO_METRES,
+    atomic_output,
+    from_y_up,
+    unit_scale,
+)
+from skincap.io.c3d.content import (
+    C3dContent,
+    C3dGroup,
+    C3dParameter,
+)
+from skincap.io.c3d.encode import C3dFrames, char_parameter, encode_c3d, number_parameter
+from skincap.io.c3d.scan import INVENTED_MASK, MODEL_OUTPUT_GROUPS
+from skincap.io.narrowing import FLOAT32_MAX, check_float32
+from skincap.types import MarkerSet
+
+__all__ = ["write_c3d"]
+
+
+# --------------------------------------------------------------------------- write
+def write_c3d(
+    markers: MarkerSet,
+    path: str | os.PathLike[str],
+    *,
+    force: bool = False,
+    units: str | None = None,
+    up: Literal["y", "z"] | None = None,
+) -> None:
+    """Write a MarkerSet (its model outputs and ``meta["c3d"]``) as a float C3D.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        ``positions`` (T, N, 3) metres Y up; NaN samples are written as (0, 0, 0)
+        with residual -1 (the C3D "invalid" mark; ezc3d and other readers return
+        them as missing). ``residuals`` (T, N) metres are written back (0 where
+        None); they are stored as a byte times ``POINT:SCALE`` so they are quantised
+        to ``meta["point_scale"]`` (the source file's, when the residuals fit in its
+        255 steps) or else to the smallest power of ten (file units) whose 255 steps
+        hold the largest residual.
+        ``invented`` samples get camera mask 0b1111111, declared in
+        ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
+        written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
+        Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``…, and
+        ``meta["descriptions"]`` to ``DESCRIPTIONS``, ``DESCRIPTIONS2``…; text is
+        UTF-8. ``meta["c3d"]`` (from :func:`read_c3d`) is written back as the
+        module docstring says: analogs kept when the frame count is the source's,
+        else left out with a SkincapWarning.
+    path : str or PathLike
+        Output file; refused if it exists unless ``force``.
+    units : str, optional
+        Length unit of the file; default ``meta["source_units"]`` or ``"mm"``.
+    up : {"y", "z"}, optional
+        Up axis of the file; default ``meta["up"]`` or ``"z"``.
+
+    Raises
+    ------
+    OutputExistsError, ValidationError
+    FormatError
+        A value the file cannot hold (a coordinate beyond float32, a label over 255
+        bytes), naming the value and where it is; nothing is written.
+
+    Warns
+    -----
+    SkincapWarning
+        The source's analog channels (and force plates) are left out because the
+        frame count changed.
+    """
+    if not isinstance(markers, MarkerSet):
+        raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
+    meta = markers.meta
+    units = str(units if units is not None else meta.get("source_units", "mm"))
+    scale = unit_scale(units)
+    up_key = str(up if up is not None else meta.get("up", "z")).lower()
+    if up_key not in ("y", "z"):
+        raise ValidationError(f"up: expected 'y' or 'z', got {up_key!r}")
+    t, n = markers.n_frames, markers.n_markers
+    if t == 0:
+        raise ValidationError("markers: a C3D needs at least one frame")
+
+    pos = from_y_up(markers.positions, up_key) / scale  # (T, N, 3) file units
+    miss = markers.missing
+    res = np.zeros((t, n)) if markers.residuals is None else markers.residuals / scale
+    res = np.where(np.isnan(res), 0.0, res)
+    if (res < 0).any():
+        raise ValidationError("markers.residuals: must be >= 0 (NaN allowed) where present")
+
+    labels = list(markers.labels)
+    out_pos = [pos]
+    out_miss = [miss]
+    out_res = [res]
+    groups: dict[str, list[str]] = {}
+    model_outputs = meta.get("model_outputs") or {}
+    model_units = dict(meta.get("model_output_units") or {})
+    for g, series in model_outputs.items():
+        if not series:
+            continue
+        gname = str(g).upper()
+        names = [str(k) for k in series]
+        arr = np.stack([np.asarray(v, dtype=np.float64) for v in series.values()], axis=1)
+        if arr.shape != (t, len(names), 3):
+            raise ValidationError(
+                f"meta['model_outputs'][{g!r}]: expected arrays of shape ({t}, 3), got {arr.shape[::2]}"
+            )
+        gu = model_units.get(g)
+        if gu in UNIT_TO_METRES and gu != units:
+            arr = arr * (UNIT_TO_METRES[gu] / scale)
+            model_units[g] = units
+        clash = set(names) & set(labels)
+        if clash:
+            raise ValidationError(
+                f"meta['model_outputs'][{g!r}]: labels {sorted(clash)[:5]} are also marker labels"
+            )
+        labels.extend(names)
+        out_pos.append(arr)
+        out_miss.append(np.asarray(np.isnan(arr).any(axis=2)))
+        out_res.append(np.zeros((t, len(names))))
+        groups[gname] = names
+    all_pos = np.concatenate(out_pos, axis=1)
+    all_miss = np.concatenate(out_miss, axis=1)
+    all_res = np.concatenate(out_res, axis=1)
+    all_pos[all_miss] = 0.0
+    finite_res = all_res[~all_miss]
+    rmax = float(finite_res.max()) if finite_res.size else 0.0
+    pscale = float(meta.get("point_scale", 0.0) or 0.0)
+    if not (np.isfinite(pscale) and pscale > 0 and rmax <= 255 * pscale * (1 + 1e-6)):
+        # the smallest power of ten whose 255 steps hold the largest residual
+        pscale = 10.0 ** np.ceil(np.log10(rmax / 255.0)) if rmax > 0 else 1.0
+    # stored as a byte k with residual = k * |SCALE|
+    steps = np.clip(np.round(all_res / pscale), 0, 255).astype(np.int64)
+    total = len(labels)
+    target = Path(path)
+    where_names = labels
+
+    def where(idx: tuple[int, ...]) -> str:
+        return f"point {where_names[idx[1]]!r}, frame {idx[0]}, {'xyz'[idx[2]]}"
+
+    check_float32(np.where(all_miss[..., None], 0.0, all_pos), target, where, unit=units)
+    if not (np.isfinite(markers.rate) and 0 < markers.rate <= FLOAT32_MAX):
+        raise FormatError(target, f"frame rate {markers.rate} cannot be stored as a float32")
+    first = int(meta.get("first_frame", 1))
+    if first < 0 or first > 65535:
+        raise ValidationError(f"meta['first_frame']: must be in 0..65535, got {first}")
+
+    content = meta.get("c3d")
+    if not isinstance(content, C3dContent):
+        content = None
+    keep_analogs = content is not None and content.n_frames == t
+    if content is not None and not keep_analogs and content.n_analog_channels:
+        fp = content.n_force_plates()
+        warnings.warn(
+            f"{target}: the markers have {t} frames, the source's {content.n_analog_channels} "
+            f"analog channels were aligned with {content.n_frames}: analog data"
+            f"{f' and {fp} force plates' if fp else ''} not written (they cannot be "
+            "realigned with frames that changed)",
+            SkincapWarning,
+            stacklevel=2,
+        )
+    if keep_analogs and content is not None:
+        analogs, ratio = content.analogs, content.analog_ratio
+    else:
+        analogs, ratio = np.zeros((0, 0)), 0
+
+    def num(name: str, values: Any, kind: str, scalar: bool | None = None) -> C3dParameter:
+        return number_parameter(name, values, kind, target=target, scalar=scalar)
+
+    def text(name: str, values: str | list[str]) -> C3dParameter:
+        return char_parameter(name, values, target=target)
+
+    def chunked(name: str, values: list[str]) -> list[C3dParameter]:
+        """LABELS, LABELS2, LABELS3… of at most 255 strings each."""
+        out = [text(name, values[:255])]
+        for k in range(255, len(values), 255):
+            out.append(text(f"{name}{k // 255 + 1}", values[k : k + 255]))
+        return out
+
+    # --- POINT: what describes the points is written from the MarkerSet
+    point: list[C3dParameter] = [
+        num("USED", total, "int"),
+        # int16 read as unsigned by ezc3d up to 65535; beyond, -1 and the header decide
+        num("FRAMES", t if t <= 65535 else -1, "int"),
+        num("DATA_START", 0, "int"),
+        num("SCALE", -pscale, "float"),
+        num("RATE", float(markers.rate), "float"),
+        text("UNITS", units),
+    ]
+    point += chunked("LABELS", labels)
+    descriptions = meta.get("descriptions")
+    if not (isinstance(descriptions, list) and len(descriptions) == n):
+        # columns added, removed or reordered: the source's descriptions by label
+        by_label = _source_descriptions(content) if content is not None else {}
+        descriptions = [by_label.get(lab, "") for lab in markers.labels]
+    point += chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n))
+    screen = meta.get("screen_axes")
+    if not (
+        isinstance(screen, tuple | list)
+        and len(screen) == 2
+        and str(screen[1]).upper().lstrip("+") == up_key.upper()
+    ):
+        screen = ("+X", "+Z" if up_key == "z" else "+Y")
+    point += [text("X_SCREEN", str(screen[0])), text("Y_SCREEN", str(screen[1]))]
+    source_groups = list(content.groups) if content is not None else []
+    source_point = next((g for g in source_groups if g.name.upper() == "POINT"), None)
+    if source_point is not None and source_point.get("BONES") is None:
+        # segment axes the reader recognised by their labels: the source did not list
+        # them, and the reader recognises them again without the list
+        groups.pop("BONES", None)
+    type_groups: list[str] = []
+    for gname, names in groups.items():
+        point += chunked(gname, names)  # ANGLES, ANGLES2… like LABELS
+        type_groups.extend([gname, gname[:-1] if gname.endswith("S") else gname])
+        unit_param = MODEL_OUTPUT_GROUPS.get(gname, gname.rstrip("S") + "_UNITS")
+        gu = model_units.get(gname.lower())
+        if gu and gname != "BONES":
+            point.append(text(unit_param, str(gu)))
+    if type_groups:
+        point.append(text("TYPE_GROUPS", type_groups))
+    if source_point is not None:
+        point = [_like_source(p, source_point.get(p.name)) for p in point]
+        tg = source_point.get("TYPE_GROUPS")
+        if tg is not None and tg.type == -1:
+            listed = {str(v).strip().upper() for v in tg.value}
+            if set(type_groups) <= listed:  # the source's list still holds: keep it as it is
+                point = [p for p in point if p.name != "TYPE_GROUPS"] + [tg]
+    written = {p.name for p in point}
+
+    def rewritten(name: str) -> bool:
+        """A POINT parameter of the source that the MarkerSet's points replace."""
+        name = name.upper()
+        if name in written or name in ("LONG_FRAMES", "TYPE_GROUPS"):
+            return True
+        listing = {"LABELS", "DESCRIPTIONS", *MODEL_OUTPUT_GROUPS, *groups}
+        listing |= {g.rstrip("S") + "_UNITS" for g in groups} | set(MODEL_OUTPUT_GROUPS.values())
+        return name.rstrip("0123456789") in listing
+
+    out_groups: list[C3dGroup] = []
+    seen: set[str] = set()
+    for g in source_groups:
+        key = g.name.upper()
+        seen.add(key)
+        if key == "POINT":
+            kept = tuple(p for p in g.parameters if not rewritten(p.name))
+            out_groups.append(replace(g, parameters=tuple(point) + kept))
+        elif key == "ANALOG" and not keep_analogs:
+            out_groups.append(replace(g, parameters=_no_analogs(num, text)))
+        elif key == "FORCE_PLATFORM" and not keep_analogs:
+            out_groups.append(replace(g, parameters=(num("USED", 0, "int"),)))
+        elif key == "TRIAL" and not keep_analogs:
+            # frame numbers of another frame count
+            kept = tuple(p for p in g.parameters if not p.name.upper().startswith("ACTUAL_"))
+            out_groups.append(replace(g, parameters=kept))
+        elif key == "ROTATION":
+            # rotation samples are not read: their group (and its DATA_START, a block
+            # of the source) would point at nothing in this file
+            used = g.get("USED")
+            if used is not None and used.type in (1, 2) and np.any(np.asarray(used.value) > 0):
+                warnings.warn(
+                    f"{target}: the source's ROTATION data (segment rotations) is not written",
+                    SkincapWarning,
+                    stacklevel=2,
+                )
+        elif key == "SKINCAP":
+            kept = tuple(p for p in g.parameters if p.name.upper() != "INVENTED_CAMERA_MASK")
+            if kept:
+                out_groups.append(replace(g, parameters=kept))
+        else:
+            out_groups.append(g)
+    if "POINT" not in seen:
+        out_groups.insert(0, C3dGroup("POINT", parameters=tuple(point)))
+    if "ANALOG" not in seen:
+        out_groups.append(C3dGroup("ANALOG", parameters=_no_analogs(num, text)))
+    if "FORCE_PLATFORM" not in seen:
+        out_groups.append(C3dGroup("FORCE_PLATFORM", parameters=(num("USED", 0, "int"),)))
+    masks = np.zeros((t, total), dtype=np.int64)
+    if markers.invented is not None:
+        masks[:, :n] = np.where(markers.invented & ~miss, INVENTED_MASK, 0)
+        mask_param = num("INVENTED_CAMERA_MASK", INVENTED_MASK, "int")
+        for k, g in enumerate(out_groups):
+            if g.name.upper() == "SKINCAP":
+                out_groups[k] = replace(g, parameters=g.parameters + (mask_param,))
+                break
+        else:
+            out_groups.append(C3dGroup("SKINCAP", parameters=(mask_param,)))
+
+    frames = C3dFrames(
+        xyz=all_pos,
+        invalid=all_miss,
+        residual_steps=steps,
+        camera_masks=masks,
+        analogs=analogs,
+        ratio=ratio,
+    )
+    payload = encode_c3d(
+        out_groups,
+        frames,
+        first_frame=first,
+        rate=float(markers.rate),
+        point_scale=pscale,
+        events=content.events if content is not None else None,
+        target=target,
+    )
+    with atomic_output(target, force=force) as tmp:
+        tmp.write_bytes(payload)
+
+
+def _source_descriptions(content: C3dContent) -> dict[str, str]:
+    """The source file's POINT descriptions by label."""
+
+    def listed(name: str) -> list[str]:
+        out: list[str] = []
+        k = 1
+        while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
+            if p.type != -1:
+                break
+            out.extend(p.value)
+            k += 1
+        return out
+
+    return {lab: d for lab, d in zip(listed("LABELS"), listed("DESCRIPTIONS"), strict=False) if lab}
+
+
+def _like_source(new: C3dParameter, old: C3dParameter | None) -> C3dParameter:
+    """The source's record when it holds the same values; else ``new`` with its description."""
+    if old is None or old.name.upper() == "DATA_START":
+        return new
+    if old.type == new.type and old.value_equals(new):
+        return old
+    return replace(new, description=old.description, locked=old.locked)
+
+
+def _no_analogs(num: Any, text: Any) -> tuple[C3dParameter, ...]:
+    """An ANALOG group with no channel."""
+    return (
+        num("USED", 0, "int"),
+        num("RATE", 0.0, "float"),
+        num("GEN_SCALE", 1.0, "float"),
+        num("SCALE", np.zeros(0), "float", False),
+        num("OFFSET", np.zeros(0, dtype=np.int64), "int", False),
+        text("LABELS", []),
+        text("DESCRIPTIONS", []),
+        text("UNITS", []),
+    )

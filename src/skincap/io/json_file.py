@@ -1,0 +1,30 @@
+"""JSON outputs (reports, evaluations), written atomically like every other output."""
+
+from __future__ import annotations
+
+import json
+import os
+from typing import Any
+
+from skincap.io._common import atomic_output
+
+__all__ = ["write_json"]
+
+
+def write_json(
+    path: str | os.PathLike[str],
+    data: Any,
+    *,
+    force: bool = False,
+    indent: int = 1,
+    allow_nan: bool = True,
+) -> None:
+    """Write ``data`` as UTF-8 JSON with a final newline, atomically.
+
+    ``allow_nan=False`` refuses NaN and infinities (ValueError) instead of writing
+    JavaScript's ``NaN``, which strict JSON readers reject. An existing ``path`` is
+    replaced only with ``force``.
+    """
+    with atomic_output(path, force=force) as tmp:
+        text = json.dumps(data, indent=indent, allow_nan=allow_nan)
+        tmp.write_text(text + "\n", encoding="utf-8")

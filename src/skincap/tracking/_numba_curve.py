@@ -1,0 +1,213 @@
+"""The rope's curve, the neighbour velocity and F at the ends, compiled (numba).
+
+One frame at a time, the numba twins of :func:`skincap.tracking.curve.fill_interior_on_curve`
+(the Hermite curve through the measured markers in rest arc length),
+:func:`skincap.tracking.curve.settle_single_gaps`, and the thesis' ṽ (eq. 3.3) and F
+(eq. 3.6) of :mod:`skincap.tracking._steps_numpy`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from skincap.tracking._numba_search import JIT, norm3
+
+__all__ = [
+    "curve_at",
+    "fill_interior",
+    "interp_along",
+    "neighbour_velocity",
+    "predict_ends",
+    "settle",
+    "side_neighbours",
+]
+
+
+@numba.njit(**JIT)
+def side_neighbours(known):  # pragma: no cover - runs compiled
+    """Nearest known index strictly before (-1) and strictly after (M) each marker."""
+    m = known.size
+    before = np.empty(m, np.int64)
+    after = np.empty(m, np.int64)
+    last = -1
+    for j in range(m):
+        before[j] = last
+        if known[j]:
+            last = j
+    nxt = m
+    for j in range(m - 1, -1, -1):
+        after[j] = nxt
+        if known[j]:
+            nxt = j
+    return before, after
+
+
+@numba.njit(**JIT)
+def interp_along(known, values, s):  # pragma: no cover - runs compiled
+    m = known.size
+    before, after = side_neighbours(known)
+    out = np.zeros((m, 3))
+    for j in range(m):
+        if known[j]:
+            out[j] = values[j]
+            continue
+        hb, ha = before[j] >= 0, after[j] < m
+        if not (hb or ha):
+            continue
+        b = min(max(before[j], 0), m - 1)
+        a = min(max(after[j], 0), m - 1)
+        if hb and ha:
+            w = (s[j] - s[b]) / (s[a] - s[b])
+        else:
+            w = 0.0 if hb else 1.0
+        for c in range(3):
+            out[j, c] = (1.0 - w) * values[b, c] + w * values[a, c]
+    return out
+
+
+@numba.njit(**JIT)
+def _slope(x0, x1, x2, s0, s1, s2, out):  # pragma: no cover - runs compiled
+    h0 = s1 - s0
+    h1 = s2 - s1
+    for c in range(3):
+        d0 = (x1[c] - x0[c]) / (h0 if h0 > 0 else 1.0)
+        d1 = (x2[c] - x1[c]) / (h1 if h1 > 0 else 1.0)
+        if h0 > 0 and h1 > 0:
+            out[c] = (d0 * h1 + d1 * h0) / (h0 + h1)
+        elif h0 > 0:
+            out[c] = d0
+        else:
+            out[c] = d1
+
+
+@numba.njit(**JIT)
+def curve_at(x, known, s, j, a, b, before, after, out):  # pragma: no cover - runs compiled
+    """Hermite curve between known markers a < j < b at s_j (as fill_interior_on_curve)."""
+    m = known.size
+    pa = a
+    if a > 0:
+        pa = before[a] if not known[a - 1] else a - 1
+        if pa < 0:
+            pa = a
+    nb = b
+    if b < m - 1:
+        nb = after[b] if not known[b + 1] else b + 1
+        if nb >= m:
+            nb = b
+    ta = np.empty(3)
+    tb = np.empty(3)
+    _slope(x[pa], x[a], x[b], s[pa], s[a], s[b], ta)
+    _slope(x[a], x[b], x[nb], s[a], s[b], s[nb], tb)
+    h = s[b] - s[a]
+    u = (s[j] - s[a]) / h
+    u2 = u * u
+    u3 = u * u * u
+    h00 = 2 * u3 - 3 * u2 + 1
+    h10 = u3 - 2 * u2 + u
+    h01 = -2 * u3 + 3 * u2
+    h11 = u3 - u2
+    for c in range(3):
+        out[c] = h00 * x[a, c] + h10 * h * ta[c] + h01 * x[b, c] + h11 * h * tb[c]
+
+
+@numba.njit(**JIT)
+def fill_interior(x, known, s, out):  # pragma: no cover - runs compiled
+    """out = x with interior unknown markers on the curve; returns the interior mask."""
+    m = known.size
+    before, after = side_neighbours(known)
+    interior = np.zeros(m, np.bool_)
+    out[:] = x
+    for j in range(m):
+        if known[j] or before[j] < 0 or after[j] >= m:
+            continue
+        interior[j] = True
+        curve_at(x, known, s, j, before[j], after[j], before, after, out[j])
+    return interior
+
+
+@numba.njit(**JIT)
+def settle(out, known, spacing, weight):  # pragma: no cover - runs compiled
+    """As curve.settle_single_gaps on one frame, in place on ``out`` (M, 3)."""
+    m = known.size
+    if weight == 0.0:
+        return
+    for j in range(1, m - 1):
+        if known[j] or not (known[j - 1] and known[j + 1]):
+            continue
+        l1 = spacing[j - 1]
+        l2 = spacing[j]
+        d = out[j + 1] - out[j - 1]
+        c = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        if not c > 0:
+            continue
+        u = d / c
+        along = (c * c + l1 * l1 - l2 * l2) / (2.0 * c)
+        r2 = l1 * l1 - along * along
+        centre = out[j - 1] + along * u
+        off = out[j] - centre
+        off = off - (off[0] * u[0] + off[1] * u[1] + off[2] * u[2]) * u
+        on = np.sqrt(off[0] * off[0] + off[1] * off[1] + off[2] * off[2])
+        if not (r2 > 0 and on > 1e-12):
+            continue
+        scale = ((1.0 - weight) * on + weight * np.sqrt(r2)) / on
+        out[j] = centre + scale * off
+
+
+@numba.njit(**JIT)
+def neighbour_velocity(known, velocity, fallback):  # pragma: no cover - runs compiled
+    m = known.size
+    before, after = side_neighbours(known)
+    out = np.empty((m, 3))
+    for j in range(m):
+        hb, ha = before[j] >= 0, after[j] < m
+        if not (hb or ha):
+            out[j] = fallback[j]
+            continue
+        if hb and ha:
+            n_b = float(j - before[j])
+            n_a = float(after[j] - j)
+            beta = n_a / (n_a + n_b)
+        else:
+            beta = 1.0 if hb else 0.0
+        vb = velocity[min(max(before[j], 0), m - 1)]
+        va = velocity[min(max(after[j], 0), m - 1)]
+        for c in range(3):
+            out[j, c] = beta * vb[c] + (1.0 - beta) * va[c]
+    return out
+
+
+@numba.njit(**JIT)
+def _predict_end(cur, prev, v_tilde, temp_count, spacing, j, step):  # pragma: no cover
+    m = cur.shape[0]
+    j1, j2, j3 = j + step, j + 2 * step, j + 3 * step
+    v_pred = prev[j] + v_tilde[j]
+    l1 = spacing[min(j, j1)]
+    if 0 <= j2 < m:
+        far = j3 if 0 <= j3 < m else j2
+        d = (cur[j1] - cur[far]) / 2.0
+        norm = norm3(d[0], d[1], d[2])
+        n_pred = cur[j1] + l1 * d / norm if norm > 0 else v_pred
+    else:
+        n_pred = v_pred
+    alpha = 1.0 / temp_count[j]
+    f = alpha * v_pred + (1.0 - alpha) * n_pred
+    r = f - cur[j1]
+    rn = norm3(r[0], r[1], r[2])
+    cur[j] = cur[j1] + l1 * r / rn if rn > 0 else f
+
+
+@numba.njit(**JIT)
+def predict_ends(cur, known, prev, v_tilde, temp_count, spacing):  # pragma: no cover
+    m = known.size
+    first = -1
+    last = -1
+    for j in range(m):
+        if known[j]:
+            if first < 0:
+                first = j
+            last = j
+    for j in range(first - 1, -1, -1):
+        _predict_end(cur, prev, v_tilde, temp_count, spacing, j, 1)
+    for j in range(last + 1, m):
+        _predict_end(cur, prev, v_tilde, temp_count, spacing, j, -1)

@@ -1,0 +1,230 @@
+"""Brute-force nearest points and the one-to-one assignment, compiled (numba).
+
+The numba twins of :class:`scipy.spatial.cKDTree` queries (a frame holds a few
+hundred points: a brute-force k-nearest search is faster than a tree) and of
+:func:`skincap.tracking.init.gated_assignment`, whose conflicts are resolved by the
+same shortest-augmenting-path assignment as :func:`scipy.optimize.linear_sum_assignment`
+(Crouse 2016, ported with its tie-breaking), so both backends take the same points.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["JIT", "gated_assignment", "is_taken", "linear_sum_assignment", "norm3", "query_nearest"]
+
+_INF = np.inf
+
+#: Options of every compiled function of the tracker (cached on disk).
+JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
+@numba.njit(**JIT)
+def query_nearest(points, a, b, q, kk, bound, d_out, i_out):  # pragma: no cover - runs compiled
+    """kk nearest of points[a:b] to q strictly within ``bound``, ascending; inf beyond."""
+    bound2 = bound * bound
+    for c in range(kk):
+        d_out[c] = _INF
+        i_out[c] = b  # cKDTree's "missing" index (n), made global below
+    n_found = 0
+    for p in range(a, b):
+        dx = q[0] - points[p, 0]
+        dy = q[1] - points[p, 1]
+        dz = q[2] - points[p, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 > bound2 * (1.0 + 1e-9):
+            continue
+        d = np.sqrt(d2)
+        if not d < bound:
+            continue
+        if n_found == kk and d >= d_out[kk - 1]:
+            continue
+        pos = n_found if n_found < kk else kk - 1
+        while pos > 0 and d_out[pos - 1] > d:
+            d_out[pos] = d_out[pos - 1]
+            i_out[pos] = i_out[pos - 1]
+            pos -= 1
+        d_out[pos] = d
+        i_out[pos] = p
+        if n_found < kk:
+            n_found += 1
+
+
+@numba.njit(**JIT)
+def _augmenting_path(nc, cost, u, v, path, row4col, spc, i, sr, sc, remaining):  # pragma: no cover
+    min_val = 0.0
+    num_remaining = nc
+    for it in range(nc):
+        remaining[it] = nc - it - 1
+    sr[:] = False
+    sc[:] = False
+    spc[:] = _INF
+    sink = -1
+    while sink == -1:
+        index = -1
+        lowest = _INF
+        sr[i] = True
+        for it in range(num_remaining):
+            j = remaining[it]
+            r = min_val + cost[i, j] - u[i] - v[j]
+            if r < spc[j]:
+                path[j] = i
+                spc[j] = r
+            if spc[j] < lowest or (spc[j] == lowest and row4col[j] == -1):
+                lowest = spc[j]
+                index = it
+        min_val = lowest
+        if min_val == _INF:
+            return -1, min_val
+        j = remaining[index]
+        if row4col[j] == -1:
+            sink = j
+        else:
+            i = row4col[j]
+        sc[j] = True
+        num_remaining -= 1
+        remaining[index] = remaining[num_remaining]
+    return sink, min_val
+
+
+@numba.njit(**JIT)
+def linear_sum_assignment(cost_in):  # pragma: no cover - runs compiled
+    """(rows, cols) of the minimum-cost assignment, as scipy's linear_sum_assignment."""
+    nr0, nc0 = cost_in.shape
+    transpose = nc0 < nr0
+    cost = cost_in.T.copy() if transpose else cost_in
+    nr, nc = cost.shape
+    u = np.zeros(nr)
+    v = np.zeros(nc)
+    spc = np.full(nc, _INF)
+    path = np.full(nc, -1, np.int64)
+    col4row = np.full(nr, -1, np.int64)
+    row4col = np.full(nc, -1, np.int64)
+    sr = np.zeros(nr, np.bool_)
+    sc = np.zeros(nc, np.bool_)
+    remaining = np.zeros(nc, np.int64)
+    for cur_row in range(nr):
+        sink, min_val = _augmenting_path(
+            nc, cost, u, v, path, row4col, spc, cur_row, sr, sc, remaining
+        )
+        if sink < 0:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        u[cur_row] += min_val
+        for i in range(nr):
+            if sr[i] and i != cur_row:
+                u[i] += min_val - spc[col4row[i]]
+        for j in range(nc):
+            if sc[j]:
+                v[j] -= min_val - spc[j]
+        j = sink
+        while True:
+            i = path[j]
+            row4col[j] = i
+            tmp = col4row[i]
+            col4row[i] = j
+            j = tmp
+            if i == cur_row:
+                break
+    a = np.empty(nr, np.int64)
+    b = np.empty(nr, np.int64)
+    if transpose:
+        order = np.argsort(col4row)
+        for k in range(nr):
+            a[k] = col4row[order[k]]
+            b[k] = order[k]
+    else:
+        for k in range(nr):
+            a[k] = k
+            b[k] = col4row[k]
+    return a, b
+
+
+@numba.njit(**JIT)
+def gated_assignment(dist, cand, gate):  # pragma: no cover - runs compiled
+    """As :func:`skincap.tracking.init.gated_assignment`: (rows, points) one-to-one."""
+    r_n, k_n = dist.shape
+    any_ok = False
+    n_first = 0
+    n_any = 0
+    for r in range(r_n):
+        row_ok = False
+        for c in range(k_n):
+            if dist[r, c] < gate:
+                row_ok = True
+        if row_ok:
+            n_any += 1
+            any_ok = True
+        if dist[r, 0] < gate:
+            n_first += 1
+    if not any_ok:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    # fast path: every row's nearest candidate is free of conflicts
+    distinct = True
+    for r in range(r_n):
+        if not dist[r, 0] < gate:
+            continue
+        for r2 in range(r + 1, r_n):
+            if dist[r2, 0] < gate and cand[r2, 0] == cand[r, 0]:
+                distinct = False
+    if distinct and n_first == n_any:
+        rows = np.empty(n_first, np.int64)
+        pts = np.empty(n_first, np.int64)
+        n = 0
+        for r in range(r_n):
+            if dist[r, 0] < gate:
+                rows[n] = r
+                pts[n] = cand[r, 0]
+                n += 1
+        return rows, pts
+    # unique rows and unique points (sorted), as np.unique in the reference
+    rows_u = np.empty(n_any, np.int64)
+    n = 0
+    all_pts = np.empty(r_n * k_n, np.int64)
+    n_p = 0
+    for r in range(r_n):
+        row_ok = False
+        for c in range(k_n):
+            if dist[r, c] < gate:
+                row_ok = True
+                all_pts[n_p] = cand[r, c]
+                n_p += 1
+        if row_ok:
+            rows_u[n] = r
+            n += 1
+    pts_u = np.unique(all_pts[:n_p])
+    big = 1e6 * max(gate, 1.0)
+    cost = np.full((n_any, pts_u.size), big)
+    for ri in range(n_any):
+        r = rows_u[ri]
+        for c in range(k_n):
+            if dist[r, c] < gate:
+                col = np.searchsorted(pts_u, cand[r, c])
+                cost[ri, col] = dist[r, c]
+    ri, ci = linear_sum_assignment(cost)
+    keep = 0
+    for k in range(ri.size):
+        if cost[ri[k], ci[k]] < gate:
+            keep += 1
+    rows = np.empty(keep, np.int64)
+    pts = np.empty(keep, np.int64)
+    n = 0
+    for k in range(ri.size):
+        if cost[ri[k], ci[k]] < gate:
+            rows[n] = rows_u[ri[k]]
+            pts[n] = pts_u[ci[k]]
+            n += 1
+    return rows, pts
+
+
+@numba.njit(**JIT)
+def norm3(x, y, z):  # pragma: no cover - runs compiled
+    return np.sqrt(x * x + y * y + z * z)
+
+
+@numba.njit(**JIT)
+def is_taken(p, known, taken):  # pragma: no cover - runs compiled
+    for j in range(known.size):
+        if known[j] and taken[j] == p:
+            return True
+    return False

@@ -1,0 +1,757 @@
+"""The rope tracker's per-frame steps in NumPy: the reference.
+
+Every public function here has a twin of the same name and signature in
+:mod:`skincap.tracking._steps_numba`; both read and write a
+:class:`~skincap.tracking.state.TrackState` in place and take the run's
+:class:`~skincap.tracking.state.StepParams` ``p``. What each step is for, and which
+parts go beyond Porter (2012), is told in :mod:`skincap.tracking.tracker`.
+
+A frame (:func:`track_frame`) runs::
+
+    V = begin_frame                       prediction by the trace's own velocity (eqs. 3.1-3.2)
+    continue_body_chains                  body points of this frame
+    match_measured                        steady traces at V, then at V + residuals
+        match_traces / reject_overstretched / reject_odd_motion / residual_predictions
+    pred = gap_predictions                the curve inside the rope, F at its ends
+    match_missing                         the rest at pred, then the zipper
+        match_traces / reject_* / zipper_predictions
+    swap_onto_curve                       a trace off the curve moves onto it
+    place_invented                        temporary markers where nothing was found
+    commit_frame                          row t of the results, velocity, counts
+
+Candidate points come from a KD-tree over the frame's points, built when the frame
+is first searched (the numba twin searches brute force).
+"""
+
+from __future__ import annotations
+
+import weakref
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from skincap.tracking.curve import fill_interior_on_curve, settle_single_gaps
+from skincap.tracking.init import gated_assignment
+from skincap.tracking.state import StepParams, TrackState
+
+__all__ = [
+    "begin_frame",
+    "commit_frame",
+    "continue_body_chains",
+    "gap_predictions",
+    "match_measured",
+    "match_missing",
+    "match_traces",
+    "place_invented",
+    "reject_odd_motion",
+    "reject_overstretched",
+    "residual_predictions",
+    "rigid_with_body",
+    "swap_onto_curve",
+    "track_frame",
+    "track_frames",
+    "zipper_predictions",
+]
+
+
+# ------------------------------------------------------------------ search helpers
+class _FrameTrees:
+    """The KD-tree of the frame last searched (one frame is searched several times)."""
+
+    def __init__(self) -> None:
+        self.key: tuple[int, int] = (-1, -1)
+        self.owner: weakref.ref[np.ndarray] | None = None
+        self.tree: cKDTree | None = None
+
+    def nearest(
+        self, points: np.ndarray, a: int, b: int, q: np.ndarray, k: int, gate: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(R, k) distances (inf for none) and global indices of points[a:b] near ``q``.
+
+        ``b - a >= k >= 1``. Where the distance is inf the index is meaningless.
+        """
+        owner = self.owner() if self.owner is not None else None
+        if self.tree is None or owner is not points or self.key != (a, b):
+            self.tree = cKDTree(points[a:b])
+            self.owner, self.key = weakref.ref(points), (a, b)
+        d, i = self.tree.query(q, k=k, distance_upper_bound=gate)
+        return d.reshape(q.shape[0], k), i.reshape(q.shape[0], k) + a
+
+
+_TREES = _FrameTrees()
+
+
+def _side_neighbours(known: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) nearest known index before (-1 if none) and after (M if none) each marker."""
+    m = known.size
+    ar = np.arange(m)
+    before = np.maximum.accumulate(np.where(known, ar, -1))
+    before = np.concatenate([[-1], before[:-1]])
+    after = np.minimum.accumulate(np.where(known, ar, m)[::-1])[::-1]
+    after = np.concatenate([after[1:], [m]])
+    return before, after
+
+
+def _frame_bounds(state: TrackState, t: int) -> tuple[int, int]:
+    return int(state.offsets[t]), int(state.offsets[t + 1])
+
+
+# ------------------------------------------------------------------ frame start and end
+def begin_frame(state: TrackState, t: int, p: StepParams) -> np.ndarray:
+    """Clear the frame's ``cur``/``known``/``taken``; return V (M, 3), metres.
+
+    V is each trace's own prediction, ``m^{t-1} + v^{t-1} Δt`` (eqs. 3.1-3.2).
+    """
+    state.cur[:] = 0.0
+    state.known[:] = False
+    state.taken[:] = -1
+    return state.positions[t - 1] + state.velocity
+
+
+def commit_frame(state: TrackState, t: int, p: StepParams) -> None:
+    """Write row t of the results from ``cur``/``known``/``taken`` and advance the
+    carried state: temporary-marker counts, losses, velocities (metres per frame)."""
+    known = state.known
+    state.temp_count[:] = np.where(known, 0, state.temp_count + 1)
+    state.invented[t] = ~known
+    state.lost_frames[t] = state.temp_count > p.max_temp_markers
+    state.point_index[t] = state.taken
+    state.positions[t] = state.cur
+    state.velocity[:] = state.cur - state.positions[t - 1]
+
+
+# ------------------------------------------------------------------ body points
+def continue_body_chains(state: TrackState, t: int, v_pred: np.ndarray, p: StepParams) -> None:
+    """Flag frame t's points that continue a body point of frame t - 1 (beyond the thesis).
+
+    A point is a body point when it is the only point within ``ε = body_chain_gate γ``
+    of where a previous body point's velocity takes it, that prediction is the only
+    one (body, or ``v_pred`` (M, 3) of a trace measured in frame t - 1) within ε of
+    it. Writes ``state.body`` and ``state.body_vel`` (its displacement, metres per
+    frame; zero elsewhere) for frame t's points.
+    """
+    a0, a1 = _frame_bounds(state, t - 1)
+    a2 = int(state.offsets[t + 1])
+    eps = p.body_chain_gate * p.gamma
+    points = state.points[a1:a2]
+    n = points.shape[0]
+    body = np.zeros(n, dtype=bool)
+    vel = np.zeros((n, 3))
+    qi = np.nonzero(state.body[a0:a1])[0]
+    if qi.size and n:
+        prev_points = state.points[a0:a1]
+        pred = prev_points[qi] + state.body_vel[a0:a1][qi]
+        near = _squared_distances(points, pred) < eps * eps  # (N, Q)
+        single = near.sum(axis=1) == 1
+        rope_pred = v_pred[state.point_index[t - 1] >= 0]
+        if rope_pred.shape[0]:
+            single &= ~(_squared_distances(points, rope_pred) < eps * eps).any(axis=1)
+        ok = near & single[:, None] & (near.sum(axis=0) == 1)[None, :]
+        p_idx, q_col = np.nonzero(ok)
+        body[p_idx] = True
+        vel[p_idx] = points[p_idx] - prev_points[qi[q_col]]
+    state.body[a1:a2] = body
+    state.body_vel[a1:a2] = vel
+
+
+def _squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """(len(x), len(y)) squared distances, per axis (as the numba twin adds them)."""
+    dx = x[:, None, 0] - y[None, :, 0]
+    dy = x[:, None, 1] - y[None, :, 1]
+    dz = x[:, None, 2] - y[None, :, 2]
+    return dx * dx + dy * dy + dz * dz
+
+
+def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
+    """True when ``point`` of frame t moves rigidly with body points (beyond the thesis).
+
+    The point's path over the last ``p.rigid_window`` frames is trace ``j``'s points
+    where the trace was measured in all of them; otherwise (or ``j < 0``) the point is
+    followed backward itself at constant velocity, to the nearest point when that
+    lies within ``2 rigid_range`` spacings and the second nearest twice as far; a
+    frame without such a point means no evidence (False), as does a path moving less
+    than ``rigid_move`` spacings. Every point of frame t within ``rigid_radius``
+    spacings that the rope does not take (``state.taken``) is followed backward,
+    moving as the path moved, to the nearest point within ``rigid_range`` spacings of
+    that prediction the rope did not take; the point is body-like when at least
+    ``rigid_partners`` of them keep their distance to it within ``rigid_range``
+    spacings over the whole window. Spacings are the median rest spacing. Frames
+    before ``rigid_window``: False.
+    """
+    window = p.rigid_window
+    if t < window:
+        return False
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    spacing = p.median_spacing
+    tol = p.rigid_range * spacing
+    hist = point_index[t - window : t, j] if j >= 0 else np.full(window, -1)
+    if np.any(hist < 0):
+        traj = _follow_back(points, offsets, t, window, point, tol)
+        if traj is None:
+            return False
+    else:
+        traj = np.concatenate([points[hist], points[point][None]])  # (W + 1, 3)
+    if np.max(np.linalg.norm(traj - traj[-1], axis=1)) < p.rigid_move * spacing:
+        return False
+    a, b = int(offsets[t]), int(offsets[t + 1])
+    frame = points[a:b]
+    d0 = np.linalg.norm(frame - traj[-1], axis=1)
+    cand = (d0 < p.rigid_radius * spacing) & (np.arange(a, b) != point)
+    taken = state.taken
+    cand[taken[(taken >= a) & (taken < b)] - a] = False
+    found = 0
+    for c in np.nonzero(cand)[0]:
+        if _keeps_distance(points, offsets, point_index, t, window, traj, frame[c], d0[c], tol):
+            found += 1
+            if found >= p.rigid_partners:
+                return True
+    return False
+
+
+def _follow_back(
+    points: np.ndarray, offsets: np.ndarray, t: int, window: int, point: int, tol: float
+) -> np.ndarray | None:
+    """(W + 1, 3) the point's path back through the window by unambiguous nearest
+    points at constant velocity, last row the point; None where it is ambiguous."""
+    traj = np.empty((window + 1, 3))
+    traj[-1] = points[point]
+    v = np.zeros(3)
+    for f in range(t - 1, t - window - 1, -1):
+        fa, fb = int(offsets[f]), int(offsets[f + 1])
+        if fb - fa < 2:
+            return None
+        x = traj[f - t + window + 1]
+        dd = np.linalg.norm(points[fa:fb] - (x - v), axis=1)
+        o = np.argsort(dd)[:2]
+        if not (dd[o[0]] < 2.0 * tol and dd[o[1]] > 2.0 * dd[o[0]]):
+            return None
+        traj[f - t + window] = points[fa + o[0]]
+        v = x - traj[f - t + window]
+    return traj
+
+
+def _keeps_distance(
+    points: np.ndarray,
+    offsets: np.ndarray,
+    point_index: np.ndarray,
+    t: int,
+    window: int,
+    traj: np.ndarray,
+    q: np.ndarray,
+    dq: float,
+    tol: float,
+) -> bool:
+    """True when the partner at ``q`` (distance ``dq`` from the path's end) follows the
+    path ``traj`` (W + 1, 3) back through the window at a constant distance."""
+    for f in range(t - 1, t - window - 1, -1):
+        fa, fb = int(offsets[f]), int(offsets[f + 1])
+        if fb == fa:
+            return False
+        pred = q + (traj[f - t + window] - traj[f - t + window + 1])
+        dd = np.linalg.norm(points[fa:fb] - pred, axis=1)
+        dd[point_index[f][(point_index[f] >= fa) & (point_index[f] < fb)] - fa] = np.inf
+        n = int(np.argmin(dd))
+        q = points[fa + n]
+        if not (dd[n] < tol and abs(np.linalg.norm(q - traj[f - t + window]) - dq) < tol):
+            return False
+    return True
+
+
+# ------------------------------------------------------------------ matching
+def match_traces(
+    state: TrackState, t: int, rows: np.ndarray, pred: np.ndarray, wide: bool, p: StepParams
+) -> bool:
+    """Match traces ``rows`` (R,) int to free points of frame t near ``pred`` (M, 3), in place.
+
+    The gate is γ, or ``wide_gate γ`` with ``wide``. Refused: points taken this frame;
+    body points, for traces that are not steady (``temp_count > 0``); points that
+    continue something slower than the rope (:func:`_follows_other`). With ``wide``
+    also: for a steady trace predicted to move at most γ, points beyond γ; for a
+    trace that is not steady, points moving rigidly with body points
+    (:func:`rigid_with_body`); points beyond γ of the prediction unless at their rest
+    spacing (± γ) from a measured neighbour, and any point off that spacing from a
+    measured neighbour. Conflicts are resolved one-to-one, minimising the summed
+    distance (:func:`~skincap.tracking.init.gated_assignment`). Writes ``cur``,
+    ``known``, ``taken``; True if any trace matched.
+    """
+    a, b = _frame_bounds(state, t)
+    if rows.size == 0 or b == a:
+        return False
+    gamma = p.gamma
+    gate = p.wide_gate * gamma if wide else gamma
+    known, taken = state.known, state.taken
+    steady = state.temp_count == 0
+    n_taken = int(known.sum())
+    kk = min(min(p.candidates, b - a) + n_taken, b - a)
+    d, i = _TREES.nearest(state.points, a, b, pred[rows], kk, gate)
+    if n_taken:
+        d = np.where(np.isin(i, taken[known]), np.inf, d)
+    last = state.points.shape[0] - 1
+    d = np.where(state.body[np.minimum(i, last)] & ~steady[rows][:, None], np.inf, d)
+    if wide and gate > gamma:
+        e = pred[rows] - state.positions[t - 1][rows]
+        slow = steady[rows] & (np.einsum("ij,ij->i", e, e) <= gamma * gamma)
+        d = np.where(slow[:, None] & (d >= gamma), np.inf, d)
+    d = np.where(_follows_other(state, t, rows, pred, i, d, gamma), np.inf, d)
+    if wide:
+        for r in np.nonzero(~steady[rows])[0]:
+            for c in range(d.shape[1]):
+                if np.isfinite(d[r, c]) and d[r, c] < gate:
+                    if rigid_with_body(state, t, -1, int(i[r, c]), p):
+                        d[r, c] = np.inf
+        d = _refuse_off_spacing(state, rows, i, d, gamma)
+    hit_rows, pts = gated_assignment(d, i, gate)
+    if hit_rows.size == 0:
+        return False
+    hit = rows[hit_rows]
+    known[hit] = True
+    taken[hit] = pts
+    state.cur[hit] = state.points[pts]
+    return True
+
+
+def _refuse_off_spacing(
+    state: TrackState, rows: np.ndarray, i: np.ndarray, d: np.ndarray, gamma: float
+) -> np.ndarray:
+    """``d`` (R, K) with inf where the candidate is not within γ of its rest spacing
+    from a measured neighbour, or lies beyond γ with no measured neighbour."""
+    known, spacing = state.known, state.spacing
+    m = known.size
+    q = state.points[np.minimum(i, state.points.shape[0] - 1)]  # (R, K, 3)
+    lonely = ~(known[np.maximum(rows - 1, 0)] & (rows > 0))
+    lonely &= ~(known[np.minimum(rows + 1, m - 1)] & (rows < m - 1))
+    d = np.where(lonely[:, None] & (d >= gamma), np.inf, d)
+    for step in (-1, 1):
+        nb = rows + step
+        nbc = np.clip(nb, 0, m - 1)
+        has = (nb >= 0) & (nb < m) & known[nbc]
+        if not has.any():
+            continue
+        rest = spacing[np.minimum(np.minimum(rows, nbc), m - 2)]
+        chord = np.linalg.norm(q - state.cur[nbc][:, None, :], axis=2)
+        d = np.where(has[:, None] & (np.abs(chord - rest[:, None]) > gamma), np.inf, d)
+    return d
+
+
+def _follows_other(
+    state: TrackState,
+    t: int,
+    rows: np.ndarray,
+    pred: np.ndarray,
+    cand: np.ndarray,
+    dist: np.ndarray,
+    gamma: float,
+) -> np.ndarray:
+    """(R, K) bool: the candidate continues something else than the rope (beyond the thesis).
+
+    A body marker beside a fast rope moves far less than the rope. A trace that is
+    not steady, or any inner trace, refuses a candidate within ``min(γ, D - γ)`` of a
+    point of frame t - 1 the rope did not take, ``D`` being how far the trace is
+    predicted to move from its frame t - 1 position: that point moved slower than the
+    rope by more than γ. Off where the rope is slow (``D <= γ``); the ends of a
+    steady rope are exempt (held in the hands, among hand markers).
+    """
+    a0, a1 = _frame_bounds(state, t - 1)
+    mine = state.point_index[t - 1]
+    untaken = np.ones(a1 - a0, dtype=bool)
+    untaken[mine[(mine >= a0) & (mine < a1)] - a0] = False
+    out = np.zeros(dist.shape, dtype=bool)
+    q = state.points[a0:a1][untaken]
+    if q.shape[0] == 0:
+        return out
+    m = mine.size
+    e = pred[rows] - state.positions[t - 1][rows]
+    speed = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    lim = np.minimum(gamma, speed - gamma)
+    steady = state.temp_count[rows] == 0
+    judged = (~steady | ((rows > 0) & (rows < m - 1))) & (lim > 0.0)
+    r_idx, c_idx = np.nonzero(judged[:, None] & np.isfinite(dist))
+    if r_idx.size == 0:
+        return out
+    near = (
+        _squared_distances(state.points[cand[r_idx, c_idx]], q) < (lim[r_idx] * lim[r_idx])[:, None]
+    )
+    out[r_idx, c_idx] = near.any(axis=1)
+    return out
+
+
+# ------------------------------------------------------------------ refusals
+def reject_overstretched(state: TrackState, t: int, p: StepParams) -> None:
+    """Refuse taken points that would stretch the rope (beyond the thesis), in place.
+
+    Two measured markers ``a < b`` lie at most ``stretch (s_b - s_a) + γ`` apart,
+    neighbours at most their rest spacing plus ``adjacent_stretch γ``. When
+    consecutive measured markers break that, the measured markers kept are the best
+    chain in which every consecutive pair obeys it (:func:`_keep_best_chain`), a
+    marker on a point moving rigidly with body points (:func:`rigid_with_body`)
+    counting against it. The others are un-taken (``known``, ``taken``).
+    """
+    known = state.known
+    idx = np.nonzero(known)[0]
+    if idx.size < 2:
+        return
+    cur, s = state.cur, state.arclength
+    xs = cur[idx]
+    chord = np.linalg.norm(xs[1:] - xs[:-1], axis=1)
+    ds1 = s[idx[1:]] - s[idx[:-1]]
+    adjacent = idx[1:] - idx[:-1] == 1
+    lim1 = np.where(adjacent, ds1 + p.adjacent_stretch * p.gamma, p.stretch * ds1 + p.gamma)
+    if np.all(chord <= lim1):
+        return
+    rigid = np.array([rigid_with_body(state, t, int(j), int(state.taken[j]), p) for j in idx])
+    keep = _keep_best_chain(cur[idx], s[idx], idx, rigid, p.gamma, p.stretch, p.adjacent_stretch)
+    rows = idx[~keep]
+    known[rows] = False
+    state.taken[rows] = -1
+
+
+def _keep_best_chain(
+    xs: np.ndarray,
+    si: np.ndarray,
+    idx: np.ndarray,
+    rigid: np.ndarray,
+    gamma: float,
+    stretch: float,
+    adjacent_stretch: float,
+) -> np.ndarray:
+    """(n,) bool: the measured markers kept, by dynamic programming over the chain.
+
+    ``xs`` (n, 3) their positions, ``si`` (n,) rest arc lengths, ``idx`` (n,) marker
+    numbers, ``rigid`` (n,) bool body-like. Each marker kept counts +1 (-1 where
+    body-like: the body-like side of a stretched link goes, never the rope-like
+    side), each link less half its deformation (chord below or beyond the rest arc
+    length, relative: a trace that slipped onto its neighbour's marker, or onto a
+    point beside the rope).
+    """
+    n = idx.size
+    dist = np.linalg.norm(xs[:, None] - xs[None, :], axis=2)  # (n, n)
+    ds = si[None, :] - si[:, None]  # s_b - s_a
+    adjacent = idx[None, :] - idx[:, None] == 1
+    limit = np.where(adjacent, ds + adjacent_stretch * gamma, stretch * ds + gamma)
+    feasible = np.triu(dist <= limit, k=1)
+    dev = (ds - dist) / np.where(ds > 0, ds, 1.0)
+    squeeze = np.clip(dev, 0.0, 1.0) + np.clip(-dev, 0.0, 1.0)  # compressed or stretched
+    w = np.where(rigid, -1.0, 1.0)
+    gain = np.where(feasible, w[None, :] - 0.5 * squeeze, -np.inf)  # a link: marker − deformation
+    score = w.copy()
+    back = np.full(n, -1, dtype=np.int64)
+    for b in range(1, n):
+        cand = score[:b] + gain[:b, b]
+        a = int(np.argmax(cand))
+        if cand[a] > score[b]:
+            score[b] = cand[a]
+            back[b] = a
+    keep = np.zeros(n, dtype=bool)
+    b = int(np.argmax(score))
+    while b >= 0:
+        keep[b] = True
+        b = int(back[b])
+    return keep
+
+
+def reject_odd_motion(state: TrackState, t: int, p: StepParams) -> None:
+    """Refuse taken points that do not move with the rope (beyond the thesis), in place.
+
+    A steady inner marker whose two neighbours are measured moves, from frame t - 1,
+    within γ of the mean of their moves (the rope is smooth); a point that does not
+    belongs to something else. Markers that are not steady are not judged here: one
+    coming back from a gap "moves" by the error of its invented position.
+    """
+    known = state.known
+    steady = state.temp_count == 0
+    inner = known[1:-1] & known[:-2] & known[2:] & steady[1:-1]
+    if not inner.any():
+        return
+    move = state.cur - state.positions[t - 1]
+    expected = 0.5 * (move[:-2] + move[2:])
+    odd = inner & (np.linalg.norm(move[1:-1] - expected, axis=1) > p.gamma)
+    if odd.any():
+        idx = np.nonzero(odd)[0] + 1
+        known[idx] = False
+        state.taken[idx] = -1
+
+
+# ------------------------------------------------------------------ predictions
+def residual_predictions(
+    state: TrackState, t: int, v_pred: np.ndarray, p: StepParams
+) -> np.ndarray:
+    """(M, 3) V (``v_pred``) corrected by the prediction errors of the steady traces
+    found so far, interpolated linearly in rest arc length (nearest at the ends)."""
+    found = state.known & (state.temp_count == 0)
+    if not found.any():
+        return v_pred.copy()
+    values = np.where(found[:, None], state.cur - v_pred, 0.0)
+    m = found.size
+    before, after = _side_neighbours(found)
+    has_b, has_a = before >= 0, after < m
+    b = np.clip(before, 0, m - 1)
+    a = np.clip(after, 0, m - 1)
+    both = has_b & has_a
+    s = state.arclength
+    span = np.where(both, s[a] - s[b], 1.0)
+    w = np.where(both, (s - s[b]) / span, np.where(has_b, 0.0, 1.0))
+    out = (1.0 - w)[:, None] * values[b] + w[:, None] * values[a]
+    return v_pred + np.where(found[:, None], values, out)
+
+
+def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
+    """(M, 3) where the markers not found yet are predicted, metres.
+
+    With nothing measured: V. Inside the measured part: the curve through the
+    measured markers at the rest arc length, a lone marker settled toward its rest
+    spacings. Beyond it: F (eq. 3.6) outward from the measured part, each at its rest
+    spacing from its inner neighbour (:func:`_predict_ends`).
+    """
+    known = state.known
+    prev = state.positions[t - 1]
+    pred = prev + state.velocity
+    if not known.any():
+        return pred
+    meas_vel = np.where(known[:, None], state.cur - prev, 0.0)
+    v_tilde = _neighbour_velocity(known, meas_vel, state.velocity)
+    pred, _ = fill_interior_on_curve(
+        np.where(known[:, None], state.cur, 0.0), known, state.arclength
+    )
+    pred = settle_single_gaps(pred, known, state.spacing, p.settle)
+    count = np.where(known, 0, state.temp_count + 1)
+    return _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+
+
+def _neighbour_velocity(
+    known: np.ndarray, velocity: np.ndarray, fallback: np.ndarray
+) -> np.ndarray:
+    """ṽ (eq. 3.3): β-weighted velocity of the nearest measured neighbour on each side.
+
+    With neighbours ``n`` and ``m`` markers away, ``ṽ = m/(n+m) v_{j-n} + n/(n+m)
+    v_{j+m}``; one side only gives that side's velocity; none gives ``fallback``.
+    """
+    m = known.size
+    before, after = _side_neighbours(known)
+    ar = np.arange(m)
+    has_b, has_a = before >= 0, after < m
+    n_b = np.where(has_b, ar - before, 0).astype(np.float64)
+    n_a = np.where(has_a, after - ar, 0).astype(np.float64)
+    vb = velocity[np.clip(before, 0, m - 1)]
+    va = velocity[np.clip(after, 0, m - 1)]
+    both = has_b & has_a
+    beta = np.where(both, n_a / np.where(both, n_a + n_b, 1.0), has_b.astype(np.float64))
+    out = beta[:, None] * vb + (1.0 - beta)[:, None] * va
+    none = ~(has_b | has_a)
+    out[none] = fallback[none]
+    return out
+
+
+def _predict_ends(
+    cur: np.ndarray,
+    known: np.ndarray,
+    prev: np.ndarray,
+    v_tilde: np.ndarray,
+    temp_count: np.ndarray,
+    spacing: np.ndarray,
+) -> np.ndarray:
+    """F (eq. 3.6) for the runs of unknown markers at the rope's ends, outward from
+    the measured part, each projected to its rest spacing from its inner neighbour.
+
+    ``cur`` (M, 3) holds the measured markers; the end markers are written in place.
+    ``F = α Ṽ + (1 - α) N``, ``α = 1 / temp_count``, Ṽ = prev + ṽ, N by midpoint
+    displacement from the next two or three markers inward (eqs. 3.4-3.5).
+    """
+    m = known.size
+    idx = np.nonzero(known)[0]
+    first, last = int(idx[0]), int(idx[-1])
+    outward = [(j, +1) for j in range(first - 1, -1, -1)] + [(j, -1) for j in range(last + 1, m)]
+    for j, step in outward:
+        j1, j2, j3 = j + step, j + 2 * step, j + 3 * step
+        v_pred = prev[j] + v_tilde[j]  # Ṽ, eq. 3.1 with ṽ
+        l1 = spacing[min(j, j1)]
+        if 0 <= j2 < m:
+            far = j3 if 0 <= j3 < m else j2
+            d = (cur[j1] - cur[far]) / 2.0  # eq. 3.4: ((m1 - m2) + (m2 - m3)) / 2
+            norm = float(np.linalg.norm(d))
+            n_pred = cur[j1] + l1 * d / norm if norm > 0 else v_pred  # eq. 3.5
+        else:
+            n_pred = v_pred
+        alpha = 1.0 / temp_count[j]
+        f = alpha * v_pred + (1.0 - alpha) * n_pred  # eq. 3.6
+        r = f - cur[j1]
+        rn = float(np.linalg.norm(r))
+        cur[j] = cur[j1] + l1 * r / rn if rn > 0 else f
+    return cur
+
+
+def zipper_predictions(state: TrackState, p: StepParams) -> tuple[np.ndarray, np.ndarray]:
+    """Where the ends of runs of unknown markers continue the rope (beyond the thesis).
+
+    An unknown marker ``j`` inside the measured part of the rope, or an unknown end of
+    the rope, with two measured markers on one side and an unknown neighbour on the
+    other, is predicted by continuing the measured side at the rest spacing from its
+    neighbour, bending as it bends when a third measured marker follows::
+
+        e = 3 m_{j-1} - 3 m_{j-2} + m_{j-3}   (or 2 m_{j-1} - m_{j-2})
+        x_j = m_{j-1} + l * (e - m_{j-1}) / |e - m_{j-1}|
+
+    Returns ``rows`` (R,) int64, the markers predicted, and ``pred`` (M, 3) metres,
+    their predictions (zero elsewhere).
+    """
+    cur, known, spacing = state.cur, state.known, state.spacing
+    m = known.size
+    pred = np.zeros((m, 3))
+    if m < 4:
+        return np.zeros(0, dtype=np.int64), pred
+    ar = np.arange(m)
+    pad = np.concatenate([[False] * 3, known, [False] * 3])
+    k_m3, k_m2, k_m1 = pad[ar], pad[ar + 1], pad[ar + 2]
+    k_p1, k_p2, k_p3 = pad[ar + 4], pad[ar + 5], pad[ar + 6]
+    before, after = _side_neighbours(known)
+    inner = ~known & (ar > 0) & (ar < m - 1) & (before >= 0) & (after < m)
+    target = inner | (~known & ((ar == 0) | (ar == m - 1)))
+    lo = target & k_m1 & k_m2 & ~k_p1
+    hi = target & k_p1 & k_p2 & ~k_m1
+    for side, step, third in ((lo, -1, k_m3), (hi, 1, k_p3)):
+        j = np.nonzero(side)[0]
+        if j.size == 0:
+            continue
+        a, b = cur[j + step], cur[j + 2 * step]
+        c = cur[np.clip(j + 3 * step, 0, m - 1)]
+        e = np.where(third[j][:, None], 3.0 * a - 3.0 * b + c, 2.0 * a - b)
+        d = e - a
+        norm = np.linalg.norm(d, axis=1)
+        rest = spacing[np.minimum(j, j + step)]
+        ok = norm > 0
+        pred[j[ok]] = a[ok] + (rest[ok] / norm[ok])[:, None] * d[ok]
+        side[j[~ok]] = False
+    return np.nonzero(lo | hi)[0], pred
+
+
+# ------------------------------------------------------------------ after matching
+def swap_onto_curve(state: TrackState, t: int, p: StepParams) -> bool:
+    """Move a trace off a body point onto the rope marker it lost (beyond the thesis).
+
+    For every measured marker with measured markers on both sides, the curve through
+    the *other* measured markers gives ``C_j``; a marker farther than ``2 γ`` from
+    ``C_j`` takes a free point at least γ nearer to ``C_j`` and within γ of it,
+    conflicts resolved one-to-one. In place (``cur``, ``taken``); True if any moved.
+    """
+    a, b = _frame_bounds(state, t)
+    known, cur, s = state.known, state.cur, state.arclength
+    m = known.size
+    if b == a or known.sum() < 3:
+        return False
+    before, after = _side_neighbours(known)
+    rows = np.nonzero(known & (before >= 0) & (after < m))[0]
+    if rows.size == 0:
+        return False
+    x = np.where(known[:, None], cur, 0.0)
+    # markers j-2 … j+2 all measured (or beyond an end): the precomputed weights
+    pad = np.concatenate([[True, True], known, [True, True]])
+    full = pad[rows] & pad[rows + 1] & pad[rows + 3] & pad[rows + 4]
+    c = state.leave_one_out[rows] @ x
+    slow = np.nonzero(~full)[0]
+    if slow.size:
+        loo = np.broadcast_to(known, (slow.size, m)).copy()
+        loo[np.arange(slow.size), rows[slow]] = False
+        curve, _ = fill_interior_on_curve(np.broadcast_to(x, (slow.size, m, 3)), loo, s)
+        c[slow] = curve[np.arange(slow.size), rows[slow]]
+    dev = np.linalg.norm(cur[rows] - c, axis=1)
+    odd = dev > 2.0 * p.gamma
+    if not odd.any():
+        return False
+    rows, c, dev = rows[odd], c[odd], dev[odd]
+    n_taken = int(known.sum())
+    kk = min(min(p.candidates, b - a) + n_taken, b - a)
+    d, i = _TREES.nearest(state.points, a, b, c, kk, p.gamma)
+    taken = state.taken
+    d = np.where(np.isin(i, taken[known]) | (d > (dev - p.gamma)[:, None]), np.inf, d)
+    hit_rows, pts = gated_assignment(d, i, p.gamma)
+    if hit_rows.size:
+        hit = rows[hit_rows]
+        taken[hit] = pts
+        cur[hit] = state.points[pts]
+    return bool(hit_rows.size)
+
+
+def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: StepParams) -> None:
+    """Temporary markers for the traces not found, in ``cur``.
+
+    With ``refit`` (more was measured after ``pred`` (M, 3) was made) the unknown
+    interior markers go on the curve through every marker measured now (a lone one
+    settled); otherwise, and at the ends, they take ``pred``.
+    """
+    known, cur = state.known, state.cur
+    still = ~known
+    if not still.any():
+        return
+    if known.any() and refit:
+        x = np.where(known[:, None], cur, 0.0)
+        curve, interior = fill_interior_on_curve(x, known, state.arclength)
+        curve = settle_single_gaps(curve, known, state.spacing, p.settle)
+        cur[still] = np.where(interior[still, None], curve[still], pred[still])
+    else:
+        cur[still] = pred[still]
+
+
+# ------------------------------------------------------------------ a frame
+def match_measured(state: TrackState, t: int, v_pred: np.ndarray, p: StepParams) -> None:
+    """Pass 1: the steady traces at V (``v_pred`` (M, 3)) within γ, then up to
+    ``retry_rounds`` times at V corrected by the residuals of those found, in the
+    wide gate; each match followed by the two refusals."""
+    steady = state.temp_count == 0
+    match_traces(state, t, np.nonzero(steady)[0], v_pred, False, p)
+    reject_overstretched(state, t, p)
+    reject_odd_motion(state, t, p)
+    tried = v_pred
+    for _ in range(p.retry_rounds):
+        found = state.known & steady
+        want = steady & ~state.known
+        if not (found.any() and want.any()):
+            break
+        pred = residual_predictions(state, t, v_pred, p)
+        want &= np.einsum("ij,ij->i", pred - tried, pred - tried) > (0.5 * p.gamma) ** 2
+        if not want.any():
+            break
+        if not match_traces(state, t, np.nonzero(want)[0], pred, True, p):
+            break
+        reject_overstretched(state, t, p)
+        reject_odd_motion(state, t, p)
+        tried = np.where(want[:, None], pred, tried)
+
+
+def match_missing(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> bool:
+    """Pass 2: the traces still unknown at ``pred`` (M, 3) in the wide gate, then the
+    zipper (up to ``zipper_rounds``); each match followed by the two refusals.
+    True if any trace matched."""
+    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, True, p)
+    reject_overstretched(state, t, p)
+    reject_odd_motion(state, t, p)
+    for _ in range(p.zipper_rounds):
+        rows, zpred = zipper_predictions(state, p)
+        if rows.size == 0 or not match_traces(state, t, rows, zpred, True, p):
+            break
+        found_more = True
+        reject_overstretched(state, t, p)
+        reject_odd_motion(state, t, p)
+    return found_more
+
+
+def track_frame(state: TrackState, t: int, p: StepParams) -> None:
+    """Track frame t (>= 1) from frame t - 1: every step above, in order."""
+    has_points = state.offsets[t + 1] > state.offsets[t]
+    v_pred = begin_frame(state, t, p)
+    continue_body_chains(state, t, v_pred, p)
+    if has_points:
+        match_measured(state, t, v_pred, p)
+    pred = state.positions[t - 1] + state.velocity
+    found_more = False
+    if not state.known.all():
+        pred = gap_predictions(state, t, p)
+        if has_points:
+            found_more = match_missing(state, t, pred, p)
+    swapped = swap_onto_curve(state, t, p)
+    place_invented(state, t, pred, found_more or swapped, p)
+    commit_frame(state, t, p)
+
+
+def track_frames(state: TrackState, t0: int, t1: int, p: StepParams) -> None:
+    """Track frames ``t0 … t1 - 1`` (``t0 >= 1``) in place."""
+    for t in range(t0, t1):
+        track_frame(state, t, p)

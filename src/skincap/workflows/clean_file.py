@@ -1,0 +1,197 @@
+"""``skincap clean`` as a workflow: a capture in, a cleaned C3D (and a JSON report) out.
+
+Also the reader of a user's marker surface (``--surface``): a PLY/OBJ whose vertices
+are the labelled markers, or an edge-list CSV of label pairs. This module composes
+:mod:`skincap.cleanup` with :mod:`skincap.io`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from skincap._arrays import Progress
+from skincap.errors import FormatError
+
+if TYPE_CHECKING:
+    from skincap.cleanup.surface import MarkerSurface
+    from skincap.types import MarkerSet
+
+__all__ = ["clean_file", "read_marker_surface"]
+
+
+def read_marker_surface(
+    path: str | os.PathLike[str], markers: MarkerSet, reference_frame: int | None
+) -> MarkerSurface:
+    """A user marker surface over the labelled columns: PLY/OBJ triangles or an edge CSV.
+
+    Mesh vertices are matched to the labelled markers by order when the counts agree,
+    else each vertex to the nearest labelled marker in the reference frame (each
+    marker at most once, within 5 cm). An edge CSV names the markers by label
+    (:func:`skincap.io.edge_csv.read_edge_csv`).
+
+    Parameters
+    ----------
+    path : path-like
+        ``.ply``, ``.obj`` or ``.csv``.
+    markers : MarkerSet
+        The capture; its labelled columns (labels not starting with ``*``) in column
+        order are the surface's markers.
+    reference_frame : int, optional
+        The frame whose positions match the vertices; default the frame with the most
+        labelled markers (:func:`skincap.cleanup.surface.choose_reference_frame`).
+
+    Raises
+    ------
+    FormatError
+        No labelled markers, a reference frame out of range, another extension, not a
+        mesh, or vertices that match no marker one to one.
+    """
+    from scipy.spatial import cKDTree
+
+    from skincap import io
+    from skincap.cleanup.surface import (
+        choose_reference_frame,
+        surface_from_edges,
+        surface_from_faces,
+    )
+    from skincap.io.edge_csv import read_edge_csv
+
+    path = Path(path)
+    labelled = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    if not labelled:
+        raise FormatError(path, "the capture has no labelled markers to put a surface on")
+    pos = markers.positions[:, labelled]
+    frame = choose_reference_frame(pos) if reference_frame is None else reference_frame
+    if not 0 <= frame < markers.n_frames:
+        raise FormatError(path, f"--reference-frame {frame} is outside 0..{markers.n_frames - 1}")
+    ref = pos[frame]
+    ext = path.suffix.lower()
+    if ext == ".csv":
+        labels = [str(markers.labels[i]) for i in labelled]
+        return surface_from_edges(read_edge_csv(path, labels), ref, reference_frame=frame)
+    if ext not in (".ply", ".obj"):
+        raise FormatError(path, f"a surface is a .ply, .obj or edge-list .csv, not {ext!r}")
+    mesh = io.read(path)
+    if not hasattr(mesh, "faces"):
+        raise FormatError(path, "not a mesh")
+    if mesh.n_vertices == len(labelled):
+        vertex_to_marker = np.arange(mesh.n_vertices)
+    else:
+        ok = np.isfinite(ref).all(axis=1)
+        if ok.sum() < mesh.n_vertices:
+            raise FormatError(
+                path,
+                f"{mesh.n_vertices} vertices but only {int(ok.sum())} labelled markers "
+                f"in reference frame {frame}",
+            )
+        rows = np.flatnonzero(ok)
+        dist, near = cKDTree(ref[rows]).query(mesh.vertices)
+        vertex_to_marker = rows[near]
+        if np.unique(vertex_to_marker).size != vertex_to_marker.size or np.any(dist > 0.05):
+            raise FormatError(
+                path,
+                "surface vertices do not match the markers one to one (by order or within "
+                f"5 cm in reference frame {frame})",
+            )
+    faces = vertex_to_marker[mesh.faces]
+    return surface_from_faces(faces, ref, reference_frame=frame)
+
+
+def clean_file(
+    src: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    method: str = "local_pca",
+    rigid_blend: float | None = None,
+    reference_frame: int | None = None,
+    surface: str | os.PathLike[str] | None = None,
+    smooth: bool = True,
+    lam: float = 0.02,
+    iterations: int = 10,
+    report: str | os.PathLike[str] | None = None,
+    fragment_truth: str | os.PathLike[str] | None = None,
+    recover_hidden: bool = True,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Clean the capture ``src`` into the C3D ``output``; return the clean report.
+
+    Parameters
+    ----------
+    src : path-like
+        Capture (``.c3d``/``.trc``/``.csv``): labelled markers and ``*N`` fragments.
+    output : path-like
+        The cleaned ``.c3d``.
+    method, rigid_blend, reference_frame, smooth, lam, iterations, recover_hidden
+        As :func:`skincap.cleanup.pipeline.clean_markers`.
+    surface : path-like, optional
+        A user marker surface (:func:`read_marker_surface`).
+    report : path-like, optional
+        Also write the returned report there as JSON.
+    fragment_truth : path-like, optional
+        ``fragment,truth`` CSV (:func:`skincap.io.synth_truth.read_fragment_truth`):
+        the report then counts wrong merges.
+    force : bool
+        Replace existing outputs (checked, with the inputs, before anything is read).
+    progress : Progress, optional
+
+    Returns
+    -------
+    dict
+        :func:`~skincap.cleanup.pipeline.clean_markers`' report with ``input`` and
+        ``output`` added.
+    """
+    from skincap import io
+    from skincap.cleanup.methods import FILL_METHODS
+    from skincap.cleanup.pipeline import clean_markers
+    from skincap.io.json_file import write_json
+    from skincap.io.output_safety import guard_outputs
+    from skincap.io.synth_truth import read_fragment_truth
+    from skincap.types import MarkerSet
+
+    src, output = Path(src), Path(output)
+    inputs = [src, surface, fragment_truth]
+    outputs = [output] if report is None else [output, report]
+    with guard_outputs(inputs, outputs, force=force):
+        if method not in FILL_METHODS:
+            raise FormatError(output, f"--method must be one of {', '.join(FILL_METHODS)}")
+        if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+            raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
+        if output.suffix.lower() != ".c3d":
+            raise FormatError(output, "the cleaned capture is written as .c3d")
+        markers = io.read(src)
+        if not isinstance(markers, MarkerSet):
+            raise FormatError(src, "not a marker capture (labelled trajectories)")
+        if markers.n_frames == 0:
+            raise FormatError(src, "no frames")
+        if reference_frame is not None and not 0 <= reference_frame < markers.n_frames:
+            raise FormatError(
+                src, f"--reference-frame {reference_frame} is outside 0..{markers.n_frames - 1}"
+            )
+        user_surface = (
+            None if surface is None else read_marker_surface(surface, markers, reference_frame)
+        )
+        truth = None if fragment_truth is None else read_fragment_truth(fragment_truth)
+        cleaned, summary = clean_markers(
+            markers,
+            method=method,
+            rigid_blend=rigid_blend,
+            reference_frame=reference_frame,
+            surface=user_surface,
+            smooth=smooth,
+            lam=lam,
+            iterations=iterations,
+            fragment_truth=truth,
+            recover_hidden=recover_hidden,
+            progress=progress,
+        )
+        summary["input"] = str(src)
+        summary["output"] = str(output)
+        io.write(cleaned, output, force=force)
+        if report is not None:
+            write_json(report, summary, force=force)
+        return summary

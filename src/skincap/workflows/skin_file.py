@@ -1,0 +1,271 @@
+"""``skincap skin`` as a workflow: a mesh and a BVH motion in, a skinned animation out.
+
+Bind the mesh to a skeleton (the file's weights or bone heat), retarget the motion
+onto it, deform (LBS or DQS) and export by the output's extension:
+
+``OUT.glb``
+    The skinned mesh with the joint animation (glTF skinning is linear).
+``OUT.pc2`` (+ ``OUT.obj``)
+    A point cache of the baked frames and the rest mesh it plays on.
+``OUT.usd`` / ``.usda`` / ``.usdc``
+    Time-sampled points.
+a folder
+    One OBJ per frame; its size is announced before it is written.
+
+This module composes :mod:`skincap.deform.skeletal` with :mod:`skincap.io`.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from skincap.errors import FormatError, OutputExistsError
+from skincap.workflows.progress import FrameProgress
+
+__all__ = [
+    "SKIN_OUTPUTS",
+    "skin_file",
+    "mesh_input_files",
+    "skin_output_files",
+    "write_skinned",
+]
+
+#: Output extensions of :func:`skin_file` (an output without one is a folder).
+SKIN_OUTPUTS = (".glb", ".pc2", ".usd", ".usda", ".usdc")
+
+
+def mesh_input_files(mesh_path: Path) -> list[Path]:
+    """Every file reading ``mesh_path`` may open: the mesh, a MakeHuman rig beside an
+    ``.obj`` (``.mhskel``/``.mhw``), the ``.bin`` buffers beside a ``.gltf``."""
+    files = [mesh_path]
+    ext = mesh_path.suffix.lower()
+    folder = mesh_path.parent
+    if ext == ".obj" and folder.is_dir():
+        files += sorted(folder.glob("*.mhskel")) + sorted(folder.glob("*.mhw"))
+    elif ext == ".gltf" and folder.is_dir():
+        files += sorted(folder.glob("*.bin"))
+    return files
+
+
+def skin_output_files(output: Path) -> list[Path]:
+    """The files ``skin -o output`` writes, known before skinning (a folder's frames are
+    checked once the frame count is known)."""
+    if output.suffix.lower() == ".pc2":
+        return [output, output.with_suffix(".obj")]  # the cache and the mesh it plays on
+    return [output] if output.suffix else []
+
+
+def skin_file(
+    mesh_path: str | os.PathLike[str],
+    motion_path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    method: str = "lbs",
+    weights: str | None = None,
+    name_map: str | os.PathLike[str] | None = None,
+    units: str | None = None,
+    mesh_units: str | None = None,
+    max_influences: int = 4,
+    force: bool = False,
+    progress: FrameProgress | None = None,
+    notify: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """Bind, retarget, deform and export; return the summary (``skin --json``).
+
+    Parameters
+    ----------
+    mesh_path : path-like
+        MakeHuman ``.obj`` (rig beside it), skinned ``.glb``/``.gltf``, or a bare
+        ``.obj``/``.ply`` (:func:`skincap.io.read_mesh`).
+    motion_path : path-like
+        A BVH motion.
+    output : path-like
+        By extension (:data:`SKIN_OUTPUTS`), or a folder for an OBJ sequence.
+    method : {"lbs", "dqs"}
+        Deformer of baked outputs (``.glb`` is always LBS).
+    weights : {"auto", "file"}, optional
+        Bone heat or the file's weights; default: the file's for a rigged mesh.
+    name_map : path-like, optional
+        JSON ``{bvh_joint: mesh_joint}`` overriding the built-in name maps.
+    units, mesh_units : str, optional
+        Length units of the BVH (guessed when omitted) and of the mesh.
+    max_influences : int
+        Joints per vertex.
+    force : bool
+        Replace existing outputs (checked, with the inputs, before anything is read).
+    progress : FrameProgress, optional
+        Frames skinned so far.
+    notify : callable, optional
+        Receives one line before a folder output is written: how many OBJ files and
+        about how many bytes.
+
+    Returns
+    -------
+    dict
+        ``mesh``, ``motion``, ``outputs``, ``files``, ``vertices``, ``height_m``,
+        ``joints``, ``frames``, ``rate`` (Hz), ``method``, ``weights``.
+    """
+    from skincap.io.output_safety import guard_outputs
+
+    mesh_path, motion_path, output = Path(mesh_path), Path(motion_path), Path(output)
+    name_map = None if name_map is None else Path(name_map)
+    with guard_outputs(
+        [*mesh_input_files(mesh_path), motion_path, name_map],
+        skin_output_files(output),
+        folders=[] if output.suffix else [output],
+        force=force,
+    ):
+        return _skin(
+            mesh_path,
+            motion_path,
+            output,
+            method=method,
+            weights=weights,
+            name_map=name_map,
+            units=units,
+            mesh_units=mesh_units,
+            max_influences=max_influences,
+            force=force,
+            progress=progress,
+            notify=notify,
+        )
+
+
+def _skin(
+    mesh_path: Path,
+    motion_path: Path,
+    output: Path,
+    *,
+    method: str,
+    weights: str | None,
+    name_map: Path | None,
+    units: str | None,
+    mesh_units: str | None,
+    max_influences: int,
+    force: bool,
+    progress: FrameProgress | None,
+    notify: Callable[[str], None] | None,
+) -> dict[str, Any]:
+    from skincap import io
+    from skincap.deform.skeletal.pipeline import prepare_skinning
+    from skincap.evaluate.summary import mesh_height
+    from skincap.io.bvh import read_bvh
+
+    ext = output.suffix.lower()
+    if method not in ("lbs", "dqs"):
+        raise FormatError(output, f"--method must be lbs or dqs, got {method!r}")
+    if ext and ext not in SKIN_OUTPUTS:
+        raise FormatError(
+            output,
+            f"cannot write {ext!r}; skin writes {', '.join(SKIN_OUTPUTS)} or a folder (OBJ sequence)",
+        )
+    if ext == ".glb" and method != "lbs":
+        raise FormatError(
+            output,
+            "glTF skinning is linear blend skinning; write .pc2, .usd or a folder to bake DQS",
+        )
+    if weights not in (None, "auto", "file"):
+        raise FormatError(output, f"--weights must be auto or file, got {weights!r}")
+    if not ext and output.is_dir() and any(output.iterdir()) and not force:
+        raise OutputExistsError(output)
+    mesh = io.read_mesh(mesh_path, units=mesh_units)
+    motion = read_bvh(motion_path, units=units)
+    if not ext:  # before binding, which can take minutes for a bare mesh
+        _check_obj_sequence(mesh, motion.n_frames, output, notify)
+    setup = prepare_skinning(
+        mesh,
+        motion,
+        weights=weights,
+        name_map=name_map,
+        max_influences=max_influences,  # type: ignore[arg-type]
+    )
+    frames = setup.motion.n_frames
+    if progress is not None:
+        progress(0.0, frames)
+
+    def advance(fraction: float) -> None:
+        if progress is not None:
+            progress(fraction * frames, frames)
+
+    written = write_skinned(setup, output, method=method, force=force, progress=advance)
+    return {
+        "mesh": str(mesh_path),
+        "motion": str(motion_path),
+        "outputs": [str(p) for p in (written if output.suffix else [output])],
+        "files": len(written),
+        "vertices": setup.mesh.n_vertices,
+        "height_m": mesh_height(setup.mesh),
+        "joints": setup.mesh.skin.skeleton.n_joints,
+        "frames": frames,
+        "rate": setup.motion.rate,
+        "method": method,
+        "weights": setup.report["weights"],
+    }
+
+
+def _check_obj_sequence(
+    mesh: Any, frames: int, folder: Path, notify: Callable[[str], None] | None
+) -> None:
+    """Check an OBJ-sequence folder's frame files against the inputs; say the size first.
+
+    ``mesh`` is the rest mesh as read (binding keeps its vertices and topology) and
+    ``frames`` the motion's frame count (retargeting keeps it)."""
+    from skincap.io.obj_sequence import estimate_obj_sequence_bytes, obj_sequence_paths
+    from skincap.io.output_safety import check_outputs
+
+    check_outputs(obj_sequence_paths(folder, frames), force=True)
+    size = estimate_obj_sequence_bytes(mesh, frames, units="m", up="y")
+    if notify is not None:
+        notify(f"writing {frames} OBJ files to {folder}, about {bytes_text(size)}")
+
+
+def bytes_text(size: float) -> str:
+    """``4.0 GB``, ``512 MB``…: decimal units, as file managers and ``df -H`` show them."""
+    if size < 1000:
+        return f"{size:.0f} B"
+    for unit in ("kB", "MB", "GB"):
+        size /= 1000
+        if size < 1000 or unit == "GB":
+            break
+    return f"{size:.1f} {unit}"
+
+
+def write_skinned(
+    setup: Any, output: Path, *, method: str, force: bool, progress: Callable[[float], None]
+) -> list[Path]:
+    """Export a :class:`SkinningSetup` by ``output``'s extension; return the written paths.
+
+    ``progress`` receives the fraction of frames deformed (1.0 at once for ``.glb``,
+    which stores the joint animation, not baked frames).
+    """
+    from skincap.deform.skeletal.deformers import skin_motion
+
+    ext = output.suffix.lower()
+    if ext == ".glb":
+        from skincap.io.gltf.writer import write_glb
+
+        write_glb(setup.mesh, setup.motion, output, force=force)
+        progress(1.0)
+        return [output]
+    animation = skin_motion(setup.mesh, setup.motion, method=method, progress=progress)
+    if ext == ".pc2":
+        from skincap.io.mesh import write_obj
+        from skincap.io.pc2 import write_pc2
+
+        rest_obj = output.with_suffix(".obj")
+        # The mesh Blender's Mesh Cache modifier plays the PC2 on: same metres, Y up.
+        write_obj(setup.mesh, rest_obj, force=force, units="m", up="y")
+        write_pc2(animation, output, force=force)
+        return [output, rest_obj]
+    if ext in (".usd", ".usda", ".usdc"):
+        from skincap.io.usd import write_usd
+
+        write_usd(animation, output, force=force)
+        return [output]
+    from skincap.io.obj_sequence import write_obj_sequence
+
+    write_obj_sequence(animation, output, force=force, units="m", up="y")
+    return [output]
