@@ -69,3 +69,13 @@ def test_bad_shapes_are_named() -> None:
         bound_invented(np.zeros((2, 3, 3)), np.zeros((2, 3), bool), np.ones(3))
     with pytest.raises(ValidationError, match="invented"):
         bound_invented(np.zeros((2, 3, 3)), np.zeros((2, 4), bool), np.ones(2))
+
+
+def test_a_frame_with_nothing_measured_is_not_extrapolated() -> None:
+    x = _straight(4, 5, 0.1)
+    invented = np.zeros((4, 5), dtype=bool)
+    invented[2] = True  # the whole rope unseen in frame 2
+    x[2] += 12.0  # extrapolated 12 m away, the rope intact
+    bounded, moved = bound_invented(x, invented, np.full(4, 0.1))
+    assert np.isnan(bounded[2]).all() and moved[2].all()
+    np.testing.assert_array_equal(bounded[[0, 1, 3]], x[[0, 1, 3]])

@@ -67,7 +67,9 @@ def bound_invented(
     vectorised over frames. By the triangle inequality this bounds it against every
     measured marker as long as the measured ones keep the rope's length; a sample
     still more than 1 mm outside any ball afterwards (the measured markers themselves
-    disagree with any rope) is NaN.
+    disagree with any rope) is NaN, and so is every sample of a frame in which no
+    marker is measured (nothing says where the rope is: an extrapolation of the whole
+    rope is unbounded).
 
     Parameters
     ----------
@@ -128,6 +130,8 @@ def bound_invented(
         for j in range(m - 1):
             pull(j, np.full(t_n, j + 1), inv[:, j] & inv[:, j + 1], 0.5)
     broken = physics_excess(pos, inv, spacing, stretch=stretch) > 1e-3
+    # a frame with no measured marker holds no evidence of where the rope is
+    broken |= inv.all(axis=1, keepdims=True)
     pos[broken] = np.nan
     moved = inv & (np.nan_to_num(np.abs(pos - before).max(axis=2), nan=1.0) > 0)
     return pos, moved
