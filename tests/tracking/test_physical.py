@@ -29,9 +29,8 @@ def test_wild_extrapolations_are_pulled_back_within_the_rope() -> None:
     bounded, moved = bound_invented(wild, invented, spacing)
     # measured samples never move; every invented one is within reach of the others
     np.testing.assert_array_equal(bounded[~invented], wild[~invented])
-    assert np.all(np.isnan(bounded[~np.isfinite(bounded).all(axis=2)]))
     ok = np.isfinite(bounded).all(axis=2)
-    assert ok.mean() > 0.97
+    assert ok.all()  # a measured marker in every frame: nothing is NaN
     excess = physics_excess(bounded, invented, spacing, stretch=STRETCH_ALLOWANCE)
     assert np.nanmax(excess) <= 1e-3
     # never farther from a measured marker than the rope between them (+10 %) allows

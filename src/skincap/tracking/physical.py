@@ -65,10 +65,10 @@ def bound_invented(
     on each side in its frame, then two invented neighbours onto each other's ball
     (sharing the move) — cyclic projections onto convex sets, ``sweeps`` times,
     vectorised over frames. By the triangle inequality this bounds it against every
-    measured marker as long as the measured ones keep the rope's length; a sample
-    still more than 1 mm outside any ball afterwards (the measured markers themselves
-    disagree with any rope) is NaN, and so is every sample of a frame in which no
-    marker is measured (nothing says where the rope is: an extrapolation of the whole
+    measured marker as long as the measured ones keep the rope's length (where they
+    themselves break it, the sample is left where the projections put it, as near
+    to every ball as they get). Every sample of a frame in which no marker is
+    measured is NaN (nothing says where the rope is: an extrapolation of the whole
     rope is unbounded).
 
     Parameters
@@ -129,9 +129,8 @@ def bound_invented(
             pull(j, right[:, j], inv[:, j] & (right[:, j] < m), 1.0)
         for j in range(m - 1):
             pull(j, np.full(t_n, j + 1), inv[:, j] & inv[:, j + 1], 0.5)
-    broken = physics_excess(pos, inv, spacing, stretch=stretch) > 1e-3
     # a frame with no measured marker holds no evidence of where the rope is
-    broken |= inv.all(axis=1, keepdims=True)
+    broken = np.broadcast_to(inv.all(axis=1, keepdims=True), inv.shape)
     pos[broken] = np.nan
     moved = inv & (np.nan_to_num(np.abs(pos - before).max(axis=2), nan=1.0) > 0)
     return pos, moved
