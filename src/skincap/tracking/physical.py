@@ -50,6 +50,31 @@ def physics_excess(
     return np.where(np.isfinite(pos).all(axis=2), excess, np.nan)
 
 
+def _out_of_reach(
+    pos: np.ndarray,
+    inv: np.ndarray,
+    left: np.ndarray,
+    right: np.ndarray,
+    s: np.ndarray,
+    stretch: float,
+) -> np.ndarray:
+    """(T, M) bool: invented samples beyond reach of their nearest measured markers or
+    of an invented neighbour (``left``/``right``: -1 / M where there is none)."""
+    t_n, m, _ = pos.shape
+    frames = np.arange(t_n)[:, None]
+    out = np.zeros(inv.shape, dtype=bool)
+    for anchor, exists in ((left, left >= 0), (right, right < m)):
+        a = np.clip(anchor, 0, m - 1)  # (T, M)
+        dist = np.linalg.norm(pos - pos[frames, a], axis=2)
+        reach = (1.0 + stretch) * np.abs(s[None, :] - s[a])
+        out |= inv & exists & (dist > reach)
+    link = np.linalg.norm(np.diff(pos, axis=1), axis=2)  # (T, M - 1)
+    far = inv[:, :-1] & inv[:, 1:] & (link > (1.0 + stretch) * np.diff(s)[None, :])
+    out[:, :-1] |= far
+    out[:, 1:] |= far
+    return out
+
+
 def bound_invented(
     positions: np.ndarray,
     invented: np.ndarray,
@@ -103,32 +128,42 @@ def bound_invented(
     if not stretch >= 0 or sweeps < 1:
         raise ValidationError("stretch must be >= 0 and sweeps >= 1")
     s = _arclength(spacing)
-    t_n, m, _ = pos.shape
-    frames = np.arange(t_n)
     before = pos.copy()
+    m = pos.shape[1]
     # the nearest measured marker on each side of every sample (-1 / m: none)
-    idx = np.broadcast_to(np.arange(m), (t_n, m))
+    idx = np.broadcast_to(np.arange(m), inv.shape)
     left = np.maximum.accumulate(np.where(~inv, idx, -1), axis=1)
     right = np.minimum.accumulate(np.where(~inv, idx, m)[:, ::-1], axis=1)[:, ::-1]
+    # only frames with an invented sample out of reach are worked on (most have none)
+    work = np.flatnonzero(_out_of_reach(pos, inv, left, right, s, stretch).any(axis=1))
+    if work.size:
+        sub, sub_inv, sub_l, sub_r = pos[work], inv[work], left[work], right[work]
+        frames = np.arange(work.size)
 
-    def pull(j: int, anchor: np.ndarray, active: np.ndarray, share: float) -> None:
-        """Move x_j (and x_anchor by ``1 - share`` of it) to within reach of x_anchor."""
-        a = np.clip(anchor, 0, m - 1)
-        reach = (1.0 + stretch) * np.abs(s[j] - s[a])  # (T,)
-        d = pos[:, j] - pos[frames, a]  # (T, 3)
-        dist = np.linalg.norm(d, axis=1)
-        over = active & (dist > reach) & np.isfinite(dist)
-        if over.any():
-            fix = d[over] * ((dist[over] - reach[over]) / dist[over])[:, None]
-            pos[over, j] -= share * fix
-            pos[frames[over], a[over]] += (1.0 - share) * fix
+        def pull(j: int, anchor: np.ndarray, active: np.ndarray, share: float) -> bool:
+            """Move x_j (and x_anchor by ``1 - share`` of it) within reach of x_anchor."""
+            a = np.clip(anchor, 0, m - 1)
+            reach = (1.0 + stretch) * np.abs(s[j] - s[a])  # (W,)
+            d = sub[:, j] - sub[frames, a]  # (W, 3)
+            dist = np.linalg.norm(d, axis=1)
+            over = active & (dist > reach) & np.isfinite(dist)
+            if over.any():
+                fix = d[over] * ((dist[over] - reach[over]) / dist[over])[:, None]
+                sub[over, j] -= share * fix
+                sub[frames[over], a[over]] += (1.0 - share) * fix
+            return bool(over.any())
 
-    for _ in range(sweeps):
-        for j in range(m):
-            pull(j, left[:, j], inv[:, j] & (left[:, j] >= 0), 1.0)
-            pull(j, right[:, j], inv[:, j] & (right[:, j] < m), 1.0)
-        for j in range(m - 1):
-            pull(j, np.full(t_n, j + 1), inv[:, j] & inv[:, j + 1], 0.5)
+        for _ in range(sweeps):
+            changed = False
+            for j in range(m):
+                changed |= pull(j, sub_l[:, j], sub_inv[:, j] & (sub_l[:, j] >= 0), 1.0)
+                changed |= pull(j, sub_r[:, j], sub_inv[:, j] & (sub_r[:, j] < m), 1.0)
+            for j in range(m - 1):
+                both = sub_inv[:, j] & sub_inv[:, j + 1]
+                changed |= pull(j, np.full(work.size, j + 1), both, 0.5)
+            if not changed:
+                break
+        pos[work] = sub
     # a frame with no measured marker holds no evidence of where the rope is
     broken = np.broadcast_to(inv.all(axis=1, keepdims=True), inv.shape)
     pos[broken] = np.nan
