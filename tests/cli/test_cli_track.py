@@ -127,6 +127,7 @@ def test_track_markers_and_box(scene, tmp_path) -> None:  # type: ignore[no-unty
         "rope_points": report["rope_points"],
         "invented_samples": 10,
         "lost_traces": 0,
+        "lost": [],
     }  # fmt: skip
 
 

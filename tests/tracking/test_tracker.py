@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from conftest import rope_truth_indices
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.tracking.init import RopeInit, init_rope
 from skincap.tracking.tracker import RopeTrack, TrackSettings, track_rope
 from skincap.types import PointCloud
@@ -96,13 +96,17 @@ def test_gap_repair(whip_take, held: list[str], bound: float) -> None:  # type: 
 def test_lost_after_max_temp_markers(whip_take) -> None:  # type: ignore[no-untyped-def]
     cloud = _without(whip_take, ["rope_22"], 80, 100)
     init = init_rope(cloud, markers=rope_truth_indices(whip_take), max_temp_markers=20)
-    track = track_rope(cloud, init)
+    with pytest.warns(SkincapWarning, match=r"1 of \d+ traces lost \(rope_\d+ from frame 100\)"):
+        track = track_rope(cloud, init)
     j = int(np.nonzero(track.invented[100])[0][0])
     assert track.lost[j] and track.lost.sum() == 1
     assert track.lost_frames[:100, j].sum() == 0 and track.lost_frames[101:180, j].all()
-    assert np.isfinite(track.positions).all()
-    # invented along the rope: one rest spacing from its neighbour
-    gap = np.linalg.norm(track.positions[80:180, j] - track.positions[80:180, j - 1], axis=1)
+    # a lost trace is NaN, not an extrapolation; the rest of the take is not
+    lost = track.lost_frames
+    assert np.isnan(track.positions[lost]).all() and np.isfinite(track.positions[~lost]).all()
+    assert not track.to_markerset().invented[lost].any()
+    # invented along the rope before it was lost: one rest spacing from its neighbour
+    gap = np.linalg.norm(track.positions[80:100, j] - track.positions[80:100, j - 1], axis=1)
     np.testing.assert_allclose(gap, init.spacing[j - 1], rtol=1e-6)
 
 

@@ -65,6 +65,20 @@ def synth(
         typer.Option("--prop", help="Add a 4-marker rigid prop moving on its own beside the body."),
     ] = False,
     seed: Annotated[int, typer.Option(help="Random seed: the same seed gives the same bytes.")] = 0,
+    real_markers: Annotated[
+        Path | None,
+        typer.Option(
+            help="A labelled capture (C3D, TRC, CSV) as the body instead of a synthetic one: "
+            "its real markers, with a PBD-simulated rope (--rope whip|jump) in the hands."
+        ),
+    ] = None,
+    hands: Annotated[
+        str | None,
+        typer.Option(
+            help="With --real-markers: marker names of the left[:right] hand, e.g. "
+            "LWRA,LWRB:RWRA,RWRB (found by name when omitted); a whip is held in the last."
+        ),
+    ] = None,
     force: Annotated[
         bool, typer.Option("--force", help="Replace outputs of an earlier run.")
     ] = False,
@@ -77,9 +91,41 @@ def synth(
     --spikes, --swaps and --prop put real-world corruption into capture.c3d; the
     un-indexed capture_points.csv is left as the cameras saw it).
 
+    With --real-markers the body is a real labelled capture (its markers un-indexed in
+    capture_points.csv, with the take's own gaps, the first pose held 0.5 s) and the
+    rope, held by the hand markers, is simulated by position-based dynamics; there is
+    no skin or motion truth.
+
     Example: skincap synth --motion jumprope --rope jump --frames 1000 -o take1
+
+    Example: skincap synth --real-markers walk.c3d --rope whip --seconds 4 -o real_whip
     """
-    from skincap.workflows.synth_folder import synth_folder
+    from skincap.workflows.synth_folder import real_rope_folder, synth_folder
+
+    if real_markers is not None:
+        with _user_errors(), stage_progress("reading") as progress:
+            result = real_rope_folder(
+                output,
+                real_markers,
+                rope=rope,
+                hands=hands,
+                frames=frames,
+                seconds=seconds,
+                noise_mm=noise_mm,
+                seed=seed,
+                force=force,
+                progress=progress,
+            )
+        s = result.summary
+        out.print(
+            f"synth: {s['frames']} frames of {real_markers}, {s['markers']} real markers + "
+            f"{s['rope_markers']} rope markers ({s['rope']}, held by "
+            f"{' and '.join('+'.join(h) for h in s['hands'])}) -> {s['fragments']} "
+            f"fragments, {s['ghosts']} ghosts; wrote {output}",
+            markup=False,
+            soft_wrap=True,
+        )
+        return
 
     with _user_errors(), stage_progress("body") as progress:
         result = synth_folder(

@@ -109,13 +109,21 @@ def track(
                 "rope_points": report["rope_points"],
                 "invented_samples": report["invented_samples"],
                 "lost_traces": len(report["lost_traces"]),
+                "lost": report["lost_traces"],
             }
         )
         return
+    lost = "; ".join(
+        f"{t['marker']} frames " + ", ".join(f"{a}-{b}" for a, b in t["lost_runs"])
+        for t in report["lost_traces"]
+    )
     out.print(
         f"{input_file} -> {output}: {report['frames']} frames, "
         f"{len(report['rope_markers'])} rope markers, {report['rope_points']} rope points, "
         f"{report['invented_samples']} invented samples, {len(report['lost_traces'])} lost traces"
+        + (f" ({lost})" if lost else ""),
+        markup=False,
+        soft_wrap=True,
     )
 
 

@@ -61,10 +61,11 @@ class SynthCapture:
     marker_surface : Mesh or None
         Ground-truth marker surface: vertices are the body markers in frame 0,
         faces the layout's triangulation (dense layouts).
-    skin : MeshAnimation
-        The moving skin the markers ride on, (T, V, 3) metres.
-    motion : Motion
-        The motion on the body's skeleton.
+    skin : MeshAnimation or None
+        The moving skin the markers ride on, (T, V, 3) metres (None for a real
+        capture's markers, :mod:`skincap.synth.real_capture`).
+    motion : Motion or None
+        The motion on the body's skeleton (None for a real capture's markers).
     rope : RopeResult or None
     summary : dict
         Counts for ``summary.json``: frames, rate, markers, fragments, missing
@@ -77,8 +78,8 @@ class SynthCapture:
     fragment_truth: dict[str, str]
     truth: MarkerSet
     marker_surface: Mesh | None
-    skin: MeshAnimation
-    motion: Motion
+    skin: MeshAnimation | None
+    motion: Motion | None
     rope: RopeResult | None
     summary: dict[str, Any] = field(default_factory=dict)
 

@@ -22,9 +22,11 @@ Beyond the thesis:
   missing markers at the ends of the rope, and it is projected to the rest spacing
   ``l_j`` from its measured side, so invented markers keep the rope's length.
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*:
-  it goes on being invented the same way (so positions are never NaN) and flagged in
+  it goes on being predicted the same way internally and flagged in
   :attr:`RopeTrack.lost_frames`, and it keeps looking for a point within γ of that
-  invented position; taking one ends the loss.
+  prediction; taking one ends the loss. What is reported for a lost trace is NaN, and
+  every invented sample reported is bounded by the rope's length
+  (:mod:`skincap.tracking.physical`).
 
 * A measured trace not found within γ of V gets a second chance in the same frame:
   V corrected by the prediction errors of the traces found (interpolated along the
@@ -70,6 +72,7 @@ The steps are written twice, with the same names and signatures: in NumPy
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -77,8 +80,9 @@ from typing import Any
 import numpy as np
 
 from skincap.backends import numba_available, resolve_backend
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.tracking.init import RopeInit
+from skincap.tracking.physical import bound_invented
 from skincap.tracking.settings import TrackSettings
 from skincap.tracking.state import start_tracking
 from skincap.types import MarkerSet, PointCloud
@@ -93,7 +97,9 @@ class RopeTrack:
     Attributes
     ----------
     positions : (T, M, 3) float64, metres
-        Rope markers in order along the rope; never NaN (invented where unseen).
+        Rope markers in order along the rope; invented where unseen, within the
+        distance the rope's length allows from the measured markers (10 % stretch,
+        :mod:`skincap.tracking.physical`); NaN where the trace is lost.
     invented : (T, M) bool
         True where the sample is a temporary marker rather than a measured point.
     point_index : (T, M) int64
@@ -101,7 +107,8 @@ class RopeTrack:
         No point appears twice.
     lost_frames : (T, M) bool
         True where the trace had more than ``max_temp_markers`` consecutive
-        temporary markers (it is still invented along the rope there).
+        temporary markers, or no place the rope's length allows: ``positions`` is NaN
+        there (the tracker goes on predicting it internally, so it can be found again).
     labels : list of M str
         ``rope_00``, ``rope_01``….
     rate : float, Hz
@@ -142,12 +149,12 @@ class RopeTrack:
         return mask
 
     def to_markerset(self) -> MarkerSet:
-        """The rope as labelled markers, invented samples flagged (no NaN)."""
+        """The rope as labelled markers, invented samples flagged, lost samples NaN."""
         return MarkerSet(
             positions=self.positions.copy(),
             labels=list(self.labels),
             rate=self.rate,
-            invented=self.invented.copy(),
+            invented=self.invented & np.isfinite(self.positions).all(axis=2),
             meta=dict(self.meta),
         )
 
@@ -216,7 +223,9 @@ def track_rope(
     Returns
     -------
     RopeTrack
-        Positions never NaN; ``invented`` where a temporary marker was used;
+        Positions NaN only where a trace is lost (a SkincapWarning counts them),
+        invented samples bounded by the rope's length; ``invented`` where a temporary
+        marker was used;
         ``point_index`` the taken points (each at most once); ``lost_frames``.
 
     Raises
@@ -251,16 +260,53 @@ def track_rope(
         t0 = t1
     if progress is not None:
         progress(1.0)
+    lost_frames = state.lost_frames.copy()
+    positions, moved = _physical_output(
+        state.positions, state.invented, lost_frames, init.spacing, init.labels
+    )
     return RopeTrack(
-        positions=state.positions,
+        positions=positions,
         invented=state.invented,
         point_index=state.point_index,
-        lost_frames=state.lost_frames,
+        lost_frames=lost_frames,
         labels=init.labels,
         rate=cloud.rate,
         init=init,
-        meta={k: v for k, v in cloud.meta.items() if k != "id_labels"},
+        meta={
+            **{k: v for k, v in cloud.meta.items() if k != "id_labels"},
+            "invented_bounded": int(moved.sum()),
+        },
     )
+
+
+def _physical_output(
+    positions: np.ndarray,
+    invented: np.ndarray,
+    lost_frames: np.ndarray,
+    spacing: np.ndarray,
+    labels: list[str],
+) -> tuple[np.ndarray, np.ndarray]:
+    """The tracked positions as reported: invented samples bounded, lost samples NaN.
+
+    Both backends track with their own (unbounded) predictions; what leaves the
+    tracker is physical (:func:`skincap.tracking.physical.bound_invented`), and a lost
+    trace is NaN with a :class:`~skincap.errors.SkincapWarning` that counts them.
+    """
+    bounded, moved = bound_invented(positions, invented, spacing)
+    unplaced = ~np.isfinite(bounded).all(axis=2)  # (T, M) no position the rope allows
+    lost_frames |= unplaced
+    bounded[lost_frames] = np.nan
+    if lost_frames.any():
+        lost = np.flatnonzero(lost_frames.any(axis=0))
+        first = [int(np.argmax(lost_frames[:, j])) for j in lost]
+        where = ", ".join(f"{labels[j]} from frame {f}" for j, f in zip(lost, first, strict=True))
+        warnings.warn(
+            f"rope: {lost.size} of {len(labels)} traces lost ({where}); "
+            f"{int(lost_frames.sum())} samples are NaN",
+            SkincapWarning,
+            stacklevel=3,
+        )
+    return bounded, moved
 
 
 def warm_up_kernel() -> None:

@@ -19,6 +19,10 @@ Layout of the output folder::
                             gives truth/mesh.pc2 back (soft tissue 0)
     truth/corruption.json   spikes, label swaps and prop markers put into capture.c3d
                             (``--spikes``, ``--swaps``, ``--prop``; empty lists otherwise)
+
+A take built on a real capture's markers (``--real-markers``,
+:mod:`skincap.synth.real_capture`) has no skin, motion or marker surface: the
+marker_surface, motion, mesh and body files are not written.
 """
 
 from __future__ import annotations
@@ -133,16 +137,17 @@ def write_synth_outputs(
     if result.marker_surface is not None:
         write_ply(result.marker_surface, root / "truth" / "marker_surface.ply", force=force)
         done(root / "truth" / "marker_surface.ply")
-    write_bvh(result.motion, root / "truth" / "motion.bvh", force=force, units="m")
-    done(root / "truth" / "motion.bvh")
-    write_obj(result.skin.rest, root / "truth" / "mesh.obj", force=force, units="m", up="y")
-    done(root / "truth" / "mesh.obj")
-    write_pc2(result.skin, root / "truth" / "mesh.pc2", force=force)
-    done(root / "truth" / "mesh.pc2")
-    # the rigged body, so the skin can be made again from motion.bvh (the procedural
-    # body has no other file with its weights)
-    write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
-    done(root / "truth" / "body.glb")
+    if result.motion is not None and result.skin is not None:
+        write_bvh(result.motion, root / "truth" / "motion.bvh", force=force, units="m")
+        done(root / "truth" / "motion.bvh")
+        write_obj(result.skin.rest, root / "truth" / "mesh.obj", force=force, units="m", up="y")
+        done(root / "truth" / "mesh.obj")
+        write_pc2(result.skin, root / "truth" / "mesh.pc2", force=force)
+        done(root / "truth" / "mesh.pc2")
+        # the rigged body, so the skin can be made again from motion.bvh (the procedural
+        # body has no other file with its weights)
+        write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
+        done(root / "truth" / "body.glb")
     _write_text(
         root / "truth" / "corruption.json",
         json.dumps(corruption_record(result.capture.labels, corruption), indent=1) + "\n",
@@ -281,4 +286,85 @@ def synth_folder(
         report(0.9, "writing")
         root.mkdir(parents=True, exist_ok=True)
         write_synth_outputs(result, root, force=force, corruption=corruption)
+    return result
+
+
+def real_rope_folder(
+    output: str | os.PathLike[str],
+    source: str | os.PathLike[str],
+    *,
+    rope: str,
+    hands: str | None = None,
+    frames: int | None = None,
+    seconds: float | None = None,
+    noise_mm: float = 0.5,
+    seed: int = 0,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> SynthCapture:
+    """``skincap synth --real-markers``: a PBD rope in a real capture's hands, written out.
+
+    Reads the labelled capture ``source`` (C3D, TRC, CSV), keeps its first ``frames``
+    (or ``seconds``), builds the take with
+    :func:`skincap.synth.real_capture.real_capture_with_rope` (``hands`` as the CLI
+    gives it: ``L1,L2[:R1,R2]``, found by name when None) and writes it with
+    :func:`write_synth_outputs` (no skin, motion or marker surface files).
+
+    Raises
+    ------
+    FormatError
+        An option out of range (named as the CLI option), a capture that is not
+        labelled markers, or hands that cannot be found.
+    """
+    from skincap import io
+    from skincap.errors import FormatError, ValidationError
+    from skincap.io.output_safety import guard_outputs
+    from skincap.synth.real_capture import real_capture_with_rope
+    from skincap.types import MarkerSet
+
+    root = Path(output)
+    report = progress if progress is not None else (lambda fraction, label: None)
+    with guard_outputs(
+        [Path(source)], [root / name for name in OUTPUT_FILES], folders=[root], force=force
+    ):
+        if rope not in ("whip", "jump"):
+            raise FormatError(root, "--real-markers needs --rope whip or --rope jump")
+        if frames is not None and seconds is not None:
+            raise FormatError(root, "give --frames or --seconds, not both")
+        if frames is not None and frames < 2 or seconds is not None and seconds <= 0:
+            raise FormatError(root, "--frames must be at least 2 and --seconds positive")
+        if noise_mm < 0:
+            raise FormatError(root, "--noise-mm must not be negative")
+        groups = None
+        if hands is not None:
+            groups = [[n for n in part.split(",") if n.strip()] for part in hands.split(":")]
+            if not 1 <= len(groups) <= 2 or not all(groups):
+                raise FormatError(root, f"--hands: expected L1,L2[:R1,R2], got {hands!r}")
+        report(0.0, "reading")
+        markers = io.read(source)
+        if not isinstance(markers, MarkerSet) or all(
+            label.startswith("*") for label in markers.labels
+        ):
+            raise FormatError(source, "--real-markers needs a capture of labelled markers")
+        n = markers.n_frames
+        if frames is not None:
+            n = min(n, frames)
+        elif seconds is not None:
+            n = min(n, max(2, int(round(seconds * markers.rate))))
+        markers = MarkerSet(markers.positions[:n], markers.labels, markers.rate, meta=markers.meta)
+        try:
+            result = real_capture_with_rope(
+                markers,
+                rope=rope,  # type: ignore[arg-type]
+                hands=groups,
+                noise_mm=noise_mm,
+                seed=seed,
+                progress=lambda fraction, label: report(0.05 + 0.85 * fraction, label),
+            )
+        except ValidationError as exc:
+            raise FormatError(source, str(exc)) from None
+        result.summary["source"] = Path(source).name
+        report(0.9, "writing")
+        root.mkdir(parents=True, exist_ok=True)
+        write_synth_outputs(result, root, force=force)
     return result

@@ -156,7 +156,8 @@ def track_report(cloud: PointCloud, track: RopeTrack) -> dict[str, Any]:
     """Summary of a tracking run as JSON-ready values.
 
     Points per frame (min, mean, max), rope markers and their spacings, invented
-    samples (total, per marker, fraction), lost traces with their lost frame counts,
+    samples (total, per marker, fraction, how many were moved back within the rope's
+    length), lost traces with their lost frame counts and ``[first, last]`` frame runs,
     points taken by the rope and left to the body, γ, maxTempMarkers, how the rope
     was selected.
     """
@@ -186,11 +187,38 @@ def track_report(cloud: PointCloud, track: RopeTrack) -> dict[str, Any]:
             label: int(n) for label, n in zip(track.labels, track.invented.sum(axis=0), strict=True)
         },
         "lost_traces": [
-            {"marker": label, "lost_frames": int(n)}
-            for label, n in zip(track.labels, lost_counts, strict=True)
+            {"marker": label, "lost_frames": int(n), "lost_runs": _runs(track.lost_frames[:, j])}
+            for j, (label, n) in enumerate(zip(track.labels, lost_counts, strict=True))
             if n > 0
         ],
+        "invented_bounded": int(track.meta.get("invented_bounded", 0)),
     }
+
+
+def _runs(mask: np.ndarray) -> list[list[int]]:
+    """``[first, last]`` frame of each run of True in a (T,) mask."""
+    edges = np.diff(np.concatenate([[0], mask.astype(np.int8), [0]]))
+    return [
+        [int(a), int(b) - 1]
+        for a, b in zip(np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True)
+    ]
+
+
+def _resample_finite(positions: np.ndarray, n_samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`resample_by_arclength` per frame through the markers that are not NaN.
+
+    Frames sharing a pattern of lost markers are resampled together; a frame with
+    fewer than two markers left gives NaN.
+    """
+    finite = np.isfinite(positions).all(axis=2)  # (T, M)
+    s = np.full(positions.shape[:1] + (n_samples,), np.nan)
+    pts = np.full(positions.shape[:1] + (n_samples, 3), np.nan)
+    patterns, which = np.unique(finite, axis=0, return_inverse=True)
+    for p, keep in enumerate(patterns):
+        frames = np.flatnonzero(which.ravel() == p)
+        if keep.sum() >= 2:
+            s[frames], pts[frames] = resample_by_arclength(positions[frames][:, keep], n_samples)
+    return s, pts
 
 
 def write_track_outputs(
@@ -212,7 +240,8 @@ def write_track_outputs(
     ``rope_curve.csv``
         ``frame,s,x,y,z``: the rope resampled at ``curve_samples`` points of equal
         arc length per frame (``s`` metres from the first marker), Y up, metres
-        (:func:`skincap.io.rope_curve.write_rope_curve`).
+        (:func:`skincap.io.rope_curve.write_rope_curve`); through the markers that are
+        not lost (NaN rows where fewer than two are left).
     ``report.json``
         :func:`track_report`.
 
@@ -247,7 +276,7 @@ def write_track_outputs(
                 raise OutputExistsError(out / name)
     write_c3d(track.to_markerset(), out / "rope.c3d", force=force)
     write_points_csv(_body_cloud(cloud, track), out / "body_points.csv", force=force)
-    s, pts = resample_by_arclength(track.positions, curve_samples)
+    s, pts = _resample_finite(track.positions, curve_samples)
     write_rope_curve(out / "rope_curve.csv", s, pts, force=force)
     report = track_report(cloud, track)
     write_json(out / "report.json", report, force=force, indent=2)

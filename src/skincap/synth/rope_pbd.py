@@ -1,0 +1,262 @@
+"""A second rope simulator: plain position-based dynamics (Müller et al. 2007).
+
+:mod:`skincap.synth.rope` solves the rope with XPBD and an exact tridiagonal stretch
+solve, bending springs and smooth synthetic hands; the tracker was tuned on it. This
+module simulates the rope with a different model so that a test take does not share
+the tracker's assumptions: a chain of equal particles, Verlet integration
+(``x' = x + (1 - k Δt)(x - x_prev) + g Δt²``), no bending stiffness at all, and the
+distance constraints between neighbours projected by a fixed number of
+Gauss-Seidel iterations (red-black order, so each half is one vectorised update) —
+the rope stretches a little under load as a PBD rope does. The held end(s) follow the
+hand(s) exactly (inverse mass 0), the hand positions interpolated linearly across the
+substeps of a frame, so a real hand's jerks reach the rope undamped. An optional floor
+stops particles (with sticking friction while in contact).
+
+Before frame 0 the rope settles at the first frame's hand positions, so the take
+opens with it hanging: the window in which Porter (2012, §3.4) picks the rope markers.
+
+Conventions: metres, seconds, Y up.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+
+from skincap.errors import ValidationError
+from skincap.synth.rope import RopeResult
+
+__all__ = ["simulate_rope_pbd"]
+
+_GRAVITY = np.array([0.0, -9.81, 0.0])
+
+
+def simulate_rope_pbd(
+    hands: np.ndarray,
+    rate: float,
+    *,
+    mode: Literal["jump", "whip"] = "whip",
+    length: float = 1.1,
+    n_markers: int = 12,
+    particles_per_marker: int = 2,
+    substep_seconds: float = 1.0 / 960.0,
+    iterations: int = 5,
+    damping: float = 0.5,
+    floor: float | None = None,
+    lay_direction: np.ndarray | None = None,
+    settle_seconds: float = 1.0,
+) -> RopeResult:
+    """Simulate a rope held by one hand (whip) or two (jump) with PBD; place its markers.
+
+    Parameters
+    ----------
+    hands : (T, 3) or (T, 2, 3) float, metres
+        The hand positions per frame, finite. ``whip`` holds the rope's first end in
+        ``hands[:, 0]`` (or the (T, 3) array); ``jump`` holds its first end in
+        ``hands[:, 0]`` and its last in ``hands[:, 1]``.
+    rate : float
+        Frame rate, Hz.
+    mode : {"whip", "jump"}
+        One end held and one hanging free, or both ends held.
+    length : float
+        Rest length of the rope, metres.
+    n_markers : int
+        Tape markers (>= 3), evenly spaced at ``length / n_markers`` (whip: the last
+        one at the free tip, the first one spacing from the hand) or
+        ``length / (n_markers + 1)`` (jump: none at the hands).
+    particles_per_marker : int
+        Chain particles between consecutive markers (>= 1); markers sit on particles.
+    substep_seconds : float
+        Longest integration step, seconds; each frame is cut into
+        ``ceil(1 / (rate * substep_seconds))`` equal substeps.
+    iterations : int
+        Gauss-Seidel sweeps of the distance constraints per substep.
+    damping : float
+        Velocity damping rate ``k``, 1/s.
+    floor : float or None
+        Height of the floor (y), metres; None for none.
+    lay_direction : (3,) float, optional
+        Horizontal direction in which the part of the starting rope that would reach
+        below the floor is laid along it (default +Z).
+    settle_seconds : float
+        Time the rope hangs at the first frame's hands before frame 0, seconds.
+
+    Returns
+    -------
+    RopeResult
+        ``particles`` (T, P, 3), ``markers`` (T, n_markers, 3), labels
+        ``rope_00``…, ``marker_param`` (arc length of each marker from the first end,
+        metres); ``meta`` has ``simulator`` ("pbd"), ``max_length_error`` (largest
+        relative stretch of the chain over the take) and ``max_link_stretch``.
+    """
+    if mode not in ("whip", "jump"):
+        raise ValidationError(f"mode: expected 'whip' or 'jump', got {mode!r}")
+    h = np.asarray(hands, dtype=np.float64)
+    if h.ndim == 2:
+        h = h[:, None, :]
+    if h.ndim != 3 or h.shape[-1] != 3 or h.shape[0] < 1:
+        raise ValidationError(f"hands: expected (T, 3) or (T, 2, 3), got shape {np.shape(hands)}")
+    if mode == "jump" and h.shape[1] != 2:
+        raise ValidationError(f"hands: jump needs both hands (T, 2, 3), got {h.shape}")
+    if not np.isfinite(h).all():
+        raise ValidationError("hands: must be finite (fill the hands' gaps first)")
+    for name, value in (("rate", rate), ("length", length), ("substep_seconds", substep_seconds)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValidationError(f"{name}: expected a positive number, got {value!r}")
+    if int(n_markers) < 3 or int(particles_per_marker) < 1 or int(iterations) < 1:
+        raise ValidationError("n_markers >= 3, particles_per_marker >= 1 and iterations >= 1")
+    if damping < 0 or settle_seconds < 0:
+        raise ValidationError("damping and settle_seconds must not be negative")
+    n_markers, k = int(n_markers), int(particles_per_marker)
+    held = h[:, 0] if mode == "whip" else h  # (T, 3) or (T, 2, 3)
+
+    # particles: whip 0 (hand) … k·M (tip); jump 0 (hand) … k·(M+1) (other hand)
+    n_links = k * n_markers if mode == "whip" else k * (n_markers + 1)
+    rest = length / n_links  # metres between neighbouring particles
+    n_particles = n_links + 1
+    marker_particle = k * np.arange(1, n_markers + 1)
+    inv_mass = np.ones(n_particles)
+    inv_mass[0] = 0.0
+    if mode == "jump":
+        inv_mass[-1] = 0.0
+
+    halves = _link_halves(inv_mass)
+    # long-range attachments: no particle farther from a held end than the rope between
+    held_ends = [0] if mode == "whip" else [0, n_particles - 1]
+    arc = rest * np.arange(n_particles)
+    reach = [arc, arc[::-1]][: len(held_ends)]
+    substeps = max(1, math.ceil(1.0 / (rate * substep_seconds)))
+    dt = 1.0 / (rate * substeps)
+    keep = 1.0 - min(damping * dt, 1.0)
+
+    x = _hanging_start(held[0], mode, n_particles, rest)
+    if floor is not None:
+        x = _laid_on_floor(x, floor, lay_direction)
+    x_prev = x.copy()
+    out = np.empty((h.shape[0], n_particles, 3))  # every frame is written below
+
+    def pin(x: np.ndarray, where: np.ndarray) -> None:
+        if mode == "whip":
+            x[0] = where
+        else:
+            x[0], x[-1] = where[0], where[1]
+
+    def substep(target: np.ndarray, settle_keep: float) -> None:
+        nonlocal x, x_prev
+        velocity = (x - x_prev) * settle_keep
+        x_prev = x
+        x = x + velocity + _GRAVITY * dt * dt
+        pin(x, target)
+        _project_distances(x, halves, rest, int(iterations))
+        _attach_long_range(x, held_ends, reach)
+        if floor is not None:
+            below = x[:, 1] < floor
+            if below.any():
+                # sticking friction: a particle on the floor keeps its old x, z
+                x[below, 1] = floor
+                x[below, 0] = x_prev[below, 0]
+                x[below, 2] = x_prev[below, 2]
+
+    # settle at the first frame's hands with a heavier damping, then play the take
+    for _ in range(int(round(settle_seconds * rate * substeps))):
+        substep(held[0], 1.0 - min(20.0 * dt, 1.0))
+    x_prev = x.copy()
+    out[0] = x
+    for t in range(1, h.shape[0]):
+        for s in range(1, substeps + 1):
+            w = s / substeps
+            substep((1.0 - w) * held[t - 1] + w * held[t], keep)
+        out[t] = x
+
+    links = np.linalg.norm(np.diff(out, axis=1), axis=2)  # (T, P - 1)
+    meta = {
+        "simulator": "pbd",
+        "mode": mode,
+        "length": float(length),
+        "substeps": substeps,
+        "iterations": int(iterations),
+        "max_length_error": float(abs(links.sum(axis=1) / length - 1.0).max()),
+        "max_link_stretch": float(links.max() / rest - 1.0),
+    }
+    labels = [f"rope_{i:02d}" for i in range(n_markers)]
+    return RopeResult(
+        out, out[:, marker_particle].copy(), labels, marker_particle * rest, float(rate), meta
+    )
+
+
+def _hanging_start(held: np.ndarray, mode: str, n: int, rest: float) -> np.ndarray:
+    """(P, 3) initial chain: straight down from the hand (whip), a V between the hands (jump)."""
+    if mode == "whip":
+        return held[None, :] + np.outer(np.arange(n) * rest, [0.0, -1.0, 0.0])
+    a, b = held[0], held[1]
+    half = (n - 1) * rest / 2.0
+    span = np.linalg.norm(b - a)
+    depth = math.sqrt(max(half * half - span * span / 4.0, 0.0))
+    u = np.linspace(0.0, 1.0, n)[:, None]
+    sag = depth * (1.0 - np.abs(2.0 * u - 1.0))
+    return a + u * (b - a) - sag * np.array([0.0, 1.0, 0.0])
+
+
+def _link_halves(inv_mass: np.ndarray) -> list[tuple[slice, slice, np.ndarray, np.ndarray]]:
+    """The even and the odd links as strided views, with each end's share of a correction."""
+    n = inv_mass.shape[0]
+    halves = []
+    for first in (0, 1):
+        a, b = slice(first, n - 1, 2), slice(first + 1, n, 2)
+        wa, wb = inv_mass[a], inv_mass[b]
+        w = wa + wb
+        # share of the correction each end takes (0 for a pinned end, 0/0 -> 0)
+        share_a = np.divide(wa, w, out=np.zeros_like(w), where=w > 0)[:, None]
+        share_b = np.divide(wb, w, out=np.zeros_like(w), where=w > 0)[:, None]
+        halves.append((a, b, share_a, share_b))
+    return halves
+
+
+def _laid_on_floor(x: np.ndarray, floor: float, direction: np.ndarray | None) -> np.ndarray:
+    """(P, 3) the chain with what reaches below ``floor`` laid along it, arc length kept."""
+    lay = np.array([0.0, 0.0, 1.0]) if direction is None else np.asarray(direction, float)
+    lay = lay * np.array([1.0, 0.0, 1.0])
+    norm = np.linalg.norm(lay)
+    lay = np.array([0.0, 0.0, 1.0]) if norm < 1e-9 else lay / norm
+    depth = np.maximum(floor - x[:, 1], 0.0)  # (P,) metres below the floor
+    laid = x + depth[:, None] * lay
+    laid[:, 1] = np.maximum(x[:, 1], floor)
+    return laid
+
+
+def _attach_long_range(x: np.ndarray, ends: list[int], reach: list[np.ndarray]) -> None:
+    """Long-range attachments (Kim, Chentanez & Müller 2012), in place.
+
+    A particle farther from a held end than the rest arc length between them is moved
+    straight back onto that sphere: one unilateral constraint per particle and held
+    end, which keeps a PBD chain from stretching under a hard-accelerating hand
+    without more iterations.
+    """
+    for end, limit in zip(ends, reach, strict=True):
+        d = x - x[end]  # (P, 3)
+        dist = np.sqrt(np.einsum("ij,ij->i", d, d))
+        over = dist > limit
+        if over.any():
+            x[over] = x[end] + d[over] * (limit[over] / dist[over])[:, None]
+
+
+def _project_distances(
+    x: np.ndarray,
+    halves: list[tuple[slice, slice, np.ndarray, np.ndarray]],
+    rest: float,
+    sweeps: int,
+) -> None:
+    """Gauss-Seidel on ``|x[i+1] - x[i]| = rest``, even links then odd links, in place.
+
+    Each half touches every particle at most once, so it is one vectorised update on
+    strided views (:func:`_link_halves`).
+    """
+    for _ in range(sweeps):
+        for a, b, share_a, share_b in halves:
+            d = x[b] - x[a]  # (L, 3)
+            dist = np.sqrt(np.einsum("ij,ij->i", d, d))[:, None]
+            corr = d * ((dist - rest) / np.maximum(dist, 1e-12))
+            x[a] += share_a * corr
+            x[b] -= share_b * corr

@@ -1,0 +1,73 @@
+"""The position-based-dynamics rope (Müller et al. 2007) used with real captures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skincap.errors import ValidationError
+from skincap.synth.rope_pbd import simulate_rope_pbd
+
+RATE = 120.0
+
+
+def _still(frames: int, *points: tuple[float, float, float]) -> np.ndarray:
+    hands = np.array(points, dtype=float)  # (H, 3)
+    return np.repeat(hands[None], frames, axis=0)
+
+
+def test_whip_hangs_straight_down_at_rest_spacing() -> None:
+    rope = simulate_rope_pbd(_still(10, (0.0, 2.0, 0.0)), RATE, length=1.1, n_markers=11)
+    assert rope.markers.shape == (10, 11, 3) and rope.labels[0] == "rope_00"
+    # hanging still: straight below the hand, one marker every 10 cm, the last at the tip
+    np.testing.assert_allclose(rope.markers[:, :, [0, 2]], 0.0, atol=1e-6)
+    np.testing.assert_allclose(rope.markers[-1, :, 1], 2.0 - 0.1 * np.arange(1, 12), atol=2e-3)
+    np.testing.assert_allclose(rope.marker_param, 0.1 * np.arange(1, 12))
+    assert np.abs(np.diff(rope.markers, axis=0)).max() < 1e-4  # nothing moves
+
+
+def test_jump_rope_sags_between_the_hands_and_ends_follow_them() -> None:
+    t = np.arange(240) / RATE
+    left = np.stack([0.4 + 0.1 * np.sin(6 * t), 1.0 + 0.05 * np.cos(9 * t), 0 * t], axis=1)
+    right = left * [-1, 1, 1]
+    hands = np.stack([left, right], axis=1)
+    rope = simulate_rope_pbd(hands, RATE, mode="jump", length=2.0, n_markers=9, floor=0.0)
+    np.testing.assert_allclose(rope.particles[:, 0], left, atol=1e-12)  # pinned exactly
+    np.testing.assert_allclose(rope.particles[:, -1], right, atol=1e-12)
+    assert rope.particles[..., 1].min() >= 0.0  # never through the floor
+    assert rope.meta["simulator"] == "pbd" and rope.meta["max_length_error"] < 0.02
+    assert rope.markers[0, 4, 1] < 0.5  # the middle hangs low
+
+
+def test_a_jerked_hand_stretches_the_rope_only_a_little() -> None:
+    """A hand that reverses at 10 m/s (a real fast take's hands): the rope keeps its length."""
+    t = np.arange(360) / RATE
+    # 0.5 m side to side three times a second: 9.4 m/s and 178 m/s², as CMU 85_02's hands
+    hand = np.stack([0.5 * np.sin(2 * np.pi * 3.0 * t), 1.5 + 0 * t, 0 * t], axis=1)
+    rope = simulate_rope_pbd(hand, RATE, length=1.1, n_markers=12)
+    speed = np.linalg.norm(np.diff(hand, axis=0), axis=1).max() * RATE
+    assert speed > 9.0
+    assert rope.meta["max_length_error"] < 0.08
+    np.testing.assert_allclose(rope.particles[:, 0], hand, atol=1e-12)
+    assert np.isfinite(rope.markers).all()
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"mode": "swing"}, "mode"),
+        ({"mode": "jump"}, "both hands"),
+        ({"n_markers": 2}, "n_markers"),
+        ({"length": -1.0}, "length"),
+    ],
+)
+def test_bad_arguments_are_named(kwargs: dict, match: str) -> None:
+    with pytest.raises(ValidationError, match=match):
+        simulate_rope_pbd(_still(5, (0.0, 1.0, 0.0)), RATE, **kwargs)
+
+
+def test_hands_with_a_gap_are_refused() -> None:
+    hands = _still(5, (0.0, 1.0, 0.0))
+    hands[2, 0] = np.nan
+    with pytest.raises(ValidationError, match="finite"):
+        simulate_rope_pbd(hands, RATE)

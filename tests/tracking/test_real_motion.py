@@ -1,0 +1,91 @@
+"""Rope tracking on real human motion (issue #15): real captures with a PBD rope in the hands.
+
+The takes are short pieces of the real captures in tests/data (the fast part of each),
+built by :func:`skincap.synth.real_capture.real_capture_with_rope`.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from skincap.errors import SkincapWarning
+from skincap.evaluate.tracking import classify_points, rope_tracker_from_truth
+from skincap.io.c3d import read_c3d
+from skincap.synth.real_capture import real_capture_with_rope
+from skincap.tracking.physical import STRETCH_ALLOWANCE, physics_excess
+from skincap.types import MarkerSet
+
+#: (file, first frame, frames, rope, hands): the fastest stretch of each labelled take
+SCENES = {
+    "cmu_whip": ("cmu_85_02.c3d", 240, 240, "whip", None),
+    "aml_whip": ("aml_PronetoRun01_labeled.c3d", 900, 350, "whip", None),
+    "pyomeca_whip": ("pyomeca_markers_analogs.c3d", 200, 300, "whip", None),
+    "pig_jump": ("btk_pig_calibration_hole_unlabeled_fragments.c3d", 0, 150, "jump", None),
+}
+
+
+def _scene(data_dir, name: str):  # type: ignore[no-untyped-def]
+    file, first, frames, rope, hands = SCENES[name]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the AML file's empty POINT:UNITS
+        m = read_c3d(data_dir / file)
+    piece = MarkerSet(m.positions[first : first + frames], m.labels, m.rate, meta=dict(m.meta))
+    return real_capture_with_rope(piece, rope=rope, hands=hands, seed=1)
+
+
+@pytest.fixture(scope="module")
+def tracked(data_dir):  # type: ignore[no-untyped-def]
+    out = {}
+    for name in SCENES:
+        take = _scene(data_dir, name)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            track = rope_tracker_from_truth(take.points, take.point_truth)(take.points)
+        out[name] = (take, track, [w for w in caught if issubclass(w.category, SkincapWarning)])
+    return out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SCENES))
+def test_invented_rope_markers_stay_within_the_ropes_reach(tracked, name: str) -> None:  # type: ignore[no-untyped-def]
+    take, track, caught = tracked[name]
+    excess = physics_excess(
+        track.positions, track.invented, track.init.spacing, stretch=STRETCH_ALLOWANCE
+    )
+    assert np.nanmax(excess) <= 1e-3
+    # and so never far from the true rope: within the rope's length of it
+    rope = [i for i, label in enumerate(take.truth.labels) if label.startswith("rope_")]
+    truth = take.truth.positions[:, rope]
+    near = np.linalg.norm(track.positions[:, :, None] - truth[:, None], axis=3).min(axis=2)
+    length = float(take.summary["rope_length_m"])
+    assert np.nanmax(near) <= length
+    # a lost trace is NaN, counted in the warning, never an extrapolation
+    lost = track.lost_frames
+    assert np.isnan(track.positions[lost]).all() and np.isfinite(track.positions[~lost]).all()
+    if lost.any():
+        assert any(f"{int(track.lost.sum())} of" in str(w.message) for w in caught)
+
+
+#: rope/body F1 the tracker reaches today on each scene (issue #15's target is 0.99)
+F1_NOW = {"cmu_whip": 0.93, "aml_whip": 0.99, "pyomeca_whip": 0.99, "pig_jump": 0.99}
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SCENES))
+def test_rope_body_f1_does_not_regress(tracked, name: str) -> None:  # type: ignore[no-untyped-def]
+    take, track, _ = tracked[name]
+    scores = classify_points(track, take.points, take.point_truth)
+    assert scores["precision"] >= 0.99  # the rope never takes the body's markers
+    assert scores["f1"] >= F1_NOW[name]
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True, reason="issue #15 target not met yet: the fast CMU hand, F1 0.951 (2 s take)"
+)
+def test_issue_target_f1_on_the_fast_cmu_hand(tracked) -> None:  # type: ignore[no-untyped-def]
+    take, track, _ = tracked["cmu_whip"]
+    assert classify_points(track, take.points, take.point_truth)["f1"] >= 0.99
