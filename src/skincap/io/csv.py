@@ -297,6 +297,37 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
     if up not in ("y", "z"):
         raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
     lines = read_text_lines(p)
+    header = _motive_metadata(p, lines)
+    axis_at, axis_row, data_col, rows_by_name, component = _motive_header_rows(p, lines)
+    width = len(axis_row)
+    cols, labels, id_list = _motive_marker_columns(
+        p, axis_row, data_col, rows_by_name, component, axis_at
+    )
+    rate, unit = _motive_rate_and_unit(p, header)
+    rows, numbers = _motive_data_rows(p, lines, axis_at, width, data_col, cols)
+    n = len(cols)
+    table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, 2 + 3 * n))
+    if table.size and np.isnan(table[:, :2]).any():
+        bad = int(np.nonzero(np.isnan(table[:, :2]).any(axis=1))[0][0])
+        raise FormatError(p, "Frame and Time must not be empty", line=numbers[bad])
+    _consecutive_frames(p, table[:, 0], numbers)
+    _check_times(p, table[:, 1], table[:, 0], rate, numbers)
+    pos = table[:, 2:].reshape(len(rows), n, 3) * UNIT_TO_METRES[unit]
+    meta: dict[str, Any] = {
+        "source_format": "optitrack_csv",
+        "source_path": str(p),
+        "source_units": unit,
+        "up": up,
+        "first_frame": int(table[0, 0]) if len(rows) else 0,
+        "start_time": float(table[0, 1]) if len(rows) else 0.0,
+        "marker_ids": id_list,
+        "motive_header": header,
+    }
+    return MarkerSet(positions=to_y_up(pos, up), labels=_unique(labels), rate=rate, meta=meta)
+
+
+def _motive_metadata(p: Path, lines: list[str]) -> dict[str, str]:
+    """The key, value pairs of a Motive CSV's first line (``Format Version,1.23,…``)."""
     first = _cells(lines[0]) if lines else [""]
     if first[0] != "Format Version":
         raise FormatError(p, "not a Motive CSV: line 1 must start with 'Format Version'", line=1)
@@ -304,6 +335,15 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
     for i in range(0, len(first) - 1, 2):
         if first[i]:
             header[first[i]] = first[i + 1]
+    return header
+
+
+def _motive_header_rows(
+    p: Path, lines: list[str]
+) -> tuple[int, list[str], int, dict[str, list[str]], list[str]]:
+    """The header rows above the data: (line index of ``Frame,Time…``, that row cut to
+    its last non-empty cell (width W), first data column, the labelled rows (Type,
+    Name, ID…) by label, the Position/Rotation row), each row W cells."""
     axis_at = next(
         (
             k
@@ -337,6 +377,20 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
         raise FormatError(
             p, "missing the Type, Name or Position/Rotation header row", line=axis_at + 1
         )
+    return axis_at, axis_row[:width], data_col, rows_by_name, component
+
+
+def _motive_marker_columns(
+    p: Path,
+    axis_row: list[str],
+    data_col: int,
+    rows_by_name: dict[str, list[str]],
+    component: list[str],
+    axis_at: int,
+) -> tuple[list[int], list[str], list[str]]:
+    """The X column of each ``Marker`` position triple, its label (``Unlabeled 12`` ->
+    ``*12``) and its ID, in column order."""
+    width = len(axis_row)
     types, names, ids = (
         rows_by_name["Type"],
         rows_by_name["Name"],
@@ -367,6 +421,12 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
             c += 3
         else:
             c += 1
+    return cols, labels, id_list
+
+
+def _motive_rate_and_unit(p: Path, header: dict[str, str]) -> tuple[float, str]:
+    """The frame rate (Hz) and length unit the metadata declares; metres (with a
+    UnitWarning at the reader's caller) when it declares none."""
     rate_s = header.get("Export Frame Rate") or header.get("Capture Frame Rate")
     try:
         rate = float(rate_s) if rate_s is not None else float("nan")
@@ -381,14 +441,22 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
         warnings.warn(
             f"{p}: no 'Length Units' in the header; assuming Meters (Motive's default)",
             UnitWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
         unit = "m"
     elif unit_name.lower() in _MOTIVE_UNITS:
         unit = _MOTIVE_UNITS[unit_name.lower()]
     else:
         raise FormatError(p, f"unknown Length Units {unit_name!r}", line=1)
+    return rate, unit
 
+
+def _motive_data_rows(
+    p: Path, lines: list[str], axis_at: int, width: int, data_col: int, cols: list[int]
+) -> tuple[list[list[str]], list[int]]:
+    """The data rows as text cells (Frame, Time, then X, Y, Z of each marker column
+    in ``cols``) and their 1-based line numbers; rows short of trailing occluded
+    fields are padded."""
     rows: list[list[str]] = []
     numbers: list[int] = []
     for k in range(axis_at + 1, len(lines)):
@@ -406,25 +474,7 @@ def read_optitrack_csv(path: str | os.PathLike[str], *, up: Literal["y", "z"] = 
             cells = cells + [""] * (width - len(cells))
         rows.append([cells[0], cells[1]] + [cells[j] for c0 in cols for j in (c0, c0 + 1, c0 + 2)])
         numbers.append(k + 1)
-    n = len(cols)
-    table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, 2 + 3 * n))
-    if table.size and np.isnan(table[:, :2]).any():
-        bad = int(np.nonzero(np.isnan(table[:, :2]).any(axis=1))[0][0])
-        raise FormatError(p, "Frame and Time must not be empty", line=numbers[bad])
-    _consecutive_frames(p, table[:, 0], numbers)
-    _check_times(p, table[:, 1], table[:, 0], rate, numbers)
-    pos = table[:, 2:].reshape(len(rows), n, 3) * UNIT_TO_METRES[unit]
-    meta: dict[str, Any] = {
-        "source_format": "optitrack_csv",
-        "source_path": str(p),
-        "source_units": unit,
-        "up": up,
-        "first_frame": int(table[0, 0]) if len(rows) else 0,
-        "start_time": float(table[0, 1]) if len(rows) else 0.0,
-        "marker_ids": id_list,
-        "motive_header": header,
-    }
-    return MarkerSet(positions=to_y_up(pos, up), labels=_unique(labels), rate=rate, meta=meta)
+    return rows, numbers
 
 
 # -------------------------------------------------------------------- point clouds
@@ -464,6 +514,33 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
     """
     p = check_readable(path)
     lines = read_text_lines(p)
+    comments, k, width = _points_header(p, lines)
+    table, numbers = _points_table(p, lines, k, width)
+    frames = _point_frames(p, table[:, 0], numbers)
+    times = table[:, 1]
+    n_frames = _points_frame_count(p, comments, frames, numbers)
+    rate, start_time = _points_rate(p, comments, frames, times, numbers, header_line=k + 1)
+    offsets = np.searchsorted(frames, np.arange(n_frames + 1), side="left").astype(np.int64)
+    ids = None
+    if width == 6:
+        idf = table[:, 5]
+        if (idf != np.round(idf)).any():
+            r = int(np.argmax(idf != np.round(idf)))
+            raise FormatError(p, f"id {idf[r]!r} is not an integer", line=numbers[r])
+        ids = idf.astype(np.int64)
+    meta = {
+        "source_format": "points_csv",
+        "source_path": str(p),
+        "source_units": "m",
+        "up": "y",
+        "start_time": start_time,
+    }
+    return PointCloud(points=table[:, 2:5].copy(), offsets=offsets, rate=rate, ids=ids, meta=meta)
+
+
+def _points_header(p: Path, lines: list[str]) -> tuple[dict[str, str], int, int]:
+    """The ``# key=value`` comments (lower-case keys), the 0-based index of the
+    ``frame,time,x,y,z[,id]`` line and its number of columns (5 or 6)."""
     comments: dict[str, str] = {}
     k = 0
     while k < len(lines) and (lines[k].startswith("#") or not lines[k].strip()):
@@ -477,7 +554,12 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         raise FormatError(
             p, f"expected the header 'frame,time,x,y,z[,id]', got {lines[k][:60]!r}", line=k + 1
         )
-    width = len(head)
+    return comments, k, len(head)
+
+
+def _points_table(p: Path, lines: list[str], k: int, width: int) -> tuple[np.ndarray, list[int]]:
+    """The rows below header line ``k`` as a finite (M, width) float64 table and their
+    1-based line numbers; FormatError for a ragged, empty or non-finite field."""
     body = [(i + 1, ln) for i, ln in enumerate(lines[k + 1 :], start=k + 1) if ln.strip()]
     numbers = [i for i, _ in body]
     table = np.zeros((0, width))
@@ -504,7 +586,11 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         if not finite.all():
             r = int(np.nonzero(~finite.all(axis=1))[0][0])
             raise FormatError(p, "non-finite value", line=numbers[r])
-    frames_f = table[:, 0]
+    return table, numbers
+
+
+def _point_frames(p: Path, frames_f: np.ndarray, numbers: list[int]) -> np.ndarray:
+    """The frame column (M,) as int64, checked integer, >= 0 and non-decreasing."""
     if frames_f.size:
         bad = (frames_f != np.round(frames_f)) | (frames_f < 0)
         bad |= np.concatenate([[False], np.diff(frames_f) < 0])
@@ -515,8 +601,13 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
                 f"frame {frames_f[r]!r}: frames must be integers >= 0, non-decreasing",
                 line=numbers[r],
             )
-    frames = frames_f.astype(np.int64)
-    times = table[:, 1]
+    return frames_f.astype(np.int64)
+
+
+def _points_frame_count(
+    p: Path, comments: dict[str, str], frames: np.ndarray, numbers: list[int]
+) -> int:
+    """T: ``# frames=`` when given (at least the rows' last frame + 1), else last + 1."""
     n_frames = int(frames[-1]) + 1 if frames.size else 0
     if "frames" in comments:
         try:
@@ -532,6 +623,19 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
                 line=numbers[-1],
             )
         n_frames = declared
+    return n_frames
+
+
+def _points_rate(
+    p: Path,
+    comments: dict[str, str],
+    frames: np.ndarray,
+    times: np.ndarray,
+    numbers: list[int],
+    header_line: int,
+) -> tuple[float, float]:
+    """(rate in Hz, time of frame 0 in s): ``# rate=`` or inferred from the first and
+    last rows' times (M,); FormatError when a time disagrees with it."""
     if "rate" in comments:
         try:
             rate = float(comments["rate"])
@@ -544,7 +648,7 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
             raise FormatError(
                 p,
                 "cannot infer the frame rate from fewer than two distinct frames; add '# rate=<Hz>'",
-                line=k + 1,
+                line=header_line,
             )
         dt = times[-1] - times[0]
         if not dt > 0:
@@ -563,22 +667,7 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
                 f"time {times[r]!r} of frame {frames[r]} disagrees with {rate!r} Hz",
                 line=numbers[r],
             )
-    offsets = np.searchsorted(frames, np.arange(n_frames + 1), side="left").astype(np.int64)
-    ids = None
-    if width == 6:
-        idf = table[:, 5]
-        if (idf != np.round(idf)).any():
-            r = int(np.argmax(idf != np.round(idf)))
-            raise FormatError(p, f"id {idf[r]!r} is not an integer", line=numbers[r])
-        ids = idf.astype(np.int64)
-    meta = {
-        "source_format": "points_csv",
-        "source_path": str(p),
-        "source_units": "m",
-        "up": "y",
-        "start_time": start_time,
-    }
-    return PointCloud(points=table[:, 2:5].copy(), offsets=offsets, rate=rate, ids=ids, meta=meta)
+    return rate, start_time
 
 
 def write_points_csv(

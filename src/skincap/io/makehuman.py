@@ -451,35 +451,14 @@ def read_makehuman(
         )
     unit_scale(units)
     obj = check_readable(obj_path)
-    if skel_path is None:
-        found = _find_beside(obj, ["default.mhskel", "makehuman_default.mhskel"], "*.mhskel")
-        if found is None:
-            raise FormatError(
-                obj, "no skeleton given and no default.mhskel / makehuman_default.mhskel beside it"
-            )
-        skel = found
-    else:
-        skel = Path(skel_path)
+    skel = _skeleton_file(obj, skel_path)
     mesh = read_obj(obj, units=units, up="y")
     if mesh.polygon_indices is None:
         raise FormatError(obj, "the base mesh has no faces")
     skel_data = _load_json(skel)
     rig = _Rig(skel, skel_data, mesh.n_vertices)
 
-    if weights_path is None:
-        cands = []
-        wf = skel_data.get("weights_file")
-        if isinstance(wf, str) and wf:
-            cands.append(Path(wf).name)
-        cands.append(f"{skel.stem}_weights.mhw")
-        found = _find_beside(skel, cands, "*_weights.mhw")
-        if found is None:
-            raise FormatError(
-                skel, f"no weights given and none of {cands} or a single *_weights.mhw beside it"
-            )
-        weights = found
-    else:
-        weights = Path(weights_path)
+    weights = _weights_file(skel, skel_data, weights_path)
     weights_data = _load_json(weights)
 
     # joints and bone frames on the full mesh, before anything is dropped
@@ -487,42 +466,14 @@ def read_makehuman(
     heads = np.array([pos[j] for j in rig.heads])
     tails = np.array([pos[j] for j in rig.tails])
     normals = _plane_normals(rig, pos)
-    bind = bone_rest_frames(heads, tails, normals)
-    rot_t = np.transpose(bind[:, :3, :3], (0, 2, 1))
-    inverse_bind = np.zeros_like(bind)
-    inverse_bind[:, :3, :3] = rot_t
-    inverse_bind[:, :3, 3] = -np.einsum("jab,jb->ja", rot_t, heads)
-    inverse_bind[:, 3, 3] = 1.0
+    inverse_bind = _inverse_rest_frames(heads, tails, normals)
 
     bone_index = {b: i for i, b in enumerate(rig.bone_names)}
     dense = _dense_weights(weights, weights_data, bone_index, mesh.n_vertices)
 
-    if keep_helpers:
-        out_mesh, used = mesh, np.arange(mesh.n_vertices)
-    else:
-        if BODY_GROUP not in mesh.groups:
-            raise FormatError(
-                obj, f"no '{BODY_GROUP}' group: cannot tell the skin from the helper geometry"
-            )
-        keep = np.zeros(mesh.n_polygons, dtype=bool)
-        keep[mesh.groups[BODY_GROUP]] = True
-        out_mesh, used = _keep_polygons(mesh, keep)
+    out_mesh, used = (mesh, np.arange(mesh.n_vertices)) if keep_helpers else _body_only(obj, mesh)
 
-    raw = dense[used]
-    sums = raw.sum(axis=1)
-    root = int(np.nonzero(rig.parents < 0)[0][0])
-    idx, w, n_empty = _top_influences(raw, int(max_influences), root)
-    if n_empty:
-        warnings.warn(
-            f"{weights}: {n_empty} vertices have no weight; bound to the root bone '{rig.bone_names[root]}'",
-            SkincapWarning,
-            stacklevel=2,
-        )
-    offsets = heads.copy()
-    has_parent = rig.parents >= 0
-    offsets[has_parent] = heads[has_parent] - heads[rig.parents[has_parent]]
-    skeleton = Skeleton(names=rig.bone_names, parents=rig.parents, offsets=offsets)
-    skin = Skin(skeleton=skeleton, joint_indices=idx, joint_weights=w, inverse_bind=inverse_bind)
+    skin, sums = _bound_skin(rig, heads, inverse_bind, dense[used], int(max_influences), weights)
 
     meta = dict(out_mesh.meta)
     meta.update(
@@ -550,6 +501,93 @@ def read_makehuman(
         skin=skin,
         meta=meta,
     )
+
+
+def _bound_skin(
+    rig: _Rig,
+    heads: np.ndarray,
+    inverse_bind: np.ndarray,
+    raw: np.ndarray,
+    max_influences: int,
+    weights: Path,
+) -> tuple[Skin, np.ndarray]:
+    """The Skin over the rig's skeleton and the file's weight sums (V',).
+
+    ``raw`` (V', J) are the file's weights of the kept vertices, ``heads`` (J, 3) metres,
+    ``inverse_bind`` (J, 4, 4); the ``max_influences`` largest weights are kept and
+    renormalised; weightless vertices go to the root bone (SkincapWarning, at
+    read_makehuman's caller).
+    """
+    sums = raw.sum(axis=1)
+    root = int(np.nonzero(rig.parents < 0)[0][0])
+    idx, w, n_empty = _top_influences(raw, max_influences, root)
+    if n_empty:
+        warnings.warn(
+            f"{weights}: {n_empty} vertices have no weight; bound to the root bone '{rig.bone_names[root]}'",
+            SkincapWarning,
+            stacklevel=3,
+        )
+    has_parent = rig.parents >= 0
+    offsets = heads.copy()  # (J, 3) metres: head minus the parent's head
+    offsets[has_parent] = heads[has_parent] - heads[rig.parents[has_parent]]
+    skeleton = Skeleton(names=rig.bone_names, parents=rig.parents, offsets=offsets)
+    skin = Skin(skeleton=skeleton, joint_indices=idx, joint_weights=w, inverse_bind=inverse_bind)
+    return skin, sums
+
+
+def _skeleton_file(obj: Path, skel_path: str | os.PathLike[str] | None) -> Path:
+    """``skel_path``, else the default.mhskel (or a single *.mhskel) beside the OBJ."""
+    if skel_path is not None:
+        return Path(skel_path)
+    found = _find_beside(obj, ["default.mhskel", "makehuman_default.mhskel"], "*.mhskel")
+    if found is None:
+        raise FormatError(
+            obj, "no skeleton given and no default.mhskel / makehuman_default.mhskel beside it"
+        )
+    return found
+
+
+def _weights_file(
+    skel: Path, skel_data: dict[str, Any], weights_path: str | os.PathLike[str] | None
+) -> Path:
+    """``weights_path``, else the rig's ``weights_file``, ``<rig>_weights.mhw`` or a
+    single *_weights.mhw beside the rig."""
+    if weights_path is not None:
+        return Path(weights_path)
+    cands = []
+    wf = skel_data.get("weights_file")
+    if isinstance(wf, str) and wf:
+        cands.append(Path(wf).name)
+    cands.append(f"{skel.stem}_weights.mhw")
+    found = _find_beside(skel, cands, "*_weights.mhw")
+    if found is None:
+        raise FormatError(
+            skel, f"no weights given and none of {cands} or a single *_weights.mhw beside it"
+        )
+    return found
+
+
+def _inverse_rest_frames(heads: np.ndarray, tails: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(J, 4, 4) inverses of the bone rest frames (rigid: transpose and -R^T head);
+    ``heads``, ``tails`` (J, 3) metres, ``normals`` (J, 3)."""
+    bind = bone_rest_frames(heads, tails, normals)
+    rot_t = np.transpose(bind[:, :3, :3], (0, 2, 1))
+    inverse_bind = np.zeros_like(bind)
+    inverse_bind[:, :3, :3] = rot_t
+    inverse_bind[:, :3, 3] = -np.einsum("jab,jb->ja", rot_t, heads)
+    inverse_bind[:, 3, 3] = 1.0
+    return inverse_bind
+
+
+def _body_only(obj: Path, mesh: Mesh) -> tuple[Mesh, np.ndarray]:
+    """The mesh cut to the BODY_GROUP polygons and the (V',) indices of the kept vertices."""
+    if BODY_GROUP not in mesh.groups:
+        raise FormatError(
+            obj, f"no '{BODY_GROUP}' group: cannot tell the skin from the helper geometry"
+        )
+    keep = np.zeros(mesh.n_polygons, dtype=bool)
+    keep[mesh.groups[BODY_GROUP]] = True
+    return _keep_polygons(mesh, keep)
 
 
 # ------------------------------------------------------------- rig files on their own

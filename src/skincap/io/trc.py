@@ -143,6 +143,48 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
     if up not in ("y", "z"):
         raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
     lines = read_text_lines(p)
+    head, rate, n_frames, n_markers = _trc_header(p, lines)
+    units = head["Units"].strip()
+    if units.lower() not in UNIT_TO_METRES:
+        raise FormatError(
+            p, f"Units {units!r} is not a known length unit ({', '.join(UNIT_TO_METRES)})", line=3
+        )
+    scale = UNIT_TO_METRES[units.lower()]
+    labels = _trc_labels(p, lines, n_markers)
+    width = 2 + 3 * n_markers
+    rows, numbers = _trc_data_rows(p, lines, width, n_frames)
+    table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, width))
+    if table.size and (np.isnan(table[:, :2]).any()):
+        bad = int(np.nonzero(np.isnan(table[:, :2]).any(axis=1))[0][0])
+        raise FormatError(p, "Frame# and Time must not be empty", line=numbers[bad])
+    frames = table[:, 0]
+    times = table[:, 1]
+    _check_trc_clock(p, frames, times, rate, numbers)
+    pos = table[:, 2:].reshape(len(rows), n_markers, 3) * scale
+    try:
+        first_frame = int(frames[0]) if frames.size else int(float(head["OrigDataStartFrame"]))
+    except ValueError:
+        first_frame = 1
+    meta: dict[str, Any] = {
+        "source_format": "trc",
+        "source_path": str(p),
+        "source_units": units,
+        "up": up,
+        "first_frame": first_frame,
+        "start_time": float(times[0]) if times.size else 0.0,
+        "camera_rate": head["CameraRate"],
+        "orig_data_rate": head["OrigDataRate"],
+        "orig_data_start_frame": head["OrigDataStartFrame"],
+        "orig_num_frames": head["OrigNumFrames"],
+    }
+    if len(set(labels)) != len(labels):
+        dup = sorted({s for s in labels if labels.count(s) > 1})
+        raise FormatError(p, f"duplicate marker names {dup[:5]}", line=4)
+    return MarkerSet(positions=to_y_up(pos, up), labels=labels, rate=rate, meta=meta)
+
+
+def _trc_header(p: Path, lines: list[str]) -> tuple[dict[str, str], float, int, int]:
+    """Lines 1-3: the header values by key, DataRate (Hz), NumFrames and NumMarkers."""
     if len(lines) < 5:
         raise FormatError(
             p, f"a TRC file needs 5 header lines, found {len(lines)}", line=len(lines) or 1
@@ -171,13 +213,11 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
             f"DataRate {head['DataRate']}, NumFrames {n_frames}, NumMarkers {n_markers} are not valid",
             line=3,
         )
-    units = head["Units"].strip()
-    if units.lower() not in UNIT_TO_METRES:
-        raise FormatError(
-            p, f"Units {units!r} is not a known length unit ({', '.join(UNIT_TO_METRES)})", line=3
-        )
-    scale = UNIT_TO_METRES[units.lower()]
+    return head, rate, n_frames, n_markers
 
+
+def _trc_labels(p: Path, lines: list[str], n_markers: int) -> list[str]:
+    """The marker labels of line 4, checked against NumMarkers and line 5's X1 Y1 Z1…"""
     names = [s.strip() for s in lines[3].split("\t") if s.strip()]
     if len(names) < 2 or names[0] != "Frame#" or names[1] != "Time":
         raise FormatError(p, "line 4 must start with 'Frame#' and 'Time'", line=4)
@@ -190,8 +230,14 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
     expected_xyz = [f"{a}{i}" for i in range(1, n_markers + 1) for a in "XYZ"]
     if xyz[: 3 * n_markers] != expected_xyz or len(xyz) != 3 * n_markers:
         raise FormatError(p, f"line 5 must list X1 Y1 Z1 ... Z{n_markers}", line=5)
+    return labels
 
-    width = 2 + 3 * n_markers
+
+def _trc_data_rows(
+    p: Path, lines: list[str], width: int, n_frames: int
+) -> tuple[list[list[str]], list[int]]:
+    """The data rows (``width`` text fields each, empty trailing fields cut) and their
+    1-based line numbers; FormatError when their count is not NumFrames."""
     rows: list[list[str]] = []
     numbers: list[int] = []
     for k in range(5, len(lines)):
@@ -212,12 +258,14 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
         raise FormatError(
             p, f"NumFrames is {n_frames} but the file has {len(rows)} data rows", line=where
         )
-    table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, width))
-    if table.size and (np.isnan(table[:, :2]).any()):
-        bad = int(np.nonzero(np.isnan(table[:, :2]).any(axis=1))[0][0])
-        raise FormatError(p, "Frame# and Time must not be empty", line=numbers[bad])
-    frames = table[:, 0]
-    times = table[:, 1]
+    return rows, numbers
+
+
+def _check_trc_clock(
+    p: Path, frames: np.ndarray, times: np.ndarray, rate: float, numbers: list[int]
+) -> None:
+    """FormatError unless Frame# (T,) are consecutive integers and Time (T,) seconds
+    follows DataRate (Hz) within half a frame."""
     if frames.size and (np.any(frames != np.round(frames)) or np.any(np.diff(frames) != 1)):
         bad = int(
             np.argmax(np.concatenate([[frames[0] != np.round(frames[0])], np.diff(frames) != 1]))
@@ -230,27 +278,6 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
             raise FormatError(
                 p, f"Time {times[bad]!r} disagrees with DataRate {rate!r}", line=numbers[bad]
             )
-    pos = table[:, 2:].reshape(len(rows), n_markers, 3) * scale
-    try:
-        first_frame = int(frames[0]) if frames.size else int(float(head["OrigDataStartFrame"]))
-    except ValueError:
-        first_frame = 1
-    meta: dict[str, Any] = {
-        "source_format": "trc",
-        "source_path": str(p),
-        "source_units": units,
-        "up": up,
-        "first_frame": first_frame,
-        "start_time": float(times[0]) if times.size else 0.0,
-        "camera_rate": head["CameraRate"],
-        "orig_data_rate": head["OrigDataRate"],
-        "orig_data_start_frame": head["OrigDataStartFrame"],
-        "orig_num_frames": head["OrigNumFrames"],
-    }
-    if len(set(labels)) != len(labels):
-        dup = sorted({s for s in labels if labels.count(s) > 1})
-        raise FormatError(p, f"duplicate marker names {dup[:5]}", line=4)
-    return MarkerSet(positions=to_y_up(pos, up), labels=labels, rate=rate, meta=meta)
 
 
 def write_trc(

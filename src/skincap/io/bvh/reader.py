@@ -159,26 +159,7 @@ def _read(
     offsets = np.array([j.offset for j in joints], dtype=np.float64).reshape(-1, 3)
     channels = [j.channels for j in joints]
 
-    # column bookkeeping: (joint, axis, column) of position channels; per rotation
-    # sequence the joints and their columns
-    pos_joint, pos_axis, pos_col = [], [], []
-    rot_groups: dict[str, tuple[list[int], list[list[int]]]] = {}
-    col = 0
-    for k, ch in enumerate(channels):
-        seq, cols = "", []
-        for c in ch:
-            if c.endswith("position"):
-                pos_joint.append(k)
-                pos_axis.append(_AXIS[c[0]])
-                pos_col.append(col)
-            else:
-                seq += c[0]
-                cols.append(col)
-            col += 1
-        if seq:
-            group = rot_groups.setdefault(seq, ([], []))
-            group[0].append(k)
-            group[1].append(cols)
+    pos_joint, pos_axis, pos_col, rot_groups = _channel_columns(channels)
 
     if position_mode == "auto":
         position_mode = _position_mode(parents, offsets, pos_joint, pos_axis, data[:, pos_col])
@@ -206,19 +187,7 @@ def _read(
     if units is not None and scale is not None:
         unit_name = units.strip().lower()
     else:
-        height = _skeleton_height(parents, offsets)
-        unit_name = guess_bvh_units(height)
-        scale = BVH_UNITS[unit_name]
-        metres = height * scale
-        note = ""
-        if not _PLAUSIBLE_HEIGHT[0] <= metres <= _PLAUSIBLE_HEIGHT[1]:
-            note = "; no unit gives a plausible human height, pass units= to be sure"
-        warnings.warn(
-            f"{os.fspath(p)}: units not given; guessed {unit_name!r} from a skeleton {height:.4g} units tall "
-            f"({metres:.3g} m){note}",
-            UnitWarning,
-            stacklevel=3,
-        )
+        unit_name, scale = _guessed_units(p, parents, offsets)
     offsets = to_y_up(offsets * scale, up)
     translations *= scale
     translations = to_y_up(translations, up)
@@ -242,6 +211,53 @@ def _read(
             "first_frame": 0,
         },
     )
+
+
+def _channel_columns(
+    channels: list[tuple[str, ...]],
+) -> tuple[list[int], list[int], list[int], dict[str, tuple[list[int], list[list[int]]]]]:
+    """Column bookkeeping of the motion table: (joint, axis, column) of each position
+    channel, and per rotation sequence (``"ZXY"``…) the joints and their columns."""
+    pos_joint, pos_axis, pos_col = [], [], []
+    rot_groups: dict[str, tuple[list[int], list[list[int]]]] = {}
+    col = 0
+    for k, ch in enumerate(channels):
+        seq, cols = "", []
+        for c in ch:
+            if c.endswith("position"):
+                pos_joint.append(k)
+                pos_axis.append(_AXIS[c[0]])
+                pos_col.append(col)
+            else:
+                seq += c[0]
+                cols.append(col)
+            col += 1
+        if seq:
+            group = rot_groups.setdefault(seq, ([], []))
+            group[0].append(k)
+            group[1].append(cols)
+    return pos_joint, pos_axis, pos_col, rot_groups
+
+
+def _guessed_units(
+    p: os.PathLike[str], parents: np.ndarray, offsets: np.ndarray
+) -> tuple[str, float]:
+    """The unit (and metres per unit) that makes the rest skeleton (offsets (J, 3) file
+    units) a plausible human height; warns (UnitWarning, at read_bvh's caller)."""
+    height = _skeleton_height(parents, offsets)
+    unit_name = guess_bvh_units(height)
+    scale = BVH_UNITS[unit_name]
+    metres = height * scale
+    note = ""
+    if not _PLAUSIBLE_HEIGHT[0] <= metres <= _PLAUSIBLE_HEIGHT[1]:
+        note = "; no unit gives a plausible human height, pass units= to be sure"
+    warnings.warn(
+        f"{os.fspath(p)}: units not given; guessed {unit_name!r} from a skeleton {height:.4g} units tall "
+        f"({metres:.3g} m){note}",
+        UnitWarning,
+        stacklevel=4,
+    )
+    return unit_name, scale
 
 
 def _position_mode(

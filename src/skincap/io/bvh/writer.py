@@ -105,37 +105,10 @@ def write_bvh(
     """
     if not isinstance(motion, Motion):
         raise ValidationError(f"motion: expected a Motion, got {type(motion).__name__}")
-    unit = units if units is not None else str(motion.meta.get("source_units", "cm"))
-    scale = unit_scale(
-        unit,
-        argument="units" if units is not None else "motion.meta['source_units']",
-        format_name="BVH",
-    )
-    up_key = str(up if up is not None else motion.meta.get("up", "y")).strip().lower().lstrip("+")
-    if up_key not in ("auto", "y", "z"):
-        raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
-    mode = (
-        position_channels
-        if position_channels is not None
-        else motion.meta.get("position_channels", "replace")
-    )
-    if mode not in ("replace", "add"):
-        raise ValidationError(f"position_channels: expected 'replace' or 'add', got {mode!r}")
-    if precision is not None and (
-        not isinstance(precision, (int, np.integer)) or precision < 0 or precision > 15
-    ):
-        raise ValidationError(
-            f"precision: expected a number of decimals from 0 to 15, got {precision!r}"
-        )
-
+    scale, up_key, mode = _write_options(motion, units, up, position_channels, precision)
     sk = motion.skeleton
     names = sk.names
-    for name in names:
-        if not name or _BAD_NAME_RE.search(name):
-            raise ValidationError(
-                f"skeleton.names: {name!r} cannot be written to BVH (no tabs, newlines, braces, "
-                "leading/trailing or double spaces)"
-            )
+    _check_names(names)
     parents = sk.parents
     # Motion fills in a default layout when none was given
     channels: list[tuple[str, ...]] = list(motion.channels or [])
@@ -161,6 +134,110 @@ def write_bvh(
 
     # channel columns, joints in depth-first order
     order = _dfs_order(parents)
+    data, decimals, rot_groups = _position_columns(
+        motion,
+        translations,
+        offsets,
+        rotations,
+        channels,
+        order,
+        is_end,
+        mode,
+        scale,
+        height,
+        len_dec,
+        ang_dec,
+    )
+    _fill_rotation_columns(data, rot_groups, rotations, names, channels)
+    time_text = _frame_time_text(motion)
+
+    out: list[str] = ["HIERARCHY"]
+    _write_hierarchy(out, sk, channels, offsets, is_end, len_dec)
+    out.append("MOTION")
+    out.append(f"Frames: {t}")
+    out.append(f"Frame Time: {time_text}")
+    if data.shape[1]:
+        data += 0.0  # no "-0.000000" for exact negative zeros
+        row = " ".join(f"%.{d}f" for d in decimals)
+        out.extend(row % tuple(values) for values in data.tolist())
+    elif t:
+        out.extend([""] * t)
+    text = "\n".join(out) + "\n"
+    with atomic_output(path, force=force) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+
+
+def _write_options(
+    motion: Motion,
+    units: str | None,
+    up: str | None,
+    position_channels: str | None,
+    precision: int | None,
+) -> tuple[float, str, str]:
+    """(metres per file unit, up axis, position-channel mode) of the file, the
+    arguments' defaults taken from ``motion.meta``; ValidationError for a bad one."""
+    unit = units if units is not None else str(motion.meta.get("source_units", "cm"))
+    scale = unit_scale(
+        unit,
+        argument="units" if units is not None else "motion.meta['source_units']",
+        format_name="BVH",
+    )
+    up_key = str(up if up is not None else motion.meta.get("up", "y")).strip().lower().lstrip("+")
+    if up_key not in ("auto", "y", "z"):
+        raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
+    mode = (
+        position_channels
+        if position_channels is not None
+        else motion.meta.get("position_channels", "replace")
+    )
+    if mode not in ("replace", "add"):
+        raise ValidationError(f"position_channels: expected 'replace' or 'add', got {mode!r}")
+    if precision is not None and (
+        not isinstance(precision, (int, np.integer)) or precision < 0 or precision > 15
+    ):
+        raise ValidationError(
+            f"precision: expected a number of decimals from 0 to 15, got {precision!r}"
+        )
+
+    return scale, up_key, mode
+
+
+def _check_names(names: list[str]) -> None:
+    """ValidationError for a joint name BVH cannot hold (empty, tabs, newlines, braces…)."""
+    for name in names:
+        if not name or _BAD_NAME_RE.search(name):
+            raise ValidationError(
+                f"skeleton.names: {name!r} cannot be written to BVH (no tabs, newlines, braces, "
+                "leading/trailing or double spaces)"
+            )
+
+
+def _position_columns(
+    motion: Motion,
+    translations: np.ndarray,
+    offsets: np.ndarray,
+    rotations: np.ndarray,
+    channels: list[tuple[str, ...]],
+    order: list[int],
+    is_end: list[bool],
+    mode: str,
+    scale: float,
+    height: float,
+    len_dec: int,
+    ang_dec: int,
+) -> tuple[np.ndarray, np.ndarray, dict[str, tuple[list[int], list[list[int]]]]]:
+    """The channel table (T, C) with its position columns filled, in file units.
+
+    ``translations`` (T, J, 3) and ``offsets`` (J, 3) are in the file's frame and unit
+    (``scale`` metres each), ``rotations`` (T, J, 4) in its frame; joints go in
+    ``order``. Returns the table, the decimals of each column (C,) and the rotation
+    columns to fill, grouped by Euler sequence: {seq: (joints, their columns)}.
+    ValidationError for a translation off an axis without a position channel or a
+    rotation of a joint without rotation channels.
+    """
+    names = motion.skeleton.names
+    t = motion.n_frames
     n_cols = sum(len(channels[k]) for k in order)
     data = np.zeros((t, n_cols))
     decimals = np.zeros(n_cols, dtype=np.int64)
@@ -203,6 +280,23 @@ def write_bvh(
                     f"rotations: joint {names[k]!r} rotates by up to {math.degrees(angle.max()):.3g} degrees "
                     "but has no rotation channels; BVH cannot store that"
                 )
+    return data, decimals, rot_groups
+
+
+def _fill_rotation_columns(
+    data: np.ndarray,
+    rot_groups: dict[str, tuple[list[int], list[list[int]]]],
+    rotations: np.ndarray,
+    names: list[str],
+    channels: list[tuple[str, ...]],
+) -> None:
+    """Write the Euler angles (degrees) of ``rotations`` (T, J, 4) into ``data`` (T, C).
+
+    ``rot_groups`` from :func:`_position_columns`; one vectorised conversion per Euler
+    sequence. ValidationError when a joint with fewer than three rotation channels
+    rotates about an axis it has no channel for.
+    """
+    t = data.shape[0]
     for seq, (ks, group_cols) in rot_groups.items():
         q = rotations[:, ks]  # (T, k, 4)
         if len(seq) == 3:
@@ -217,6 +311,10 @@ def write_bvh(
                 )
         data[:, np.asarray(group_cols)] = angles
 
+
+def _frame_time_text(motion: Motion) -> str:
+    """The Frame Time line's number: ``meta["frame_time_text"]`` when it still matches
+    ``motion.rate``, else the shortest repr of the frame time in seconds."""
     frame_time = float(motion.meta.get("frame_time", 1.0 / motion.rate))
     if (
         not (math.isfinite(frame_time) and frame_time > 0)
@@ -226,22 +324,7 @@ def write_bvh(
     time_text = motion.meta.get("frame_time_text")
     if not isinstance(time_text, str) or _float_or_none(time_text) != frame_time:
         time_text = repr(frame_time)
-
-    out: list[str] = ["HIERARCHY"]
-    _write_hierarchy(out, sk, channels, offsets, is_end, len_dec)
-    out.append("MOTION")
-    out.append(f"Frames: {t}")
-    out.append(f"Frame Time: {time_text}")
-    if n_cols:
-        data += 0.0  # no "-0.000000" for exact negative zeros
-        row = " ".join(f"%.{d}f" for d in decimals)
-        out.extend(row % tuple(values) for values in data.tolist())
-    elif t:
-        out.extend([""] * t)
-    text = "\n".join(out) + "\n"
-    with atomic_output(path, force=force) as tmp:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
+    return time_text
 
 
 _UNIT_AXES = np.eye(3)

@@ -213,6 +213,85 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         raise FormatError(p, f"cannot read: {exc.strerror}") from None
     check_before_ezc3d(p, data)
     layout = scan_c3d(p, data)
+    c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout)
+    n = layout.n_points
+
+    raw_labels = _labels(layout, "LABELS")
+    if len(raw_labels) < n:
+        raw_labels = raw_labels + [""] * (n - len(raw_labels))
+    raw_labels = [s.strip() for s in raw_labels[:n]]
+    descriptions = _labels(layout, "DESCRIPTIONS")
+    descriptions = (descriptions + [""] * n)[:n]
+
+    # work on ezc3d's (component, N, T) planes; one transposed copy at the end
+    xyz = points[:3]  # (3, N, T) file units, view
+    res_nt = residuals[0]  # (N, T)
+    if np.isinf(xyz).any():
+        raise FormatError(p, "point data contains infinite coordinates")
+    nan_nt = np.isnan(xyz[0]) | np.isnan(xyz[1]) | np.isnan(xyz[2])
+    neg_nt = res_nt < 0
+    zero_nt = (xyz[0] == 0.0) & (xyz[1] == 0.0) & (xyz[2] == 0.0)
+    invalid_nt = nan_nt | neg_nt  # the C3D rule
+    missing_nt = invalid_nt | zero_nt  # plus exporters' (0, 0, 0)
+    n_zero = int((zero_nt & ~invalid_nt).sum())
+
+    output_cols, taken = _model_output_columns(layout, raw_labels)
+    marker_cols = np.array([i for i in range(n) if i not in taken], dtype=np.int64)
+    all_markers = marker_cols.size == n
+    m_xyz = xyz if all_markers else xyz[:, marker_cols]  # (3, N', T)
+    m_miss = missing_nt if all_markers else missing_nt[marker_cols]  # (N', T)
+    m_res = res_nt if all_markers else res_nt[marker_cols]  # (N', T)
+    units_str, units_guessed = _point_units(layout, m_xyz, p)
+    scale = unit_scale(units_str)
+
+    up_src, up_guessed = _up_from_screen(layout, p) if up == "auto" else (up, False)
+    model_outputs, model_units = _model_outputs(
+        layout, xyz, invalid_nt, output_cols, raw_labels, units_str
+    )
+    mpos, mres = _markers_in_metres(m_xyz, m_res, m_miss, up_src, scale)
+    labels, renamed = _unique_labels([raw_labels[i] for i in marker_cols])
+    invented = _invented_samples(c3d, layout, marker_cols, m_miss.T, p)
+    rate = _frame_rate(layout, rate_ez, p)
+
+    xs = layout.params.get(("POINT", "X_SCREEN"))
+    ys = layout.params.get(("POINT", "Y_SCREEN"))
+    meta: dict[str, Any] = {
+        "source_format": "c3d",
+        "source_path": str(p),
+        "source_units": units_str,
+        "units_guessed": units_guessed,
+        "up": up_src,
+        "up_guessed": up_guessed,
+        "first_frame": int(layout.first_frame),
+        "point_scale": abs(float(layout.scale)),
+        "model_outputs": model_outputs,
+        "model_output_units": model_units,
+        "descriptions": [descriptions[i] for i in marker_cols],
+        "renamed_labels": renamed,
+        "zeros_as_missing": n_zero,
+        "c3d": _content(layout, data, n_frames),
+    }
+    if isinstance(xs, list) and xs and isinstance(ys, list) and ys:
+        meta["screen_axes"] = (xs[0].strip(), ys[0].strip())
+    return MarkerSet(
+        positions=mpos,
+        labels=labels,
+        rate=rate,
+        residuals=mres,
+        invented=invented,
+        meta=meta,
+    )
+
+
+def _decode_with_ezc3d(
+    p: Path, data: bytes, layout: C3dLayout
+) -> tuple[Any, np.ndarray, np.ndarray, int, float]:
+    """ezc3d's reading of the file: (c3d object, points (4, N, T), residuals (1, N, T),
+    frame count T, header rate in Hz), held to the header's frame count.
+
+    FormatError when ezc3d fails, the file is shorter than its frames need, or the
+    arrays are not of the scanned shape.
+    """
     swig = _import_ezc3d()
     try:
         c3d = swig.c3d(str(p), swig.Options(False, False))
@@ -238,27 +317,18 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         raise FormatError(
             p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})"
         )
+    return c3d, points, residuals, n_frames, rate_ez
 
-    raw_labels = _labels(layout, "LABELS")
-    if len(raw_labels) < n:
-        raw_labels = raw_labels + [""] * (n - len(raw_labels))
-    raw_labels = [s.strip() for s in raw_labels[:n]]
-    descriptions = _labels(layout, "DESCRIPTIONS")
-    descriptions = (descriptions + [""] * n)[:n]
 
-    # work on ezc3d's (component, N, T) planes; one transposed copy at the end
-    xyz = points[:3]  # (3, N, T) file units, view
-    res_nt = residuals[0]  # (N, T)
-    if np.isinf(xyz).any():
-        raise FormatError(p, "point data contains infinite coordinates")
-    nan_nt = np.isnan(xyz[0]) | np.isnan(xyz[1]) | np.isnan(xyz[2])
-    neg_nt = res_nt < 0
-    zero_nt = (xyz[0] == 0.0) & (xyz[1] == 0.0) & (xyz[2] == 0.0)
-    invalid_nt = nan_nt | neg_nt  # the C3D rule
-    missing_nt = invalid_nt | zero_nt  # plus exporters' (0, 0, 0)
-    n_zero = int((zero_nt & ~invalid_nt).sum())
+def _model_output_columns(
+    layout: C3dLayout, raw_labels: list[str]
+) -> tuple[dict[str, list[int]], set[int]]:
+    """Point columns that are model outputs, by lower-case group, and all of them.
 
-    # model outputs -------------------------------------------------------------
+    A group is one of MODEL_OUTPUT_GROUPS or ``POINT:TYPE_GROUPS`` listing its labels in
+    ``POINT:<GROUP>``; ``"bones"`` are unlisted segment axes recognised by their
+    labels (``<name>O`` plus the BONE_SUFFIXES). A column belongs to one group only.
+    """
     label_index = {lab: i for i, lab in enumerate(raw_labels) if lab}
     group_names = list(MODEL_OUTPUT_GROUPS)
     tg = layout.params.get(("POINT", "TYPE_GROUPS"))
@@ -292,23 +362,38 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     if bone_cols:
         output_cols["bones"] = bone_cols
         taken.update(bone_cols)
+    return output_cols, taken
 
+
+def _point_units(layout: C3dLayout, m_xyz: np.ndarray, p: Path) -> tuple[str, bool]:
+    """``POINT:UNITS`` lower-cased, or guessed from the markers' (3, N', T) coordinates.
+
+    Returns (unit, guessed); a guess warns (UnitWarning, at read_c3d's caller).
+    """
     units_raw = layout.params.get(("POINT", "UNITS"))
     units_str = units_raw[0].strip().lower() if isinstance(units_raw, list) and units_raw else ""
-    marker_cols = np.array([i for i in range(n) if i not in taken], dtype=np.int64)
-    all_markers = marker_cols.size == n
-    m_xyz = xyz if all_markers else xyz[:, marker_cols]  # (3, N', T)
-    m_miss = missing_nt if all_markers else missing_nt[marker_cols]  # (N', T)
     units_guessed = units_str not in UNIT_TO_METRES
     if units_guessed:
         guess = _guess_units(m_xyz)
         what = "empty" if not units_str else f"{units_str!r}, not a known length unit"
-        warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=2)
+        warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=3)
         units_str = guess
-    scale = unit_scale(units_str)
+    return units_str, units_guessed
 
-    up_src, up_guessed = _up_from_screen(layout, p) if up == "auto" else (up, False)
 
+def _model_outputs(
+    layout: C3dLayout,
+    xyz: np.ndarray,
+    invalid_nt: np.ndarray,
+    output_cols: dict[str, list[int]],
+    raw_labels: list[str],
+    units_str: str,
+) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, str]]:
+    """Model outputs {group: {label: (T, 3)}} in file units, NaN where invalid, and
+    their units by group.
+
+    ``xyz`` (3, N, T) and ``invalid_nt`` (N, T) are every point column of the file.
+    """
     model_outputs: dict[str, dict[str, np.ndarray]] = {}
     model_units: dict[str, str] = {}
     for g, cols in output_cols.items():
@@ -321,8 +406,18 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
             model_units[g] = units_str
         elif isinstance(u, list) and u and u[0].strip():
             model_units[g] = u[0].strip()
+    return model_outputs, model_units
 
-    t_n, n_m = n_frames, int(marker_cols.size)
+
+def _markers_in_metres(
+    m_xyz: np.ndarray, m_res: np.ndarray, m_miss: np.ndarray, up_src: str, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Marker positions (T, N', 3) metres Y up and residuals (T, N') metres, NaN where missing.
+
+    ``m_xyz`` (3, N', T), ``m_res`` and ``m_miss`` (N', T) in file units, ``up_src`` up;
+    ``scale`` metres per file unit.
+    """
+    n_m, t_n = m_miss.shape
     rot = up_rotation(up_src)  # each row picks one source axis, with a sign
     mpos = np.zeros((t_n, n_m, 3))  # (T, N', 3) metres, Y up
     for k in range(3):  # three coordinates, not a loop over data
@@ -331,20 +426,30 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     mmiss = m_miss.T  # (T, N')
     mpos[mmiss] = np.nan
     mres = np.zeros((t_n, n_m))
-    np.multiply((res_nt if all_markers else res_nt[marker_cols]).T, scale, out=mres)
+    np.multiply(m_res.T, scale, out=mres)
     mres[mmiss] = np.nan
-    labels, renamed = _unique_labels([raw_labels[i] for i in marker_cols])
+    return mpos, mres
 
-    invented = None
+
+def _invented_samples(
+    c3d: Any, layout: C3dLayout, marker_cols: np.ndarray, mmiss: np.ndarray, p: Path
+) -> np.ndarray | None:
+    """(T, N') bool: present samples whose camera mask is ``SKINCAP:INVENTED_CAMERA_MASK``;
+    None when the file does not declare it."""
     sk = layout.params.get(("SKINCAP", "INVENTED_CAMERA_MASK"))
-    if sk is not None and len(sk) >= 1:
-        try:
-            masks = c3d.get_point_camera_masks()  # (7, N, T) bool
-        except (RuntimeError, ValueError) as exc:
-            raise FormatError(p, f"ezc3d could not read the camera masks: {exc}") from None
-        bits = (masks.astype(np.int64) << np.arange(7)[:, None, None]).sum(axis=0).T  # (T, N)
-        invented = (bits[:, marker_cols] == int(round(float(sk[0])))) & ~mmiss
+    if sk is None or len(sk) < 1:
+        return None
+    try:
+        masks = c3d.get_point_camera_masks()  # (7, N, T) bool
+    except (RuntimeError, ValueError) as exc:
+        raise FormatError(p, f"ezc3d could not read the camera masks: {exc}") from None
+    bits = (masks.astype(np.int64) << np.arange(7)[:, None, None]).sum(axis=0).T  # (T, N)
+    return (bits[:, marker_cols] == int(round(float(sk[0])))) & ~mmiss
 
+
+def _frame_rate(layout: C3dLayout, rate_ez: float, p: Path) -> float:
+    """POINT:RATE in Hz (else the header's ``rate_ez``), the float32 at its shortest
+    round-trip precision (59.94 stays 59.94); FormatError unless positive."""
     rate_p = layout.params.get(("POINT", "RATE"))
     rate32 = (
         float(rate_p[0])
@@ -353,33 +458,4 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     )
     if not (np.isfinite(rate32) and rate32 > 0):
         raise FormatError(p, f"frame rate {rate32} is not a positive number", offset=20)
-    rate = float(str(np.float32(rate32)))
-
-    xs = layout.params.get(("POINT", "X_SCREEN"))
-    ys = layout.params.get(("POINT", "Y_SCREEN"))
-    meta: dict[str, Any] = {
-        "source_format": "c3d",
-        "source_path": str(p),
-        "source_units": units_str,
-        "units_guessed": units_guessed,
-        "up": up_src,
-        "up_guessed": up_guessed,
-        "first_frame": int(layout.first_frame),
-        "point_scale": abs(float(layout.scale)),
-        "model_outputs": model_outputs,
-        "model_output_units": model_units,
-        "descriptions": [descriptions[i] for i in marker_cols],
-        "renamed_labels": renamed,
-        "zeros_as_missing": n_zero,
-        "c3d": _content(layout, data, n_frames),
-    }
-    if isinstance(xs, list) and xs and isinstance(ys, list) and ys:
-        meta["screen_axes"] = (xs[0].strip(), ys[0].strip())
-    return MarkerSet(
-        positions=mpos,
-        labels=labels,
-        rate=rate,
-        residuals=mres,
-        invented=invented,
-        meta=meta,
-    )
+    return float(str(np.float32(rate32)))

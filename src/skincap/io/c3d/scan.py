@@ -99,6 +99,30 @@ def _s8(byte: int) -> int:
 
 def scan_c3d(path: Path, data: bytes) -> C3dLayout:
     """Validate a C3D's header and parameter section in Python; FormatError on any fault."""
+    start, end, processor = _parameter_section(path, data)
+    ie = ">" if processor == "mips" else "<"
+    words = np.frombuffer(data[:24], dtype=f"{ie}u2").astype(np.int64)
+    n_points, n_analog = int(words[1]), int(words[2])
+    first, last = int(words[3]), int(words[4])
+    scale = float(decode_floats(data[12:16], processor)[0])
+    data_block = int(words[8])
+    rate = float(decode_floats(data[20:24], processor)[0])
+
+    groups, group_meta, raw_params = _read_records(path, data, start, end, processor)
+    params, records = _index_parameters(path, groups, group_meta, raw_params)
+    data_offset = _check_parameters(path, data, params, n_points, n_analog, data_block, start)
+    if not np.isfinite(scale) or scale == 0:
+        scale_p = params.get(("POINT", "SCALE"))
+        if scale_p is None or not len(scale_p) or scale_p[0] == 0:
+            raise FormatError(path, f"point scale factor {scale} is zero or not finite", offset=12)
+        scale = float(scale_p[0])
+    return C3dLayout(
+        processor, n_points, n_analog, first, last, scale, data_offset, rate, params, records
+    )
+
+
+def _parameter_section(path: Path, data: bytes) -> tuple[int, int, str]:
+    """(first byte, end byte, processor) of the parameter section the header points at."""
     size = len(data)
     if size < 512:
         raise FormatError(
@@ -132,18 +156,21 @@ def scan_c3d(path: Path, data: bytes) -> C3dLayout:
             f"parameter section of {nblocks} blocks from byte {start} does not fit in the file ({size} bytes)",
             offset=start + 2,
         )
+    return start, end, processor
 
+
+_RawParameter = tuple[int, str, Any, int, C3dParameter]  # (group id, NAME, value, byte, record)
+
+
+def _read_records(
+    path: Path, data: bytes, start: int, end: int, processor: str
+) -> tuple[dict[int, str], dict[int, tuple[str, bytes, bool]], list[_RawParameter]]:
+    """Walk the records of bytes ``start``..``end``: group names and (name as written,
+    description, locked) by group id, and the parameters in file order."""
     ie = ">" if processor == "mips" else "<"
-    words = np.frombuffer(data[:24], dtype=f"{ie}u2").astype(np.int64)
-    n_points, n_analog = int(words[1]), int(words[2])
-    first, last = int(words[3]), int(words[4])
-    scale = float(decode_floats(data[12:16], processor)[0])
-    data_block = int(words[8])
-    rate = float(decode_floats(data[20:24], processor)[0])
-
     groups: dict[int, str] = {}
     group_meta: dict[int, tuple[str, bytes, bool]] = {}
-    raw_params: list[tuple[int, str, Any, int, C3dParameter]] = []
+    raw_params: list[_RawParameter] = []
     pos = start + 4
     while True:
         if pos + 2 > end:
@@ -177,70 +204,104 @@ def scan_c3d(path: Path, data: bytes) -> C3dLayout:
             )
         body = offset_field + 2
         if gid < 0:
-            if body + 1 > rec_end:
-                raise FormatError(path, f"group {name!r}: record too short", offset=body)
-            dlen = data[body]
-            if body + 1 + dlen > rec_end:
-                raise FormatError(
-                    path,
-                    f"group {name!r}: description of {dlen} bytes overruns its record",
-                    offset=body,
-                )
+            description = _group_description(path, data, name, body, rec_end)
             if -gid in groups and groups[-gid] != name:
                 raise FormatError(
                     path, f"group id {-gid} defined twice ({groups[-gid]!r}, {name!r})", offset=pos
                 )
             groups[-gid] = name
-            group_meta[-gid] = (name_as_written, data[body + 1 : body + 1 + dlen], nchars < 0)
+            group_meta[-gid] = (name_as_written, description, nchars < 0)
         else:
-            if body + 2 > rec_end:
-                raise FormatError(path, f"parameter {name!r}: record too short", offset=body)
-            ptype = _s8(data[body])
-            if ptype not in _TYPE_SIZES:
-                raise FormatError(
-                    path, f"parameter {name!r}: unknown data type {ptype}", offset=body
-                )
-            ndims = data[body + 1]
-            if ndims > 7:
-                raise FormatError(
-                    path, f"parameter {name!r}: {ndims} dimensions (at most 7)", offset=body + 1
-                )
-            dims = list(data[body + 2 : body + 2 + ndims])
-            vstart = body + 2 + ndims
-            nbytes = math.prod(dims) * _TYPE_SIZES[ptype] if ndims else _TYPE_SIZES[ptype]
-            if vstart + nbytes + 1 > rec_end:
-                raise FormatError(
-                    path,
-                    f"parameter {name!r}: {nbytes} bytes of values overrun its record",
-                    offset=vstart,
-                )
-            dlen = data[vstart + nbytes]
-            if vstart + nbytes + 1 + dlen > rec_end:
-                raise FormatError(
-                    path,
-                    f"parameter {name!r}: description of {dlen} bytes overruns its record",
-                    offset=vstart + nbytes,
-                )
-            raw = data[vstart : vstart + nbytes]
-            if ptype == -1:
-                value: Any = _decode_strings(raw, dims)
-            elif ptype == 4:
-                value = decode_floats(raw, processor)
-            else:
-                value = _decode_ints(raw, processor, _TYPE_SIZES[ptype])
-            record = C3dParameter(
-                name=name_as_written,
-                type=ptype,
-                dims=tuple(int(d) for d in dims),
-                raw=_intel_bytes(value, ptype, raw),
-                description=data[vstart + nbytes + 1 : vstart + nbytes + 1 + dlen],
-                locked=nchars < 0,
+            value, record = _parameter_record(
+                path, data, name_as_written, nchars < 0, body, rec_end, processor
             )
             raw_params.append((gid, name, value, pos, record))
         if last_record:
             break
         pos = rec_end
+    return groups, group_meta, raw_params
 
+
+def _group_description(path: Path, data: bytes, name: str, body: int, rec_end: int) -> bytes:
+    """The description bytes of the group record whose body spans ``body``..``rec_end``."""
+    if body + 1 > rec_end:
+        raise FormatError(path, f"group {name!r}: record too short", offset=body)
+    dlen = data[body]
+    if body + 1 + dlen > rec_end:
+        raise FormatError(
+            path,
+            f"group {name!r}: description of {dlen} bytes overruns its record",
+            offset=body,
+        )
+    return data[body + 1 : body + 1 + dlen]
+
+
+def _parameter_record(
+    path: Path,
+    data: bytes,
+    name_as_written: str,
+    locked: bool,
+    body: int,
+    rec_end: int,
+    processor: str,
+) -> tuple[Any, C3dParameter]:
+    """The decoded value (list of str, or int64/float64 array) and the record of the
+    parameter whose body spans ``body``..``rec_end``."""
+    name = name_as_written.upper()
+    if body + 2 > rec_end:
+        raise FormatError(path, f"parameter {name!r}: record too short", offset=body)
+    ptype = _s8(data[body])
+    if ptype not in _TYPE_SIZES:
+        raise FormatError(path, f"parameter {name!r}: unknown data type {ptype}", offset=body)
+    ndims = data[body + 1]
+    if ndims > 7:
+        raise FormatError(
+            path, f"parameter {name!r}: {ndims} dimensions (at most 7)", offset=body + 1
+        )
+    dims = list(data[body + 2 : body + 2 + ndims])
+    vstart = body + 2 + ndims
+    nbytes = math.prod(dims) * _TYPE_SIZES[ptype] if ndims else _TYPE_SIZES[ptype]
+    if vstart + nbytes + 1 > rec_end:
+        raise FormatError(
+            path,
+            f"parameter {name!r}: {nbytes} bytes of values overrun its record",
+            offset=vstart,
+        )
+    dlen = data[vstart + nbytes]
+    if vstart + nbytes + 1 + dlen > rec_end:
+        raise FormatError(
+            path,
+            f"parameter {name!r}: description of {dlen} bytes overruns its record",
+            offset=vstart + nbytes,
+        )
+    raw = data[vstart : vstart + nbytes]
+    if ptype == -1:
+        value: Any = _decode_strings(raw, dims)
+    elif ptype == 4:
+        value = decode_floats(raw, processor)
+    else:
+        value = _decode_ints(raw, processor, _TYPE_SIZES[ptype])
+    record = C3dParameter(
+        name=name_as_written,
+        type=ptype,
+        dims=tuple(int(d) for d in dims),
+        raw=_intel_bytes(value, ptype, raw),
+        description=data[vstart + nbytes + 1 : vstart + nbytes + 1 + dlen],
+        locked=locked,
+    )
+    return value, record
+
+
+def _index_parameters(
+    path: Path,
+    groups: dict[int, str],
+    group_meta: dict[int, tuple[str, bytes, bool]],
+    raw_params: list[_RawParameter],
+) -> tuple[dict[tuple[str, str], Any], dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]]]:
+    """Values by (GROUP, NAME) and the records by group (C3dLayout.records), in file order.
+
+    FormatError for a parameter of an undefined group.
+    """
     params: dict[tuple[str, str], Any] = {}
     records: dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]] = {}
     for gid, gname in groups.items():  # file order; a name defined twice is one group
@@ -257,7 +318,21 @@ def scan_c3d(path: Path, data: bytes) -> C3dLayout:
         # later definition of a parameter wins, as in ezc3d
         params[key] = value
         records[groups[gid]][3][name] = record
+    return params, records
 
+
+def _check_parameters(
+    path: Path,
+    data: bytes,
+    params: dict[tuple[str, str], Any],
+    n_points: int,
+    n_analog: int,
+    data_block: int,
+    start: int,
+) -> int:
+    """The data section's byte offset, once the parameters agree with the header words
+    (point and analog counts, data start block) and the rates and scales are finite."""
+    size = len(data)
     used = params.get(("POINT", "USED"))
     if used is not None and (len(used) < 1 or int(used[0]) & 0xFFFF != n_points):
         raise FormatError(
@@ -294,11 +369,4 @@ def scan_c3d(path: Path, data: bytes) -> C3dLayout:
         ):
             if value.size and not np.isfinite(value).all():
                 raise FormatError(path, f"{key[0]}:{key[1]} is not finite ({value.tolist()[:3]})")
-    if not np.isfinite(scale) or scale == 0:
-        scale_p = params.get(("POINT", "SCALE"))
-        if scale_p is None or not len(scale_p) or scale_p[0] == 0:
-            raise FormatError(path, f"point scale factor {scale} is zero or not finite", offset=12)
-        scale = float(scale_p[0])
-    return C3dLayout(
-        processor, n_points, n_analog, first, last, scale, data_offset, rate, params, records
-    )
+    return data_offset

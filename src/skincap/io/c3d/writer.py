@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 import warnings
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Literal
 
@@ -89,14 +89,83 @@ def write_c3d(
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
     meta = markers.meta
     units = str(units if units is not None else meta.get("source_units", "mm"))
-    scale = unit_scale(units)
+    unit_scale(units)  # an unknown unit is refused before anything else
     up_key = str(up if up is not None else meta.get("up", "z")).lower()
     if up_key not in ("y", "z"):
         raise ValidationError(f"up: expected 'y' or 'z', got {up_key!r}")
-    t, n = markers.n_frames, markers.n_markers
-    if t == 0:
+    if markers.n_frames == 0:
         raise ValidationError("markers: a C3D needs at least one frame")
+    target = Path(path)
 
+    points = _points_to_write(markers, units, up_key)
+    pscale, steps = _residual_steps(points, meta)
+    _check_storable(points, markers.rate, target, units)
+    first = int(meta.get("first_frame", 1))
+    if first < 0 or first > 65535:
+        raise ValidationError(f"meta['first_frame']: must be in 0..65535, got {first}")
+
+    content = meta.get("c3d")
+    if not isinstance(content, C3dContent):
+        content = None
+    keep_analogs = _analogs_kept(content, markers.n_frames, target)
+    if keep_analogs and content is not None:
+        analogs, ratio = content.analogs, content.analog_ratio
+    else:
+        analogs, ratio = np.zeros((0, 0)), 0
+
+    source_groups = list(content.groups) if content is not None else []
+    point = _point_parameters(markers, points, pscale, units, up_key, content, target)
+    out_groups = _merged_groups(source_groups, point, points.groups, keep_analogs, target)
+    masks = _camera_masks(markers, len(points.labels), out_groups, target)
+
+    frames = C3dFrames(
+        xyz=points.xyz,
+        invalid=points.invalid,
+        residual_steps=steps,
+        camera_masks=masks,
+        analogs=analogs,
+        ratio=ratio,
+    )
+    payload = encode_c3d(
+        out_groups,
+        frames,
+        first_frame=first,
+        rate=float(markers.rate),
+        point_scale=pscale,
+        events=content.events if content is not None else None,
+        target=target,
+    )
+    with atomic_output(target, force=force) as tmp:
+        tmp.write_bytes(payload)
+
+
+@dataclass
+class _Points:
+    """Every POINT the file holds: the markers, then the model outputs, in file units.
+
+    ``labels`` (P,) with P = N markers + the model outputs; ``xyz`` (T, P, 3) file
+    units, 0 where ``invalid`` (T, P) bool; ``residuals`` (T, P) file units, 0 where
+    absent; ``groups`` maps a model-output group (``"ANGLES"``…) to its labels;
+    ``model_units`` the model outputs' units by (source-case) group name.
+    """
+
+    labels: list[str]
+    xyz: np.ndarray
+    invalid: np.ndarray
+    residuals: np.ndarray
+    groups: dict[str, list[str]]
+    model_units: dict[str, Any]
+
+
+def _points_to_write(markers: MarkerSet, units: str, up_key: str) -> _Points:
+    """The markers then ``meta["model_outputs"]`` as POINTs in file ``units``, ``up_key`` up.
+
+    Model outputs of another known length unit are converted to ``units``; a model
+    output of the wrong shape or named like a marker is a ValidationError.
+    """
+    meta = markers.meta
+    t, n = markers.n_frames, markers.n_markers
+    scale = unit_scale(units)
     pos = from_y_up(markers.positions, up_key) / scale  # (T, N, 3) file units
     miss = markers.missing
     res = np.zeros((t, n)) if markers.residuals is None else markers.residuals / scale
@@ -137,63 +206,110 @@ def write_c3d(
         groups[gname] = names
     all_pos = np.concatenate(out_pos, axis=1)
     all_miss = np.concatenate(out_miss, axis=1)
-    all_res = np.concatenate(out_res, axis=1)
     all_pos[all_miss] = 0.0
-    finite_res = all_res[~all_miss]
+    return _Points(
+        labels=labels,
+        xyz=all_pos,
+        invalid=all_miss,
+        residuals=np.concatenate(out_res, axis=1),
+        groups=groups,
+        model_units=model_units,
+    )
+
+
+def _residual_steps(points: _Points, meta: dict[str, Any]) -> tuple[float, np.ndarray]:
+    """``POINT:SCALE`` magnitude (file units per step) and the residual bytes (T, P) int.
+
+    The source's ``meta["point_scale"]`` when its 255 steps hold the largest residual,
+    else the smallest power of ten that does.
+    """
+    finite_res = points.residuals[~points.invalid]
     rmax = float(finite_res.max()) if finite_res.size else 0.0
     pscale = float(meta.get("point_scale", 0.0) or 0.0)
     if not (np.isfinite(pscale) and pscale > 0 and rmax <= 255 * pscale * (1 + 1e-6)):
         # the smallest power of ten whose 255 steps hold the largest residual
         pscale = 10.0 ** np.ceil(np.log10(rmax / 255.0)) if rmax > 0 else 1.0
     # stored as a byte k with residual = k * |SCALE|
-    steps = np.clip(np.round(all_res / pscale), 0, 255).astype(np.int64)
-    total = len(labels)
-    target = Path(path)
-    where_names = labels
+    steps = np.clip(np.round(points.residuals / pscale), 0, 255).astype(np.int64)
+    return pscale, steps
+
+
+def _check_storable(points: _Points, rate: float, target: Path, units: str) -> None:
+    """FormatError naming the first coordinate (file ``units``) or a rate beyond float32."""
+    where_names = points.labels
 
     def where(idx: tuple[int, ...]) -> str:
         return f"point {where_names[idx[1]]!r}, frame {idx[0]}, {'xyz'[idx[2]]}"
 
-    check_float32(np.where(all_miss[..., None], 0.0, all_pos), target, where, unit=units)
-    if not (np.isfinite(markers.rate) and 0 < markers.rate <= FLOAT32_MAX):
-        raise FormatError(target, f"frame rate {markers.rate} cannot be stored as a float32")
-    first = int(meta.get("first_frame", 1))
-    if first < 0 or first > 65535:
-        raise ValidationError(f"meta['first_frame']: must be in 0..65535, got {first}")
+    check_float32(np.where(points.invalid[..., None], 0.0, points.xyz), target, where, unit=units)
+    if not (np.isfinite(rate) and 0 < rate <= FLOAT32_MAX):
+        raise FormatError(target, f"frame rate {rate} cannot be stored as a float32")
 
-    content = meta.get("c3d")
-    if not isinstance(content, C3dContent):
-        content = None
-    keep_analogs = content is not None and content.n_frames == t
+
+def _analogs_kept(content: C3dContent | None, n_frames: int, target: Path) -> bool:
+    """Whether the source's analogs go out: only when its frame count is ``n_frames``.
+
+    Warns (SkincapWarning, at write_c3d's caller) when analog channels are dropped.
+    """
+    keep_analogs = content is not None and content.n_frames == n_frames
     if content is not None and not keep_analogs and content.n_analog_channels:
         fp = content.n_force_plates()
         warnings.warn(
-            f"{target}: the markers have {t} frames, the source's {content.n_analog_channels} "
+            f"{target}: the markers have {n_frames} frames, the source's {content.n_analog_channels} "
             f"analog channels were aligned with {content.n_frames}: analog data"
             f"{f' and {fp} force plates' if fp else ''} not written (they cannot be "
             "realigned with frames that changed)",
             SkincapWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
-    if keep_analogs and content is not None:
-        analogs, ratio = content.analogs, content.analog_ratio
-    else:
-        analogs, ratio = np.zeros((0, 0)), 0
+    return keep_analogs
+
+
+def _number(target: Path) -> Any:
+    """``num(name, values, kind, scalar=None)``: a numeric parameter for ``target``."""
 
     def num(name: str, values: Any, kind: str, scalar: bool | None = None) -> C3dParameter:
         return number_parameter(name, values, kind, target=target, scalar=scalar)
 
+    return num
+
+
+def _text(target: Path) -> Any:
+    """``text(name, values)``: a character parameter for ``target``."""
+
     def text(name: str, values: str | list[str]) -> C3dParameter:
         return char_parameter(name, values, target=target)
 
-    def chunked(name: str, values: list[str]) -> list[C3dParameter]:
-        """LABELS, LABELS2, LABELS3… of at most 255 strings each."""
-        out = [text(name, values[:255])]
-        for k in range(255, len(values), 255):
-            out.append(text(f"{name}{k // 255 + 1}", values[k : k + 255]))
-        return out
+    return text
 
-    # --- POINT: what describes the points is written from the MarkerSet
+
+def _chunked(name: str, values: list[str], target: Path) -> list[C3dParameter]:
+    """LABELS, LABELS2, LABELS3… of at most 255 strings each."""
+    text = _text(target)
+    out = [text(name, values[:255])]
+    for k in range(255, len(values), 255):
+        out.append(text(f"{name}{k // 255 + 1}", values[k : k + 255]))
+    return out
+
+
+def _point_parameters(
+    markers: MarkerSet,
+    points: _Points,
+    pscale: float,
+    units: str,
+    up_key: str,
+    content: C3dContent | None,
+    target: Path,
+) -> list[C3dParameter]:
+    """The POINT parameters that describe ``points``, in the source's records where equal.
+
+    Drops ``points.groups["BONES"]`` when the source's POINT did not list it (the reader
+    recognises segment axes by their labels again).
+    """
+    num, text = _number(target), _text(target)
+    meta = markers.meta
+    t, n = markers.n_frames, markers.n_markers
+    labels, groups, total = points.labels, points.groups, len(points.labels)
     point: list[C3dParameter] = [
         num("USED", total, "int"),
         # int16 read as unsigned by ezc3d up to 65535; beyond, -1 and the header decide
@@ -203,13 +319,13 @@ def write_c3d(
         num("RATE", float(markers.rate), "float"),
         text("UNITS", units),
     ]
-    point += chunked("LABELS", labels)
+    point += _chunked("LABELS", labels, target)
     descriptions = meta.get("descriptions")
     if not (isinstance(descriptions, list) and len(descriptions) == n):
         # columns added, removed or reordered: the source's descriptions by label
         by_label = _source_descriptions(content) if content is not None else {}
         descriptions = [by_label.get(lab, "") for lab in markers.labels]
-    point += chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n))
+    point += _chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n), target)
     screen = meta.get("screen_axes")
     if not (
         isinstance(screen, tuple | list)
@@ -226,10 +342,10 @@ def write_c3d(
         groups.pop("BONES", None)
     type_groups: list[str] = []
     for gname, names in groups.items():
-        point += chunked(gname, names)  # ANGLES, ANGLES2… like LABELS
+        point += _chunked(gname, names, target)  # ANGLES, ANGLES2… like LABELS
         type_groups.extend([gname, gname[:-1] if gname.endswith("S") else gname])
         unit_param = MODEL_OUTPUT_GROUPS.get(gname, gname.rstrip("S") + "_UNITS")
-        gu = model_units.get(gname.lower())
+        gu = points.model_units.get(gname.lower())
         if gu and gname != "BONES":
             point.append(text(unit_param, str(gu)))
     if type_groups:
@@ -241,6 +357,23 @@ def write_c3d(
             listed = {str(v).strip().upper() for v in tg.value}
             if set(type_groups) <= listed:  # the source's list still holds: keep it as it is
                 point = [p for p in point if p.name != "TYPE_GROUPS"] + [tg]
+    return point
+
+
+def _merged_groups(
+    source_groups: list[C3dGroup],
+    point: list[C3dParameter],
+    groups: dict[str, list[str]],
+    keep_analogs: bool,
+    target: Path,
+) -> list[C3dGroup]:
+    """The source's groups with ``point`` in POINT and the analogs dropped unless kept.
+
+    ``groups`` are the model-output groups written (their POINT listings are replaced).
+    ROTATION is left out (with a SkincapWarning when it held data); POINT, ANALOG and
+    FORCE_PLATFORM are added when the source had none.
+    """
+    num, text = _number(target), _text(target)
     written = {p.name for p in point}
 
     def rewritten(name: str) -> bool:
@@ -276,7 +409,7 @@ def write_c3d(
                 warnings.warn(
                     f"{target}: the source's ROTATION data (segment rotations) is not written",
                     SkincapWarning,
-                    stacklevel=2,
+                    stacklevel=3,
                 )
         elif key == "SKINCAP":
             kept = tuple(p for p in g.parameters if p.name.upper() != "INVENTED_CAMERA_MASK")
@@ -290,36 +423,29 @@ def write_c3d(
         out_groups.append(C3dGroup("ANALOG", parameters=_no_analogs(num, text)))
     if "FORCE_PLATFORM" not in seen:
         out_groups.append(C3dGroup("FORCE_PLATFORM", parameters=(num("USED", 0, "int"),)))
-    masks = np.zeros((t, total), dtype=np.int64)
+    return out_groups
+
+
+def _camera_masks(
+    markers: MarkerSet, total: int, out_groups: list[C3dGroup], target: Path
+) -> np.ndarray:
+    """Camera masks (T, P) int: INVENTED_MASK on invented samples, declared in SKINCAP.
+
+    Adds ``SKINCAP:INVENTED_CAMERA_MASK`` to ``out_groups`` (in place) when the markers
+    carry ``invented``.
+    """
+    masks = np.zeros((markers.n_frames, total), dtype=np.int64)
     if markers.invented is not None:
-        masks[:, :n] = np.where(markers.invented & ~miss, INVENTED_MASK, 0)
-        mask_param = num("INVENTED_CAMERA_MASK", INVENTED_MASK, "int")
+        n = markers.n_markers
+        masks[:, :n] = np.where(markers.invented & ~markers.missing, INVENTED_MASK, 0)
+        mask_param = _number(target)("INVENTED_CAMERA_MASK", INVENTED_MASK, "int")
         for k, g in enumerate(out_groups):
             if g.name.upper() == "SKINCAP":
                 out_groups[k] = replace(g, parameters=g.parameters + (mask_param,))
                 break
         else:
             out_groups.append(C3dGroup("SKINCAP", parameters=(mask_param,)))
-
-    frames = C3dFrames(
-        xyz=all_pos,
-        invalid=all_miss,
-        residual_steps=steps,
-        camera_masks=masks,
-        analogs=analogs,
-        ratio=ratio,
-    )
-    payload = encode_c3d(
-        out_groups,
-        frames,
-        first_frame=first,
-        rate=float(markers.rate),
-        point_scale=pscale,
-        events=content.events if content is not None else None,
-        target=target,
-    )
-    with atomic_output(target, force=force) as tmp:
-        tmp.write_bytes(payload)
+    return masks
 
 
 def _source_descriptions(content: C3dContent) -> dict[str, str]:

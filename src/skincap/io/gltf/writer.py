@@ -263,78 +263,19 @@ def write_glb(
     skel = skin.skeleton
     nj = skel.n_joints
     b = _Builder(path)
-
-    # ---- mesh
-    verts = mesh.vertices
-    pos_acc = b.add(verts, _FLOAT, target=_ARRAY_BUFFER, minmax=True, name="vertex")
-    nrm_acc = b.add(_vertex_normals(verts, mesh.faces), _FLOAT, target=_ARRAY_BUFFER, name="normal")
-    attributes: dict[str, int] = {"POSITION": pos_acc, "NORMAL": nrm_acc}
-    if mesh.uv is not None:
-        uv = np.stack([mesh.uv[:, 0], 1.0 - mesh.uv[:, 1]], axis=1)
-        attributes["TEXCOORD_0"] = b.add(uv, _FLOAT, target=_ARRAY_BUFFER, name="uv")
-    j4, w4, n_lost = _four_influences(skin.joint_indices, skin.joint_weights)
-    if n_lost:
-        warnings.warn(
-            f"glTF keeps {GLTF_MAX_INFLUENCES} influences per vertex: {n_lost} vertices "
-            f"lost their smaller weights (the {GLTF_MAX_INFLUENCES} largest were renormalised)",
-            SkincapWarning,
-            stacklevel=2,
-        )
-    j4 = np.where(w4 > 0, j4, 0)
-    attributes["JOINTS_0"] = b.add(j4, _USHORT, target=_ARRAY_BUFFER)
-    attributes["WEIGHTS_0"] = b.add(w4, _FLOAT, target=_ARRAY_BUFFER)
-    index_type = _USHORT if verts.shape[0] <= 65535 else _UINT
-    idx_acc = b.add(mesh.faces.reshape(-1), index_type, target=_ELEMENT_ARRAY_BUFFER)
-
+    # accessor order is the file's byte order: mesh, inverse binds, animation
+    attributes, idx_acc = _mesh_primitive(b, mesh, skin)
     # ---- skin: column-major MAT4
     ibm_acc = b.add(
         skin.inverse_bind.transpose(0, 2, 1).reshape(nj, 16), _FLOAT, name="inverse bind matrix"
     )
-
-    # ---- joint nodes: rest TRS from the bind pose when rigid, else frame 0
-    bind = skin.bind_matrices
-    parents = skel.parents
-    has = parents >= 0
-    local_bind = bind.copy()
-    local_bind[has] = np.linalg.solve(bind[parents[has]], bind[has])
-    rest = _rigid_trs(local_bind)
-    if rest is None:
-        rest = (motion.rotations[0], motion.translations[0])
-    rest_q, rest_t = rest
-    nodes: list[dict[str, Any]] = []
-    for j in range(nj):
-        node: dict[str, Any] = {
-            "name": skel.names[j],
-            "rotation": [float(x) for x in rest_q[j]],
-            "translation": [float(x) for x in rest_t[j]],
-        }
-        kids = np.nonzero(parents == j)[0]
-        if kids.size:
-            node["children"] = [int(c) for c in kids]
-        nodes.append(node)
+    nodes = _joint_nodes(skin, motion)
     mesh_node = nj
     nodes.append({"name": str(mesh.meta.get("name") or "mesh"), "mesh": 0, "skin": 0})
-
-    # ---- animation: one shared time accessor, LINEAR samplers per joint and channel
-    t = motion.n_frames
-    times = np.arange(t, dtype=np.float64) / motion.rate
-    time_acc = b.add(times, _FLOAT, minmax=True, name="key time")
-    q = _continuous(motion.rotations / np.linalg.norm(motion.rotations, axis=-1, keepdims=True))
-    samplers: list[dict[str, Any]] = []
-    channels: list[dict[str, Any]] = []
-    for j in range(nj):
-        for path_name, values in (
-            ("rotation", q[:, j]),
-            ("translation", motion.translations[:, j]),
-        ):
-            out_acc = b.add(values, _FLOAT, name="animation key")
-            samplers.append({"input": time_acc, "output": out_acc, "interpolation": "LINEAR"})
-            channels.append(
-                {"sampler": len(samplers) - 1, "target": {"node": j, "path": path_name}}
-            )
+    samplers, channels = _animation(b, motion, nj)
 
     skin_obj: dict[str, Any] = {"joints": list(range(nj)), "inverseBindMatrices": ibm_acc}
-    roots = [int(r) for r in np.nonzero(~has)[0]]
+    roots = [int(r) for r in np.nonzero(skel.parents < 0)[0]]
     if len(roots) == 1:
         skin_obj["skeleton"] = roots[0]
     doc: dict[str, Any] = {
@@ -354,16 +295,103 @@ def write_glb(
                 "name": str(motion.meta.get("name") or "motion"),
                 "samplers": samplers,
                 "channels": channels,
-                "extras": {"rate": motion.rate, "frames": t},
+                "extras": {"rate": motion.rate, "frames": motion.n_frames},
             }
         ],
         "buffers": [{"byteLength": len(b.blob)}],
         "bufferViews": b.views,
         "accessors": b.accessors,
     }
+    _write_glb_chunks(path, doc, bytes(b.blob), force=force)
+
+
+def _mesh_primitive(b: _Builder, mesh: Mesh, skin: Skin) -> tuple[dict[str, int], int]:
+    """Add the mesh's accessors to ``b``: float32 positions and normals, uv (flipped to
+    glTF's top-left origin), 4 joints and weights per vertex and the triangle indices.
+
+    Returns the primitive's attributes (name -> accessor) and its index accessor;
+    warns (SkincapWarning, at write_glb's caller) when vertices lose influences.
+    """
+    verts = mesh.vertices
+    pos_acc = b.add(verts, _FLOAT, target=_ARRAY_BUFFER, minmax=True, name="vertex")
+    nrm_acc = b.add(_vertex_normals(verts, mesh.faces), _FLOAT, target=_ARRAY_BUFFER, name="normal")
+    attributes: dict[str, int] = {"POSITION": pos_acc, "NORMAL": nrm_acc}
+    if mesh.uv is not None:
+        uv = np.stack([mesh.uv[:, 0], 1.0 - mesh.uv[:, 1]], axis=1)
+        attributes["TEXCOORD_0"] = b.add(uv, _FLOAT, target=_ARRAY_BUFFER, name="uv")
+    j4, w4, n_lost = _four_influences(skin.joint_indices, skin.joint_weights)
+    if n_lost:
+        warnings.warn(
+            f"glTF keeps {GLTF_MAX_INFLUENCES} influences per vertex: {n_lost} vertices "
+            f"lost their smaller weights (the {GLTF_MAX_INFLUENCES} largest were renormalised)",
+            SkincapWarning,
+            stacklevel=3,
+        )
+    j4 = np.where(w4 > 0, j4, 0)
+    attributes["JOINTS_0"] = b.add(j4, _USHORT, target=_ARRAY_BUFFER)
+    attributes["WEIGHTS_0"] = b.add(w4, _FLOAT, target=_ARRAY_BUFFER)
+    index_type = _USHORT if verts.shape[0] <= 65535 else _UINT
+    idx_acc = b.add(mesh.faces.reshape(-1), index_type, target=_ELEMENT_ARRAY_BUFFER)
+    return attributes, idx_acc
+
+
+def _joint_nodes(skin: Skin, motion: Motion) -> list[dict[str, Any]]:
+    """One node per joint (node j is joint j) with its children and rest TRS: the
+    bind pose's local transforms when rigid, else the motion's frame 0."""
+    skel = skin.skeleton
+    bind = skin.bind_matrices  # (J, 4, 4)
+    parents = skel.parents
+    has = parents >= 0
+    local_bind = bind.copy()
+    local_bind[has] = np.linalg.solve(bind[parents[has]], bind[has])
+    rest = _rigid_trs(local_bind)
+    if rest is None:
+        rest = (motion.rotations[0], motion.translations[0])
+    rest_q, rest_t = rest
+    nodes: list[dict[str, Any]] = []
+    for j in range(skel.n_joints):
+        node: dict[str, Any] = {
+            "name": skel.names[j],
+            "rotation": [float(x) for x in rest_q[j]],
+            "translation": [float(x) for x in rest_t[j]],
+        }
+        kids = np.nonzero(parents == j)[0]
+        if kids.size:
+            node["children"] = [int(c) for c in kids]
+        nodes.append(node)
+    return nodes
+
+
+def _animation(
+    b: _Builder, motion: Motion, nj: int
+) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Add the key times (T,) s and each joint's rotation and translation keys to ``b``;
+    the LINEAR samplers and their channels, joint by joint."""
+    times = np.arange(motion.n_frames, dtype=np.float64) / motion.rate
+    time_acc = b.add(times, _FLOAT, minmax=True, name="key time")
+    q = _continuous(motion.rotations / np.linalg.norm(motion.rotations, axis=-1, keepdims=True))
+    samplers: list[dict[str, Any]] = []
+    channels: list[dict[str, Any]] = []
+    for j in range(nj):
+        for path_name, values in (
+            ("rotation", q[:, j]),
+            ("translation", motion.translations[:, j]),
+        ):
+            out_acc = b.add(values, _FLOAT, name="animation key")
+            samplers.append({"input": time_acc, "output": out_acc, "interpolation": "LINEAR"})
+            channels.append(
+                {"sampler": len(samplers) - 1, "target": {"node": j, "path": path_name}}
+            )
+    return samplers, channels
+
+
+def _write_glb_chunks(
+    path: str | os.PathLike[str], doc: dict[str, Any], blob: bytes, *, force: bool
+) -> None:
+    """The GLB container: header, JSON chunk (space-padded), BIN chunk (zero-padded)."""
     json_bytes = json.dumps(doc, separators=(",", ":")).encode("utf-8")
     json_bytes += b" " * ((-len(json_bytes)) % 4)
-    bin_bytes = bytes(b.blob) + b"\0" * ((-len(b.blob)) % 4)
+    bin_bytes = blob + b"\0" * ((-len(blob)) % 4)
     total = 12 + 8 + len(json_bytes) + 8 + len(bin_bytes)
     with atomic_output(path, force=force) as tmp, open(tmp, "wb") as fh:
         fh.write(struct.pack("<III", _GLB_MAGIC, 2, total))
