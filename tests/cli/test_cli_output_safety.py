@@ -155,6 +155,9 @@ from skincap.cli import main
 
 real_replace = os.replace
 which = getattr(signal, sys.argv[1])
+# a shell's background job inherits SIGINT ignored, and Python then never raises
+# KeyboardInterrupt: give this child the handler an interactive run has
+signal.signal(signal.SIGINT, signal.default_int_handler)
 
 def replace_after_signal(src, dst):
     # the whole file is in the .part; the signal arrives before it is renamed
