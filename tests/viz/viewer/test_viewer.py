@@ -358,7 +358,9 @@ def test_cli_view_bad_inputs_exit_2_with_one_line(tmp_path: Path) -> None:
 
 
 def test_cli_view_serves_until_interrupted() -> None:
-    code = "from skincap.cli import main; main()"
+    # a shell's background job (CI run with ``&``) inherits SIGINT ignored: give the child
+    # Python's handler, as an interactive Ctrl-C has
+    code = "import signal; signal.signal(signal.SIGINT, signal.default_int_handler); from skincap.cli import main; main()"
     proc = subprocess.Popen(
         [sys.executable, "-c", code, "view", str(DATA / "kt_optitrack_walking.c3d"),
          "--no-browser", "--port", "0", "--frame", "10"],
