@@ -256,6 +256,22 @@ class PointCloud:
         """(n_t, 3) float64: the points of frame ``t`` (a view)."""
         return self.points[self.offsets[t] : self.offsets[t + 1]]
 
+    def select(self, keep: np.ndarray, n_frames: int | None = None) -> PointCloud:
+        """The points where ``keep`` (M,) bool is True, each in its frame (ids and meta kept).
+
+        ``n_frames`` (default: all) cuts the take to its first frames; ``keep`` must then
+        be False for every point after them.
+        """
+        n = self.n_frames if n_frames is None else int(n_frames)
+        counts = np.bincount(self.frame_index[keep], minlength=n)[:n]
+        return PointCloud(
+            points=self.points[keep],
+            offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
+            rate=self.rate,
+            ids=None if self.ids is None else self.ids[keep],
+            meta=dict(self.meta),
+        )
+
     def to_markerset(self) -> MarkerSet:
         """Columns by point id: the inverse of :meth:`from_markerset`.
 

@@ -176,19 +176,6 @@ def classify_points(track: TrackLike, cloud: PointCloud, point_truth: np.ndarray
 
 
 # ---------------------------------------------------------------------- hold-back
-def _cloud_subset(cloud: PointCloud, keep: np.ndarray, n_frames: int) -> PointCloud:
-    frame = cloud.frame_index[keep]
-    counts = np.bincount(frame, minlength=n_frames)[:n_frames]
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    return PointCloud(
-        points=cloud.points[keep],
-        offsets=offsets,
-        rate=cloud.rate,
-        ids=None if cloud.ids is None else cloud.ids[keep],
-        meta=dict(cloud.meta),
-    )
-
-
 def hold_back_points(
     cloud: PointCloud,
     point_truth: np.ndarray,
@@ -232,7 +219,7 @@ def hold_back_points(
     drop = np.isin(truth, np.asarray(list(labels), dtype=str))
     drop &= (frame >= start) & (frame < start + length)
     keep = ~drop
-    return _cloud_subset(cloud, keep, cloud.n_frames), keep
+    return cloud.select(keep), keep
 
 
 def crop_frames(cloud: PointCloud, stop: int) -> PointCloud:
@@ -242,7 +229,7 @@ def crop_frames(cloud: PointCloud, stop: int) -> PointCloud:
         return cloud
     keep = np.zeros(cloud.points.shape[0], dtype=bool)
     keep[: cloud.offsets[stop]] = True
-    return _cloud_subset(cloud, keep, stop)
+    return cloud.select(keep, stop)
 
 
 # ----------------------------------------------------------------------- matching

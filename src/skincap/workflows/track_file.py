@@ -138,20 +138,6 @@ def track_file(
         return write_track_outputs(cloud, result, out, force=force)
 
 
-def _body_cloud(cloud: PointCloud, track: RopeTrack) -> PointCloud:
-    """Every point the rope did not take, frames kept (ids kept when present)."""
-    keep = ~track.rope_points_mask(cloud)
-    frame = cloud.frame_index[keep]
-    offsets = np.concatenate([[0], np.cumsum(np.bincount(frame, minlength=cloud.n_frames))])
-    return PointCloud(
-        points=cloud.points[keep],
-        offsets=offsets,
-        rate=cloud.rate,
-        ids=None if cloud.ids is None else cloud.ids[keep],
-        meta=dict(cloud.meta),
-    )
-
-
 def track_report(cloud: PointCloud, track: RopeTrack) -> dict[str, Any]:
     """Summary of a tracking run as JSON-ready values.
 
@@ -275,7 +261,9 @@ def write_track_outputs(
             if (out / name).exists():
                 raise OutputExistsError(out / name)
     write_c3d(track.to_markerset(), out / "rope.c3d", force=force)
-    write_points_csv(_body_cloud(cloud, track), out / "body_points.csv", force=force)
+    write_points_csv(
+        cloud.select(~track.rope_points_mask(cloud)), out / "body_points.csv", force=force
+    )
     s, pts = _resample_finite(track.positions, curve_samples)
     write_rope_curve(out / "rope_curve.csv", s, pts, force=force)
     report = track_report(cloud, track)
