@@ -77,3 +77,32 @@ def test_fragment_truth_reader(tmp_path):
     path.write_bytes(b"fragment,truth\n*1,L\xffASI\n")
     with pytest.raises(FormatError, match="not UTF-8"):
         read_fragment_truth(path)
+
+
+def test_marker_parts_round_trip_and_bad_files(tmp_path):
+    from skincap.errors import OutputExistsError, ValidationError
+    from skincap.io.synth_truth import read_marker_parts, write_marker_parts
+
+    path = tmp_path / "marker_parts.csv"
+    write_marker_parts(path, ["D000", "D001", "LKNE"], ["thigh_l", "shin_l", "shin_l"])
+    assert path.read_text() == "marker,part\nD000,thigh_l\nD001,shin_l\nLKNE,shin_l\n"
+    assert read_marker_parts(path) == {"D000": "thigh_l", "D001": "shin_l", "LKNE": "shin_l"}
+    with pytest.raises(OutputExistsError):
+        write_marker_parts(path, ["A"], ["pelvis"])
+    with pytest.raises(ValidationError):
+        write_marker_parts(tmp_path / "x.csv", ["A", "B"], ["pelvis"])
+    with pytest.raises(ValidationError):
+        write_marker_parts(tmp_path / "x.csv", ["A,B"], ["pelvis"])
+    assert not (tmp_path / "x.csv").exists()
+    for text, line in (
+        ("marker,truth\nA,pelvis\n", 1),
+        ("marker,part\nA,pelvis\nB\n", 3),
+        ("marker,part\nA,pelvis\nA,chest\n", 3),
+    ):
+        path.write_text(text)
+        with pytest.raises(FormatError) as info:
+            read_marker_parts(path)
+        assert f"line {line}" in str(info.value)
+    path.write_text("marker,part\n")
+    with pytest.raises(FormatError, match="no marker rows"):
+        read_marker_parts(path)

@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from skincap.geometry.raycast import closest_points_on_mesh
+from skincap.io.synth_truth import read_marker_parts
 from skincap.synth.generate import generate_capture
 from skincap.synth.inputs import build_body, build_motion
+from skincap.synth.marker_parts import PART_NAMES
 from skincap.workflows.synth_folder import OUTPUT_FILES, write_synth_outputs
 
 
@@ -117,6 +119,22 @@ def test_outputs_read_back(take, tmp_path):
     np.testing.assert_allclose(cache.frames[100], take.skin.frames[100], atol=1e-5)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["fragments"] == take.capture.n_markers
+    parts = read_marker_parts(tmp_path / "truth" / "marker_parts.csv")
+    assert list(parts) == truth.labels[: take.summary["markers"]]  # body markers, no rope
+    assert list(parts.values()) == take.marker_parts
+
+
+def test_true_marker_parts_are_anatomical(take):
+    """17 parts, each with markers, where the anatomy says they are (body faces +Z, left +X)."""
+    parts = np.array(take.marker_parts)
+    start = take.truth.positions[0, : parts.size]  # T-pose
+    assert set(parts.tolist()) == set(PART_NAMES)
+    assert min((parts == name).sum() for name in PART_NAMES) >= 2
+    assert (start[parts == "thigh_l", 0] > 0).all() and (start[parts == "thigh_r", 0] < 0).all()
+    assert (start[parts == "forearm_l", 0] > start[parts == "upperarm_l", 0].max() - 0.05).all()
+    assert start[parts == "head", 1].min() > start[parts == "upper_chest", 1].mean()
+    assert start[parts == "foot_l", 1].max() < start[parts == "shin_l", 1].mean()
+    assert start[parts == "pelvis", 1].mean() < start[parts == "abdomen", 1].mean()
 
 
 def test_makehuman_body_with_a_real_bvh(tmp_path):

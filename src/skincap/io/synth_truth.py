@@ -6,6 +6,11 @@
 ``truth/points.csv``
     ``row,frame,truth``: the true marker of every row of ``capture_points.csv``
     (:func:`read_point_truth`).
+``truth/marker_parts.csv``
+    ``marker,part``: the true near-rigid part (``pelvis``, ``thigh_l``, …; the 17 of
+    :data:`skincap.synth.marker_parts.PART_NAMES`) of every body marker, the dominant
+    bone group of its skin weights (:func:`write_marker_parts`,
+    :func:`read_marker_parts`; scores ``skincap.deform.dense`` segmentation).
 The folder as a whole (:func:`read_synth_folder`; ``skincap eval track``): the
 un-indexed capture, its per-point truth and the clean markers ``truth/markers.c3d``,
 checked against each other. The writer is :mod:`skincap.workflows.synth_folder`.
@@ -19,10 +24,17 @@ from pathlib import Path
 import numpy as np
 
 from skincap.errors import FormatError
-from skincap.io._common import check_readable
+from skincap.io._common import atomic_output, check_readable
 from skincap.types import MarkerSet, PointCloud
 
-__all__ = ["read_fragment_truth", "read_point_truth", "read_synth_folder", "SYNTH_TRACK_INPUTS"]
+__all__ = [
+    "read_fragment_truth",
+    "read_marker_parts",
+    "read_point_truth",
+    "read_synth_folder",
+    "write_marker_parts",
+    "SYNTH_TRACK_INPUTS",
+]
 
 #: The files :func:`read_synth_folder` reads, relative to the folder.
 SYNTH_TRACK_INPUTS = ("capture_points.csv", "truth/markers.c3d", "truth/points.csv")
@@ -57,6 +69,78 @@ def read_fragment_truth(path: str | os.PathLike[str]) -> dict[str, str]:
     if not truth:
         raise FormatError(p, "no fragment rows")
     return truth
+
+
+def write_marker_parts(
+    path: str | os.PathLike[str],
+    labels: list[str],
+    parts: list[str],
+    *,
+    force: bool = False,
+) -> None:
+    """Write ``truth/marker_parts.csv``: a ``marker,part`` header, one row per marker.
+
+    Parameters
+    ----------
+    path : path-like
+    labels : list of N str
+        Marker labels, in the capture's column order (unique, no comma or newline).
+    parts : list of N str
+        The true part of each marker (no comma or newline).
+    force : bool
+        Replace an existing file.
+
+    Raises
+    ------
+    ValidationError
+        Lengths differ, a duplicate label, or a cell that would break the CSV.
+    OutputExistsError
+        ``path`` exists and not ``force``.
+    """
+    from skincap.errors import ValidationError
+
+    if len(labels) != len(parts):
+        raise ValidationError(f"labels ({len(labels)}) and parts ({len(parts)}) differ in length")
+    if len(set(labels)) != len(labels):
+        raise ValidationError("labels: must be unique")
+    cells = [str(c) for c in (*labels, *parts)]
+    if any(not c or "," in c or "\n" in c or "\r" in c for c in cells):
+        raise ValidationError("labels and parts must be non-empty and hold no comma or newline")
+    text = "marker,part\n" + "".join(f"{m},{p}\n" for m, p in zip(labels, parts, strict=True))
+    with atomic_output(Path(path), force=force) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+
+
+def read_marker_parts(path: str | os.PathLike[str]) -> dict[str, str]:
+    """Read ``truth/marker_parts.csv``: marker label -> true part name, in file order.
+
+    Raises
+    ------
+    FormatError
+        Not UTF-8, a header other than ``marker,part``, a row that is not two
+        non-empty cells, a marker listed twice (with the line), or no row.
+    """
+    p = check_readable(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(p, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    lines = text.splitlines()
+    if not lines or lines[0].strip() != "marker,part":
+        raise FormatError(p, "expected the header 'marker,part'", line=1)
+    parts: dict[str, str] = {}
+    for number, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        cells = [c.strip() for c in line.split(",")]
+        if len(cells) != 2 or not cells[0] or not cells[1]:
+            raise FormatError(p, "expected 'marker,part' on every line", line=number)
+        if cells[0] in parts:
+            raise FormatError(p, f"marker {cells[0]!r} is listed twice", line=number)
+        parts[cells[0]] = cells[1]
+    if not parts:
+        raise FormatError(p, "no marker rows")
+    return parts
 
 
 def read_point_truth(path: str | os.PathLike[str], cloud: PointCloud) -> np.ndarray:

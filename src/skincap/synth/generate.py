@@ -21,6 +21,7 @@ from skincap.geometry.kinematics import forward_kinematics
 from skincap.synth._settings import settings_with
 from skincap.synth.cameras import CameraRig, CaptureResult, simulate_capture
 from skincap.synth.capture_settings import CaptureSettings
+from skincap.synth.marker_parts import true_marker_parts
 from skincap.synth.markers import (
     MarkerLayout,
     dense_marker_layout,
@@ -70,6 +71,11 @@ class SynthCapture:
     summary : dict
         Counts for ``summary.json``: frames, rate, markers, fragments, missing
         fraction, ghosts, rope markers, …
+    marker_parts : list of str or None
+        The true near-rigid part of every body marker (the first markers of
+        ``truth``, rope markers excluded), from the body's skin weights
+        (:func:`skincap.synth.marker_parts.true_marker_parts`); None when the body's
+        skeleton follows no known naming or the markers are a real capture's.
     """
 
     capture: MarkerSet
@@ -82,6 +88,7 @@ class SynthCapture:
     motion: Motion | None
     rope: RopeResult | None
     summary: dict[str, Any] = field(default_factory=dict)
+    marker_parts: list[str] | None = None
 
 
 def hand_joints(motion: Motion) -> tuple[int, int]:
@@ -201,7 +208,16 @@ def generate_capture(
         motion=motion,
         rope=rope_result,
         summary=summary,
+        marker_parts=_true_parts(body, layout),
     )
+
+
+def _true_parts(body: Mesh, layout: MarkerLayout) -> list[str] | None:
+    """The true part of every body marker, or None for a skeleton of unknown naming."""
+    try:
+        return true_marker_parts(body, layout.face, layout.bary)
+    except ValidationError:
+        return None
 
 
 def _moving_skin(

@@ -19,10 +19,12 @@ Layout of the output folder::
                             gives truth/mesh.pc2 back (soft tissue 0)
     truth/corruption.json   spikes, label swaps and prop markers put into capture.c3d
                             (``--spikes``, ``--swaps``, ``--prop``; empty lists otherwise)
+    truth/marker_parts.csv  marker,part: the true near-rigid part of every body marker
+                            (:mod:`skincap.synth.marker_parts`)
 
 A take built on a real capture's markers (``--real-markers``,
 :mod:`skincap.synth.real_capture`) has no skin, motion or marker surface: the
-marker_surface, motion, mesh and body files are not written.
+marker_surface, motion, mesh, body and marker_parts files are not written.
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ OUTPUT_FILES = (
     "truth/mesh.pc2",
     "truth/body.glb",
     "truth/corruption.json",
+    "truth/marker_parts.csv",
 )
 
 
@@ -102,6 +105,7 @@ def write_synth_outputs(
     from skincap.io.gltf.writer import write_glb
     from skincap.io.mesh import write_obj, write_ply
     from skincap.io.pc2 import write_pc2
+    from skincap.io.synth_truth import write_marker_parts
 
     root = Path(folder)
     paths = [root / name for name in OUTPUT_FILES]
@@ -148,6 +152,12 @@ def write_synth_outputs(
         # body has no other file with its weights)
         write_glb(result.skin.rest, result.motion, root / "truth" / "body.glb", force=force)
         done(root / "truth" / "body.glb")
+    if result.marker_parts is not None:
+        body_labels = result.truth.labels[: len(result.marker_parts)]
+        write_marker_parts(
+            root / "truth" / "marker_parts.csv", body_labels, result.marker_parts, force=force
+        )
+        done(root / "truth" / "marker_parts.csv")
     _write_text(
         root / "truth" / "corruption.json",
         json.dumps(corruption_record(result.capture.labels, corruption), indent=1) + "\n",
