@@ -381,3 +381,17 @@ def test_rom_moves_every_major_joint_in_turn(clips):
             assert angle[:, j].max() >= 14.0, name  # every listed joint goes through a range
             peaks.append(int(np.argmax(angle[:, j])))
     assert len(set(peaks)) >= 6  # slot after slot, not all at once
+
+
+def test_rom_moves_every_true_part_against_its_parent(clips) -> None:
+    """Segmentation can only find parts that move apart: in ``rom`` every true part but the
+    pelvis (which holds still) turns at one of its joints by >= 15 deg (the lower back
+    too: abdomen against pelvis)."""
+    from skincap.synth.marker_parts import PART_NAMES, PART_OF_LANDMARK
+
+    rotations = clips["rom"].rotations  # (T, J, 4) local, scalar last
+    angle = np.degrees(2 * np.arccos(np.clip(np.abs(rotations[..., 3]), 0.0, 1.0)))
+    moved = angle.max(axis=0) - angle[0]  # (J,) degrees
+    for part in PART_NAMES[1:]:
+        joints = [LM[lm] for lm, p in PART_OF_LANDMARK.items() if p == part and lm in LM]
+        assert max(moved[j] for j in joints) >= 15.0, part

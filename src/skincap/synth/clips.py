@@ -47,8 +47,10 @@ The clips
     0.25 Hz (the breathing deformation itself is soft tissue).
 ``rom``
     A range-of-motion take for near-rigid segmentation (Park & Hodgins §5.2): after
-    the hold, each major joint in turn (neck, trunk, shoulders, elbows, wrists, hips,
-    knees, ankles; both sides together) swings through its range and back.
+    the hold, each major joint in turn (neck, lower back and chest, shoulders, elbows,
+    wrists, hips, knees, ankles; both sides together) swings through its range and
+    back, so every one of the 17 true parts of ``truth/marker_parts.csv`` moves
+    against its neighbours at some time.
 
 ``seed`` adds a subtle natural sway of the trunk (random low frequencies and
 phases, below one degree); the prescribed targets (elbow angle, twist range, knee
@@ -438,7 +440,8 @@ def _clip_breathe(pose: ClipPose, t: np.ndarray, env: np.ndarray, rng: np.random
 #: axes in the T-pose.
 _ROM_MOVES: tuple[tuple[int, str, np.ndarray, float], ...] = (
     (0, "neck", X_AXIS, 30.0),  # nod ...
-    (0, "chest", X_AXIS, 20.0),  # ... and bend forward
+    (0, "chest", X_AXIS, 20.0),  # ... and bend forward ...
+    (0, "spine", X_AXIS, 25.0),  # ... from the lower back too (else abdomen = pelvis)
     (1, "neck_upper", Y_AXIS, 45.0),  # look aside ...
     (1, "upper_chest", Y_AXIS, 25.0),  # ... and twist
     (2, "chest", Z_AXIS, 20.0),  # bend sideways ...
