@@ -112,3 +112,16 @@ def test_candidates_from_triangles_and_bad_input() -> None:
         candidates_from_triangle_parts(faces, np.zeros(1), ref.shape[0])
     with pytest.raises(ValidationError, match="faces"):
         segment_marker_surface(np.zeros((2, 6, 3)), np.zeros((6, 3)), faces[:1])
+
+
+def test_principal_coordinates_keep_every_distance() -> None:
+    """Mean shift runs on the rows' principal coordinates: pairwise distances unchanged."""
+    from scipy.spatial.distance import pdist
+
+    from skincap.deform.dense.segmentation import _principal_coordinates
+
+    rng = np.random.default_rng(1)
+    feat = rng.normal(size=(60, 5)) @ rng.normal(size=(5, 900))  # rank 5 in 900 columns
+    reduced = _principal_coordinates(feat)
+    assert reduced.shape == (60, 5)
+    np.testing.assert_allclose(pdist(reduced), pdist(feat), rtol=1e-6, atol=1e-9)
