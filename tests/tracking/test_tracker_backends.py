@@ -205,3 +205,13 @@ def test_every_step_agrees_between_backends_on_real_runs(
     # every step ran, most of them hundreds of times, and every one agreed
     assert all(n > 0 for n in calls.values()), calls
     assert calls["match_traces"] > 500 and calls["commit_frame"] == 199 + 159, calls
+
+
+def test_background_compile_take_tracks_every_rope_marker() -> None:
+    # the background compile (warm_up_kernel) runs track_rope on this take: if
+    # init_rope refuses it, the kernel never reaches the cache and ``auto`` stays NumPy
+    cloud, rope_markers = tracker.warm_up_take()
+    track = track_rope(cloud, init_rope(cloud, markers=rope_markers), backend="numpy")
+    assert track.positions.shape == (90, 8, 3)
+    truth = cloud.points.reshape(90, 48, 3)[:, :8]
+    assert np.abs(track.positions - truth).max() < 1e-9

@@ -313,16 +313,31 @@ def warm_up_kernel() -> None:
     """Compile :func:`track_frames` into numba's cache by tracking a tiny analytic take.
 
     Goes through :func:`~skincap.tracking.tracker.track_rope` so the argument types
-    are exactly those of a real call (run by the background compile). The take: a rope
-    of 8 markers sweeping an arc beside 40 still body points, 60 frames at 120 Hz.
+    are exactly those of a real call (run by the background compile); the take is
+    :func:`warm_up_take`.
     """
-    import numpy as np
-
     from skincap.tracking.init import init_rope
-    from skincap.types import PointCloud
 
-    frames, rope_markers, body_markers = 60, 8, 40
-    t = np.arange(frames)[:, None] / 120.0
+    cloud, rope_markers = warm_up_take()
+    track_rope(cloud, init_rope(cloud, markers=rope_markers), backend="numba")
+
+
+def warm_up_take() -> tuple[PointCloud, np.ndarray]:
+    """The background compile's take: a rope of 8 markers beside 40 still body points.
+
+    The rope hangs still for the 60 frames :func:`~skincap.tracking.init.init_rope`
+    needs (it refuses a rope that moves in its still window), then swings its arc
+    about x; 90 frames at 120 Hz.
+
+    Returns
+    -------
+    cloud : PointCloud
+        48 points per frame, metres.
+    rope_markers : (8,) int
+        The rope's points among frame 0's points.
+    """
+    frames, still, rope_markers, body_markers = 90, 60, 8, 40
+    t = np.maximum(np.arange(frames) - still, 0)[:, None] / 120.0  # (T, 1) s, 0 while still
     s = np.linspace(0.0, 1.0, rope_markers)[None, :]
     angle = np.pi + 0.5 * np.sin(2 * np.pi * t)  # (T, 1): the arc swings about x
     rope = np.stack(
@@ -344,4 +359,4 @@ def warm_up_kernel() -> None:
         offsets=np.arange(frames + 1, dtype=np.int64) * count,
         rate=120.0,
     )
-    track_rope(cloud, init_rope(cloud, markers=np.arange(rope_markers)), backend="numba")
+    return cloud, np.arange(rope_markers)
