@@ -72,6 +72,7 @@ The steps are written twice, with the same names and signatures: in NumPy
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -79,6 +80,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap import backends
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.tracking.init import RopeInit
@@ -159,6 +161,11 @@ class RopeTrack:
         )
 
 
+# a NumPy run waiting for the background compile looks in numba's cache at most this
+# often (a look reads the cache index: about a millisecond)
+_RECHECK_S = 1.0
+
+
 def _track_frames_dispatcher() -> Any:
     """The compiled frame loop (numba dispatcher), for :mod:`skincap.backends`."""
     from skincap.tracking._steps_numba import track_frames
@@ -217,8 +224,10 @@ def track_rope(
         tens of times faster; compiled on first use if needed), ``numpy`` the NumPy
         reference (:mod:`skincap.tracking._steps_numpy`); ``auto`` picks numba once
         its kernel is compiled, and until then NumPy while the kernel compiles in the
-        background (:func:`skincap.backends.resolve_backend`). Both take the same
-        points and invent the same markers; invented positions agree to rounding.
+        background (:func:`skincap.backends.resolve_backend`), switching to the kernel
+        between chunks of frames once it is cached (checked at most once a second).
+        Both take the same points and invent the same markers; invented positions
+        agree to rounding.
 
     Returns
     -------
@@ -248,6 +257,12 @@ def track_rope(
         from skincap.tracking._steps_numba import track_frames
     else:
         from skincap.tracking._steps_numpy import track_frames
+    # "auto" got NumPy because the kernel is compiling in the background: both step
+    # backends share the state, so the kernel takes over once it is in the cache
+    awaiting_kernel = (
+        backend == "auto" and track_frames.__module__.endswith("_numpy") and numba_available()
+    )
+    next_check = time.monotonic() + _RECHECK_S
     # frames in chunks of about a hundredth of the take, reporting after each
     t_frames = cloud.n_frames
     every = max(1, t_frames // 100)
@@ -255,6 +270,13 @@ def track_rope(
     while t0 < t_frames:
         t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
         track_frames(state, t0, t1, params)
+        if awaiting_kernel and time.monotonic() >= next_check:
+            next_check = time.monotonic() + _RECHECK_S
+            try:
+                if backends.kernel_ready(_track_frames_dispatcher()):
+                    track_frames, awaiting_kernel = _track_frames_dispatcher(), False
+            except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
+                awaiting_kernel = False
         if progress is not None and (t1 - 1) % every == 0:
             progress((t1 - 1) / t_frames)
         t0 = t1
