@@ -81,6 +81,9 @@ def test_run_track_benchmark_small() -> None:
     for key in ("track_fps", "baseline_fps", "track_realtime", "baseline_realtime", "speedup"):
         assert res[key] > 0 and np.isfinite(res[key])
     assert res["track_realtime"] == pytest.approx(res["track_fps"] / 120.0)
+    assert res["track_cpu_s"] > 0
+    assert res["track_realtime_cpu"] == pytest.approx(2.0 / res["track_cpu_s"])  # 240 @ 120 Hz
+    assert "per CPU second" in res["lines"][1]
     assert res["speedup"] == pytest.approx(res["baseline_s"] / res["track_s"])
     # The real tracker follows the analytic rope to within a few millimetres.
     assert res["track_error_m"] < 0.005

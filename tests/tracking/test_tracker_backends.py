@@ -205,3 +205,43 @@ def test_every_step_agrees_between_backends_on_real_runs(
     # every step ran, most of them hundreds of times, and every one agreed
     assert all(n > 0 for n in calls.values()), calls
     assert calls["match_traces"] > 500 and calls["commit_frame"] == 199 + 159, calls
+
+
+def test_background_compile_take_tracks_every_rope_marker() -> None:
+    # the background compile (warm_up_kernel) runs track_rope on this take: if
+    # init_rope refuses it, the kernel never reaches the cache and ``auto`` stays NumPy
+    cloud, rope_markers = tracker.warm_up_take()
+    track = track_rope(cloud, init_rope(cloud, markers=rope_markers), backend="numpy")
+    assert track.positions.shape == (90, 8, 3)
+    truth = cloud.points.reshape(90, 48, 3)[:, :8]
+    assert np.abs(track.positions - truth).max() < 1e-9
+
+
+def test_auto_takes_the_kernel_mid_run_once_the_background_compile_lands(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from skincap import backends
+    from skincap.tracking import _steps_numpy
+
+    ready = {"now": False}
+    kernel_chunks: list[tuple[int, int]] = []
+
+    def stand_in_kernel(state, t0, t1, p):  # type: ignore[no-untyped-def]
+        kernel_chunks.append((t0, t1))  # the NumPy twin, so no compile in the test
+        _steps_numpy.track_frames(state, t0, t1, p)
+
+    def numpy_progress(fraction: float) -> None:
+        ready["now"] = fraction >= 0.5  # the compile lands half-way through the take
+
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: ready["now"])
+    monkeypatch.setattr(backends, "compile_in_background", lambda name, dispatcher: True)
+    monkeypatch.setattr(tracker, "_track_frames_dispatcher", lambda: stand_in_kernel)
+    monkeypatch.setattr(tracker, "_RECHECK_S", 0.0)
+    cloud, rope_markers = tracker.warm_up_take()
+    init = init_rope(cloud, markers=rope_markers)
+    mixed = track_rope(cloud, init, progress=numpy_progress)
+    assert kernel_chunks and kernel_chunks[0][0] > 1 and kernel_chunks[-1][1] == 90
+    reference = track_rope(cloud, init, backend="numpy")
+    np.testing.assert_array_equal(mixed.positions, reference.positions)
+    np.testing.assert_array_equal(mixed.point_index, reference.point_index)

@@ -72,6 +72,7 @@ The steps are written twice, with the same names and signatures: in NumPy
 
 from __future__ import annotations
 
+import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -79,6 +80,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap import backends
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.tracking.init import RopeInit
@@ -159,6 +161,11 @@ class RopeTrack:
         )
 
 
+# a NumPy run waiting for the background compile looks in numba's cache at most this
+# often (a look reads the cache index: about a millisecond)
+_RECHECK_S = 1.0
+
+
 def _track_frames_dispatcher() -> Any:
     """The compiled frame loop (numba dispatcher), for :mod:`skincap.backends`."""
     from skincap.tracking._steps_numba import track_frames
@@ -217,8 +224,10 @@ def track_rope(
         tens of times faster; compiled on first use if needed), ``numpy`` the NumPy
         reference (:mod:`skincap.tracking._steps_numpy`); ``auto`` picks numba once
         its kernel is compiled, and until then NumPy while the kernel compiles in the
-        background (:func:`skincap.backends.resolve_backend`). Both take the same
-        points and invent the same markers; invented positions agree to rounding.
+        background (:func:`skincap.backends.resolve_backend`), switching to the kernel
+        between chunks of frames once it is cached (checked at most once a second).
+        Both take the same points and invent the same markers; invented positions
+        agree to rounding.
 
     Returns
     -------
@@ -248,6 +257,12 @@ def track_rope(
         from skincap.tracking._steps_numba import track_frames
     else:
         from skincap.tracking._steps_numpy import track_frames
+    # "auto" got NumPy because the kernel is compiling in the background: both step
+    # backends share the state, so the kernel takes over once it is in the cache
+    awaiting_kernel = (
+        backend == "auto" and track_frames.__module__.endswith("_numpy") and numba_available()
+    )
+    next_check = time.monotonic() + _RECHECK_S
     # frames in chunks of about a hundredth of the take, reporting after each
     t_frames = cloud.n_frames
     every = max(1, t_frames // 100)
@@ -255,6 +270,13 @@ def track_rope(
     while t0 < t_frames:
         t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
         track_frames(state, t0, t1, params)
+        if awaiting_kernel and time.monotonic() >= next_check:
+            next_check = time.monotonic() + _RECHECK_S
+            try:
+                if backends.kernel_ready(_track_frames_dispatcher()):
+                    track_frames, awaiting_kernel = _track_frames_dispatcher(), False
+            except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
+                awaiting_kernel = False
         if progress is not None and (t1 - 1) % every == 0:
             progress((t1 - 1) / t_frames)
         t0 = t1
@@ -313,16 +335,31 @@ def warm_up_kernel() -> None:
     """Compile :func:`track_frames` into numba's cache by tracking a tiny analytic take.
 
     Goes through :func:`~skincap.tracking.tracker.track_rope` so the argument types
-    are exactly those of a real call (run by the background compile). The take: a rope
-    of 8 markers sweeping an arc beside 40 still body points, 60 frames at 120 Hz.
+    are exactly those of a real call (run by the background compile); the take is
+    :func:`warm_up_take`.
     """
-    import numpy as np
-
     from skincap.tracking.init import init_rope
-    from skincap.types import PointCloud
 
-    frames, rope_markers, body_markers = 60, 8, 40
-    t = np.arange(frames)[:, None] / 120.0
+    cloud, rope_markers = warm_up_take()
+    track_rope(cloud, init_rope(cloud, markers=rope_markers), backend="numba")
+
+
+def warm_up_take() -> tuple[PointCloud, np.ndarray]:
+    """The background compile's take: a rope of 8 markers beside 40 still body points.
+
+    The rope hangs still for the 60 frames :func:`~skincap.tracking.init.init_rope`
+    needs (it refuses a rope that moves in its still window), then swings its arc
+    about x; 90 frames at 120 Hz.
+
+    Returns
+    -------
+    cloud : PointCloud
+        48 points per frame, metres.
+    rope_markers : (8,) int
+        The rope's points among frame 0's points.
+    """
+    frames, still, rope_markers, body_markers = 90, 60, 8, 40
+    t = np.maximum(np.arange(frames) - still, 0)[:, None] / 120.0  # (T, 1) s, 0 while still
     s = np.linspace(0.0, 1.0, rope_markers)[None, :]
     angle = np.pi + 0.5 * np.sin(2 * np.pi * t)  # (T, 1): the arc swings about x
     rope = np.stack(
@@ -344,4 +381,4 @@ def warm_up_kernel() -> None:
         offsets=np.arange(frames + 1, dtype=np.int64) * count,
         rate=120.0,
     )
-    track_rope(cloud, init_rope(cloud, markers=np.arange(rope_markers)), backend="numba")
+    return cloud, np.arange(rope_markers)

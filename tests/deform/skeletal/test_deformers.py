@@ -453,6 +453,35 @@ def test_auto_on_a_cold_cache_runs_numpy_and_compiles_in_the_background(
 
 
 @needs_numba
+@pytest.mark.parametrize("cls", [LinearBlendSkinning, DualQuaternionSkinning])
+def test_auto_takes_the_kernel_once_the_background_compile_lands(
+    monkeypatch: pytest.MonkeyPatch, cls: type
+) -> None:
+    from skincap import backends
+    from skincap.deform.skeletal import deformers
+
+    compiled = False
+    monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
+    monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: compiled)
+    monkeypatch.setattr(backends, "compile_in_background", lambda n, d: True)
+    monkeypatch.setattr(deformers, "_RECHECK_S", 0.0)
+    rest, idx, w, matrices = random_rig(16, n_vertices=40)
+    ref = cls(rest, idx, w, backend="numpy").deform(matrices)
+    d = cls(rest, idx, w)
+    first = d.deform(matrices)
+    assert d.backend == "numpy"  # still compiling
+    compiled = True
+    second = d.deform(matrices)
+    assert d.backend == "numba"
+    np.testing.assert_allclose(first, ref, rtol=0, atol=0)
+    np.testing.assert_allclose(second, ref, rtol=0, atol=1e-12)
+    # an explicit NumPy deformer never switches
+    pinned = cls(rest, idx, w, backend="numpy")
+    pinned.deform(matrices)
+    assert pinned.backend == "numpy"
+
+
+@needs_numba
 def test_kernel_ready_sees_a_compiled_kernel() -> None:
     from skincap.backends import kernel_ready
     from skincap.deform.skeletal.deformers import _lbs_dispatcher

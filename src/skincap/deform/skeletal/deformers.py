@@ -41,12 +41,14 @@ from __future__ import annotations
 
 import abc
 import functools
+import time
 from collections.abc import Callable, Iterator
 from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse
 
+from skincap import backends
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
 from skincap.geometry.dual_quaternions import dq_from_quat_translation
@@ -68,6 +70,10 @@ Backend = Literal["auto", "numba", "numpy"]
 
 # below this largest deviation of A^T A from I (and det A > 0) a matrix counts as rigid
 _RIGID_TOL = 1e-9
+
+# a deformer running NumPy while its kernel compiles in the background looks in numba's
+# cache at most this often (a look reads the cache index: about a millisecond)
+_RECHECK_S = 1.0
 
 
 # ------------------------------------------------------------------------ numba
@@ -273,7 +279,11 @@ class SkinningDeformer(abc.ABC):
     method : str
         ``"lbs"`` or ``"dqs"``.
     backend : str
-        The kernel in use, ``"numba"`` or ``"numpy"``.
+        The kernel in use, ``"numba"`` or ``"numpy"``. With ``backend="auto"`` on a
+        cold cache it starts as ``"numpy"`` and becomes ``"numba"`` at the first
+        :meth:`deform` after the background compile has cached the kernel (checked
+        at most once a second), so a long take streamed chunk by chunk runs compiled
+        from then on.
     """
 
     method: str = ""
@@ -330,6 +340,10 @@ class SkinningDeformer(abc.ABC):
         self.n_joints = n_joints
         self._used_joints = max(max_index + 1, 1)
         self.backend = _resolve_backend(backend, self.method)
+        # "auto" got NumPy because the kernel is compiling in the background: take the
+        # kernel as soon as it lands in the cache (a long take is not NumPy throughout)
+        self._awaiting_kernel = backend == "auto" and self.backend == "numpy" and numba_available()
+        self._next_kernel_check = time.monotonic() + _RECHECK_S
         # NumPy kernels work on batches of about 2**19 vertex-frames: the temporaries
         # stay a few MB and the per-call overheads are shared by several frames
         self._numpy_step = max(1, 2**19 // max(1, n_v))
@@ -423,6 +437,8 @@ class SkinningDeformer(abc.ABC):
                 )
             result = out.reshape(shape)
         if shape[0] and shape[1]:
+            if self._awaiting_kernel:
+                self._adopt_compiled_kernel()
             if self.backend == "numba":
                 self._numba_all(m, result)
             else:
@@ -432,6 +448,21 @@ class SkinningDeformer(abc.ABC):
         if out is not None:
             return out
         return result[0] if single else result
+
+    def _adopt_compiled_kernel(self) -> None:
+        """Switch to the numba kernel once the background compile has cached it."""
+        now = time.monotonic()
+        if now < self._next_kernel_check:
+            return
+        self._next_kernel_check = now + _RECHECK_S
+        try:
+            ready = backends.kernel_ready(_KERNELS[self.method][1]())
+        except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
+            self._awaiting_kernel = False
+            return
+        if ready:
+            self.backend = "numba"
+            self._awaiting_kernel = False
 
     def deform_chunks(self, matrices: np.ndarray, chunk: int = 64) -> Iterator[np.ndarray]:
         """Deform a whole motion chunk by chunk.
