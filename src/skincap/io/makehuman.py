@@ -22,6 +22,7 @@ the bind matrix of the joint.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import warnings
@@ -490,17 +491,7 @@ def read_makehuman(
             "weight_sums": sums,
         }
     )
-    return Mesh(
-        vertices=out_mesh.vertices,
-        faces=out_mesh.faces,
-        polygon_indices=out_mesh.polygon_indices,
-        polygon_offsets=out_mesh.polygon_offsets,
-        face_polygon=out_mesh.face_polygon,
-        groups=out_mesh.groups,
-        uv=out_mesh.uv,
-        skin=skin,
-        meta=meta,
-    )
+    return dataclasses.replace(out_mesh, skin=skin, meta=meta)
 
 
 def _bound_skin(

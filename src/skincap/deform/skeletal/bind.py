@@ -18,6 +18,7 @@ rest pose on the mesh and :func:`transform_skeleton` applies them.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Literal
 
 import numpy as np
@@ -274,17 +275,7 @@ def bind_mesh(
     )
     meta = dict(mesh.meta)
     meta["skin_weights"] = weights
-    return Mesh(
-        vertices=mesh.vertices,
-        faces=mesh.faces,
-        polygon_indices=mesh.polygon_indices,
-        polygon_offsets=mesh.polygon_offsets,
-        face_polygon=mesh.face_polygon,
-        groups=mesh.groups,
-        uv=mesh.uv,
-        skin=skin,
-        meta=meta,
-    )
+    return dataclasses.replace(mesh, skin=skin, meta=meta)
 
 
 def fit_skeleton_to_mesh(
