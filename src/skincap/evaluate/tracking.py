@@ -565,11 +565,9 @@ def plot_gap_repair(
     MissingDependencyError
         matplotlib is not installed (extra ``plot``).
     """
-    from skincap.viz.plotting import agg_pyplot
+    from skincap.viz.plotting import agg_pyplot, save_png
 
     plt = agg_pyplot("PNG plots")
-
-    from skincap.io._common import atomic_output
 
     names = {"single": "one marker held back", "adjacent": "two adjacent markers held back"}
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
@@ -608,8 +606,7 @@ def plot_gap_repair(
         ax.grid(True, alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        with atomic_output(path, force=force) as tmp:
-            fig.savefig(tmp, format="png")
+        save_png(fig, path, force=force)
     finally:
         plt.close(fig)
     return Path(path)
