@@ -1,11 +1,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from skincap._arrays import as_finite_array
 from skincap._arrays import interior_runs as find_gaps
+from skincap.errors import ValidationError
 from skincap.evaluate.summary import summarize
 from skincap.types import MarkerSet
 
@@ -48,3 +51,20 @@ def test_marker_summary_counts():
     assert (s["gaps"], s["longest_gap"]) == (2, 3)
     assert s["missing_fraction"] == 6 / 30
     assert s["duration"] == 0.1
+
+
+def test_as_finite_array_checks_shape_and_finiteness_and_copies_on_request():
+    source = np.arange(6.0).reshape(2, 3)
+    same = as_finite_array(source, "points", (None, 3))
+    assert same.dtype == np.float64 and np.shares_memory(same, source)
+    copied = as_finite_array(source, "points", (2, 3), copy=True)
+    assert np.array_equal(copied, source) and not np.shares_memory(copied, source)
+    assert as_finite_array([1, 2], "pair", (2,)).dtype == np.float64
+    with pytest.raises(ValidationError, match=r"points: expected shape \(\*, 3\), got \(3, 2\)"):
+        as_finite_array(source.T, "points", (None, 3))
+    with pytest.raises(ValidationError, match=r"fov: expected shape \(\), got \(2,\)"):
+        as_finite_array([1.0, 2.0], "fov", ())
+    with pytest.raises(ValidationError, match="points: must be finite"):
+        as_finite_array([[0.0, np.nan, 1.0]], "points", (None, 3))
+    with pytest.raises(ValidationError, match="ragged: expected a float array of shape"):
+        as_finite_array([[1.0], [1.0, 2.0]], "ragged", (None, None))

@@ -13,7 +13,14 @@ import numpy as np
 
 from skincap.errors import ValidationError
 
-__all__ = ["Progress", "missing_runs", "interior_runs", "as_points", "as_trajectories"]
+__all__ = [
+    "Progress",
+    "missing_runs",
+    "interior_runs",
+    "as_points",
+    "as_trajectories",
+    "as_finite_array",
+]
 
 #: A progress callback: ``progress(fraction in [0, 1], message)``. ``None`` where taken
 #: means no reporting. The CLI turns it into a progress bar; library code only calls it.
@@ -80,3 +87,25 @@ def as_trajectories(values: object, name: str = "positions") -> np.ndarray:
     if array.ndim != 3 or array.shape[2] != 3:
         raise ValidationError(f"{name}: expected shape (T, N, 3), got {array.shape}")
     return array
+
+
+def as_finite_array(
+    values: object, name: str, shape: tuple[int | None, ...], *, copy: bool = False
+) -> np.ndarray:
+    """``values`` as a finite float64 array of ``shape`` (None: any size on that axis).
+
+    A copy when ``copy``. Raises :class:`ValidationError` naming ``name`` with the
+    expected shape (``*`` for any size) and the actual one, or saying it must be finite.
+    """
+    want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
+    try:
+        arr = np.array(values, dtype=np.float64, copy=True if copy else None)
+    except (TypeError, ValueError) as exc:
+        raise ValidationError(f"{name}: expected a float array of shape {want}: {exc}") from None
+    if arr.ndim != len(shape) or any(
+        s is not None and s != n for s, n in zip(shape, arr.shape, strict=False)
+    ):
+        raise ValidationError(f"{name}: expected shape {want}, got {arr.shape}")
+    if not np.isfinite(arr).all():
+        raise ValidationError(f"{name}: must be finite")
+    return arr

@@ -10,6 +10,7 @@ import ezc3d
 import numpy as np
 import pytest
 
+from skincap.deform.skeletal.deformers import skin_motion
 from skincap.geometry.raycast import closest_points_on_mesh
 from skincap.io.synth_truth import read_marker_parts
 from skincap.synth.generate import generate_capture
@@ -92,6 +93,23 @@ def test_same_seed_same_bytes(body, tmp_path):
     assert not np.array_equal(
         np.nan_to_num(other.capture.positions[:5]), np.nan_to_num(result.capture.positions[:5])
     )
+
+
+def test_skin_uses_the_numpy_reference_whatever_numba_has_compiled(body, monkeypatch):
+    # the numba DQS kernel differs in the last bits (contracted multiply-adds) and
+    # backend="auto" picks it only once compiled: synth pins NumPy so bytes never move
+    import skincap.synth.generate as generate
+
+    asked = []
+
+    def recording_skin_motion(*args, **kwargs):
+        asked.append(kwargs.get("backend", "auto"))
+        return skin_motion(*args, **kwargs)
+
+    monkeypatch.setattr(generate, "skin_motion", recording_skin_motion)
+    motion = build_motion(body, "flex", frames=4)
+    generate_capture(body, motion, markers="sparse", seed=1)
+    assert asked == ["numpy"]
 
 
 def test_outputs_read_back(take, tmp_path):

@@ -1,4 +1,4 @@
-"""Tests of the tracking evaluation harness (skincap.evaluate.tracking).
+"""Tests of the tracking evaluation harness (skincap.evaluate.tracking, skincap.evaluate.gap_repair).
 
 The bookkeeping is tested on a small analytic scene with stand-in trackers written
 here (an oracle that invents at a known offset, and a greedy nearest-neighbour
@@ -14,14 +14,16 @@ import numpy as np
 import pytest
 
 from skincap.errors import OutputExistsError, ValidationError
+from skincap.evaluate.gap_repair import (
+    crop_frames,
+    evaluate_gap_repair,
+    gap_errors,
+    hold_back_points,
+)
 from skincap.evaluate.tracking import (
     classification_scores,
     classify_points,
-    crop_frames,
-    evaluate_gap_repair,
     evaluate_tracking,
-    gap_errors,
-    hold_back_points,
     match_traces_to_truth,
     plot_gap_repair,
     rope_truth_mask,

@@ -8,7 +8,7 @@ from scipy.optimize import linear_sum_assignment
 
 from conftest import rope_truth_indices
 from skincap.errors import MissingDependencyError, ValidationError
-from skincap.evaluate.tracking import hold_back_points
+from skincap.evaluate.gap_repair import hold_back_points
 from skincap.synth.scenes import jump_rope_scene
 from skincap.tracking import tracker
 from skincap.tracking.init import gated_assignment, init_rope

@@ -19,7 +19,7 @@ def bench_io(
         bool, typer.Option("--json", help="Print the measurements as JSON.")
     ] = False,
 ) -> None:
-    """BVH read and FK against bvhio, our C3D read against raw ezc3d, as ratios.
+    """BVH read and FK against bvhio, C3D read against raw ezc3d, OBJ read against trimesh.
 
     Example: skincap bench io --repeat 3
     """

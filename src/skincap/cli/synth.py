@@ -9,79 +9,94 @@ import typer
 
 from skincap.cli._app import _user_errors, app, out, stage_progress
 
+# one alias per option, so the verb's signature reads as a list
+_Output = Annotated[Path, typer.Option("-o", "--output", help="Output folder.")]
+_Body = Annotated[
+    str,
+    typer.Option(help="procedural (swept elliptic sections) or makehuman (shipped CC0 rig)."),
+]
+_Motion = Annotated[
+    str,
+    typer.Option(
+        help="A clip (tpose, flex, twist, squat, punch, jumprope, breathe, rom) or a .bvh file."
+    ),
+]
+_Markers = Annotated[
+    str, typer.Option(help="dense (~350, Park & Hodgins) or sparse (~41 landmarks).")
+]
+_Rope = Annotated[
+    str, typer.Option(help="none, jump (both ends in the hands) or whip (one end held).")
+]
+_Frames = Annotated[
+    int | None,
+    typer.Option(help="Length in frames (default: the clip's 4 s, or the whole BVH)."),
+]
+_Seconds = Annotated[float | None, typer.Option(help="Length in seconds (instead of --frames).")]
+_Rate = Annotated[float, typer.Option(help="Capture rate of built-in clips, Hz.")]
+_Vertices = Annotated[
+    int, typer.Option(help="Procedural body resolution (about 5k to 80k vertices).")
+]
+_NoiseMm = Annotated[float, typer.Option(help="Gaussian noise of reconstructed markers, mm.")]
+_SoftTissue = Annotated[
+    float, typer.Option(help="Scale of bulge, jiggle and breathing (0 switches them off).")
+]
+_Units = Annotated[
+    str | None, typer.Option(help="Length unit of a BVH motion (guessed when omitted).")
+]
+_Spikes = Annotated[
+    int,
+    typer.Option(help="Spikes put into capture.c3d: a marker jumps 4-6 cm for 1-3 frames."),
+]
+_Swaps = Annotated[
+    int,
+    typer.Option(
+        help="Label swaps put into capture.c3d: two labelled markers within 12 cm "
+        "exchange labels for 5-40 frames."
+    ),
+]
+_Prop = Annotated[
+    bool,
+    typer.Option("--prop", help="Add a 4-marker rigid prop moving on its own beside the body."),
+]
+_Seed = Annotated[int, typer.Option(help="Random seed: the same seed gives the same bytes.")]
+_RealMarkers = Annotated[
+    Path | None,
+    typer.Option(
+        help="A labelled capture (C3D, TRC, CSV) as the body instead of a synthetic one: "
+        "its real markers, with a PBD-simulated rope (--rope whip|jump) in the hands."
+    ),
+]
+_Hands = Annotated[
+    str | None,
+    typer.Option(
+        help="With --real-markers: marker names of the left[:right] hand, e.g. "
+        "LWRA,LWRB:RWRA,RWRB (found by name when omitted); a whip is held in the last."
+    ),
+]
+_Force = Annotated[bool, typer.Option("--force", help="Replace outputs of an earlier run.")]
+
 
 @app.command()
 def synth(
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
-    body: Annotated[
-        str,
-        typer.Option(help="procedural (swept elliptic sections) or makehuman (shipped CC0 rig)."),
-    ] = "procedural",
-    motion: Annotated[
-        str,
-        typer.Option(
-            help="A clip (tpose, flex, twist, squat, punch, jumprope, breathe, rom) or a .bvh file."
-        ),
-    ] = "jumprope",
-    markers: Annotated[
-        str, typer.Option(help="dense (~350, Park & Hodgins) or sparse (~41 landmarks).")
-    ] = "dense",
-    rope: Annotated[
-        str, typer.Option(help="none, jump (both ends in the hands) or whip (one end held).")
-    ] = "none",
-    frames: Annotated[
-        int | None,
-        typer.Option(help="Length in frames (default: the clip's 4 s, or the whole BVH)."),
-    ] = None,
-    seconds: Annotated[
-        float | None, typer.Option(help="Length in seconds (instead of --frames).")
-    ] = None,
-    rate: Annotated[float, typer.Option(help="Capture rate of built-in clips, Hz.")] = 120.0,
-    vertices: Annotated[
-        int, typer.Option(help="Procedural body resolution (about 5k to 80k vertices).")
-    ] = 20_000,
-    noise_mm: Annotated[
-        float, typer.Option(help="Gaussian noise of reconstructed markers, mm.")
-    ] = 0.5,
-    soft_tissue: Annotated[
-        float, typer.Option(help="Scale of bulge, jiggle and breathing (0 switches them off).")
-    ] = 1.0,
-    units: Annotated[
-        str | None, typer.Option(help="Length unit of a BVH motion (guessed when omitted).")
-    ] = None,
-    spikes: Annotated[
-        int,
-        typer.Option(help="Spikes put into capture.c3d: a marker jumps 4-6 cm for 1-3 frames."),
-    ] = 0,
-    swaps: Annotated[
-        int,
-        typer.Option(
-            help="Label swaps put into capture.c3d: two labelled markers within 12 cm "
-            "exchange labels for 5-40 frames."
-        ),
-    ] = 0,
-    prop: Annotated[
-        bool,
-        typer.Option("--prop", help="Add a 4-marker rigid prop moving on its own beside the body."),
-    ] = False,
-    seed: Annotated[int, typer.Option(help="Random seed: the same seed gives the same bytes.")] = 0,
-    real_markers: Annotated[
-        Path | None,
-        typer.Option(
-            help="A labelled capture (C3D, TRC, CSV) as the body instead of a synthetic one: "
-            "its real markers, with a PBD-simulated rope (--rope whip|jump) in the hands."
-        ),
-    ] = None,
-    hands: Annotated[
-        str | None,
-        typer.Option(
-            help="With --real-markers: marker names of the left[:right] hand, e.g. "
-            "LWRA,LWRB:RWRA,RWRB (found by name when omitted); a whip is held in the last."
-        ),
-    ] = None,
-    force: Annotated[
-        bool, typer.Option("--force", help="Replace outputs of an earlier run.")
-    ] = False,
+    output: _Output,
+    body: _Body = "procedural",
+    motion: _Motion = "jumprope",
+    markers: _Markers = "dense",
+    rope: _Rope = "none",
+    frames: _Frames = None,
+    seconds: _Seconds = None,
+    rate: _Rate = 120.0,
+    vertices: _Vertices = 20_000,
+    noise_mm: _NoiseMm = 0.5,
+    soft_tissue: _SoftTissue = 1.0,
+    units: _Units = None,
+    spikes: _Spikes = 0,
+    swaps: _Swaps = 0,
+    prop: _Prop = False,
+    seed: _Seed = 0,
+    real_markers: _RealMarkers = None,
+    hands: _Hands = None,
+    force: _Force = False,
 ) -> None:
     """Generate a synthetic optical capture with exact ground truth.
 

@@ -436,12 +436,9 @@ def plot_fill_evaluation(result: dict[str, Any], path: str | Path, *, force: boo
     MissingDependencyError
         matplotlib is not installed (extra ``plot``).
     """
-    from skincap.viz.plotting import agg_pyplot
+    from skincap.viz.plotting import agg_pyplot, save_png
 
     plt = agg_pyplot("PNG plots")
-
-    from skincap.io._common import atomic_output
-
     lengths = result["gap_lengths"]
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), dpi=110)
     try:
@@ -465,8 +462,7 @@ def plot_fill_evaluation(result: dict[str, Any], path: str | Path, *, force: boo
         axes[0].legend(fontsize=8)
         axes[1].set_title("dotted: Park & Hodgins Table 2 averages", fontsize=9)
         fig.tight_layout()
-        with atomic_output(path, force=force) as tmp:
-            fig.savefig(tmp, format="png")
+        save_png(fig, path, force=force)
     finally:
         plt.close(fig)
     return Path(path)

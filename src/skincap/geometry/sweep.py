@@ -45,6 +45,7 @@ from typing import Literal
 import numpy as np
 from scipy.interpolate import PchipInterpolator, make_interp_spline
 
+from skincap._arrays import as_finite_array
 from skincap.errors import ValidationError
 from skincap.geometry.rotations import matrix_to_quat, quat_to_matrix
 
@@ -64,19 +65,7 @@ _BLOCK = 32768
 
 
 def _array(name: str, value: object, shape: tuple[int | None, ...]) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValidationError(f"{name}: expected a float array of shape {shape}") from None
-    ok = arr.ndim == len(shape) and all(
-        s is None or s == n for s, n in zip(shape, arr.shape, strict=False)
-    )
-    if not ok:
-        want = "(" + ", ".join("n" if s is None else str(s) for s in shape) + ")"
-        raise ValidationError(f"{name}: expected shape {want}, got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValidationError(f"{name}: must be finite")
-    return arr
+    return as_finite_array(value, name, shape, copy=True)
 
 
 def chord_length_params(centres: np.ndarray) -> np.ndarray:

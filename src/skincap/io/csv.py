@@ -27,7 +27,12 @@ from skincap.io._common import (
     to_y_up,
 )
 from skincap.io.c3d.content import warn_dropped_c3d_content
-from skincap.io.trc import format_float_fields, parse_float_rows, read_text_lines
+from skincap.io.trc import (
+    fields_of_width,
+    format_float_fields,
+    parse_float_rows,
+    read_text_lines,
+)
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = [
@@ -180,13 +185,7 @@ def read_vicon_csv(
             break
         if cells[0] in VICON_SECTIONS:
             break
-        if len(cells) > width:
-            if any(cells[width:]):
-                raise FormatError(p, f"row has {len(cells)} fields, expected {width}", line=k + 1)
-            cells = cells[:width]
-        elif len(cells) < width:
-            raise FormatError(p, f"row has {len(cells)} fields, expected {width}", line=k + 1)
-        rows.append(cells)
+        rows.append(fields_of_width(p, cells, width, line=k + 1))
         numbers.append(k + 1)
     table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, width))
     if table.size and np.isnan(table[:, :2]).any():
@@ -463,15 +462,10 @@ def _motive_data_rows(
         cells = _cells(lines[k])
         if not any(cells):
             continue
-        if len(cells) > width:
-            if any(cells[width:]):
-                raise FormatError(p, f"row has {len(cells)} fields, expected {width}", line=k + 1)
-            cells = cells[:width]
-        elif len(cells) < width:
+        if data_col < len(cells) < width:
             # Motive leaves trailing occluded fields out on some rows; never data
-            if len(cells) <= data_col:
-                raise FormatError(p, f"row has {len(cells)} fields, expected {width}", line=k + 1)
             cells = cells + [""] * (width - len(cells))
+        cells = fields_of_width(p, cells, width, line=k + 1)
         rows.append([cells[0], cells[1]] + [cells[j] for c0 in cols for j in (c0, c0 + 1, c0 + 2)])
         numbers.append(k + 1)
     return rows, numbers

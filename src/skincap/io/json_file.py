@@ -4,11 +4,29 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 from typing import Any
 
+from skincap.errors import FormatError
 from skincap.io._common import atomic_output
 
-__all__ = ["write_json"]
+__all__ = ["parse_json", "write_json"]
+
+
+def parse_json(path: str | os.PathLike[str], text: str, *, what: str = "JSON") -> Any:
+    """``text``, read from ``path``, parsed as JSON.
+
+    Raises
+    ------
+    FormatError
+        ``invalid <what>: <reason>`` with the line, or nesting too deep to parse.
+    """
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FormatError(Path(path), f"invalid {what}: {exc.msg}", line=exc.lineno) from None
+    except RecursionError:
+        raise FormatError(Path(path), f"invalid {what}: nested too deeply") from None
 
 
 def write_json(

@@ -22,7 +22,7 @@ the bind matrix of the joint.
 
 from __future__ import annotations
 
-import json
+import dataclasses
 import os
 import warnings
 from collections import deque
@@ -33,6 +33,7 @@ import numpy as np
 
 from skincap.errors import FormatError, SkincapWarning, ValidationError
 from skincap.io._common import check_readable, unit_scale
+from skincap.io.json_file import parse_json
 from skincap.io.mesh import read_obj, triangulate_polygons
 from skincap.types import Mesh, Skeleton, Skin
 
@@ -62,12 +63,7 @@ def _load_json(path: Path) -> dict[str, Any]:
         text = p.read_bytes().decode("utf-8")
     except UnicodeDecodeError as exc:
         raise FormatError(p, f"not UTF-8 text ({exc.reason})", offset=exc.start) from None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FormatError(p, f"invalid JSON: {exc.msg}", line=exc.lineno) from None
-    except RecursionError:
-        raise FormatError(p, "invalid JSON: nested too deeply") from None
+    data = parse_json(p, text)
     if not isinstance(data, dict):
         raise FormatError(p, "expected a JSON object at the top level")
     return data
@@ -490,17 +486,7 @@ def read_makehuman(
             "weight_sums": sums,
         }
     )
-    return Mesh(
-        vertices=out_mesh.vertices,
-        faces=out_mesh.faces,
-        polygon_indices=out_mesh.polygon_indices,
-        polygon_offsets=out_mesh.polygon_offsets,
-        face_polygon=out_mesh.face_polygon,
-        groups=out_mesh.groups,
-        uv=out_mesh.uv,
-        skin=skin,
-        meta=meta,
-    )
+    return dataclasses.replace(out_mesh, skin=skin, meta=meta)
 
 
 def _bound_skin(

@@ -67,6 +67,21 @@ def read_text_lines(path: Path) -> list[str]:
     return text.splitlines()
 
 
+def fields_of_width(p: Path, fields: list[str], width: int, *, line: int) -> list[str]:
+    """A row's text ``fields`` cut to ``width`` (only empty trailing ones may go).
+
+    Raises
+    ------
+    FormatError
+        More non-empty fields than ``width``, or fewer fields (naming ``line``, 1-based).
+    """
+    if len(fields) > width and not any(fields[width:]):
+        return fields[:width]
+    if len(fields) != width:
+        raise FormatError(p, f"row has {len(fields)} fields, expected {width}", line=line)
+    return fields
+
+
 def parse_float_rows(
     path: Path, rows: list[list[str]], line_numbers: list[int], what: str = "value"
 ) -> np.ndarray:
@@ -245,13 +260,7 @@ def _trc_data_rows(
         if not line.strip():
             continue
         fields = [f.strip() for f in line.split("\t")]
-        if len(fields) > width:
-            if any(fields[width:]):
-                raise FormatError(p, f"row has {len(fields)} fields, expected {width}", line=k + 1)
-            fields = fields[:width]
-        elif len(fields) < width:
-            raise FormatError(p, f"row has {len(fields)} fields, expected {width}", line=k + 1)
-        rows.append(fields)
+        rows.append(fields_of_width(p, fields, width, line=k + 1))
         numbers.append(k + 1)
     if len(rows) != n_frames:
         where = numbers[-1] if numbers else len(lines)

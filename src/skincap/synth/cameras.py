@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import as_finite_array
 from skincap.errors import ValidationError
 from skincap.geometry.raycast import segments_near_capsules
 from skincap.geometry.viewpoint_occlusion import occluded_from_viewpoints
@@ -71,20 +72,8 @@ def _rng(seed: int | np.random.Generator | None) -> np.random.Generator:
     return np.random.default_rng(seed)
 
 
-def _array(name: str, value: Any, shape: tuple[int | None, ...]) -> np.ndarray:
-    try:
-        arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(f"{name}: expected a float array: {exc}") from None
-    ok = arr.ndim == len(shape) and all(
-        s is None or s == a for s, a in zip(shape, arr.shape, strict=False)
-    )
-    if not ok:
-        want = "(" + ", ".join("*" if s is None else str(s) for s in shape) + ")"
-        raise ValidationError(f"{name}: expected shape {want}, got {arr.shape}")
-    if not np.isfinite(arr).all():
-        raise ValidationError(f"{name}: must be finite")
-    return arr
+def _array(name: str, value: object, shape: tuple[int | None, ...]) -> np.ndarray:
+    return as_finite_array(value, name, shape)
 
 
 # ------------------------------------------------------------------------ rig

@@ -227,8 +227,14 @@ def _moving_skin(
     seed: int,
     step: Callable[[float, str], None],
 ) -> MeshAnimation:
-    """DQS skinning plus soft tissue, (T, V, 3) metres in memory."""
-    frames = np.concatenate(list(skin_motion(body, motion, method="dqs").iter_chunks(128)), axis=0)
+    """DQS skinning plus soft tissue, (T, V, 3) metres in memory.
+
+    Skinned with the NumPy reference: the numba kernel contracts multiply-adds
+    (differs in the last bits), and ``backend="auto"`` picks it only once numba's
+    cache holds it, so the same seed would write other bytes after a compile.
+    """
+    skinned = skin_motion(body, motion, method="dqs", backend="numpy")
+    frames = np.concatenate(list(skinned.iter_chunks(128)), axis=0)
     step(0.15, "soft tissue")
     if cfg.bulge or cfg.jiggle or cfg.breathing:
         tissue = SoftTissue(

@@ -14,13 +14,20 @@ are added as a capture system makes them. The result is a
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 
 from skincap._arrays import Progress
 from skincap.errors import ValidationError
 from skincap.synth.generate import SynthCapture
+from skincap.synth.reconstruction import (
+    Fragments,
+    Samples,
+    fragment_columns,
+    shuffled_point_cloud,
+)
+from skincap.synth.rope import RopeResult
 from skincap.synth.rope_pbd import simulate_rope_pbd
 from skincap.types import MarkerSet, PointCloud
 
@@ -170,6 +177,80 @@ def real_capture_with_rope(
         body markers as recorded (NaN in their own gaps) then ``rope_00``…; frame
         ``summary["still_frames"]`` is the take's first frame.
     """
+    _check_options(markers, rope, dropout, ghosts_per_frame, noise_mm, hang_seconds)
+    n_still = int(round(hang_seconds * markers.rate))
+    markers, body_labels = _first_pose_held(markers, n_still)
+    t_n, n_body = markers.n_frames, markers.n_markers
+    rng = np.random.default_rng(seed)
+
+    def step(fraction: float, label: str) -> None:
+        if progress is not None:
+            progress(fraction, label)
+
+    step(0.0, "hands")
+    groups = _hand_columns(markers.labels, rope, hands)
+    held = np.stack([hand_path(markers, g) for g in groups[::-1]], axis=1)  # (T, H, 3)
+    step(0.1, "rope (PBD)")
+    rope_sim, length, floor = _rope_in_hands(markers, held, rope, rope_length, rope_markers)
+    step(0.8, "dropouts and ghosts")
+    every = np.concatenate([markers.positions, rope_sim.markers], axis=1)  # (T, N + R, 3)
+    seen, noisy = _what_cameras_see(
+        rng, every, n_body, markers.rate, dropout, hang_seconds, noise_mm
+    )
+    samples, n_ghosts = _samples(rng, markers.positions, seen, noisy, ghosts_per_frame)
+    meta = {"source": "skincap.synth.real_capture", "seed": seed, "up": "Y", "source_units": "m"}
+    truth_labels = body_labels + rope_sim.labels
+    capture, fragments, fragment_truth, points, point_truth = _delivered(
+        rng, samples, n_ghosts, t_n, markers.rate, truth_labels, n_body, meta
+    )
+    truth = MarkerSet(every, truth_labels, markers.rate, meta=dict(meta))
+    summary = {
+        "frames": int(t_n),
+        "rate": float(markers.rate),
+        "markers": int(n_body),
+        "marker_set": "real",
+        "source": str(markers.meta.get("path", markers.meta.get("source", ""))),
+        "hands": [[markers.labels[c] for c in g] for g in groups[::-1]],
+        "still_frames": n_still,
+        "rope_markers": len(rope_sim.labels),
+        "rope": rope,
+        "rope_simulator": "pbd",
+        "rope_length_m": float(length),
+        "rope_max_length_error": float(rope_sim.meta["max_length_error"]),
+        "fragments": int(fragments.n_columns - n_ghosts),
+        "labelled_fragments": int(fragments.labelled.sum()),
+        "missing_fraction": int((~seen[:, :n_body]).sum()) / max(t_n * n_body, 1),
+        "ghosts": int(n_ghosts),
+        "points": int(samples.frame.size),
+        "dropout": float(dropout),
+        "noise_mm": float(noise_mm),
+        "floor_m": floor,
+        "seed": int(seed),
+    }
+    step(1.0, "done")
+    return SynthCapture(
+        capture=capture,
+        points=points,
+        point_truth=point_truth,
+        fragment_truth=fragment_truth,
+        truth=truth,
+        marker_surface=None,
+        skin=None,
+        motion=None,
+        rope=rope_sim,
+        summary=summary,
+    )
+
+
+def _check_options(
+    markers: MarkerSet,
+    rope: str,
+    dropout: float,
+    ghosts_per_frame: float,
+    noise_mm: float,
+    hang_seconds: float,
+) -> None:
+    """Refuse the options and takes :func:`real_capture_with_rope` cannot work with."""
     if rope not in ("whip", "jump"):
         raise ValidationError(f"rope: expected 'whip' or 'jump', got {rope!r}")
     if not 0 <= dropout < 0.5 or ghosts_per_frame < 0 or noise_mm < 0 or hang_seconds < 0:
@@ -180,46 +261,57 @@ def real_capture_with_rope(
         raise ValidationError(
             f"markers: need at least 2 frames and 1 marker, got {markers.positions.shape[:2]}"
         )
-    n_still = int(round(hang_seconds * markers.rate))
+
+
+def _first_pose_held(markers: MarkerSet, n_still: int) -> tuple[MarkerSet, list[str]]:
+    """The take with its first frame repeated ``n_still`` times before it, and the body
+    labels of the truth (``*N`` fragments become ``unlabelled_N``)."""
     body_xyz = np.concatenate(
         [np.repeat(markers.positions[:1], n_still, axis=0), markers.positions], axis=0
     )  # (T, N, 3): the first pose held, then the take
     markers = MarkerSet(body_xyz, markers.labels, markers.rate, meta=markers.meta)
-    t_n, n_body = markers.n_frames, markers.n_markers
     body_labels = [
         f"unlabelled_{label[1:]}" if label.startswith("*") else label for label in markers.labels
     ]
     clash = [lab for lab in body_labels if lab.startswith("rope_") or lab == "ghost"]
     if clash:
         raise ValidationError(f"markers: label {clash[0]!r} is reserved for the rope truth")
-    rng = np.random.default_rng(seed)
+    return markers, body_labels
 
-    def step(fraction: float, label: str) -> None:
-        if progress is not None:
-            progress(fraction, label)
 
-    # --- hands ---------------------------------------------------------------------
-    step(0.0, "hands")
+def _hand_columns(
+    labels: Sequence[str], rope: str, hands: Sequence[Sequence[str]] | None
+) -> list[list[int]]:
+    """The marker columns of the holding hands: left then right for a jump rope, the
+    one hand for a whip; from ``hands`` (names) or found by name."""
     if hands is None:
-        groups = [find_hand_markers(markers.labels, s) for s in ("left", "right")]
+        groups = [find_hand_markers(labels, s) for s in ("left", "right")]
         if rope == "whip":
-            groups = [groups[1] or groups[0] or find_hand_markers(markers.labels, "either")]
+            groups = [groups[1] or groups[0] or find_hand_markers(labels, "either")]
         if not all(groups):
             side = "a" if rope == "whip" else "the left and the right"
             raise ValidationError(
                 f"hands: found no marker of {side} hand by name (looked for "
                 f"{', '.join(HAND_MARKER_NAMES['right'])} and the L… names); give --hands"
             )
-    else:
-        groups = [columns_named(markers.labels, names) for names in hands]
-        if rope == "whip":
-            groups = groups[-1:]
-        elif len(groups) != 2:
-            raise ValidationError("hands: a jump rope needs the left and the right hand")
-    held = np.stack([hand_path(markers, g) for g in groups[::-1]], axis=1)  # (T, H, 3)
+        return groups
+    groups = [columns_named(labels, names) for names in hands]
+    if rope == "whip":
+        return groups[-1:]
+    if len(groups) != 2:
+        raise ValidationError("hands: a jump rope needs the left and the right hand")
+    return groups
 
-    # --- rope ----------------------------------------------------------------------
-    step(0.1, "rope (PBD)")
+
+def _rope_in_hands(
+    markers: MarkerSet,
+    held: np.ndarray,
+    rope: Literal["whip", "jump"],
+    rope_length: float | None,
+    rope_markers: int | None,
+) -> tuple[RopeResult, float, float | None]:
+    """The PBD rope held at ``held`` (T, H, 3) metres, its length (m) and the floor
+    height (m; None for a take without a seen marker)."""
     if rope == "whip":
         length = 1.1 if rope_length is None else float(rope_length)
         n_rope = 12 if rope_markers is None else int(rope_markers)
@@ -248,117 +340,93 @@ def real_capture_with_rope(
         floor=floor,
         lay_direction=away,
     )
-    rope_xyz = rope_sim.markers  # (T, R, 3)
+    return rope_sim, length, floor
 
-    # --- what the cameras deliver -----------------------------------------------------
-    step(0.8, "dropouts and ghosts")
-    every = np.concatenate([markers.positions, rope_xyz], axis=1)  # (T, N + R, 3)
-    n_all = every.shape[1]
+
+def _what_cameras_see(
+    rng: np.random.Generator,
+    every: np.ndarray,
+    n_body: int,
+    rate: float,
+    dropout: float,
+    hang_seconds: float,
+    noise_mm: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(T, N + R) bool seen samples (runs dropped; the rope whole while it hangs) and
+    the (T, N + R, 3) positions with the rope's noise added (the body's as recorded)."""
+    t_n, n_all = every.shape[:2]
     seen = np.isfinite(every).all(axis=2) & ~_dropout_runs(rng, (t_n, n_all), dropout, 3.0)
-    hang = np.arange(t_n) / markers.rate < hang_seconds
+    hang = np.arange(t_n) / rate < hang_seconds
     seen[np.ix_(hang, np.arange(n_body, n_all))] = True
     noisy = every.copy()
-    noisy[:, n_body:] += rng.normal(scale=noise_mm / 1000.0, size=rope_xyz.shape)
+    noisy[:, n_body:] += rng.normal(scale=noise_mm / 1000.0, size=noisy[:, n_body:].shape)
+    return seen, noisy
 
-    # ghosts: short tracks 1-5 cm from a seen body marker
+
+def _samples(
+    rng: np.random.Generator,
+    body: np.ndarray,
+    seen: np.ndarray,
+    noisy: np.ndarray,
+    ghosts_per_frame: float,
+) -> tuple[Samples, int]:
+    """Every delivered point: one per seen sample, grouped in runs of seen frames per
+    marker, then ghost tracks 1-5 cm from a body marker ``body`` (T, N, 3) metres.
+    Returns the samples and the number of ghost tracks that have a point."""
+    t_n, n_all = seen.shape
+    n_body = body.shape[1]
     n_ghost = int(rng.poisson(ghosts_per_frame * t_n))
     g_start = rng.integers(0, t_n, n_ghost)
     g_len = np.minimum(rng.geometric(0.5, n_ghost), t_n - g_start)
     g_anchor = rng.integers(0, n_body, n_ghost)
     g_dir = rng.normal(size=(n_ghost, 3))
     g_dir *= rng.uniform(0.01, 0.05, (n_ghost, 1)) / np.linalg.norm(g_dir, axis=1, keepdims=True)
-
-    # --- fragments: runs of seen frames per marker, then the ghost tracks -------------
     starts = seen & ~np.vstack([np.zeros((1, n_all), dtype=bool), seen[:-1]])
     run_of = (np.cumsum(starts.T.ravel()).reshape(n_all, t_n) - 1).T  # (T, N + R)
     st, sn = np.nonzero(seen)
-    s_group = run_of[st, sn]
     n_runs = int(starts.sum())
     gk = np.repeat(np.arange(n_ghost), g_len)
     gt = g_start[gk] + np.arange(gk.size) - np.repeat(np.cumsum(g_len) - g_len, g_len)
-    g_xyz = markers.positions[gt, g_anchor[gk]] + g_dir[gk]
+    g_xyz = body[gt, g_anchor[gk]] + g_dir[gk]
     g_ok = np.isfinite(g_xyz).all(axis=1)  # a ghost beside a marker that is not there: none
     gk, gt, g_xyz = gk[g_ok], gt[g_ok], g_xyz[g_ok]
-    sample_t = np.concatenate([st, gt])
-    sample_truth = np.concatenate([sn, np.full(gt.size, -1)])
-    sample_group = np.concatenate([s_group, n_runs + gk])
-    sample_xyz = np.concatenate([noisy[st, sn], g_xyz])
-    used, sample_group = np.unique(sample_group, return_inverse=True)
-    n_group = used.size
-    g_first = np.full(n_group, t_n, dtype=np.int64)
-    np.minimum.at(g_first, sample_group, sample_t)
-    g_truth = np.full(n_group, -1, dtype=np.int64)
-    g_truth[sample_group] = sample_truth  # one truth per fragment
-    order = np.lexsort((np.arange(n_group), g_truth, g_first))
-    column = np.empty(n_group, dtype=np.int64)
-    column[order] = np.arange(n_group)
-    s_col = column[sample_group]
-    names = np.array(body_labels + rope_sim.labels + ["ghost"], dtype=object)
-    col_truth = g_truth[order]
-    labelled = (g_first[order] == 0) & (col_truth >= 0) & (col_truth < n_body)
-    col_labels: list[str] = []
-    k = 0
-    for c in range(n_group):  # string building only
-        if labelled[c]:
-            col_labels.append(body_labels[col_truth[c]])
-        else:
-            k += 1
-            col_labels.append(f"*{k}")
-    fragments = np.full((t_n, n_group, 3), np.nan)
-    fragments[sample_t, s_col] = sample_xyz
-    meta = {"source": "skincap.synth.real_capture", "seed": seed, "up": "Y", "source_units": "m"}
-    capture = MarkerSet(fragments, col_labels, markers.rate, meta=dict(meta))
+    # group ids: the runs, then the ghost tracks that kept a point, numbered densely
+    _, group = np.unique(np.concatenate([run_of[st, sn], n_runs + gk]), return_inverse=True)
+    frame = np.concatenate([st, gt])
+    truth = np.concatenate([sn, np.full(gt.size, -1)])
+    xyz = np.concatenate([noisy[st, sn], g_xyz])
+    return Samples(frame, truth, group.reshape(-1), xyz, n_runs), int(np.unique(gk).size)
+
+
+def _delivered(
+    rng: np.random.Generator,
+    samples: Samples,
+    n_ghosts: int,
+    n_frames: int,
+    rate: float,
+    truth_labels: list[str],
+    n_body: int,
+    meta: dict[str, Any],
+) -> tuple[MarkerSet, Fragments, dict[str, str], PointCloud, np.ndarray]:
+    """The samples as the capture's fragment columns and as the shuffled un-indexed
+    cloud, each with its truth (labels ``truth_labels`` of the body then the rope).
+
+    Returns the capture, its fragments, the true label per fragment column, the cloud
+    and the (M,) str true label per point (``ghost`` for ghosts).
+    """
+    fragments = fragment_columns(
+        samples, n_ghosts, n_frames, len(truth_labels), truth_labels[:n_body]
+    )
+    s_col = fragments.column[samples.group]
+    capture_xyz = np.full((n_frames, fragments.n_columns, 3), np.nan)
+    capture_xyz[samples.frame, s_col] = samples.noisy
+    capture = MarkerSet(capture_xyz, fragments.labels, rate, meta=dict(meta))
+    names = np.array(truth_labels + ["ghost"], dtype=object)
     fragment_truth = {
-        label: str(names[truth]) for label, truth in zip(col_labels, col_truth, strict=True)
+        label: str(names[truth])
+        for label, truth in zip(fragments.labels, fragments.majority, strict=True)
     }
-
-    # --- the un-indexed cloud, shuffled within each frame --------------------------------
-    p_order = np.lexsort((rng.random(sample_t.size), sample_t))
-    counts = np.bincount(sample_t, minlength=t_n)
-    points = PointCloud(
-        points=sample_xyz[p_order],
-        offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64),
-        rate=markers.rate,
-        ids=s_col[p_order],
-        meta={"id_labels": col_labels, "up": "Y", "source_units": "m"},
+    points, truth_index = shuffled_point_cloud(
+        samples, s_col, fragments.labels, n_frames, rate, rng
     )
-    point_truth = names[sample_truth[p_order]].astype(str)
-    truth = MarkerSet(every, body_labels + rope_sim.labels, markers.rate, meta=dict(meta))
-
-    holes = int((~seen[:, :n_body]).sum())
-    summary = {
-        "frames": int(t_n),
-        "rate": float(markers.rate),
-        "markers": int(n_body),
-        "marker_set": "real",
-        "source": str(markers.meta.get("path", markers.meta.get("source", ""))),
-        "hands": [[markers.labels[c] for c in g] for g in groups[::-1]],
-        "still_frames": n_still,
-        "rope_markers": int(n_rope),
-        "rope": rope,
-        "rope_simulator": "pbd",
-        "rope_length_m": float(length),
-        "rope_max_length_error": float(rope_sim.meta["max_length_error"]),
-        "fragments": int(n_group - np.unique(gk).size),
-        "labelled_fragments": int(labelled.sum()),
-        "missing_fraction": holes / max(t_n * n_body, 1),
-        "ghosts": int(np.unique(gk).size),
-        "points": int(sample_t.size),
-        "dropout": float(dropout),
-        "noise_mm": float(noise_mm),
-        "floor_m": floor,
-        "seed": int(seed),
-    }
-    step(1.0, "done")
-    return SynthCapture(
-        capture=capture,
-        points=points,
-        point_truth=point_truth,
-        fragment_truth=fragment_truth,
-        truth=truth,
-        marker_surface=None,
-        skin=None,
-        motion=None,
-        rope=rope_sim,
-        summary=summary,
-    )
+    return capture, fragments, fragment_truth, points, names[truth_index].astype(str)

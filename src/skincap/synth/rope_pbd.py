@@ -21,6 +21,7 @@ Conventions: metres, seconds, Y up.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
@@ -91,22 +92,8 @@ def simulate_rope_pbd(
         metres); ``meta`` has ``simulator`` ("pbd"), ``max_length_error`` (largest
         relative stretch of the chain over the take) and ``max_link_stretch``.
     """
-    if mode not in ("whip", "jump"):
-        raise ValidationError(f"mode: expected 'whip' or 'jump', got {mode!r}")
-    h = np.asarray(hands, dtype=np.float64)
-    if h.ndim == 2:
-        h = h[:, None, :]
-    if h.ndim != 3 or h.shape[-1] != 3 or h.shape[0] < 1:
-        raise ValidationError(f"hands: expected (T, 3) or (T, 2, 3), got shape {np.shape(hands)}")
-    if mode == "jump" and h.shape[1] != 2:
-        raise ValidationError(f"hands: jump needs both hands (T, 2, 3), got {h.shape}")
-    if not np.isfinite(h).all():
-        raise ValidationError("hands: must be finite (fill the hands' gaps first)")
-    for name, value in (("rate", rate), ("length", length), ("substep_seconds", substep_seconds)):
-        if not (math.isfinite(value) and value > 0):
-            raise ValidationError(f"{name}: expected a positive number, got {value!r}")
-    if int(n_markers) < 3 or int(particles_per_marker) < 1 or int(iterations) < 1:
-        raise ValidationError("n_markers >= 3, particles_per_marker >= 1 and iterations >= 1")
+    h = _checked_hands(hands, mode)
+    _check_settings(rate, length, substep_seconds, n_markers, particles_per_marker, iterations)
     if damping < 0 or settle_seconds < 0:
         raise ValidationError("damping and settle_seconds must not be negative")
     n_markers, k = int(n_markers), int(particles_per_marker)
@@ -121,54 +108,29 @@ def simulate_rope_pbd(
     inv_mass[0] = 0.0
     if mode == "jump":
         inv_mass[-1] = 0.0
-
-    halves = _link_halves(inv_mass)
     # long-range attachments: no particle farther from a held end than the rope between
     held_ends = [0] if mode == "whip" else [0, n_particles - 1]
     arc = rest * np.arange(n_particles)
-    reach = [arc, arc[::-1]][: len(held_ends)]
     substeps = max(1, math.ceil(1.0 / (rate * substep_seconds)))
     dt = 1.0 / (rate * substeps)
-    keep = 1.0 - min(damping * dt, 1.0)
 
     x = _hanging_start(held[0], mode, n_particles, rest)
     if floor is not None:
         x = _laid_on_floor(x, floor, lay_direction)
-    x_prev = x.copy()
-    out = np.empty((h.shape[0], n_particles, 3))  # every frame is written below
-
-    def pin(x: np.ndarray, where: np.ndarray) -> None:
-        if mode == "whip":
-            x[0] = where
-        else:
-            x[0], x[-1] = where[0], where[1]
-
-    def substep(target: np.ndarray, settle_keep: float) -> None:
-        nonlocal x, x_prev
-        velocity = (x - x_prev) * settle_keep
-        x_prev = x
-        x = x + velocity + _GRAVITY * dt * dt
-        pin(x, target)
-        _project_distances(x, halves, rest, int(iterations))
-        _attach_long_range(x, held_ends, reach)
-        if floor is not None:
-            below = x[:, 1] < floor
-            if below.any():
-                # sticking friction: a particle on the floor keeps its old x, z
-                x[below, 1] = floor
-                x[below, 0] = x_prev[below, 0]
-                x[below, 2] = x_prev[below, 2]
-
-    # settle at the first frame's hands with a heavier damping, then play the take
-    for _ in range(int(round(settle_seconds * rate * substeps))):
-        substep(held[0], 1.0 - min(20.0 * dt, 1.0))
-    x_prev = x.copy()
-    out[0] = x
-    for t in range(1, h.shape[0]):
-        for s in range(1, substeps + 1):
-            w = s / substeps
-            substep((1.0 - w) * held[t - 1] + w * held[t], keep)
-        out[t] = x
+    chain = _Chain(
+        x=x,
+        x_prev=x.copy(),
+        mode=mode,
+        halves=_link_halves(inv_mass),
+        rest=rest,
+        iterations=int(iterations),
+        held_ends=held_ends,
+        reach=[arc, arc[::-1]][: len(held_ends)],
+        floor=floor,
+        dt=dt,
+    )
+    settle_steps = int(round(settle_seconds * rate * substeps))
+    out = _play(chain, held, substeps, settle_steps, keep=1.0 - min(damping * dt, 1.0))
 
     links = np.linalg.norm(np.diff(out, axis=1), axis=2)  # (T, P - 1)
     meta = {
@@ -184,6 +146,93 @@ def simulate_rope_pbd(
     return RopeResult(
         out, out[:, marker_particle].copy(), labels, marker_particle * rest, float(rate), meta
     )
+
+
+def _checked_hands(hands: np.ndarray, mode: str) -> np.ndarray:
+    """``hands`` as (T, H, 3) float64 metres, refused unless ``mode`` can hold them."""
+    if mode not in ("whip", "jump"):
+        raise ValidationError(f"mode: expected 'whip' or 'jump', got {mode!r}")
+    h = np.asarray(hands, dtype=np.float64)
+    if h.ndim == 2:
+        h = h[:, None, :]
+    if h.ndim != 3 or h.shape[-1] != 3 or h.shape[0] < 1:
+        raise ValidationError(f"hands: expected (T, 3) or (T, 2, 3), got shape {np.shape(hands)}")
+    if mode == "jump" and h.shape[1] != 2:
+        raise ValidationError(f"hands: jump needs both hands (T, 2, 3), got {h.shape}")
+    if not np.isfinite(h).all():
+        raise ValidationError("hands: must be finite (fill the hands' gaps first)")
+    return h
+
+
+def _check_settings(
+    rate: float,
+    length: float,
+    substep_seconds: float,
+    n_markers: int,
+    particles_per_marker: int,
+    iterations: int,
+) -> None:
+    """Refuse a non-positive rate, length or substep and too few markers or sweeps."""
+    for name, value in (("rate", rate), ("length", length), ("substep_seconds", substep_seconds)):
+        if not (math.isfinite(value) and value > 0):
+            raise ValidationError(f"{name}: expected a positive number, got {value!r}")
+    if int(n_markers) < 3 or int(particles_per_marker) < 1 or int(iterations) < 1:
+        raise ValidationError("n_markers >= 3, particles_per_marker >= 1 and iterations >= 1")
+
+
+@dataclass
+class _Chain:
+    """The PBD particle chain: its state, advanced in place by :meth:`substep`."""
+
+    x: np.ndarray  # (P, 3) metres, the particles now
+    x_prev: np.ndarray  # (P, 3) metres, one substep ago
+    mode: str  # "whip": particle 0 held; "jump": particles 0 and P - 1 held
+    halves: list[tuple[slice, slice, np.ndarray, np.ndarray]]  # from _link_halves
+    rest: float  # metres between neighbouring particles
+    iterations: int  # Gauss-Seidel sweeps per substep
+    held_ends: list[int]  # the held particles
+    reach: list[np.ndarray]  # (P,) metres of rope from each held end
+    floor: float | None  # floor height (y), metres
+    dt: float  # substep, seconds
+
+    def substep(self, target: np.ndarray, keep: float) -> None:
+        """Verlet step with velocity factor ``keep``, the held ends at ``target``, then
+        the distance, long-range and floor constraints."""
+        velocity = (self.x - self.x_prev) * keep
+        self.x_prev = self.x
+        x = self.x = self.x + velocity + _GRAVITY * self.dt * self.dt
+        if self.mode == "whip":
+            x[0] = target
+        else:
+            x[0], x[-1] = target[0], target[1]
+        _project_distances(x, self.halves, self.rest, self.iterations)
+        _attach_long_range(x, self.held_ends, self.reach)
+        if self.floor is not None:
+            below = x[:, 1] < self.floor
+            if below.any():
+                # sticking friction: a particle on the floor keeps its old x, z
+                x[below, 1] = self.floor
+                x[below, 0] = self.x_prev[below, 0]
+                x[below, 2] = self.x_prev[below, 2]
+
+
+def _play(
+    chain: _Chain, held: np.ndarray, substeps: int, settle_steps: int, *, keep: float
+) -> np.ndarray:
+    """(T, P, 3) metres: the chain settled at the first frame's hands with a heavier
+    damping, then driven through the take, the hands ``held`` (T, 3) or (T, 2, 3)
+    interpolated linearly within each frame's ``substeps``."""
+    for _ in range(settle_steps):
+        chain.substep(held[0], 1.0 - min(20.0 * chain.dt, 1.0))
+    chain.x_prev = chain.x.copy()
+    out = np.zeros((held.shape[0], *chain.x.shape))
+    out[0] = chain.x
+    for t in range(1, held.shape[0]):
+        for s in range(1, substeps + 1):
+            w = s / substeps
+            chain.substep((1.0 - w) * held[t - 1] + w * held[t], keep)
+        out[t] = chain.x
+    return out
 
 
 def _hanging_start(held: np.ndarray, mode: str, n: int, rest: float) -> np.ndarray:

@@ -39,12 +39,13 @@ def physics_excess(
     s = _arclength(np.asarray(spacing, dtype=np.float64))
     t_n, m, _ = pos.shape
     excess = np.zeros((t_n, m))
+    index = np.arange(m)
+    apart = np.abs(index[:, None] - index[None, :])  # (M, M) index distance
+    measured = ~inv  # (T, M) measured markers constrain
     for j in range(m):
         reach = (1.0 + stretch) * np.abs(s[j] - s)[None, :]
         gap = np.linalg.norm(pos[:, j : j + 1] - pos, axis=2) - reach
-        counts = ~inv.copy()  # (T, M) measured markers constrain
-        counts[:, max(j - 1, 0) : j + 2] = True  # and so do the neighbours
-        counts[:, j] = False
+        counts = (measured | (apart[j] == 1)) & (apart[j] > 0)  # and so do the neighbours
         worst = np.where(counts, np.nan_to_num(gap, nan=-np.inf), -np.inf).max(axis=1)
         excess[:, j] = np.where(inv[:, j], np.maximum(worst, 0.0), 0.0)
     return np.where(np.isfinite(pos).all(axis=2), excess, np.nan)

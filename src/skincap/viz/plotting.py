@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import os
+from pathlib import Path
 from typing import Any
 
 from skincap.errors import MissingDependencyError
+from skincap.io._common import atomic_output
 
-__all__ = ["agg_pyplot"]
+__all__ = ["agg_pyplot", "save_png"]
 
 
 def agg_pyplot(feature: str) -> Any:
@@ -30,3 +33,13 @@ def agg_pyplot(feature: str) -> Any:
     import matplotlib.pyplot as plt
 
     return plt
+
+
+def save_png(
+    fig: Any, path: str | os.PathLike[str], *, force: bool = False, dpi: float | None = None
+) -> Path:
+    """Write a matplotlib figure to ``path`` as PNG, atomically (no partial file; an
+    existing file only with ``force``); ``dpi`` default: the figure's own."""
+    with atomic_output(path, force=force) as tmp:
+        fig.savefig(tmp, format="png", **({} if dpi is None else {"dpi": dpi}))
+    return Path(path)

@@ -18,10 +18,12 @@ rest pose on the mesh and :func:`transform_skeleton` applies them.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Literal
 
 import numpy as np
 
+from skincap._arrays import as_finite_array
 from skincap.deform.skeletal.weights import bone_heat_weights, limit_influences
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics, rest_positions
@@ -60,18 +62,7 @@ def rest_transforms(skeleton: Skeleton | Motion) -> np.ndarray:
 
 
 def _check_rest_world(rest_world: object, n_joints: int) -> np.ndarray:
-    try:
-        rw = np.asarray(rest_world, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValidationError(
-            f"rest_world: expected a ({n_joints}, 4, 4) float array: {exc}"
-        ) from None
-    if rw.shape != (n_joints, 4, 4):
-        raise ValidationError(
-            f"rest_world: expected shape ({n_joints}, 4, 4) (one per joint), got {rw.shape}"
-        )
-    if not np.isfinite(rw).all():
-        raise ValidationError("rest_world: must be finite")
+    rw = as_finite_array(rest_world, "rest_world", (n_joints, 4, 4))  # one per joint
     if np.abs(rw[:, 3] - np.array([0.0, 0.0, 0.0, 1.0])).max() > 1e-9:
         raise ValidationError("rest_world: the last row of each transform must be (0, 0, 0, 1)")
     det = np.linalg.det(rw[:, :3, :3])
@@ -274,17 +265,7 @@ def bind_mesh(
     )
     meta = dict(mesh.meta)
     meta["skin_weights"] = weights
-    return Mesh(
-        vertices=mesh.vertices,
-        faces=mesh.faces,
-        polygon_indices=mesh.polygon_indices,
-        polygon_offsets=mesh.polygon_offsets,
-        face_polygon=mesh.face_polygon,
-        groups=mesh.groups,
-        uv=mesh.uv,
-        skin=skin,
-        meta=meta,
-    )
+    return dataclasses.replace(mesh, skin=skin, meta=meta)
 
 
 def fit_skeleton_to_mesh(

@@ -69,7 +69,6 @@ vertical extents of the joints; the largest extent for a skeleton lying flat).
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -90,6 +89,7 @@ from skincap.geometry.kinematics import (
     joint_positions_arrays,
     rest_positions,
 )
+from skincap.io.json_file import parse_json
 from skincap.types import Mesh, Motion, Skeleton, Skin
 
 __all__ = ["retarget", "joint_name_map", "load_name_map"]
@@ -137,13 +137,10 @@ def load_name_map(name_map: NameMapLike) -> dict[str, tuple[str, ...] | None]:
         except OSError as exc:
             raise FormatError(path, f"cannot read the name map: {exc.strerror or exc}") from None
         try:
-            data = json.loads(raw.decode("utf-8"))
+            text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:
             raise FormatError(path, f"not UTF-8 text ({exc.reason})", offset=exc.start) from None
-        except json.JSONDecodeError as exc:
-            raise FormatError(path, f"invalid JSON: {exc.msg}", line=exc.lineno) from None
-        except RecursionError:
-            raise FormatError(path, "invalid JSON: nested too deeply") from None
+        data = parse_json(path, text)
     else:
         raise ValidationError(
             f"name_map: expected None, a dict or a JSON file path, got {type(name_map).__name__}"

@@ -198,7 +198,7 @@ def _data_file(name: str) -> Path:
 
 
 def run_io_benchmarks(*, repeat: int = 5) -> dict[str, Any]:
-    """Time BVH read + FK against bvhio and the C3D reader against raw ezc3d.
+    """Time BVH read + FK against bvhio, the C3D reader against raw ezc3d, OBJ against trimesh.
 
     Uses the 994-frame CMU BVH and the C3D files of ``tests/data`` (from a source
     checkout; an installed package falls back to its shipped demo files).
@@ -296,5 +296,33 @@ def run_io_benchmarks(*, repeat: int = 5) -> dict[str, Any]:
         f"C3D read  {len(ratios)} files: skincap takes {min(ratios.values()):.2f}x..{ratios[worst]:.2f}x "
         f"raw ezc3d's time (worst {worst}; goal <= 1.2x)"
     )
+    _obj_read_row(results, lines, repeat)
     results["lines"] = lines
     return results
+
+
+def _obj_read_row(results: dict[str, Any], lines: list[str], repeat: int) -> None:
+    """Our OBJ reader against ``trimesh.load`` on the MakeHuman base mesh (13k quads)."""
+    try:
+        import trimesh
+    except ImportError:
+        raise MissingDependencyError("trimesh", "dev", "the OBJ benchmark") from None
+
+    from skincap.io.mesh import read_obj
+
+    obj = _data_file("makehuman_base.obj")
+    ours = best_time(lambda: read_obj(obj, units="dm"), repeat)
+    with warnings.catch_warnings():  # trimesh warns about the file's unused groups
+        warnings.simplefilter("ignore")
+        peer = best_time(
+            lambda: trimesh.load(
+                obj, process=False, maintain_order=True, skip_materials=True, force="mesh"
+            ),
+            repeat,
+        )
+    results["obj_read"] = {"file": obj.name, "skincap_s": ours, "trimesh_s": peer}
+    results["obj_read"]["speedup_vs_trimesh"] = peer / ours
+    lines.append(
+        f"OBJ read  {obj.name}: skincap reads at {peer / ours:.2f}x the speed of trimesh.load "
+        "(process=False)"
+    )

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import base64
 import binascii
-import json
 import os
 import stat
 import struct
@@ -23,6 +22,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import FormatError, quote_excerpt
+from skincap.io.json_file import parse_json
 
 __all__ = [
     "GltfDocument",
@@ -331,12 +331,7 @@ def load_document(path: Path) -> GltfDocument:
         raise FormatError(
             path, f"glTF JSON is not UTF-8 ({exc.reason})", offset=exc.start
         ) from None
-    try:
-        doc = json.loads(text.rstrip(" \x00"))
-    except json.JSONDecodeError as exc:
-        raise FormatError(path, f"invalid glTF JSON: {exc.msg}", line=exc.lineno) from None
-    except RecursionError:
-        raise FormatError(path, "invalid glTF JSON: nested too deeply") from None
+    doc = parse_json(path, text.rstrip(" \x00"), what="glTF JSON")
     if not isinstance(doc, dict):
         raise FormatError(path, "glTF JSON must be an object")
     asset = doc.get("asset")

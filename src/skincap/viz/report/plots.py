@@ -8,8 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from skincap.io._common import atomic_output
-from skincap.viz.plotting import agg_pyplot
+from skincap.viz.plotting import agg_pyplot, save_png
 
 __all__ = ["plot_missing_maps", "plot_fill_errors"]
 
@@ -77,9 +76,7 @@ def plot_missing_maps(
         frameon=False,
     )
     fig.tight_layout(rect=(0, 0.07, 1, 1))
-    out = Path(path)
-    with atomic_output(out, force=force) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
+    out = save_png(fig, path, force=force, dpi=90)
     plt.close(fig)
     return out
 
@@ -116,8 +113,6 @@ def plot_fill_errors(
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8, ncol=2)
     fig.tight_layout()
-    out = Path(path)
-    with atomic_output(out, force=force) as tmp:
-        fig.savefig(tmp, format="png", dpi=90)
+    out = save_png(fig, path, force=force, dpi=90)
     plt.close(fig)
     return out
