@@ -102,6 +102,7 @@ def solve_markers(
         model.init_rotations,
         model.init_origins,
         iterations=iterations,
+        link_stiffness=model.link_stiffness,
         progress=ik_progress,
     )
     fitted_pos = model_markers(
