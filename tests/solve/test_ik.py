@@ -7,7 +7,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import ValidationError
-from skincap.solve.ik import model_markers, solve_poses
+from skincap.solve.ik import _exp, _log, model_markers, solve_poses
 
 PARENTS = np.array([-1, 0, 1, 1])
 OFFSETS = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, 0.0], [0.3, 0.1, 0.0], [-0.3, 0.1, 0.0]])
@@ -141,3 +141,33 @@ def test_link_stiffness_is_validated():
             LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, y, init, root,
             link_stiffness=np.array([0.0, -1.0, 0.0, 0.0]),
         )  # fmt: skip
+
+
+def test_log_inverts_exp_up_to_a_half_turn():
+    rng = np.random.default_rng(8)
+    axis = rng.normal(size=(500, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.concatenate([rng.uniform(0, np.pi - 1e-6, 497), [0.0, 1e-10, np.pi - 1e-9]])
+    vec = axis * angle[:, None]
+    np.testing.assert_allclose(_log(_exp(vec)), vec, atol=1e-7)
+    np.testing.assert_allclose(_log(Rotation.from_rotvec(vec).as_matrix()), vec, atol=1e-7)
+
+
+def test_the_warm_start_pass_reaches_the_same_poses():
+    # a smooth motion: odd frames start from their neighbours' midpoint
+    t = 90
+    phase = np.linspace(0, 2.0, t)[:, None, None]
+    axes = np.random.default_rng(9).normal(scale=0.6, size=(1, 4, 3))
+    rot = (
+        Rotation.from_rotvec((np.sin(phase) * axes).reshape(-1, 3)).as_matrix().reshape(t, 4, 3, 3)
+    )
+    root = np.stack([np.sin(phase[:, 0, 0]), np.ones(t), 0.2 * phase[:, 0, 0]], axis=1)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    kick = Rotation.from_rotvec(np.full((t * 4, 3), 0.1)).as_matrix().reshape(t, 4, 3, 3)
+    for warm in (True, False):
+        got_rot, got_root = solve_poses(
+            PARENTS, OFFSETS, SEG, LOCAL, y, kick @ rot, root + 0.02,
+            iterations=30, tolerance=1e-16, relative_tolerance=0.0, warm_start=warm,
+        )  # fmt: skip
+        np.testing.assert_allclose(got_rot, rot, atol=1e-6)
+        np.testing.assert_allclose(got_root, root, atol=1e-7)
