@@ -101,6 +101,7 @@ def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
             "segment pelvis has none of its template markers (LASI, RASI, LPSI, RPSI)",
         ),
         (["--template", "nosuch"], "is neither a file nor one of"),
+        (["--smooth-hz", "70"], "--smooth-hz: expected between 0 and 60 Hz"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, args, message):

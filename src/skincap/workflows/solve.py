@@ -98,6 +98,11 @@ def solve_file(
             f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
         )
     markers = read_labelled_markers(input_path)
+    if smooth_hz is not None and not 0.0 < smooth_hz < 0.5 * markers.rate:
+        raise ValidationError(
+            f"--smooth-hz: expected between 0 and {0.5 * markers.rate:g} Hz (half the "
+            f"{markers.rate:g} Hz frame rate), got {smooth_hz:g}"
+        )
     from skincap.solve import solve_markers
 
     if template == "auto":
