@@ -40,7 +40,7 @@ def test_solve_writes_bvh_markers_and_report(solved):
     result, bvh, fitted, report = solved
     assert result.exit_code == 0, result.output
     line = result.stdout.strip()
-    assert "810 frames, 24 joints, 41 markers (cmu41), RMS residual" in " ".join(line.split())
+    assert "810 frames, 25 joints, 41 markers (cmu41), RMS residual" in " ".join(line.split())
     motion = read_bvh(bvh, units="cm")
     assert motion.n_frames == 810 and motion.skeleton.names[0] == "Hips"
     assert 1.5 < motion.translations[0, 0, 1] / 0.55 < 2.0  # hips ~1 m up: centimetres read back
@@ -101,6 +101,7 @@ def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
             "segment pelvis has none of its template markers (LASI, RASI, LPSI, RPSI)",
         ),
         (["--template", "nosuch"], "is neither a file nor one of"),
+        (["--smooth-hz", "70"], "--smooth-hz: expected between 0 and 60 Hz"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, args, message):

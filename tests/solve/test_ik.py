@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
-from skincap.solve.ik import model_markers, solve_poses
+from skincap.errors import ValidationError
+from skincap.solve.ik import _exp, _log, model_markers, solve_poses
 
 PARENTS = np.array([-1, 0, 1, 1])
 OFFSETS = np.array([[0.0, 0.0, 0.0], [0.0, 0.5, 0.0], [0.3, 0.1, 0.0], [-0.3, 0.1, 0.0]])
@@ -72,3 +74,100 @@ def test_rotations_stay_orthonormal():
     eye = np.einsum("tsji,tsjk->tsik", got_rot, got_rot)
     assert np.abs(eye - np.eye(3)).max() < 1e-9
     assert np.allclose(np.linalg.det(got_rot), 1.0)
+
+
+# a link (segment 1: no markers of its own) between the root and two marked segments
+LINK_PARENTS = np.array([-1, 0, 1, 1])
+LINK_OFFSETS = np.array([[0.0, 0.0, 0.0], [0.0, 0.4, 0.0], [0.2, 0.1, 0.0], [-0.2, 0.1, 0.0]])
+LINK_SEG = np.array([0, 0, 0, 2, 2, 2, 3, 3, 3])
+LINK_LOCAL = np.random.default_rng(5).normal(scale=0.08, size=(LINK_SEG.size, 3))
+
+
+def _link_take(link_angle_rad, t=80, seed=6):
+    rng = np.random.default_rng(seed)
+    rot, root = _poses(rng, t)
+    # the link turns a fixed angle from its parent about a random axis per frame
+    axis = rng.normal(size=(t, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    rot[:, 1] = Rotation.from_rotvec(link_angle_rad * axis).as_matrix() @ rot[:, 0]
+    y = model_markers(LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, rot, root)
+    init = rot.copy()
+    init[:, 1] = rot[:, 0]  # a link starts as its parent
+    return rot, root, y, init
+
+
+def _relative_angle(rot):
+    rel = rot[:, 1] @ rot[:, 0].transpose(0, 2, 1)
+    return Rotation.from_matrix(rel).magnitude()
+
+
+def test_a_soft_link_lets_its_children_translate_and_fits_them():
+    rot, root, y, init = _link_take(0.3)
+    stiff = np.array([0.0, 1e-4, 0.0, 0.0])
+    got_rot, got_root = solve_poses(
+        LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, y, init, root,
+        iterations=40, tolerance=1e-16, link_stiffness=stiff,
+    )  # fmt: skip
+    fit = model_markers(LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, got_rot, got_root)
+    # the spring costs (1e-4 m/rad * 0.3 rad)^2: the markers fit to well under a millimetre
+    assert np.abs(fit - y).max() < 1e-4
+    # the two directions the children see are recovered: the link's angle is close
+    assert np.abs(_relative_angle(got_rot) - 0.3).max() < 0.05
+    # without the link's freedom (a stiff spring) the same take cannot be fitted
+    stiff_rot, stiff_root = solve_poses(
+        LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, y, init, root,
+        iterations=40, tolerance=1e-16, link_stiffness=np.array([0.0, 100.0, 0.0, 0.0]),
+    )  # fmt: skip
+    assert _relative_angle(stiff_rot).max() < 1e-2
+    rigid = model_markers(LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, stiff_rot, stiff_root)
+    assert np.abs(rigid - y).max() > 0.02
+
+
+def test_a_resting_link_stays_with_its_parent_and_the_fit_is_exact():
+    rot, root, y, init = _link_take(0.0)
+    got_rot, got_root = solve_poses(
+        LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, y, init, root,
+        tolerance=1e-16, link_stiffness=np.array([0.0, 0.03, 0.0, 0.0]),
+    )  # fmt: skip
+    fit = model_markers(LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, got_rot, got_root)
+    assert np.abs(fit - y).max() < 1e-7
+    assert _relative_angle(got_rot).max() < 1e-6  # its undetermined twist is held too
+
+
+def test_link_stiffness_is_validated():
+    rot, root, y, init = _link_take(0.0, t=5)
+    with pytest.raises(ValidationError, match="link_stiffness"):
+        solve_poses(
+            LINK_PARENTS, LINK_OFFSETS, LINK_SEG, LINK_LOCAL, y, init, root,
+            link_stiffness=np.array([0.0, -1.0, 0.0, 0.0]),
+        )  # fmt: skip
+
+
+def test_log_inverts_exp_up_to_a_half_turn():
+    rng = np.random.default_rng(8)
+    axis = rng.normal(size=(500, 3))
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    angle = np.concatenate([rng.uniform(0, np.pi - 1e-6, 497), [0.0, 1e-10, np.pi - 1e-9]])
+    vec = axis * angle[:, None]
+    np.testing.assert_allclose(_log(_exp(vec)), vec, atol=1e-7)
+    np.testing.assert_allclose(_log(Rotation.from_rotvec(vec).as_matrix()), vec, atol=1e-7)
+
+
+def test_the_warm_start_pass_reaches_the_same_poses():
+    # a smooth motion: odd frames start from their neighbours' midpoint
+    t = 90
+    phase = np.linspace(0, 2.0, t)[:, None, None]
+    axes = np.random.default_rng(9).normal(scale=0.6, size=(1, 4, 3))
+    rot = (
+        Rotation.from_rotvec((np.sin(phase) * axes).reshape(-1, 3)).as_matrix().reshape(t, 4, 3, 3)
+    )
+    root = np.stack([np.sin(phase[:, 0, 0]), np.ones(t), 0.2 * phase[:, 0, 0]], axis=1)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    kick = Rotation.from_rotvec(np.full((t * 4, 3), 0.1)).as_matrix().reshape(t, 4, 3, 3)
+    for warm in (True, False):
+        got_rot, got_root = solve_poses(
+            PARENTS, OFFSETS, SEG, LOCAL, y, kick @ rot, root + 0.02,
+            iterations=30, tolerance=1e-16, relative_tolerance=0.0, warm_start=warm,
+        )  # fmt: skip
+        np.testing.assert_allclose(got_rot, rot, atol=1e-6)
+        np.testing.assert_allclose(got_root, root, atol=1e-7)

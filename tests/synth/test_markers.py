@@ -10,9 +10,14 @@ from scipy.spatial import cKDTree
 from skincap.errors import ValidationError
 from skincap.geometry.raycast import closest_points_on_mesh
 from skincap.io.makehuman import read_makehuman
+from skincap.synth.inputs import build_body
 from skincap.synth.markers import (
+    PELVIS_BOUND_WEIGHT,
     SPARSE_LABELS,
     MarkerLayout,
+    _joint_positions,
+    _landmark_joints,
+    _pelvis_weight,
     dense_marker_layout,
     place_markers,
     sparse_marker_layout,
@@ -196,3 +201,30 @@ def test_layouts_need_joints() -> None:
         dense_marker_layout(bare)
     with pytest.raises(ValidationError):
         sparse_marker_layout(bare, {"foo": [0, 0, 0]})
+
+
+def _pelvis_weight_of_markers(mesh: Mesh, layout, hips) -> dict[str, float]:
+    """Each sparse marker's skinning weight on the pelvis joints."""
+    w = _pelvis_weight(mesh.skin, hips)
+    w_marker = np.einsum("nk,nk->n", layout.bary, w[mesh.faces[layout.face]])
+    return dict(zip(layout.labels, w_marker, strict=True))
+
+
+def test_sparse_pelvis_markers_ride_the_pelvis_over_the_iliac_spines() -> None:
+    # the procedural body binds skin around the hips to its pelvis (MakeHuman's weights
+    # give that skin to spine04/05 at most 0.51 to the pelvis: its landmarks stay put)
+    mesh = build_body("procedural", n_vertices=4000, seed=0)
+    layout = sparse_marker_layout(mesh)
+    hips = _landmark_joints(_joint_positions(mesh, None))
+    weight = _pelvis_weight_of_markers(mesh, layout, np.stack([hips["thigh_l"], hips["thigh_r"]]))
+    for label in ("LASI", "RASI", "LPSI", "RPSI"):
+        assert weight[label] >= PELVIS_BOUND_WEIGHT, (label, weight[label])
+    pos, _ = place_markers(layout, mesh.vertices, mesh.faces)
+    at = dict(zip(layout.labels, pos, strict=True))
+    hip_height = 0.5 * (hips["thigh_l"][1] + hips["thigh_r"][1])
+    for side in "LR":
+        # above the hip joints, ASIS in front of PSIS, each on its own side
+        assert at[f"{side}ASI"][1] > hip_height and at[f"{side}PSI"][1] > hip_height
+        assert at[f"{side}ASI"][2] > at[f"{side}PSI"][2] + 0.1
+    assert at["LASI"][0] > 0.02 > -0.02 > at["RASI"][0]
+    assert at["LPSI"][0] > 0.02 > -0.02 > at["RPSI"][0]

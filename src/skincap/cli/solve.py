@@ -68,6 +68,14 @@ def solve(
             "joint-centre method per joint, bone lengths."
         ),
     ] = None,
+    smooth_hz: Annotated[
+        float | None,
+        typer.Option(
+            "--smooth-hz",
+            help="Low-pass the solved poses at this cut-off (Hz, zero-phase Butterworth); "
+            "default: none.",
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
@@ -101,6 +109,7 @@ def solve(
                 markers_out=markers_out,
                 report=report,
                 force=force,
+                smooth_hz=smooth_hz,
                 progress=advance,
             )
     if json_output:

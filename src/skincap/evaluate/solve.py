@@ -180,6 +180,7 @@ def ik_frames_per_second(result: Any, markers: MarkerSet, repeat: int = 3) -> di
         solve_poses(
             model.segment_parents, model.joint_offsets, model.marker_segments, model.marker_offsets,
             measured, model.init_rotations, model.init_origins,
+            link_stiffness=model.link_stiffness,
         )  # fmt: skip
         wall = min(wall, time.perf_counter() - w0)
         cpu = min(cpu, time.process_time() - c0)

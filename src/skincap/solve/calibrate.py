@@ -66,6 +66,9 @@ class BodyModel:
     fixed : dict segment -> list of (joint name, (3,) position in the segment's frame)
     methods : dict segment -> str, how its proximal joint centre was found
     spreads_deg : dict segment -> list of float, range of motion used to decide
+    link_stiffness : (S,) float64, metres per radian
+        The spring holding each ``link`` segment to its parent's orientation in
+        inverse kinematics; 0 for the other segments.
     """
 
     segment_names: list[str]
@@ -82,6 +85,7 @@ class BodyModel:
     fixed: dict[str, list[tuple[str, np.ndarray]]] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
     spreads_deg: dict[str, list[float]] = field(default_factory=dict)
+    link_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def n_segments(self) -> int:
@@ -261,6 +265,15 @@ class _Calibrator:
         kind = spec.centre["kind"]
         prior_w = self.prior(spec)
         parent = self.tech.get(spec.parent)
+        if spec.link:
+            # a link's joint is its prior (no functional fit: nothing rides it alone) and
+            # its frame starts as its parent's; inverse kinematics lets it turn
+            self.methods[spec.name] = "link (template prior)"
+            self.spreads[spec.name] = []
+            self.centres[spec.name] = prior_w
+            if parent is not None:
+                self.tech[spec.name] = parent
+            return
         child_markers = self.present(spec)
         method = "regression"
         spread: list[float] = []
@@ -363,6 +376,18 @@ class _Calibrator:
                 self.axes_local[spec.name] = (-ap, -ac)
 
     def anatomical(self, spec: SegmentSpec) -> None:
+        if spec.link:
+            assert spec.parent is not None  # the template parser refuses a root link
+            frames = self.anat[spec.parent]
+            origin = self.centres[spec.name]
+            if spec.name in self.tech:
+                rt, tt = self.tech[spec.name]
+                o_loc = _nanmedian0(to_local(rt, tt, origin[:, None])[:, 0])
+                if np.isfinite(o_loc).all():
+                    origin = to_world(rt, tt, o_loc[None])[:, 0]
+            self.anat[spec.name] = frames
+            self.origin[spec.name] = origin
+            return
         (a1, from1, to1), second = spec.axes[0], spec.axes[1]
         where = f"segment {spec.name} axes"
         e1 = _unit(
@@ -442,7 +467,7 @@ def calibrate(
     cal = _Calibrator(markers, template, min_spread_deg)
     segs = template.segments
     for spec in segs:
-        if not cal.present(spec):
+        if not cal.present(spec) and not spec.link:
             raise ValidationError(
                 f"segment {spec.name} has none of its template markers "
                 f"({', '.join(spec.markers)}) in the capture (or they are never seen)"
@@ -526,4 +551,5 @@ def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
         fixed=fixed,
         methods=dict(cal.methods),
         spreads_deg=dict(cal.spreads),
+        link_stiffness=np.array([s.stiffness if s.link else 0.0 for s in segs]),
     )

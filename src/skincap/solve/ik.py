@@ -17,13 +17,18 @@ over a ``(T, P, P)`` stack), with a per-frame damping that grows on a rejected s
 Frames start from the calibration's measured poses; where it gave none (a segment
 seen by too few markers) from the last frame that had one (warm start), so such a
 segment keeps the pose it had -- its undetermined directions are damped, never NaN.
-No temporal smoothing and no joint limits are applied (each frame is its own
-least-squares fit).
+A ``link`` segment (a neck, a clavicle: see :mod:`skincap.solve.templates`) adds the
+spring residual ``k_s log(R_s R_parent^T)`` (``k_s`` metres per radian, the rotation
+vector in world axes) to its frame's cost: its Jacobian is ``k_s I`` for the link's
+increment and ``-k_s I`` for its parent's (exact at zero, and LM accepts a step only
+when the true cost falls), so it adds one constant matrix to every frame's normal
+equations.
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from skincap._arrays import Progress
 from skincap.errors import ValidationError
@@ -98,6 +103,23 @@ def _exp(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + a * k + b * (k @ k)
 
 
+def _log(r: np.ndarray) -> np.ndarray:
+    """(..., 3) rotation vectors of rotation matrices (..., 3, 3) (inverse of :func:`_exp`)."""
+    cos = np.clip((np.einsum("...ii->...", r) - 1.0) / 2.0, -1.0, 1.0)
+    angle = np.arccos(cos)
+    # sin(angle) * axis from the antisymmetric part
+    s = 0.5 * np.stack(
+        [r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0], r[..., 1, 0] - r[..., 0, 1]],
+        axis=-1,
+    )
+    sin = np.sin(angle)[..., None]
+    out = s * np.where(sin > 1e-8, angle[..., None] / np.where(sin > 1e-8, sin, 1.0), 1.0)
+    far = angle > 3.0  # near a half turn the antisymmetric part vanishes: SciPy's formula
+    if far.any():
+        out[far] = Rotation.from_matrix(r[far]).as_rotvec()
+    return out
+
+
 _SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
 
 
@@ -128,6 +150,47 @@ def _cost(resid: np.ndarray, w: np.ndarray) -> np.ndarray:
     return np.einsum("tm,tmi,tmi->t", w, resid, resid)
 
 
+def _pose_cost(model: tuple, y: np.ndarray, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """(T,) cost (m^2) of poses for measured markers ``y (T, M, 3)`` (NaN: missing);
+    ``model`` is (parents, offsets, marker_segments, marker_offsets, springs)."""
+    parents, offsets, mseg, moff, springs = model
+    seen = np.isfinite(y).all(axis=2)
+    x = model_markers(parents, offsets, mseg, moff, rot, root)
+    spring = springs.residuals(rot)
+    resid = np.where(seen[..., None], x - np.where(seen[..., None], y, 0.0), 0.0)
+    return _cost(resid, seen.astype(np.float64)) + np.einsum("tli,tli->t", spring, spring)
+
+
+class _Springs:
+    """The link segments' springs: residuals ``k log(R_s R_p^T)`` and their constant normal matrix."""
+
+    def __init__(self, parents: np.ndarray, stiffness: np.ndarray, n_par: int) -> None:
+        self.segment = np.flatnonzero(stiffness > 0)
+        self.parent = parents[self.segment]
+        self.k = stiffness[self.segment]
+        self.normal = np.zeros((n_par, n_par))  # J^T J, the same for every frame
+        eye = np.eye(3)
+        for s, p, k in zip(self.segment, self.parent, self.k, strict=True):
+            cs, cp = 3 + 3 * s, 3 + 3 * p
+            self.normal[cs : cs + 3, cs : cs + 3] += k**2 * eye
+            self.normal[cp : cp + 3, cp : cp + 3] += k**2 * eye
+            self.normal[cs : cs + 3, cp : cp + 3] -= k**2 * eye
+            self.normal[cp : cp + 3, cs : cs + 3] -= k**2 * eye
+
+    def residuals(self, rot: np.ndarray) -> np.ndarray:
+        """(T, L, 3) metres-equivalent spring residuals of world rotations (T, S, 3, 3)."""
+        if self.segment.size == 0:
+            return np.zeros(rot.shape[:1] + (0, 3))
+        rel = rot[:, self.segment] @ rot[:, self.parent].transpose(0, 1, 3, 2)
+        return self.k[:, None] * _log(rel)
+
+    def add_gradient(self, g: np.ndarray, r: np.ndarray) -> None:
+        """Add ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
+        for k, (s, p) in enumerate(zip(self.segment, self.parent, strict=True)):
+            g[:, 3 + 3 * s : 6 + 3 * s] += self.k[k] * r[:, k]
+            g[:, 3 + 3 * p : 6 + 3 * p] -= self.k[k] * r[:, k]
+
+
 def solve_poses(
     parents: np.ndarray,
     offsets: np.ndarray,
@@ -139,7 +202,10 @@ def solve_poses(
     *,
     iterations: int = 12,
     tolerance: float = 1e-7,
+    relative_tolerance: float = 1e-3,
     chunk: int = 512,
+    link_stiffness: np.ndarray | None = None,
+    warm_start: bool = True,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares poses of a marker model, all frames at once.
@@ -159,8 +225,20 @@ def solve_poses(
         Stop a frame when a step improves its cost (sum of squared residuals, m^2) by
         less than this. The default 1e-7 m^2 changes the RMS residual of the real CMU
         and synthetic takes by under 1e-7 m against 1e-9 m^2, in 40-60 % fewer steps.
+    relative_tolerance : float
+        Also stop a frame when a step improves its cost by less than this fraction of
+        the cost: the default 1e-3 changes the RMS residual of the real CMU 85_02 take
+        by 1.6e-6 m (0.02 %) against running to convergence, in 27 % fewer solves
+        (4.6 -> 3.3 per frame). 0 turns it off.
     chunk : int
         Frames solved together.
+    warm_start : bool, default True
+        Solve the even frames first, then start each odd frame from the midpoint of
+        its solved neighbours' poses where that fits its markers better than its own
+        start (in a smooth take it does): fewer steps for half the frames.
+    link_stiffness : (S,) float, metres per radian, optional
+        Spring of each link segment towards its parent's orientation; 0 (the
+        default for every segment) for none.
     progress : callable(fraction, label), optional
 
     Returns
@@ -187,25 +265,42 @@ def solve_poses(
     rot, root = fill_poses(np.asarray(init_rotations, float), np.asarray(init_root, float), parents)
     paths = _Paths(parents, offsets, mseg, moff)
     n_par = 3 + 3 * s
+    stiff = np.zeros(s) if link_stiffness is None else np.asarray(link_stiffness, dtype=np.float64)
+    if stiff.shape != (s,) or not (np.isfinite(stiff).all() and (stiff >= 0).all()):
+        raise ValidationError(
+            f"link_stiffness: expected ({s},) finite values >= 0, got shape {stiff.shape}"
+        )
+    springs = _Springs(parents, stiff, n_par)
     out_rot = np.empty_like(rot)
     out_root = np.empty_like(root)
-    for start in range(0, t_all, chunk):
-        sl = slice(start, min(start + chunk, t_all))
-        out_rot[sl], out_root[sl] = _solve_chunk(
-            parents,
-            offsets,
-            mseg,
-            moff,
-            paths,
-            y[sl],
-            rot[sl],
-            root[sl],
-            n_par,
-            iterations,
-            tolerance,
-        )
-        if progress is not None:
-            progress(sl.stop / t_all, "inverse kinematics")
+    passes = [np.arange(t_all)]
+    if warm_start and t_all >= 3:
+        passes = [np.arange(0, t_all, 2), np.arange(1, t_all, 2)]
+    done = 0
+    for k, frames in enumerate(passes):
+        if k == 1:
+            # odd frames start from the midpoint of their solved neighbours where that
+            # fits their markers better than their own start (a smooth motion)
+            before = frames - 1
+            after = np.minimum(frames + 1, passes[0][-1])
+            rel = _log(np.einsum("tsji,tsjk->tsik", out_rot[before], out_rot[after]))
+            mid_rot = out_rot[before] @ _exp(0.5 * rel)
+            mid_root = 0.5 * (out_root[before] + out_root[after])
+            model = (parents, offsets, mseg, moff, springs)
+            use = _pose_cost(model, y[frames], mid_rot, mid_root) < _pose_cost(
+                model, y[frames], rot[frames], root[frames]
+            )
+            rot[frames[use]] = mid_rot[use]
+            root[frames[use]] = mid_root[use]
+        for start in range(0, frames.size, chunk):
+            sel = frames[start : start + chunk]
+            out_rot[sel], out_root[sel] = _solve_chunk(
+                parents, offsets, mseg, moff, paths, springs, y[sel], rot[sel], root[sel],
+                n_par, iterations, tolerance, relative_tolerance,
+            )  # fmt: skip
+            done += sel.size
+            if progress is not None:
+                progress(done / t_all, "inverse kinematics")
     return out_rot, out_root
 
 
@@ -215,12 +310,14 @@ def _solve_chunk(
     mseg: np.ndarray,
     moff: np.ndarray,
     paths: _Paths,
+    springs: _Springs,
     y: np.ndarray,
     rot: np.ndarray,
     root: np.ndarray,
     n_par: int,
     iterations: int,
     tolerance: float,
+    relative_tolerance: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     t, m, _ = y.shape
     seen = np.isfinite(y).all(axis=2)
@@ -228,7 +325,8 @@ def _solve_chunk(
     y_all = np.where(seen[..., None], y, 0.0)
     lam_all = np.full(t, 1e-3)
     x_all = model_markers(parents, offsets, mseg, moff, rot, root)
-    cost_all = _cost(x_all - y_all, w_all)
+    spring_all = springs.residuals(rot)  # (T, L, 3)
+    cost_all = _cost(x_all - y_all, w_all) + np.einsum("tli,tli->t", spring_all, spring_all)
     # damping floor: keeps directions no marker constrains (a hidden hand) where they are
     floor = 1e-6
     active = np.arange(t)
@@ -247,6 +345,7 @@ def _solve_chunk(
             break
         w, y0, lam = w_all[active], y_all[active], lam_all[active]
         r_a, o_a, x, cost = rot[active], root[active], x_all[active], cost_all[active]
+        spring = spring_all[active]
         ta = active.size
         resid = (x - y0) * w[..., None]  # (Ta, M, 3), zero where missing
         v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
@@ -258,22 +357,27 @@ def _solve_chunk(
         jt = jac.transpose(0, 2, 1)
         h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
         g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)  # (Ta, P)
+        h += springs.normal
+        springs.add_gradient(g, spring)
         diag = np.einsum("tii->ti", h)
         h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
         step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
         new_root = o_a + step[:, :3]
         new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
         new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
-        new_cost = _cost(new_x - y0, w)
+        new_spring = springs.residuals(new_rot)
+        new_cost = _cost(new_x - y0, w) + np.einsum("tli,tli->t", new_spring, new_spring)
         better = new_cost <= cost
         gain = cost - new_cost
         keep = active[better]
         root[keep] = new_root[better]
         rot[keep] = new_rot[better]
         x_all[keep] = new_x[better]
+        spring_all[keep] = new_spring[better]
         cost_all[keep] = new_cost[better]
         lam_all[active] = np.where(better, np.maximum(lam / 10.0, 1e-9), lam * 10.0)
         # a frame is done when a step gains less than the tolerance (or damping is huge)
-        done = (better & (gain < tolerance)) | (lam_all[active] > 1e6)
+        limit = np.maximum(tolerance, relative_tolerance * new_cost)
+        done = (better & (gain < limit)) | (lam_all[active] > 1e6)
         active = active[~done]
     return rot, root

@@ -18,6 +18,7 @@ from skincap.errors import ValidationError
 from skincap.solve.calibrate import BodyModel, calibrate
 from skincap.solve.ik import model_markers, solve_poses
 from skincap.solve.skeleton import motion_of, skeleton_of
+from skincap.solve.smooth import smooth_poses
 from skincap.solve.templates import Template, load_template
 from skincap.types import MarkerSet, Motion
 
@@ -39,6 +40,8 @@ class SolveResult:
     root : (T, 3) float64, metres
     residuals : (T, M) float64, metres
         Distance model -> measured marker; NaN where the marker is missing.
+    smooth_hz : float or None
+        The temporal smoothing cut-off applied, Hz.
     """
 
     motion: Motion
@@ -47,6 +50,7 @@ class SolveResult:
     rotations: np.ndarray
     root: np.ndarray
     residuals: np.ndarray
+    smooth_hz: float | None = None
 
     def report(self) -> dict[str, Any]:
         return residual_report(self)
@@ -57,6 +61,7 @@ def solve_markers(
     template: Template | str = "cmu41",
     *,
     iterations: int = 12,
+    smooth_hz: float | None = None,
     progress: Progress | None = None,
 ) -> SolveResult:
     """Solve a skeleton motion from a labelled marker capture.
@@ -70,6 +75,10 @@ def solve_markers(
         or a JSON file.
     iterations : int
         Most Levenberg-Marquardt steps per frame.
+    smooth_hz : float, optional
+        Low-pass the solved poses over time at this cut-off (Hz, below half the frame
+        rate; :func:`skincap.solve.smooth.smooth_poses`); the residuals are those of
+        the smoothed poses. Default: no smoothing.
     progress : callable(fraction, label), optional
 
     Returns
@@ -102,8 +111,11 @@ def solve_markers(
         model.init_rotations,
         model.init_origins,
         iterations=iterations,
+        link_stiffness=model.link_stiffness,
         progress=ik_progress,
     )
+    if smooth_hz is not None:
+        rot, root = smooth_poses(rot, root, markers.rate, float(smooth_hz))
     fitted_pos = model_markers(
         model.segment_parents,
         model.joint_offsets,
@@ -122,7 +134,13 @@ def solve_markers(
         meta={k: v for k, v in markers.meta.items() if k in ("source_units", "up", "first_frame")},
     )
     return SolveResult(
-        motion=motion, model=model, fitted=fitted, rotations=rot, root=root, residuals=resid
+        motion=motion,
+        model=model,
+        fitted=fitted,
+        rotations=rot,
+        root=root,
+        residuals=resid,
+        smooth_hz=None if smooth_hz is None else float(smooth_hz),
     )
 
 
@@ -149,6 +167,7 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
         "frames": int(r.shape[0]),
         "joints": skel.n_joints,
         "markers_used": len(model.marker_labels),
+        "smoothing_hz": result.smooth_hz,
         "overall": _stats(r),
         "per_marker": {label: _stats(r[:, k]) for k, label in enumerate(model.marker_labels)},
         "per_frame_rms_m": [None if not np.isfinite(v) else round(float(v), 6) for v in per_frame],

@@ -36,6 +36,14 @@ a user writes one for their own set in the same form)::
   identity rotations give a T-pose facing +Z with Y up and the body's left on +X.
 * POINTS: a list of marker labels and ``@segment`` (that segment's joint centre), averaged.
 * ``end``: POINTS of a leaf segment's end site.
+* ``link``: ``true`` for a segment the set has (almost) no markers for but the body
+  bends at -- the neck between thorax and head, a clavicle between thorax and upper
+  arm. Its proximal joint comes from the ``prior`` alone (no range-of-motion test),
+  its frame starts as its parent's, and inverse kinematics rotates it against a
+  spring ``stiffness`` (metres per radian, default :data:`LINK_STIFFNESS_M_PER_RAD`)
+  pulling it back to its parent's orientation, so the head or shoulder can translate
+  relative to the trunk without absorbing every residual. ``markers`` may list markers
+  riding it (an acromion marker on a clavicle) or be empty. ``axes`` is not needed.
 """
 
 from __future__ import annotations
@@ -51,6 +59,7 @@ from skincap.errors import FormatError, ValidationError
 
 __all__ = [
     "BUILTIN_TEMPLATES",
+    "LINK_STIFFNESS_M_PER_RAD",
     "SegmentSpec",
     "Template",
     "load_template",
@@ -66,6 +75,10 @@ BUILTIN_TEMPLATES: dict[str, str] = {
 }
 
 _AXES = ("x", "y", "z")
+
+#: Default spring of a ``link`` segment: a 0.1 rad (5.7 deg) turn away from its parent
+#: costs as much as a 3 mm marker residual.
+LINK_STIFFNESS_M_PER_RAD = 0.03
 
 
 @dataclass
@@ -83,6 +96,8 @@ class SegmentSpec:
     via: list[str] = field(default_factory=list)
     fixed_joints: list[dict[str, Any]] = field(default_factory=list)
     end: list[str] | None = None
+    link: bool = False
+    stiffness: float = LINK_STIFFNESS_M_PER_RAD
 
 
 @dataclass
@@ -117,6 +132,29 @@ def _points(where: str, value: Any) -> list[str]:
     return list(value)
 
 
+def _check_axes(bad: Any, name: str, parent: str | None, axes: Any) -> None:
+    """Validate a segment's ``axes`` (see the module docstring); ``bad`` builds the error."""
+    if not isinstance(axes, list) or len(axes) != 2:
+        raise bad(f"segment {name!r}: 'axes' needs two entries")
+    first, second = axes
+    if not (isinstance(first, list) and len(first) == 3 and first[0] in _AXES):
+        raise bad(f"segment {name!r}: first axis must be [axis, FROM, TO]")
+    _points(f"segment {name!r} axis", first[1])
+    _points(f"segment {name!r} axis", first[2])
+    if not (isinstance(second, list) and second and second[0] in _AXES and second[0] != first[0]):
+        raise bad(f"segment {name!r}: second axis must name another of x, y, z")
+    if len(second) == 2:
+        ref = second[1]
+        if not (isinstance(ref, str) and (ref == "parent" or ref.lstrip("-").startswith("hinge:"))):
+            raise bad(
+                f"segment {name!r}: second axis reference must be 'parent' or '[-]hinge:SEGMENT'"
+            )
+        if ref == "parent" and parent is None:
+            raise bad(f"segment {name!r}: the root cannot take its axis from a parent")
+    elif len(second) != 3:
+        raise bad(f"segment {name!r}: second axis must be [axis, FROM, TO] or [axis, REFERENCE]")
+
+
 def _parse(data: Any, source: str) -> Template:
     def bad(what: str) -> FormatError:
         return FormatError(source, f"template: {what}")
@@ -134,10 +172,20 @@ def _parse(data: Any, source: str) -> Template:
             name = str(raw["name"])
             joint = str(raw["joint"])
             markers = [str(m) for m in raw.get("markers", [])]
-            axes = raw["axes"]
+            link = raw.get("link", False)
+            axes = raw.get("axes", []) if link else raw["axes"]
         except KeyError as exc:
             raise bad(f"segment {k}: missing field {exc.args[0]!r}") from None
         parent = raw.get("parent")
+        if not isinstance(link, bool):
+            raise bad(f"segment {name!r}: 'link' must be true or false")
+        stiffness = raw.get("stiffness", LINK_STIFFNESS_M_PER_RAD)
+        if link and parent is None:
+            raise bad(f"segment {name!r}: the root cannot be a link")
+        if not isinstance(stiffness, (int, float)) or not stiffness > 0:
+            raise bad(
+                f"segment {name!r}: 'stiffness' must be a positive number (metres per radian)"
+            )
         if name in names:
             raise bad(f"segment {name!r} appears twice")
         if parent is not None and parent not in names:
@@ -152,31 +200,8 @@ def _parse(data: Any, source: str) -> Template:
         if dup or len(set(markers)) != len(markers):
             raise bad(f"segment {name!r}: marker(s) {sorted(dup) or markers} on two segments")
         seen_markers.update(markers)
-        if not isinstance(axes, list) or len(axes) != 2:
-            raise bad(f"segment {name!r}: 'axes' needs two entries")
-        first, second = axes
-        if not (isinstance(first, list) and len(first) == 3 and first[0] in _AXES):
-            raise bad(f"segment {name!r}: first axis must be [axis, FROM, TO]")
-        _points(f"segment {name!r} axis", first[1])
-        _points(f"segment {name!r} axis", first[2])
-        if not (
-            isinstance(second, list) and second and second[0] in _AXES and second[0] != first[0]
-        ):
-            raise bad(f"segment {name!r}: second axis must name another of x, y, z")
-        if len(second) == 2:
-            ref = second[1]
-            if not (
-                isinstance(ref, str) and (ref == "parent" or ref.lstrip("-").startswith("hinge:"))
-            ):
-                raise bad(
-                    f"segment {name!r}: second axis reference must be 'parent' or '[-]hinge:SEGMENT'"
-                )
-            if ref == "parent" and parent is None:
-                raise bad(f"segment {name!r}: the root cannot take its axis from a parent")
-        elif len(second) != 3:
-            raise bad(
-                f"segment {name!r}: second axis must be [axis, FROM, TO] or [axis, REFERENCE]"
-            )
+        if not link:
+            _check_axes(bad, name, parent, axes)
         centre = raw.get("centre")
         if parent is not None:
             if not isinstance(centre, dict) or centre.get("kind") not in ("ball", "hinge"):
@@ -204,6 +229,8 @@ def _parse(data: Any, source: str) -> Template:
                 end=None
                 if raw.get("end") is None
                 else _points(f"segment {name!r} end", raw["end"]),
+                link=link,
+                stiffness=float(stiffness),
             )
         )
         names.add(name)

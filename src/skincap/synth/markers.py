@@ -297,9 +297,12 @@ def _landmark_rays(
         add(f"{s}WRA", wr, _perp(z + 0.2 * side, fore))
         add(f"{s}WRB", wr, _perp(-z + 0.2 * side, fore))
         add(f"{s}FIN", _hand_end(pos, lm, k), _perp(y + side, fore))
-        pelvis_side = pelvis + 0.8 * (hip - pelvis) + 0.09 * (neck - pelvis) / np.linalg.norm(trunk)
-        add(f"{s}ASI", pelvis_side, z + 0.25 * side)
-        add(f"{s}PSI", pelvis + 0.45 * (hip - pelvis) + 0.1 * _unit(trunk), -z)
+        # iliac spines: ASIS above and lateral of the hip joint, PSIS over the sacral
+        # dimples (Harrington et al. 2007 place the hip ~9 cm below and ~3 cm medial of
+        # the ASIS); sparse_marker_layout then keeps them on skin bound to the pelvis
+        up = _unit(trunk)
+        add(f"{s}ASI", hip + ASIS_ABOVE_HIP_M * up + ASIS_LATERAL_OF_HIP_M * side, z + 0.25 * side)
+        add(f"{s}PSI", pelvis + ASIS_ABOVE_HIP_M * up + PSIS_FROM_MIDLINE_M * side, -z)
         thigh, shin = kn - hip, an - kn
         add(f"{s}THI", hip + 0.55 * thigh, _perp(side + 0.3 * z, thigh))
         add(f"{s}KNE", kn, _perp(side, shin))
@@ -309,6 +312,65 @@ def _landmark_rays(
         add(f"{s}TOE", toe, y + 0.6 * z)
         add(f"{s}MT5", toe - 0.02 * z, side)
     return labels, np.array(origins), np.array(dirs)
+
+
+#: Iliac-spine landmarks (metres): ASIS above and lateral of the hip joint centre, PSIS
+#: from the midline at the same height (the sparse set's pelvis markers).
+ASIS_ABOVE_HIP_M = 0.07
+ASIS_LATERAL_OF_HIP_M = 0.03
+PSIS_FROM_MIDLINE_M = 0.045
+
+#: A pelvis marker sits on skin that follows the pelvis (the skeleton's root and the
+#: joints between it and the hip joints, e.g. CMU ``LHipJoint``, MakeHuman ``pelvis.L``)
+#: with at least this skinning weight; a landmark whose skin the body's weights give
+#: partly to the spine or the thighs moves to the nearest vertex that does, so the
+#: pelvis markers are a rigid cluster as on a real pelvis. A body with no such skin
+#: (MakeHuman's weights give the hips' skin to spine04/05) keeps the landmarks.
+PELVIS_BOUND_WEIGHT = 0.9
+
+_PELVIS_LABELS = ("LASI", "RASI", "LPSI", "RPSI")
+
+
+def _pelvis_weight(skin: Skin, hip_positions: np.ndarray) -> np.ndarray:
+    """(V,) skinning weight of each vertex on the pelvis joints: the root and every
+    ancestor of the joints at ``hip_positions (2, 3)`` (the hip joint centres)."""
+    parents = skin.skeleton.parents
+    where = skin.bind_matrices[:, :3, 3]  # (J, 3)
+    pelvis = set(np.flatnonzero(parents < 0).tolist())
+    for hip in hip_positions:
+        j = int(np.argmin(np.linalg.norm(where - hip, axis=1)))
+        while parents[j] >= 0:
+            j = int(parents[j])
+            pelvis.add(j)
+    members = np.isin(skin.joint_indices, sorted(pelvis))
+    return np.where(members, skin.joint_weights, 0.0).sum(axis=1)
+
+
+def _bind_to_pelvis(
+    mesh: Mesh, face: np.ndarray, bary: np.ndarray, which: np.ndarray, hips: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move markers ``which`` (bool (N,)) whose skin is bound to the pelvis
+    (:func:`_pelvis_weight`) with a weight under :data:`PELVIS_BOUND_WEIGHT` to the
+    nearest vertex bound at least that much (unchanged without a skin or such a vertex)."""
+    if mesh.skin is None or not which.any():
+        return face, bary
+    w_pelvis = _pelvis_weight(mesh.skin, hips)
+    bound = np.flatnonzero(w_pelvis >= PELVIS_BOUND_WEIGHT)
+    if bound.size == 0:
+        return face, bary
+    corners = mesh.faces[face]  # (N, 3)
+    loose = which & (np.einsum("nk,nk->n", bary, w_pelvis[corners]) < PELVIS_BOUND_WEIGHT)
+    if not loose.any():
+        return face, bary
+    hit = np.einsum("lk,lkx->lx", bary[loose], mesh.vertices[corners[loose]])
+    _, nearest = cKDTree(mesh.vertices[bound]).query(hit)
+    vertex = bound[nearest]  # (L,)
+    # the marker on that vertex, as the corner of one of its triangles
+    used, first = np.unique(mesh.faces.ravel(), return_index=True)
+    face, bary = face.copy(), bary.copy()
+    face[loose] = first[np.searchsorted(used, vertex)] // 3
+    bary[loose] = (mesh.faces[face[loose]] == vertex[:, None]).astype(np.float64)
+    return face, bary
 
 
 def _surface_points_from_rays(
@@ -346,9 +408,12 @@ def sparse_marker_layout(
     """A conventional 41-marker set on bony landmarks, CMU-like labels.
 
     Each landmark is a ray from a joint (or a point between joints) in an anatomical
-    direction -- LELB from the left elbow joint laterally, LASI from the front of the
-    pelvis forwards, LHEE from the ankle backwards -- and the marker is where the ray
-    leaves the skin (the closest surface point if the ray misses).
+    direction -- LELB from the left elbow joint laterally, LASI from above and lateral
+    of the hip joint forwards, LHEE from the ankle backwards -- and the marker is where
+    the ray leaves the skin (the closest surface point if the ray misses). The four
+    pelvis markers (LASI, RASI, LPSI, RPSI) stay on skin the mesh's skin binds to the
+    pelvis (weight >= :data:`PELVIS_BOUND_WEIGHT` on the root and the joints up to the
+    hips), the nearest such point to the landmark, so they move rigidly with it.
 
     Parameters
     ----------
@@ -379,6 +444,9 @@ def sparse_marker_layout(
     pos = _joint_positions(mesh, joints)
     labels, origins, dirs = _landmark_rays(mesh, pos)
     face, bary = _surface_points_from_rays(mesh, origins, dirs)
+    lm = _landmark_joints(pos)
+    hips = np.stack([lm["thigh_l"], lm["thigh_r"]])
+    face, bary = _bind_to_pelvis(mesh, face, bary, np.isin(labels, _PELVIS_LABELS), hips)
     order = [labels.index(s) for s in SPARSE_LABELS]
     return MarkerLayout(
         face=face[order],

@@ -58,6 +58,7 @@ def solve_file(
     markers_out: str | os.PathLike[str] | None = None,
     report: str | os.PathLike[str] | None = None,
     force: bool = False,
+    smooth_hz: float | None = None,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Solve ``input_path`` and write the BVH (and the optional outputs).
@@ -78,6 +79,8 @@ def solve_file(
         Where to write the JSON residual report.
     force : bool
         Replace existing outputs.
+    smooth_hz : float, optional
+        Low-pass cut-off (Hz) of the solved poses; default none.
     progress : callable(fraction, label), optional
 
     Returns
@@ -95,6 +98,11 @@ def solve_file(
             f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
         )
     markers = read_labelled_markers(input_path)
+    if smooth_hz is not None and not 0.0 < smooth_hz < 0.5 * markers.rate:
+        raise ValidationError(
+            f"--smooth-hz: expected between 0 and {0.5 * markers.rate:g} Hz (half the "
+            f"{markers.rate:g} Hz frame rate), got {smooth_hz:g}"
+        )
     from skincap.solve import solve_markers
 
     if template == "auto":
@@ -103,7 +111,7 @@ def solve_file(
         tpl: Any = auto_template(markers).template
     else:
         tpl = template
-    result = solve_markers(markers, tpl, progress=progress)
+    result = solve_markers(markers, tpl, smooth_hz=smooth_hz, progress=progress)
     rep = result.report()
     rep["input"] = os.fspath(input_path)
     outputs: list[str] = []
