@@ -388,3 +388,29 @@ def test_reacquire_follows_the_rope_out_along_its_spacing(steps) -> None:  # typ
     state.positions[0] = before
     assert not steps.reacquire_on_shell(state, 1, p)
     assert not state.known.any()
+
+
+def test_reacquire_leaves_a_point_seen_beside_the_trace_alone(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing, m = 0.1, 6
+    rope = np.zeros((m, 3))
+    rope[:, 0] = spacing * np.arange(m)
+    hand = rope[0] + [0.0, 0.04, 0.0]  # on marker 1's shell, 4 cm from where marker 0 was
+    still = np.concatenate([rope, [hand]])
+    cloud = _cloud(still, still, np.concatenate([rope[1:], [hand]]))  # marker 0 drops out
+
+    def reacquired(measured_before: bool) -> bool:
+        state, p = blank_state(cloud, [spacing] * (m - 1), gamma=0.03)
+        state.positions[:2] = rope
+        state.point_index[0] = np.arange(m)
+        state.point_index[1] = m + 1 + np.arange(m)
+        if not measured_before:
+            state.point_index[:2, 0] = -1
+        state.cur[1:] = rope[1:]
+        state.known[1:] = True
+        state.taken[1:] = 2 * (m + 1) + np.arange(m - 1)
+        return bool(steps.reacquire_on_shell(state, 2, p))
+
+    # the hand marker stood beside marker 0 while it was measured: not the rope
+    assert not reacquired(True)
+    # with no such evidence (marker 0 never measured) the point on the shell is taken
+    assert reacquired(False)

@@ -733,13 +733,45 @@ def _seat_nearest(
         r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
         ok &= (r >= shell[0]) & (r <= shell[1])
     for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[: int(ok.sum())]:
-        if rigid_with_body(state, t, -1, a + int(c), p):
+        if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
+            state, t, -1, a + int(c), p
+        ):
             continue
         state.known[j] = True
         state.taken[j] = a + int(c)
         state.cur[j] = frame[c]
         free[c] = False
         return True
+    return False
+
+
+def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
+    """True when ``point`` of frame t was seen beside trace ``j``'s own marker.
+
+    The point is followed back (nearest point within γ of where its last move takes
+    it) through the frames trace ``j`` was not measured in, up to ``rigid_window``
+    frames; at the first frame it was measured, a path that reaches another point
+    more than γ away means the two existed side by side: a hand marker beside the
+    held end, not the end coming back from a dropout. A path that breaks (moved
+    farther than γ from its prediction: the rope moving fast) is no evidence.
+    """
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x = points[point]
+    v = np.zeros(3)
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = int(offsets[f]), int(offsets[f + 1])
+        if fb == fa:
+            return False
+        d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
+        n = int(np.argmin(d))
+        if not d[n] <= p.gamma:
+            return False
+        mine = int(point_index[f, j])
+        if mine >= 0:
+            e = points[fa + n] - points[mine]
+            return fa + n != mine and bool(np.sqrt(e @ e) > p.gamma)
+        v = x - points[fa + n]
+        x = points[fa + n]
     return False
 
 
