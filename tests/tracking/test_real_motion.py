@@ -69,23 +69,14 @@ def test_invented_rope_markers_stay_within_the_ropes_reach(tracked, name: str) -
         assert any(f"{int(track.lost.sum())} of" in str(w.message) for w in caught)
 
 
-#: rope/body F1 the tracker reaches today on each scene (issue #15's target is 0.99)
-F1_NOW = {"cmu_whip": 0.93, "aml_whip": 0.99, "pyomeca_whip": 0.99, "pig_jump": 0.99}
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("name", list(SCENES))
-def test_rope_body_f1_does_not_regress(tracked, name: str) -> None:  # type: ignore[no-untyped-def]
+def test_issue_targets_rope_body_f1_and_no_trace_lost(tracked, name: str) -> None:  # type: ignore[no-untyped-def]
+    # issue #15's targets on every scene: F1 >= 0.99 (the fast CMU hand reversing at
+    # 9-15 cm per frame included: 0.741 over the whole take before re-acquisition on
+    # the rope's spacing shell), no trace lost
     take, track, _ = tracked[name]
     scores = classify_points(track, take.points, take.point_truth)
     assert scores["precision"] >= 0.99  # the rope never takes the body's markers
-    assert scores["f1"] >= F1_NOW[name]
-
-
-@pytest.mark.slow
-@pytest.mark.xfail(
-    strict=True, reason="issue #15 target not met yet: the fast CMU hand, F1 0.951 (2 s take)"
-)
-def test_issue_target_f1_on_the_fast_cmu_hand(tracked) -> None:  # type: ignore[no-untyped-def]
-    take, track, _ = tracked["cmu_whip"]
-    assert classify_points(track, take.points, take.point_truth)["f1"] >= 0.99
+    assert scores["f1"] >= 0.99
+    assert not track.lost.any()

@@ -330,3 +330,87 @@ def test_commit_frame_writes_the_row_and_advances_the_state(steps) -> None:  # t
     np.testing.assert_array_equal(state.point_index[1], [3, -1, -1])
     np.testing.assert_array_equal(state.positions[1], state.cur)
     np.testing.assert_allclose(state.velocity, [[0.0, 0.01, 0], [0.0, 0.02, 0], [0.0, 0.03, 0]])
+
+
+def test_link_rest_learns_the_longest_accepted_chord_up_to_the_stretch(steps) -> None:  # type: ignore[no-untyped-def]
+    cur = np.array([[0.0, 0, 0], [0.105, 0, 0], [0.305, 0, 0], [0.395, 0, 0]])
+    state, p = blank_state(_cloud(cur, cur), [0.1, 0.1, 0.1], gamma=0.03)
+    state.cur[:] = cur
+    state.known[:] = [True, True, True, False]
+    steps.learn_link_rest(state, p)
+    # a longer chord raises the link; one beyond the stretch (1.1) stops there; a link
+    # with an unmeasured end learns nothing
+    np.testing.assert_allclose(state.link_rest, [0.105, 0.11, 0.1])
+    state.cur[1] = [0.09, 0, 0]  # a shorter chord never lowers it
+    steps.learn_link_rest(state, p)
+    np.testing.assert_allclose(state.link_rest, [0.105, 0.11, 0.1])
+
+
+def test_the_stretch_rule_uses_the_learnt_link_rest(steps) -> None:  # type: ignore[no-untyped-def]
+    gamma = 0.03
+    # marker 2 sits 0.4 γ + 3 mm beyond the still window's (slack) spacing from marker 1
+    cur = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2 + 0.4 * gamma + 0.003, 0, 0]])
+
+    def kept(link_rest: float) -> np.ndarray:
+        state, p = blank_state(_cloud(cur, cur), [0.1, 0.1], gamma=gamma)
+        state.link_rest[:] = link_rest
+        state.cur[:] = cur
+        state.known[:] = True
+        state.taken[:] = [3, 4, 5]
+        steps.reject_overstretched(state, 1, p)
+        return state.known.copy()
+
+    np.testing.assert_array_equal(kept(0.1), [True, True, False])
+    np.testing.assert_array_equal(kept(0.105), [True, True, True])  # the rope showed 10.5 cm
+
+
+def test_reacquire_follows_the_rope_out_along_its_spacing(steps) -> None:  # type: ignore[no-untyped-def]
+    gamma, spacing, m = 0.03, 0.1, 6
+    before = np.zeros((m, 3))
+    before[:, 0] = spacing * np.arange(m)
+    # the rope moved 8 cm (beyond every gate of V) and bent 45° at marker 2
+    after = before + [0.0, 0.08, 0.0]
+    turn = np.array([np.cos(np.pi / 4), np.sin(np.pi / 4), 0.0])
+    after[3:] = after[2] + spacing * np.arange(1, m - 2)[:, None] * turn
+    body_point = before[0] + [0.0, 0.05, 0.0]  # nearer marker 0's V than the rope: body
+    off_shell = after[2] + [spacing, 0.0, 0.06]  # 6 cm from the straight link: off the shell
+    frame1 = np.concatenate([after[::-1], [body_point, off_shell]])
+    cloud = _cloud(before, frame1)
+    state, p = blank_state(cloud, [spacing] * (m - 1), gamma=gamma)
+    state.positions[0] = before
+    state.body[m + m] = True  # frame 1's body point (frame 0 has m points)
+    assert steps.reacquire_on_shell(state, 1, p)
+    assert state.known.all()
+    np.testing.assert_array_equal(state.taken, m + np.arange(m)[::-1])
+    np.testing.assert_allclose(state.cur, after)
+    # nothing on the shell: nothing taken
+    state, p = blank_state(_cloud(before, np.array([[5.0, 5.0, 5.0]])), [spacing] * (m - 1))
+    state.positions[0] = before
+    assert not steps.reacquire_on_shell(state, 1, p)
+    assert not state.known.any()
+
+
+def test_reacquire_leaves_a_point_seen_beside_the_trace_alone(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing, m = 0.1, 6
+    rope = np.zeros((m, 3))
+    rope[:, 0] = spacing * np.arange(m)
+    hand = rope[0] + [0.0, 0.04, 0.0]  # on marker 1's shell, 4 cm from where marker 0 was
+    still = np.concatenate([rope, [hand]])
+    cloud = _cloud(still, still, np.concatenate([rope[1:], [hand]]))  # marker 0 drops out
+
+    def reacquired(measured_before: bool) -> bool:
+        state, p = blank_state(cloud, [spacing] * (m - 1), gamma=0.03)
+        state.positions[:2] = rope
+        state.point_index[0] = np.arange(m)
+        state.point_index[1] = m + 1 + np.arange(m)
+        if not measured_before:
+            state.point_index[:2, 0] = -1
+        state.cur[1:] = rope[1:]
+        state.known[1:] = True
+        state.taken[1:] = 2 * (m + 1) + np.arange(m - 1)
+        return bool(steps.reacquire_on_shell(state, 2, p))
+
+    # the hand marker stood beside marker 0 while it was measured: not the rope
+    assert not reacquired(True)
+    # with no such evidence (marker 0 never measured) the point on the shell is taken
+    assert reacquired(False)

@@ -112,14 +112,17 @@ _STEPS = (
     "gap_predictions",
     "match_missing",
     "zipper_predictions",
+    "reacquire_on_shell",
     "swap_onto_curve",
     "place_invented",
     "commit_frame",
+    "learn_link_rest",
 )
-# what a step may change: the take (points, offsets, arclength, spacing, weights) never
+# what a step may change: the take (points, offsets, arclength, spacing, weights) never;
+# link_rest is learnt while tracking
 _CHANGING = (
     "positions", "invented", "point_index", "lost_frames", "velocity", "temp_count",
-    "body", "body_vel", "cur", "known", "taken",
+    "body", "body_vel", "cur", "known", "taken", "link_rest",
 )  # fmt: skip
 
 

@@ -39,10 +39,12 @@ __all__ = [
     "commit_frame",
     "continue_body_chains",
     "gap_predictions",
+    "learn_link_rest",
     "match_measured",
     "match_missing",
     "match_traces",
     "place_invented",
+    "reacquire_on_shell",
     "reject_odd_motion",
     "reject_overstretched",
     "residual_predictions",
@@ -88,6 +90,21 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
         for c in range(3):
             state.positions[t, j, c] = state.cur[j, c]
             state.velocity[j, c] = state.cur[j, c] - prev[j, c]
+    learn_link_rest(state, p)
+
+
+@numba.njit(**JIT)
+def learn_link_rest(state, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.learn_link_rest`."""
+    known, cur = state.known, state.cur
+    for j in range(known.size - 1):
+        if known[j] and known[j + 1]:
+            chord = norm3(
+                cur[j + 1, 0] - cur[j, 0], cur[j + 1, 1] - cur[j, 1], cur[j + 1, 2] - cur[j, 2]
+            )
+            chord = min(chord, p.stretch * state.spacing[j])
+            if chord > state.link_rest[j]:
+                state.link_rest[j] = chord
 
 
 # ------------------------------------------------------------------ body points
@@ -424,10 +441,13 @@ def _measured(known):  # pragma: no cover - runs compiled
 
 
 @numba.njit(**JIT)
-def _link_limit(s, ja, jb, gamma, p):  # pragma: no cover - runs compiled
-    """Largest chord between measured markers ja < jb, metres."""
+def _link_limit(s, link_rest, ja, jb, gamma, p):  # pragma: no cover - runs compiled
+    """Largest chord between measured markers ja < jb, metres (neighbours: from the
+    larger of the rest arc length and the learnt ``link_rest``)."""
     ds = s[jb] - s[ja]
-    return ds + p.adjacent_stretch * gamma if jb - ja == 1 else p.stretch * ds + gamma
+    if jb - ja == 1:
+        return max(ds, link_rest[ja]) + p.adjacent_stretch * gamma
+    return p.stretch * ds + gamma
 
 
 @numba.njit(**JIT)
@@ -442,7 +462,7 @@ def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
     for q in range(n - 1):
         a, b = idx[q], idx[q + 1]
         chord = norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
-        if not chord <= _link_limit(s, a, b, gamma, p):
+        if not chord <= _link_limit(s, state.link_rest, a, b, gamma, p):
             ok = False
             break
     if ok:
@@ -461,7 +481,7 @@ def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
             ja, jb = idx[a], idx[b]
             ds = s[jb] - s[ja]
             dist = norm3(cur[ja, 0] - cur[jb, 0], cur[ja, 1] - cur[jb, 1], cur[ja, 2] - cur[jb, 2])
-            if dist <= _link_limit(s, ja, jb, gamma, p):
+            if dist <= _link_limit(s, state.link_rest, ja, jb, gamma, p):
                 dev = (ds - dist) / (ds if ds > 0 else 1.0)
                 squeeze = min(max(dev, 0.0), 1.0) + min(max(-dev, 0.0), 1.0)
                 gain = w[b] - 0.5 * squeeze
@@ -583,6 +603,125 @@ def zipper_predictions(state, p):  # pragma: no cover - runs compiled
                     pred[j, c] = cur[j1, c] + (rest / norm) * e[c]
                 want[j] = True
     return np.nonzero(want)[0], pred
+
+
+# ------------------------------------------------------------------ re-acquisition
+@numba.njit(**JIT)
+def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.reacquire_on_shell`."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    known, cur, link_rest = state.known, state.cur, state.link_rest
+    m = known.size
+    if b == a:
+        return False
+    prev = state.positions[t - 1]
+    free = ~state.body[a:b]
+    for j in range(m):
+        if known[j]:
+            free[state.taken[j] - a] = False
+    found = False
+    if not known.any():
+        for j in (0, m - 1):
+            rest = link_rest[min(j, m - 2)]
+            want = prev[j] + state.velocity[j]
+            if _seat_nearest(state, t, j, want, rest, False, 0.0, 0.0, want, free, p):
+                found = True
+    for _ in range(m):
+        grew = False
+        for j in range(m):
+            for k in (j - 1, j + 1):
+                if known[j] or not (0 <= k < m and known[k]):
+                    continue
+                rest = link_rest[min(j, k)]
+                want = cur[k] + (prev[j] - prev[k])
+                inner = rest - p.gamma
+                outer = rest + p.adjacent_stretch * p.gamma
+                if _seat_nearest(
+                    state, t, j, want, rest, True, inner, outer, cur[k].copy(), free, p
+                ):
+                    grew = True
+        if not grew:
+            break
+        found = True
+    if found:
+        reject_overstretched(state, t, p)
+    return found
+
+
+@numba.njit(**JIT)
+def _seat_nearest(
+    state, t, j, want, gate, use_shell, inner, outer, centre, free, p
+):  # pragma: no cover
+    """Twin of the reference's ``_seat_nearest``: the shell is (``inner``, ``outer``,
+    ``centre``) when ``use_shell``."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    points = state.points
+    n = b - a
+    d = np.full(n, _INF)
+    for c in range(n):
+        if not free[c]:
+            continue
+        q = a + c
+        dc = norm3(points[q, 0] - want[0], points[q, 1] - want[1], points[q, 2] - want[2])
+        if not dc <= gate:
+            continue
+        if use_shell:
+            r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
+            if not (r >= inner and r <= outer):
+                continue
+        d[c] = dc
+    while True:
+        best = -1
+        for c in range(n):
+            if d[c] < _INF and (best < 0 or d[c] < d[best]):
+                best = c
+        if best < 0:
+            return False
+        d[best] = _INF
+        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(state, t, -1, a + best, p):
+            continue
+        state.known[j] = True
+        state.taken[j] = a + best
+        for c in range(3):
+            state.cur[j, c] = points[a + best, c]
+        free[best] = False
+        return True
+
+
+@numba.njit(**JIT)
+def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
+    """Twin of the reference's ``_beside_trace``."""
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = offsets[f], offsets[f + 1]
+        if fb == fa:
+            return False
+        best = _INF
+        n = -1
+        for q in range(fa, fb):
+            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
+            if dq < best:
+                best = dq
+                n = q
+        if not best <= p.gamma:
+            return False
+        mine = point_index[f, j]
+        if mine >= 0:
+            e = norm3(
+                points[n, 0] - points[mine, 0],
+                points[n, 1] - points[mine, 1],
+                points[n, 2] - points[mine, 2],
+            )
+            return n != mine and e > p.gamma
+        v0 = x0 - points[n, 0]
+        v1 = x1 - points[n, 1]
+        v2 = x2 - points[n, 2]
+        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
+    return False
 
 
 # ------------------------------------------------------------------ after matching
@@ -724,6 +863,9 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
         pred = gap_predictions(state, t, p)
         if has_points:
             found_more = match_missing(state, t, pred, p)
+            if not state.known.all():
+                if reacquire_on_shell(state, t, p):
+                    found_more = True
     swapped = swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
     commit_frame(state, t, p)

@@ -15,6 +15,7 @@ A frame (:func:`track_frame`) runs::
     pred = gap_predictions                the curve inside the rope, F at its ends
     match_missing                         the rest at pred, then the zipper
         match_traces / reject_* / zipper_predictions
+    reacquire_on_shell                    the rest followed out along the rope
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
     commit_frame                          row t of the results, velocity, counts
@@ -40,10 +41,12 @@ __all__ = [
     "commit_frame",
     "continue_body_chains",
     "gap_predictions",
+    "learn_link_rest",
     "match_measured",
     "match_missing",
     "match_traces",
     "place_invented",
+    "reacquire_on_shell",
     "reject_odd_motion",
     "reject_overstretched",
     "residual_predictions",
@@ -123,6 +126,25 @@ def commit_frame(state: TrackState, t: int, p: StepParams) -> None:
     state.point_index[t] = state.taken
     state.positions[t] = state.cur
     state.velocity[:] = state.cur - state.positions[t - 1]
+    learn_link_rest(state, p)
+
+
+def learn_link_rest(state: TrackState, p: StepParams) -> None:
+    """Raise ``link_rest`` to the chords of links measured at both ends this frame
+    (beyond the thesis), capped at ``stretch`` times the rest spacing, in place.
+
+    The still window's chord is a slack rope's: shorter than the rope between the two
+    markers (8.2 cm for 9.2 cm of rope on a 1.1 m whip), so a taut link would be
+    refused as over-stretched. Every chord accepted is at most ``link_rest`` plus
+    ``adjacent_stretch γ``, so the rest length grows only by what the rope showed.
+    """
+    both = state.known[:-1] & state.known[1:]
+    e = state.cur[1:] - state.cur[:-1]
+    chord = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    cap = p.stretch * state.spacing
+    state.link_rest[:] = np.where(
+        both, np.maximum(state.link_rest, np.minimum(chord, cap)), state.link_rest
+    )
 
 
 # ------------------------------------------------------------------ body points
@@ -400,11 +422,16 @@ def reject_overstretched(state: TrackState, t: int, p: StepParams) -> None:
     chord = np.linalg.norm(xs[1:] - xs[:-1], axis=1)
     ds1 = s[idx[1:]] - s[idx[:-1]]
     adjacent = idx[1:] - idx[:-1] == 1
-    lim1 = np.where(adjacent, ds1 + p.adjacent_stretch * p.gamma, p.stretch * ds1 + p.gamma)
+    link = state.link_rest[np.minimum(idx[:-1], state.link_rest.size - 1)]
+    lim1 = np.where(
+        adjacent, np.maximum(ds1, link) + p.adjacent_stretch * p.gamma, p.stretch * ds1 + p.gamma
+    )
     if np.all(chord <= lim1):
         return
     rigid = np.array([rigid_with_body(state, t, int(j), int(state.taken[j]), p) for j in idx])
-    keep = _keep_best_chain(cur[idx], s[idx], idx, rigid, p.gamma, p.stretch, p.adjacent_stretch)
+    keep = _keep_best_chain(
+        cur[idx], s[idx], idx, rigid, p.gamma, p.stretch, p.adjacent_stretch, state.link_rest
+    )
     rows = idx[~keep]
     known[rows] = False
     state.taken[rows] = -1
@@ -418,11 +445,14 @@ def _keep_best_chain(
     gamma: float,
     stretch: float,
     adjacent_stretch: float,
+    link_rest: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n,) bool: the measured markers kept, by dynamic programming over the chain.
 
     ``xs`` (n, 3) their positions, ``si`` (n,) rest arc lengths, ``idx`` (n,) marker
-    numbers, ``rigid`` (n,) bool body-like. Each marker kept counts +1 (-1 where
+    numbers, ``rigid`` (n,) bool body-like; ``link_rest`` (M - 1,) metres, each link's
+    learnt rest length (``TrackState.link_rest``), raises a neighbouring pair's limit
+    above its rest arc length (default: the arc length only). Each marker kept counts +1 (-1 where
     body-like: the body-like side of a stretched link goes, never the rope-like
     side), each link less half its deformation (chord below or beyond the rest arc
     length, relative: a trace that slipped onto its neighbour's marker, or onto a
@@ -432,7 +462,11 @@ def _keep_best_chain(
     dist = np.linalg.norm(xs[:, None] - xs[None, :], axis=2)  # (n, n)
     ds = si[None, :] - si[:, None]  # s_b - s_a
     adjacent = idx[None, :] - idx[:, None] == 1
-    limit = np.where(adjacent, ds + adjacent_stretch * gamma, stretch * ds + gamma)
+    rest = ds
+    if link_rest is not None:
+        link = link_rest[np.minimum(idx, link_rest.size - 1)]  # the link after each marker
+        rest = np.maximum(ds, link[:, None])
+    limit = np.where(adjacent, rest + adjacent_stretch * gamma, stretch * ds + gamma)
     feasible = np.triu(dist <= limit, k=1)
     dev = (ds - dist) / np.where(ds > 0, ds, 1.0)
     squeeze = np.clip(dev, 0.0, 1.0) + np.clip(-dev, 0.0, 1.0)  # compressed or stretched
@@ -628,6 +662,119 @@ def zipper_predictions(state: TrackState, p: StepParams) -> tuple[np.ndarray, np
     return np.nonzero(lo | hi)[0], pred
 
 
+# ------------------------------------------------------------------ re-acquisition
+def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
+    """Find the rope again by following it out from what is measured (beyond the thesis).
+
+    Porter's initialisation follows the rope from marker to marker at the rope's
+    spacing; this does the same inside a frame for the traces still unknown after
+    every prediction missed (a hand reversing at 10 cm per frame, a hanging end that
+    swung while it was hidden). An unknown marker ``j`` beside a measured marker ``k``
+    takes the free point of frame t on the shell around ``k`` at its learnt rest
+    length (``link_rest``, from ``-γ`` to ``+adjacent_stretch γ``) nearest to where the
+    previous frame's link puts it, ``m_k + (x_j^{t-1} - x_k^{t-1})``, within one rest
+    length of that (the link turned by at most 60° in a frame). With nothing measured,
+    the two end traces are seeded first: the free point nearest to ``V`` within one
+    rest length. Free points are those the rope did not take, not body points and
+    not moving rigidly with body points (:func:`rigid_with_body`). Markers are
+    visited in order, each growing the chain for the next, until a pass finds
+    nothing; then :func:`reject_overstretched`. In place; True if any trace matched.
+    """
+    a, b = _frame_bounds(state, t)
+    known, cur, link_rest = state.known, state.cur, state.link_rest
+    m = known.size
+    if b == a:
+        return False
+    prev = state.positions[t - 1]
+    free = ~state.body[a:b]
+    free[state.taken[known] - a] = False
+    found = False
+    if not known.any():
+        for j in (0, m - 1):
+            rest = link_rest[min(j, m - 2)]
+            found |= _seat_nearest(state, t, j, prev[j] + state.velocity[j], rest, None, free, p)
+    for _ in range(m):
+        grew = False
+        for j in range(m):
+            for k in (j - 1, j + 1):
+                if known[j] or not (0 <= k < m and known[k]):
+                    continue
+                rest = link_rest[min(j, k)]
+                want = cur[k] + (prev[j] - prev[k])
+                shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
+                grew |= _seat_nearest(state, t, j, want, rest, shell, free, p)
+        if not grew:
+            break
+        found = True
+    if found:
+        reject_overstretched(state, t, p)
+    return found
+
+
+def _seat_nearest(
+    state: TrackState,
+    t: int,
+    j: int,
+    want: np.ndarray,
+    gate: float,
+    shell: tuple[float, float, np.ndarray] | None,
+    free: np.ndarray,
+    p: StepParams,
+) -> bool:
+    """Trace ``j`` takes the free point of frame t nearest to ``want`` (3,) within
+    ``gate`` metres (and within ``shell`` = (inner, outer radius, centre) if given)
+    that does not move rigidly with body points; ``free`` (frame's points,) bool is
+    updated. True if it took one."""
+    a, b = _frame_bounds(state, t)
+    frame = state.points[a:b]
+    d = np.sqrt(_squared_distances(frame, want[None])[:, 0])
+    ok = free & (d <= gate)
+    if shell is not None:
+        r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
+        ok &= (r >= shell[0]) & (r <= shell[1])
+    for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[: int(ok.sum())]:
+        if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
+            state, t, -1, a + int(c), p
+        ):
+            continue
+        state.known[j] = True
+        state.taken[j] = a + int(c)
+        state.cur[j] = frame[c]
+        free[c] = False
+        return True
+    return False
+
+
+def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
+    """True when ``point`` of frame t was seen beside trace ``j``'s own marker.
+
+    The point is followed back (nearest point within γ of where its last move takes
+    it) through the frames trace ``j`` was not measured in, up to ``rigid_window``
+    frames; at the first frame it was measured, a path that reaches another point
+    more than γ away means the two existed side by side: a hand marker beside the
+    held end, not the end coming back from a dropout. A path that breaks (moved
+    farther than γ from its prediction: the rope moving fast) is no evidence.
+    """
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x = points[point]
+    v = np.zeros(3)
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = int(offsets[f]), int(offsets[f + 1])
+        if fb == fa:
+            return False
+        d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
+        n = int(np.argmin(d))
+        if not d[n] <= p.gamma:
+            return False
+        mine = int(point_index[f, j])
+        if mine >= 0:
+            e = points[fa + n] - points[mine]
+            return fa + n != mine and bool(np.sqrt(e @ e) > p.gamma)
+        v = x - points[fa + n]
+        x = points[fa + n]
+    return False
+
+
 # ------------------------------------------------------------------ after matching
 def swap_onto_curve(state: TrackState, t: int, p: StepParams) -> bool:
     """Move a trace off a body point onto the rope marker it lost (beyond the thesis).
@@ -751,6 +898,8 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
         pred = gap_predictions(state, t, p)
         if has_points:
             found_more = match_missing(state, t, pred, p)
+            if not state.known.all():
+                found_more |= reacquire_on_shell(state, t, p)
     swapped = swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
     commit_frame(state, t, p)

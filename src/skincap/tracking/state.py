@@ -54,6 +54,15 @@ class TrackState(NamedTuple):
         cur          (M, 3) float64, metres   the markers found so far (zero elsewhere)
         known        (M,) bool                measured this frame
         taken        (M,) int64               the point each trace took, -1 if none
+
+    Learnt while tracking::
+
+        link_rest    (M - 1,) float64, metres  each link's rest length as the rope has
+                                              shown it: the longest chord accepted
+                                              between its two measured markers, at most
+                                              ``stretch`` times ``spacing`` (the still
+                                              window's chord is slack, shorter than the
+                                              rope between the markers)
     """
 
     points: np.ndarray
@@ -72,6 +81,7 @@ class TrackState(NamedTuple):
     cur: np.ndarray
     known: np.ndarray
     taken: np.ndarray
+    link_rest: np.ndarray
 
 
 class StepParams(NamedTuple):
@@ -183,5 +193,6 @@ def start_tracking(
         cur=np.zeros((m, 3)),
         known=np.zeros(m, dtype=bool),
         taken=np.full(m, -1, dtype=np.int64),
+        link_rest=spacing.copy(),
     )
     return state, step_params(cloud.rate, init, settings)

@@ -62,6 +62,20 @@ Beyond the thesis:
   curve through the other measured markers moves to a free point on that curve (it
   had taken a body point while its marker was hidden).
 
+* Re-acquisition (``reacquire_on_shell``): traces still unknown after every search
+  above (a hand reversing at 10 cm per frame misses every prediction by more than γ;
+  a hanging end swung while hidden) are found as Porter's initialisation finds the
+  rope: followed out from the measured markers, marker by marker, each taking the free
+  point on the shell at its rest length around its measured neighbour nearest to where
+  the previous frame's link puts it (within one rest length: the link turned less
+  than 60°); with nothing measured the two end traces are seeded first at V. Body
+  points, points moving rigidly with body points and points seen beside the trace's
+  own marker in the frames before (a hand marker beside the held end) are refused.
+* Each link's rest length (``link_rest``) is the longest chord accepted between its
+  two measured markers, at most ``stretch`` times the spacing of the still window,
+  whose hanging rope is slack (8.2 cm chords for 9.2 cm of rope): the neighbour limit
+  of the stretch rule is measured from it.
+
 The steps are written twice, with the same names and signatures: in NumPy
 (:mod:`skincap.tracking._steps_numpy`, the reference) and compiled with numba
 (:mod:`skincap.tracking._steps_numba`); both read and write one
