@@ -125,7 +125,7 @@ def test_the_first_phase_follows_the_landmarks_and_the_second_the_data() -> None
     np.testing.assert_allclose(only_global.vertices, moved, atol=1e-4)
     # without landmarks the closest points pull it over too
     full = register_mesh(v, f, markers, labels, landmarks={})
-    assert np.nanmean(full.marker_distance) < 2e-4
+    assert np.nanmean(full.marker_distance) < 5e-4
 
 
 def test_unseen_markers_are_ignored_and_reported_nan() -> None:
