@@ -156,6 +156,7 @@ def aml_rmse() -> dict[str, float]:
     return rmse
 
 
+@pytest.mark.slow  # the two AML tests with their fixture: 45 s of CPU
 def test_window_fill_on_aml(aml_rmse: dict[str, float]) -> None:
     """aml_PronetoRun01 (hand and knee markers among forearm and shank clusters):
     local_pca_window, its frame weighted by rigidity, beats the take-wide
@@ -187,6 +188,7 @@ def test_take_wide_local_pca_with_rigidity_weighted_frames() -> None:
         assert sharp < default < 0.7 * equal
 
 
+@pytest.mark.slow
 def test_adaptive_local_pca_halves_the_rigid_fill_on_aml(aml_rmse: dict[str, float]) -> None:
     """The default local_pca (blended, rigidity-weighted frames) on aml_PronetoRun01:
     at most half the rigid fill's RMSE, ahead of the paper's estimate alone."""
