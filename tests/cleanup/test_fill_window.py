@@ -7,6 +7,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap import io
@@ -135,23 +136,33 @@ def test_window_fill_beats_the_take_wide_model_on_cmu() -> None:
     assert rmse["local_pca_window"] < 0.7 * rmse["rigid_weighted"]
 
 
-def test_window_fill_on_aml() -> None:
-    """aml_PronetoRun01 (hand and knee markers among forearm and shank clusters):
-    local_pca_window, its frame weighted by rigidity, beats the take-wide
-    missing-data model and the donor-weighted rigid fill, at most half the rigid
-    fill's RMSE."""
+@pytest.fixture(scope="module")
+def aml_rmse() -> dict[str, float]:
+    """aml_PronetoRun01's labelled markers, the same seeded gaps (the plan depends on the
+    take and the seed only, not on the methods) filled by every method the two AML tests
+    compare, once: RMSE in mm per method, and ``paper`` for local_pca with
+    ``rigid_blend=0``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UnitWarning)
         markers = io.read(DATA / "aml_PronetoRun01_labeled.c3d")
     markers = markers.select(~markers.unlabelled)
+    methods = ["local_pca_window", "local_pca_missing", "rigid_weighted", "rigid", "local_pca"]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)
-        r = evaluate_fill(
-            markers,
-            methods=["local_pca_window", "local_pca_missing", "rigid_weighted", "rigid"],
-            seed=0,
-        )
+        r = evaluate_fill(markers, methods=methods, seed=0)
+        paper = evaluate_fill(markers, methods=["local_pca"], seed=0, rigid_blend=0.0)
     rmse = {m: r["results"][m]["all"]["mm"]["rmse"] for m in r["methods"]}
+    rmse["paper"] = paper["results"]["local_pca"]["all"]["mm"]["rmse"]
+    return rmse
+
+
+@pytest.mark.slow  # the two AML tests with their fixture: 45 s of CPU
+def test_window_fill_on_aml(aml_rmse: dict[str, float]) -> None:
+    """aml_PronetoRun01 (hand and knee markers among forearm and shank clusters):
+    local_pca_window, its frame weighted by rigidity, beats the take-wide
+    missing-data model and the donor-weighted rigid fill, at most half the rigid
+    fill's RMSE."""
+    rmse = aml_rmse
     assert rmse["local_pca_window"] < 0.95 * min(rmse["local_pca_missing"], rmse["rigid_weighted"])
     assert rmse["local_pca_window"] < 0.5 * rmse["rigid"]
 
@@ -177,17 +188,10 @@ def test_take_wide_local_pca_with_rigidity_weighted_frames() -> None:
         assert sharp < default < 0.7 * equal
 
 
-def test_adaptive_local_pca_halves_the_rigid_fill_on_aml() -> None:
+@pytest.mark.slow
+def test_adaptive_local_pca_halves_the_rigid_fill_on_aml(aml_rmse: dict[str, float]) -> None:
     """The default local_pca (blended, rigidity-weighted frames) on aml_PronetoRun01:
     at most half the rigid fill's RMSE, ahead of the paper's estimate alone."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UnitWarning)
-        markers = io.read(DATA / "aml_PronetoRun01_labeled.c3d")
-    markers = markers.select(~markers.unlabelled)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", SkincapWarning)
-        r = evaluate_fill(markers, methods=["local_pca", "rigid"], seed=0)
-        paper = evaluate_fill(markers, methods=["local_pca"], seed=0, rigid_blend=0.0)
-    rmse = {m: r["results"][m]["all"]["mm"]["rmse"] for m in r["methods"]}
+    rmse = aml_rmse
     assert rmse["local_pca"] < 0.5 * rmse["rigid"]
-    assert rmse["local_pca"] < 0.7 * paper["results"]["local_pca"]["all"]["mm"]["rmse"]
+    assert rmse["local_pca"] < 0.7 * rmse["paper"]

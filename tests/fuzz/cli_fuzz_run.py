@@ -36,9 +36,13 @@ from cli_fuzz_cases import (  # noqa: E402
 )  # noqa: E402
 from cli_fuzz_harness import DEFAULT_MEMORY_BYTES, judge, preload, run_cli, warm_up  # noqa: E402
 
-#: Cases per format in CI (HYPOTHESIS-like fixed budget), and in ``--long``.
-CI_CASES = {"clean": 10, "skin": 6}
-CI_DEFAULT_CASES = 48
+#: Cases per format in CI (HYPOTHESIS-like fixed budget), and in ``--long``. The CI
+#: budget is half what it was (48, 10, 6): the fixed cases alternate byte and structured
+#: mutations, so half still covers both kinds in every format; bvh keeps 26 so that its
+#: two hand-made cases (index 1, a deep chain; index 25, no channels with a huge
+#: ``Frames:``) stay in. ``SKINCAP_FUZZ_CASES=48`` restores the old budget.
+CI_CASES = {"clean": 5, "skin": 3, "bvh": 26}
+CI_DEFAULT_CASES = 24
 LONG_CASES = {"clean": 150, "skin": 100}
 LONG_DEFAULT_CASES = 1500
 #: Violations known and not yet fixed: (regex on the finding, owner). They are

@@ -357,6 +357,7 @@ def test_cli_view_bad_inputs_exit_2_with_one_line(tmp_path: Path) -> None:
     assert result.exit_code == 0 and "Example: skincap view" in result.output
 
 
+@pytest.mark.slow  # a fresh Python importing the viewer: 21 s on CI
 def test_cli_view_serves_until_interrupted() -> None:
     # a shell's background job (CI run with ``&``) inherits SIGINT ignored: give the child
     # Python's handler, as an interactive Ctrl-C has
