@@ -78,9 +78,7 @@ def animate(
         str | None, typer.Option(help="Mesh length unit (default m; MakeHuman dm).")
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the report as JSON.")
-    ] = False,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
 ) -> None:
     """Animate a body mesh with a dense marker take (Park & Hodgins 2006, §5).
 

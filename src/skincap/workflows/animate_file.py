@@ -120,7 +120,9 @@ def read_landmarks(path: Path, labels: list[str], n_vertices: int) -> dict[str, 
         if lab not in known:
             raise FormatError(path, f"landmark {lab!r} is not a marker of the take")
         if isinstance(idx, bool) or not isinstance(idx, int) or not 0 <= idx < n_vertices:
-            raise FormatError(path, f"landmark {lab!r}: vertex {idx!r} is not in 0..{n_vertices - 1}")
+            raise FormatError(
+                path, f"landmark {lab!r}: vertex {idx!r} is not in 0..{n_vertices - 1}"
+            )
         out[str(lab)] = int(idx)
     return out
 
@@ -284,7 +286,9 @@ def _animate(
     timing: list[tuple[float, int]] = []
     frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
-    per_frame = np.repeat([t / n for t, n in timing], [n for _, n in timing]) if timing else np.zeros(0)
+    per_frame = (
+        np.repeat([t / n for t, n in timing], [n for _, n in timing]) if timing else np.zeros(0)
+    )
     summary: dict[str, Any] = {
         "markers_file": str(markers_path),
         "mesh": None if paths["mesh"] is None else str(paths["mesh"]),
@@ -375,7 +379,10 @@ def _build_rig(
         surf = read_marker_surface(paths["surface"], filled_take, frame)
     else:
         surf = build_marker_surface(positions, reference_frame=frame)
-    build: dict[str, Any] = {"reference_frame": int(frame), "surface_triangles": int(surf.faces.shape[0])}
+    build: dict[str, Any] = {
+        "reference_frame": int(frame),
+        "surface_triangles": int(surf.faces.shape[0]),
+    }
     if surf.faces.shape[0] == 0:
         raise FormatError(paths["surface"] or markers_path, "the marker surface has no triangles")
     vertices = mesh.vertices
@@ -412,7 +419,9 @@ def _build_rig(
     return subject, build
 
 
-def _marker_to_mesh(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray) -> dict[str, float]:
+def _marker_to_mesh(
+    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
+) -> dict[str, float]:
     """Distance from every marker to the mesh surface: mean, p95, max (metres)."""
     from skincap.geometry.raycast import closest_points_on_mesh
 
@@ -460,7 +469,10 @@ def _timed_frames(
 ) -> Iterator[np.ndarray]:
     """The deformer's chunks, each one's wall time and frame count appended to ``timing``."""
     blocks = subject.deformer().deform(
-        positions, method, chunk=CHUNK_FRAMES, progress=_stage(progress, "deformation")  # type: ignore[arg-type]
+        positions,
+        method,
+        chunk=CHUNK_FRAMES,
+        progress=_stage(progress, "deformation"),  # type: ignore[arg-type]
     )
     while True:
         start = time.perf_counter()
