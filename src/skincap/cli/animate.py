@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from skincap.cli._app import _user_errors, app, out, print_json, stage_progress
+from skincap.cli._app import _user_errors, app, eval_app, out, print_json, stage_progress
 
 
 @app.command()
@@ -131,3 +131,111 @@ def animate(
         markup=False,
         soft_wrap=True,
     )
+
+
+# ------------------------------------------------------------------ eval animate
+_EVAL_OUTPUTS = ("animate_eval.json", "animate_errors.png")
+
+
+@eval_app.command("animate")
+def eval_animate(
+    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    input_dir: Annotated[
+        Path | None,
+        typer.Argument(
+            metavar="SYNTH_DIR", help="A folder written by 'skincap synth' (dense markers)."
+        ),
+    ] = None,
+    synth: Annotated[
+        str | None,
+        typer.Option(
+            "--synth", help="A clip (flex, jumprope, breathe, rom…) to generate into OUTPUT/take."
+        ),
+    ] = None,
+    rom: Annotated[
+        Path | None,
+        typer.Option(
+            help="A 'skincap synth --motion rom' folder of the same body and markers to learn the parts on."
+        ),
+    ] = None,
+    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 240,
+    vertices: Annotated[
+        int, typer.Option(help="Procedural body vertices of a --synth take.")
+    ] = 5000,
+    parts: Annotated[int, typer.Option(help="Near-rigid parts.")] = 17,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the held-out markers (and of a --synth take).")
+    ] = 0,
+    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    force: Annotated[
+        bool, typer.Option("--force", help="Replace outputs of an earlier run.")
+    ] = False,
+) -> None:
+    """Measure the dense chain against the true skin (Park & Hodgins Fig. 7 and 8 as numbers).
+
+    Rows: the four dense variants on the capture's own body, LBS and DQS driven by the
+    true skeleton, one global RBF interpolation of the marker displacements, and 10 %
+    of the markers held out. Writes OUTPUT/animate_eval.json and the per-vertex error
+    colour maps OUTPUT/animate_errors.png; prints the table and the issue's targets.
+
+    Example: skincap eval animate take_jumprope --rom take_rom -o eval_dense
+    """
+    import json
+
+    from skincap.errors import ValidationError
+    from skincap.evaluate.animate import evaluate_animate, plot_vertex_errors
+    from skincap.io.json_file import write_json
+    from skincap.io.output_safety import guard_outputs
+
+    paths = [output / name for name in _EVAL_OUTPUTS]
+    with _user_errors(), guard_outputs([], paths, folders=[output], force=force):
+        if (input_dir is None) == (synth is None):
+            raise ValidationError(
+                "give a folder made by skincap synth or --synth CLIP (one of them)"
+            )
+        with stage_progress("evaluating") as progress:
+            if synth is not None:
+                from skincap.workflows.synth_folder import synth_folder
+
+                input_dir = output / "take"
+                synth_folder(
+                    input_dir, motion=synth, frames=frames, vertices=vertices, seed=seed,
+                    force=force, progress=progress,
+                )  # fmt: skip
+            result = evaluate_animate(
+                input_dir, rom=rom, n_parts=parts, seed=seed, progress=progress
+            )
+        per_vertex = result.pop("per_vertex_rms_m")
+        body = result.pop("vertices")
+        result.pop("faces")
+        output.mkdir(parents=True, exist_ok=True)
+        write_json(paths[0], result, force=force, indent=2, allow_nan=False)
+        plot_vertex_errors(
+            body, per_vertex, paths[1], force=force, title=f"Vertex RMS error: {input_dir}"
+        )
+    if json_output:
+        print(json.dumps(result, indent=2, allow_nan=False))
+        return
+    for row in result["rows"]:
+        if row.get("measured"):
+            out.print(
+                f"{row['case']:<20} {row['method']:<14} RMS {row['rms_m'] * 1e3:7.3f} mm  "
+                f"mean {row['mean_m'] * 1e3:7.3f}  p95 {row['p95_m'] * 1e3:7.3f}  max {row['max_m'] * 1e3:7.3f}",
+                markup=False,
+            )
+        else:
+            out.print(
+                f"{row['case']:<20} {row['method']:<14} not measured: {row['note']}", markup=False
+            )
+    held = result["held_out"]
+    if held["mean_m"] is not None:
+        out.print(
+            f"held out {held['held_out']} of {held['markers']} markers: mean {held['mean_m'] * 1e3:.3f} mm, "
+            f"p95 {held['p95_m'] * 1e3:.3f} mm",
+            markup=False,
+        )
+    for name, t in result["targets"].items():
+        mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
+        shown = "-" if t["value"] is None else f"{t['value']:.4g}"
+        out.print(f"target {name}: {shown} (target {t['target']}): {mark}", markup=False)
+    out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
