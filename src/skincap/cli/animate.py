@@ -202,6 +202,7 @@ def eval_animate(
                     input_dir, motion=synth, frames=frames, vertices=vertices, seed=seed,
                     force=force, progress=progress,
                 )  # fmt: skip
+            assert input_dir is not None  # one of the two was checked above
             result = evaluate_animate(
                 input_dir, rom=rom, n_parts=parts, seed=seed, progress=progress
             )

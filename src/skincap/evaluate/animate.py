@@ -418,7 +418,7 @@ def _skeletal_rows(
     setup = prepare_skinning(io.read_mesh(body_path), read_bvh(motion_path))
     rows: list[dict[str, Any]] = []
     for method in ("lbs", "dqs"):
-        anim = skin_motion(setup.mesh, setup.motion, method=method)  # type: ignore[arg-type]
+        anim = skin_motion(setup.mesh, setup.motion, method=method)
         frames = np.concatenate(list(anim.iter_chunks()))[: truth.shape[0]]
         if frames.shape != truth.shape:
             rows.append({"case": "true_skeleton", "method": method, "measured": False,

@@ -33,7 +33,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -41,6 +41,7 @@ from skincap._arrays import Progress
 from skincap.errors import FormatError, OutputExistsError, SkincapWarning, ValidationError
 
 if TYPE_CHECKING:
+    from skincap.deform.dense.deformer import Method
     from skincap.deform.dense.rig import DenseRig
     from skincap.types import MarkerSet, Mesh
 
@@ -470,9 +471,9 @@ def _timed_frames(
     """The deformer's chunks, each one's wall time and frame count appended to ``timing``."""
     blocks = subject.deformer().deform(
         positions,
-        method,
+        cast("Method", method),  # checked against METHODS by _animate
         chunk=CHUNK_FRAMES,
-        progress=_stage(progress, "deformation"),  # type: ignore[arg-type]
+        progress=_stage(progress, "deformation"),
     )
     while True:
         start = time.perf_counter()
@@ -535,5 +536,5 @@ def animate_markers(
     -------
     (T, V, 3) float64, metres
     """
-    blocks = list(subject.deformer().deform(positions, method, chunk=chunk))  # type: ignore[arg-type]
+    blocks = list(subject.deformer().deform(positions, cast("Method", method), chunk=chunk))
     return np.concatenate(blocks) if blocks else np.zeros((0, subject.vertices.shape[0], 3))

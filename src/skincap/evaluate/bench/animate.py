@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from typing import Any
+from functools import partial
+from typing import Any, cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from skincap.deform.dense.deformer import METHODS, DenseDeformer
+from skincap.deform.dense.deformer import METHODS, DenseDeformer, Method
 from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.skeletal.deformers import LinearBlendSkinning
@@ -184,10 +185,12 @@ def run_animate_benchmark(
         part_frames(scene["reference"], scene["alpha"]), scene["vertices"], scene["beta"]
     )
     ms: dict[str, float | None] = {}
+
+    def deform_all(method: Method) -> list[np.ndarray]:
+        return list(deformer.deform(scene["markers"], method, chunk=n_frames))
+
     for method in METHODS:
-        sec = _best_seconds(
-            lambda m=method: list(deformer.deform(scene["markers"], m, chunk=n_frames)), repeat
-        )
+        sec = _best_seconds(partial(deform_all, cast("Method", method)), repeat)
         ms[f"{method}_numpy"] = 1e3 * sec / n_frames
         ms[f"{method}_numba"] = None
     # our LBS of the same vertices: the parts as joints, β as two-influence weights
@@ -198,18 +201,17 @@ def run_animate_benchmark(
         try:
             lbs = LinearBlendSkinning(
                 scene["vertices"], order, weights, n_joints=n_parts, backend=backend
-            )  # type: ignore[arg-type]
+            )
         except Exception as exc:  # numba missing: reported, not fatal
             notes.append(f"LBS {backend} not measured: {exc}")
             ms[f"lbs_{backend}"] = None
             continue
         buffer = np.zeros((n_frames, n_vertices, 3))
-        sec = _best_seconds(lambda d=lbs, b=buffer: d.deform(scene["transforms"], out=b), repeat)
+        sec = _best_seconds(partial(lbs.deform, scene["transforms"], out=buffer), repeat)
         ms[f"lbs_{backend}"] = 1e3 * sec / n_frames
+    base = ms.get("lbs_numpy")
     ratios = {
-        f"{m}_numpy / lbs_numpy": (ms[f"{m}_numpy"] or 0.0) / ms["lbs_numpy"]
-        if ms.get("lbs_numpy")
-        else None
+        f"{m}_numpy / lbs_numpy": None if not base else (ms[f"{m}_numpy"] or 0.0) / base
         for m in METHODS
     }
     seconds: dict[str, float | None] = {"segmentation": None, "registration": None}
