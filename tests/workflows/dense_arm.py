@@ -19,7 +19,7 @@ ELBOW = 0.3  # metres along x
 
 
 def _tube(n_along: int, n_around: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points on a closed-ring tube x in [0, 0.6] and its triangles (open ends)."""
+    """Points on a closed-ring tube x in [0, 0.6] and its triangles (open ends, facing out)."""
     x = np.linspace(0.0, 2 * ELBOW, n_along)
     a = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
     xx, aa = np.meshgrid(x, a, indexing="ij")
@@ -27,7 +27,7 @@ def _tube(n_along: int, n_around: int, radius: float) -> tuple[np.ndarray, np.nd
     idx = np.arange(n_along * n_around).reshape(n_along, n_around)
     nxt = np.roll(idx, -1, axis=1)
     a0, b0, c0, d0 = idx[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel(), nxt[:-1].ravel()
-    faces = np.concatenate([np.stack([a0, b0, c0], 1), np.stack([a0, c0, d0], 1)])
+    faces = np.concatenate([np.stack([a0, c0, b0], 1), np.stack([a0, d0, c0], 1)])
     return pts, faces
 
 

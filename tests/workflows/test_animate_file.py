@@ -19,7 +19,7 @@ from typer.testing import CliRunner
 
 from skincap.cli import app
 from skincap.deform.dense.rig import DenseRig
-from skincap.errors import FormatError, SkincapWarning
+from skincap.errors import SkincapWarning
 from skincap.io.dense_rig import read_dense_rig
 from skincap.io.mesh import write_obj
 from skincap.io.pc2 import read_pc2
@@ -205,15 +205,58 @@ def test_a_mesh_far_from_the_markers_is_warned_about(arm, tmp_path):
     assert any("reference pose" in str(w.message) for w in caught)
 
 
-def test_register_without_the_registration_module_is_a_clear_error(arm, tmp_path):
-    pytest.importorskip("skincap")
-    try:
-        import skincap.deform.dense.registration  # noqa: F401
-    except ImportError:
-        pass
-    else:
-        pytest.skip("registration is present")
+def test_register_fits_a_displaced_mesh_with_landmarks_and_marker_radius(arm, tmp_path):
+    from scipy.spatial import cKDTree
+
+    from skincap import io
+
+    mesh_path, take_path, truth, _ = arm
+    mesh, take = io.read_mesh(mesh_path), io.read(take_path)
+    near = cKDTree(mesh.vertices).query(take.positions[0])[1]
+    marks = {
+        lab: int(i) for k, (lab, i) in enumerate(zip(take.labels, near, strict=True)) if k % 3 == 0
+    }
+    (tmp_path / "marks.json").write_text(json.dumps(marks))
+    centre = mesh.vertices.mean(axis=0)
+    shifted = centre + (mesh.vertices - centre) * [1.0, 1.1, 1.1] + [0.0, 0.01, 0.0]
+    moved = tmp_path / "moved.obj"  # too wide and off to one side
+    write_obj(Mesh(vertices=shifted, faces=mesh.faces), moved, units="m", up="y")
+    res = run("animate", moved, take_path, "--register", "--landmarks", tmp_path / "marks.json",
+              "--marker-radius", "8", "--parts", "2", "--reference-frame", "0",
+              "--surface", take_path.with_name("arm_surface.ply"),
+              "-o", tmp_path / "r.pc2", "--report", tmp_path / "r.json")  # fmt: skip
+    assert res.exit_code == 0, res.output
+    reg = json.loads((tmp_path / "r.json").read_text())["rig"]["registration"]
+    assert reg["landmarks"] == len(marks)
+    # the markers ride 8 mm above the true skin: the fitted surface is there too
+    assert reg["marker_distance_mean_m"] == pytest.approx(0.008, abs=0.0015)
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    got = np.asarray(read_pc2(tmp_path / "r.pc2").frames)
+    for t in (0, 12, 23):  # a registered template's vertices slide: compare with the surface
+        d, _, _ = closest_points_on_mesh(truth[t], mesh.faces, got[t])
+        # the displaced template was ~10 mm off; the open tube ends, with no marker
+        # beyond them, stay a few mm out
+        assert d.mean() < 4e-3 and np.median(d) < 3.5e-3, t
+
+
+def test_a_landmark_file_naming_an_unknown_marker_is_refused(arm, tmp_path):
     mesh_path, take_path, _, _ = arm
-    with pytest.raises(FormatError, match="registration"):
-        animate_file(mesh_path, take_path, tmp_path / "r.pc2", register=True, reference_frame=0)
-    assert not (tmp_path / "r.pc2").exists()
+    marks = tmp_path / "marks.json"
+    marks.write_text(json.dumps({"NOPE": 3}))
+    res = run("animate", mesh_path, take_path, "--register", "--landmarks", marks,
+              "-o", tmp_path / "o.pc2")  # fmt: skip
+    assert res.exit_code == 2 and "marks.json" in res.output and "NOPE" in res.output
+    assert not (tmp_path / "o.pc2").exists()
+
+
+def test_view_plays_the_result_beside_the_markers(arm, tmp_path):
+    from skincap.viz.scene import load_scene
+
+    mesh_path, take_path, _, _ = arm
+    out = tmp_path / "arm.pc2"
+    animate_file(mesh_path, take_path, out, n_parts=2, reference_frame=0,
+                 surface=take_path.with_name("arm_surface.ply"))  # fmt: skip
+    scene = load_scene([take_path, out])
+    kinds = sorted(type(layer).__name__ for layer in scene.layers)
+    assert any("Marker" in k for k in kinds) and any("Mesh" in k for k in kinds)

@@ -62,6 +62,10 @@ def animate(
         bool,
         typer.Option("--register", help="Fit the mesh to the reference-pose markers first."),
     ] = False,
+    marker_radius: Annotated[
+        float,
+        typer.Option(help="With --register: marker centres' height above the skin, mm."),
+    ] = 0.0,
     save_rig: Annotated[
         Path | None,
         typer.Option(help="Save the subject rig built here as R.npz + R.json."),
@@ -112,6 +116,7 @@ def animate(
                 landmarks=landmarks,
                 reference_frame=reference_frame,
                 register=register,
+                marker_radius_mm=marker_radius,
                 save_rig=save_rig,
                 rig=rig,
                 report=report,

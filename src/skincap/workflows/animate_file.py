@@ -146,6 +146,7 @@ def animate_file(
     landmarks: str | os.PathLike[str] | None = None,
     reference_frame: int | None = None,
     register: bool = False,
+    marker_radius_mm: float = 0.0,
     save_rig: str | os.PathLike[str] | None = None,
     rig: str | os.PathLike[str] | None = None,
     report: str | os.PathLike[str] | None = None,
@@ -178,6 +179,9 @@ def animate_file(
     register : bool
         Fit the mesh to the reference-pose markers first (§5.1). Without it the mesh
         must already be in the markers' reference pose.
+    marker_radius_mm : float
+        With ``register``: how far outside the skin the marker centres sit (ball
+        radius plus base), millimetres; the surface is fitted that far inside them.
     save_rig, rig : path-like, optional
         Save the rig built here (``.npz`` + ``.json``) / use a saved one instead.
     report : path-like, optional
@@ -227,7 +231,8 @@ def animate_file(
         return _animate(
             paths, markers_path, output,
             method=method, n_parts=n_parts, reference_frame=reference_frame,
-            register=register, mesh_units=mesh_units, force=force, progress=progress,
+            register=register, marker_radius_mm=marker_radius_mm, mesh_units=mesh_units,
+            force=force, progress=progress,
         )  # fmt: skip
 
 
@@ -240,6 +245,7 @@ def _animate(
     n_parts: int,
     reference_frame: int | None,
     register: bool,
+    marker_radius_mm: float,
     mesh_units: str | None,
     force: bool,
     progress: Progress | None,
@@ -250,6 +256,8 @@ def _animate(
 
     if method not in METHODS:
         raise FormatError(output, f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not 0.0 <= marker_radius_mm <= 50.0:
+        raise FormatError(output, f"--marker-radius must be 0-50 mm, got {marker_radius_mm}")
     if not 1 <= n_parts <= 200:
         raise FormatError(output, f"--parts must be in 1..200, got {n_parts}")
     take = labelled_markers(io.read(markers_path), markers_path)
@@ -273,7 +281,7 @@ def _animate(
             raise FormatError(paths["mesh"], "the mesh has no faces (triangles are needed)")
         subject, build = _build_rig(
             mesh, take, positions, markers_path, paths, n_parts=n_parts, reference_frame=reference_frame,
-            register=register, progress=progress,
+            register=register, marker_radius_mm=marker_radius_mm, progress=progress,
         )  # fmt: skip
         columns = np.arange(len(labels))
         rest = _rest_mesh(subject, mesh)
@@ -354,6 +362,7 @@ def _build_rig(
     n_parts: int,
     reference_frame: int | None,
     register: bool,
+    marker_radius_mm: float,
     progress: Progress | None,
 ) -> tuple[DenseRig, dict[str, Any]]:
     from skincap import io
@@ -388,7 +397,9 @@ def _build_rig(
         raise FormatError(paths["surface"] or markers_path, "the marker surface has no triangles")
     vertices = mesh.vertices
     if register:
-        vertices, build["registration"] = _register(mesh, reference, labels, paths, progress)
+        vertices, build["registration"] = _register(
+            mesh, reference, labels, paths, marker_radius_mm, progress
+        )
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
     if build["marker_to_mesh_m"]["mean"] > 0.05 and not register:
         warnings.warn(
@@ -435,28 +446,30 @@ def _register(
     reference: np.ndarray,
     labels: list[str],
     paths: dict[str, Path | None],
+    marker_radius_mm: float,
     progress: Progress | None,
 ) -> tuple[np.ndarray, dict[str, Any]]:
     """Fit the mesh to the reference pose (§5.1): registered vertices and the figures."""
-    try:
-        from skincap.deform.dense import registration  # type: ignore[attr-defined]
-    except ImportError:
-        raise FormatError(
-            paths["mesh"] or Path("MESH"),
-            "--register needs skincap.deform.dense.registration, which this build lacks",
-        ) from None
+    from skincap.deform.dense.registration import RegistrationSettings, register_mesh
+
     marks = None
     if paths["landmarks"] is not None:
         marks = read_landmarks(paths["landmarks"], labels, mesh.n_vertices)
-    result = registration.register_mesh(
-        mesh.vertices, mesh.faces, reference, labels, landmarks=marks,
-        progress=_stage(progress, "registration"),
-    )  # fmt: skip
+    try:
+        result = register_mesh(
+            mesh.vertices, mesh.faces, reference, labels, landmarks=marks,
+            settings=RegistrationSettings(marker_radius=marker_radius_mm / 1000.0),
+            progress=_stage(progress, "registration"),
+        )  # fmt: skip
+    except ValidationError as exc:
+        raise FormatError(paths["landmarks"] or paths["mesh"] or Path("MESH"), str(exc)) from None
     d = np.asarray(result.marker_distance, dtype=np.float64)
     figures = {
         "landmarks": len(result.landmarks),
+        "iterations": int(result.iterations),
         "marker_distance_mean_m": float(np.nanmean(d)),
         "marker_distance_p95_m": float(np.nanpercentile(d, 95)),
+        "marker_distance_max_m": float(np.nanmax(d)),
     }
     return np.asarray(result.vertices, dtype=np.float64), figures
 

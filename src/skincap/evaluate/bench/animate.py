@@ -48,7 +48,7 @@ def _ring_tube(
     idx = np.arange(n_rings * n_around).reshape(n_rings, n_around)
     nxt = np.roll(idx, -1, axis=1)
     a0, b0, c0, d0 = idx[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel(), nxt[:-1].ravel()
-    return pts, np.concatenate([np.stack([a0, b0, c0], 1), np.stack([a0, c0, d0], 1)])
+    return pts, np.concatenate([np.stack([a0, c0, b0], 1), np.stack([a0, d0, c0], 1)])
 
 
 def _chain_transforms(n_parts: int, n_frames: int, length: float, seed: int) -> np.ndarray:
