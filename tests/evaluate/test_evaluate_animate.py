@@ -99,6 +99,36 @@ def test_rows_are_present_and_the_dense_chain_beats_global_interpolation(folder)
     assert result["targets"]["segmentation_ari"]["met"] is True
 
 
+@pytest.mark.slow  # a registration and a second rig: ~10 s on a loaded machine
+def test_a_registered_template_row_measures_distance_to_the_true_skin(folder) -> None:
+    from scipy.spatial import cKDTree
+
+    from skincap import io
+    from skincap.io.pc2 import read_pc2
+
+    faces = io.read(folder / "truth" / "mesh.obj").faces
+    posed = np.asarray(read_pc2(folder / "truth" / "mesh.pc2").frames)[0]  # reference pose
+    markers = io.read(folder / "truth" / "markers.c3d")
+    centre = posed.mean(axis=0)
+    # another template: the same tube 10 % wider and off by 1 cm
+    template = Mesh(
+        vertices=centre + (posed - centre) * [1.0, 1.1, 1.1] + [0.0, 0.01, 0.0], faces=faces
+    )
+    near = cKDTree(posed).query(markers.positions[0])[1]
+    marks = {
+        lab: int(i)
+        for k, (lab, i) in enumerate(zip(markers.labels, near, strict=True))
+        if k % 3 == 0
+    }
+    result = evaluate_animate(
+        folder, n_parts=2, template=template, template_landmarks=marks, marker_radius=0.008
+    )
+    row = next(r for r in result["rows"] if r["case"] == "registered_template")
+    assert row["measured"] and row["mean_m"] < 4e-3  # the template started ~10 mm off
+    assert result["registration"]["markers_to_surface_mean_m"] == pytest.approx(0.008, abs=0.0015)
+    assert result["targets"]["quadratic_rbf_registered_template_rms_m"]["value"] == row["rms_m"]
+
+
 def test_held_out_markers_are_predicted_on_a_rigid_motion() -> None:
     from scipy.spatial.transform import Rotation
 

@@ -163,6 +163,18 @@ def eval_animate(
             help="A 'skincap synth --motion rom' folder of the same body and markers to learn the parts on."
         ),
     ] = None,
+    template: Annotated[
+        str | None,
+        typer.Option(
+            help="Another body (mesh file, or 'makehuman') registered to the markers: the registered-template row."
+        ),
+    ] = None,
+    marker_radius: Annotated[
+        float,
+        typer.Option(
+            help="Marker centres' height above the skin for --template's registration, mm."
+        ),
+    ] = 0.0,
     frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 240,
     vertices: Annotated[
         int, typer.Option(help="Procedural body vertices of a --synth take.")
@@ -183,7 +195,10 @@ def eval_animate(
     of the markers held out. Writes OUTPUT/animate_eval.json and the per-vertex error
     colour maps OUTPUT/animate_errors.png; prints the table and the issue's targets.
 
-    Example: skincap eval animate take_jumprope --rom take_rom -o eval_dense
+    With --template, another body is registered to the take's reference pose and
+    deformed too; that row is the distance to the true skin surface.
+
+    Example: skincap eval animate take_jumprope --rom take_rom --template makehuman -o eval_dense
     """
     import json
 
@@ -208,16 +223,31 @@ def eval_animate(
                     force=force, progress=progress,
                 )  # fmt: skip
             assert input_dir is not None  # one of the two was checked above
+            body = None
+            if template is not None:
+                from skincap import io
+                from skincap.data import path as shipped_file
+
+                body = io.read_mesh(
+                    shipped_file("makehuman_base.obj")
+                    if template == "makehuman"
+                    else Path(template)
+                )
             result = evaluate_animate(
-                input_dir, rom=rom, n_parts=parts, seed=seed, progress=progress
-            )
+                input_dir, rom=rom, template=body, marker_radius=marker_radius / 1000.0,
+                n_parts=parts, seed=seed, progress=progress,
+            )  # fmt: skip
         per_vertex = result.pop("per_vertex_rms_m")
-        body = result.pop("vertices")
+        reference_body = result.pop("vertices")
         result.pop("faces")
         output.mkdir(parents=True, exist_ok=True)
         write_json(paths[0], result, force=force, indent=2, allow_nan=False)
         plot_vertex_errors(
-            body, per_vertex, paths[1], force=force, title=f"Vertex RMS error: {input_dir}"
+            reference_body,
+            per_vertex,
+            paths[1],
+            force=force,
+            title=f"Vertex RMS error: {input_dir}",
         )
     if json_output:
         print(json.dumps(result, indent=2, allow_nan=False))
@@ -233,6 +263,15 @@ def eval_animate(
             out.print(
                 f"{row['case']:<20} {row['method']:<14} not measured: {row['note']}", markup=False
             )
+    reg = result.get("registration")
+    if reg:
+        out.print(
+            f"registration ({reg['template_vertices']} vertices, {reg['seconds']:.1f} s): markers to "
+            f"surface {reg['markers_to_surface_mean_m'] * 1e3:.2f} mm mean, surface to true skin "
+            f"{reg['surface_to_true_skin_mean_m'] * 1e3:.2f} mm mean, "
+            f"{reg['surface_to_true_skin_p95_m'] * 1e3:.2f} mm p95",
+            markup=False,
+        )
     held = result["held_out"]
     if held["mean_m"] is not None:
         out.print(
