@@ -151,3 +151,14 @@ def test_cli_eval_animate_writes_json_and_png(folder, tmp_path) -> None:
     assert (tmp_path / "ev" / "animate_errors.png").stat().st_size > 1000
     bad = CliRunner().invoke(app, ["eval", "animate", str(tmp_path), "-o", str(tmp_path / "ev2")])
     assert bad.exit_code == 2 and "truth/markers.c3d is missing" in bad.output
+
+
+def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) -> None:
+    capture = folder / "truth" / "markers.c3d"
+    res = CliRunner().invoke(
+        app, ["eval", "animate", str(capture), "-o", str(tmp_path / "ev"), "--parts", "2", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    held = json.loads(res.output)["held_out"]
+    assert held["held_out"] == 6 and held["markers"] == 60 and held["mean_m"] < 5e-3
+    assert json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"] == held

@@ -148,7 +148,9 @@ def eval_animate(
     input_dir: Annotated[
         Path | None,
         typer.Argument(
-            metavar="SYNTH_DIR", help="A folder written by 'skincap synth' (dense markers)."
+            metavar="SYNTH_DIR",
+            help="A folder written by 'skincap synth' (dense markers), or a labelled "
+            "capture (.c3d/.trc/.csv): the held-out test only.",
         ),
     ] = None,
     synth: Annotated[
@@ -208,7 +210,7 @@ def eval_animate(
     from skincap.io.output_safety import guard_outputs
 
     paths = [output / name for name in _EVAL_OUTPUTS]
-    with _user_errors(), guard_outputs([], paths, folders=[output], force=force):
+    with _user_errors(), guard_outputs([input_dir], paths, folders=[output], force=force):
         if (input_dir is None) == (synth is None):
             raise ValidationError(
                 "give a folder made by skincap synth or --synth CLIP (one of them)"
@@ -223,6 +225,9 @@ def eval_animate(
                     force=force, progress=progress,
                 )  # fmt: skip
             assert input_dir is not None  # one of the two was checked above
+            if input_dir.is_file():
+                _eval_capture(input_dir, paths[0], parts, seed, force, json_output)
+                return
             body = None
             if template is not None:
                 from skincap import io
@@ -284,3 +289,29 @@ def eval_animate(
         shown = "-" if t["value"] is None else f"{t['value']:.4g}"
         out.print(f"target {name}: {shown} (target {t['target']}): {mark}", markup=False)
     out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
+
+
+def _eval_capture(
+    capture: Path, json_path: Path, parts: int, seed: int, force: bool, json_output: bool
+) -> None:
+    """``eval animate CAPTURE``: the held-out test on a real (or any labelled) capture."""
+    import json
+
+    from skincap import io
+    from skincap.evaluate.animate import held_out_on_capture
+    from skincap.io.json_file import write_json
+
+    held = held_out_on_capture(io.read(capture), n_parts=parts, seed=seed)
+    result = {"capture": str(capture), "held_out": held}
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(json_path, result, force=force, indent=2, allow_nan=False)
+    if json_output:
+        print(json.dumps(result, indent=2, allow_nan=False))
+        return
+    out.print(
+        f"{capture.name}: held out {held['held_out']} of {held['markers']} markers "
+        f"({held['n_parts']} parts): mean {held['mean_m'] * 1e3:.2f} mm, p95 "
+        f"{held['p95_m'] * 1e3:.2f} mm, max {held['max_m'] * 1e3:.1f} mm; wrote {json_path}",
+        markup=False,
+        soft_wrap=True,
+    )

@@ -46,6 +46,7 @@ __all__ = [
     "adjusted_rand_index",
     "evaluate_animate",
     "held_out_marker_errors",
+    "held_out_on_capture",
     "global_rbf_frames",
     "plot_vertex_errors",
     "vertex_errors",
@@ -233,6 +234,40 @@ def held_out_marker_errors(
         "p95_m": float(np.percentile(dd, 95)) if dd.size else None,
         "max_m": float(dd.max()) if dd.size else None,
     }
+
+
+def held_out_on_capture(
+    markers: Any, *, fraction: float = 0.1, n_parts: int = 17, seed: int = 0
+) -> dict[str, Any]:
+    """The held-out test on any labelled capture (real ones included).
+
+    The labelled columns (not ``*N``) are used; the marker surface is built from the
+    take (:func:`skincap.cleanup.surface.build_marker_surface`), the reference frame is
+    the one with the most markers and the take is its own range of motion.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+    fraction, n_parts, seed : see :func:`held_out_marker_errors`
+
+    Returns
+    -------
+    dict
+        :func:`held_out_marker_errors`'s figures plus ``reference_frame`` and
+        ``surface_triangles``.
+    """
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+
+    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    x = markers.positions[:, keep]
+    frame = choose_reference_frame(x)
+    surface = build_marker_surface(x, reference_frame=frame)
+    if surface.faces.shape[0] == 0:
+        raise ValidationError("the capture's marker surface has no triangles")
+    out = held_out_marker_errors(
+        x, surface.faces, reference_frame=frame, fraction=fraction, n_parts=n_parts, seed=seed
+    )
+    return {**out, "reference_frame": int(frame), "surface_triangles": int(surface.faces.shape[0])}
 
 
 def _read_marker_parts(path: Path, labels: Sequence[str]) -> np.ndarray | None:
