@@ -202,9 +202,9 @@ def animate_file(
     from skincap.workflows.skin_file import mesh_input_files
 
     markers_path, output = Path(markers_path), Path(output)
-    paths = {k: None if v is None else Path(v) for k, v in dict(
-        mesh=mesh_path, rom=rom, surface=surface, landmarks=landmarks, rig=rig,
-        save_rig=save_rig, report=report).items()}  # fmt: skip
+    given = {"mesh": mesh_path, "rom": rom, "surface": surface, "landmarks": landmarks,
+             "rig": rig, "save_rig": save_rig, "report": report}  # fmt: skip
+    paths = {name: None if value is None else Path(value) for name, value in given.items()}
     if rig is not None and save_rig is not None:
         raise FormatError(Path(rig), "give --rig or --save-rig, not both")
     if rig is None and paths["mesh"] is None:
