@@ -108,24 +108,18 @@ def _filled(markers: MarkerSet, path: Path) -> tuple[np.ndarray, int]:
 
 
 def read_landmarks(path: Path, labels: list[str], n_vertices: int) -> dict[str, int]:
-    """``--landmarks FILE.json``: ``{marker label: vertex index}``, checked."""
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(path, f"not JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise FormatError(path, "expected an object {marker label: vertex index}")
+    """``--landmarks FILE.json`` (:func:`skincap.io.landmarks_json.read_landmarks`),
+    checked against the take's labels and the mesh's vertices."""
+    from skincap.io.landmarks_json import read_landmarks as read_landmark_file
+
+    marks = read_landmark_file(path)
     known = set(labels)
-    out: dict[str, int] = {}
-    for lab, idx in data.items():
+    for lab, idx in marks.items():
         if lab not in known:
             raise FormatError(path, f"landmark {lab!r} is not a marker of the take")
-        if isinstance(idx, bool) or not isinstance(idx, int) or not 0 <= idx < n_vertices:
-            raise FormatError(
-                path, f"landmark {lab!r}: vertex {idx!r} is not in 0..{n_vertices - 1}"
-            )
-        out[str(lab)] = int(idx)
-    return out
+        if not 0 <= idx < n_vertices:
+            raise FormatError(path, f"landmark {lab!r}: vertex {idx} is not in 0..{n_vertices - 1}")
+    return marks
 
 
 def _output_files(output: Path) -> list[Path]:

@@ -41,6 +41,9 @@ LANDMARK_COUNT = 40
 #: Neighbours per marker in the markers' geodesic graph.
 MARKER_NEIGHBOURS = 6
 
+#: Longest marker-graph edge, in local spacings (see :func:`_knn_graph`).
+EDGE_SPACING_RATIO = 1.6
+
 _EXTREMITY_NAMES = ("head", "left_hand", "right_hand", "left_foot", "right_foot")
 
 
@@ -54,14 +57,22 @@ def _mesh_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
 
 
 def _knn_graph(points: np.ndarray, k: int) -> sp.csr_matrix:
-    """Symmetric k-nearest-neighbour graph, joined into one component if it is not."""
+    """Symmetric k-nearest-neighbour graph without short-cuts, joined into one component.
+
+    An edge is kept only when it is no longer than :data:`EDGE_SPACING_RATIO` times the
+    local spacing (median neighbour distance) at *both* ends, so two limbs close
+    together (the feet, a hand by a thigh) are not joined where sparse markers reach
+    far for their k neighbours.
+    """
     n = points.shape[0]
     kk = min(k + 1, n)
     dist, idx = cKDTree(points).query(points, k=kk)
+    spacing = np.median(dist[:, 1:], axis=1)
     rows = np.repeat(np.arange(n), kk - 1)
-    g = sp.coo_matrix(
-        (np.maximum(dist[:, 1:].ravel(), 1e-12), (rows, idx[:, 1:].ravel())), shape=(n, n)
-    ).tocsr()
+    cols = idx[:, 1:].ravel()
+    d = dist[:, 1:].ravel()
+    keep = d <= EDGE_SPACING_RATIO * np.minimum(spacing[rows], spacing[cols])
+    g = sp.coo_matrix((np.maximum(d[keep], 1e-12), (rows[keep], cols[keep])), shape=(n, n)).tocsr()
     g = g.maximum(g.T).tocsr()
     # Join stray components by their closest pair of points, one at a time.
     count, comp = connected_components(g, directed=False)

@@ -1,0 +1,265 @@
+"""Registration of a template mesh to markers (Park & Hodgins §5.1, after Allen et al. 2003)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skincap.deform.dense.landmarks import automatic_landmarks
+from skincap.deform.dense.registration import (
+    MIN_MARKERS,
+    Registration,
+    RegistrationSettings,
+    register_mesh,
+)
+from skincap.errors import SkincapWarning, ValidationError
+
+
+def _sphere(n_lat: int = 14, n_lon: int = 24, radius: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """A closed UV sphere (poles as single vertices), counter-clockwise from outside."""
+    lat = np.linspace(0, np.pi, n_lat + 1)[1:-1]
+    lon = np.linspace(0, 2 * np.pi, n_lon, endpoint=False)
+    la, lo = np.meshgrid(lat, lon, indexing="ij")
+    ring = np.stack(
+        [np.sin(la) * np.cos(lo), np.cos(la), np.sin(la) * np.sin(lo)], axis=-1
+    ).reshape(-1, 3)
+    v = radius * np.concatenate([[[0, 1, 0]], ring, [[0, -1, 0]]])
+    idx = 1 + np.arange(ring.shape[0]).reshape(n_lat - 1, n_lon)
+    nxt = np.roll(idx, -1, axis=1)
+    top = np.stack([np.zeros(n_lon, int), nxt[0], idx[0]], axis=1)
+    bottom = np.stack([np.full(n_lon, v.shape[0] - 1), idx[-1], nxt[-1]], axis=1)
+    a, b, c, d = idx[:-1], nxt[:-1], nxt[1:], idx[1:]
+    quads = np.concatenate(
+        [np.stack([a, b, c], -1).reshape(-1, 3), np.stack([a, c, d], -1).reshape(-1, 3)]
+    )
+    return v, np.concatenate([top, quads, bottom]).astype(np.int64)
+
+
+def _surface_points(v: np.ndarray, f: np.ndarray, n: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    face = rng.integers(0, f.shape[0], n)
+    bary = rng.dirichlet(np.ones(3), n)
+    return np.einsum("nk,nkx->nx", bary, v[f[face]])
+
+
+def _labels(n: int) -> list[str]:
+    return [f"M{i:03d}" for i in range(n)]
+
+
+def test_a_mesh_under_a_global_affine_is_recovered() -> None:
+    v, f = _sphere()
+    a = np.array([[1.1, 0.1, 0.0], [0.05, 0.9, 0.1], [0.0, -0.1, 1.2]])
+    b = np.array([0.3, 1.0, -0.2])
+    moved = v @ a.T + b
+    # markers: 20 at vertices (landmarks), 60 on the moved surface
+    lm_vertices = np.linspace(0, v.shape[0] - 1, 20).astype(int)
+    markers = np.concatenate([moved[lm_vertices], _surface_points(moved, f, 60)])
+    labels = _labels(markers.shape[0])
+    landmarks = {labels[k]: int(i) for k, i in enumerate(lm_vertices)}
+    reg = register_mesh(v, f, markers, labels, landmarks=landmarks)
+    assert isinstance(reg, Registration)
+    np.testing.assert_allclose(reg.vertices, moved, atol=1e-4)
+    np.testing.assert_allclose(
+        reg.affine[:, :, :3], np.broadcast_to(a, (v.shape[0], 3, 3)), atol=1e-3
+    )
+    np.testing.assert_allclose(reg.affine[:, :, 3], np.broadcast_to(b, (v.shape[0], 3)), atol=1e-3)
+    # the affines reproduce the vertices
+    np.testing.assert_allclose(
+        np.einsum("vxk,vk->vx", reg.affine[:, :, :3], v) + reg.affine[:, :, 3],
+        reg.vertices,
+        atol=1e-9,
+    )
+    assert reg.marker_distance.max() < 1e-4
+    assert reg.landmarks == landmarks
+
+
+def test_markers_on_the_surface_leave_it_in_place() -> None:
+    v, f = _sphere()
+    markers = _surface_points(v, f, 80, seed=1)
+    reg = register_mesh(v, f, markers, _labels(80), landmarks={})
+    np.testing.assert_allclose(reg.vertices, v, atol=1e-6)
+    assert reg.marker_distance.max() < 1e-6
+    assert reg.iterations <= 2
+
+
+def _flat_patch(n: int = 21, size: float = 0.4) -> tuple[np.ndarray, np.ndarray]:
+    x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[1:, :-1].ravel(),
+        idx[1:, 1:].ravel(),
+        idx[:-1, 1:].ravel(),
+    )
+    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def test_smoothness_keeps_a_flat_patch_flat() -> None:
+    """Markers over one half lifted 2 cm: the whole patch follows, flat, unstretched."""
+    v, f = _flat_patch()
+    rng = np.random.default_rng(2)
+    xy = rng.uniform([0.0, 0.0], [0.2, 0.4], size=(50, 2))
+    markers = np.concatenate([xy, np.full((50, 1), 0.02)], axis=1)
+    reg = register_mesh(v, f, markers, _labels(50), landmarks={})
+    assert reg.marker_distance.max() < 1e-4
+    z = reg.vertices[:, 2]
+    assert np.abs(z - 0.02).max() < 1e-3  # the unobserved half lifted too, no bend
+    edge = np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1)
+    edge_reg = np.linalg.norm(reg.vertices[f[:, 0]] - reg.vertices[f[:, 1]], axis=1)
+    np.testing.assert_allclose(edge_reg, edge, rtol=2e-2)
+
+
+def test_the_first_phase_follows_the_landmarks_and_the_second_the_data() -> None:
+    """A sphere translated: landmarks alone place it; closest points alone pull it too."""
+    v, f = _sphere()
+    moved = v + [0.02, 0.0, 0.0]
+    lm_vertices = np.arange(0, v.shape[0], 40)
+    markers = np.concatenate([moved[lm_vertices], _surface_points(moved, f, 40, seed=3)])
+    labels = _labels(markers.shape[0])
+    landmarks = {labels[k]: int(i) for k, i in enumerate(lm_vertices)}
+    only_global = register_mesh(
+        v, f, markers, labels, landmarks=landmarks, settings=RegistrationSettings(fit_iterations=0)
+    )
+    assert only_global.iterations == 0
+    np.testing.assert_allclose(only_global.vertices, moved, atol=1e-4)
+    # without landmarks the closest points pull it over too
+    full = register_mesh(v, f, markers, labels, landmarks={})
+    assert np.nanmean(full.marker_distance) < 5e-4
+
+
+def test_unseen_markers_are_ignored_and_reported_nan() -> None:
+    v, f = _sphere()
+    markers = _surface_points(v, f, 40, seed=4) * 1.05
+    markers[[3, 7]] = np.nan
+    labels = _labels(40)
+    with pytest.warns(SkincapWarning, match="unseen"):
+        reg = register_mesh(v, f, markers, labels, landmarks={labels[3]: 0, labels[5]: 10})
+    assert np.isnan(reg.marker_distance[[3, 7]]).all()
+    assert np.isfinite(np.delete(reg.marker_distance, [3, 7])).all()
+    assert set(reg.landmarks) == {labels[5]}
+    assert np.isfinite(reg.vertices).all()
+
+
+def test_marker_radius_puts_the_surface_inside_the_markers() -> None:
+    v, f = _sphere()
+    rng = np.random.default_rng(5)
+    face = rng.integers(0, f.shape[0], 120)
+    bary = rng.dirichlet(np.ones(3), 120)
+    a, b, c = v[f[face, 0]], v[f[face, 1]], v[f[face, 2]]
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    markers = np.einsum("nk,nkx->nx", bary, v[f[face]]) + 0.005 * normal  # 5 mm out
+    reg = register_mesh(
+        v,
+        f,
+        markers,
+        _labels(120),
+        landmarks={},
+        settings=RegistrationSettings(marker_radius=0.005),
+    )
+    # the surface stays on the sphere, 5 mm under the markers (it may slide along it)
+    assert np.abs(np.linalg.norm(reg.vertices, axis=1) - 0.2).mean() < 5e-4
+    assert np.abs(np.nanmean(reg.marker_distance) - 0.005) < 5e-4
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"faces": np.zeros((0, 3), np.int64)}, "no faces"),
+        ({"markers": "few"}, f"at least {MIN_MARKERS}"),
+        ({"landmarks": {"nope": 0}}, "'nope' is not a marker label"),
+        ({"landmarks": {"M000": 10**6}}, "out of range"),
+        ({"landmarks": {"M000": -1}}, "out of range"),
+        ({"landmarks": {"M000": 1.5}}, "must be an integer"),
+        ({"labels": "duplicate"}, "unique"),
+        ({"markers": "inf"}, "infinite"),
+    ],
+)
+def test_bad_input_is_a_validation_error(change: dict, message: str) -> None:
+    v, f = _sphere()
+    markers = _surface_points(v, f, 40)
+    labels = _labels(40)
+    args: dict = {"vertices": v, "faces": f, "markers": markers, "labels": labels, "landmarks": {}}
+    for key, value in change.items():
+        if isinstance(value, str) and value == "few":
+            value = markers[: MIN_MARKERS - 1]
+            args["labels"] = labels[: MIN_MARKERS - 1]
+        elif isinstance(value, str) and value == "duplicate":
+            value = ["M000"] * 40
+        elif isinstance(value, str) and value == "inf":
+            value = markers.copy()
+            value[2, 1] = np.inf
+        args[key] = value
+    with pytest.raises(ValidationError, match=message):
+        register_mesh(**args)
+
+
+def test_too_few_seen_markers_is_an_error_even_with_enough_rows() -> None:
+    v, f = _sphere()
+    markers = _surface_points(v, f, 40)
+    markers[MIN_MARKERS - 5 :] = np.nan
+    with pytest.raises(ValidationError, match="seen markers"):
+        register_mesh(v, f, markers, _labels(40), landmarks={})
+
+
+@pytest.mark.parametrize(
+    "kwargs",
+    [
+        {"smoothness_weight": 0.0},
+        {"data_weight": -1.0},
+        {"fit_iterations": -1},
+        {"marker_radius": np.nan},
+    ],
+)
+def test_bad_settings_are_refused(kwargs: dict) -> None:
+    with pytest.raises(ValidationError):
+        RegistrationSettings(**kwargs)
+
+
+def test_progress_goes_from_zero_to_one() -> None:
+    v, f = _sphere()
+    seen: list[float] = []
+    register_mesh(
+        v,
+        f,
+        _surface_points(v, f, 40),
+        _labels(40),
+        landmarks={},
+        progress=lambda x, _m: seen.append(x),
+    )
+    assert seen[0] == 0.0 and seen[-1] == 1.0 and seen == sorted(seen)
+
+
+def test_the_inputs_are_not_modified() -> None:
+    v, f = _sphere()
+    markers = _surface_points(v, f, 40) + 0.01
+    copies = (v.copy(), f.copy(), markers.copy())
+    register_mesh(v, f, markers, _labels(40), landmarks={"M000": 3})
+    for a, b in zip((v, f, markers), copies, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+# --------------------------------------------------------------- on a body mesh
+@pytest.fixture(scope="module")
+def body() -> tuple[np.ndarray, np.ndarray]:
+    from skincap.synth.body import procedural_body
+    from skincap.synth.skeleton import synth_skeleton
+
+    mesh = procedural_body(synth_skeleton(), n_vertices=5000)
+    return mesh.vertices, mesh.faces
+
+
+def test_automatic_landmarks_on_the_same_body_land_near_their_markers(body) -> None:
+    v, f = body
+    # an even spread like a marker layout: farthest-point sampling of surface points
+    from skincap.deform.dense.landmarks import _spread
+
+    dense = _surface_points(v, f, 6000, seed=6)
+    markers = dense[_spread(dense, 300)]
+    labels = _labels(300)
+    lm = automatic_landmarks(v, f, markers, labels)
+    assert len(lm) == 40
+    index = {s: k for k, s in enumerate(labels)}
+    gap = np.array([np.linalg.norm(v[i] - markers[index[s]]) for s, i in lm.items()])
+    assert np.median(gap) < 0.05 and np.percentile(gap, 90) < 0.12
