@@ -27,7 +27,6 @@ file before anything is written; every output goes through a temporary file.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 import time
 import warnings
