@@ -292,6 +292,11 @@ def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
     assert np.isfinite(solved.rotations).all()
     assert read_gltf(folder / "real" / "solved_body.glb").skin.skeleton.n_joints == 163
     assert "A real capture: clean, solve the skeleton, skin" in page
+    # the dense chain: the four variants and one global RBF against the true skin
+    dense = {r["method"]: r for r in figures["dense"]["rows"]}
+    assert set(dense) == {"rigid", "quadratic", "rigid_rbf", "quadratic_rbf", "global_rbf"}
+    assert all(0 < r["rms_m"] < 0.02 and r["nan_fraction"] == 0 for r in dense.values())
+    assert "Dense skin" in page and (folder / "figures" / "dense_errors.png").is_file()
     assert run("demo", "-o", folder, "--frames", "240").exit_code == 2  # outputs exist
 
 

@@ -10,6 +10,7 @@ from skincap.cli import (  # noqa: F401, I001  (registers the verbs in --help or
     info,
     convert,
     skin,
+    animate,
     synth,
     demo,
     bench,

@@ -53,6 +53,39 @@ def bench_skin(
     print_bench_results(results, json_output)
 
 
+@bench_app.command("animate")
+def bench_animate(
+    vertices: Annotated[int, typer.Option(help="Skin vertices.")] = 50_000,
+    parts: Annotated[int, typer.Option(help="Near-rigid parts.")] = 17,
+    markers: Annotated[int, typer.Option(help="Markers (rings of 10 on the body).")] = 350,
+    frames: Annotated[int, typer.Option(help="Frames per timed run.")] = 32,
+    rom_frames: Annotated[
+        int, typer.Option(help="Frames of the take the segmentation is timed on (0: skip).")
+    ] = 1000,
+    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 3,
+    json_output: Annotated[
+        bool, typer.Option("--json", help="Print the measurements as JSON.")
+    ] = False,
+) -> None:
+    """Dense deformation ms/frame (the four variants) against our LBS on the same mesh, as ratios;
+    segmentation and registration times.
+
+    Example: skincap bench animate --vertices 50000 --parts 17 --markers 350
+    """
+    from skincap.evaluate.bench.animate import run_animate_benchmark
+
+    with _user_errors():
+        results = run_animate_benchmark(
+            n_vertices=vertices,
+            n_parts=parts,
+            n_markers=markers,
+            n_frames=frames,
+            repeat=repeat,
+            rom_frames=rom_frames,
+        )
+    print_bench_results(results, json_output)
+
+
 @bench_app.command("synth")
 def bench_synth(
     frames: Annotated[int, typer.Option(help="Frames of the take (120 Hz).")] = 1000,

@@ -6,7 +6,9 @@
    then every fill method scored on punched gaps against the truth.
 3. Rope tracking (Porter): found automatically among the un-indexed points, tracked,
    gaps repaired; classification and gap repair scored against the truth.
-4. Skinning: the shipped CC0 MakeHuman body walks a real CMU capture (glTF with LBS,
+4. Dense skin (Park & Hodgins §5): the synthetic take's markers drive its body by the
+   four part-deformer variants and one global RBF, scored against the true skin.
+4b. Skinning: the shipped CC0 MakeHuman body walks a real CMU capture (glTF with LBS,
    PC2 point cache with DQS), with the LBS/DQS artefact table.
 5. The shipped real captures converted between formats.
 6. ``report.html``: missing-data maps, error plots, tables, timings and rendered frames.
@@ -149,6 +151,7 @@ def _run_demo(
     cleaned = _clean(folder, steps, take, force, outputs, figures)
     fill_eval = _evaluate_fill(folder, steps, take, force, outputs, figures)
     track_eval = _track(folder, steps, take, force, outputs, figures)
+    _dense(folder, steps, take, force, outputs, figures)
     body = _skin(folder, steps, force, outputs, figures)
     artefacts = _artefacts(steps, body, figures)
     _solve_real(folder, steps, body, force, outputs, figures)
@@ -354,6 +357,27 @@ def _track(
         "points": report.get("points", int(take.points.points.shape[0])),
     }
     return result
+
+
+def _dense(
+    folder: Path, steps: _Steps, take: Any, force: bool, outputs: list[Path], figures: dict
+) -> None:
+    from skincap.workflows.demo_dense import dense_comparison
+
+    with steps.step(0.68, "dense skin (Park & Hodgins §5)"):
+        body = _body_columns(list(take.truth.labels))
+        (folder / "figures").mkdir(exist_ok=True)
+        png = folder / "figures" / "dense_errors.png"
+        figures["dense"] = dense_comparison(
+            take.truth.positions[:, body],
+            [str(take.truth.labels[i]) for i in body],
+            take.marker_surface.faces,
+            np.asarray(take.skin.frames),
+            take.skin.rest.faces,
+            png,
+            force=force,
+        )
+    outputs.append(png)
 
 
 def _skin(folder: Path, steps: _Steps, force: bool, outputs: list[Path], figures: dict) -> Any:

@@ -1,0 +1,631 @@
+"""The dense chain measured against the true skin: Park & Hodgins' Fig. 7 and Fig. 8 as numbers.
+
+On a synthetic dense take (``skincap synth``'s folder: ``truth/markers.c3d``,
+``truth/mesh.pc2``, ``truth/marker_surface.ply``, ``truth/body.glb``,
+``truth/motion.bvh``), every row is the vertex error against the true skin over all
+frames and vertices:
+
+* ``same_body`` rows: the four dense variants (``rigid`` … ``quadratic_rbf``) on the
+  body the capture was made on, in the reference pose (frame 0 of the true skin), the
+  rig segmented on the take itself;
+* ``lbs`` and ``dqs``: skeletal skinning of the same body driven by the true skeleton
+  (what a conventional capture gives at best, Fig. 8);
+* ``global_rbf``: one global scattered-data interpolation of the marker displacements
+  (scipy's ``RBFInterpolator``, thin-plate spline): what §5 argues against.
+
+The held-out test works on any labelled capture, real ones included: 10 % of the
+markers (seeded) are left out of the rig, the rest drive it, and each held-out marker
+is moved as a point of the body (its part weights from the nearest marker-surface
+triangle); the row is the distance between where the deformation puts it and where it
+was measured. Segmentation is scored against ``truth/marker_parts.csv`` (``label,part``)
+by the adjusted Rand index when that file exists.
+
+With a *different template* (another body mesh), it is registered to the reference-pose
+markers (§5.1, :mod:`skincap.deform.dense.registration`), rigged and deformed like the
+capture's own body; since its vertices do not correspond to the true skin's, that row
+is the distance from its deformed vertices to the true skin surface (on 8 frames), the
+scan-to-mesh measure of MoSh++. Nothing here prints; the CLI (``skincap eval animate``) writes the JSON and
+the colour maps.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from skincap._arrays import Progress
+from skincap.errors import FormatError, ValidationError
+
+__all__ = [
+    "TARGETS",
+    "adjusted_rand_index",
+    "evaluate_animate",
+    "held_out_marker_errors",
+    "held_out_on_capture",
+    "global_rbf_frames",
+    "plot_vertex_errors",
+    "vertex_errors",
+]
+
+#: The targets of issue #16 (metres or fractions).
+TARGETS: dict[str, Any] = {
+    "quadratic_rbf_same_body_rms_m": 0.003,
+    "quadratic_rbf_registered_template_rms_m": 0.005,
+    "quadratic_rbf_vs_rigid_reduction": 0.5,
+    "quadratic_rbf_vs_lbs_reduction": 0.4,
+    "held_out_mean_m": 0.004,
+    "segmentation_ari": 0.85,
+}
+
+
+def vertex_errors(frames: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
+    """Vertex error figures of an animation against the truth.
+
+    Parameters
+    ----------
+    frames, truth : (T, V, 3) float, metres (NaN frames of ``frames`` are excluded)
+
+    Returns
+    -------
+    dict
+        ``rms_m``, ``mean_m``, ``p95_m``, ``max_m`` over all frames and vertices,
+        ``nan_fraction``, and ``per_vertex_rms_m`` (V,) ndarray (not JSON: popped by
+        the caller).
+    """
+    f = np.asarray(frames, dtype=np.float64)
+    t = np.asarray(truth, dtype=np.float64)
+    if f.shape != t.shape:
+        raise ValidationError(f"frames {f.shape} and truth {t.shape} differ in shape")
+    d = np.linalg.norm(f - t, axis=-1)  # (T, V)
+    ok = np.isfinite(d)
+    dd = d[ok]
+    if dd.size == 0:
+        raise ValidationError("no finite vertex to compare")
+    per_vertex = np.sqrt((np.where(ok, d, 0.0) ** 2).sum(0) / np.maximum(ok.sum(0), 1))
+    return {
+        "rms_m": float(np.sqrt(np.mean(dd**2))),
+        "mean_m": float(dd.mean()),
+        "p95_m": float(np.percentile(dd, 95)),
+        "max_m": float(dd.max()),
+        "nan_fraction": float(1.0 - ok.mean()),
+        "per_vertex_rms_m": per_vertex,
+    }
+
+
+def global_rbf_frames(
+    reference: np.ndarray, positions: np.ndarray, vertices: np.ndarray
+) -> np.ndarray:
+    """One global RBF interpolation of the marker displacements, applied to the vertices.
+
+    Parameters
+    ----------
+    reference : (N, 3) float, metres, finite
+    positions : (T, N, 3) float, metres (a marker missing at a frame gets the
+        displacement of the reference, 0, there)
+    vertices : (V, 3) float, metres, in the reference pose
+
+    Returns
+    -------
+    (T, V, 3) float64, metres
+        One thin-plate-spline ``RBFInterpolator`` fitted to all frames' displacements
+        at once (values (N, 3T)).
+    """
+    from scipy.interpolate import RBFInterpolator
+
+    ref = np.asarray(reference, dtype=np.float64)
+    x = np.asarray(positions, dtype=np.float64)
+    n_t = x.shape[0]
+    disp = np.where(np.isfinite(x), x - ref[None], 0.0)  # (T, N, 3)
+    values = disp.transpose(1, 0, 2).reshape(ref.shape[0], 3 * n_t)
+    moved = RBFInterpolator(ref, values)(np.asarray(vertices, dtype=np.float64))
+    return np.asarray(vertices)[None] + moved.reshape(-1, n_t, 3).transpose(1, 0, 2)
+
+
+def adjusted_rand_index(a: Sequence[int] | np.ndarray, b: Sequence[int] | np.ndarray) -> float:
+    """Adjusted Rand index of two labelings of the same items (Hubert & Arabie 1985).
+
+    Parameters
+    ----------
+    a, b : (n,) int
+
+    Returns
+    -------
+    float
+        1 for identical partitions (up to renaming), about 0 for chance.
+    """
+    from scipy.special import comb
+
+    a = np.asarray(a)
+    b = np.asarray(b)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValidationError(f"labelings must be 1-d of one length; got {a.shape} and {b.shape}")
+    _, ia = np.unique(a, return_inverse=True)
+    _, ib = np.unique(b, return_inverse=True)
+    table = np.zeros((ia.max() + 1, ib.max() + 1))
+    np.add.at(table, (ia, ib), 1.0)
+    sum_cells = comb(table, 2).sum()
+    sum_a = comb(table.sum(1), 2).sum()
+    sum_b = comb(table.sum(0), 2).sum()
+    expected = sum_a * sum_b / comb(a.size, 2)
+    top = 0.5 * (sum_a + sum_b)
+    if top == expected:
+        return 1.0
+    return float((sum_cells - expected) / (top - expected))
+
+
+def held_out_marker_errors(
+    positions: np.ndarray,
+    surface_faces: np.ndarray,
+    *,
+    range_of_motion: np.ndarray | None = None,
+    reference_frame: int = 0,
+    fraction: float = 0.1,
+    n_parts: int = 17,
+    method: str = "quadratic_rbf",
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Leave ``fraction`` of the markers out, deform, measure where the rest put them.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    surface_faces : (F, 3) int, marker-surface triangles over the N columns
+    range_of_motion : (T', N, 3) float, optional
+        The take the parts and weights are learnt from (default ``positions``).
+    reference_frame : int
+        Markers missing there take no part.
+    fraction : float
+        Share of the markers held out (seeded choice).
+    n_parts : int
+        Parts of the rig the kept markers build (fewer when the markers are few: at
+        least six kept markers a part).
+    method : str
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``held_out`` count, ``mean_m``, ``p95_m``, ``max_m`` over the measured samples
+        of the held-out markers, ``n_parts``.
+    """
+    from skincap.deform.dense.deformer import DenseDeformer
+    from skincap.deform.dense.parts import part_frames
+    from skincap.deform.dense.segmentation import segment_marker_surface
+    from skincap.deform.dense.weights import (
+        candidates_from_triangle_parts,
+        marker_part_weights,
+        vertex_part_weights,
+    )
+
+    x = np.asarray(positions, dtype=np.float64)
+    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
+    present = np.flatnonzero(np.isfinite(x[reference_frame]).all(axis=1))
+    rng = np.random.default_rng(seed)
+    n_out = max(1, int(round(fraction * present.size)))
+    out = np.sort(rng.choice(present, size=n_out, replace=False))
+    keep = np.setdiff1d(present, out)
+    new_index = np.full(x.shape[1], -1)
+    new_index[keep] = np.arange(keep.size)
+    kept_faces = new_index[f]
+    kept_faces = kept_faces[(kept_faces >= 0).all(axis=1)]
+    ref = x[reference_frame, keep]
+    rom = (x if range_of_motion is None else np.asarray(range_of_motion, float))[:, keep]
+    parts = int(max(1, min(n_parts, keep.size // 6)))
+    seg = segment_marker_surface(rom, ref, kept_faces, n_parts=parts)
+    cand = candidates_from_triangle_parts(kept_faces, seg.triangle_parts, keep.size, seg.n_parts)
+    alpha = marker_part_weights(rom, ref, cand)
+    held_ref = x[reference_frame, out]
+    beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
+    deformer = DenseDeformer(part_frames(ref, alpha), held_ref, beta)
+    predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
+    d = np.linalg.norm(predicted - x[:, out], axis=-1)
+    dd = d[np.isfinite(d)]
+    return {
+        "held_out": int(n_out),
+        "markers": int(present.size),
+        "n_parts": int(seg.n_parts),
+        "method": method,
+        "mean_m": float(dd.mean()) if dd.size else None,
+        "p95_m": float(np.percentile(dd, 95)) if dd.size else None,
+        "max_m": float(dd.max()) if dd.size else None,
+    }
+
+
+def held_out_on_capture(
+    markers: Any, *, fraction: float = 0.1, n_parts: int = 17, seed: int = 0
+) -> dict[str, Any]:
+    """The held-out test on any labelled capture (real ones included).
+
+    The labelled columns (not ``*N``) are used; the marker surface is built from the
+    take (:func:`skincap.cleanup.surface.build_marker_surface`), the reference frame is
+    the one with the most markers and the take is its own range of motion.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+    fraction, n_parts, seed : see :func:`held_out_marker_errors`
+
+    Returns
+    -------
+    dict
+        :func:`held_out_marker_errors`'s figures plus ``reference_frame`` and
+        ``surface_triangles``.
+    """
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+
+    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    x = markers.positions[:, keep]
+    frame = choose_reference_frame(x)
+    surface = build_marker_surface(x, reference_frame=frame)
+    if surface.faces.shape[0] == 0:
+        raise ValidationError("the capture's marker surface has no triangles")
+    out = held_out_marker_errors(
+        x, surface.faces, reference_frame=frame, fraction=fraction, n_parts=n_parts, seed=seed
+    )
+    return {**out, "reference_frame": int(frame), "surface_triangles": int(surface.faces.shape[0])}
+
+
+def _read_marker_parts(path: Path, labels: Sequence[str]) -> np.ndarray | None:
+    """``truth/marker_parts.csv`` (``label,part`` with a header) in label order, or None."""
+    import csv
+
+    if not path.is_file():
+        return None
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    if not rows:
+        return None
+    header = [h.strip().lower() for h in rows[0]]
+    if "label" not in header or "part" not in header:
+        raise FormatError(path, "expected a header with 'label' and 'part' columns")
+    li, pi = header.index("label"), header.index("part")
+    parts = {r[li]: r[pi] for r in rows[1:] if len(r) > max(li, pi)}
+    if any(lab not in parts for lab in labels):
+        raise FormatError(path, "does not name every marker of the take")
+    names = sorted(set(parts.values()))
+    return np.array([names.index(parts[lab]) for lab in labels])
+
+
+def evaluate_animate(
+    folder: str | os.PathLike[str],
+    *,
+    methods: Sequence[str] | None = None,
+    rom: str | os.PathLike[str] | None = None,
+    template: Any = None,
+    template_landmarks: dict[str, int] | None = None,
+    marker_radius: float = 0.0,
+    n_parts: int = 17,
+    held_out_fraction: float = 0.1,
+    seed: int = 0,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Every row of the dense chain's evaluation on one synthetic take folder.
+
+    Parameters
+    ----------
+    folder : path-like
+        Written by ``skincap synth`` (dense markers).
+    methods : sequence of str, optional
+        Dense variants (default all four).
+    rom : path-like, optional
+        A synthetic range-of-motion take of the same body and markers (``skincap synth
+        --motion rom``, same seed and resolution) the parts are learnt from; default
+        the take itself.
+    template : Mesh, optional
+        A different body to register to the reference-pose markers (§5.1) and deform:
+        the ``registered_template`` row (distances to the true skin surface, since its
+        vertices do not correspond to the true skin's).
+    template_landmarks : dict of str to int, optional
+        Marker label -> template vertex (default: found automatically).
+    marker_radius : float, metres
+        Height of the marker centres above the skin, for the registration.
+    n_parts : int
+    held_out_fraction : float
+    seed : int
+        Of the held-out choice.
+    progress : callable(fraction, label), optional
+
+    Returns
+    -------
+    dict
+        ``rows`` (one per case and method: ``case``, ``method``, ``rms_m``, ``mean_m``,
+        ``p95_m``, ``max_m``…), ``held_out``, ``segmentation``, ``targets`` (value,
+        target, met), ``per_vertex_rms_m`` (method -> (V,) array, for the colour maps;
+        not JSON), ``vertices`` (V, 3) reference-pose vertices and ``faces``.
+    """
+    from skincap import io
+    from skincap.deform.dense.deformer import METHODS
+    from skincap.deform.dense.rig import build_dense_rig
+    from skincap.io.pc2 import read_pc2
+
+    root = Path(folder)
+    truth_dir = root / "truth"
+    need = ["markers.c3d", "mesh.pc2", "mesh.obj", "marker_surface.ply"]
+    for name in need:
+        if not (truth_dir / name).is_file():
+            raise FormatError(root, f"not a synthetic dense take: truth/{name} is missing")
+    step = _stepper(progress)
+    markers = io.read(truth_dir / "markers.c3d")
+    labels = [str(s) for s in markers.labels if not str(s).startswith("rope")]
+    columns = [i for i, s in enumerate(markers.labels) if not str(s).startswith("rope")]
+    x = markers.positions[:, columns]
+    truth = np.asarray(read_pc2(truth_dir / "mesh.pc2").frames, dtype=np.float64)
+    rest = io.read(truth_dir / "mesh.obj")
+    surface = io.read(truth_dir / "marker_surface.ply")
+    if surface.n_vertices != len(labels):
+        raise FormatError(
+            truth_dir / "marker_surface.ply",
+            f"{surface.n_vertices} vertices for {len(labels)} body markers",
+        )
+    n_t = min(x.shape[0], truth.shape[0])
+    x, truth = x[:n_t], truth[:n_t]
+    vertices = truth[0]  # the body in the markers' reference pose (frame 0)
+    step(0.05, "segmentation")
+    rom_x = x
+    if rom is not None:
+        rom_markers = io.read(Path(rom) / "truth" / "markers.c3d")
+        where = {str(s): i for i, s in enumerate(rom_markers.labels)}
+        if any(lab not in where for lab in labels):
+            raise FormatError(Path(rom), "the range-of-motion take has other markers")
+        rom_x = rom_markers.positions[:, [where[lab] for lab in labels]]
+    rig = build_dense_rig(vertices, rest.faces, labels, x[0], surface.faces, rom_x, n_parts=n_parts)
+    deformer = rig.deformer()
+    rows: list[dict[str, Any]] = []
+    per_vertex: dict[str, np.ndarray] = {}
+    chosen = list(METHODS if methods is None else methods)
+    for i, method in enumerate(chosen):
+        step(0.1 + 0.5 * i / len(chosen), f"deforming ({method})")
+        frames = np.concatenate(list(deformer.deform(x, method)))  # type: ignore[arg-type]
+        _add_row(rows, per_vertex, "same_body", method, frames, truth)
+    step(0.6, "skeletal skinning")
+    rows += _skeletal_rows(truth_dir, truth, per_vertex)
+    step(0.75, "global RBF")
+    _add_row(
+        rows, per_vertex, "same_body", "global_rbf", global_rbf_frames(x[0], x, vertices), truth
+    )
+    if template is None:
+        rows.append(
+            {
+                "case": "registered_template",
+                "method": "quadratic_rbf",
+                "measured": False,
+                "note": "no template given (eval animate --template MESH|makehuman)",
+            }
+        )
+        registration: dict[str, Any] | None = None
+    else:
+        step(0.77, "registering the template")
+        row, registration = _registered_template_row(
+            template, rest.faces, labels, x, rom_x, surface.faces, truth,
+            n_parts=n_parts, marker_radius=marker_radius, landmarks=template_landmarks,
+        )  # fmt: skip
+        rows.append(row)
+    step(0.8, "held-out markers")
+    held = held_out_marker_errors(
+        x,
+        surface.faces,
+        range_of_motion=rom_x,
+        fraction=held_out_fraction,
+        n_parts=n_parts,
+        seed=seed,
+    )
+    segmentation: dict[str, Any] = {
+        "n_parts": rig.n_parts,
+        "markers_per_part": [int(c) for c in (rig.marker_weights > 0).sum(0)],
+    }
+    true_parts = _read_marker_parts(truth_dir / "marker_parts.csv", labels)
+    if true_parts is not None:
+        seen = rig.marker_parts >= 0
+        segmentation["ari"] = adjusted_rand_index(true_parts[seen], rig.marker_parts[seen])
+    step(1.0, "done")
+    return {
+        "folder": str(root),
+        "rom": None if rom is None else str(rom),
+        "frames": int(n_t),
+        "vertices_count": int(vertices.shape[0]),
+        "markers": len(labels),
+        "rows": rows,
+        "held_out": held,
+        "segmentation": segmentation,
+        "registration": registration,
+        "targets": _targets(rows, held, segmentation),
+        "per_vertex_rms_m": per_vertex,
+        "vertices": vertices,
+        "faces": rest.faces,
+    }
+
+
+def _stepper(progress: Progress | None) -> Callable[[float, str], None]:
+    def step(fraction: float, label: str) -> None:
+        if progress is not None:
+            progress(fraction, label)
+
+    return step
+
+
+def _add_row(
+    rows: list[dict[str, Any]],
+    per_vertex: dict[str, np.ndarray],
+    case: str,
+    method: str,
+    frames: np.ndarray,
+    truth: np.ndarray,
+) -> None:
+    figures = vertex_errors(frames, truth)
+    per_vertex[method] = figures.pop("per_vertex_rms_m")
+    rows.append({"case": case, "method": method, "measured": True, **figures})
+
+
+def _surface_distances(
+    frames: np.ndarray, truth: np.ndarray, faces: np.ndarray, picks: np.ndarray
+) -> np.ndarray:
+    """(len(picks), V') distance of every deformed vertex to the true skin surface, metres."""
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    # one closest-point query per picked frame (a handful): the surface changes per frame
+    return np.stack([closest_points_on_mesh(truth[t], faces, frames[t])[0] for t in picks])
+
+
+def _registered_template_row(
+    template: Any,
+    skin_faces: np.ndarray,
+    labels: list[str],
+    x: np.ndarray,
+    rom_x: np.ndarray,
+    surface_faces: np.ndarray,
+    truth: np.ndarray,
+    *,
+    n_parts: int,
+    marker_radius: float,
+    landmarks: dict[str, int] | None,
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Register another body to the markers, deform it, measure it against the true skin."""
+    from skincap.deform.dense.registration import RegistrationSettings, register_mesh
+    from skincap.deform.dense.rig import build_dense_rig
+
+    t0 = time.perf_counter()
+    reg = register_mesh(
+        template.vertices, template.faces, x[0], labels, landmarks=landmarks,
+        settings=RegistrationSettings(marker_radius=marker_radius),
+    )  # fmt: skip
+    seconds = time.perf_counter() - t0
+    rest_to_truth = _surface_distances(reg.vertices[None], truth[:1], skin_faces, np.array([0]))[0]
+    registration = {
+        "template_vertices": int(template.vertices.shape[0]),
+        "landmarks": len(reg.landmarks),
+        "seconds": seconds,
+        "markers_to_surface_mean_m": float(np.nanmean(reg.marker_distance)),
+        "surface_to_true_skin_mean_m": float(rest_to_truth.mean()),
+        "surface_to_true_skin_p95_m": float(np.percentile(rest_to_truth, 95)),
+    }
+    rig = build_dense_rig(
+        reg.vertices, template.faces, labels, x[0], surface_faces, rom_x, n_parts=n_parts
+    )
+    frames = np.concatenate(list(rig.deformer().deform(x, "quadratic_rbf")))
+    picks = np.unique(np.linspace(0, x.shape[0] - 1, 8).round().astype(int))
+    d = _surface_distances(frames, truth, skin_faces, picks).ravel()
+    row = {
+        "case": "registered_template",
+        "method": "quadratic_rbf",
+        "measured": True,
+        "metric": "deformed template vertex to the true skin surface, 8 frames",
+        "rms_m": float(np.sqrt(np.mean(d**2))),
+        "mean_m": float(d.mean()),
+        "p95_m": float(np.percentile(d, 95)),
+        "max_m": float(d.max()),
+        "nan_fraction": 0.0,
+    }
+    return row, registration
+
+
+def _skeletal_rows(
+    truth_dir: Path, truth: np.ndarray, per_vertex: dict[str, np.ndarray]
+) -> list[dict[str, Any]]:
+    """LBS and DQS of the synthetic body driven by the true skeleton."""
+    from skincap import io
+    from skincap.deform.skeletal.deformers import skin_motion
+    from skincap.deform.skeletal.pipeline import prepare_skinning
+    from skincap.io.bvh import read_bvh
+
+    body_path, motion_path = truth_dir / "body.glb", truth_dir / "motion.bvh"
+    if not (body_path.is_file() and motion_path.is_file()):
+        return [{"case": "true_skeleton", "method": m, "measured": False,
+                 "note": "truth/body.glb or truth/motion.bvh missing"} for m in ("lbs", "dqs")]  # fmt: skip
+    setup = prepare_skinning(io.read_mesh(body_path), read_bvh(motion_path))
+    rows: list[dict[str, Any]] = []
+    for method in ("lbs", "dqs"):
+        anim = skin_motion(setup.mesh, setup.motion, method=method)
+        frames = np.concatenate(list(anim.iter_chunks()))[: truth.shape[0]]
+        if frames.shape != truth.shape:
+            rows.append({"case": "true_skeleton", "method": method, "measured": False,
+                         "note": f"skinned body {frames.shape} does not match the skin {truth.shape}"})  # fmt: skip
+            continue
+        _add_row(rows, per_vertex, "true_skeleton", method, frames, truth)
+    return rows
+
+
+def _targets(
+    rows: list[dict[str, Any]], held: dict[str, Any], segmentation: dict[str, Any]
+) -> dict[str, dict[str, Any]]:
+    rms = {
+        r["method"]: r["rms_m"]
+        for r in rows
+        if r.get("measured") and r["case"] != "registered_template"
+    }
+    registered = [
+        r["rms_m"] for r in rows if r["case"] == "registered_template" and r.get("measured")
+    ]
+    q = rms.get("quadratic_rbf")
+
+    def reduction(base: str) -> float | None:
+        return None if q is None or base not in rms else 1.0 - q / rms[base]
+
+    values: dict[str, float | None] = {
+        "quadratic_rbf_same_body_rms_m": q,
+        "quadratic_rbf_registered_template_rms_m": registered[0] if registered else None,
+        "quadratic_rbf_vs_rigid_reduction": reduction("rigid"),
+        "quadratic_rbf_vs_lbs_reduction": reduction("lbs"),
+        "held_out_mean_m": held.get("mean_m"),
+        "segmentation_ari": segmentation.get("ari"),
+    }
+    out: dict[str, dict[str, Any]] = {}
+    for name, target in TARGETS.items():
+        value = values[name]
+        higher = name.endswith("reduction") or name == "segmentation_ari"
+        met = None if value is None else (value >= target if higher else value <= target)
+        out[name] = {"value": value, "target": target, "met": met}
+    return out
+
+
+def plot_vertex_errors(
+    vertices: np.ndarray,
+    per_vertex_rms: dict[str, np.ndarray],
+    path: str | os.PathLike[str],
+    *,
+    force: bool = False,
+    title: str | None = None,
+) -> Path:
+    """Error colour maps on the body, front view, one panel per method, one shared scale.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres, Y up, facing +Z
+    per_vertex_rms : method -> (V,) float, metres
+    path : path-like, ``.png`` (written atomically)
+
+    Raises
+    ------
+    MissingDependencyError
+        matplotlib is not installed (extra ``plot``).
+    """
+    from skincap.io._common import atomic_output
+    from skincap.viz.plotting import agg_pyplot
+
+    plt = agg_pyplot("PNG plots")
+    v = np.asarray(vertices, dtype=np.float64)
+    names = list(per_vertex_rms)
+    top = max(float(np.percentile(per_vertex_rms[m], 99)) for m in names) * 1e3
+    order = np.argsort(v[:, 2])  # far vertices drawn first
+    fig, axes = plt.subplots(1, len(names), figsize=(2.6 * len(names), 3.0), dpi=110)
+    axes = np.atleast_1d(axes)
+    try:
+        for ax, name in zip(axes, names, strict=True):
+            err = per_vertex_rms[name][order] * 1e3
+            sc = ax.scatter(v[order, 0], v[order, 1], c=err, s=0.6, cmap="magma", vmin=0, vmax=top)
+            rms = float(np.sqrt(np.mean(per_vertex_rms[name] ** 2)) * 1e3)
+            ax.set_title(f"{name}\n{rms:.2f} mm RMS", fontsize=8)
+            ax.set_aspect("equal")
+            ax.axis("off")
+        fig.colorbar(sc, ax=list(axes), shrink=0.7, label="vertex RMS error (mm)")
+        if title:
+            fig.suptitle(title, fontsize=9)
+        with atomic_output(path, force=force) as tmp:
+            fig.savefig(tmp, format="png")
+    finally:
+        plt.close(fig)
+    return Path(path)

@@ -1,0 +1,275 @@
+"""Dense-deformation benchmark: ms/frame of the four variants against our LBS, in one run.
+
+The scene is a chain of ``n_parts`` tube segments (a limb-like body along x) carrying
+``n_markers`` markers on rings and ``n_vertices`` skin vertices; each segment turns
+about the end of the previous one (a kinematic chain of sinusoidal joint angles), so
+every part moves rigidly and the markers near a joint are shared. The dense deformer
+(:class:`skincap.deform.dense.deformer.DenseDeformer`) deforms ``n_frames`` frames per
+run; the baseline is our linear blend skinning of the same vertices with the same part
+weights as joint weights (two influences), timed in the same process. Also timed:
+the automatic segmentation of a ``rom_frames``-frame take of the same markers, and the
+registration of §5.1 when :mod:`skincap.deform.dense.registration` exists.
+
+Ratios are ``dense / LBS`` (how many times LBS's cost a frame of each variant is);
+the ms figures are for the record of this machine only. Nothing is printed: ``lines``
+holds the text for the CLI.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from functools import partial
+from typing import Any, cast
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from skincap.deform.dense.deformer import METHODS, DenseDeformer, Method
+from skincap.deform.dense.parts import part_frames
+from skincap.deform.dense.segmentation import segment_marker_surface
+from skincap.deform.skeletal.deformers import LinearBlendSkinning
+from skincap.errors import ValidationError
+
+__all__ = ["GOALS_MS", "chain_scene", "run_animate_benchmark"]
+
+#: Goals of issue #16 (2 cores): ms/frame at 50k vertices, seconds for the fits.
+GOALS_MS = {"quadratic_rbf_numpy": 20.0, "quadratic_rbf_numba": 5.0}
+GOALS_S = {"segmentation_1000_frames": 30.0, "registration_20k_vertices": 60.0}
+
+
+def _ring_tube(
+    n_rings: int, n_around: int, radius: float, length: float
+) -> tuple[np.ndarray, np.ndarray]:
+    x = np.linspace(0.0, length, n_rings)
+    a = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
+    xx, aa = np.meshgrid(x, a, indexing="ij")
+    pts = np.stack([xx.ravel(), radius * np.cos(aa).ravel(), radius * np.sin(aa).ravel()], 1)
+    idx = np.arange(n_rings * n_around).reshape(n_rings, n_around)
+    nxt = np.roll(idx, -1, axis=1)
+    a0, b0, c0, d0 = idx[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel(), nxt[:-1].ravel()
+    return pts, np.concatenate([np.stack([a0, c0, b0], 1), np.stack([a0, d0, c0], 1)])
+
+
+def _chain_transforms(n_parts: int, n_frames: int, length: float, seed: int) -> np.ndarray:
+    """(T, P, 4, 4) world transforms of a chain of parts hinged at x = p * length / P."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_frames) / 120.0
+    amp = rng.uniform(0.2, 0.8, size=(n_parts, 3))
+    freq = rng.uniform(0.3, 1.5, size=(n_parts, 3))
+    phase = rng.uniform(0, 2 * np.pi, size=(n_parts, 3))
+    angles = amp[None] * np.sin(2 * np.pi * freq[None] * t[:, None, None] + phase[None])
+    local = np.tile(np.eye(4), (n_frames, n_parts, 1, 1))
+    local[..., :3, :3] = (
+        Rotation.from_rotvec(angles.reshape(-1, 3)).as_matrix().reshape(n_frames, n_parts, 3, 3)
+    )
+    world = np.empty_like(local)
+    seg = length / n_parts
+    for p in range(n_parts):  # the chain: P (17) steps, vectorised over frames
+        pivot = np.eye(4)
+        pivot[0, 3] = p * seg
+        back = np.eye(4)
+        back[0, 3] = -p * seg
+        step = pivot @ local[:, p] @ back
+        world[:, p] = step if p == 0 else world[:, p - 1] @ step
+    return world
+
+
+def chain_scene(
+    n_vertices: int = 50_000,
+    n_parts: int = 17,
+    n_markers: int = 350,
+    n_frames: int = 64,
+    *,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """The benchmark's body: markers, surface, weights, vertices and frames.
+
+    Returns
+    -------
+    dict
+        ``reference`` (N, 3), ``faces`` (F, 3) marker-surface triangles, ``alpha``
+        (N, P), ``vertices`` (V, 3), ``beta`` (V, P), ``markers`` (T, N, 3),
+        ``transforms`` (T, P, 4, 4): every array in metres.
+    """
+    if n_parts < 1 or n_markers < 6 * n_parts or n_vertices < 1 or n_frames < 1:
+        raise ValidationError(
+            f"need parts >= 1, markers >= 6 per part, vertices and frames >= 1; got "
+            f"{n_parts}, {n_markers}, {n_vertices}, {n_frames}"
+        )
+    length = 0.1 * n_parts
+    around = 10
+    rings = max(2, n_markers // around)
+    reference, faces = _ring_tube(rings, around, 0.06, length)
+    seg = length / n_parts
+
+    def part_weights(x: np.ndarray) -> np.ndarray:
+        """Hard parts by x, linear ramps 1 cm either side of each joint."""
+        u = np.clip(x / seg - 0.5, 0.0, n_parts - 1.0)
+        lo = np.floor(u).astype(int)
+        ramp = np.clip((u - lo - 0.5) * seg / 0.02 + 0.5, 0.0, 1.0)  # the joint at u - lo = 0.5
+        w = np.zeros((x.size, n_parts))
+        w[np.arange(x.size), lo] = 1.0 - ramp
+        w[np.arange(x.size), np.minimum(lo + 1, n_parts - 1)] += ramp
+        return w
+
+    alpha = part_weights(reference[:, 0])
+    rng = np.random.default_rng(seed)
+    vx = rng.uniform(0.0, length, n_vertices)
+    va = rng.uniform(0.0, 2 * np.pi, n_vertices)
+    vertices = np.stack([vx, 0.05 * np.cos(va), 0.05 * np.sin(va)], 1)
+    beta = part_weights(vx)
+    world = _chain_transforms(n_parts, n_frames, length, seed)
+    owner = np.argmax(alpha, axis=1)
+    moved = world[:, owner]  # (T, N, 4, 4)
+    markers = np.einsum("tnab,nb->tna", moved[..., :3, :3], reference) + moved[..., :3, 3]
+    return {
+        "reference": reference,
+        "faces": faces,
+        "alpha": alpha,
+        "vertices": vertices,
+        "beta": beta,
+        "markers": markers,
+        "transforms": world,
+    }
+
+
+def _best_seconds(run: Callable[[], object], repeat: int) -> float:
+    run()  # warm-up
+    best = np.inf
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        run()
+        best = min(best, time.perf_counter() - t0)
+    return float(best)
+
+
+def run_animate_benchmark(
+    n_vertices: int = 50_000,
+    n_parts: int = 17,
+    n_markers: int = 350,
+    n_frames: int = 32,
+    repeat: int = 3,
+    *,
+    rom_frames: int = 1000,
+    seed: int = 0,
+) -> dict[str, Any]:
+    """Milliseconds per frame of the dense variants and of our LBS; fit times.
+
+    Parameters
+    ----------
+    n_vertices, n_parts, n_markers : int
+        The scene (:func:`chain_scene`).
+    n_frames : int
+        Frames deformed per timed run (one chunk).
+    repeat : int
+        Timed runs after one warm-up; the best is kept.
+    rom_frames : int
+        Frames of the take the segmentation is timed on (0: not timed).
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``ms_per_frame`` (``<method>_numpy``, ``lbs_numpy``, ``lbs_numba``;
+        ``<method>_numba`` None: the dense deformer has no numba kernel),
+        ``ratios`` (``<method>_numpy / lbs_numpy``), ``seconds``
+        (``segmentation``, ``registration`` or None), ``goals``, ``config``,
+        ``notes``, ``lines``.
+    """
+    if repeat < 1:
+        raise ValidationError(f"repeat must be >= 1; got {repeat}")
+    scene = chain_scene(n_vertices, n_parts, n_markers, n_frames, seed=seed)
+    notes: list[str] = ["the dense deformer has no numba kernel: its numba rows are not measured"]
+    deformer = DenseDeformer(
+        part_frames(scene["reference"], scene["alpha"]), scene["vertices"], scene["beta"]
+    )
+    ms: dict[str, float | None] = {}
+
+    def deform_all(method: Method) -> list[np.ndarray]:
+        return list(deformer.deform(scene["markers"], method, chunk=n_frames))
+
+    for method in METHODS:
+        sec = _best_seconds(partial(deform_all, cast("Method", method)), repeat)
+        ms[f"{method}_numpy"] = 1e3 * sec / n_frames
+        ms[f"{method}_numba"] = None
+    # our LBS of the same vertices: the parts as joints, β as two-influence weights
+    order = np.argsort(-scene["beta"], axis=1)[:, :2]
+    weights = np.take_along_axis(scene["beta"], order, axis=1)
+    weights /= weights.sum(axis=1, keepdims=True)
+    for backend in ("numpy", "numba"):
+        try:
+            lbs = LinearBlendSkinning(
+                scene["vertices"], order, weights, n_joints=n_parts, backend=backend
+            )
+        except Exception as exc:  # numba missing: reported, not fatal
+            notes.append(f"LBS {backend} not measured: {exc}")
+            ms[f"lbs_{backend}"] = None
+            continue
+        buffer = np.zeros((n_frames, n_vertices, 3))
+        sec = _best_seconds(partial(lbs.deform, scene["transforms"], out=buffer), repeat)
+        ms[f"lbs_{backend}"] = 1e3 * sec / n_frames
+    base = ms.get("lbs_numpy")
+    ratios = {
+        f"{m}_numpy / lbs_numpy": None if not base else (ms[f"{m}_numpy"] or 0.0) / base
+        for m in METHODS
+    }
+    seconds: dict[str, float | None] = {"segmentation": None, "registration": None}
+    if rom_frames > 0:
+        rom = chain_scene(1, n_parts, n_markers, rom_frames, seed=seed + 1)
+        t0 = time.perf_counter()
+        segment_marker_surface(rom["markers"], rom["reference"], rom["faces"], n_parts=n_parts)
+        seconds["segmentation"] = time.perf_counter() - t0
+    seconds["registration"] = _registration_seconds(scene, notes)
+    goals = {
+        "quadratic_rbf_numpy": ms["quadratic_rbf_numpy"] is not None
+        and ms["quadratic_rbf_numpy"] <= GOALS_MS["quadratic_rbf_numpy"],
+        "quadratic_rbf_numba": None,
+        "segmentation": None
+        if seconds["segmentation"] is None or rom_frames != 1000
+        else seconds["segmentation"] <= GOALS_S["segmentation_1000_frames"],
+    }
+    lines = [
+        f"dense deformation, {n_vertices} vertices, {n_parts} parts, {scene['reference'].shape[0]} markers, "
+        f"{n_frames} frames a run (best of {repeat}):"
+    ]
+    for key, value in ms.items():
+        if value is not None:
+            lines.append(f"  {key:<22} {value:9.3f} ms/frame")
+    for key, value in ratios.items():
+        if value is not None:
+            lines.append(f"  {key:<34} {value:7.2f}x")
+    for key, value in seconds.items():
+        lines.append(f"  {key:<22} " + ("not measured" if value is None else f"{value:.2f} s"))
+    lines += [f"  note: {n}" for n in notes]
+    return {
+        "ms_per_frame": ms,
+        "ratios": ratios,
+        "seconds": seconds,
+        "goals": goals,
+        "config": {
+            "vertices": n_vertices,
+            "parts": n_parts,
+            "markers": int(scene["reference"].shape[0]),
+            "frames": n_frames,
+            "rom_frames": rom_frames,
+            "repeat": repeat,
+        },
+        "notes": notes,
+        "lines": lines,
+    }
+
+
+def _registration_seconds(scene: dict[str, np.ndarray], notes: list[str]) -> float | None:
+    try:
+        from skincap.deform.dense import registration  # type: ignore[attr-defined]
+    except ImportError:
+        notes.append(
+            "registration not measured: skincap.deform.dense.registration is not in this build"
+        )
+        return None
+    verts, faces = _ring_tube(200, 100, 0.05, float(scene["reference"][:, 0].max()))  # 20k vertices
+    labels = [f"M{i:03d}" for i in range(scene["reference"].shape[0])]
+    t0 = time.perf_counter()
+    registration.register_mesh(verts, faces, scene["reference"], labels)
+    return time.perf_counter() - t0

@@ -1,0 +1,546 @@
+"""``skincap animate`` as a workflow: a body mesh and a dense marker take in, moving skin out.
+
+The dense chain of Park & Hodgins (2006), §5:
+
+1. **Markers.** The take's labelled columns (``*N`` fragments are dropped); a take
+   with gaps is filled by ``clean``'s default filler (local PCA) first, with a
+   :class:`~skincap.errors.SkincapWarning`.
+2. **Rig** (once per subject, :mod:`skincap.deform.dense.rig`): the marker surface
+   (``--surface`` or built from the take), the mesh registered to the reference pose
+   (``register=True``; otherwise the mesh must already be in that pose), the
+   near-rigid parts segmented on the range-of-motion take (``--rom``, default the take
+   itself), marker and vertex weights. Or ``--rig`` loads a saved one.
+3. **Deformation** (eqs. 6-9), streamed in frame chunks into the writer:
+
+``OUT.pc2`` (+ ``OUT.obj``)
+    A point cache and the rest mesh it plays on (Blender's Mesh Cache modifier).
+``OUT.usd`` / ``.usda`` / ``.usdc``
+    Time-sampled points.
+a folder
+    One OBJ per frame.
+
+Bad input (a mesh with no triangles, fewer than :data:`MIN_MARKERS` labelled markers,
+a rig or a ROM take of another marker set) raises a :class:`FormatError` naming the
+file before anything is written; every output goes through a temporary file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import warnings
+from collections.abc import Callable, Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, cast
+
+import numpy as np
+
+from skincap._arrays import Progress
+from skincap.errors import FormatError, OutputExistsError, SkincapWarning, ValidationError
+
+if TYPE_CHECKING:
+    from skincap.deform.dense.deformer import Method
+    from skincap.deform.dense.rig import DenseRig
+    from skincap.types import MarkerSet, Mesh
+
+__all__ = [
+    "ANIMATE_OUTPUTS",
+    "MIN_MARKERS",
+    "animate_file",
+    "animate_markers",
+    "labelled_markers",
+    "read_landmarks",
+]
+
+#: Output extensions of :func:`animate_file` (an output without one is a folder).
+ANIMATE_OUTPUTS = (".pc2", ".usd", ".usda", ".usdc")
+#: Fewest labelled markers a dense take needs (17 parts of three markers is 51; below
+#: ~30 there is not one well-spread part per limb segment).
+MIN_MARKERS = 30
+#: Frames per streamed deformation chunk.
+CHUNK_FRAMES = 32
+
+
+def labelled_markers(markers: MarkerSet, path: Path) -> MarkerSet:
+    """The labelled columns (labels not starting with ``*``) of a take, checked.
+
+    Raises
+    ------
+    FormatError
+        Fewer than :data:`MIN_MARKERS` labelled markers, or none ever seen.
+    """
+    from skincap.types import MarkerSet
+
+    if not isinstance(markers, MarkerSet):
+        raise FormatError(path, "is not a labelled marker capture")
+    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    seen = [i for i in keep if np.isfinite(markers.positions[:, i]).any()]
+    if len(seen) < MIN_MARKERS:
+        raise FormatError(
+            path,
+            f"{len(seen)} labelled markers; the dense chain needs at least {MIN_MARKERS} "
+            "(clean or label the capture first)",
+        )
+    return markers.select(seen)
+
+
+def _filled(markers: MarkerSet, path: Path) -> tuple[np.ndarray, int]:
+    """Positions with the gaps filled by clean's default filler; the count filled."""
+    from skincap.cleanup.fill import fill_gaps
+
+    pos = markers.positions
+    if not np.isnan(pos).any():
+        return pos, 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)  # one warning below says it all
+        filled, invented = fill_gaps(markers)
+    left = int(np.isnan(filled[..., 0]).sum())
+    warnings.warn(
+        f"{path}: the take has gaps; {int(invented.sum())} samples filled by local PCA "
+        f"(clean's default) before animating"
+        + (f", {left} left missing (their parts are held)" if left else ""),
+        SkincapWarning,
+        stacklevel=3,
+    )
+    return filled, int(invented.sum())
+
+
+def read_landmarks(path: Path, labels: list[str], n_vertices: int) -> dict[str, int]:
+    """``--landmarks FILE.json`` (:func:`skincap.io.landmarks_json.read_landmarks`),
+    checked against the take's labels and the mesh's vertices."""
+    from skincap.io.landmarks_json import read_landmarks as read_landmark_file
+
+    marks = read_landmark_file(path)
+    known = set(labels)
+    for lab, idx in marks.items():
+        if lab not in known:
+            raise FormatError(path, f"landmark {lab!r} is not a marker of the take")
+        if not 0 <= idx < n_vertices:
+            raise FormatError(path, f"landmark {lab!r}: vertex {idx} is not in 0..{n_vertices - 1}")
+    return marks
+
+
+def _output_files(output: Path) -> list[Path]:
+    if output.suffix.lower() == ".pc2":
+        return [output, output.with_suffix(".obj")]
+    return [output] if output.suffix else []
+
+
+def animate_file(
+    mesh_path: str | os.PathLike[str] | None,
+    markers_path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    rom: str | os.PathLike[str] | None = None,
+    method: str = "quadratic_rbf",
+    n_parts: int = 17,
+    surface: str | os.PathLike[str] | None = None,
+    landmarks: str | os.PathLike[str] | None = None,
+    reference_frame: int | None = None,
+    register: bool = False,
+    marker_radius_mm: float = 0.0,
+    save_rig: str | os.PathLike[str] | None = None,
+    rig: str | os.PathLike[str] | None = None,
+    report: str | os.PathLike[str] | None = None,
+    mesh_units: str | None = None,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> dict[str, Any]:
+    """Build or load the subject rig, deform the mesh by the take, write it; return the summary.
+
+    Parameters
+    ----------
+    mesh_path : path-like or None
+        OBJ/PLY/glTF body (:func:`skincap.io.read_mesh`); ignored (may be None) with ``rig``.
+    markers_path : path-like
+        A cleaned, labelled take (C3D, TRC, CSV), metres inside.
+    output : path-like
+        ``.pc2`` (+ ``.obj`` beside it), ``.usd``/``.usda``/``.usdc`` or a folder.
+    rom : path-like, optional
+        Range-of-motion take the parts are learnt from (default the take itself); it
+        must carry every marker of the take.
+    method : {"quadratic_rbf", "quadratic", "rigid_rbf", "rigid"}
+    n_parts : int
+        Near-rigid parts (the paper's 17).
+    surface : path-like, optional
+        Marker surface (PLY/OBJ over the markers or an edge CSV); default built from the take.
+    landmarks : path-like, optional
+        JSON ``{marker label: vertex index}`` for the registration.
+    reference_frame : int, optional
+        The take's frame the mesh matches (default the frame with the most markers).
+    register : bool
+        Fit the mesh to the reference-pose markers first (§5.1). Without it the mesh
+        must already be in the markers' reference pose.
+    marker_radius_mm : float
+        With ``register``: how far outside the skin the marker centres sit (ball
+        radius plus base), millimetres; the surface is fitted that far inside them.
+    save_rig, rig : path-like, optional
+        Save the rig built here (``.npz`` + ``.json``) / use a saved one instead.
+    report : path-like, optional
+        JSON report: parts, registration distances, per-frame timing, method.
+    mesh_units : str, optional
+        Length unit of an OBJ/PLY mesh.
+    force : bool
+        Replace existing outputs.
+    progress : callable(fraction, stage), optional
+
+    Returns
+    -------
+    dict
+        The report (also written to ``report``).
+    """
+    from skincap.io.dense_rig import dense_rig_files
+    from skincap.io.output_safety import guard_outputs
+    from skincap.workflows.skin_file import mesh_input_files
+
+    markers_path, output = Path(markers_path), Path(output)
+    given = {"mesh": mesh_path, "rom": rom, "surface": surface, "landmarks": landmarks,
+             "rig": rig, "save_rig": save_rig, "report": report}  # fmt: skip
+    paths = {name: None if value is None else Path(value) for name, value in given.items()}
+    if rig is not None and save_rig is not None:
+        raise FormatError(Path(rig), "give --rig or --save-rig, not both")
+    if rig is None and paths["mesh"] is None:
+        raise FormatError(markers_path, "a MESH is needed unless --rig gives the subject's rig")
+    ext = output.suffix.lower()
+    if ext and ext not in ANIMATE_OUTPUTS:
+        raise FormatError(
+            output,
+            f"cannot write {ext!r}; animate writes {', '.join(ANIMATE_OUTPUTS)} or a folder (OBJ sequence)",
+        )
+    if not ext and output.is_dir() and any(output.iterdir()) and not force:
+        raise OutputExistsError(output)
+    outputs = _output_files(output)
+    if paths["save_rig"] is not None:
+        outputs += list(dense_rig_files(paths["save_rig"]))
+    if paths["report"] is not None:
+        outputs.append(paths["report"])
+    inputs: list[Path | None] = [markers_path, paths["rom"], paths["surface"], paths["landmarks"]]
+    if paths["rig"] is not None:
+        inputs += list(dense_rig_files(paths["rig"]))
+    if paths["mesh"] is not None:
+        inputs += mesh_input_files(paths["mesh"])
+    with guard_outputs(inputs, outputs, folders=[] if ext else [output], force=force):
+        return _animate(
+            paths, markers_path, output,
+            method=method, n_parts=n_parts, reference_frame=reference_frame,
+            register=register, marker_radius_mm=marker_radius_mm, mesh_units=mesh_units,
+            force=force, progress=progress,
+        )  # fmt: skip
+
+
+def _animate(
+    paths: dict[str, Path | None],
+    markers_path: Path,
+    output: Path,
+    *,
+    method: str,
+    n_parts: int,
+    reference_frame: int | None,
+    register: bool,
+    marker_radius_mm: float,
+    mesh_units: str | None,
+    force: bool,
+    progress: Progress | None,
+) -> dict[str, Any]:
+    from skincap import io
+    from skincap.deform.dense.deformer import METHODS
+    from skincap.deform.dense.rig import DenseRig
+
+    if method not in METHODS:
+        raise FormatError(output, f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    if not 0.0 <= marker_radius_mm <= 50.0:
+        raise FormatError(output, f"--marker-radius must be 0-50 mm, got {marker_radius_mm}")
+    if not 1 <= n_parts <= 200:
+        raise FormatError(output, f"--parts must be in 1..200, got {n_parts}")
+    take = labelled_markers(io.read(markers_path), markers_path)
+    positions, filled = _filled(take, markers_path)
+    labels = [str(s) for s in take.labels]
+    if paths["rig"] is not None:
+        from skincap.io.dense_rig import read_dense_rig
+
+        arrays, rig_labels, settings = read_dense_rig(paths["rig"])
+        try:
+            subject = DenseRig.from_arrays(arrays, rig_labels, settings)
+            columns = subject.columns_of(labels)
+        except ValidationError as exc:
+            raise FormatError(paths["rig"], str(exc)) from None
+        rest = _rest_mesh(subject, None)
+        build: dict[str, Any] = {"rig": str(paths["rig"])}
+    else:
+        assert paths["mesh"] is not None  # animate_file checked it
+        mesh = io.read_mesh(paths["mesh"], units=mesh_units)
+        if mesh.n_faces == 0:
+            raise FormatError(paths["mesh"], "the mesh has no faces (triangles are needed)")
+        subject, build = _build_rig(
+            mesh, take, positions, markers_path, paths, n_parts=n_parts, reference_frame=reference_frame,
+            register=register, marker_radius_mm=marker_radius_mm, progress=progress,
+        )  # fmt: skip
+        columns = np.arange(len(labels))
+        rest = _rest_mesh(subject, mesh)
+        if paths["save_rig"] is not None:
+            from skincap.io.dense_rig import write_dense_rig
+
+            write_dense_rig(
+                paths["save_rig"], subject.to_arrays(), list(subject.labels),
+                subject.settings, force=force,
+            )  # fmt: skip
+    timing: list[tuple[float, int]] = []
+    frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
+    written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
+    per_frame = (
+        np.repeat([t / n for t, n in timing], [n for _, n in timing]) if timing else np.zeros(0)
+    )
+    summary: dict[str, Any] = {
+        "markers_file": str(markers_path),
+        "mesh": None if paths["mesh"] is None else str(paths["mesh"]),
+        "outputs": [str(p) for p in written],
+        "method": method,
+        "frames": int(take.n_frames),
+        "rate": float(take.rate),
+        "vertices": int(subject.vertices.shape[0]),
+        "markers": subject.n_markers,
+        "filled_samples": filled,
+        "parts": _parts_report(subject),
+        "rig": build,
+        "deformation_ms_per_frame": {
+            "mean": float(per_frame.mean() * 1e3) if per_frame.size else None,
+            "frames": [round(float(x) * 1e3, 4) for x in per_frame],
+        },
+    }
+    if paths["report"] is not None:
+        from skincap.io.json_file import write_json
+
+        write_json(paths["report"], summary, force=force, allow_nan=False)
+    return summary
+
+
+def _parts_report(subject: DenseRig) -> dict[str, Any]:
+    alpha = subject.marker_weights
+    boundary = (alpha > 0).sum(axis=1) > 1
+    return {
+        "count": subject.n_parts,
+        "markers_per_part": [int(c) for c in (alpha > 0).sum(axis=0)],
+        "boundary_markers": int(boundary.sum()),
+        "settings": subject.settings,
+    }
+
+
+def _rest_mesh(subject: DenseRig, source: Mesh | None) -> Mesh:
+    """The mesh the output plays on: the source's polygons and UVs, the rig's vertices."""
+    from skincap.types import Mesh
+
+    if source is not None and source.n_vertices == subject.vertices.shape[0]:
+        return dataclasses.replace(source, vertices=subject.vertices, skin=None)
+    return Mesh(vertices=subject.vertices, faces=subject.faces)
+
+
+def _stage(progress: Progress | None, label: str) -> Callable[..., None] | None:
+    if progress is None:
+        return None
+
+    def report(fraction: float, *_: Any) -> None:
+        progress(float(fraction), label)
+
+    return report
+
+
+def _build_rig(
+    mesh: Mesh,
+    take: MarkerSet,
+    positions: np.ndarray,
+    markers_path: Path,
+    paths: dict[str, Path | None],
+    *,
+    n_parts: int,
+    reference_frame: int | None,
+    register: bool,
+    marker_radius_mm: float,
+    progress: Progress | None,
+) -> tuple[DenseRig, dict[str, Any]]:
+    from skincap import io
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.deform.dense.rig import build_dense_rig
+    from skincap.workflows.clean_file import read_marker_surface
+
+    labels = [str(s) for s in take.labels]
+    frame = choose_reference_frame(positions) if reference_frame is None else reference_frame
+    if not 0 <= frame < take.n_frames:
+        raise FormatError(
+            markers_path,
+            f"--reference-frame {frame} is outside 0..{take.n_frames - 1}",
+        )
+    reference = positions[frame]
+    if not np.isfinite(reference).all():
+        raise FormatError(
+            markers_path,
+            f"{int((~np.isfinite(reference).all(1)).sum())} markers are missing in reference "
+            f"frame {frame} even after filling; choose another --reference-frame",
+        )
+    filled_take = dataclasses.replace(take, positions=positions)
+    if paths["surface"] is not None:
+        surf = read_marker_surface(paths["surface"], filled_take, frame)
+    else:
+        surf = build_marker_surface(positions, reference_frame=frame)
+    build: dict[str, Any] = {
+        "reference_frame": int(frame),
+        "surface_triangles": int(surf.faces.shape[0]),
+    }
+    if surf.faces.shape[0] == 0:
+        raise FormatError(paths["surface"] or markers_path, "the marker surface has no triangles")
+    vertices = mesh.vertices
+    if register:
+        vertices, build["registration"] = _register(
+            mesh, reference, labels, paths, marker_radius_mm, progress
+        )
+    build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
+    if build["marker_to_mesh_m"]["mean"] > 0.05 and not register:
+        warnings.warn(
+            f"{paths['mesh']}: the markers are {build['marker_to_mesh_m']['mean'] * 100:.1f} cm "
+            "from the mesh on average in the reference frame; is the mesh in the markers' "
+            "reference pose? (--register fits it)",
+            SkincapWarning,
+            stacklevel=4,
+        )
+    rom_positions = positions
+    if paths["rom"] is not None:
+        rom_take = io.read(paths["rom"])
+        rom_take = labelled_markers(rom_take, paths["rom"])
+        where = {str(lab): i for i, lab in enumerate(rom_take.labels)}
+        missing = [lab for lab in labels if lab not in where]
+        if missing:
+            raise FormatError(
+                paths["rom"],
+                f"the range-of-motion take lacks {len(missing)} of the take's {len(labels)} "
+                f"markers ({', '.join(missing[:5])}{' …' if len(missing) > 5 else ''})",
+            )
+        rom_take = rom_take.select([where[lab] for lab in labels])
+        rom_positions, _ = _filled(rom_take, paths["rom"])
+        build["rom"] = str(paths["rom"])
+    subject = build_dense_rig(
+        vertices, mesh.faces, labels, reference, surf.faces, rom_positions,
+        n_parts=n_parts, settings=dict(build), progress=_stage(progress, "segmentation"),
+    )  # fmt: skip
+    return subject, build
+
+
+def _marker_to_mesh(
+    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
+) -> dict[str, float]:
+    """Distance from every marker to the mesh surface: mean, p95, max (metres)."""
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    d, _, _ = closest_points_on_mesh(vertices, faces, points)
+    return {"mean": float(d.mean()), "p95": float(np.percentile(d, 95)), "max": float(d.max())}
+
+
+def _register(
+    mesh: Mesh,
+    reference: np.ndarray,
+    labels: list[str],
+    paths: dict[str, Path | None],
+    marker_radius_mm: float,
+    progress: Progress | None,
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """Fit the mesh to the reference pose (§5.1): registered vertices and the figures."""
+    from skincap.deform.dense.registration import RegistrationSettings, register_mesh
+
+    marks = None
+    if paths["landmarks"] is not None:
+        marks = read_landmarks(paths["landmarks"], labels, mesh.n_vertices)
+    try:
+        result = register_mesh(
+            mesh.vertices, mesh.faces, reference, labels, landmarks=marks,
+            settings=RegistrationSettings(marker_radius=marker_radius_mm / 1000.0),
+            progress=_stage(progress, "registration"),
+        )  # fmt: skip
+    except ValidationError as exc:
+        raise FormatError(paths["landmarks"] or paths["mesh"] or Path("MESH"), str(exc)) from None
+    d = np.asarray(result.marker_distance, dtype=np.float64)
+    figures = {
+        "landmarks": len(result.landmarks),
+        "iterations": int(result.iterations),
+        "marker_distance_mean_m": float(np.nanmean(d)),
+        "marker_distance_p95_m": float(np.nanpercentile(d, 95)),
+        "marker_distance_max_m": float(np.nanmax(d)),
+    }
+    return np.asarray(result.vertices, dtype=np.float64), figures
+
+
+def _timed_frames(
+    subject: DenseRig,
+    positions: np.ndarray,
+    method: str,
+    timing: list[tuple[float, int]],
+    progress: Progress | None,
+) -> Iterator[np.ndarray]:
+    """The deformer's chunks, each one's wall time and frame count appended to ``timing``."""
+    blocks = subject.deformer().deform(
+        positions,
+        cast("Method", method),  # checked against METHODS by _animate
+        chunk=CHUNK_FRAMES,
+        progress=_stage(progress, "deformation"),
+    )
+    while True:
+        start = time.perf_counter()
+        try:
+            block = next(blocks)
+        except StopIteration:
+            return
+        timing.append((time.perf_counter() - start, int(block.shape[0])))
+        yield block
+
+
+def _write_animation(
+    rest: Mesh,
+    frames: Iterator[np.ndarray],
+    n_frames: int,
+    rate: float,
+    output: Path,
+    *,
+    force: bool,
+) -> list[Path]:
+    from skincap.types import MeshAnimation
+
+    animation = MeshAnimation(rest=rest, frames=frames, rate=rate, n_frames=n_frames)
+    ext = output.suffix.lower()
+    if ext == ".pc2":
+        from skincap.io.mesh import write_obj
+        from skincap.io.pc2 import write_pc2
+
+        rest_obj = output.with_suffix(".obj")
+        write_pc2(animation, output, force=force)
+        write_obj(rest, rest_obj, force=force, units="m", up="y")
+        return [output, rest_obj]
+    if ext in (".usd", ".usda", ".usdc"):
+        from skincap.io.usd import write_usd
+
+        write_usd(animation, output, force=force)
+        return [output]
+    from skincap.io.obj_sequence import write_obj_sequence
+
+    write_obj_sequence(animation, output, force=force, units="m", up="y")
+    return [output]
+
+
+def animate_markers(
+    subject: DenseRig,
+    positions: np.ndarray,
+    method: str = "quadratic_rbf",
+    *,
+    chunk: int = CHUNK_FRAMES,
+) -> np.ndarray:
+    """All deformed frames of a (short) take in memory: the API's one-call form.
+
+    Parameters
+    ----------
+    subject : DenseRig
+    positions : (T, N, 3) float, metres, in the rig's marker order, NaN where missing
+    method : str
+
+    Returns
+    -------
+    (T, V, 3) float64, metres
+    """
+    blocks = list(subject.deformer().deform(positions, cast("Method", method), chunk=chunk))
+    return np.concatenate(blocks) if blocks else np.zeros((0, subject.vertices.shape[0], 3))

@@ -1,0 +1,39 @@
+"""``bench animate``: the scene is a true rigid chain and every figure is reported."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skincap.deform.dense.deformer import METHODS, DenseDeformer
+from skincap.deform.dense.parts import part_frames
+from skincap.evaluate.bench.animate import chain_scene, run_animate_benchmark
+
+
+def test_the_chain_scene_moves_each_part_rigidly_and_the_deformer_follows() -> None:
+    scene = chain_scene(n_vertices=400, n_parts=4, n_markers=120, n_frames=5)
+    assert scene["markers"].shape == (5, 120, 3)
+    np.testing.assert_allclose(scene["alpha"].sum(1), 1.0)
+    np.testing.assert_allclose(scene["beta"].sum(1), 1.0)
+    deformer = DenseDeformer(
+        part_frames(scene["reference"], scene["alpha"]), scene["vertices"], scene["beta"]
+    )
+    got = np.concatenate(list(deformer.deform(scene["markers"], "rigid")))
+    # vertices wholly inside one part move with that part's transform
+    inside = scene["beta"].max(1) == 1.0
+    part = np.argmax(scene["beta"], 1)
+    world = scene["transforms"][:, part]
+    expected = np.einsum("tvab,vb->tva", world[..., :3, :3], scene["vertices"]) + world[..., :3, 3]
+    np.testing.assert_allclose(got[:, inside], expected[:, inside], atol=1e-3)
+
+
+@pytest.mark.slow  # numba compiles the LBS baseline
+def test_bench_reports_every_variant_and_the_lbs_ratio() -> None:
+    res = run_animate_benchmark(
+        n_vertices=500, n_parts=3, n_markers=60, n_frames=4, repeat=1, rom_frames=20
+    )
+    for method in METHODS:
+        assert res["ms_per_frame"][f"{method}_numpy"] > 0
+        assert res["ratios"][f"{method}_numpy / lbs_numpy"] > 0
+    assert res["seconds"]["segmentation"] > 0
+    assert any("ms/frame" in line for line in res["lines"])

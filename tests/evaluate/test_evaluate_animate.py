@@ -1,0 +1,164 @@
+"""``eval animate`` on an analytic take folder laid out like ``skincap synth``'s output."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from skincap.cli import app
+from skincap.evaluate.animate import (
+    adjusted_rand_index,
+    evaluate_animate,
+    global_rbf_frames,
+    held_out_marker_errors,
+)
+from skincap.io.mesh import write_obj, write_ply
+from skincap.io.pc2 import write_pc2
+from skincap.types import MarkerSet, Mesh, MeshAnimation
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "workflows"))
+from dense_arm import ELBOW, _pose, _tube  # noqa: E402
+
+
+def arm_folder(root: Path, n_frames: int = 24) -> Path:
+    """truth/markers.c3d, mesh.obj, mesh.pc2, marker_surface.ply, marker_parts.csv of the arm."""
+    from skincap import io
+
+    truth_dir = root / "truth"
+    truth_dir.mkdir(parents=True)
+    skin, faces = _tube(31, 16, 0.05)
+    marker_ref, surface = _tube(10, 6, 0.058)
+    marker_ref[:, 0] += 0.01
+    markers = _pose(marker_ref, n_frames)
+    labels = [f"M{i:02d}" for i in range(markers.shape[1])]
+    io.write(MarkerSet(positions=markers, labels=labels, rate=100.0), truth_dir / "markers.c3d")
+    rest = Mesh(vertices=skin, faces=faces)
+    write_obj(rest, truth_dir / "mesh.obj", units="m", up="y")
+    write_pc2(
+        MeshAnimation(rest=rest, frames=_pose(skin, n_frames), rate=100.0), truth_dir / "mesh.pc2"
+    )
+    write_ply(Mesh(vertices=markers[0], faces=surface), truth_dir / "marker_surface.ply")
+    parts = (marker_ref[:, 0] > ELBOW).astype(int)
+    lines = ["label,part"] + [
+        f"{lab},{'fore' if p else 'upper'}" for lab, p in zip(labels, parts, strict=True)
+    ]
+    (truth_dir / "marker_parts.csv").write_text("\n".join(lines) + "\n")
+    return root
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    return arm_folder(tmp_path_factory.mktemp("arm_eval") / "take")
+
+
+def test_adjusted_rand_index_known_values() -> None:
+    assert adjusted_rand_index([0, 0, 1, 1], [5, 5, 2, 2]) == pytest.approx(1.0)
+    # the value scikit-learn documents for this pair
+    assert adjusted_rand_index([0, 0, 1, 1], [0, 0, 1, 2]) == pytest.approx(0.5714285714)
+    rng = np.random.default_rng(0)
+    a, b = rng.integers(0, 5, 4000), rng.integers(0, 5, 4000)
+    assert abs(adjusted_rand_index(a, b)) < 0.01
+
+
+def test_global_rbf_interpolates_the_markers_and_a_translation() -> None:
+    rng = np.random.default_rng(1)
+    ref = rng.normal(size=(40, 3))
+    pos = ref[None] + rng.normal(scale=0.01, size=(3, 40, 3))
+    np.testing.assert_allclose(global_rbf_frames(ref, pos, ref), pos, atol=1e-9)
+    shifted = ref[None] + np.array([0.1, -0.2, 0.3])
+    probe = rng.normal(size=(10, 3))
+    np.testing.assert_allclose(
+        global_rbf_frames(ref, shifted, probe), probe[None] + [0.1, -0.2, 0.3], atol=1e-9
+    )
+
+
+def test_rows_are_present_and_the_dense_chain_beats_global_interpolation(folder) -> None:
+    result = evaluate_animate(folder, n_parts=2)
+    rows = {(r["case"], r["method"]): r for r in result["rows"]}
+    for method in ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf", "global_rbf"):
+        row = rows[("same_body", method)]
+        assert row["measured"] and 0 <= row["mean_m"] <= row["rms_m"] <= row["max_m"]
+    assert not rows[("true_skeleton", "lbs")]["measured"]  # no body.glb in this folder
+    assert not rows[("registered_template", "quadratic_rbf")]["measured"]
+    # two rigid tubes: away from the elbow the part deformer is exact, one global field is not
+    x = _tube(31, 16, 0.05)[0][:, 0]
+    far = np.abs(x - ELBOW) > 0.12
+    per_vertex = result["per_vertex_rms_m"]
+    for method in ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf"):
+        assert per_vertex[method][far].max() < 2e-4, method
+    assert per_vertex["global_rbf"][far].mean() > 5 * per_vertex["quadratic_rbf"][far].mean()
+    assert per_vertex["global_rbf"][far].max() > 5e-4
+    assert result["segmentation"]["ari"] > 0.85 and result["segmentation"]["n_parts"] == 2
+    assert result["held_out"]["held_out"] == 6 and result["held_out"]["mean_m"] < 5e-3
+    assert result["per_vertex_rms_m"]["rigid"].shape == (31 * 16,)
+    assert result["targets"]["segmentation_ari"]["met"] is True
+
+
+@pytest.mark.slow  # a registration and a second rig: ~10 s on a loaded machine
+def test_a_registered_template_row_measures_distance_to_the_true_skin(folder) -> None:
+    from scipy.spatial import cKDTree
+
+    from skincap import io
+    from skincap.io.pc2 import read_pc2
+
+    faces = io.read(folder / "truth" / "mesh.obj").faces
+    posed = np.asarray(read_pc2(folder / "truth" / "mesh.pc2").frames)[0]  # reference pose
+    markers = io.read(folder / "truth" / "markers.c3d")
+    centre = posed.mean(axis=0)
+    # another template: the same tube 10 % wider and off by 1 cm
+    template = Mesh(
+        vertices=centre + (posed - centre) * [1.0, 1.1, 1.1] + [0.0, 0.01, 0.0], faces=faces
+    )
+    near = cKDTree(posed).query(markers.positions[0])[1]
+    marks = {
+        lab: int(i)
+        for k, (lab, i) in enumerate(zip(markers.labels, near, strict=True))
+        if k % 3 == 0
+    }
+    result = evaluate_animate(
+        folder, n_parts=2, template=template, template_landmarks=marks, marker_radius=0.008
+    )
+    row = next(r for r in result["rows"] if r["case"] == "registered_template")
+    assert row["measured"] and row["mean_m"] < 4e-3  # the template started ~10 mm off
+    assert result["registration"]["markers_to_surface_mean_m"] == pytest.approx(0.008, abs=0.0015)
+    assert result["targets"]["quadratic_rbf_registered_template_rms_m"]["value"] == row["rms_m"]
+
+
+def test_held_out_markers_are_predicted_on_a_rigid_motion() -> None:
+    from scipy.spatial.transform import Rotation
+
+    marker_ref, surface = _tube(10, 6, 0.058)
+    rot = Rotation.from_rotvec(np.linspace(0, 1, 12)[:, None] * [0.2, 1.0, 0.1]).as_matrix()
+    pos = np.einsum("tab,nb->tna", rot, marker_ref) + [0.0, 1.0, 0.0]
+    res = held_out_marker_errors(pos, surface, n_parts=1, fraction=0.1, seed=3)
+    assert res["held_out"] == 6 and res["max_m"] < 1e-9
+
+
+def test_cli_eval_animate_writes_json_and_png(folder, tmp_path) -> None:
+    pytest.importorskip("matplotlib")
+    res = CliRunner().invoke(
+        app, ["eval", "animate", str(folder), "-o", str(tmp_path / "ev"), "--parts", "2", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    data = json.loads(res.output)
+    assert {r["method"] for r in data["rows"]} >= {"rigid", "quadratic_rbf", "global_rbf", "lbs"}
+    assert json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["rows"] == data["rows"]
+    assert (tmp_path / "ev" / "animate_errors.png").stat().st_size > 1000
+    bad = CliRunner().invoke(app, ["eval", "animate", str(tmp_path), "-o", str(tmp_path / "ev2")])
+    assert bad.exit_code == 2 and "truth/markers.c3d is missing" in bad.output
+
+
+def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) -> None:
+    capture = folder / "truth" / "markers.c3d"
+    res = CliRunner().invoke(
+        app, ["eval", "animate", str(capture), "-o", str(tmp_path / "ev"), "--parts", "2", "--json"]
+    )
+    assert res.exit_code == 0, res.output
+    held = json.loads(res.output)["held_out"]
+    assert held["held_out"] == 6 and held["markers"] == 60 and held["mean_m"] < 5e-3
+    assert json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"] == held

@@ -1,0 +1,78 @@
+"""Dense rig files: NPZ + JSON sidecar round trip, and every malformed file refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from skincap.deform.dense.rig import DenseRig
+from skincap.errors import FormatError, OutputExistsError, ValidationError
+from skincap.io.dense_rig import read_dense_rig, write_dense_rig
+
+
+def _rig() -> DenseRig:
+    rng = np.random.default_rng(0)
+    alpha = rng.random((6, 2))
+    beta = rng.random((10, 2))
+    return DenseRig(
+        vertices=rng.normal(size=(10, 3)),
+        faces=np.array([[0, 1, 2], [2, 3, 4]]),
+        labels=[f"M{i}" for i in range(6)],
+        reference=rng.normal(size=(6, 3)),
+        surface_faces=np.array([[0, 1, 2], [3, 4, 5]]),
+        marker_parts=np.array([0, 0, 0, 1, 1, 1]),
+        marker_weights=alpha / alpha.sum(1, keepdims=True),
+        vertex_weights=beta / beta.sum(1, keepdims=True),
+        settings={"n_parts": 2, "reference_frame": 0},
+    )
+
+
+def test_round_trip_is_exact(tmp_path) -> None:
+    rig = _rig()
+    written = write_dense_rig(tmp_path / "r.npz", rig.to_arrays(), list(rig.labels), rig.settings)
+    assert [p.name for p in written] == ["r.npz", "r.json"]
+    arrays, labels, settings = read_dense_rig(tmp_path / "r.npz")
+    back = DenseRig.from_arrays(arrays, labels, settings)
+    for name, value in rig.to_arrays().items():
+        np.testing.assert_array_equal(getattr(back, name), value)
+    assert back.labels == rig.labels and back.settings == rig.settings
+    with pytest.raises(OutputExistsError):
+        write_dense_rig(tmp_path / "r.npz", rig.to_arrays(), list(rig.labels), rig.settings)
+
+
+def test_columns_of_another_marker_set_is_refused() -> None:
+    rig = _rig()
+    np.testing.assert_array_equal(rig.columns_of(["x", *reversed(rig.labels)]), [6, 5, 4, 3, 2, 1])
+    with pytest.raises(ValidationError, match="another marker set"):
+        rig.columns_of(["M0", "M1"])
+
+
+def test_malformed_rigs_are_refused(tmp_path) -> None:
+    rig = _rig()
+    path = tmp_path / "r.npz"
+    write_dense_rig(path, rig.to_arrays(), list(rig.labels), rig.settings)
+    sidecar = json.loads(path.with_suffix(".json").read_text())
+
+    def rewrite(meta: dict, arrays: dict | None = None) -> None:
+        path.with_suffix(".json").write_text(json.dumps(meta))
+        if arrays is not None:
+            with open(path, "wb") as fh:
+                np.savez(fh, **arrays)
+
+    rewrite({**sidecar, "version": 99})
+    with pytest.raises(FormatError, match="version"):
+        read_dense_rig(path)
+    rewrite({**sidecar, "labels": sidecar["labels"][:5]})
+    with pytest.raises(FormatError, match="disagrees"):
+        read_dense_rig(path)
+    pickled = {**rig.to_arrays(), "faces": np.array([object()] * 6, dtype=object).reshape(2, 3)}
+    rewrite(sidecar, pickled)
+    with pytest.raises(FormatError, match="not a readable NPZ|int array"):
+        read_dense_rig(path)
+    path.with_suffix(".json").unlink()
+    with pytest.raises(FormatError, match="sidecar"):
+        read_dense_rig(path)
+    with pytest.raises(FormatError, match=".npz"):
+        write_dense_rig(tmp_path / "r.rig", rig.to_arrays(), list(rig.labels), {})
