@@ -38,6 +38,7 @@ import numpy as np
 
 from skincap._arrays import Progress
 from skincap.errors import FormatError, OutputExistsError, SkincapWarning, ValidationError
+from skincap.io.mesh_animation_files import animation_output_files, write_mesh_animation
 
 if TYPE_CHECKING:
     from skincap.deform.dense.deformer import Method
@@ -122,9 +123,7 @@ def read_landmarks(path: Path, labels: list[str], n_vertices: int) -> dict[str, 
 
 
 def _output_files(output: Path) -> list[Path]:
-    if output.suffix.lower() == ".pc2":
-        return [output, output.with_suffix(".obj")]
-    return [output] if output.suffix else []
+    return animation_output_files(output)
 
 
 def animate_file(
@@ -503,24 +502,7 @@ def _write_animation(
     from skincap.types import MeshAnimation
 
     animation = MeshAnimation(rest=rest, frames=frames, rate=rate, n_frames=n_frames)
-    ext = output.suffix.lower()
-    if ext == ".pc2":
-        from skincap.io.mesh import write_obj
-        from skincap.io.pc2 import write_pc2
-
-        rest_obj = output.with_suffix(".obj")
-        write_pc2(animation, output, force=force)
-        write_obj(rest, rest_obj, force=force, units="m", up="y")
-        return [output, rest_obj]
-    if ext in (".usd", ".usda", ".usdc"):
-        from skincap.io.usd import write_usd
-
-        write_usd(animation, output, force=force)
-        return [output]
-    from skincap.io.obj_sequence import write_obj_sequence
-
-    write_obj_sequence(animation, output, force=force, units="m", up="y")
-    return [output]
+    return write_mesh_animation(animation, output, force=force)
 
 
 def animate_markers(

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from skincap.errors import FormatError, OutputExistsError
+from skincap.io.mesh_animation_files import animation_output_files, write_mesh_animation
 from skincap.workflows.progress import FrameProgress
 
 __all__ = [
@@ -53,9 +54,7 @@ def mesh_input_files(mesh_path: Path) -> list[Path]:
 def skin_output_files(output: Path) -> list[Path]:
     """The files ``skin -o output`` writes, known before skinning (a folder's frames are
     checked once the frame count is known)."""
-    if output.suffix.lower() == ".pc2":
-        return [output, output.with_suffix(".obj")]  # the cache and the mesh it plays on
-    return [output] if output.suffix else []
+    return animation_output_files(output)
 
 
 def skin_file(
@@ -251,21 +250,4 @@ def write_skinned(
         progress(1.0)
         return [output]
     animation = skin_motion(setup.mesh, setup.motion, method=method, progress=progress)
-    if ext == ".pc2":
-        from skincap.io.mesh import write_obj
-        from skincap.io.pc2 import write_pc2
-
-        rest_obj = output.with_suffix(".obj")
-        # The mesh Blender's Mesh Cache modifier plays the PC2 on: same metres, Y up.
-        write_obj(setup.mesh, rest_obj, force=force, units="m", up="y")
-        write_pc2(animation, output, force=force)
-        return [output, rest_obj]
-    if ext in (".usd", ".usda", ".usdc"):
-        from skincap.io.usd import write_usd
-
-        write_usd(animation, output, force=force)
-        return [output]
-    from skincap.io.obj_sequence import write_obj_sequence
-
-    write_obj_sequence(animation, output, force=force, units="m", up="y")
-    return [output]
+    return write_mesh_animation(animation, output, force=force)

@@ -18,7 +18,6 @@ holds the text for the CLI.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
 from functools import partial
 from typing import Any, cast
 
@@ -30,6 +29,7 @@ from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.skeletal.deformers import LinearBlendSkinning
 from skincap.errors import ValidationError
+from skincap.evaluate.bench.common import best_seconds
 
 __all__ = ["GOALS_MS", "chain_scene", "run_animate_benchmark"]
 
@@ -134,16 +134,6 @@ def chain_scene(
     }
 
 
-def _best_seconds(run: Callable[[], object], repeat: int) -> float:
-    run()  # warm-up
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - t0)
-    return float(best)
-
-
 def run_animate_benchmark(
     n_vertices: int = 50_000,
     n_parts: int = 17,
@@ -190,7 +180,7 @@ def run_animate_benchmark(
         return list(deformer.deform(scene["markers"], method, chunk=n_frames))
 
     for method in METHODS:
-        sec = _best_seconds(partial(deform_all, cast("Method", method)), repeat)
+        sec = best_seconds(partial(deform_all, cast("Method", method)), repeat)
         ms[f"{method}_numpy"] = 1e3 * sec / n_frames
         ms[f"{method}_numba"] = None
     # our LBS of the same vertices: the parts as joints, β as two-influence weights
@@ -207,7 +197,7 @@ def run_animate_benchmark(
             ms[f"lbs_{backend}"] = None
             continue
         buffer = np.zeros((n_frames, n_vertices, 3))
-        sec = _best_seconds(partial(lbs.deform, scene["transforms"], out=buffer), repeat)
+        sec = best_seconds(partial(lbs.deform, scene["transforms"], out=buffer), repeat)
         ms[f"lbs_{backend}"] = 1e3 * sec / n_frames
     base = ms.get("lbs_numpy")
     ratios = {

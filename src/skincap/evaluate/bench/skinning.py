@@ -19,8 +19,6 @@ holds the text for the CLI.
 from __future__ import annotations
 
 import os
-import time
-from collections.abc import Callable
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -32,6 +30,7 @@ from skincap.deform.skeletal.deformers import (
     numba_available,
 )
 from skincap.errors import ValidationError
+from skincap.evaluate.bench.common import best_seconds
 
 __all__ = ["run_skinning_benchmark"]
 
@@ -59,16 +58,6 @@ def _random_rig(
     )
     m[..., :3, 3] = rng.normal(scale=0.3, size=(n_frames, n_joints, 3))
     return rest, idx, w, m
-
-
-def _best_seconds(run: Callable[[], object], repeat: int) -> float:
-    run()  # warm-up (compilation, caches)
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        run()
-        best = min(best, time.perf_counter() - t0)
-    return float(best)
 
 
 def run_skinning_benchmark(
@@ -231,7 +220,7 @@ def _time_ours(rig: _Rig, repeat: int, out: _Measured) -> int | None:
         for backend in backends:
             deformer = cls(rest, idx, w, n_joints=n_joints, backend=backend)
             key = f"{method}_{backend}"
-            sec = _best_seconds(lambda d=deformer: d.deform(m, out=buffer), repeat)
+            sec = best_seconds(lambda d=deformer: d.deform(m, out=buffer), repeat)
             ms[key] = 1e3 * sec / n_frames
             results[key] = buffer.copy()
     return threads
@@ -261,7 +250,7 @@ def _time_libigl(rig: _Rig, repeat: int, out: _Measured) -> None:
         )
         np.matmul(lbs_matrix, stacked, out=igl_out)
 
-    ms["igl_lbs"] = 1e3 * _best_seconds(igl_lbs, repeat) / n_frames
+    ms["igl_lbs"] = 1e3 * best_seconds(igl_lbs, repeat) / n_frames
     results["igl_lbs"] = igl_out.reshape(n_vertices, n_frames, 3).transpose(1, 0, 2)
     if hasattr(igl, "dqs"):
         notes.append("igl.dqs exists but its call signature is not wired here")
@@ -296,7 +285,7 @@ def _time_usdskel(rig: _Rig, repeat: int, out: _Measured) -> None:
                 UsdSkel.SkinPoints(token, identity, xf, usd_idx, usd_w, n_influences, pts, False)
                 usd_out[t] = np.asarray(pts)
 
-        ms[f"usd_{method}"] = 1e3 * _best_seconds(usd_run, repeat) / n_frames
+        ms[f"usd_{method}"] = 1e3 * best_seconds(usd_run, repeat) / n_frames
         results[f"usd_{method}"] = usd_out.copy()
 
 
