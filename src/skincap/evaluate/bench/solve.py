@@ -39,6 +39,11 @@ def per_frame_reference(model: Any, measured: np.ndarray, frames: np.ndarray) ->
     from scipy.spatial.transform import Rotation
 
     s = model.n_segments
+    # The link segments' springs (``solve.ik``): the same residuals, so both solve one problem
+    # (without them a link's rotation is free and least_squares runs to its evaluation limit).
+    stiffness = np.asarray(getattr(model, "link_stiffness", np.zeros(s)), dtype=np.float64)
+    links = np.flatnonzero(stiffness > 0)
+    link_parents = np.asarray(model.segment_parents)[links]
     start = time.perf_counter()
     for t in frames:
         y = measured[t]
@@ -53,7 +58,12 @@ def per_frame_reference(model: Any, measured: np.ndarray, frames: np.ndarray) ->
                 model.segment_parents, model.joint_offsets, model.marker_segments,
                 model.marker_offsets, rot[None], x[None, :3],
             )[0]  # fmt: skip
-            return (pos - y)[seen].ravel()
+            res = (pos - y)[seen].ravel()
+            if links.size == 0:
+                return res
+            rel = rot[links] @ rot[link_parents].transpose(0, 2, 1)
+            springs = stiffness[links, None] * Rotation.from_matrix(rel).as_rotvec()
+            return np.concatenate([res, springs.ravel()])
 
         least_squares(resid, x0, method="lm")
     return time.perf_counter() - start
