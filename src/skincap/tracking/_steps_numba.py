@@ -638,7 +638,9 @@ def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
                 want = cur[k] + (prev[j] - prev[k])
                 inner = rest - p.gamma
                 outer = rest + p.adjacent_stretch * p.gamma
-                if _seat_nearest(state, t, j, want, rest, True, inner, outer, cur[k], free, p):
+                if _seat_nearest(
+                    state, t, j, want, rest, True, inner, outer, cur[k].copy(), free, p
+                ):
                     grew = True
         if not grew:
             break
