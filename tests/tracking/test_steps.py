@@ -414,3 +414,27 @@ def test_reacquire_leaves_a_point_seen_beside_the_trace_alone(steps) -> None:  #
     assert not reacquired(True)
     # with no such evidence (marker 0 never measured) the point on the shell is taken
     assert reacquired(False)
+
+
+def test_reacquire_takes_nothing_when_every_point_is_taken_or_body(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing, m = 0.1, 6
+    rope = np.zeros((m, 3))
+    rope[:, 0] = spacing * np.arange(m)
+    # marker 2 hidden; the point where it would be is a body point, the rest are the rope's
+    frame1 = np.concatenate([np.delete(rope, 2, axis=0), rope[2:3]])
+    state, p = blank_state(_cloud(rope, frame1), [spacing] * (m - 1), gamma=0.03)
+    state.positions[0] = rope
+    mine = [0, 1, 3, 4, 5]
+    state.known[mine] = True
+    state.taken[mine] = m + np.arange(m - 1)
+    state.cur[mine] = rope[mine]
+    state.body[m + m - 1] = True
+    taken, cur = state.taken.copy(), state.cur.copy()
+    assert not steps.reacquire_on_shell(state, 1, p)
+    np.testing.assert_array_equal(state.known, np.isin(np.arange(m), mine))
+    np.testing.assert_array_equal(state.taken, taken)
+    np.testing.assert_array_equal(state.cur, cur)
+    # the same point, no longer a body point, is taken from either neighbour's shell
+    state.body[m + m - 1] = False
+    assert steps.reacquire_on_shell(state, 1, p)
+    assert state.taken[2] == m + m - 1

@@ -619,6 +619,8 @@ def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
     for j in range(m):
         if known[j]:
             free[state.taken[j] - a] = False
+    if not free.any():  # nothing left to take: the passes below would find nothing
+        return False
     found = False
     if not known.any():
         for j in (0, m - 1):
@@ -658,6 +660,7 @@ def _seat_nearest(
     points = state.points
     n = b - a
     d = np.full(n, _INF)
+    n_ok = 0
     for c in range(n):
         if not free[c]:
             continue
@@ -670,6 +673,9 @@ def _seat_nearest(
             if not (r >= inner and r <= outer):
                 continue
         d[c] = dc
+        n_ok += 1
+    if n_ok == 0:  # the usual case for a trace still hidden
+        return False
     while True:
         best = -1
         for c in range(n):

@@ -688,6 +688,8 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
     prev = state.positions[t - 1]
     free = ~state.body[a:b]
     free[state.taken[known] - a] = False
+    if not free.any():  # nothing left to take: the passes below would find nothing
+        return False
     found = False
     if not known.any():
         for j in (0, m - 1):
@@ -729,10 +731,13 @@ def _seat_nearest(
     frame = state.points[a:b]
     d = np.sqrt(_squared_distances(frame, want[None])[:, 0])
     ok = free & (d <= gate)
-    if shell is not None:
+    if shell is not None and ok.any():
         r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
         ok &= (r >= shell[0]) & (r <= shell[1])
-    for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[: int(ok.sum())]:
+    n_ok = int(ok.sum())
+    if n_ok == 0:  # the usual case for a trace still hidden: skip the sort
+        return False
+    for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[:n_ok]:
         if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
             state, t, -1, a + int(c), p
         ):
