@@ -19,6 +19,7 @@ from skincap.evaluate.animate import (
 )
 from skincap.io.mesh import write_obj, write_ply
 from skincap.io.pc2 import write_pc2
+from skincap.io.synth_truth import write_marker_parts
 from skincap.types import MarkerSet, Mesh, MeshAnimation
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "workflows"))
@@ -44,10 +45,10 @@ def arm_folder(root: Path, n_frames: int = 24) -> Path:
     )
     write_ply(Mesh(vertices=markers[0], faces=surface), truth_dir / "marker_surface.ply")
     parts = (marker_ref[:, 0] > ELBOW).astype(int)
-    lines = ["label,part"] + [
-        f"{lab},{'fore' if p else 'upper'}" for lab, p in zip(labels, parts, strict=True)
-    ]
-    (truth_dir / "marker_parts.csv").write_text("\n".join(lines) + "\n")
+    # Written by synth's own writer, so the evaluation reads what synth folders hold.
+    write_marker_parts(
+        truth_dir / "marker_parts.csv", list(labels), ["fore" if p else "upper" for p in parts]
+    )
     return root
 
 

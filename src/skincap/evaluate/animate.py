@@ -40,6 +40,7 @@ import numpy as np
 
 from skincap._arrays import Progress
 from skincap.errors import FormatError, ValidationError
+from skincap.io.synth_truth import read_marker_parts
 
 __all__ = [
     "TARGETS",
@@ -271,22 +272,14 @@ def held_out_on_capture(
 
 
 def _read_marker_parts(path: Path, labels: Sequence[str]) -> np.ndarray | None:
-    """``truth/marker_parts.csv`` (``label,part`` with a header) in label order, or None."""
-    import csv
-
+    """``truth/marker_parts.csv`` (synth's ``marker,part``) as part numbers (M,) in label
+    order, or None when the folder has no such file."""
     if not path.is_file():
         return None
-    with open(path, newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    if not rows:
-        return None
-    header = [h.strip().lower() for h in rows[0]]
-    if "label" not in header or "part" not in header:
-        raise FormatError(path, "expected a header with 'label' and 'part' columns")
-    li, pi = header.index("label"), header.index("part")
-    parts = {r[li]: r[pi] for r in rows[1:] if len(r) > max(li, pi)}
-    if any(lab not in parts for lab in labels):
-        raise FormatError(path, "does not name every marker of the take")
+    parts = read_marker_parts(path)
+    missing = [lab for lab in labels if lab not in parts]
+    if missing:
+        raise FormatError(path, f"does not name every marker of the take (no {missing[0]!r})")
     names = sorted(set(parts.values()))
     return np.array([names.index(parts[lab]) for lab in labels])
 
