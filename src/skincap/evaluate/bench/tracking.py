@@ -132,9 +132,7 @@ def run_track_benchmark(
         is compiled), ``lines`` (text to print).
     """
     from skincap.backends import numba_available
-    from skincap.evaluate.bench.common import best_time, first_call_in_fresh_process
-    from skincap.tracking.init import init_rope
-    from skincap.tracking.tracker import _resolve_backend, track_rope
+    from skincap.tracking.tracker import _resolve_backend
 
     cloud, rope, first = jump_rope_scene(
         frames=frames, rate=rate, points_per_frame=points_per_frame,
@@ -145,39 +143,16 @@ def run_track_benchmark(
     used = _resolve_backend("numba" if backend == "auto" and numba_available() else backend)
     default_backend = "numba" if numba_available() else "numpy"
 
-    def ours() -> Any:
-        return track_rope(cloud, init_rope(cloud, markers=first), backend=used)
-
-    def reference() -> Any:
-        return track_rope(cloud, init_rope(cloud, markers=first), backend="numpy")
-
-    gamma = init_rope(cloud, markers=first).gamma  # the same γ for both trackers
-
-    def naive() -> Any:
-        return track_greedy_nearest(cloud, first, gamma=gamma)
-
-    track = ours()  # compiles the kernel (or loads it from numba's cache)
-    ref = reference()
+    track, ref, base_pos, (track_s, track_cpu_s, ref_s, base_s) = _time_trackers(
+        cloud, first, used, repeat
+    )
     same = _same_tracks(track, ref)
-    base_pos, _ = naive()
-    track_s = best_time(ours, repeat)
-    # CPU seconds of one run (the tracker is one thread): what a loaded machine distorts least
-    cpu0 = time.process_time()
-    ours()
-    track_cpu_s = time.process_time() - cpu0
-    ref_s = track_s if used == "numpy" else best_time(reference, repeat)
-    base_s = best_time(naive, max(1, repeat))
 
-    first_call_s: dict[str, float] | None = None
-    if first_call:
-        first_call_s = first_call_in_fresh_process(
-            "from skincap.tracking.init import init_rope\n"
-            "from skincap.tracking.tracker import track_rope",
-            "from skincap.synth.scenes import jump_rope_scene\n"
-            f"cloud, _, first = jump_rope_scene(frames={frames}, rate={rate!r}, "
-            f"points_per_frame={points_per_frame}, rope_markers={rope_markers}, seed={seed})",
-            "track_rope(cloud, init_rope(cloud, markers=first))",
-        )
+    first_call_s = (
+        _first_call_of_scene(frames, rate, points_per_frame, rope_markers, seed)
+        if first_call
+        else None
+    )
     track_err, base_err = _mean_errors(track, base_pos, rope)
     duration = frames / rate
     result: dict[str, Any] = {
@@ -209,6 +184,60 @@ def run_track_benchmark(
     }
     result["lines"] = _summary_lines(result)
     return result
+
+
+def _time_trackers(
+    cloud: Any, first: np.ndarray, used: str, repeat: int
+) -> tuple[Any, Any, np.ndarray, tuple[float, float, float, float]]:
+    """Track the scene with ``used``, the NumPy reference and the naive baseline, then time them.
+
+    Returns our track, the reference's, the baseline's (T, M, 3) positions and the
+    seconds ``(track_s, track_cpu_s, numpy_s, baseline_s)``: best wall time of
+    ``repeat`` runs each, and the CPU time of one run of ours.
+    """
+    from skincap.evaluate.bench.common import best_time
+    from skincap.tracking.init import init_rope
+    from skincap.tracking.tracker import track_rope
+
+    def ours() -> Any:
+        return track_rope(cloud, init_rope(cloud, markers=first), backend=used)
+
+    def reference() -> Any:
+        return track_rope(cloud, init_rope(cloud, markers=first), backend="numpy")
+
+    gamma = init_rope(cloud, markers=first).gamma  # the same γ for both trackers
+
+    def naive() -> Any:
+        return track_greedy_nearest(cloud, first, gamma=gamma)
+
+    track = ours()  # compiles the kernel (or loads it from numba's cache)
+    ref = reference()
+    base_pos, _ = naive()
+    track_s = best_time(ours, repeat)
+    # CPU seconds of one run (the tracker is one thread): what a loaded machine distorts least
+    cpu0 = time.process_time()
+    ours()
+    track_cpu_s = time.process_time() - cpu0
+    ref_s = track_s if used == "numpy" else best_time(reference, repeat)
+    base_s = best_time(naive, max(1, repeat))
+    return track, ref, base_pos, (track_s, track_cpu_s, ref_s, base_s)
+
+
+def _first_call_of_scene(
+    frames: int, rate: float, points_per_frame: int, rope_markers: int, seed: int
+) -> dict[str, float]:
+    """Import plus one ``track_rope`` of the scene with the default backend, in a fresh
+    process, with a cold and a warm numba cache (seconds, wall and CPU)."""
+    from skincap.evaluate.bench.common import first_call_in_fresh_process
+
+    return first_call_in_fresh_process(
+        "from skincap.tracking.init import init_rope\n"
+        "from skincap.tracking.tracker import track_rope",
+        "from skincap.synth.scenes import jump_rope_scene\n"
+        f"cloud, _, first = jump_rope_scene(frames={frames}, rate={rate!r}, "
+        f"points_per_frame={points_per_frame}, rope_markers={rope_markers}, seed={seed})",
+        "track_rope(cloud, init_rope(cloud, markers=first))",
+    )
 
 
 def _same_tracks(a: Any, b: Any) -> bool:
