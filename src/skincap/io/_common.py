@@ -7,10 +7,14 @@ import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from skincap.errors import FormatError, ValidationError
+
+if TYPE_CHECKING:
+    from skincap.types import MeshAnimation
 
 __all__ = [
     "UNIT_TO_METRES",
@@ -21,6 +25,7 @@ __all__ = [
     "from_y_up",
     "UP_AXES",
     "up_rotation",
+    "finite_frame_chunks",
 ]
 
 #: Length units skincap reads and writes, as metres per unit. ``cmu`` is the length
@@ -141,3 +146,51 @@ def atomic_output(path: str | os.PathLike[str], *, force: bool = False) -> Itera
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+def finite_frame_chunks(
+    animation: MeshAnimation, chunk: int, *, missing_note: str = ""
+) -> Iterator[tuple[int, np.ndarray]]:
+    """The animation's frames in chunks, each checked before a writer stores it.
+
+    A writer of vertex caches (PC2, USD, OBJ sequences) states ``n_frames`` up front
+    and cannot store a missing point, so a chunk that runs past ``n_frames`` or holds
+    a NaN or infinite coordinate stops the write.
+
+    Parameters
+    ----------
+    animation : MeshAnimation
+        Its ``n_frames`` (0 when None) is the count the file promises.
+    chunk : int
+        Frames per chunk (:meth:`MeshAnimation.iter_chunks`).
+    missing_note : str
+        Appended to the message about a non-finite frame (e.g. why the format
+        cannot store it).
+
+    Yields
+    ------
+    first : int
+        Frame number of the chunk's first frame.
+    block : (t, V, 3) float
+        The chunk's vertex positions, all finite.
+
+    Raises
+    ------
+    ValidationError
+        The animation yields more frames than ``n_frames``, or a frame has a NaN or
+        infinite coordinate (named by its frame number).
+    """
+    n_frames = int(animation.n_frames or 0)
+    done = 0
+    for block in animation.iter_chunks(int(chunk)):
+        if done + block.shape[0] > n_frames:
+            raise ValidationError(
+                f"frames: the animation yields more than its n_frames={n_frames} frames"
+            )
+        if not np.isfinite(block).all():
+            bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
+            raise ValidationError(
+                f"frames: frame {done + bad} has NaN or infinite positions{missing_note}"
+            )
+        yield done, block
+        done += block.shape[0]

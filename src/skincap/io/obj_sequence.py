@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from skincap.errors import FormatError, OutputExistsError, ValidationError
-from skincap.io._common import atomic_output, from_y_up, unit_scale
+from skincap.io._common import atomic_output, finite_frame_chunks, from_y_up, unit_scale
 from skincap.io.mesh import write_obj
 from skincap.io.output_safety import is_protected_input
 from skincap.types import Mesh, MeshAnimation
@@ -189,16 +189,7 @@ def write_obj_sequence(
     n = rest.n_vertices
     vertex_format = _vertex_line(digits) * n
     written: list[Path] = []
-    for block in animation.iter_chunks(int(chunk)):
-        if len(written) + block.shape[0] > n_frames:
-            raise ValidationError(
-                f"frames: the animation yields more than its n_frames={n_frames} frames"
-            )
-        if not np.isfinite(block).all():
-            bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
-            raise ValidationError(
-                f"frames: frame {len(written) + bad} has NaN or infinite positions"
-            )
+    for _, block in finite_frame_chunks(animation, chunk):
         coords = from_y_up(block, up_key) * scale  # (t, V, 3) in the file's unit and axes
         for frame in coords:
             target = out / f"{stem}_{len(written):0{width}d}.obj"

@@ -44,7 +44,14 @@ from typing import NamedTuple
 import numpy as np
 
 from skincap.errors import FormatError, ValidationError
-from skincap.io._common import atomic_output, check_readable, from_y_up, to_y_up, unit_scale
+from skincap.io._common import (
+    atomic_output,
+    check_readable,
+    finite_frame_chunks,
+    from_y_up,
+    to_y_up,
+    unit_scale,
+)
 from skincap.io.narrowing import check_float32, frame_vertex_axis
 from skincap.types import MeshAnimation
 
@@ -161,21 +168,13 @@ def write_pc2(
     header = _HEADER.pack(PC2_SIGNATURE, 1, n_points, start, step, n_samples)
     with atomic_output(path, force=force) as tmp, open(tmp, "wb") as fh:
         fh.write(header)
-        written = 0
-        for block in animation.iter_chunks(int(chunk)):
-            if written + block.shape[0] > n_samples:
-                raise ValidationError(
-                    f"frames: the animation yields more than its n_frames={n_samples} frames"
-                )
-            if not np.isfinite(block).all():
-                bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
-                raise ValidationError(
-                    f"frames: frame {written + bad} has NaN or infinite positions; PC2 cannot store missing points"
-                )
+        chunks = finite_frame_chunks(
+            animation, chunk, missing_note="; PC2 cannot store missing points"
+        )
+        for first, block in chunks:
             out = from_y_up(block, up) * scale
-            check_float32(out, path, frame_vertex_axis(written), unit=units)
+            check_float32(out, path, frame_vertex_axis(first), unit=units)
             fh.write(np.ascontiguousarray(out, dtype="<f4").tobytes())
-            written += block.shape[0]
 
 
 def read_pc2(path: str | os.PathLike[str], *, up: str = "y", units: str = "m") -> PC2Cache:

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from skincap.errors import FormatError, MissingDependencyError, ValidationError
-from skincap.io._common import atomic_output
+from skincap.io._common import atomic_output, finite_frame_chunks
 from skincap.io.narrowing import check_float32, frame_vertex_axis
 from skincap.types import MeshAnimation
 
@@ -146,15 +146,7 @@ def write_usd(
                 "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.vertex
             )
             st.Set(Vt.Vec2fArray.FromNumpy(np.ascontiguousarray(rest.uv, dtype=np.float32)))
-        done = 0
-        for block in animation.iter_chunks(int(chunk)):
-            if done + block.shape[0] > n_frames:
-                raise ValidationError(
-                    f"frames: the animation yields more than its n_frames={n_frames} frames"
-                )
-            if not np.isfinite(block).all():
-                bad = int(np.nonzero(~np.isfinite(block).all(axis=(1, 2)))[0][0])
-                raise ValidationError(f"frames: frame {done + bad} has NaN or infinite positions")
+        for done, block in finite_frame_chunks(animation, chunk):
             check_float32(block, path, frame_vertex_axis(done), unit="m")
             f32 = np.ascontiguousarray(block, dtype=np.float32)
             bounds = np.stack([f32.min(axis=1), f32.max(axis=1)], axis=1)  # (t, 2, 3)
@@ -163,9 +155,8 @@ def write_usd(
                 code = Usd.TimeCode(float(done + k))
                 points.Set(Vt.Vec3fArray.FromNumpy(f32[k]), code)
                 extent.Set(Vt.Vec3fArray.FromNumpy(bounds[k]), code)
-            done += block.shape[0]
             if progress is not None:
-                progress(done, n_frames)
+                progress(done + block.shape[0], n_frames)
         if not layer.Save():
             raise FormatError(path, "usd-core could not save the file")
         del stage, layer
