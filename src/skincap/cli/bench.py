@@ -10,14 +10,13 @@ from typing import Annotated
 import typer
 
 from skincap.cli._app import _user_errors, bench_app, print_bench_results
+from skincap.cli._options import BenchJsonOption, PartsOption, RepeatOption
 
 
 @bench_app.command("io")
 def bench_io(
-    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the measurements as JSON.")
-    ] = False,
+    repeat: RepeatOption = 5,
+    json_output: BenchJsonOption = False,
 ) -> None:
     """BVH read and FK against bvhio, C3D read against raw ezc3d, OBJ read against trimesh.
 
@@ -35,10 +34,8 @@ def bench_skin(
     vertices: Annotated[int, typer.Option(help="Mesh vertices.")] = 50_000,
     influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
     frames: Annotated[int, typer.Option(help="Frames per timed batch.")] = 64,
-    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 5,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the measurements as JSON.")
-    ] = False,
+    repeat: RepeatOption = 5,
+    json_output: BenchJsonOption = False,
 ) -> None:
     """LBS and DQS milliseconds per frame (numba and NumPy) against libigl and UsdSkel, as ratios.
 
@@ -56,16 +53,14 @@ def bench_skin(
 @bench_app.command("animate")
 def bench_animate(
     vertices: Annotated[int, typer.Option(help="Skin vertices.")] = 50_000,
-    parts: Annotated[int, typer.Option(help="Near-rigid parts.")] = 17,
+    parts: PartsOption = 17,
     markers: Annotated[int, typer.Option(help="Markers (rings of 10 on the body).")] = 350,
     frames: Annotated[int, typer.Option(help="Frames per timed run.")] = 32,
     rom_frames: Annotated[
         int, typer.Option(help="Frames of the take the segmentation is timed on (0: skip).")
     ] = 1000,
-    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 3,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the measurements as JSON.")
-    ] = False,
+    repeat: RepeatOption = 3,
+    json_output: BenchJsonOption = False,
 ) -> None:
     """Dense deformation ms/frame (the four variants) against our LBS on the same mesh, as ratios;
     segmentation and registration times.

@@ -1,8 +1,4 @@
-"""``skincap clean`` and ``skincap eval fill``: the marker-cleanup verbs.
-
-Registered on :data:`skincap.cli._app.app` / :data:`skincap.cli._app.eval_app` when
-:mod:`skincap.cli` is imported. Heavy imports stay inside the commands.
-"""
+"""``skincap clean``, ``skincap eval fill`` and ``skincap bench clean``: the marker-cleanup verbs."""
 
 from __future__ import annotations
 
@@ -23,6 +19,7 @@ from skincap.cli._app import (
     print_bench_results,
     stage_progress,
 )
+from skincap.cli._options import BenchJsonOption, ForceOption, SurfaceOption
 from skincap.errors import FormatError
 
 # -------------------------------------------------------------------------- clean
@@ -47,10 +44,7 @@ def clean(
     reference_frame: Annotated[
         int | None, typer.Option(help="Reference pose frame (default: most markers present).")
     ] = None,
-    surface: Annotated[
-        Path | None,
-        typer.Option(help="User marker surface: PLY/OBJ over the markers or an edge-list CSV."),
-    ] = None,
+    surface: SurfaceOption = None,
     no_smooth: Annotated[
         bool, typer.Option("--no-smooth", help="Skip the local-frame smoothing.")
     ] = False,
@@ -81,7 +75,7 @@ def clean(
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON instead of one line.")
     ] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    force: ForceOption = False,
 ) -> None:
     """Clean a capture: marker surface, merge fragments into labels, fill holes, smooth.
 
@@ -205,7 +199,7 @@ def eval_fill(
     seed: Annotated[
         int, typer.Option(help="Random seed: the same seed punches the same gaps.")
     ] = 0,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    force: ForceOption = False,
 ) -> None:
     """Punch gaps into visible data, fill them with every method and score the fills.
 
@@ -304,9 +298,7 @@ def bench_clean(
         str, typer.Option(help="Comma-separated take lengths (the last is the headline).")
     ] = "250,500,1000",
     methods: Annotated[str, typer.Option(help="Comma-separated fill methods.")] = "local_pca",
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the measurements as JSON.")
-    ] = False,
+    json_output: BenchJsonOption = False,
 ) -> None:
     """Time the whole clean (and its fill and smoothing) against the linear fill.
 

@@ -8,13 +8,14 @@ from typing import Annotated
 import typer
 
 from skincap.cli._app import _user_errors, app, out, print_json
+from skincap.cli._options import ForceOption
 
 
 @app.command()
 def convert(
     src: Annotated[Path, typer.Argument(help="Input file.")],
     dst: Annotated[Path, typer.Argument(help="Output file; its extension picks the format.")],
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing output.")] = False,
+    force: ForceOption = False,
     units: Annotated[
         str | None, typer.Option(help="Length unit of a BVH/OBJ input (m, cm, mm, in).")
     ] = None,

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from skincap.cli._app import _user_errors, app, err, out
+from skincap.cli._options import ForceOption
 
 
 @app.command()
@@ -18,9 +19,7 @@ def demo(
     frames: Annotated[
         int, typer.Option(help="Frames of the synthetic take at 120 Hz (>= 240).")
     ] = 480,
-    force: Annotated[
-        bool, typer.Option("--force", help="Replace outputs from an earlier run.")
-    ] = False,
+    force: ForceOption = False,
 ) -> None:
     """Run the whole chain on data skincap makes and ships, and write report.html.
 

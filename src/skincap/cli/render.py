@@ -1,7 +1,4 @@
-"""``skincap render``: offscreen pictures (PNG) and clips (GIF, MP4) of any files.
-
-Registered on :data:`skincap.cli._app.app` when :mod:`skincap.cli` is imported.
-"""
+"""``skincap render``: offscreen pictures (PNG) and clips (GIF, MP4) of any files."""
 
 from __future__ import annotations
 
@@ -11,6 +8,7 @@ from typing import Annotated
 import typer
 
 from skincap.cli._app import _user_errors, app, err, out
+from skincap.cli._options import ForceOption
 from skincap.errors import ValidationError
 
 
@@ -98,7 +96,7 @@ def render(
     rate: Annotated[
         float | None, typer.Option(help="Frame rate of PC2 caches (PC2 stores none), Hz.")
     ] = None,
-    force: Annotated[bool, typer.Option("--force", help="Replace an existing output.")] = False,
+    force: ForceOption = False,
 ) -> None:
     """Draw captures, skeletons, meshes and rope curves offscreen to a PNG, GIF or MP4.
 

@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 
 from skincap.cli._app import _user_errors, app, err, frame_bar, out, print_json
+from skincap.cli._options import ForceOption, MeshUnitsOption
 
 
 @app.command()
@@ -52,11 +53,9 @@ def skin(
             help="BVH length unit (m, dm, cm, mm, in, cmu); guessed from the skeleton when omitted."
         ),
     ] = None,
-    mesh_units: Annotated[
-        str | None, typer.Option(help="Mesh length unit (default m; MakeHuman dm).")
-    ] = None,
+    mesh_units: MeshUnitsOption = None,
     max_influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    force: ForceOption = False,
     json_output: Annotated[
         bool,
         typer.Option(

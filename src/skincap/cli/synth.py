@@ -8,9 +8,9 @@ from typing import Annotated
 import typer
 
 from skincap.cli._app import _user_errors, app, out, stage_progress
+from skincap.cli._options import ForceOption, OutputFolderOption
 
 # one alias per option, so the verb's signature reads as a list
-_Output = Annotated[Path, typer.Option("-o", "--output", help="Output folder.")]
 _Body = Annotated[
     str,
     typer.Option(help="procedural (swept elliptic sections) or makehuman (shipped CC0 rig)."),
@@ -73,12 +73,11 @@ _Hands = Annotated[
         "LWRA,LWRB:RWRA,RWRB (found by name when omitted); a whip is held in the last."
     ),
 ]
-_Force = Annotated[bool, typer.Option("--force", help="Replace outputs of an earlier run.")]
 
 
 @app.command()
 def synth(
-    output: _Output,
+    output: OutputFolderOption,
     body: _Body = "procedural",
     motion: _Motion = "jumprope",
     markers: _Markers = "dense",
@@ -96,7 +95,7 @@ def synth(
     seed: _Seed = 0,
     real_markers: _RealMarkers = None,
     hands: _Hands = None,
-    force: _Force = False,
+    force: ForceOption = False,
 ) -> None:
     """Generate a synthetic optical capture with exact ground truth.
 

@@ -1,8 +1,4 @@
-"""``skincap track`` and ``skincap eval track``: the rope-tracking verbs.
-
-Registered on :data:`skincap.cli._app.app` / :data:`skincap.cli._app.eval_app` when
-:mod:`skincap.cli` is imported. Heavy imports stay inside the commands.
-"""
+"""``skincap track``, ``skincap eval track`` and ``skincap bench track``: the rope-tracking verbs."""
 
 from __future__ import annotations
 
@@ -23,6 +19,15 @@ from skincap.cli._app import (
     print_bench_results,
     print_json,
 )
+from skincap.cli._options import (
+    BenchJsonOption,
+    EvalJsonOption,
+    ForceOption,
+    OutputFolderOption,
+    RepeatOption,
+    SynthFramesOption,
+    SynthVerticesOption,
+)
 from skincap.errors import ValidationError
 
 
@@ -42,7 +47,7 @@ def track(
     input_file: Annotated[
         Path, typer.Argument(help="Long points CSV, OptiTrack CSV, or C3D of '*N' points.")
     ],
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    output: OutputFolderOption,
     rope_box: Annotated[
         str | None,
         typer.Option(help="x0,y0,z0,x1,y1,z1 (metres, Y up): frame-0 points in the box."),
@@ -56,7 +61,7 @@ def track(
     window: Annotated[
         float, typer.Option(help="Seconds at the start where the rope hangs still.")
     ] = 0.5,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    force: ForceOption = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, written files).")
     ] = False,
@@ -208,7 +213,7 @@ def _print_eval_table(result: dict[str, Any]) -> None:
 
 @eval_app.command("track")
 def eval_track(
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
+    output: OutputFolderOption,
     input_dir: Annotated[
         Path | None,
         typer.Argument(help="A folder written by 'skincap synth --rope jump|whip'."),
@@ -217,13 +222,11 @@ def eval_track(
         str | None,
         typer.Option("--synth", help="jump or whip: generate a jump-rope take in memory instead."),
     ] = None,
-    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
+    frames: SynthFramesOption = 600,
     markers: Annotated[
         str, typer.Option(help="Body markers of a --synth take: dense or sparse.")
     ] = "dense",
-    vertices: Annotated[
-        int, typer.Option(help="Procedural body vertices of a --synth take.")
-    ] = 6000,
+    vertices: SynthVerticesOption = 6000,
     gaps: Annotated[
         str,
         typer.Option(
@@ -237,10 +240,8 @@ def eval_track(
     all_gaps: Annotated[
         bool, typer.Option("--all-gaps", help="Run every gap size, even after the tracker lost it.")
     ] = False,
-    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
-    force: Annotated[
-        bool, typer.Option("--force", help="Replace outputs of an earlier run.")
-    ] = False,
+    json_output: EvalJsonOption = False,
+    force: ForceOption = False,
 ) -> None:
     """Measure rope tracking against ground truth as the thesis does (Fig. 4.4).
 
@@ -319,10 +320,8 @@ def bench_track(
     frames: Annotated[int, typer.Option(help="Frames of the scene (120 Hz).")] = 1200,
     points: Annotated[int, typer.Option(help="Points per frame (rope and body).")] = 400,
     rope_markers: Annotated[int, typer.Option(help="Tape markers on the rope.")] = 24,
-    repeat: Annotated[int, typer.Option(help="Timing repeats (the best is kept).")] = 3,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the measurements as JSON.")
-    ] = False,
+    repeat: RepeatOption = 3,
+    json_output: BenchJsonOption = False,
 ) -> None:
     """track_rope's frames per second against real time and a naive nearest-neighbour tracker.
 

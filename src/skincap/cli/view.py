@@ -1,8 +1,4 @@
-"""``skincap view``: show files in the browser (the viser viewer).
-
-Registered on :data:`skincap.cli._app.app` when :mod:`skincap.cli` is imported. viser is
-imported only when the command runs.
-"""
+"""``skincap view``: show files in the browser (the viser viewer, imported when it runs)."""
 
 from __future__ import annotations
 
