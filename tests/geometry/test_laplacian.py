@@ -10,6 +10,7 @@ import trimesh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from mesh_grids import grid_triangles
 from skincap.errors import ValidationError
 from skincap.geometry.laplacian import (
     connected_components,
@@ -34,15 +35,7 @@ def _grid(
     interior = ((x > 0) & (x < n - 1) & (y > 0) & (y < n - 1)).ravel()
     v = np.stack([x.ravel(), y.ravel(), np.zeros(n * n)], axis=1)
     v[interior, :2] += rng.uniform(-jitter, jitter, size=(int(interior.sum()), 2))
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = (
-        idx[:-1, :-1].ravel(),
-        idx[1:, :-1].ravel(),
-        idx[1:, 1:].ravel(),
-        idx[:-1, 1:].ravel(),
-    )
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return v, faces, interior
+    return v, grid_triangles(n, n), interior
 
 
 def _sphere(subdivisions: int = 3, radius: float = 1.0) -> tuple[np.ndarray, np.ndarray]:

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from mesh_grids import grid_triangles
 from skincap.deform.dense.segmentation import segment_marker_surface, triangle_rotations
 from skincap.deform.dense.weights import (
     candidates_from_marker_parts,
@@ -20,15 +21,7 @@ def _strip(nx: int = 12, ny: int = 4) -> tuple[np.ndarray, np.ndarray]:
     """A flat strip of markers 4 cm apart along x, triangulated."""
     x, y = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
     ref = np.stack([0.04 * x.ravel(), 0.04 * y.ravel(), np.zeros(x.size)], axis=1)
-    idx = np.arange(nx * ny).reshape(nx, ny)
-    a, b, c, d = (
-        idx[:-1, :-1].ravel(),
-        idx[1:, :-1].ravel(),
-        idx[1:, 1:].ravel(),
-        idx[:-1, 1:].ravel(),
-    )
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
-    return ref, faces
+    return ref, grid_triangles(nx, ny)
 
 
 def _hinge(ref: np.ndarray, n_frames: int = 40, hinge_x: float = 0.22) -> np.ndarray:
