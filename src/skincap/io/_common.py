@@ -26,6 +26,7 @@ __all__ = [
     "UP_AXES",
     "up_rotation",
     "finite_frame_chunks",
+    "read_file_bytes",
 ]
 
 #: Length units skincap reads and writes, as metres per unit. ``cmu`` is the length
@@ -101,6 +102,30 @@ def check_readable(path: str | os.PathLike[str]) -> Path:
     if p.stat().st_size == 0:
         raise FormatError(p, "file is empty")
     return p
+
+
+def read_file_bytes(path: Path, *, what: str = "") -> bytes:
+    """The bytes of ``path``; an OS error becomes the house one-line format error.
+
+    Parameters
+    ----------
+    path : Path
+        Checked by the caller (e.g. :func:`check_readable`) where that matters.
+    what : str
+        Names the file in the message: ``cannot read the name map: ...`` for
+        ``what="the name map"``; empty: ``cannot read: ...``.
+
+    Raises
+    ------
+    FormatError
+        The file cannot be read (permissions, a folder, an I/O error), with the
+        operating system's reason.
+    """
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        label = f"cannot read {what}" if what else "cannot read"
+        raise FormatError(path, f"{label}: {exc.strerror or exc}") from None
 
 
 @contextlib.contextmanager

@@ -30,6 +30,7 @@ from skincap.io._common import (
     atomic_output,
     check_readable,
     from_y_up,
+    read_file_bytes,
     to_y_up,
     unit_scale,
 )
@@ -53,10 +54,7 @@ _MISSING_TOKENS = ("", "nan", "NaN", "NAN", "-nan", "-NaN", "nan(ind)", "-nan(in
 
 def read_text_lines(path: Path) -> list[str]:
     """The lines of a text file without line endings; FormatError if not text."""
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(path, f"cannot read: {exc.strerror}") from None
+    raw = read_file_bytes(path)
     if b"\x00" in raw:
         raise FormatError(path, "binary data (NUL byte) in a text file", offset=raw.index(b"\x00"))
     try:

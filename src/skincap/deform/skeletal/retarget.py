@@ -89,6 +89,7 @@ from skincap.geometry.kinematics import (
     joint_positions_arrays,
     rest_positions,
 )
+from skincap.io._common import read_file_bytes
 from skincap.io.json_file import parse_json
 from skincap.types import Mesh, Motion, Skeleton, Skin
 
@@ -132,10 +133,7 @@ def load_name_map(name_map: NameMapLike) -> dict[str, tuple[str, ...] | None]:
         path = None
     elif isinstance(name_map, (str, os.PathLike)):
         path = Path(name_map)
-        try:
-            raw = path.read_bytes()
-        except OSError as exc:
-            raise FormatError(path, f"cannot read the name map: {exc.strerror or exc}") from None
+        raw = read_file_bytes(path, what="the name map")
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError as exc:

@@ -21,6 +21,7 @@ from skincap.geometry.rotations import (
 )
 from skincap.io._common import (
     check_readable,
+    read_file_bytes,
     to_y_up,
     unit_scale,
     up_rotation,
@@ -107,10 +108,7 @@ def read_bvh(
     if up_key not in ("auto", "y", "z"):
         raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
     p = check_readable(path)
-    try:
-        raw = p.read_bytes()
-    except OSError as exc:
-        raise FormatError(p, f"cannot read: {exc.strerror or exc}") from None
+    raw = read_file_bytes(p)
     try:
         return _read(p, raw, units, scale, up_key, position_channels)
     except FormatError:

@@ -18,6 +18,7 @@ from skincap.errors import (
 from skincap.io._common import (
     UNIT_TO_METRES,
     check_readable,
+    read_file_bytes,
     unit_scale,
     up_rotation,
 )
@@ -207,10 +208,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     p = check_readable(path)
     if up not in ("auto", "y", "z"):
         raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise FormatError(p, f"cannot read: {exc.strerror}") from None
+    data = read_file_bytes(p)
     check_before_ezc3d(p, data)
     layout = scan_c3d(p, data)
     c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout)
