@@ -180,6 +180,25 @@ def _reference_array(reference: np.ndarray, n: int | None = None) -> np.ndarray:
     return ref
 
 
+def _marker_columns(
+    name: str, rows: str, values: np.ndarray, width: int, n_markers: int, *, empty_any_shape: bool
+) -> np.ndarray:
+    """``values`` as an (``rows``, ``width``) integer array of marker columns ``0..n_markers-1``.
+
+    With ``empty_any_shape`` an empty input of any shape passes (an empty edge list).
+    """
+    a = np.asarray(values)
+    if (a.size or not empty_any_shape) and (a.ndim != 2 or a.shape[1] != width):
+        raise ValidationError(f"{name} must have shape ({rows}, {width}); got {a.shape}")
+    if a.size and not np.issubdtype(a.dtype, np.integer):
+        raise ValidationError(f"{name} must be integers; got dtype {a.dtype}")
+    if a.size and (a.min() < 0 or a.max() >= n_markers):
+        raise ValidationError(
+            f"{name} refer to markers outside 0..{n_markers - 1} (min {a.min()}, max {a.max()})"
+        )
+    return a
+
+
 def surface_from_edges(
     edges: np.ndarray, reference: np.ndarray, *, reference_frame: int = -1
 ) -> MarkerSurface:
@@ -198,15 +217,7 @@ def surface_from_edges(
     MarkerSurface
     """
     ref = _reference_array(reference)
-    e = np.asarray(edges)
-    if e.size and (e.ndim != 2 or e.shape[1] != 2):
-        raise ValidationError(f"edges must have shape (E, 2); got {e.shape}")
-    if e.size and not np.issubdtype(e.dtype, np.integer):
-        raise ValidationError(f"edges must be integers; got dtype {e.dtype}")
-    if e.size and (e.min() < 0 or e.max() >= ref.shape[0]):
-        raise ValidationError(
-            f"edges refer to markers outside 0..{ref.shape[0] - 1} (min {e.min()}, max {e.max()})"
-        )
+    e = _marker_columns("edges", "E", edges, 2, ref.shape[0], empty_any_shape=True)
     return _assemble(e.reshape(-1, 2), np.zeros((0, 3), np.int64), ref, reference_frame)
 
 
@@ -229,15 +240,7 @@ def surface_from_faces(
         Edges are the triangles' edges.
     """
     ref = _reference_array(reference)
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValidationError(f"faces must have shape (F, 3); got {f.shape}")
-    if f.size and not np.issubdtype(f.dtype, np.integer):
-        raise ValidationError(f"faces must be integers; got dtype {f.dtype}")
-    if f.size and (f.min() < 0 or f.max() >= ref.shape[0]):
-        raise ValidationError(
-            f"faces refer to markers outside 0..{ref.shape[0] - 1} (min {f.min()}, max {f.max()})"
-        )
+    f = _marker_columns("faces", "F", faces, 3, ref.shape[0], empty_any_shape=False)
     f = f.astype(np.int64)
     e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     return _assemble(e, f, ref, reference_frame)
