@@ -303,33 +303,18 @@ def read_obj(path: str | os.PathLike[str], *, units: str = "m", up: str = "y") -
     f_lines = np.repeat(np.asarray(p.f_lines, dtype=np.int64), p.f_sizes)
     raw_v, raw_t, raw_n = _corner_fields(p_path, p)
     sizes = np.asarray(p.f_sizes, dtype=np.int64)
-    corner_idx = _resolve(
-        p_path,
-        raw_v,
-        np.repeat(np.asarray(p.f_nv, dtype=np.int64), sizes),
-        f_lines,
-        len(p.v_lines),
-        "vertex",
-        False,
-    )
-    corner_uv = _resolve(
-        p_path,
-        raw_t,
-        np.repeat(np.asarray(p.f_nvt, dtype=np.int64), sizes),
-        f_lines,
-        len(p.vt_lines),
-        "texture coordinate",
-        True,
-    )
-    corner_nrm = _resolve(
-        p_path,
-        raw_n,
-        np.repeat(np.asarray(p.f_nvn, dtype=np.int64), sizes),
-        f_lines,
-        len(p.vn_lines),
-        "normal",
-        True,
-    )
+
+    def corners(
+        raw: np.ndarray, defined: list[int], total: int, what: str, optional: bool
+    ) -> np.ndarray:
+        # ``defined``: per face, how many entries of that kind came before it (for
+        # negative, relative indices); repeated to the face's corners
+        per_corner = np.repeat(np.asarray(defined, dtype=np.int64), sizes)
+        return _resolve(p_path, raw, per_corner, f_lines, total, what, optional)
+
+    corner_idx = corners(raw_v, p.f_nv, len(p.v_lines), "vertex", False)
+    corner_uv = corners(raw_t, p.f_nvt, len(p.vt_lines), "texture coordinate", True)
+    corner_nrm = corners(raw_n, p.f_nvn, len(p.vn_lines), "normal", True)
     offsets = np.concatenate([[0], np.cumsum(sizes)]).astype(np.int64)
     faces, face_polygon = triangulate_polygons(corner_idx, offsets)
 
