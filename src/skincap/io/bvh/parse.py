@@ -6,6 +6,7 @@ import io
 import math
 import os
 import re
+from typing import Any
 
 import numpy as np
 
@@ -336,22 +337,25 @@ def _parse_motion(
         i += 1
         return m.group(1), number
 
-    frames_tok, frames_line = header_line(_FRAMES_RE, "Frames: <count>")
-    try:
-        n_frames = int(frames_tok)
-    except ValueError:
-        raise FormatError(
-            path, f"Frames: expected a whole number, found {frames_tok!r}", line=frames_line
-        ) from None
+    def header_number(
+        regex: re.Pattern[str], what: str, kind: type[int] | type[float], expected: str
+    ) -> tuple[Any, str, int]:
+        """The header line's number as ``kind``, its text and its line number."""
+        token, number = header_line(regex, what)
+        try:
+            return kind(token), token, number
+        except ValueError:
+            name = what.split(":")[0]
+            raise FormatError(
+                path, f"{name}: expected {expected}, found {token!r}", line=number
+            ) from None
+
+    n_frames, _, frames_line = header_number(_FRAMES_RE, "Frames: <count>", int, "a whole number")
     if n_frames < 0:
         raise FormatError(path, f"Frames: must not be negative, found {n_frames}", line=frames_line)
-    time_tok, time_line = header_line(_FRAME_TIME_RE, "Frame Time: <seconds>")
-    try:
-        frame_time = float(time_tok)
-    except ValueError:
-        raise FormatError(
-            path, f"Frame Time: expected seconds, found {time_tok!r}", line=time_line
-        ) from None
+    frame_time, time_tok, time_line = header_number(
+        _FRAME_TIME_RE, "Frame Time: <seconds>", float, "seconds"
+    )
     if not (math.isfinite(frame_time) and frame_time > 0):
         raise FormatError(
             path,
