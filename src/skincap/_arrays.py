@@ -1,4 +1,4 @@
-"""Small array helpers every layer shares: runs of missing samples, shape checks, progress.
+"""Small helpers every layer shares: runs of missing samples, shape and scalar checks, progress.
 
 Kept at the ground floor (it imports only :mod:`skincap.errors`) so that io, the
 algorithms and the workflows find a run of gaps, check a ``(T, N, 3)`` array and report
@@ -7,7 +7,9 @@ progress the same way, with the house error messages.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
@@ -20,6 +22,10 @@ __all__ = [
     "as_points",
     "as_trajectories",
     "as_finite_array",
+    "check_positive",
+    "check_nonnegative",
+    "check_finite",
+    "check_count",
 ]
 
 #: A progress callback: ``progress(fraction in [0, 1], message)``. ``None`` where taken
@@ -109,3 +115,59 @@ def as_finite_array(
     if not np.isfinite(arr).all():
         raise ValidationError(f"{name}: must be finite")
     return arr
+
+
+# ------------------------------------------------------------------ scalar arguments
+def check_positive(
+    name: str,
+    value: Any,
+    *,
+    allow_inf: bool = False,
+    expected: str = "a positive number",
+    expected_finite: str = "a positive finite number",
+) -> float:
+    """``value`` as a float > 0 (finite unless ``allow_inf``), or a ValidationError.
+
+    The message is ``name: expected <expected>, got <value>`` when ``value`` is not a
+    number and ``name: expected <expected_finite>, got <value>`` when it is NaN, not
+    positive, or infinite; the phrases let a caller say what the number is (``"a
+    positive finite frame rate in Hz"``).
+    """
+    try:
+        val = float(value)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{name}: expected {expected}, got {value!r}") from None
+    if math.isnan(val) or val <= 0.0 or (math.isinf(val) and not allow_inf):
+        raise ValidationError(f"{name}: expected {expected_finite}, got {value!r}")
+    return val
+
+
+def check_nonnegative(name: str, value: Any, *, allow_inf: bool = False) -> float:
+    """``value`` as a float >= 0 (finite unless ``allow_inf``), or a ValidationError."""
+    try:
+        val = float(value)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{name}: expected a number >= 0, got {value!r}") from None
+    if math.isnan(val) or val < 0.0 or (math.isinf(val) and not allow_inf):
+        raise ValidationError(f"{name}: expected a finite number >= 0, got {value!r}")
+    return val
+
+
+def check_finite(name: str, value: Any) -> float:
+    """``value`` as a finite float, or a ValidationError."""
+    try:
+        val = float(value)
+    except (TypeError, ValueError):
+        raise ValidationError(f"{name}: expected a finite number, got {value!r}") from None
+    if not math.isfinite(val):
+        raise ValidationError(f"{name}: expected a finite number, got {value!r}")
+    return val
+
+
+def check_count(name: str, value: Any, *, minimum: int) -> int:
+    """``value`` as an int >= ``minimum`` (a bool is not a count), or a ValidationError."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ValidationError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    if value < minimum:
+        raise ValidationError(f"{name}: expected an integer >= {minimum}, got {value!r}")
+    return int(value)

@@ -64,6 +64,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import check_positive
 from skincap.errors import ValidationError
 from skincap.geometry.rotations import (
     quat_apply,
@@ -496,12 +497,7 @@ def _n_frames(frames: Any, seconds: Any, rate: float) -> int:
         return int(frames)
     if seconds is None:
         seconds = DEFAULT_SECONDS
-    try:
-        sec = float(seconds)
-    except (TypeError, ValueError):
-        raise ValidationError(f"seconds: expected a positive number, got {seconds!r}") from None
-    if not np.isfinite(sec) or sec <= 0:
-        raise ValidationError(f"seconds: expected a positive finite duration, got {seconds!r}")
+    sec = check_positive("seconds", seconds, expected_finite="a positive finite duration")
     return max(1, int(round(sec * rate)))
 
 
@@ -562,12 +558,12 @@ def make_clip(
         raise ValidationError(f"name: expected one of {', '.join(CLIPS)}, got {name!r}")
     if not isinstance(skeleton, Skeleton):
         raise ValidationError(f"skeleton: expected a Skeleton, got {type(skeleton).__name__}")
-    try:
-        r = float(rate)
-    except (TypeError, ValueError):
-        raise ValidationError(f"rate: expected a positive number in Hz, got {rate!r}") from None
-    if not np.isfinite(r) or r <= 0:
-        raise ValidationError(f"rate: expected a positive finite frame rate in Hz, got {rate!r}")
+    r = check_positive(
+        "rate",
+        rate,
+        expected="a positive number in Hz",
+        expected_finite="a positive finite frame rate in Hz",
+    )
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValidationError(f"seed: expected a non-negative integer, got {seed!r}")
     n = _n_frames(frames, seconds, r)

@@ -29,8 +29,8 @@ from typing import Any, Literal
 
 import numpy as np
 
+from skincap._arrays import check_count, check_nonnegative, check_positive
 from skincap.errors import SkincapError, SkincapWarning, ValidationError
-from skincap.synth._scalars import check_count, check_nonnegative, check_positive
 from skincap.synth._settings import settings_with
 from skincap.synth.rope_settings import RopeSettings
 from skincap.synth.rope_solver import UP, ChainSolver, initial_shape, points_on_chain

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import check_count, check_finite, check_nonnegative, check_positive
 from skincap.errors import ValidationError
-from skincap.synth._scalars import check_count, check_finite, check_nonnegative, check_positive
 
 __all__ = ["RopeSettings"]
 

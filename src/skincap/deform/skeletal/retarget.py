@@ -76,6 +76,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap._arrays import check_positive
 from skincap.deform.skeletal.name_maps import CONVENTIONS, LANDMARKS, detect_convention
 from skincap.deform.skeletal.rig import (
     ALL_CHANNELS,
@@ -735,12 +736,9 @@ def _scale(
         if hs <= _ZERO_LENGTH or ht <= _ZERO_LENGTH:
             raise ValidationError("scale='height': a skeleton has no height; pass a number")
         return ht / hs
-    try:
-        value = float(scale)
-    except (TypeError, ValueError):
-        raise ValidationError(
-            f"scale: expected 'height' or a positive number, got {scale!r}"
-        ) from None
-    if not np.isfinite(value) or value <= 0:
-        raise ValidationError(f"scale: expected a positive finite factor, got {scale!r}")
-    return value
+    return check_positive(
+        "scale",
+        scale,
+        expected="'height' or a positive number",
+        expected_finite="a positive finite factor",
+    )
