@@ -38,7 +38,7 @@ def dense_dispatcher() -> Any:
     """
     import numba
 
-    @numba.njit(parallel=True, cache=True, nogil=True, fastmath={"contract"})
+    @numba.njit(parallel=True, cache=True, nogil=True, fastmath={"contract", "reassoc"})
     def dense_kernel(
         pair_local,
         pair_part,
@@ -47,16 +47,17 @@ def dense_dispatcher() -> Any:
         quadratic,
         rotation,
         translation,
-        centres,
-        rbf_weights,
+        rbf_table,
         rbf_scale,
         rbf_members,
         out,
     ):  # pragma: no cover - runs compiled
         # pair_local (Q, 3) p̂⁰ sorted by vertex, pair_part (Q,), pair_weight (Q,) β,
         # vertex_start (V + 1,) CSR rows; quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3)
-        # R̃, translation (T, P, 3) d̃, centres (T, P, K, 3) p̃, rbf_weights (T, P, K, 3) w;
-        # rbf_scale (P,) 2/σ; rbf_members (P,) members summed (0: no RBF); out (T, V, 3)
+        # R̃, translation (T, P, 3) d̃; rbf_table (T, P, 6, K): rows x, y, z of the centres
+        # p̃ scaled by 2/σ, then the weights w / 6 (members along the last axis, so the
+        # member loop runs over contiguous rows); rbf_scale (P,) 2/σ; rbf_members (P,)
+        # members summed (0: no RBF); out (T, V, 3)
         n_v = vertex_start.shape[0] - 1
         for t in range(quadratic.shape[0]):
             for v in numba.prange(n_v):
@@ -75,56 +76,72 @@ def dense_dispatcher() -> Any:
                     xy = x * y
                     yz = y * z
                     zx = z * x
-                    a = quadratic[t, p]
                     # Ã q(p̂⁰), q = [x, y, z, x², y², z², xy, yz, zx, 1]
                     lx = (
-                        a[0, 0] * x + a[0, 1] * y + a[0, 2] * z + a[0, 3] * xx + a[0, 4] * yy
-                        + a[0, 5] * zz + a[0, 6] * xy + a[0, 7] * yz + a[0, 8] * zx + a[0, 9]
+                        quadratic[t, p, 0, 0] * x + quadratic[t, p, 0, 1] * y
+                        + quadratic[t, p, 0, 2] * z + quadratic[t, p, 0, 3] * xx
+                        + quadratic[t, p, 0, 4] * yy + quadratic[t, p, 0, 5] * zz
+                        + quadratic[t, p, 0, 6] * xy + quadratic[t, p, 0, 7] * yz
+                        + quadratic[t, p, 0, 8] * zx + quadratic[t, p, 0, 9]
                     )  # fmt: skip
                     ly = (
-                        a[1, 0] * x + a[1, 1] * y + a[1, 2] * z + a[1, 3] * xx + a[1, 4] * yy
-                        + a[1, 5] * zz + a[1, 6] * xy + a[1, 7] * yz + a[1, 8] * zx + a[1, 9]
+                        quadratic[t, p, 1, 0] * x + quadratic[t, p, 1, 1] * y
+                        + quadratic[t, p, 1, 2] * z + quadratic[t, p, 1, 3] * xx
+                        + quadratic[t, p, 1, 4] * yy + quadratic[t, p, 1, 5] * zz
+                        + quadratic[t, p, 1, 6] * xy + quadratic[t, p, 1, 7] * yz
+                        + quadratic[t, p, 1, 8] * zx + quadratic[t, p, 1, 9]
                     )  # fmt: skip
                     lz = (
-                        a[2, 0] * x + a[2, 1] * y + a[2, 2] * z + a[2, 3] * xx + a[2, 4] * yy
-                        + a[2, 5] * zz + a[2, 6] * xy + a[2, 7] * yz + a[2, 8] * zx + a[2, 9]
+                        quadratic[t, p, 2, 0] * x + quadratic[t, p, 2, 1] * y
+                        + quadratic[t, p, 2, 2] * z + quadratic[t, p, 2, 3] * xx
+                        + quadratic[t, p, 2, 4] * yy + quadratic[t, p, 2, 5] * zz
+                        + quadratic[t, p, 2, 6] * xy + quadratic[t, p, 2, 7] * yz
+                        + quadratic[t, p, 2, 8] * zx + quadratic[t, p, 2, 9]
                     )  # fmt: skip
                     n_k = rbf_members[p]
                     if n_k > 0:
                         g = rbf_scale[p]
-                        g2 = g * g
-                        c = centres[t, p]
-                        w = rbf_weights[t, p]
+                        gx = lx * g
+                        gy = ly * g
+                        gz = lz * g
                         rx = 0.0
                         ry = 0.0
                         rz = 0.0
+                        # branch-free over the members (the support test would mispredict):
+                        # s = 2 d / σ clipped to 2, where both cubes of φ vanish
                         for i in range(n_k):
-                            dx = lx - c[i, 0]
-                            dy = ly - c[i, 1]
-                            dz = lz - c[i, 2]
-                            s2 = (dx * dx + dy * dy + dz * dz) * g2  # (2 d / σ)²
-                            if s2 < 4.0:  # inside the support d < σ
-                                s = np.sqrt(s2)
-                                u = 2.0 - s
-                                phi = u * u * u
-                                if s < 1.0:
-                                    b = 1.0 - s
-                                    phi -= 4.0 * b * b * b
-                                phi *= 1.0 / 6.0
-                                rx += phi * w[i, 0]
-                                ry += phi * w[i, 1]
-                                rz += phi * w[i, 2]
+                            dx = gx - rbf_table[t, p, 0, i]
+                            dy = gy - rbf_table[t, p, 1, i]
+                            dz = gz - rbf_table[t, p, 2, i]
+                            s = np.sqrt(min(dx * dx + dy * dy + dz * dz, 4.0))
+                            u = 2.0 - s
+                            b = max(1.0 - s, 0.0)
+                            phi = u * u * u - 4.0 * (b * b * b)  # 6 φ
+                            rx += phi * rbf_table[t, p, 3, i]
+                            ry += phi * rbf_table[t, p, 4, i]
+                            rz += phi * rbf_table[t, p, 5, i]
                         lx += rx
                         ly += ry
                         lz += rz
                     # back to the world: (local - d̃) R̃
-                    r = rotation[t, p]
                     ux = lx - translation[t, p, 0]
                     uy = ly - translation[t, p, 1]
                     uz = lz - translation[t, p, 2]
-                    wx = ux * r[0, 0] + uy * r[1, 0] + uz * r[2, 0]
-                    wy = ux * r[0, 1] + uy * r[1, 1] + uz * r[2, 1]
-                    wz = ux * r[0, 2] + uy * r[1, 2] + uz * r[2, 2]
+                    wx = (
+                        ux * rotation[t, p, 0, 0]
+                        + uy * rotation[t, p, 1, 0]
+                        + uz * rotation[t, p, 2, 0]
+                    )
+                    wy = (
+                        ux * rotation[t, p, 0, 1]
+                        + uy * rotation[t, p, 1, 1]
+                        + uz * rotation[t, p, 2, 1]
+                    )
+                    wz = (
+                        ux * rotation[t, p, 0, 2]
+                        + uy * rotation[t, p, 1, 2]
+                        + uz * rotation[t, p, 2, 2]
+                    )
                     if np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):
                         beta = pair_weight[q]
                         sx += beta * wx
@@ -184,11 +201,15 @@ def deform_vertices_numba(
     n_t, n_v = quadratic.shape[0], vertex_start.shape[0] - 1
     out = np.zeros((n_t, n_v, 3))
     if n_t and n_v:
+        scale = np.asarray(rbf_scale, dtype=np.float64)
+        table = np.concatenate(
+            [centres * scale[None, :, None, None], rbf_weights * (1.0 / 6.0)], axis=-1
+        )  # (T, P, K, 6)
         # one argument signature only (C-contiguous, writeable): a second would compile again
         dense_dispatcher()(
             pair_local, pair_part, pair_weight, vertex_start,
             *(np.require(a, np.float64, ("C", "W")) for a in (
-                quadratic, rotation, translation, centres, rbf_weights, rbf_scale)),
+                quadratic, rotation, translation, np.swapaxes(table, -1, -2), scale)),
             np.require(rbf_members, np.int64, ("C", "W")), out,
         )  # fmt: skip
     return out

@@ -16,10 +16,9 @@ from scipy import sparse
 
 __all__ = ["blend_pairs", "move_pairs_numpy"]
 
-#: Pair rows per RBF slab: the (rows, 2K) kernel buffers of a 30-member part stay
-#: ~0.5 MB, in cache, instead of streaming a whole part's matrix through memory
-#: (2x faster per kernel entry than 2048 rows on the benchmark's parts).
-_RBF_ROWS = 512
+#: Pairs per RBF slab: the (2K, pairs) kernel buffers of a 30-member part stay
+#: ~0.5 MB, in cache, instead of streaming a whole part's matrix through memory.
+_RBF_COLUMNS = 512
 
 
 def _add_rbf_sum(
@@ -42,36 +41,37 @@ def _add_rbf_sum(
     """
     k = centres.shape[0]
     c = centres * scale  # scaled so that s = 2 d / σ is a plain distance
-    # s² = |x|² - 2 x·c + |c|²  as one product: [x, |x|², 1] @ [-2c; 1; |c|²]
-    right = np.empty((5, k))
-    right[:3] = -2.0 * c.T
-    right[3] = 1.0
-    right[4] = (c * c).sum(1)
-    # the two cubes of φ = ((2 - s)³ - 4 max(1 - s, 0)³) / 6 share one (n, 2K) buffer,
-    # reduced (and turned to the world) by one product with [w/6; -2w/3] R
-    reduce = np.concatenate([weights * (1.0 / 6.0), weights * (-4.0 / 6.0)]) @ rotation
+    # s² = |x|² - 2 x·c + |c|²  as one product: [-2c, 1, |c|²] @ [x; |x|²; 1]
+    left = np.empty((k, 5))
+    left[:, :3] = -2.0 * c
+    left[:, 3] = 1.0
+    left[:, 4] = (c * c).sum(1)
+    # the two cubes of φ = ((2 - s)³ - 4 max(1 - s, 0)³) / 6 share one (2K, n) buffer,
+    # reduced (and turned to the world) by one product with ([w/6; -2w/3] R)ᵀ.
+    # Members run down the rows and points along them: every pass is over long rows.
+    reduce = (np.concatenate([weights * (1.0 / 6.0), weights * (-4.0 / 6.0)]) @ rotation).T
     n = local.shape[0]
-    rows = min(n, _RBF_ROWS)
-    left = np.empty((rows, 5))
-    s = np.empty((rows, k))
-    cubes = np.empty((rows, 2 * k))
-    square = np.empty((rows, 2 * k))
-    for r0 in range(0, n, rows):
-        r1 = min(n, r0 + rows)
-        m = r1 - r0
-        lf, sm, cb, sq = left[:m], s[:m], cubes[:m], square[:m]
-        np.multiply(local[r0:r1], scale, out=lf[:, :3])
-        np.einsum("nx,nx->n", lf[:, :3], lf[:, :3], out=lf[:, 3])
-        lf[:, 4] = 1.0
-        np.matmul(lf, right, out=sm)  # s², up to rounding
+    cols = min(n, _RBF_COLUMNS)
+    right = np.empty((5, cols))
+    s = np.empty((k, cols))
+    cubes = np.empty((2 * k, cols))
+    square = np.empty((2 * k, cols))
+    for c0 in range(0, n, cols):
+        c1 = min(n, c0 + cols)
+        m = c1 - c0
+        rg, sm, cb, sq = right[:, :m], s[:, :m], cubes[:, :m], square[:, :m]
+        np.multiply(local[c0:c1].T, scale, out=rg[:3])
+        np.einsum("xn,xn->n", rg[:3], rg[:3], out=rg[3])
+        rg[4] = 1.0
+        np.matmul(left, rg, out=sm)  # s², up to rounding
         np.clip(sm, 0.0, 4.0, out=sm)  # beyond s = 2 (d = σ) both cubes are 0
         np.sqrt(sm, out=sm)
-        np.subtract(2.0, sm, out=cb[:, :k])
-        np.subtract(1.0, sm, out=cb[:, k:])
-        np.maximum(cb[:, k:], 0.0, out=cb[:, k:])
+        np.subtract(2.0, sm, out=cb[:k])
+        np.subtract(1.0, sm, out=cb[k:])
+        np.maximum(cb[k:], 0.0, out=cb[k:])
         np.multiply(cb, cb, out=sq)
         cb *= sq
-        world[r0:r1] += cb @ reduce
+        world[c0:c1] += (reduce @ cb).T
 
 
 def move_pairs_numpy(
