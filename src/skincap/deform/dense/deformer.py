@@ -205,7 +205,7 @@ def fit_part_motion(
 
     weights = np.where(present, parts.member_weights[None], 0.0)
     rot, trans = fit_rigid(gathered, parts.local_reference[None], weights, min_points=1)
-    local = np.einsum("tpab,tpkb->tpka", rot, gathered) + trans[:, :, None, :]  # p̂ᵗ
+    local = gathered @ np.swapaxes(rot, -1, -2) + trans[:, :, None, :]  # p̂ᵗ
     local = np.where(present[..., None], local, np.nan)
     if use_quadratic:
         quad = fit_quadratic(
