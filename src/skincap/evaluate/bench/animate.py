@@ -23,7 +23,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from functools import partial
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -39,6 +39,7 @@ __all__ = ["GOALS_MS", "chain_scene", "run_animate_benchmark"]
 #: Goals of issue #16 (2 cores): ms/frame at 50k vertices, seconds for the fits.
 GOALS_MS = {"quadratic_rbf_numpy": 20.0, "quadratic_rbf_numba": 5.0}
 GOALS_S = {"segmentation_1000_frames": 30.0, "registration_20k_vertices": 60.0}
+_BACKENDS: tuple[Literal["numpy", "numba"], ...] = ("numpy", "numba")
 
 
 def _ring_tube(
@@ -223,7 +224,7 @@ def run_animate_benchmark(
         wall, cpu = _best_wall_and_cpu(run, repeat)
         ms[key], cpu_ms[key] = 1e3 * wall / n_frames, 1e3 * cpu / n_frames
 
-    for backend in ("numpy", "numba"):
+    for backend in _BACKENDS:
         try:
             deformer = DenseDeformer(parts, scene["vertices"], scene["beta"], backend=backend)
         except MissingDependencyError as exc:  # numba missing: reported, not fatal
@@ -244,7 +245,7 @@ def run_animate_benchmark(
     order = np.argsort(-scene["beta"], axis=1)[:, :2]
     weights = np.take_along_axis(scene["beta"], order, axis=1)
     weights /= weights.sum(axis=1, keepdims=True)
-    for backend in ("numpy", "numba"):
+    for backend in _BACKENDS:
         try:
             lbs = LinearBlendSkinning(
                 scene["vertices"], order, weights, n_joints=n_parts, backend=backend
@@ -369,7 +370,7 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
 
 def _registration_seconds(scene: dict[str, np.ndarray], notes: list[str]) -> float | None:
     try:
-        from skincap.deform.dense import registration  # type: ignore[attr-defined]
+        from skincap.deform.dense import registration
     except ImportError:
         notes.append(
             "registration not measured: skincap.deform.dense.registration is not in this build"
