@@ -159,3 +159,10 @@ def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     assert WARM_UPS["dense"] == "skincap.deform.dense.deformer:warm_up_kernel"
     dense_deformer.warm_up_kernel()
     assert kernel_ready(dense_dispatcher())
+    # what the warm-up compiled is what a take runs: no second signature to compile
+    take = _random_take(5)
+    parts = part_frames(take["reference"], take["alpha"])
+    deformer = DenseDeformer(parts, take["vertices"], take["beta"], backend="numba")
+    for method in METHODS:
+        list(deformer.deform(take["markers"], method, chunk=4))
+    assert len(dense_dispatcher().signatures) == 1
