@@ -30,7 +30,10 @@ it keeps moving with the take rather than vanish. Only a part never seen with th
 members gives NaN, and a vertex is NaN only when every part it belongs to is.
 
 Everything is one array operation over frames, parts, members and vertex-part pairs;
-frames stream in chunks so a long take never holds all its vertex frames.
+frames stream in chunks so a long take never holds all its vertex frames. The fits are
+NumPy; the per-frame vertex evaluation (eqs. 8-9) runs the numba kernel of
+:mod:`skincap.deform.dense._kernel_numba` or its NumPy reference
+:mod:`skincap.deform.dense._kernel_numpy` (``backend=``, as the skinning deformers).
 """
 
 from __future__ import annotations
