@@ -1,6 +1,6 @@
 """Choosing between a numba kernel and its NumPy reference, and when to compile.
 
-The skinning deformers and the rope tracker each keep a plain NumPy path as the
+The skinning deformers, the dense deformer and the rope tracker each keep a plain NumPy path as the
 reference and a numba kernel that must give the same results; both pick one with
 :func:`resolve_backend`. numba is a core dependency, so ``backend="auto"`` runs the
 compiled kernel -- once it is compiled.
@@ -51,6 +51,7 @@ WARM_UPS = {
     "skinning.lbs": "skincap.deform.skeletal.deformers:warm_up_lbs",
     "skinning.dqs": "skincap.deform.skeletal.deformers:warm_up_dqs",
     "tracking": "skincap.tracking.tracker:warm_up_kernel",
+    "dense": "skincap.deform.dense.deformer:warm_up_kernel",
 }
 
 #: Where each of those kernels' numba dispatcher comes from (``module:function``).
@@ -58,6 +59,7 @@ DISPATCHERS = {
     "skinning.lbs": "skincap.deform.skeletal.deformers:_lbs_dispatcher",
     "skinning.dqs": "skincap.deform.skeletal.deformers:_dqs_dispatcher",
     "tracking": "skincap.tracking.tracker:_track_frames_dispatcher",
+    "dense": "skincap.deform.dense._kernel_numba:dense_dispatcher",
 }
 
 # a background compile older than this is taken as dead (its lock is removed)

@@ -27,13 +27,26 @@ def test_the_chain_scene_moves_each_part_rigidly_and_the_deformer_follows() -> N
     np.testing.assert_allclose(got[:, inside], expected[:, inside], atol=1e-3)
 
 
-@pytest.mark.slow  # numba compiles the LBS baseline
-def test_bench_reports_every_variant_and_the_lbs_ratio() -> None:
+@pytest.mark.slow  # numba compiles the LBS baseline and the dense kernel
+def test_bench_reports_every_variant_on_both_backends_and_the_lbs_ratio() -> None:
     res = run_animate_benchmark(
-        n_vertices=500, n_parts=3, n_markers=60, n_frames=4, repeat=1, rom_frames=20
+        n_vertices=500,
+        n_parts=3,
+        n_markers=60,
+        n_frames=4,
+        repeat=1,
+        rom_frames=20,
+        first_call=False,
+        registration=False,
     )
     for method in METHODS:
-        assert res["ms_per_frame"][f"{method}_numpy"] > 0
-        assert res["ratios"][f"{method}_numpy / lbs_numpy"] > 0
+        for backend in ("numpy", "numba"):
+            assert res["ms_per_frame"][f"{method}_{backend}"] > 0
+            assert res["cpu_ms_per_frame"][f"{method}_{backend}"] > 0
+            assert res["ratios"][f"{method}_{backend} / lbs_{backend}"] > 0
+        # the benchmark's own agreement check between the kernels
+        assert res["max_abs_diff"][f"{method}_numba vs {method}_numpy"] < 1e-9
+    assert res["first_call"] is None and res["seconds"]["registration"] is None
     assert res["seconds"]["segmentation"] > 0
+    assert res["config"]["default_backend"] in ("numba", "numpy")
     assert any("ms/frame" in line for line in res["lines"])

@@ -83,3 +83,18 @@ def test_bad_arguments_are_refused() -> None:
         fit_rbf(np.zeros((4, 3)), np.zeros((5, 3)), 0.1)
     with pytest.raises(ValidationError, match="cutoff"):
         fit_rbf(np.zeros((4, 3)), np.zeros((4, 3)), 0.1, cutoff=2.0)
+
+
+def test_inverse_and_eigen_paths_agree_and_a_batch_may_mix_them() -> None:
+    """A well-conditioned system goes through the inverse, a near-singular one through
+    the eigen-decomposition: in one batch each gets what it would get alone, and the
+    inverse's weights equal the decomposition's (cutoff 0 forces it)."""
+    rng = np.random.default_rng(3)
+    good = _grid_points(rng, 4)
+    bad = np.array([[0, 0, 0], [1e-9, 0, 0], [0.05, 0, 0], [0, 0.05, 0]], dtype=float)
+    values = 0.003 * rng.normal(size=(2, 4, 3))
+    w = fit_rbf(np.stack([good, bad]), values, 0.1)
+    np.testing.assert_allclose(w[0], fit_rbf(good, values[0], 0.1), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(w[1], fit_rbf(bad, values[1], 0.1), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(w[0], fit_rbf(good, values[0], 0.1, cutoff=0.0), atol=1e-12)
+    assert np.abs(w[1]).max() < 1.0  # the near-coincident pair is not inverted

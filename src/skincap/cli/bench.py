@@ -62,8 +62,9 @@ def bench_animate(
     repeat: RepeatOption = 3,
     json_output: BenchJsonOption = False,
 ) -> None:
-    """Dense deformation ms/frame (the four variants) against our LBS on the same mesh, as ratios;
-    segmentation and registration times.
+    """Dense deformation ms/frame (wall and CPU) of the four variants on each backend (numba,
+    NumPy) against our LBS on the same mesh and backend, as ratios; the first call in a
+    fresh process (cold and warm numba cache); segmentation and registration times.
 
     Example: skincap bench animate --vertices 50000 --parts 17 --markers 350
     """

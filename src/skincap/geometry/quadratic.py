@@ -135,8 +135,9 @@ def fit_quadratic(
         * total[..., None]
     )  # (..., 10)
     n_terms = QUADRATIC_TERMS
-    qqt = np.einsum("...k,...ka,...kb->...ab", w, q, q)  # (..., 10, 10)
-    pqt = np.einsum("...k,...kx,...ka->...xa", w, c, q)  # (..., 3, 10)
+    wq_t = np.swapaxes(w[..., None] * q, -1, -2)  # (..., 10, K)
+    qqt = wq_t @ q  # (..., 10, 10)
+    pqt = np.swapaxes(wq_t @ c, -1, -2)  # (..., 3, 10)
     identity = np.zeros((3, n_terms))
     identity[:, :3] = np.eye(3)
     lhs = qqt + gamma2[..., None, :] * np.eye(n_terms)

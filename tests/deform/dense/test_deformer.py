@@ -6,10 +6,14 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from skincap.backends import numba_available
 from skincap.deform.dense.deformer import METHODS, DenseDeformer, fit_part_motion, held_frames
 from skincap.deform.dense.parts import part_frames
 from skincap.errors import ValidationError
 from skincap.geometry.quadratic import QUADRATIC_TERMS, apply_quadratic
+
+#: Every analytic test runs on the numba kernel and on its NumPy reference.
+BACKENDS = ["numpy"] + (["numba"] if numba_available() else [])
 
 
 def _blob(rng: np.random.Generator, n: int, centre: tuple[float, float, float]) -> np.ndarray:
@@ -34,7 +38,8 @@ def _rigid(rng: np.random.Generator, n_frames: int) -> tuple[np.ndarray, np.ndar
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_a_rigid_motion_is_reproduced_exactly_by_every_variant(method: str) -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_rigid_motion_is_reproduced_exactly_by_every_variant(method: str, backend: str) -> None:
     rng = np.random.default_rng(0)
     ref, alpha = _three_parts(rng)
     rot, trans = _rigid(rng, 7)
@@ -42,14 +47,15 @@ def test_a_rigid_motion_is_reproduced_exactly_by_every_variant(method: str) -> N
     markers[2, [0, 1, 25]] = np.nan  # missing markers change nothing under a rigid motion
     vertices = _blob(rng, 200, (0.3, 0.0, 0.0))
     beta = rng.random((200, 3))
-    deformer = DenseDeformer(part_frames(ref, alpha), vertices, beta)
+    deformer = DenseDeformer(part_frames(ref, alpha), vertices, beta, backend=backend)
     out = np.concatenate(list(deformer.deform(markers, method, chunk=3)))
     expected = np.einsum("tab,nb->tna", rot, vertices) + trans[:, None]
     np.testing.assert_allclose(out, expected, atol=1e-9)
 
 
 @pytest.mark.parametrize("method", ["quadratic", "quadratic_rbf"])
-def test_a_pure_quadratic_field_is_reproduced_exactly(method: str) -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_pure_quadratic_field_is_reproduced_exactly(method: str, backend: str) -> None:
     rng = np.random.default_rng(1)
     ref = _blob(rng, 30, (0, 0, 0))
     parts = part_frames(ref, np.ones((30, 1)))
@@ -65,7 +71,7 @@ def test_a_pure_quadratic_field_is_reproduced_exactly(method: str) -> None:
     markers = np.einsum("tab,nb->tna", rot, field(ref)) + trans[:, None]
     vertices = _blob(rng, 100, (0, 0, 0))
     expected = np.einsum("tab,nb->tna", rot, field(vertices)) + trans[:, None]
-    deformer = DenseDeformer(parts, vertices, np.ones((100, 1)))
+    deformer = DenseDeformer(parts, vertices, np.ones((100, 1)), backend=backend)
     out = np.concatenate(list(deformer.deform(markers, method, quadratic_regularisation=0.0)))
     np.testing.assert_allclose(out, expected, atol=1e-9)
     rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
@@ -73,7 +79,8 @@ def test_a_pure_quadratic_field_is_reproduced_exactly(method: str) -> None:
 
 
 @pytest.mark.parametrize("method", ["rigid_rbf", "quadratic_rbf"])
-def test_rbf_variants_pass_through_every_marker(method: str) -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_rbf_variants_pass_through_every_marker(method: str, backend: str) -> None:
     rng = np.random.default_rng(2)
     ref = np.stack(np.meshgrid(np.arange(5), np.arange(4), np.arange(2), indexing="ij"), -1)
     ref = 0.05 * ref.reshape(-1, 3).astype(float) + 0.004 * rng.normal(size=(40, 3))
@@ -81,14 +88,17 @@ def test_rbf_variants_pass_through_every_marker(method: str) -> None:
     rot, trans = _rigid(rng, 5)
     wobble = ref + 0.004 * rng.normal(size=(5, 40, 3))  # non-rigid, non-quadratic
     markers = np.einsum("tab,tnb->tna", rot, wobble) + trans[:, None]
-    deformer = DenseDeformer(parts, ref, np.ones((40, 1)))  # the markers as vertices
+    deformer = DenseDeformer(
+        parts, ref, np.ones((40, 1)), backend=backend
+    )  # the markers as vertices
     out = np.concatenate(list(deformer.deform(markers, method)))
     np.testing.assert_allclose(out, markers, atol=1e-9)
     rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
     assert np.abs(rigid - markers).max() > 1e-3
 
 
-def test_a_part_without_three_markers_is_held_and_never_nan() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_part_without_three_markers_is_held_and_never_nan(backend: str) -> None:
     rng = np.random.default_rng(3)
     ref, alpha = _three_parts(rng)
     rot, trans = _rigid(rng, 6)
@@ -101,7 +111,7 @@ def test_a_part_without_three_markers_is_held_and_never_nan() -> None:
     vertices = _blob(rng, 50, (0.6, 0.0, 0.0))
     beta = np.zeros((50, 3))
     beta[:, 2] = 1.0
-    deformer = DenseDeformer(part_frames(ref, alpha), vertices, beta)
+    deformer = DenseDeformer(part_frames(ref, alpha), vertices, beta, backend=backend)
     out = np.concatenate(list(deformer.deform(markers, "quadratic_rbf", chunk=2)))
     assert np.isfinite(out).all()
     held = np.einsum("ab,nb->na", rot[2], vertices) + trans[2]
@@ -109,14 +119,15 @@ def test_a_part_without_three_markers_is_held_and_never_nan() -> None:
     np.testing.assert_allclose(out[4], held, atol=1e-9)
 
 
-def test_a_part_never_seen_gives_nan_only_where_it_alone_rules() -> None:
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_part_never_seen_gives_nan_only_where_it_alone_rules(backend: str) -> None:
     rng = np.random.default_rng(4)
     ref, alpha = _three_parts(rng)
     markers = np.repeat(ref[None], 3, axis=0)
     markers[:, 40:60] = np.nan
     markers[:, 5] = np.nan
     beta = np.array([[0, 0, 1.0], [0, 0.5, 0.5]])
-    deformer = DenseDeformer(part_frames(ref, alpha), ref[[50, 30]], beta)
+    deformer = DenseDeformer(part_frames(ref, alpha), ref[[50, 30]], beta, backend=backend)
     out = np.concatenate(list(deformer.deform(markers)))
     assert np.isnan(out[:, 0]).all()
     np.testing.assert_allclose(out[:, 1], np.repeat(ref[None, 30], 3, axis=0), atol=1e-9)

@@ -30,11 +30,15 @@ it keeps moving with the take rather than vanish. Only a part never seen with th
 members gives NaN, and a vertex is NaN only when every part it belongs to is.
 
 Everything is one array operation over frames, parts, members and vertex-part pairs;
-frames stream in chunks so a long take never holds all its vertex frames.
+frames stream in chunks so a long take never holds all its vertex frames. The fits are
+NumPy; the per-frame vertex evaluation (eqs. 8-9) runs the numba kernel of
+:mod:`skincap.deform.dense._kernel_numba` or its NumPy reference
+:mod:`skincap.deform.dense._kernel_numpy` (``backend=``, as the skinning deformers).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Literal
@@ -42,7 +46,11 @@ from typing import Literal
 import numpy as np
 from scipy import sparse
 
-from skincap.deform.dense.parts import PartFrames
+from skincap import backends
+from skincap.backends import numba_available, resolve_backend
+from skincap.deform.dense._kernel_numba import deform_vertices_numba, dense_dispatcher
+from skincap.deform.dense._kernel_numpy import blend_pairs, move_pairs_numpy
+from skincap.deform.dense.parts import PartFrames, part_frames
 from skincap.errors import ValidationError
 from skincap.geometry.quadratic import (
     QUADRATIC_TERMS,
@@ -50,7 +58,7 @@ from skincap.geometry.quadratic import (
     fit_quadratic,
     quadratic_basis,
 )
-from skincap.geometry.rbf import cubic_bspline, fit_rbf
+from skincap.geometry.rbf import fit_rbf
 from skincap.geometry.rigid import fit_rigid
 
 __all__ = [
@@ -67,25 +75,27 @@ Method = Literal["rigid", "quadratic", "rigid_rbf", "quadratic_rbf"]
 METHODS: tuple[str, ...] = ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf")
 #: Fewest measured members for a part's rigid fit at a frame.
 MIN_PART_MARKERS = 3
+Backend = Literal["auto", "numba", "numpy"]
+
+# a deformer running NumPy while its kernel compiles in the background looks in numba's
+# cache at most this often (a look reads the cache index: about a millisecond)
+_RECHECK_S = 1.0
 
 
-#: Kernel entries per vertex slab of :meth:`DenseDeformer.deform_block` (~2 MB of float64).
-_SLAB = 1 << 18
+def warm_up_kernel() -> None:
+    """Compile the dense kernel into numba's cache (run by the background compile)."""
+    parts = part_frames(np.eye(3), np.ones((3, 1)))
+    deformer = DenseDeformer(parts, np.zeros((1, 3)), np.ones((1, 1)), backend="numba")
+    deformer.deform_block(fit_part_motion(np.eye(3)[None], parts, "quadratic_rbf"))
 
 
-def _rbf_sum(
-    points: np.ndarray, centres: np.ndarray, weights: np.ndarray, sigma: float
-) -> np.ndarray:
-    """``Σ_i w_i φ(||x - p̃_i|| / σ)`` at every point (the sum of eq. 8), (n, 3) metres."""
-    d2 = (
-        (points * points).sum(1)[:, None]
-        + (centres * centres).sum(1)[None, :]
-        - 2.0 * (points @ centres.T)
-    )  # (n, K) squared distances
-    np.maximum(d2, 0.0, out=d2)
-    np.sqrt(d2, out=d2)
-    d2 *= 1.0 / sigma
-    return cubic_bspline(d2) @ weights
+def _resolve_backend(backend: str) -> str:
+    return resolve_backend(
+        backend,
+        numba_installed=numba_available(),
+        feature="the numba dense deformation kernel",
+        kernel=("dense", dense_dispatcher),
+    )
 
 
 def _check_method(method: str) -> tuple[bool, bool]:
@@ -198,7 +208,7 @@ def fit_part_motion(
 
     weights = np.where(present, parts.member_weights[None], 0.0)
     rot, trans = fit_rigid(gathered, parts.local_reference[None], weights, min_points=1)
-    local = np.einsum("tpab,tpkb->tpka", rot, gathered) + trans[:, :, None, :]  # p̂ᵗ
+    local = gathered @ np.swapaxes(rot, -1, -2) + trans[:, :, None, :]  # p̂ᵗ
     local = np.where(present[..., None], local, np.nan)
     if use_quadratic:
         quad = fit_quadratic(
@@ -232,9 +242,29 @@ class DenseDeformer:
         The (registered) mesh in the markers' reference pose.
     vertex_weights : (V, P) float
         β: part weights of every vertex (rows sum to 1; rows are renormalised).
+    backend : {"auto", "numba", "numpy"}, default "auto"
+        The per-frame vertex evaluation: the compiled kernel
+        (:mod:`skincap.deform.dense._kernel_numba`) or its NumPy reference
+        (:mod:`skincap.deform.dense._kernel_numpy`), which agree to rounding.
+        ``"auto"`` runs the kernel when it is compiled (in this process or in numba's
+        cache) and otherwise NumPy while it compiles in the background
+        (:func:`skincap.backends.resolve_backend`), switching to it as soon as it is
+        cached; ``"numba"`` compiles in this process.
+
+    Attributes
+    ----------
+    backend : str
+        The evaluation in use, ``"numba"`` or ``"numpy"``.
     """
 
-    def __init__(self, parts: PartFrames, rest_vertices: np.ndarray, vertex_weights: np.ndarray):
+    def __init__(
+        self,
+        parts: PartFrames,
+        rest_vertices: np.ndarray,
+        vertex_weights: np.ndarray,
+        *,
+        backend: Backend = "auto",
+    ):
         v = np.asarray(rest_vertices, dtype=np.float64)
         beta = np.asarray(vertex_weights, dtype=np.float64)
         if v.ndim != 2 or v.shape[1] != 3 or not np.isfinite(v).all():
@@ -265,12 +295,24 @@ class DenseDeformer:
             (self.pair_weight, (vertex_of, np.arange(vertex_of.size))),
             shape=(self.n_vertices, vertex_of.size),
         )
+        sigma = parts.sigma
+        self._rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
+        # the kernel walks each vertex's pairs: the same pairs, sorted by vertex
+        by_vertex = np.lexsort((part_of, vertex_of))
+        self._vertex_local = np.ascontiguousarray(self.pair_local[by_vertex])
+        self._vertex_part = np.ascontiguousarray(part_of[by_vertex].astype(np.int64))
+        self._vertex_weight = np.ascontiguousarray(self.pair_weight[by_vertex])
+        self._vertex_start = np.searchsorted(
+            vertex_of[by_vertex], np.arange(self.n_vertices + 1)
+        ).astype(np.int64)
+        self.backend = _resolve_backend(backend)
+        # "auto" got NumPy because the kernel is compiling in the background: take it
+        # as soon as it lands in the cache, so a long take is not NumPy throughout
+        self._awaiting_kernel = backend == "auto" and self.backend == "numpy" and numba_available()
+        self._next_kernel_check = time.monotonic() + _RECHECK_S
 
     def deform_block(self, motion: PartMotion) -> np.ndarray:
         """Vertex positions for a block of fitted frames (eqs. 8-9).
-
-        One batched step per part (matrix products over frames, the part's vertices and
-        its members); no loop over vertices.
 
         Parameters
         ----------
@@ -279,41 +321,46 @@ class DenseDeformer:
         Returns
         -------
         (T, V, 3) float64, metres
+            NaN only for a vertex all of whose parts are NaN at that frame.
         """
-        n_t = motion.rotation.shape[0]
         use_rbf = bool(np.any(motion.rbf_weights))
-        n_pairs = self.pair_part.size
-        moved = np.empty((n_t, n_pairs, 3))
-        for p in range(self.parts.n_parts):  # P (~17) batched steps
-            start, stop = int(self._part_start[p]), int(self._part_start[p + 1])
-            if start == stop:
-                continue
-            k = int(self._n_members[p])
-            rbf = use_rbf and np.isfinite(self.parts.sigma[p])
-            # frames and vertices in slabs of ~SLAB kernel entries, so the (t, n, K)
-            # temporaries stay in cache rather than streaming gigabytes through memory
-            rows = max(1, _SLAB // max(1, k if rbf else 8))
-            for v0 in range(start, stop, rows):
-                v1 = min(stop, v0 + rows)
-                basis = self.pair_basis[v0:v1]  # q̂⁰, (n, 10)
-                for t in range(n_t):
-                    deformed = basis @ motion.quadratic[t, p].T  # Ã q̂⁰, (n, 3)
-                    if rbf:
-                        deformed = deformed + _rbf_sum(
-                            deformed,
-                            motion.centres[t, p, :k],
-                            motion.rbf_weights[t, p, :k],
-                            float(self.parts.sigma[p]),
-                        )
-                    # back to the world: x = R^T (local - translation) = (local - d) R
-                    moved[t, v0:v1] = (deformed - motion.translation[t, p]) @ motion.rotation[t, p]
-        finite = np.isfinite(moved).all(-1)  # (T, pairs)
-        flat = np.where(finite[..., None], moved, 0.0).transpose(1, 0, 2).reshape(n_pairs, -1)
-        num = (self._blend @ flat).reshape(self.n_vertices, n_t, 3)
-        den = self._blend @ finite.T.astype(np.float64)  # (V, T)
-        safe = np.where(den > 0, den, 1.0)[..., None]
-        out = np.where(den[..., None] > 0, num / safe, np.nan)
-        return out.transpose(1, 0, 2)
+        rbf_members = np.where(use_rbf & (self._rbf_scale > 0), self._n_members, 0)
+        fields = (
+            motion.quadratic,
+            motion.rotation,
+            motion.translation,
+            motion.centres,
+            motion.rbf_weights,
+            self._rbf_scale,
+            rbf_members,
+        )
+        if self._awaiting_kernel:
+            self._adopt_compiled_kernel()
+        if self.backend == "numba":
+            return deform_vertices_numba(
+                self._vertex_local,
+                self._vertex_part,
+                self._vertex_weight,
+                self._vertex_start,
+                *fields,
+            )
+        moved = move_pairs_numpy(self.pair_basis, self._part_start, *fields)
+        return blend_pairs(moved, self._blend)
+
+    def _adopt_compiled_kernel(self) -> None:
+        """Switch to the numba kernel once the background compile has cached it."""
+        now = time.monotonic()
+        if now < self._next_kernel_check:
+            return
+        self._next_kernel_check = now + _RECHECK_S
+        try:
+            ready = backends.kernel_ready(dense_dispatcher())
+        except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
+            self._awaiting_kernel = False
+            return
+        if ready:
+            self.backend = "numba"
+            self._awaiting_kernel = False
 
     def deform(
         self,

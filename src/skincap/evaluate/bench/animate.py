@@ -5,21 +5,25 @@ The scene is a chain of ``n_parts`` tube segments (a limb-like body along x) car
 about the end of the previous one (a kinematic chain of sinusoidal joint angles), so
 every part moves rigidly and the markers near a joint are shared. The dense deformer
 (:class:`skincap.deform.dense.deformer.DenseDeformer`) deforms ``n_frames`` frames per
-run; the baseline is our linear blend skinning of the same vertices with the same part
-weights as joint weights (two influences), timed in the same process. Also timed:
-the automatic segmentation of a ``rom_frames``-frame take of the same markers, and the
-registration of §5.1 when :mod:`skincap.deform.dense.registration` exists.
+run (the per-frame fits and the vertices), once with each backend: the numba kernel
+and its NumPy reference. The baseline is our linear blend skinning of the same
+vertices with the same part weights as joint weights (two influences), on the same
+backend, timed in the same process. Also timed: the first call in a fresh process
+(import, binding and one deform with the default backend) with a cold and a warm numba
+cache, the automatic segmentation of a ``rom_frames``-frame take of the same markers,
+and the registration of §5.1.
 
-Ratios are ``dense / LBS`` (how many times LBS's cost a frame of each variant is);
-the ms figures are for the record of this machine only. Nothing is printed: ``lines``
-holds the text for the CLI.
+Ratios are ``dense / LBS`` of CPU times (how many times LBS's cost a frame of each
+variant is) and NumPy / numba; the ms figures are for the record of this machine only.
+Nothing is printed: ``lines`` holds the text for the CLI.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from functools import partial
-from typing import Any, cast
+from typing import Any, Literal, cast
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -28,14 +32,14 @@ from skincap.deform.dense.deformer import METHODS, DenseDeformer, Method
 from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.skeletal.deformers import LinearBlendSkinning
-from skincap.errors import ValidationError
-from skincap.evaluate.bench.common import best_seconds
+from skincap.errors import MissingDependencyError, ValidationError
 
 __all__ = ["GOALS_MS", "chain_scene", "run_animate_benchmark"]
 
 #: Goals of issue #16 (2 cores): ms/frame at 50k vertices, seconds for the fits.
 GOALS_MS = {"quadratic_rbf_numpy": 20.0, "quadratic_rbf_numba": 5.0}
 GOALS_S = {"segmentation_1000_frames": 30.0, "registration_20k_vertices": 60.0}
+_BACKENDS: tuple[Literal["numpy", "numba"], ...] = ("numpy", "numba")
 
 
 def _ring_tube(
@@ -134,6 +138,34 @@ def chain_scene(
     }
 
 
+def _best_wall_and_cpu(run: Callable[[], object], repeat: int) -> tuple[float, float]:
+    """One warm-up call, then the smallest wall-clock and the smallest CPU seconds
+    (every thread of this process) of ``repeat`` calls."""
+    run()
+    wall = cpu = float("inf")
+    for _ in range(repeat):
+        w0, c0 = time.perf_counter(), time.process_time()
+        run()
+        wall = min(wall, time.perf_counter() - w0)
+        cpu = min(cpu, time.process_time() - c0)
+    return wall, cpu
+
+
+def _first_call(n_vertices: int, n_parts: int, n_markers: int, n_frames: int, seed: int) -> Any:
+    """Import, binding and the first ``quadratic_rbf`` deform in a fresh process."""
+    from skincap.evaluate.bench.common import first_call_in_fresh_process
+
+    return first_call_in_fresh_process(
+        "from skincap.deform.dense.deformer import DenseDeformer",
+        "from skincap.deform.dense.parts import part_frames\n"
+        "from skincap.evaluate.bench.animate import chain_scene\n"
+        f"s = chain_scene({n_vertices}, {n_parts}, {n_markers}, {n_frames}, seed={seed})\n"
+        "parts = part_frames(s['reference'], s['alpha'])",
+        "list(DenseDeformer(parts, s['vertices'], s['beta']).deform(s['markers'], "
+        f"chunk={n_frames}))",
+    )
+
+
 def run_animate_benchmark(
     n_vertices: int = 50_000,
     n_parts: int = 17,
@@ -143,116 +175,202 @@ def run_animate_benchmark(
     *,
     rom_frames: int = 1000,
     seed: int = 0,
+    first_call: bool = True,
+    registration: bool = True,
 ) -> dict[str, Any]:
-    """Milliseconds per frame of the dense variants and of our LBS; fit times.
+    """Milliseconds per frame of the dense variants on each backend and of our LBS; fit times.
 
     Parameters
     ----------
     n_vertices, n_parts, n_markers : int
         The scene (:func:`chain_scene`).
     n_frames : int
-        Frames deformed per timed run (one chunk).
+        Frames deformed per timed run (one chunk: the fits and the vertices).
     repeat : int
         Timed runs after one warm-up; the best is kept.
     rom_frames : int
         Frames of the take the segmentation is timed on (0: not timed).
     seed : int
+    first_call : bool
+        Also time the first call as a user meets it: a fresh Python process importing
+        skincap, binding the mesh and deforming the ``n_frames`` with ``quadratic_rbf``
+        and the default backend, with a cold numba cache and with a warm one
+        (:func:`skincap.evaluate.bench.common.first_call_in_fresh_process`).
+    registration : bool
+        Also time the registration of a 20k-vertex tube to the markers.
 
     Returns
     -------
     dict
-        ``ms_per_frame`` (``<method>_numpy``, ``lbs_numpy``, ``lbs_numba``;
-        ``<method>_numba`` None: the dense deformer has no numba kernel),
-        ``ratios`` (``<method>_numpy / lbs_numpy``), ``seconds``
-        (``segmentation``, ``registration`` or None), ``goals``, ``config``,
-        ``notes``, ``lines``.
+        ``ms_per_frame`` and ``cpu_ms_per_frame`` (``<method>_numpy``,
+        ``<method>_numba``, ``lbs_numpy``, ``lbs_numba``; None when not measured:
+        CPU counts every thread, the figure a loaded machine distorts least),
+        ``ratios`` (``<method>_<backend> / lbs_<backend>`` of CPU times, and numba's
+        speed-up over NumPy), ``max_abs_diff`` (numba against NumPy, metres),
+        ``first_call`` (``cold_s``, ``warm_s``, ``cold_cpu_s``, ``warm_cpu_s`` or
+        None), ``seconds`` (``segmentation``, ``registration`` or None), ``goals``,
+        ``config``, ``notes``, ``lines``.
     """
     if repeat < 1:
         raise ValidationError(f"repeat must be >= 1; got {repeat}")
     scene = chain_scene(n_vertices, n_parts, n_markers, n_frames, seed=seed)
-    notes: list[str] = ["the dense deformer has no numba kernel: its numba rows are not measured"]
-    deformer = DenseDeformer(
-        part_frames(scene["reference"], scene["alpha"]), scene["vertices"], scene["beta"]
-    )
+    notes: list[str] = []
+    parts = part_frames(scene["reference"], scene["alpha"])
     ms: dict[str, float | None] = {}
+    cpu_ms: dict[str, float | None] = {}
+    outputs: dict[str, np.ndarray] = {}
 
-    def deform_all(method: Method) -> list[np.ndarray]:
-        return list(deformer.deform(scene["markers"], method, chunk=n_frames))
+    def timed(key: str, run: Callable[[], object]) -> None:
+        wall, cpu = _best_wall_and_cpu(run, repeat)
+        ms[key], cpu_ms[key] = 1e3 * wall / n_frames, 1e3 * cpu / n_frames
 
-    for method in METHODS:
-        sec = best_seconds(partial(deform_all, cast("Method", method)), repeat)
-        ms[f"{method}_numpy"] = 1e3 * sec / n_frames
-        ms[f"{method}_numba"] = None
+    for backend in _BACKENDS:
+        try:
+            deformer = DenseDeformer(parts, scene["vertices"], scene["beta"], backend=backend)
+        except MissingDependencyError as exc:  # numba missing: reported, not fatal
+            notes.append(f"dense {backend} not measured: {exc}")
+            for method in METHODS:
+                ms[f"{method}_{backend}"] = cpu_ms[f"{method}_{backend}"] = None
+            continue
+        for method in METHODS:
+
+            def deform_all(
+                deformer: DenseDeformer = deformer, method: Method = cast("Method", method)
+            ) -> list[np.ndarray]:
+                return list(deformer.deform(scene["markers"], method, chunk=n_frames))
+
+            timed(f"{method}_{backend}", deform_all)
+            outputs[f"{method}_{backend}"] = np.concatenate(deform_all())
     # our LBS of the same vertices: the parts as joints, β as two-influence weights
     order = np.argsort(-scene["beta"], axis=1)[:, :2]
     weights = np.take_along_axis(scene["beta"], order, axis=1)
     weights /= weights.sum(axis=1, keepdims=True)
-    for backend in ("numpy", "numba"):
+    for backend in _BACKENDS:
         try:
             lbs = LinearBlendSkinning(
                 scene["vertices"], order, weights, n_joints=n_parts, backend=backend
             )
-        except Exception as exc:  # numba missing: reported, not fatal
+        except MissingDependencyError as exc:
             notes.append(f"LBS {backend} not measured: {exc}")
-            ms[f"lbs_{backend}"] = None
+            ms[f"lbs_{backend}"] = cpu_ms[f"lbs_{backend}"] = None
             continue
         buffer = np.zeros((n_frames, n_vertices, 3))
-        sec = best_seconds(partial(lbs.deform, scene["transforms"], out=buffer), repeat)
-        ms[f"lbs_{backend}"] = 1e3 * sec / n_frames
-    base = ms.get("lbs_numpy")
+        timed(f"lbs_{backend}", partial(lbs.deform, scene["transforms"], out=buffer))
+
+    def ratio(a: str, b: str) -> float | None:
+        x, y = cpu_ms.get(a), cpu_ms.get(b)
+        return None if x is None or not y else x / y
+
     ratios = {
-        f"{m}_numpy / lbs_numpy": None if not base else (ms[f"{m}_numpy"] or 0.0) / base
+        f"{m}_{b} / lbs_{b}": ratio(f"{m}_{b}", f"lbs_{b}")
+        for b in ("numpy", "numba")
         for m in METHODS
     }
+    ratios.update({f"{m}_numpy / {m}_numba": ratio(f"{m}_numpy", f"{m}_numba") for m in METHODS})
+    max_abs_diff = {
+        f"{m}_numba vs {m}_numpy": float(
+            np.abs(outputs[f"{m}_numba"] - outputs[f"{m}_numpy"]).max()
+        )
+        if f"{m}_numba" in outputs and f"{m}_numpy" in outputs
+        else None
+        for m in METHODS
+    }
+    first = _first_call(n_vertices, n_parts, n_markers, n_frames, seed) if first_call else None
+    default_backend = DenseDeformer(parts, scene["vertices"][:1], scene["beta"][:1]).backend
     seconds: dict[str, float | None] = {"segmentation": None, "registration": None}
     if rom_frames > 0:
         rom = chain_scene(1, n_parts, n_markers, rom_frames, seed=seed + 1)
         t0 = time.perf_counter()
         segment_marker_surface(rom["markers"], rom["reference"], rom["faces"], n_parts=n_parts)
         seconds["segmentation"] = time.perf_counter() - t0
-    seconds["registration"] = _registration_seconds(scene, notes)
+    if registration:
+        seconds["registration"] = _registration_seconds(scene, notes)
+
+    def met(key: str) -> bool | None:
+        value = ms.get(key)
+        return None if value is None else value <= GOALS_MS[key]
+
     goals = {
-        "quadratic_rbf_numpy": ms["quadratic_rbf_numpy"] is not None
-        and ms["quadratic_rbf_numpy"] <= GOALS_MS["quadratic_rbf_numpy"],
-        "quadratic_rbf_numba": None,
+        "quadratic_rbf_numpy": met("quadratic_rbf_numpy"),
+        "quadratic_rbf_numba": met("quadratic_rbf_numba"),
         "segmentation": None
         if seconds["segmentation"] is None or rom_frames != 1000
         else seconds["segmentation"] <= GOALS_S["segmentation_1000_frames"],
     }
-    lines = [
-        f"dense deformation, {n_vertices} vertices, {n_parts} parts, {scene['reference'].shape[0]} markers, "
-        f"{n_frames} frames a run (best of {repeat}):"
-    ]
-    for key, value in ms.items():
-        if value is not None:
-            lines.append(f"  {key:<22} {value:9.3f} ms/frame")
-    for key, value in ratios.items():
-        if value is not None:
-            lines.append(f"  {key:<34} {value:7.2f}x")
-    for key, value in seconds.items():
-        lines.append(f"  {key:<22} " + ("not measured" if value is None else f"{value:.2f} s"))
-    lines += [f"  note: {n}" for n in notes]
-    return {
+    config = {
+        "vertices": n_vertices,
+        "parts": n_parts,
+        "markers": int(scene["reference"].shape[0]),
+        "frames": n_frames,
+        "rom_frames": rom_frames,
+        "repeat": repeat,
+        "default_backend": default_backend,
+    }
+    report = {
         "ms_per_frame": ms,
+        "cpu_ms_per_frame": cpu_ms,
         "ratios": ratios,
+        "max_abs_diff": max_abs_diff,
+        "first_call": first,
         "seconds": seconds,
         "goals": goals,
-        "config": {
-            "vertices": n_vertices,
-            "parts": n_parts,
-            "markers": int(scene["reference"].shape[0]),
-            "frames": n_frames,
-            "rom_frames": rom_frames,
-            "repeat": repeat,
-        },
+        "config": config,
         "notes": notes,
-        "lines": lines,
     }
+    report["lines"] = _summary_lines(report)
+    return report
+
+
+def _summary_lines(report: dict[str, Any]) -> list[str]:
+    """The printable summary of :func:`run_animate_benchmark`'s result."""
+    cfg, ms, cpu_ms, goals = (
+        report["config"],
+        report["ms_per_frame"],
+        report["cpu_ms_per_frame"],
+        report["goals"],
+    )
+    lines = [
+        f"dense deformation, {cfg['vertices']} vertices, {cfg['parts']} parts, "
+        f"{cfg['markers']} markers, {cfg['frames']} frames a run (fits + vertices; "
+        f"best of {cfg['repeat']}; CPU = every thread):"
+    ]
+    for key, value in ms.items():
+        if value is None:
+            lines.append(f"  {key:22s} not measured")
+            continue
+        goal = GOALS_MS.get(key)
+        tag = (
+            "" if goal is None else f"  (goal <= {goal:g} ms: {'met' if goals[key] else 'MISSED'})"
+        )
+        lines.append(f"  {key:22s} {value:9.3f} ms/frame  CPU {cpu_ms[key]:9.3f} ms/frame{tag}")
+    for key, value in report["ratios"].items():
+        if value is not None:
+            lines.append(f"  CPU ratio {key:34s} {value:7.2f}x")
+    for key, value in report["max_abs_diff"].items():
+        if value is not None:
+            lines.append(f"  max |diff| {key:34s} {value:.2e} m")
+    first = report["first_call"]
+    if first is not None:
+        cold_runs = (
+            "NumPy while numba compiles in the background"
+            if cfg["default_backend"] == "numba"
+            else "NumPy"
+        )
+        lines.append(
+            f"  first call quadratic_rbf (fresh process, import + binding + {cfg['frames']} "
+            f"frames, backend='auto'): cold cache {first['cold_s']:.2f} s (CPU "
+            f"{first['cold_cpu_s']:.2f} s; {cold_runs}), warm cache {first['warm_s']:.2f} s "
+            f"(CPU {first['warm_cpu_s']:.2f} s; {cfg['default_backend']})"
+        )
+    for key, value in report["seconds"].items():
+        lines.append(f"  {key:22s} " + ("not measured" if value is None else f"{value:.2f} s"))
+    lines += [f"  note: {n}" for n in report["notes"]]
+    return lines
 
 
 def _registration_seconds(scene: dict[str, np.ndarray], notes: list[str]) -> float | None:
     try:
-        from skincap.deform.dense import registration  # type: ignore[attr-defined]
+        from skincap.deform.dense import registration
     except ImportError:
         notes.append(
             "registration not measured: skincap.deform.dense.registration is not in this build"
