@@ -228,3 +228,30 @@ def test_every_part_holds_three_markers_and_is_connected() -> None:
         sub[adj.row[keep], adj.col[keep]] = True
         n_pieces = connected_components(sub[np.ix_(inside, inside)], directed=False)[0]
         assert n_pieces == 1, part
+
+
+@pytest.mark.parametrize("capture", ["cmu_85_02.c3d", "c3dorg_sample01_Eb015pr.c3d"])
+def test_segmentation_and_blend_weights_invariants_on_a_real_capture(data_dir, capture) -> None:
+    """On a real take: parts of >= 3 markers; α on the simplex, a marker with one
+    candidate whole, no weight outside a marker's candidates."""
+    from skincap import io
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.deform.dense.rig import marker_weights_of
+
+    take = io.read(data_dir / capture)
+    keep = [i for i, lab in enumerate(take.labels) if not str(lab).startswith("*")]
+    x = take.positions[::4, keep]
+    frame = choose_reference_frame(x)
+    x = x[:, np.isfinite(x[frame]).all(axis=1)]
+    faces = build_marker_surface(x, reference_frame=frame).faces
+    seg = segment_marker_surface(x, x[frame], faces, n_parts=6)
+    on = seg.marker_parts >= 0
+    assert np.bincount(seg.marker_parts[on]).min() >= 3
+    cand = candidates_from_triangle_parts(faces, seg.triangle_parts, x.shape[1], seg.n_parts)
+    alpha = marker_weights_of(x, x[frame], cand, faces)
+    assert np.isfinite(alpha).all() and (alpha >= 0).all()
+    np.testing.assert_allclose(alpha.sum(axis=1), 1.0)
+    spread = spread_candidates(cand, faces)  # the parts of its and its neighbours' triangles
+    single = spread.sum(axis=1) == 1
+    np.testing.assert_array_equal(alpha[single], spread[single])
+    assert not (alpha > 0)[~spread & spread.any(axis=1)[:, None]].any()

@@ -43,7 +43,8 @@ class Segmentation:
     Attributes
     ----------
     triangle_parts : (F,) int64
-        Part of every marker-surface triangle, ``0 … P-1``.
+        Part of every marker-surface triangle, ``0 … P-1``; -1 on a loose piece of the
+        surface holding fewer than ``min_markers`` markers.
     marker_parts : (N,) int64
         Part of every marker (the majority of its triangles; -1 for a marker on none).
     n_parts : int
@@ -365,11 +366,19 @@ def _absorb_few_markers(
         best = nbrs[np.argmin(((means[nbrs] - means[part]) ** 2).sum(1))]
         labels[labels == part] = best
         labels = _relabel(labels)
-    return labels
+    # a piece of the surface too small to fit and with no neighbour to join (a loose
+    # island of a sparse marker surface) belongs to no part: its markers get weights
+    # from their motion alone (:func:`skincap.deform.dense.weights.marker_blend_weights`)
+    counts = np.bincount(
+        _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
+    )[1:]
+    loose = (labels >= 0) & (counts[np.maximum(labels, 0)] < min_markers)
+    return _relabel(np.where(loose, -1, labels))
 
 
 def _marker_majority(faces: np.ndarray, tri_parts: np.ndarray, n_markers: int) -> np.ndarray:
-    n_p = int(tri_parts.max()) + 1
+    n_p = max(int(tri_parts.max()) + 1, 1)
     votes = np.zeros((n_markers, n_p))
-    np.add.at(votes, (faces.ravel(), np.repeat(tri_parts, 3)), 1.0)
+    on = tri_parts >= 0  # triangles of no part do not vote
+    np.add.at(votes, (faces[on].ravel(), np.repeat(tri_parts[on], 3)), 1.0)
     return np.where(votes.sum(1) > 0, np.argmax(votes, axis=1), -1)
