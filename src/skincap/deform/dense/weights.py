@@ -239,7 +239,7 @@ def marker_blend_weights(
             f"got {mem.shape} and {cand.shape}"
         )
     n, n_p = cand.shape
-    cand = cand | ~cand.any(axis=1)[:, None]
+    cand = cand | (cand.sum(axis=1) == 0)[:, None]  # no candidate: every part is one
     rot, trans = _fit_part_motions(x, ref, mem)  # (T, P, 3, 3), (T, P, 3)
     k = int(min(max(1, int(max_candidates)), cand.sum(axis=1).max()))
     # each marker's k best candidates by their single-part error, padded
