@@ -196,8 +196,8 @@ def held_out_marker_errors(
     """
     from skincap.deform.dense.deformer import DenseDeformer
     from skincap.deform.dense.parts import part_frames
-    from skincap.deform.dense.segmentation import segment_marker_surface
     from skincap.deform.dense.rig import marker_weights_of
+    from skincap.deform.dense.segmentation import segment_marker_surface
     from skincap.deform.dense.weights import candidates_from_triangle_parts, vertex_part_weights
 
     x = np.asarray(positions, dtype=np.float64)
