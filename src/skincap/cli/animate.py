@@ -3,86 +3,92 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
 from skincap.cli._app import _user_errors, app, eval_app, out, print_json, stage_progress
 
+# one alias per option, so each verb's signature reads as a list
+_MeshArg = Annotated[
+    Path | None,
+    typer.Argument(
+        metavar="MESH",
+        help="Body mesh (.obj/.ply/.gltf/.glb) in the markers' reference pose, or "
+        "any pose with --register. Leave out with --rig.",
+        show_default=False,
+    ),
+]
+_AnimOutput = Annotated[
+    Path,
+    typer.Option(
+        "-o",
+        "--output",
+        help="OUT.pc2 (+ OUT.obj), OUT.usd/.usda/.usdc, or a folder for an OBJ sequence.",
+    ),
+]
+_MarkersArg = Annotated[
+    Path | None,
+    typer.Argument(
+        metavar="MARKERS",
+        help="A cleaned, labelled dense take (.c3d/.trc/.csv).",
+        show_default=False,
+    ),
+]
+_Rom = Annotated[
+    Path | None,
+    typer.Option(help="Range-of-motion take the parts are learnt from (default: the take)."),
+]
+_Method = Annotated[
+    str, typer.Option(help="quadratic_rbf (the paper's), quadratic, rigid_rbf or rigid.")
+]
+_Parts = Annotated[int, typer.Option(help="Near-rigid parts to segment.")]
+_Surface = Annotated[
+    Path | None, typer.Option(help="Marker surface: PLY/OBJ over the markers or an edge CSV.")
+]
+_Landmarks = Annotated[
+    Path | None, typer.Option(help="JSON {marker label: vertex index} guiding --register.")
+]
+_ReferenceFrame = Annotated[
+    int | None, typer.Option(help="Frame whose pose the mesh matches (default: most markers).")
+]
+_Register = Annotated[
+    bool, typer.Option("--register", help="Fit the mesh to the reference-pose markers first.")
+]
+_MarkerRadius = Annotated[
+    float, typer.Option(help="With --register: marker centres' height above the skin, mm.")
+]
+_SaveRig = Annotated[
+    Path | None, typer.Option(help="Save the subject rig built here as R.npz + R.json.")
+]
+_Rig = Annotated[Path | None, typer.Option(help="Use a saved subject rig (R.npz) instead of MESH.")]
+_Report = Annotated[
+    Path | None, typer.Option(help="JSON report: parts, registration, per-frame timing.")
+]
+_MeshUnits = Annotated[str | None, typer.Option(help="Mesh length unit (default m; MakeHuman dm).")]
+_Force = Annotated[bool, typer.Option("--force", help="Replace existing outputs.")]
+_Json = Annotated[bool, typer.Option("--json", help="Print the report as JSON.")]
+
 
 @app.command()
 def animate(
-    mesh_path: Annotated[
-        Path | None,
-        typer.Argument(
-            metavar="MESH",
-            help="Body mesh (.obj/.ply/.gltf/.glb) in the markers' reference pose, or "
-            "any pose with --register. Leave out with --rig.",
-            show_default=False,
-        ),
-    ],
-    output: Annotated[
-        Path,
-        typer.Option(
-            "-o",
-            "--output",
-            help="OUT.pc2 (+ OUT.obj), OUT.usd/.usda/.usdc, or a folder for an OBJ sequence.",
-        ),
-    ],
-    markers_path: Annotated[
-        Path | None,
-        typer.Argument(
-            metavar="MARKERS",
-            help="A cleaned, labelled dense take (.c3d/.trc/.csv).",
-            show_default=False,
-        ),
-    ] = None,
-    rom: Annotated[
-        Path | None,
-        typer.Option(help="Range-of-motion take the parts are learnt from (default: the take)."),
-    ] = None,
-    method: Annotated[
-        str,
-        typer.Option(help="quadratic_rbf (the paper's), quadratic, rigid_rbf or rigid."),
-    ] = "quadratic_rbf",
-    parts: Annotated[int, typer.Option(help="Near-rigid parts to segment.")] = 17,
-    surface: Annotated[
-        Path | None,
-        typer.Option(help="Marker surface: PLY/OBJ over the markers or an edge CSV."),
-    ] = None,
-    landmarks: Annotated[
-        Path | None,
-        typer.Option(help="JSON {marker label: vertex index} guiding --register."),
-    ] = None,
-    reference_frame: Annotated[
-        int | None,
-        typer.Option(help="Frame whose pose the mesh matches (default: most markers)."),
-    ] = None,
-    register: Annotated[
-        bool,
-        typer.Option("--register", help="Fit the mesh to the reference-pose markers first."),
-    ] = False,
-    marker_radius: Annotated[
-        float,
-        typer.Option(help="With --register: marker centres' height above the skin, mm."),
-    ] = 0.0,
-    save_rig: Annotated[
-        Path | None,
-        typer.Option(help="Save the subject rig built here as R.npz + R.json."),
-    ] = None,
-    rig: Annotated[
-        Path | None,
-        typer.Option(help="Use a saved subject rig (R.npz) instead of MESH."),
-    ] = None,
-    report: Annotated[
-        Path | None,
-        typer.Option(help="JSON report: parts, registration, per-frame timing."),
-    ] = None,
-    mesh_units: Annotated[
-        str | None, typer.Option(help="Mesh length unit (default m; MakeHuman dm).")
-    ] = None,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
-    json_output: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
+    mesh_path: _MeshArg,
+    output: _AnimOutput,
+    markers_path: _MarkersArg = None,
+    rom: _Rom = None,
+    method: _Method = "quadratic_rbf",
+    parts: _Parts = 17,
+    surface: _Surface = None,
+    landmarks: _Landmarks = None,
+    reference_frame: _ReferenceFrame = None,
+    register: _Register = False,
+    marker_radius: _MarkerRadius = 0.0,
+    save_rig: _SaveRig = None,
+    rig: _Rig = None,
+    report: _Report = None,
+    mesh_units: _MeshUnits = None,
+    force: _Force = False,
+    json_output: _Json = False,
 ) -> None:
     """Animate a body mesh with a dense marker take (Park & Hodgins 2006, §5).
 
@@ -142,53 +148,60 @@ def animate(
 _EVAL_OUTPUTS = ("animate_eval.json", "animate_errors.png")
 
 
+_EvalOutput = Annotated[Path, typer.Option("-o", "--output", help="Output folder.")]
+_SynthDir = Annotated[
+    Path | None,
+    typer.Argument(
+        metavar="SYNTH_DIR",
+        help="A folder written by 'skincap synth' (dense markers), or a labelled "
+        "capture (.c3d/.trc/.csv): the held-out test only.",
+    ),
+]
+_SynthClip = Annotated[
+    str | None,
+    typer.Option(
+        "--synth", help="A clip (flex, jumprope, breathe, rom…) to generate into OUTPUT/take."
+    ),
+]
+_RomFolder = Annotated[
+    Path | None,
+    typer.Option(
+        help="A 'skincap synth --motion rom' folder of the same body and markers to learn the parts on."
+    ),
+]
+_Template = Annotated[
+    str | None,
+    typer.Option(
+        help="Another body (mesh file, or 'makehuman') registered to the markers: the registered-template row."
+    ),
+]
+_TemplateRadius = Annotated[
+    float,
+    typer.Option(help="Marker centres' height above the skin for --template's registration, mm."),
+]
+_SynthFrames = Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")]
+_SynthVertices = Annotated[int, typer.Option(help="Procedural body vertices of a --synth take.")]
+_EvalSeed = Annotated[
+    int, typer.Option(help="Seed of the held-out markers (and of a --synth take).")
+]
+_EvalJson = Annotated[bool, typer.Option("--json", help="Print the result as JSON.")]
+_EvalForce = Annotated[bool, typer.Option("--force", help="Replace outputs of an earlier run.")]
+
+
 @eval_app.command("animate")
 def eval_animate(
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")],
-    input_dir: Annotated[
-        Path | None,
-        typer.Argument(
-            metavar="SYNTH_DIR",
-            help="A folder written by 'skincap synth' (dense markers), or a labelled "
-            "capture (.c3d/.trc/.csv): the held-out test only.",
-        ),
-    ] = None,
-    synth: Annotated[
-        str | None,
-        typer.Option(
-            "--synth", help="A clip (flex, jumprope, breathe, rom…) to generate into OUTPUT/take."
-        ),
-    ] = None,
-    rom: Annotated[
-        Path | None,
-        typer.Option(
-            help="A 'skincap synth --motion rom' folder of the same body and markers to learn the parts on."
-        ),
-    ] = None,
-    template: Annotated[
-        str | None,
-        typer.Option(
-            help="Another body (mesh file, or 'makehuman') registered to the markers: the registered-template row."
-        ),
-    ] = None,
-    marker_radius: Annotated[
-        float,
-        typer.Option(
-            help="Marker centres' height above the skin for --template's registration, mm."
-        ),
-    ] = 0.0,
-    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 240,
-    vertices: Annotated[
-        int, typer.Option(help="Procedural body vertices of a --synth take.")
-    ] = 5000,
-    parts: Annotated[int, typer.Option(help="Near-rigid parts.")] = 17,
-    seed: Annotated[
-        int, typer.Option(help="Seed of the held-out markers (and of a --synth take).")
-    ] = 0,
-    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
-    force: Annotated[
-        bool, typer.Option("--force", help="Replace outputs of an earlier run.")
-    ] = False,
+    output: _EvalOutput,
+    input_dir: _SynthDir = None,
+    synth: _SynthClip = None,
+    rom: _RomFolder = None,
+    template: _Template = None,
+    marker_radius: _TemplateRadius = 0.0,
+    frames: _SynthFrames = 240,
+    vertices: _SynthVertices = 5000,
+    parts: _Parts = 17,
+    seed: _EvalSeed = 0,
+    json_output: _EvalJson = False,
+    force: _EvalForce = False,
 ) -> None:
     """Measure the dense chain against the true skin (Park & Hodgins Fig. 7 and 8 as numbers).
 
@@ -205,7 +218,7 @@ def eval_animate(
     import json
 
     from skincap.errors import ValidationError
-    from skincap.evaluate.animate import evaluate_animate, plot_vertex_errors
+    from skincap.evaluate.animate import plot_vertex_errors
     from skincap.io.json_file import write_json
     from skincap.io.output_safety import guard_outputs
 
@@ -217,31 +230,14 @@ def eval_animate(
             )
         with stage_progress("evaluating") as progress:
             if synth is not None:
-                from skincap.workflows.synth_folder import synth_folder
-
-                input_dir = output / "take"
-                synth_folder(
-                    input_dir, motion=synth, frames=frames, vertices=vertices, seed=seed,
-                    force=force, progress=progress,
-                )  # fmt: skip
+                input_dir = _synth_take(output, synth, frames, vertices, seed, force, progress)
             assert input_dir is not None  # one of the two was checked above
             if input_dir.is_file():
                 _eval_capture(input_dir, paths[0], parts, seed, force, json_output)
                 return
-            body = None
-            if template is not None:
-                from skincap import io
-                from skincap.data import path as shipped_file
-
-                body = io.read_mesh(
-                    shipped_file("makehuman_base.obj")
-                    if template == "makehuman"
-                    else Path(template)
-                )
-            result = evaluate_animate(
-                input_dir, rom=rom, template=body, marker_radius=marker_radius / 1000.0,
-                n_parts=parts, seed=seed, progress=progress,
-            )  # fmt: skip
+            result = _evaluate_folder(
+                input_dir, rom, template, marker_radius, parts, seed, progress
+            )
         per_vertex = result.pop("per_vertex_rms_m")
         reference_body = result.pop("vertices")
         result.pop("faces")
@@ -257,6 +253,52 @@ def eval_animate(
     if json_output:
         print(json.dumps(result, indent=2, allow_nan=False))
         return
+    _print_eval_table(result)
+    out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
+
+
+def _synth_take(
+    output: Path, clip: str, frames: int, vertices: int, seed: int, force: bool, progress: Any
+) -> Path:
+    """``--synth CLIP``: generate the take into OUTPUT/take."""
+    from skincap.workflows.synth_folder import synth_folder
+
+    folder = output / "take"
+    synth_folder(
+        folder, motion=clip, frames=frames, vertices=vertices, seed=seed,
+        force=force, progress=progress,
+    )  # fmt: skip
+    return folder
+
+
+def _evaluate_folder(
+    folder: Path,
+    rom: Path | None,
+    template: str | None,
+    marker_radius_mm: float,
+    parts: int,
+    seed: int,
+    progress: Any,
+) -> dict[str, Any]:
+    """:func:`skincap.evaluate.animate.evaluate_animate` with ``--template`` read."""
+    from skincap.evaluate.animate import evaluate_animate
+
+    body = None
+    if template is not None:
+        from skincap import io
+        from skincap.data import path as shipped_file
+
+        body = io.read_mesh(
+            shipped_file("makehuman_base.obj") if template == "makehuman" else Path(template)
+        )
+    return evaluate_animate(
+        folder, rom=rom, template=body, marker_radius=marker_radius_mm / 1000.0,
+        n_parts=parts, seed=seed, progress=progress,
+    )  # fmt: skip
+
+
+def _print_eval_table(result: dict[str, Any]) -> None:
+    """The rows, the registration, the held-out markers and the targets, one line each."""
     for row in result["rows"]:
         if row.get("measured"):
             out.print(
@@ -284,11 +326,17 @@ def eval_animate(
             f"p95 {held['p95_m'] * 1e3:.3f} mm",
             markup=False,
         )
+    seg = result.get("segmentation") or {}
+    if seg.get("ari") is not None:
+        out.print(
+            f"segmentation: {seg['n_parts']} parts, adjusted Rand index {seg['ari']:.3f} "
+            "against truth/marker_parts.csv",
+            markup=False,
+        )
     for name, t in result["targets"].items():
         mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
         shown = "-" if t["value"] is None else f"{t['value']:.4g}"
         out.print(f"target {name}: {shown} (target {t['target']}): {mark}", markup=False)
-    out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
 
 
 def _eval_capture(

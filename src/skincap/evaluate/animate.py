@@ -196,12 +196,9 @@ def held_out_marker_errors(
     """
     from skincap.deform.dense.deformer import DenseDeformer
     from skincap.deform.dense.parts import part_frames
+    from skincap.deform.dense.rig import marker_weights_of
     from skincap.deform.dense.segmentation import segment_marker_surface
-    from skincap.deform.dense.weights import (
-        candidates_from_triangle_parts,
-        marker_part_weights,
-        vertex_part_weights,
-    )
+    from skincap.deform.dense.weights import candidates_from_triangle_parts, vertex_part_weights
 
     x = np.asarray(positions, dtype=np.float64)
     f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
@@ -219,7 +216,7 @@ def held_out_marker_errors(
     parts = int(max(1, min(n_parts, keep.size // 6)))
     seg = segment_marker_surface(rom, ref, kept_faces, n_parts=parts)
     cand = candidates_from_triangle_parts(kept_faces, seg.triangle_parts, keep.size, seg.n_parts)
-    alpha = marker_part_weights(rom, ref, cand)
+    alpha = marker_weights_of(rom, ref, cand, kept_faces)
     held_ref = x[reference_frame, out]
     beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
     deformer = DenseDeformer(part_frames(ref, alpha), held_ref, beta)
@@ -331,56 +328,27 @@ def evaluate_animate(
         target, met), ``per_vertex_rms_m`` (method -> (V,) array, for the colour maps;
         not JSON), ``vertices`` (V, 3) reference-pose vertices and ``faces``.
     """
-    from skincap import io
-    from skincap.deform.dense.deformer import METHODS
     from skincap.deform.dense.rig import build_dense_rig
-    from skincap.io.pc2 import read_pc2
 
     root = Path(folder)
-    truth_dir = root / "truth"
-    need = ["markers.c3d", "mesh.pc2", "mesh.obj", "marker_surface.ply"]
-    for name in need:
-        if not (truth_dir / name).is_file():
-            raise FormatError(root, f"not a synthetic dense take: truth/{name} is missing")
     step = _stepper(progress)
-    markers = io.read(truth_dir / "markers.c3d")
-    labels = [str(s) for s in markers.labels if not str(s).startswith("rope")]
-    columns = [i for i, s in enumerate(markers.labels) if not str(s).startswith("rope")]
-    x = markers.positions[:, columns]
-    truth = np.asarray(read_pc2(truth_dir / "mesh.pc2").frames, dtype=np.float64)
-    rest = io.read(truth_dir / "mesh.obj")
-    surface = io.read(truth_dir / "marker_surface.ply")
-    if surface.n_vertices != len(labels):
-        raise FormatError(
-            truth_dir / "marker_surface.ply",
-            f"{surface.n_vertices} vertices for {len(labels)} body markers",
-        )
-    n_t = min(x.shape[0], truth.shape[0])
-    x, truth = x[:n_t], truth[:n_t]
+    take = _read_synthetic_take(root)
+    labels, x, truth = take["labels"], take["positions"], take["truth"]
     vertices = truth[0]  # the body in the markers' reference pose (frame 0)
     step(0.05, "segmentation")
-    rom_x = x
-    if rom is not None:
-        rom_markers = io.read(Path(rom) / "truth" / "markers.c3d")
-        where = {str(s): i for i, s in enumerate(rom_markers.labels)}
-        if any(lab not in where for lab in labels):
-            raise FormatError(Path(rom), "the range-of-motion take has other markers")
-        rom_x = rom_markers.positions[:, [where[lab] for lab in labels]]
-    rig = build_dense_rig(vertices, rest.faces, labels, x[0], surface.faces, rom_x, n_parts=n_parts)
-    deformer = rig.deformer()
-    rows: list[dict[str, Any]] = []
-    per_vertex: dict[str, np.ndarray] = {}
-    chosen = list(METHODS if methods is None else methods)
-    for i, method in enumerate(chosen):
-        step(0.1 + 0.5 * i / len(chosen), f"deforming ({method})")
-        frames = np.concatenate(list(deformer.deform(x, method)))  # type: ignore[arg-type]
-        _add_row(rows, per_vertex, "same_body", method, frames, truth)
+    rom_x = x if rom is None else _read_rom_positions(Path(rom), labels)
+    surface_faces = take["surface_faces"]
+    rig = build_dense_rig(
+        vertices, take["faces"], labels, x[0], surface_faces, rom_x, n_parts=n_parts
+    )
+    rows, per_vertex = _dense_rows(rig, x, truth, methods, step)
     step(0.6, "skeletal skinning")
-    rows += _skeletal_rows(truth_dir, truth, per_vertex)
+    rows += _skeletal_rows(root / "truth", truth, per_vertex)
     step(0.75, "global RBF")
     _add_row(
         rows, per_vertex, "same_body", "global_rbf", global_rbf_frames(x[0], x, vertices), truth
     )
+    registration: dict[str, Any] | None = None
     if template is None:
         rows.append(
             {
@@ -390,36 +358,24 @@ def evaluate_animate(
                 "note": "no template given (eval animate --template MESH|makehuman)",
             }
         )
-        registration: dict[str, Any] | None = None
     else:
         step(0.77, "registering the template")
         row, registration = _registered_template_row(
-            template, rest.faces, labels, x, rom_x, surface.faces, truth,
+            template, take["faces"], labels, x, rom_x, surface_faces, truth,
             n_parts=n_parts, marker_radius=marker_radius, landmarks=template_landmarks,
         )  # fmt: skip
         rows.append(row)
     step(0.8, "held-out markers")
     held = held_out_marker_errors(
-        x,
-        surface.faces,
-        range_of_motion=rom_x,
-        fraction=held_out_fraction,
-        n_parts=n_parts,
-        seed=seed,
-    )
-    segmentation: dict[str, Any] = {
-        "n_parts": rig.n_parts,
-        "markers_per_part": [int(c) for c in (rig.marker_weights > 0).sum(0)],
-    }
-    true_parts = _read_marker_parts(truth_dir / "marker_parts.csv", labels)
-    if true_parts is not None:
-        seen = rig.marker_parts >= 0
-        segmentation["ari"] = adjusted_rand_index(true_parts[seen], rig.marker_parts[seen])
+        x, surface_faces, range_of_motion=rom_x, fraction=held_out_fraction,
+        n_parts=n_parts, seed=seed,
+    )  # fmt: skip
+    segmentation = _segmentation_figures(rig, root / "truth" / "marker_parts.csv", labels)
     step(1.0, "done")
     return {
         "folder": str(root),
         "rom": None if rom is None else str(rom),
-        "frames": int(n_t),
+        "frames": int(x.shape[0]),
         "vertices_count": int(vertices.shape[0]),
         "markers": len(labels),
         "rows": rows,
@@ -429,8 +385,87 @@ def evaluate_animate(
         "targets": _targets(rows, held, segmentation),
         "per_vertex_rms_m": per_vertex,
         "vertices": vertices,
-        "faces": rest.faces,
+        "faces": take["faces"],
     }
+
+
+def _read_synthetic_take(root: Path) -> dict[str, Any]:
+    """The body markers, the true skin and the marker surface of a synth folder.
+
+    Returns a dict: ``labels`` (N,), ``positions`` (T, N, 3) metres, ``truth``
+    (T, V, 3) metres, ``faces`` (F, 3) of the skin, ``surface_faces`` (S, 3); T is the
+    shorter of the markers and the skin. Rope markers are left out.
+    """
+    from skincap import io
+    from skincap.io.pc2 import read_pc2
+
+    truth_dir = root / "truth"
+    for name in ("markers.c3d", "mesh.pc2", "mesh.obj", "marker_surface.ply"):
+        if not (truth_dir / name).is_file():
+            raise FormatError(root, f"not a synthetic dense take: truth/{name} is missing")
+    markers = io.read(truth_dir / "markers.c3d")
+    columns = [i for i, s in enumerate(markers.labels) if not str(s).startswith("rope")]
+    labels = [str(markers.labels[i]) for i in columns]
+    truth = np.asarray(read_pc2(truth_dir / "mesh.pc2").frames, dtype=np.float64)
+    surface = io.read(truth_dir / "marker_surface.ply")
+    if surface.n_vertices != len(labels):
+        raise FormatError(
+            truth_dir / "marker_surface.ply",
+            f"{surface.n_vertices} vertices for {len(labels)} body markers",
+        )
+    n_t = min(markers.positions.shape[0], truth.shape[0])
+    return {
+        "labels": labels,
+        "positions": markers.positions[:n_t, columns],
+        "truth": truth[:n_t],
+        "faces": io.read(truth_dir / "mesh.obj").faces,
+        "surface_faces": surface.faces,
+    }
+
+
+def _read_rom_positions(rom: Path, labels: Sequence[str]) -> np.ndarray:
+    """(T', N, 3) positions of a synthetic range-of-motion take, in ``labels`` order."""
+    from skincap import io
+
+    rom_markers = io.read(rom / "truth" / "markers.c3d")
+    where = {str(s): i for i, s in enumerate(rom_markers.labels)}
+    if any(lab not in where for lab in labels):
+        raise FormatError(rom, "the range-of-motion take has other markers")
+    return rom_markers.positions[:, [where[lab] for lab in labels]]
+
+
+def _dense_rows(
+    rig: Any,
+    x: np.ndarray,
+    truth: np.ndarray,
+    methods: Sequence[str] | None,
+    step: Callable[[float, str], None],
+) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+    """One ``same_body`` row per dense variant, and each one's per-vertex RMS."""
+    from skincap.deform.dense.deformer import METHODS
+
+    rows: list[dict[str, Any]] = []
+    per_vertex: dict[str, np.ndarray] = {}
+    deformer = rig.deformer()
+    chosen = list(METHODS if methods is None else methods)
+    for i, method in enumerate(chosen):
+        step(0.1 + 0.5 * i / len(chosen), f"deforming ({method})")
+        frames = np.concatenate(list(deformer.deform(x, method)))
+        _add_row(rows, per_vertex, "same_body", method, frames, truth)
+    return rows, per_vertex
+
+
+def _segmentation_figures(rig: Any, parts_file: Path, labels: Sequence[str]) -> dict[str, Any]:
+    """Part count, markers per part and, with ``truth/marker_parts.csv``, the ARI."""
+    segmentation: dict[str, Any] = {
+        "n_parts": rig.n_parts,
+        "markers_per_part": [int(c) for c in (rig.marker_weights > 0).sum(0)],
+    }
+    true_parts = _read_marker_parts(parts_file, labels)
+    if true_parts is not None:
+        seen = rig.marker_parts >= 0
+        segmentation["ari"] = adjusted_rand_index(true_parts[seen], rig.marker_parts[seen])
+    return segmentation
 
 
 def _stepper(progress: Progress | None) -> Callable[[float, str], None]:

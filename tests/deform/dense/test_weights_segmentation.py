@@ -11,7 +11,9 @@ from skincap.deform.dense.segmentation import segment_marker_surface, triangle_r
 from skincap.deform.dense.weights import (
     candidates_from_marker_parts,
     candidates_from_triangle_parts,
+    marker_blend_weights,
     marker_part_weights,
+    spread_candidates,
     vertex_part_weights,
 )
 from skincap.errors import ValidationError
@@ -118,3 +120,131 @@ def test_principal_coordinates_keep_every_distance() -> None:
     reduced = _principal_coordinates(feat)
     assert reduced.shape == (60, 5)
     np.testing.assert_allclose(pdist(reduced), pdist(feat), rtol=1e-6, atol=1e-9)
+
+
+def _two_motions(ref: np.ndarray, n_frames: int = 30) -> tuple[np.ndarray, np.ndarray]:
+    """(T, N, 3) positions of the strip under two rigid motions: static and a hinge."""
+    return ref[None].repeat(n_frames, axis=0), _hinge(ref, n_frames, hinge_x=-1.0)
+
+
+def test_blend_weights_recover_the_mix_of_two_rigid_motions() -> None:
+    ref, faces = _strip()
+    still, hinged = _two_motions(ref)
+    side = (ref[:, 0] > 0.22).astype(int)
+    members = np.stack([side == 0, side == 1], axis=1)
+    # the outer part moves with the hinge; three middle markers mix both motions
+    pos = np.where(members[None, :, 1, None], hinged, still)
+    mix = {13: 0.3, 20: 0.5, 27: 0.85}  # marker -> weight of the hinge motion
+    for i, w in mix.items():
+        pos[:, i] = (1.0 - w) * still[:, i] + w * hinged[:, i]
+    cand = np.ones_like(members)
+    members[list(mix)] = False  # the parts' motions come from their rigid markers
+    alpha = marker_blend_weights(pos, ref, members, cand)
+    np.testing.assert_allclose(alpha.sum(1), 1.0)
+    for i, w in mix.items():
+        np.testing.assert_allclose(alpha[i], [1.0 - w, w], atol=1e-6)
+    rigid = [i for i in range(ref.shape[0]) if i not in mix]
+    np.testing.assert_allclose(alpha[rigid, 1], side[rigid], atol=1e-6)
+
+
+def test_blend_weights_keep_a_missing_sample_out_and_a_single_candidate_whole() -> None:
+    ref, faces = _strip()
+    still, hinged = _two_motions(ref)
+    side = (ref[:, 0] > 0.22).astype(int)
+    members = np.stack([side == 0, side == 1], axis=1)
+    pos = np.where(members[None, :, 1, None], hinged, still)
+    pos[:, 20] = 0.4 * still[:, 20] + 0.6 * hinged[:, 20]
+    pos[5:9, 20] = np.nan
+    members[20] = False
+    cand = members.copy()
+    cand[20] = True
+    alpha = marker_blend_weights(pos, ref, members, cand)
+    np.testing.assert_allclose(alpha[20], [0.4, 0.6], atol=1e-6)
+    single = cand.sum(1) == 1
+    np.testing.assert_array_equal(alpha[single], cand[single])
+    with pytest.raises(ValidationError, match="fewer than three"):
+        marker_blend_weights(pos, ref, np.zeros_like(members), cand)
+
+
+def test_simplex_least_squares_is_the_constrained_minimum() -> None:
+    from scipy.optimize import minimize
+
+    from skincap.deform.dense.weights import _simplex_least_squares
+
+    rng = np.random.default_rng(3)
+    a = rng.normal(size=(40, 4, 3))  # rank 3: some Gram matrices are singular on 4
+    gram = a @ np.swapaxes(a, 1, 2)  # (40, 4, 4)
+    usable = rng.random((40, 4)) < 0.8
+    usable[:, 0] = True
+    w = _simplex_least_squares(gram, usable)
+    assert (w >= 0).all() and np.allclose(w.sum(1), 1.0) and (w[~usable] == 0).all()
+    for g, u, got in zip(gram, usable, w, strict=True):
+        idx = np.flatnonzero(u)
+        sub = g[np.ix_(idx, idx)]
+        ref = minimize(
+            lambda v, s=sub: v @ s @ v,
+            np.full(idx.size, 1.0 / idx.size),
+            bounds=[(0, 1)] * idx.size,
+            constraints=[{"type": "eq", "fun": lambda v: v.sum() - 1.0}],
+            method="SLSQP",
+            options={"ftol": 1e-14},
+        )
+        assert got[idx] @ sub @ got[idx] <= ref.fun + 1e-7
+
+
+def test_spread_candidates_add_the_neighbours_parts() -> None:
+    ref, faces = _strip(3, 2)  # markers 0..5, two per column
+    cand = np.zeros((6, 2), dtype=bool)
+    cand[:4, 0] = True
+    cand[4:, 1] = True
+    spread = spread_candidates(cand, faces)
+    assert spread[2:4, 1].all() and not spread[:2, 1].any()  # column 1 touches column 2
+    assert spread[4:, 0].all() and (spread | cand == spread).all()
+
+
+def test_every_part_holds_three_markers_and_is_connected() -> None:
+    """Noise makes mean shift split the strip into slivers; the fix-up leaves none."""
+    from scipy.sparse.csgraph import connected_components
+
+    from skincap.deform.dense.segmentation import _triangle_adjacency
+
+    ref, faces = _strip()
+    pos = _hinge(ref) + np.random.default_rng(4).normal(scale=0.004, size=(40, ref.shape[0], 3))
+    seg = segment_marker_surface(pos, ref, faces, n_parts=6, bandwidth=0.02)
+    counts = np.bincount(seg.marker_parts[seg.marker_parts >= 0], minlength=seg.n_parts)
+    assert counts.min() >= 3, counts
+    adj = _triangle_adjacency(faces).tocoo()
+    for part in range(seg.n_parts):
+        inside = np.flatnonzero(seg.triangle_parts == part)
+        keep = np.isin(adj.row, inside) & np.isin(adj.col, inside)
+        sub = np.zeros((faces.shape[0], faces.shape[0]), bool)
+        sub[adj.row[keep], adj.col[keep]] = True
+        n_pieces = connected_components(sub[np.ix_(inside, inside)], directed=False)[0]
+        assert n_pieces == 1, part
+
+
+@pytest.mark.parametrize("capture", ["cmu_85_02.c3d", "c3dorg_sample01_Eb015pr.c3d"])
+def test_segmentation_and_blend_weights_invariants_on_a_real_capture(data_dir, capture) -> None:
+    """On a real take: parts of >= 3 markers; α on the simplex, a marker with one
+    candidate whole, no weight outside a marker's candidates."""
+    from skincap import io
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.deform.dense.rig import marker_weights_of
+
+    take = io.read(data_dir / capture)
+    keep = [i for i, lab in enumerate(take.labels) if not str(lab).startswith("*")]
+    x = take.positions[::4, keep]
+    frame = choose_reference_frame(x)
+    x = x[:, np.isfinite(x[frame]).all(axis=1)]
+    faces = build_marker_surface(x, reference_frame=frame).faces
+    seg = segment_marker_surface(x, x[frame], faces, n_parts=6)
+    on = seg.marker_parts >= 0
+    assert np.bincount(seg.marker_parts[on]).min() >= 3
+    cand = candidates_from_triangle_parts(faces, seg.triangle_parts, x.shape[1], seg.n_parts)
+    alpha = marker_weights_of(x, x[frame], cand, faces)
+    assert np.isfinite(alpha).all() and (alpha >= 0).all()
+    np.testing.assert_allclose(alpha.sum(axis=1), 1.0)
+    spread = spread_candidates(cand, faces)  # the parts of its and its neighbours' triangles
+    single = spread.sum(axis=1) == 1
+    np.testing.assert_array_equal(alpha[single], spread[single])
+    assert not (alpha > 0)[~spread & spread.any(axis=1)[:, None]].any()

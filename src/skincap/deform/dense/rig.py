@@ -17,7 +17,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -26,12 +26,14 @@ from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.dense.weights import (
     candidates_from_triangle_parts,
+    marker_blend_weights,
     marker_part_weights,
+    spread_candidates,
     vertex_part_weights,
 )
 from skincap.errors import ValidationError
 
-__all__ = ["DenseRig", "build_dense_rig", "RIG_ARRAYS"]
+__all__ = ["DenseRig", "build_dense_rig", "marker_weights_of", "RIG_ARRAYS"]
 
 #: The arrays of a rig, as :meth:`DenseRig.to_arrays` names them.
 RIG_ARRAYS = (
@@ -186,6 +188,7 @@ def build_dense_rig(
     range_of_motion: np.ndarray,
     *,
     n_parts: int = 17,
+    marker_weights: Literal["blend", "gaussian"] = "blend",
     settings: dict[str, Any] | None = None,
     progress: Callable[[float], None] | None = None,
 ) -> DenseRig:
@@ -205,6 +208,13 @@ def build_dense_rig(
         The take the parts and the boundary weights are learnt from.
     n_parts : int, default 17
         Target part count (:func:`segment_marker_surface`).
+    marker_weights : {"blend", "gaussian"}
+        ``"blend"`` (default): a marker on or next to a seam takes the least-squares
+        convex blend of its candidate parts' rigid motions
+        (:func:`~skincap.deform.dense.weights.marker_blend_weights`; candidates: the parts
+        of its triangles and its neighbours'); ``"gaussian"``: the paper's likelihoods
+        over the parts of its own triangles, thresholded at 0.2
+        (:func:`~skincap.deform.dense.weights.marker_part_weights`).
     settings : dict, optional
         Recorded in the rig (with ``n_parts`` and the segmentation's figures added).
     progress : callable(fraction), optional
@@ -224,7 +234,7 @@ def build_dense_rig(
     candidates = candidates_from_triangle_parts(
         surface_faces, seg.triangle_parts, ref.shape[0], seg.n_parts
     )
-    alpha = marker_part_weights(rom, ref, candidates)
+    alpha = marker_weights_of(rom, ref, candidates, surface_faces, marker_weights)
     beta = vertex_part_weights(vertices, ref, surface_faces, alpha)
     info = dict(settings or {})
     info.update(
@@ -233,6 +243,7 @@ def build_dense_rig(
         mean_shift_groups=int(seg.mean_shift_groups),
         bandwidth=float(seg.bandwidth),
         range_of_motion_frames=int(rom.shape[0]),
+        marker_weights=str(marker_weights),
     )
     return DenseRig(
         vertices=vertices,
@@ -244,4 +255,39 @@ def build_dense_rig(
         marker_weights=alpha,
         vertex_weights=beta,
         settings=info,
+    )
+
+
+def marker_weights_of(
+    positions: np.ndarray,
+    reference: np.ndarray,
+    candidates: np.ndarray,
+    surface_faces: np.ndarray,
+    kind: str = "blend",
+) -> np.ndarray:
+    """Marker weights α of a segmentation, by either rule of :func:`build_dense_rig`.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing (the range of motion)
+    reference : (N, 3) float, metres
+    candidates : (N, P) bool
+        The parts of each marker's triangles.
+    surface_faces : (S, 3) int
+    kind : {"blend", "gaussian"}
+
+    Returns
+    -------
+    (N, P) float64, rows sum to 1
+    """
+    if kind == "gaussian":
+        return marker_part_weights(positions, reference, candidates)
+    if kind != "blend":
+        raise ValidationError(f"marker_weights: expected 'blend' or 'gaussian'; got {kind!r}")
+    cand = np.asarray(candidates, dtype=bool)
+    inside = cand & (cand.sum(axis=1) == 1)[:, None]
+    # a part's motion from its inside markers; a part with fewer than three, from all its own
+    members = np.where((inside.sum(axis=0) >= 3)[None, :], inside, cand)
+    return marker_blend_weights(
+        positions, reference, members, spread_candidates(cand, surface_faces)
     )

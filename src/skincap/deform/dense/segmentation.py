@@ -11,8 +11,12 @@
    pieces connected on the surface; pieces smaller than ``min_triangles`` and
    triangles with no rotation (a corner never seen) join the adjacent group whose
    rotations they follow best; then adjacent groups are merged, cheapest first by
-   Ward's criterion on their mean rotation sequences, until ``n_parts`` remain. Every
-   part is connected on the marker surface by construction.
+   Ward's criterion on their mean rotation sequences, until ``n_parts`` remain. Before
+   the merging, a piece that holds fewer than ``min_markers`` markers joins the
+   adjacent piece whose rotations it follows best (a part needs three markers for its
+   rigid fit), so the target counts only parts that can be fitted; the bandwidth is
+   halved while fewer than ``n_parts`` pieces remain to merge. Every part is
+   connected on the marker surface by construction.
 
 Markers take the part most of their triangles belong to; a marker on triangles of
 several parts is a boundary marker (see :mod:`.weights`).
@@ -39,7 +43,8 @@ class Segmentation:
     Attributes
     ----------
     triangle_parts : (F,) int64
-        Part of every marker-surface triangle, ``0 … P-1``.
+        Part of every marker-surface triangle, ``0 … P-1``; -1 on a loose piece of the
+        surface holding fewer than ``min_markers`` markers.
     marker_parts : (N,) int64
         Part of every marker (the majority of its triangles; -1 for a marker on none).
     n_parts : int
@@ -143,6 +148,7 @@ def segment_marker_surface(
     n_parts: int = 17,
     bandwidth: float = 0.05,
     min_triangles: int = 4,
+    min_markers: int = 3,
     max_frames: int = 200,
     progress: Callable[[float], None] | None = None,
 ) -> Segmentation:
@@ -165,6 +171,9 @@ def segment_marker_surface(
         reach ``n_parts``.
     min_triangles : int
         Pieces smaller than this are merged into a neighbour.
+    min_markers : int
+        Fewest markers a part may hold (by the majority of their triangles); smaller
+        parts join the neighbour they follow best.
     max_frames : int
         Frames of the take used (evenly subsampled).
     progress : callable(fraction), optional
@@ -206,7 +215,9 @@ def segment_marker_surface(
     for _ in range(5):  # a narrower bandwidth until the fix-up can reach n_parts
         labels = np.full(n_f, -1)
         labels[good] = _mean_shift(feat[good], width)
-        tri_parts, n_groups = _fix_up(labels, adj, feat, int(min_triangles), int(n_parts))
+        tri_parts, n_groups = _fix_up(
+            labels, adj, feat, (int(min_triangles), int(min_markers), int(n_parts)), f
+        )
         if int(tri_parts.max()) + 1 >= int(n_parts):
             break
         width *= 0.5
@@ -222,9 +233,18 @@ def segment_marker_surface(
 
 
 def _fix_up(
-    labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, min_triangles: int, n_parts: int
+    labels: np.ndarray,
+    adj: sparse.csr_matrix,
+    feat: np.ndarray,
+    sizes: tuple[int, int, int],
+    faces: np.ndarray,
 ) -> tuple[np.ndarray, int]:
-    """Connected pieces, small ones absorbed, merged down to ``n_parts``; and the group count."""
+    """Connected pieces, small ones absorbed, merged down to ``n_parts``; and the group count.
+
+    ``sizes`` is ``(min_triangles, min_markers, n_parts)``. Pieces with too few markers
+    are absorbed *before* the merging, so the merges count only parts that can be fitted.
+    """
+    min_triangles, min_markers, n_parts = sizes
     n_groups = int(labels.max()) + 1
     # split every group into surface-connected pieces
     rows, cols = adj.nonzero()
@@ -235,6 +255,8 @@ def _fix_up(
     piece = np.where(keep, piece, -1)
     piece = _relabel(piece)
     piece = _absorb_small(piece, adj, feat, min_triangles)
+    n_markers = int(faces.max()) + 1
+    piece = _absorb_few_markers(piece, faces, n_markers, adj, feat, min_markers)
     piece = _merge_to_target(piece, adj, feat, int(n_parts))
     return _relabel(piece), n_groups
 
@@ -320,8 +342,43 @@ def _merge_to_target(
     return labels
 
 
+def _absorb_few_markers(
+    tri_parts: np.ndarray,
+    faces: np.ndarray,
+    n_markers: int,
+    adj: sparse.csr_matrix,
+    feat: np.ndarray,
+    min_markers: int,
+) -> np.ndarray:
+    """Parts holding fewer than ``min_markers`` markers join their best-following neighbour."""
+    labels = _relabel(tri_parts)
+    while int(labels.max()) + 1 > 1:  # the part with the fewest markers first
+        counts = np.bincount(
+            _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
+        )[1:]
+        g = _group_adjacency(labels, adj)
+        few = np.flatnonzero((counts < min_markers) & (np.diff(g.indptr) > 0))
+        if not few.size:
+            break
+        means, _ = _group_means(labels, feat)
+        part = few[np.argmin(counts[few])]
+        nbrs = g.indices[g.indptr[part] : g.indptr[part + 1]]
+        best = nbrs[np.argmin(((means[nbrs] - means[part]) ** 2).sum(1))]
+        labels[labels == part] = best
+        labels = _relabel(labels)
+    # a piece of the surface too small to fit and with no neighbour to join (a loose
+    # island of a sparse marker surface) belongs to no part: its markers get weights
+    # from their motion alone (:func:`skincap.deform.dense.weights.marker_blend_weights`)
+    counts = np.bincount(
+        _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
+    )[1:]
+    loose = (labels >= 0) & (counts[np.maximum(labels, 0)] < min_markers)
+    return _relabel(np.where(loose, -1, labels))
+
+
 def _marker_majority(faces: np.ndarray, tri_parts: np.ndarray, n_markers: int) -> np.ndarray:
-    n_p = int(tri_parts.max()) + 1
+    n_p = max(int(tri_parts.max()) + 1, 1)
     votes = np.zeros((n_markers, n_p))
-    np.add.at(votes, (faces.ravel(), np.repeat(tri_parts, 3)), 1.0)
+    on = tri_parts >= 0  # triangles of no part do not vote
+    np.add.at(votes, (faces[on].ravel(), np.repeat(tri_parts[on], 3)), 1.0)
     return np.where(votes.sum(1) > 0, np.argmax(votes, axis=1), -1)

@@ -11,12 +11,27 @@ perfectly rigid synthetic part would make every assignment hard), normalised ove
 candidate parts; a part is kept when its likelihood exceeds 0.2 (the paper's threshold)
 and the kept ones are normalised again.
 
+Blend weights (the default of :func:`skincap.deform.dense.rig.build_dense_rig`): where
+the skin between two parts moves as a blend of both (a shoulder, a hip), a Gaussian
+choice of parts leaves the vertices between them following one part's motion too far.
+:func:`marker_blend_weights` instead fits every boundary marker, over the whole
+range-of-motion take, as the convex combination of its candidate parts' rigid motions
+that reproduces its trajectory best (the least-squares skinning weights James & Twigg
+2005 fit per vertex, here per marker): ``min_w Σ_t ||x_i(t) - Σ_p w_p T_p(t) x_i⁰||²``
+with ``w ≥ 0, Σ w = 1``; the candidates are the parts of the marker's triangles and of
+its surface neighbours' (:func:`spread_candidates`), so a marker one row away from a
+seam can still blend. On the synthetic jumprope take (240 frames, ROM of 240 frames,
+5000 vertices, automatic parts) the ``quadratic_rbf`` vertex RMS goes from 3.00 mm
+(Gaussian, triangle candidates) to 2.65 mm.
+
 Vertex weights β (V, P): each vertex of the detailed mesh takes the weights of the
 three markers of the nearest marker-surface triangle, interpolated at the barycentric
 coordinates of its projection.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -28,7 +43,9 @@ from skincap.geometry.rigid import fit_rigid
 __all__ = [
     "candidates_from_marker_parts",
     "candidates_from_triangle_parts",
+    "marker_blend_weights",
     "marker_part_weights",
+    "spread_candidates",
     "vertex_part_weights",
 ]
 
@@ -90,6 +107,174 @@ def candidates_from_marker_parts(
         ok = mp[dst] >= 0
         out[src[ok], mp[dst[ok]]] = True
     return out
+
+
+def spread_candidates(candidates: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Every marker also takes the candidate parts of its marker-surface neighbours.
+
+    Parameters
+    ----------
+    candidates : (N, P) bool
+    faces : (F, 3) int, marker-surface triangles
+
+    Returns
+    -------
+    (N, P) bool
+    """
+    cand = np.asarray(candidates, dtype=bool)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    out = cand.copy()
+    for a, b in ((0, 1), (1, 2), (2, 0), (1, 0), (2, 1), (0, 2)):  # both ways of each edge
+        out[f[:, a]] |= cand[f[:, b]]
+    return out
+
+
+def _fit_part_motions(
+    x: np.ndarray, ref: np.ndarray, members: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rigid motion reference -> frame t of every part from its members: (T, P, 3, 3), (T, P, 3)."""
+    few = members.sum(axis=0) < 3
+    if few.any():
+        raise ValidationError(
+            f"members: parts {np.flatnonzero(few).tolist()} have fewer than three markers"
+        )
+    return fit_rigid(ref[None, None], x[:, None], members.T[None])
+
+
+def _simplex_least_squares(gram: np.ndarray, usable: np.ndarray) -> np.ndarray:
+    """``argmin wᵀ G w`` over ``w ≥ 0, Σ w = 1`` on the usable entries, exactly.
+
+    Every subset of the (few) usable entries is tried as the active set: the
+    equality-constrained minimum is ``G_S⁻¹ 1 / 1ᵀ G_S⁻¹ 1``; the best non-negative one
+    wins (the KKT point of the convex problem is one of them).
+
+    Parameters
+    ----------
+    gram : (N, K, K) float, symmetric positive semi-definite
+    usable : (N, K) bool, at least one True per row
+
+    Returns
+    -------
+    (N, K) float64, rows on the simplex, 0 where not usable
+    """
+    n, k = usable.shape
+    scale = np.einsum("nkk->n", gram) / k
+    ridge = 1e-9 * np.maximum(scale, 1e-300)[:, None, None] * np.eye(k)  # singular G: ties
+    g = gram + ridge
+    best = np.full(n, np.inf)
+    weights = np.zeros((n, k))
+    for size in range(1, k + 1):
+        for subset in itertools.combinations(range(k), size):
+            s = list(subset)
+            ok = usable[:, s].all(axis=1)
+            if not ok.any():
+                continue
+            sol = np.linalg.solve(g[:, s][:, :, s], np.ones((n, size, 1)))[..., 0]
+            total = sol.sum(axis=1, keepdims=True)
+            w = sol / np.where(np.abs(total) > 0, total, 1.0)
+            value = np.einsum("nk,nkl,nl->n", w, g[:, s][:, :, s], w)
+            better = ok & (w >= 0).all(axis=1) & np.isfinite(value) & (value < best)
+            best = np.where(better, value, best)
+            weights[better] = 0.0
+            weights[np.ix_(better, s)] = w[better]
+    return weights
+
+
+def marker_blend_weights(
+    positions: np.ndarray,
+    reference: np.ndarray,
+    members: np.ndarray,
+    candidates: np.ndarray,
+    *,
+    max_candidates: int = 5,
+    min_weight: float = 0.02,
+) -> np.ndarray:
+    """Marker weights α as least-squares blends of the candidate parts' rigid motions.
+
+    Every part's rigid motion (reference -> frame t) is fitted to its ``members``; a
+    marker with one candidate weighs 1 for it; any other takes the convex weights
+    ``w`` over its candidates that minimise ``Σ_t ||x(t) - Σ_p w_p (R_p(t) x⁰ + d_p(t))||²``
+    over the frames it is measured in (exactly, :func:`_simplex_least_squares`). A
+    marker rigidly on one part gets that part alone; one moving halfway between two
+    parts gets one half each.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+        The take the weights are learnt from (the range of motion).
+    reference : (N, 3) float, metres
+    members : (N, P) bool
+        Markers the parts' rigid motions are fitted to (a part needs three).
+    candidates : (N, P) bool
+        Parts a marker may blend; a marker with none is compared with every part.
+    max_candidates : int
+        A marker keeps at most this many candidates, those whose rigid motion alone
+        follows it best (the exact solve tries every subset: 2^k).
+    min_weight : float
+        Smaller blend weights are dropped and the row renormalised: a marker with any
+        weight for a part is one of the part's members, whose RBF must reproduce it
+        exactly, so a marker that follows another part must not join for a sliver.
+
+    Returns
+    -------
+    (N, P) float64
+        Rows sum to 1.
+
+    Raises
+    ------
+    ValidationError
+        Shapes, or a part with fewer than three members.
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    mem = np.asarray(members, dtype=bool)
+    cand = np.asarray(candidates, dtype=bool)
+    if x.ndim != 3 or x.shape[2] != 3 or ref.shape != x.shape[1:]:
+        raise ValidationError(
+            f"positions (T, N, 3) and reference (N, 3) expected; got {x.shape} and {ref.shape}"
+        )
+    if mem.shape != cand.shape or cand.ndim != 2 or cand.shape[0] != ref.shape[0]:
+        raise ValidationError(
+            f"members and candidates must have shape ({ref.shape[0]}, P); "
+            f"got {mem.shape} and {cand.shape}"
+        )
+    n, n_p = cand.shape
+    cand = cand | (cand.sum(axis=1) == 0)[:, None]  # no candidate: every part is one
+    rot, trans = _fit_part_motions(x, ref, mem)  # (T, P, 3, 3), (T, P, 3)
+    k = int(min(max(1, int(max_candidates)), cand.sum(axis=1).max()))
+    # each marker's k best candidates by their single-part error, padded
+    single = _single_part_errors(x, ref, rot, trans, cand)  # (N, P), inf off-candidate
+    order = np.argsort(single, axis=1, kind="stable")[:, :k]  # (N, k)
+    usable = np.take_along_axis(cand & np.isfinite(single), order, axis=1)
+    usable[:, 0] = True  # the best one (a marker never seen keeps its first candidate)
+    pred = np.einsum("tnkab,nb->tnka", rot[:, order], ref) + trans[:, order]  # (T, N, k, 3)
+    resid = pred - x[:, :, None, :]
+    seen = np.isfinite(resid).all(axis=(-1, -2))  # (T, N)
+    resid = np.where(seen[..., None, None], resid, 0.0)
+    gram = np.einsum("tnka,tnla->nkl", resid, resid) / np.maximum(seen.sum(0), 1)[:, None, None]
+    w = _simplex_least_squares(gram, usable)
+    alpha = np.zeros((n, n_p))
+    np.put_along_axis(alpha, order, np.where(usable, w, 0.0), axis=1)
+    alpha = np.where(alpha >= float(min_weight), alpha, 0.0)
+    alpha[np.arange(n), order[:, 0]] += (alpha.sum(axis=1) == 0).astype(np.float64)
+    return alpha / alpha.sum(axis=1, keepdims=True)
+
+
+def _single_part_errors(
+    x: np.ndarray, ref: np.ndarray, rot: np.ndarray, trans: np.ndarray, cand: np.ndarray
+) -> np.ndarray:
+    """(N, P) mean squared distance of each marker from a candidate part's rigid motion."""
+    n, n_p = cand.shape
+    marker_of, part_of = np.nonzero(cand)
+    predicted = np.einsum("tnab,nb->tna", rot[:, part_of], ref[marker_of]) + trans[:, part_of]
+    sq = ((predicted - x[:, marker_of]) ** 2).sum(-1)  # (T, pairs)
+    seen = np.isfinite(sq)
+    count = seen.sum(axis=0)
+    err = np.full((n, n_p), np.inf)
+    err[marker_of, part_of] = np.where(
+        count > 0, np.where(seen, sq, 0.0).sum(axis=0) / np.maximum(count, 1), np.inf
+    )
+    return err
 
 
 def marker_part_weights(
