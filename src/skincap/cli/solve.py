@@ -76,6 +76,26 @@ def solve(
             "default: none.",
         ),
     ] = None,
+    loss: Annotated[
+        str,
+        typer.Option(
+            help="IK loss of each marker's residual: squared, huber or cauchy (robust: a "
+            "marker that slides or is mislabelled in some frames pulls its segment less; "
+            "its own residual then grows)."
+        ),
+    ] = "squared",
+    loss_scale_cm: Annotated[
+        float,
+        typer.Option("--loss-scale-cm", help="Scale of the robust loss, cm."),
+    ] = 2.0,
+    refine_offsets: Annotated[
+        int,
+        typer.Option(
+            "--refine-offsets",
+            help="Rounds of re-fitting the markers' offsets to the solved poses, each "
+            "followed by another IK (0: keep the calibration's).",
+        ),
+    ] = 1,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
@@ -110,6 +130,9 @@ def solve(
                 report=report,
                 force=force,
                 smooth_hz=smooth_hz,
+                loss=loss,
+                loss_scale_m=loss_scale_cm / 100.0,
+                refine_offsets=refine_offsets,
                 progress=advance,
             )
     if json_output:

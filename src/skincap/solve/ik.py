@@ -33,7 +33,14 @@ from scipy.spatial.transform import Rotation
 from skincap._arrays import Progress
 from skincap.errors import ValidationError
 
-__all__ = ["solve_poses", "model_markers", "segment_origins", "fill_poses"]
+__all__ = [
+    "solve_poses",
+    "model_markers",
+    "segment_origins",
+    "fill_poses",
+    "refit_marker_offsets",
+    "LOSSES",
+]
 
 
 def segment_origins(
@@ -60,6 +67,49 @@ def model_markers(
     origins = segment_origins(parents, offsets, rotations, root)
     return origins[:, marker_segments] + np.einsum(
         "tmij,mj->tmi", rotations[:, marker_segments], marker_offsets
+    )
+
+
+def refit_marker_offsets(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    measured: np.ndarray,
+    rotations: np.ndarray,
+    root: np.ndarray,
+    fallback: np.ndarray,
+) -> np.ndarray:
+    """Each marker's offset in its segment's frame that best fits solved poses.
+
+    With the poses fixed, the least-squares offset of a marker is the mean over the
+    frames that see it of ``R_seg^T (y - o_seg)``: one step of block-coordinate
+    descent on the IK cost (poses, then offsets), so solving again from these poses
+    can only lower the squared residual. The calibration measured the offsets in
+    frames built from a few markers each; this puts them where the whole model,
+    joint centres and neighbours included, carries them.
+
+    Parameters
+    ----------
+    parents, offsets : the model's tree and joint offsets, as in :func:`solve_poses`
+    marker_segments : (M,) int
+    measured : (T, M, 3) float, metres, NaN where missing
+    rotations : (T, S, 3, 3) float, solved world rotations
+    root : (T, 3) float, metres
+    fallback : (M, 3) float, metres
+        The offset kept for a marker no frame sees.
+
+    Returns
+    -------
+    (M, 3) float64, metres
+    """
+    origins = segment_origins(parents, offsets, rotations, root)
+    seg = np.asarray(marker_segments, dtype=np.int64)
+    seen = np.isfinite(measured).all(axis=2)  # (T, M)
+    diff = np.where(seen[..., None], measured - origins[:, seg], 0.0)
+    local = np.einsum("tmji,tmj->mi", rotations[:, seg], diff)  # sum over seen frames
+    count = seen.sum(axis=0)
+    return np.where(
+        (count > 0)[:, None], local / np.maximum(count, 1)[:, None], np.asarray(fallback, float)
     )
 
 
@@ -146,19 +196,44 @@ class _Paths:
         self.local = np.array(pair_v, dtype=np.float64).reshape(-1, 3)
 
 
-def _cost(resid: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.einsum("tm,tmi,tmi->t", w, resid, resid)
+#: Robust losses of a marker's distance ``s`` (metres) with scale ``c``: ``rho(s)`` and the
+#: IRLS weight ``rho'(s) / (2 s)`` (1 for a residual well inside the scale).
+LOSSES = ("squared", "huber", "cauchy")
+
+
+def _marker_loss(dist2: np.ndarray, loss: str, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Loss ``rho`` (m^2) and IRLS weight of squared marker distances ``dist2 (T, M)`` (m^2)."""
+    if loss == "squared":
+        return dist2, np.ones_like(dist2)
+    c2 = scale * scale
+    if loss == "huber":  # rho = s^2 inside the scale, 2 c s - c^2 beyond: linear growth
+        dist = np.sqrt(dist2)
+        far = dist > scale
+        rho = np.where(far, 2.0 * scale * dist - c2, dist2)
+        return rho, np.where(far, scale / np.where(far, dist, 1.0), 1.0)
+    # cauchy: rho = c^2 log(1 + s^2 / c^2), grows only logarithmically
+    return c2 * np.log1p(dist2 / c2), 1.0 / (1.0 + dist2 / c2)
+
+
+def _cost(
+    resid: np.ndarray, w: np.ndarray, loss: str = "squared", scale: float = 1.0
+) -> np.ndarray:
+    """(T,) robust cost (m^2) of marker residuals ``resid (T, M, 3)`` seen where ``w (T, M)`` is 1."""
+    rho, _ = _marker_loss(np.einsum("tmi,tmi->tm", resid, resid), loss, scale)
+    return np.einsum("tm,tm->t", w, rho)
 
 
 def _pose_cost(model: tuple, y: np.ndarray, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
     """(T,) cost (m^2) of poses for measured markers ``y (T, M, 3)`` (NaN: missing);
-    ``model`` is (parents, offsets, marker_segments, marker_offsets, springs)."""
-    parents, offsets, mseg, moff, springs = model
+    ``model`` is (parents, offsets, marker_segments, marker_offsets, springs, loss, scale)."""
+    parents, offsets, mseg, moff, springs, loss, scale = model
     seen = np.isfinite(y).all(axis=2)
     x = model_markers(parents, offsets, mseg, moff, rot, root)
     spring = springs.residuals(rot)
     resid = np.where(seen[..., None], x - np.where(seen[..., None], y, 0.0), 0.0)
-    return _cost(resid, seen.astype(np.float64)) + np.einsum("tli,tli->t", spring, spring)
+    return _cost(resid, seen.astype(np.float64), loss, scale) + np.einsum(
+        "tli,tli->t", spring, spring
+    )
 
 
 class _Springs:
@@ -206,6 +281,8 @@ def solve_poses(
     chunk: int = 512,
     link_stiffness: np.ndarray | None = None,
     warm_start: bool = True,
+    loss: str = "squared",
+    loss_scale: float = 0.02,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares poses of a marker model, all frames at once.
@@ -239,6 +316,16 @@ def solve_poses(
     link_stiffness : (S,) float, metres per radian, optional
         Spring of each link segment towards its parent's orientation; 0 (the
         default for every segment) for none.
+    loss : {"squared", "huber", "cauchy"}, default "squared"
+        Loss of each marker's distance ``s`` to its model marker: ``s^2``; Huber
+        (``s^2`` up to ``loss_scale``, then linear) or Cauchy
+        (``c^2 log(1 + s^2 / c^2)``), so one marker that slides on the skin or was
+        mislabelled in a frame pulls its segment with a bounded force rather than
+        one growing with its distance (iteratively reweighted: each step's normal
+        equations weight a marker by ``rho'(s) / 2s``).
+    loss_scale : float, default 0.02
+        The robust loss's scale ``c``, metres: residuals well below it count as
+        squares.
     progress : callable(fraction, label), optional
 
     Returns
@@ -270,6 +357,10 @@ def solve_poses(
         raise ValidationError(
             f"link_stiffness: expected ({s},) finite values >= 0, got shape {stiff.shape}"
         )
+    if loss not in LOSSES:
+        raise ValidationError(f"loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
+    if not (np.isfinite(loss_scale) and loss_scale > 0):
+        raise ValidationError(f"loss_scale: expected a positive number of metres, got {loss_scale}")
     springs = _Springs(parents, stiff, n_par)
     out_rot = np.empty_like(rot)
     out_root = np.empty_like(root)
@@ -286,7 +377,7 @@ def solve_poses(
             rel = _log(np.einsum("tsji,tsjk->tsik", out_rot[before], out_rot[after]))
             mid_rot = out_rot[before] @ _exp(0.5 * rel)
             mid_root = 0.5 * (out_root[before] + out_root[after])
-            model = (parents, offsets, mseg, moff, springs)
+            model = (parents, offsets, mseg, moff, springs, loss, loss_scale)
             use = _pose_cost(model, y[frames], mid_rot, mid_root) < _pose_cost(
                 model, y[frames], rot[frames], root[frames]
             )
@@ -296,7 +387,7 @@ def solve_poses(
             sel = frames[start : start + chunk]
             out_rot[sel], out_root[sel] = _solve_chunk(
                 parents, offsets, mseg, moff, paths, springs, y[sel], rot[sel], root[sel],
-                n_par, iterations, tolerance, relative_tolerance,
+                n_par, iterations, tolerance, relative_tolerance, loss, float(loss_scale),
             )  # fmt: skip
             done += sel.size
             if progress is not None:
@@ -318,6 +409,8 @@ def _solve_chunk(
     iterations: int,
     tolerance: float,
     relative_tolerance: float,
+    loss: str,
+    scale: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     t, m, _ = y.shape
     seen = np.isfinite(y).all(axis=2)
@@ -326,7 +419,9 @@ def _solve_chunk(
     lam_all = np.full(t, 1e-3)
     x_all = model_markers(parents, offsets, mseg, moff, rot, root)
     spring_all = springs.residuals(rot)  # (T, L, 3)
-    cost_all = _cost(x_all - y_all, w_all) + np.einsum("tli,tli->t", spring_all, spring_all)
+    cost_all = _cost(x_all - y_all, w_all, loss, scale) + np.einsum(
+        "tli,tli->t", spring_all, spring_all
+    )
     # damping floor: keeps directions no marker constrains (a hidden hand) where they are
     floor = 1e-6
     active = np.arange(t)
@@ -347,11 +442,17 @@ def _solve_chunk(
         r_a, o_a, x, cost = rot[active], root[active], x_all[active], cost_all[active]
         spring = spring_all[active]
         ta = active.size
-        resid = (x - y0) * w[..., None]  # (Ta, M, 3), zero where missing
+        diff = x - y0
+        if loss == "squared":
+            sw = w  # 0/1: its own square root
+        else:  # IRLS: rows scaled by the square root of each marker's weight
+            _, irls = _marker_loss(np.einsum("tmi,tmi->tm", diff, diff), loss, scale)
+            sw = w * np.sqrt(irls)
+        resid = diff * sw[..., None]  # (Ta, M, 3), zero where missing
         v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
-        v *= w[:, paths.marker, None]  # rows of missing markers stay zero: weights are 0/1
+        v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
         jac = jac_all[:ta]
-        jac[:, all_rows, root_cols] = np.repeat(w, 3, axis=1)  # d x / d root origin
+        jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
         # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
         jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
         jt = jac.transpose(0, 2, 1)
@@ -366,7 +467,9 @@ def _solve_chunk(
         new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
         new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
         new_spring = springs.residuals(new_rot)
-        new_cost = _cost(new_x - y0, w) + np.einsum("tli,tli->t", new_spring, new_spring)
+        new_cost = _cost(new_x - y0, w, loss, scale) + np.einsum(
+            "tli,tli->t", new_spring, new_spring
+        )
         better = new_cost <= cost
         gain = cost - new_cost
         keep = active[better]
