@@ -233,3 +233,57 @@ def test_refitted_offsets_are_exact_on_exact_poses_and_lower_the_cost_of_wrong_o
         offs = refit_marker_offsets(PARENTS, OFFSETS, SEG, y, r, o, offs)
     assert all(b <= a * (1 + 1e-9) for a, b in zip(costs, costs[1:], strict=False))
     assert costs[-1] < 0.5 * costs[0]
+
+
+def _hinge_take(t, flex_rad, seed=14):
+    """Segment 1 bends about its parent's x axis by ``flex_rad (T,)``; the rest random."""
+    rng = np.random.default_rng(seed)
+    rot, root = _poses(rng, t)
+    rot[:, 1] = rot[:, 0] @ Rotation.from_rotvec(flex_rad[:, None] * [1.0, 0.0, 0.0]).as_matrix()
+    return rot, root
+
+
+def _flexion(rot):
+    rel = np.einsum("tji,tjk->tik", rot[:, 0], rot[:, 1])
+    return Rotation.from_matrix(rel).as_rotvec()[:, 0]
+
+
+def test_a_joint_limit_holds_and_leaves_poses_inside_it_exact():
+    t = 60
+    flex = np.linspace(-0.4, 1.2, t)  # -23 to 69 deg
+    rot, root = _hinge_take(t, flex)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    limits = np.full((4, 3, 2), np.nan)
+    limits[1, 0] = [0.0, 1.0]  # segment 1: 0 to 57 deg about its parent's x
+    kw = dict(iterations=40, tolerance=1e-16, relative_tolerance=0.0)
+    free_rot, _ = solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, **kw)
+    np.testing.assert_allclose(_flexion(free_rot), flex, atol=1e-6)  # no limit: the truth
+    got_rot, got_root = solve_poses(
+        PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=limits, **kw
+    )
+    got = _flexion(got_rot)
+    inside = (flex >= 0.0) & (flex <= 1.0)
+    np.testing.assert_allclose(got[inside], flex[inside], atol=1e-6)
+    # beyond the limit the markers pull against it: it gives way by under a degree
+    assert got.min() > -np.radians(1.0) and got.max() < 1.0 + np.radians(1.0)
+    assert (got[~inside] - np.clip(flex[~inside], 0.0, 1.0)).std() < np.radians(1.0)
+    assert np.abs(got[flex < -0.1]).max() < np.radians(1.0)
+    # and a stiffer limit holds tighter
+    stiff_rot, _ = solve_poses(
+        PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=limits, limit_stiffness=20.0, **kw
+    )
+    stiff_excess = np.abs(_flexion(stiff_rot) - np.clip(flex, 0.0, 1.0))[~inside]
+    excess = np.abs(got - np.clip(flex, 0.0, 1.0))[~inside]
+    assert stiff_excess.max() < np.radians(1.0)
+    assert np.median(stiff_excess) < 0.2 * np.median(excess)
+
+
+def test_joint_limits_are_validated():
+    rot, root = _poses(np.random.default_rng(15), 4)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    bad = np.full((4, 3, 2), np.nan)
+    bad[1, 0] = [1.0, 0.0]
+    with pytest.raises(ValidationError, match="joint_limits"):
+        solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=bad)
+    with pytest.raises(ValidationError, match="joint_limits"):
+        solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=np.zeros((4, 3)))

@@ -239,7 +239,22 @@ def _pose_cost(model: tuple, y: np.ndarray, rot: np.ndarray, root: np.ndarray) -
 class _Springs:
     """The link segments' springs: residuals ``k log(R_s R_p^T)`` and their constant normal matrix."""
 
-    def __init__(self, parents: np.ndarray, stiffness: np.ndarray, n_par: int) -> None:
+    def __init__(
+        self,
+        parents: np.ndarray,
+        stiffness: np.ndarray,
+        n_par: int,
+        limits: np.ndarray | None = None,
+        limit_stiffness: float = 1.0,
+    ) -> None:
+        # joint limits (see solve_poses): one scalar residual per (segment, axis) bounded
+        lim = np.full((parents.size, 3, 2), np.nan) if limits is None else limits
+        self.lim_segment, self.lim_axis = np.nonzero(np.isfinite(lim).any(axis=2))
+        self.lim_parent = parents[self.lim_segment]
+        lo_hi = lim[self.lim_segment, self.lim_axis]
+        self.lim_lo = np.where(np.isfinite(lo_hi[:, 0]), lo_hi[:, 0], -np.inf)
+        self.lim_hi = np.where(np.isfinite(lo_hi[:, 1]), lo_hi[:, 1], np.inf)
+        self.lim_k = float(limit_stiffness)
         self.segment = np.flatnonzero(stiffness > 0)
         self.parent = parents[self.segment]
         self.k = stiffness[self.segment]
@@ -253,14 +268,48 @@ class _Springs:
             self.normal[cp : cp + 3, cs : cs + 3] -= k**2 * eye
 
     def residuals(self, rot: np.ndarray) -> np.ndarray:
-        """(T, L, 3) metres-equivalent spring residuals of world rotations (T, S, 3, 3)."""
-        if self.segment.size == 0:
-            return np.zeros(rot.shape[:1] + (0, 3))
-        rel = rot[:, self.segment] @ rot[:, self.parent].transpose(0, 1, 3, 2)
-        return self.k[:, None] * _log(rel)
+        """(T, L + K, 3) metres-equivalent residuals of world rotations (T, S, 3, 3): the
+        L springs, then the K joint limits (their excess angle times the limit
+        stiffness in the first component, zeros after)."""
+        out = np.zeros(rot.shape[:1] + (self.segment.size + self.lim_segment.size, 3))
+        if self.segment.size:
+            rel = rot[:, self.segment] @ rot[:, self.parent].transpose(0, 1, 3, 2)
+            out[:, : self.segment.size] = self.k[:, None] * _log(rel)
+        if self.lim_segment.size:
+            out[:, self.segment.size :, 0] = self.lim_k * self._excess(rot)
+        return out
+
+    def _excess(self, rot: np.ndarray) -> np.ndarray:
+        """(T, K) radians beyond each joint limit (0 inside it)."""
+        rel = np.einsum("tkji,tkjl->tkil", rot[:, self.lim_parent], rot[:, self.lim_segment])
+        angle = np.take_along_axis(_log(rel), self.lim_axis[None, :, None], axis=2)[..., 0]
+        return angle - np.clip(angle, self.lim_lo, self.lim_hi)
+
+    def add_limits(self, h: np.ndarray, g: np.ndarray, rot: np.ndarray, r: np.ndarray) -> None:
+        """Add the joint limits' ``J^T J`` and ``J^T r`` to ``h (T, P, P)`` and ``g (T, P)``
+        in place, for poses ``rot`` and residuals ``r`` (from :meth:`residuals`).
+
+        The limited angle is the component along the parent's axis ``u = R_p e_a`` of the
+        relative rotation vector, so its row is ``u`` for the segment's increment and
+        ``-u`` for its parent's (exact at the parent's orientation; LM accepts a step
+        only when the true cost falls); a limit that holds adds nothing."""
+        n = self.segment.size
+        for k in range(self.lim_segment.size):
+            s, p, a = self.lim_segment[k], self.lim_parent[k], self.lim_axis[k]
+            res = r[:, n + k, 0]  # (T,) k * excess
+            on = (res != 0.0)[:, None]
+            u = self.lim_k * rot[:, p, :, a] * on  # (T, 3) world axis, zero inside the limit
+            uu = np.einsum("ti,tj->tij", u, u)
+            cs, cp = 3 + 3 * s, 3 + 3 * p
+            h[:, cs : cs + 3, cs : cs + 3] += uu
+            h[:, cp : cp + 3, cp : cp + 3] += uu
+            h[:, cs : cs + 3, cp : cp + 3] -= uu
+            h[:, cp : cp + 3, cs : cs + 3] -= uu
+            g[:, cs : cs + 3] += u * res[:, None]
+            g[:, cp : cp + 3] -= u * res[:, None]
 
     def add_gradient(self, g: np.ndarray, r: np.ndarray) -> None:
-        """Add ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
+        """Add the springs' ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
         for k, (s, p) in enumerate(zip(self.segment, self.parent, strict=True)):
             g[:, 3 + 3 * s : 6 + 3 * s] += self.k[k] * r[:, k]
             g[:, 3 + 3 * p : 6 + 3 * p] -= self.k[k] * r[:, k]
@@ -283,6 +332,8 @@ def solve_poses(
     warm_start: bool = True,
     loss: str = "squared",
     loss_scale: float = 0.02,
+    joint_limits: np.ndarray | None = None,
+    limit_stiffness: float = 1.0,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares poses of a marker model, all frames at once.
@@ -326,6 +377,14 @@ def solve_poses(
     loss_scale : float, default 0.02
         The robust loss's scale ``c``, metres: residuals well below it count as
         squares.
+    joint_limits : (S, 3, 2) float, radians, optional
+        Per segment and axis of its parent's frame, the least and greatest angle
+        (NaN: unbounded) of the component along that axis of the rotation vector of
+        ``R_parent^T R_segment`` (for a hinge about the parent's x axis: its flexion).
+        A pose beyond a limit pays ``(limit_stiffness * excess)^2``.
+    limit_stiffness : float, default 1.0
+        Metres per radian: 1 deg past a limit costs as much as a 1.7 cm marker
+        residual, so a limit holds against the markers within about a degree.
     progress : callable(fraction, label), optional
 
     Returns
@@ -361,7 +420,18 @@ def solve_poses(
         raise ValidationError(f"loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
     if not (np.isfinite(loss_scale) and loss_scale > 0):
         raise ValidationError(f"loss_scale: expected a positive number of metres, got {loss_scale}")
-    springs = _Springs(parents, stiff, n_par)
+    limits = None
+    if joint_limits is not None:
+        limits = np.asarray(joint_limits, dtype=np.float64)
+        lo, hi = limits[..., 0], limits[..., 1]
+        if limits.shape != (s, 3, 2) or (np.isfinite(lo) & np.isfinite(hi) & (lo > hi)).any():
+            raise ValidationError(
+                f"joint_limits: expected ({s}, 3, 2) radians with low <= high (NaN: none), "
+                f"got shape {limits.shape}"
+            )
+    if not (np.isfinite(limit_stiffness) and limit_stiffness > 0):
+        raise ValidationError(f"limit_stiffness: expected a positive number, got {limit_stiffness}")
+    springs = _Springs(parents, stiff, n_par, limits, float(limit_stiffness))
     out_rot = np.empty_like(rot)
     out_root = np.empty_like(root)
     passes = [np.arange(t_all)]
@@ -460,6 +530,7 @@ def _solve_chunk(
         g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)  # (Ta, P)
         h += springs.normal
         springs.add_gradient(g, spring)
+        springs.add_limits(h, g, r_a, spring)
         diag = np.einsum("tii->ti", h)
         h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
         step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
