@@ -264,18 +264,16 @@ def test_a_joint_limit_holds_and_leaves_poses_inside_it_exact():
     got = _flexion(got_rot)
     inside = (flex >= 0.0) & (flex <= 1.0)
     np.testing.assert_allclose(got[inside], flex[inside], atol=1e-6)
-    # beyond the limit the markers pull against it: it gives way by under a degree
-    assert got.min() > -np.radians(1.0) and got.max() < 1.0 + np.radians(1.0)
-    assert (got[~inside] - np.clip(flex[~inside], 0.0, 1.0)).std() < np.radians(1.0)
-    assert np.abs(got[flex < -0.1]).max() < np.radians(1.0)
-    # and a stiffer limit holds tighter
-    stiff_rot, _ = solve_poses(
-        PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=limits, limit_stiffness=20.0, **kw
-    )
-    stiff_excess = np.abs(_flexion(stiff_rot) - np.clip(flex, 0.0, 1.0))[~inside]
+    # beyond the limit the markers pull against it: it gives way by under 0.3 degree
     excess = np.abs(got - np.clip(flex, 0.0, 1.0))[~inside]
-    assert stiff_excess.max() < np.radians(1.0)
-    assert np.median(stiff_excess) < 0.2 * np.median(excess)
+    assert excess.max() < np.radians(0.3)
+    # a softer limit gives way more
+    soft_rot, _ = solve_poses(
+        PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=limits, limit_stiffness=1.0, **kw
+    )
+    soft_excess = np.abs(_flexion(soft_rot) - np.clip(flex, 0.0, 1.0))[~inside]
+    assert np.median(soft_excess) > 5 * np.median(excess)
+    assert soft_excess.max() < np.radians(3.0)
 
 
 def test_joint_limits_are_validated():

@@ -236,3 +236,57 @@ def test_a_link_bends_the_body_the_template_cannot_bend_otherwise(cmu):
     r_stiff, r_linked = (np.sqrt(np.nanmean(r.residuals**2)) for r in (stiff, linked))
     assert r_linked < 0.9 * r_stiff  # measured 0.70 cm against 0.85 cm
     assert np.nanmax(linked.residuals) < np.nanmax(stiff.residuals)
+
+
+@pytest.mark.parametrize(
+    ("limits", "message"),
+    [
+        ({"x": [10, -10]}, "low 10 is above high -10"),
+        ({"w": [0, 10]}, "must be \\[low, high\\]"),
+        ({"x": [0, 200]}, "must be \\[low, high\\]"),
+        ([0, 10], "'limits' must be an object"),
+    ],
+)
+def test_bad_joint_limits_are_refused(tmp_path, limits, message):
+    with pytest.raises(FormatError, match=message):
+        load_template(_template_file(tmp_path, [_ROOT, dict(_LINK, limits=limits)]))
+
+
+def test_the_builtin_templates_limit_knees_and_elbows():
+    for name in ("cmu41", "pig", "aml62", "synth-sparse"):
+        tpl = load_template(name)
+        assert tpl.segment("shank_l").limits_deg == {"x": (-10.0, 160.0)}, name
+        assert tpl.segment("forearm_r").limits_deg == {"y": (-15.0, 160.0)}, name
+    assert load_template("cmu41").segment("pelvis").limits_deg == {}
+
+
+def test_joint_limits_hold_on_the_real_take_and_are_off_by_default(cmu, tmp_path):
+    """A knee limited to 60 deg of flexion in a take that bends it to 133 deg."""
+    from skincap.solve.ik import limited_angle
+
+    data = json.loads(data_path(BUILTIN_TEMPLATES["cmu41"]).read_text())
+    for s in data["segments"]:
+        s.pop("limits", None)
+        if s["name"] == "shank_l":
+            s["limits"] = {"x": [None, 60]}
+    tpl = _parse(data, "tight")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        free = solve_markers(cmu, tpl, refine_offsets=0)
+        held = solve_markers(cmu, tpl, refine_offsets=0, joint_limits=True)
+    k = held.model.segment_names.index("shank_l")
+    p = held.model.segment_parents[k]
+
+    def flexion(r):
+        rel = np.einsum("tji,tjk->tik", r.rotations[:, p], r.rotations[:, k])
+        return np.degrees(limited_angle(rel, 0, 1))
+
+    assert flexion(free).max() > 120.0  # the take bends the knee far past the limit
+    assert flexion(held).max() < 63.0  # measured 62.5: 73 deg of pull held within 2.5
+    assert np.nanmax(held.residuals) > np.nanmax(free.residuals) + 0.02  # at the markers' cost
+    assert held.report()["ik"]["joint_limits"] is True
+    # a template without limits cannot be asked to hold them
+    for s in data["segments"]:
+        s.pop("limits", None)
+    with pytest.raises(ValidationError, match="defines none"):
+        solve_markers(cmu, _parse(data, "none"), joint_limits=True)

@@ -96,6 +96,14 @@ def solve(
             "followed by another IK (0: keep the calibration's).",
         ),
     ] = 1,
+    joint_limits: Annotated[
+        bool,
+        typer.Option(
+            "--joint-limits",
+            help="Hold the joints within the template's limits (the built-in templates: "
+            "knee and elbow flexion).",
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
@@ -133,6 +141,7 @@ def solve(
                 loss=loss,
                 loss_scale_m=loss_scale_cm / 100.0,
                 refine_offsets=refine_offsets,
+                joint_limits=joint_limits,
                 progress=advance,
             )
     if json_output:

@@ -69,6 +69,12 @@ class BodyModel:
     link_stiffness : (S,) float64, metres per radian
         The spring holding each ``link`` segment to its parent's orientation in
         inverse kinematics; 0 for the other segments.
+    joint_limits : (S, 3, 2) float64, radians
+        The template's joint limits (low, high per parent axis; NaN: none), for
+        :func:`skincap.solve.ik.solve_poses`.
+    bone_axes : (S,) int64
+        Each segment's primary anatomical axis (0, 1, 2: its first ``axes`` entry; y
+        for a link), the long axis the joint limits' Euler angles turn about last.
     """
 
     segment_names: list[str]
@@ -86,6 +92,8 @@ class BodyModel:
     methods: dict[str, str] = field(default_factory=dict)
     spreads_deg: dict[str, list[float]] = field(default_factory=dict)
     link_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    joint_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 2)))
+    bone_axes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def n_segments(self) -> int:
@@ -552,4 +560,17 @@ def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
         methods=dict(cal.methods),
         spreads_deg=dict(cal.spreads),
         link_stiffness=np.array([s.stiffness if s.link else 0.0 for s in segs]),
+        joint_limits=_joint_limits(segs),
+        bone_axes=np.array(
+            [_AXIS_INDEX[s.axes[0][0]] if s.axes else 1 for s in segs], dtype=np.int64
+        ),
     )
+
+
+def _joint_limits(segs: list[SegmentSpec]) -> np.ndarray:
+    """(S, 3, 2) radians of the segments' ``limits`` (NaN where none)."""
+    out = np.full((len(segs), 3, 2), np.nan)
+    for k, spec in enumerate(segs):
+        for axis, pair in spec.limits_deg.items():
+            out[k, _AXIS_INDEX[axis]] = [np.nan if v is None else np.radians(v) for v in pair]
+    return out

@@ -68,6 +68,7 @@ def solve_markers(
     loss: str = "squared",
     loss_scale: float = 0.02,
     refine_offsets: int = 1,
+    joint_limits: bool = False,
     progress: Progress | None = None,
 ) -> SolveResult:
     """Solve a skeleton motion from a labelled marker capture.
@@ -98,6 +99,9 @@ def solve_markers(
         second IK started from the poses: on CMU 85_02 one round takes the RMS
         residual from 0.695 to 0.678 cm and the max from 4.03 to 3.97 cm; 0 keeps
         the calibration's offsets.
+    joint_limits : bool, default False
+        Hold the joints within the template's ``limits`` (see
+        :mod:`skincap.solve.templates`); a template without any is refused.
     progress : callable(fraction, label), optional
 
     Returns
@@ -120,6 +124,13 @@ def solve_markers(
         if progress is not None:
             progress(0.2 + 0.8 * f, label)
 
+    limits = None
+    if joint_limits:
+        limits = model.joint_limits
+        if not np.isfinite(limits).any():
+            raise ValidationError(
+                f"joint limits: template {model.template.name} defines none (a segment's 'limits')"
+            )
     if refine_offsets < 0:
         raise ValidationError(f"refine_offsets: expected a count >= 0, got {refine_offsets}")
     measured = markers.positions[:, model.marker_columns]
@@ -150,6 +161,8 @@ def solve_markers(
             link_stiffness=model.link_stiffness,
             loss=loss,
             loss_scale=loss_scale,
+            joint_limits=limits,
+            bone_axes=model.bone_axes if joint_limits else None,
             progress=round_progress,
         )
     if smooth_hz is not None:
@@ -179,7 +192,12 @@ def solve_markers(
         root=root,
         residuals=resid,
         smooth_hz=None if smooth_hz is None else float(smooth_hz),
-        ik={"loss": loss, "loss_scale_m": float(loss_scale), "refine_offsets": int(refine_offsets)},
+        ik={
+            "loss": loss,
+            "loss_scale_m": float(loss_scale),
+            "refine_offsets": int(refine_offsets),
+            "joint_limits": bool(joint_limits),
+        },
     )
 
 

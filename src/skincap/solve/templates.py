@@ -44,6 +44,11 @@ a user writes one for their own set in the same form)::
   pulling it back to its parent's orientation, so the head or shoulder can translate
   relative to the trunk without absorbing every residual. ``markers`` may list markers
   riding it (an acromion marker on a clavicle) or be empty. ``axes`` is not needed.
+* ``limits``: optional joint limits, ``{"x": [LOW, HIGH], ...}`` in degrees (``null``
+  for an open end): bounds on the component along the parent's anatomical axis of
+  the rotation vector of the segment's frame in its parent's (for a knee, flexion
+  about x; with the frames above a straight joint is 0). Inverse kinematics enforces
+  them only when asked (``solve --joint-limits``), as a stiff penalty beyond the range.
 """
 
 from __future__ import annotations
@@ -98,6 +103,33 @@ class SegmentSpec:
     end: list[str] | None = None
     link: bool = False
     stiffness: float = LINK_STIFFNESS_M_PER_RAD
+    limits_deg: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)
+
+
+def _parse_limits(bad: Any, name: str, raw: Any) -> dict[str, tuple[float | None, float | None]]:
+    """``{"x": [low, high]}`` (degrees, ``null`` for none) -> validated dict."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise bad(f"segment {name!r}: 'limits' must be an object such as {{\"x\": [-5, 150]}}")
+    out: dict[str, tuple[float | None, float | None]] = {}
+    for axis, pair in raw.items():
+        ok = (
+            axis in _AXES
+            and isinstance(pair, list)
+            and len(pair) == 2
+            and all(v is None or (isinstance(v, (int, float)) and abs(v) <= 180) for v in pair)
+        )
+        if not ok:
+            raise bad(
+                f"segment {name!r}: limits[{axis!r}] must be [low, high] in degrees "
+                "(-180..180 or null) on an axis x, y or z"
+            )
+        lo, hi = (None if v is None else float(v) for v in pair)
+        if lo is not None and hi is not None and lo > hi:
+            raise bad(f"segment {name!r}: limits[{axis!r}] low {lo:g} is above high {hi:g}")
+        out[axis] = (lo, hi)
+    return out
 
 
 @dataclass
@@ -211,6 +243,9 @@ def _parse(data: Any, source: str) -> Template:
                 raise bad(f"segment {name!r}: centre 'prior' needs 'harrington' or 'from'")
             if centre["kind"] == "hinge" and len(centre.get("flexion", [])) != 3:
                 raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
+        limits = _parse_limits(bad, name, raw.get("limits"))
+        if limits and parent is None:
+            raise bad(f"segment {name!r}: the root has no joint to limit")
         origin = raw.get("origin")
         if parent is None and origin is None:
             raise bad(f"segment {name!r}: the root needs an 'origin'")
@@ -231,6 +266,7 @@ def _parse(data: Any, source: str) -> Template:
                 else _points(f"segment {name!r} end", raw["end"]),
                 link=link,
                 stiffness=float(stiffness),
+                limits_deg=limits,
             )
         )
         names.add(name)

@@ -63,6 +63,7 @@ def solve_file(
     loss: str = "squared",
     loss_scale_m: float = 0.02,
     refine_offsets: int = 1,
+    joint_limits: bool = False,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Solve ``input_path`` and write the BVH (and the optional outputs).
@@ -85,9 +86,9 @@ def solve_file(
         Replace existing outputs.
     smooth_hz : float, optional
         Low-pass cut-off (Hz) of the solved poses; default none.
-    loss, loss_scale_m, refine_offsets
-        The IK's loss, its scale (metres) and the rounds of marker-offset re-fitting
-        (:func:`skincap.solve.solve_markers`).
+    loss, loss_scale_m, refine_offsets, joint_limits
+        The IK's loss, its scale (metres), the rounds of marker-offset re-fitting and
+        whether the template's joint limits hold (:func:`skincap.solve.solve_markers`).
     progress : callable(fraction, label), optional
 
     Returns
@@ -135,6 +136,7 @@ def solve_file(
         loss=loss,
         loss_scale=loss_scale_m,
         refine_offsets=refine_offsets,
+        joint_limits=joint_limits,
         progress=progress,
     )
     rep = result.report()
