@@ -52,8 +52,8 @@ def solve(
     template: Annotated[
         str,
         typer.Option(
-            help="Marker set: pig, cmu41, synth-sparse, aml62, auto (found from the "
-            "markers' motion) or a template JSON file."
+            help="Marker set: pig, cmu41, synth-sparse, synth-dense, aml62, auto (found "
+            "from the markers' motion) or a template JSON file."
         ),
     ] = "cmu41",
     units: Annotated[str, typer.Option(help="Length unit of the BVH (m, cm, mm, in).")] = "cm",
@@ -159,7 +159,11 @@ def solve(
 @eval_app.command("solve")
 def eval_solve(
     input_dir: Annotated[
-        Path | None, typer.Argument(help="A folder written by 'skincap synth --markers sparse'.")
+        Path | None,
+        typer.Argument(
+            help="A folder written by 'skincap synth --markers sparse' or '--markers dense' "
+            "(solved with synth-sparse or synth-dense, whichever its labels match)."
+        ),
     ] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path(
         "eval_solve"
@@ -184,7 +188,7 @@ def eval_solve(
 ) -> None:
     """Measure the solver against issue #17's targets and print the table.
 
-    On a synthetic sparse take (perfectly labelled, with the capture's occlusion,
+    On a synthetic sparse or dense take (perfectly labelled, with the capture's occlusion,
     noise and soft tissue): joint-position error per joint against truth/motion.bvh,
     knee/elbow flexion-angle error, marker residual, --template auto. On real captures:
     the marker residual and its distribution per marker. Writes DIR/solve_eval.json.

@@ -202,10 +202,13 @@ class _Calibrator:
     def point(self, names: list[str], where: str) -> np.ndarray:
         """(T, 3) mean of markers and ``@segment`` centres.
 
-        A list of markers averages those seen in each frame; a list with a joint
-        centre is NaN where any part is missing.
+        A list of markers averages those the capture has and sees in each frame; a
+        list with a joint centre is NaN where any part is missing.
         """
         parts = []
+        if len(names) > 1 and not any(n.startswith("@") for n in names):
+            # a centroid of markers: one the capture lacks (never seen) drops out of it
+            names = [n for n in names if n in self.columns] or names
         for n in names:
             if n.startswith("@"):
                 seg = n[1:]

@@ -67,6 +67,7 @@ __all__ = [
     "LINK_STIFFNESS_M_PER_RAD",
     "SegmentSpec",
     "Template",
+    "detect_template",
     "load_template",
     "strip_prefix",
 ]
@@ -76,6 +77,7 @@ BUILTIN_TEMPLATES: dict[str, str] = {
     "pig": "solve_template_pig.json",
     "cmu41": "solve_template_cmu41.json",
     "synth-sparse": "solve_template_synth_sparse.json",
+    "synth-dense": "solve_template_synth_dense.json",
     "aml62": "solve_template_aml62.json",
 }
 
@@ -305,3 +307,26 @@ def load_template(template: str | os.PathLike[str]) -> Template:
     except json.JSONDecodeError as exc:
         raise FormatError(source, f"not JSON: {exc.msg}", line=exc.lineno) from None
     return _parse(data, source)
+
+
+def detect_template(
+    labels: list[str], *, candidates: tuple[str, ...] | None = None, min_share: float = 0.5
+) -> str | None:
+    """The built-in template a capture's labels match best, or None.
+
+    Each built-in template (or each of ``candidates``) is scored by the overlap of its
+    markers with ``labels`` (``Subject:`` prefixes stripped) over their union, so a set
+    that shares most labels with a larger one goes to the template it fills; the best
+    is returned when at least ``min_share`` of its own markers are present. Sets with
+    the same labels (synth-sparse and pig) tie, and the first in ``candidates`` (else
+    :data:`BUILTIN_TEMPLATES` order) wins.
+    """
+    present = {strip_prefix(x) for x in labels}
+    best, best_score = None, 0.0
+    for name in candidates or tuple(BUILTIN_TEMPLATES):
+        wanted = set(load_template(name).markers)
+        common = len(wanted & present)
+        score = common / len(wanted | present) if wanted else 0.0
+        if score > best_score and common >= min_share * len(wanted):
+            best, best_score = name, score
+    return best
