@@ -418,7 +418,7 @@ def _landmark_group(points: np.ndarray, target: np.ndarray) -> np.ndarray:
     best, best_cost = near[:1], np.inf
     for size in range(1, min(_LANDMARK_GROUP, near.size) + 1):
         for combo in combinations(near.tolist(), size):
-            cost = np.linalg.norm(points[list(combo)].mean(axis=0) - target) + 1e-3 * size
+            cost = float(np.linalg.norm(points[list(combo)].mean(axis=0) - target)) + 1e-3 * size
             if cost < best_cost:
                 best, best_cost = np.array(combo), cost
     return best
