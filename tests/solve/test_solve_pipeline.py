@@ -290,3 +290,21 @@ def test_joint_limits_hold_on_the_real_take_and_are_off_by_default(cmu, tmp_path
         s.pop("limits", None)
     with pytest.raises(ValidationError, match="defines none"):
         solve_markers(cmu, _parse(data, "none"), joint_limits=True)
+
+
+def test_a_prior_centroid_skips_markers_the_capture_lacks(cmu, cmu_solved, tmp_path):
+    """A never-seen marker has no column; a centroid of markers goes on without it
+    (the dense set lists several per landmark), a single missing marker is refused."""
+    data = json.loads(data_path(BUILTIN_TEMPLATES["cmu41"]).read_text())
+    neck = next(s for s in data["segments"] if s["name"] == "neck")
+    neck["centre"]["prior"]["from"] = [*neck["centre"]["prior"]["from"], "NOTINTAKE"]
+    path = tmp_path / "extra.json"
+    path.write_text(json.dumps(data))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        result = solve_markers(cmu, path)
+    assert np.allclose(result.motion.skeleton.offsets, cmu_solved.motion.skeleton.offsets)
+    neck["centre"]["prior"]["from"] = ["NOTINTAKE"]
+    path.write_text(json.dumps(data))
+    with pytest.raises(ValidationError, match="needs marker NOTINTAKE"):
+        solve_markers(cmu, path)
