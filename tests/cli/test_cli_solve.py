@@ -102,6 +102,9 @@ def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
         ),
         (["--template", "nosuch"], "is neither a file nor one of"),
         (["--smooth-hz", "70"], "--smooth-hz: expected between 0 and 60 Hz"),
+        (["--loss", "l1"], "--loss: expected one of squared, huber, cauchy, got 'l1'"),
+        (["--loss", "huber", "--loss-scale-cm", "0"], "--loss-scale-cm: expected a positive"),
+        (["--refine-offsets", "-1"], "--refine-offsets: expected a count >= 0"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, args, message):
@@ -111,6 +114,17 @@ def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, args, messag
     lines = [s for s in result.stderr.splitlines() if s.startswith("skincap: error:")]
     assert len(lines) == 1 and message in " ".join(result.stderr.split())
     assert list(tmp_path.iterdir()) == []
+
+
+def test_the_ik_options_reach_the_report(tmp_path):
+    report = tmp_path / "r.json"
+    result = run(
+        "solve", DATA / "cmu_85_02.c3d", "-o", tmp_path / "x.bvh", "--report", report,
+        "--joint-limits", "--loss", "huber", "--loss-scale-cm", "3", "--refine-offsets", "0",
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    ik = json.loads(report.read_text())["ik"]
+    assert ik == {"loss": "huber", "loss_scale_m": 0.03, "refine_offsets": 0, "joint_limits": True}
 
 
 def test_unlabelled_capture_is_refused(tmp_path):

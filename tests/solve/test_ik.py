@@ -171,3 +171,117 @@ def test_the_warm_start_pass_reaches_the_same_poses():
         )  # fmt: skip
         np.testing.assert_allclose(got_rot, rot, atol=1e-6)
         np.testing.assert_allclose(got_root, root, atol=1e-7)
+
+
+@pytest.mark.parametrize("loss", ["huber", "cauchy"])
+def test_a_robust_loss_keeps_one_wandering_marker_from_pulling_its_segment(loss):
+    # noise-free poses, then one marker of segment 1 slides 15 cm in a third of the frames
+    rng = np.random.default_rng(10)
+    rot, root = _poses(rng, 90)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    bad = np.zeros((90, SEG.size), dtype=bool)
+    bad[::3, 4] = True
+    y[bad] += 0.15 * Rotation.random(30, random_state=11).apply([1.0, 0.0, 0.0])
+    fits = {}
+    for name in ("squared", loss):
+        got_rot, got_root = solve_poses(
+            PARENTS, OFFSETS, SEG, LOCAL, y, rot, root,
+            iterations=40, tolerance=1e-16, loss=name, loss_scale=0.01,
+        )  # fmt: skip
+        fit = model_markers(PARENTS, OFFSETS, SEG, LOCAL, got_rot, got_root)
+        fits[name] = np.linalg.norm(fit - y, axis=2)[~bad].max(), got_rot
+    # squared: the other markers take centimetres of the slide (5 cm here)
+    assert fits["squared"][0] > 0.04
+    # Huber bounds the slide's pull to about the scale; Cauchy's falls off with distance,
+    # so the other markers stay within a millimetre of their true places
+    assert fits[loss][0] < (0.015 if loss == "huber" else 1e-3)
+    assert np.abs(fits[loss][1] - rot)[~bad[:, 4]].max() < 1e-6  # clean frames exact
+    shift = np.abs(fits[loss][1] - rot).max() / np.abs(fits["squared"][1] - rot).max()
+    assert shift < (0.6 if loss == "huber" else 0.02)
+
+
+def test_loss_and_its_scale_are_validated():
+    rot, root = _poses(np.random.default_rng(12), 4)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    with pytest.raises(ValidationError, match="loss"):
+        solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, loss="l1")
+    with pytest.raises(ValidationError, match="loss_scale"):
+        solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, loss="huber", loss_scale=0.0)
+
+
+def test_refitted_offsets_are_exact_on_exact_poses_and_lower_the_cost_of_wrong_ones():
+    from skincap.solve.ik import refit_marker_offsets
+
+    rng = np.random.default_rng(13)
+    rot, root = _poses(rng, 60)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    y[rng.random((60, SEG.size)) < 0.2] = np.nan  # missing samples drop out
+    y[:, 7] = np.nan  # never seen: keeps the fallback
+    fallback = LOCAL + 0.01
+    got = refit_marker_offsets(PARENTS, OFFSETS, SEG, y, rot, root, fallback)
+    seen = np.arange(SEG.size) != 7
+    np.testing.assert_allclose(got[seen], LOCAL[seen], atol=1e-12)
+    np.testing.assert_array_equal(got[7], fallback[7])
+    # from offsets 1 cm off: solve, refit, solve again -- the squared cost only falls
+    wrong = LOCAL + rng.normal(scale=0.01, size=LOCAL.shape)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    costs, offs = [], wrong
+    r, o = rot, root
+    for _ in range(4):
+        r, o = solve_poses(PARENTS, OFFSETS, SEG, offs, y, r, o, tolerance=1e-16)
+        costs.append(np.sum((model_markers(PARENTS, OFFSETS, SEG, offs, r, o) - y) ** 2))
+        offs = refit_marker_offsets(PARENTS, OFFSETS, SEG, y, r, o, offs)
+    assert all(b <= a * (1 + 1e-9) for a, b in zip(costs, costs[1:], strict=False))
+    assert costs[-1] < 0.5 * costs[0]
+
+
+def _hinge_take(t, flex_rad, seed=14):
+    """Segment 1 bends about its parent's x axis by ``flex_rad (T,)``; the rest random."""
+    rng = np.random.default_rng(seed)
+    rot, root = _poses(rng, t)
+    rot[:, 1] = rot[:, 0] @ Rotation.from_rotvec(flex_rad[:, None] * [1.0, 0.0, 0.0]).as_matrix()
+    return rot, root
+
+
+def _flexion(rot):
+    rel = np.einsum("tji,tjk->tik", rot[:, 0], rot[:, 1])
+    return Rotation.from_matrix(rel).as_rotvec()[:, 0]
+
+
+def test_a_joint_limit_holds_and_leaves_poses_inside_it_exact():
+    t = 60
+    flex = np.linspace(-0.4, 1.2, t)  # -23 to 69 deg
+    rot, root = _hinge_take(t, flex)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    limits = np.full((4, 3, 2), np.nan)
+    limits[1, 0] = [0.0, 1.0]  # segment 1: 0 to 57 deg about its parent's x
+    kw = dict(iterations=40, tolerance=1e-16, relative_tolerance=0.0)
+    free_rot, _ = solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, **kw)
+    np.testing.assert_allclose(_flexion(free_rot), flex, atol=1e-6)  # no limit: the truth
+    got_rot, got_root = solve_poses(
+        PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=limits, **kw
+    )
+    got = _flexion(got_rot)
+    inside = (flex >= 0.0) & (flex <= 1.0)
+    np.testing.assert_allclose(got[inside], flex[inside], atol=1e-6)
+    # beyond the limit the markers pull against it: it gives way by under 0.3 degree
+    excess = np.abs(got - np.clip(flex, 0.0, 1.0))[~inside]
+    assert excess.max() < np.radians(0.3)
+    # a softer limit gives way more
+    soft_rot, _ = solve_poses(
+        PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=limits, limit_stiffness=1.0, **kw
+    )
+    soft_excess = np.abs(_flexion(soft_rot) - np.clip(flex, 0.0, 1.0))[~inside]
+    assert np.median(soft_excess) > 5 * np.median(excess)
+    assert soft_excess.max() < np.radians(3.0)
+
+
+def test_joint_limits_are_validated():
+    rot, root = _poses(np.random.default_rng(15), 4)
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    bad = np.full((4, 3, 2), np.nan)
+    bad[1, 0] = [1.0, 0.0]
+    with pytest.raises(ValidationError, match="joint_limits"):
+        solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=bad)
+    with pytest.raises(ValidationError, match="joint_limits"):
+        solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, joint_limits=np.zeros((4, 3)))

@@ -162,3 +162,36 @@ def test_makehuman_body_with_a_real_bvh(tmp_path):
     result = generate_capture(body, motion, markers="sparse", seed=0)
     assert result.capture.n_frames == 60
     assert result.summary["markers"] == 41
+
+
+@pytest.mark.slow
+def test_sparse_pelvis_markers_ride_the_pelvis_bone_at_its_landmarks(body):
+    """The iliac-spine markers move rigidly with the pelvis joint, over the pelvis's
+    real width; every other marker stays where the skin carries it."""
+    from skincap.geometry.kinematics import forward_kinematics
+    from skincap.synth.markers import place_markers, sparse_marker_layout
+
+    motion = build_motion(body, "squat", frames=30)
+    result = generate_capture(body, motion, markers="sparse", seed=5)
+    labels = list(result.truth.labels)
+    pelvis = [labels.index(x) for x in ("LASI", "RASI", "LPSI", "RPSI")]
+    pos = result.truth.positions
+    # rigid: every distance between them constant (the squat flexes the hips ~90 deg)
+    d = np.linalg.norm(pos[:, pelvis, None] - pos[:, None, pelvis], axis=-1)
+    assert np.ptp(d, axis=0).max() < 1e-9
+    # in the pelvis joint's frame they do not move at all
+    layout = sparse_marker_layout(body, body.skin)
+    joint = layout.meta["rigid"]["joint"]
+    assert body.skin.skeleton.names[joint] == "Hips"  # both hips hang from it
+    world = forward_kinematics(motion)[:, motion.skeleton.index(body.skin.skeleton.names[joint])]
+    local = np.einsum("tji,tkj->tki", world[:, :3, :3], pos[:, pelvis] - world[:, None, :3, 3])
+    assert np.ptp(local, axis=0).max() < 1e-9
+    # the real width: ASIS about 2 x 12 cm apart (the skin the body binds to its
+    # pelvis is a strip near the midline, ASIS +-4 cm)
+    asis = d[0, 0, 1]
+    assert 0.18 < asis < 0.32, asis
+    assert d[0, 2, 3] < asis  # the PSIS closer together than the ASIS
+    # the other markers: exactly the skin's
+    skin_pos, _ = place_markers(layout, result.skin.frames, body.faces)
+    others = [k for k in range(len(layout.labels)) if k not in pelvis]
+    np.testing.assert_array_equal(pos[:, others], skin_pos[:, others])

@@ -52,8 +52,8 @@ def solve(
     template: Annotated[
         str,
         typer.Option(
-            help="Marker set: pig, cmu41, synth-sparse, aml62, auto (found from the "
-            "markers' motion) or a template JSON file."
+            help="Marker set: pig, cmu41, synth-sparse, synth-dense, aml62, auto (found "
+            "from the markers' motion) or a template JSON file."
         ),
     ] = "cmu41",
     units: Annotated[str, typer.Option(help="Length unit of the BVH (m, cm, mm, in).")] = "cm",
@@ -76,6 +76,34 @@ def solve(
             "default: none.",
         ),
     ] = None,
+    loss: Annotated[
+        str,
+        typer.Option(
+            help="IK loss of each marker's residual: squared, huber or cauchy (robust: a "
+            "marker that slides or is mislabelled in some frames pulls its segment less; "
+            "its own residual then grows)."
+        ),
+    ] = "squared",
+    loss_scale_cm: Annotated[
+        float,
+        typer.Option("--loss-scale-cm", help="Scale of the robust loss, cm."),
+    ] = 2.0,
+    refine_offsets: Annotated[
+        int,
+        typer.Option(
+            "--refine-offsets",
+            help="Rounds of re-fitting the markers' offsets to the solved poses, each "
+            "followed by another IK (0: keep the calibration's).",
+        ),
+    ] = 1,
+    joint_limits: Annotated[
+        bool,
+        typer.Option(
+            "--joint-limits",
+            help="Hold the joints within the template's limits (the built-in templates: "
+            "knee and elbow flexion).",
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
@@ -110,6 +138,10 @@ def solve(
                 report=report,
                 force=force,
                 smooth_hz=smooth_hz,
+                loss=loss,
+                loss_scale_m=loss_scale_cm / 100.0,
+                refine_offsets=refine_offsets,
+                joint_limits=joint_limits,
                 progress=advance,
             )
     if json_output:
@@ -127,7 +159,11 @@ def solve(
 @eval_app.command("solve")
 def eval_solve(
     input_dir: Annotated[
-        Path | None, typer.Argument(help="A folder written by 'skincap synth --markers sparse'.")
+        Path | None,
+        typer.Argument(
+            help="A folder written by 'skincap synth --markers sparse' or '--markers dense' "
+            "(solved with synth-sparse or synth-dense, whichever its labels match)."
+        ),
     ] = None,
     output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path(
         "eval_solve"
@@ -152,7 +188,7 @@ def eval_solve(
 ) -> None:
     """Measure the solver against issue #17's targets and print the table.
 
-    On a synthetic sparse take (perfectly labelled, with the capture's occlusion,
+    On a synthetic sparse or dense take (perfectly labelled, with the capture's occlusion,
     noise and soft tissue): joint-position error per joint against truth/motion.bvh,
     knee/elbow flexion-angle error, marker residual, --template auto. On real captures:
     the marker residual and its distribution per marker. Writes DIR/solve_eval.json.

@@ -1,6 +1,7 @@
 """Skeleton solving measured against ground truth (issue #17's targets).
 
-* **Synthetic takes** (``skincap synth --markers sparse``): the capture's fragments are
+* **Synthetic takes** (``skincap synth --markers sparse|dense``, solved with the
+  synth-sparse or synth-dense template their labels match): the capture's fragments are
   labelled with their true labels (:func:`labelled_from_fragments`: perfect labelling,
   but the occlusion, noise and soft tissue of the capture stay), solved, and compared
   with ``truth/motion.bvh``: the joint-position error per joint (hips, knees, ankles,
@@ -23,11 +24,12 @@ from typing import Any
 
 import numpy as np
 
+from skincap.errors import ValidationError
 from skincap.geometry.kinematics import joint_positions
 from skincap.solve import load_template, solve_markers
 from skincap.solve.auto import auto_template
 from skincap.solve.ik import solve_poses
-from skincap.solve.templates import strip_prefix
+from skincap.solve.templates import BUILTIN_TEMPLATES, detect_template, strip_prefix
 from skincap.types import MarkerSet, Motion
 
 __all__ = [
@@ -42,6 +44,9 @@ __all__ = [
     "evaluate_auto",
     "ik_frames_per_second",
     "targets_table",
+    "DENSE_SEGMENT_WEIGHT",
+    "synth_dense_template",
+    "template_json_text",
 ]
 
 #: The joints the issue lists, by their names in the synthetic (CMU bvh11) skeleton
@@ -187,10 +192,26 @@ def ik_frames_per_second(result: Any, markers: MarkerSet, repeat: int = 3) -> di
     return {"wall": float(markers.n_frames / wall), "cpu": float(markers.n_frames / max(cpu, 1e-9))}
 
 
+def _template_of(markers: MarkerSet, template: str | None) -> str:
+    """``template``, or the built-in one the take's labels fill (synth-sparse, synth-dense)."""
+    if template is not None:
+        return template
+    found = detect_template(markers.labels, candidates=("synth-sparse", "synth-dense"))
+    if found is None:
+        raise ValidationError(
+            "synthetic take: its labels match no built-in template (give one explicitly)"
+        )
+    return found
+
+
 def evaluate_synthetic(
-    markers: MarkerSet, truth: Motion, template: str = "synth-sparse"
+    markers: MarkerSet, truth: Motion, template: str | None = None
 ) -> dict[str, Any]:
-    """Solve a labelled synthetic take and compare it with its true motion."""
+    """Solve a labelled synthetic take and compare it with its true motion.
+
+    ``template`` None: the built-in template its labels match (:func:`detect_template`).
+    """
+    template = _template_of(markers, template)
     result = solve_markers(markers, template)
     joints = joint_errors(truth, result.motion)
     means = [v["mean_m"] for v in joints.values()]
@@ -241,11 +262,12 @@ def evaluate_real(markers: MarkerSet, template: str = "cmu41") -> dict[str, Any]
     }
 
 
-def evaluate_auto(
-    markers: MarkerSet, truth: Motion, template: str = "synth-sparse"
-) -> dict[str, Any]:
-    """``--template auto`` on a labelled synthetic take against the true segments and joints."""
-    tpl = load_template(template)
+def evaluate_auto(markers: MarkerSet, truth: Motion, template: str | None = None) -> dict[str, Any]:
+    """``--template auto`` on a labelled synthetic take against the true segments and joints.
+
+    The true segments are ``template``'s (None: the built-in one the labels match).
+    """
+    tpl = load_template(_template_of(markers, template))
     true_segment = {m: s.name for s in tpl.segments for m in s.markers}
     found = auto_template(markers)
     right = total = 0
@@ -259,6 +281,7 @@ def evaluate_auto(
         total += len(known)
     out: dict[str, Any] = {
         "groups": found.groups,
+        "template": tpl.name,
         "true_segments": len(tpl.segments),
         "share_in_true_segment": right / total if total else None,
     }
@@ -325,7 +348,7 @@ def targets_table(
         share = auto.get("share_in_true_segment")
         jm = auto.get("joint_mean_m")
         rows.append({
-            "measure": "--template auto, synthetic sparse",
+            "measure": f"--template auto, synthetic ({auto.get('template', 'synth-sparse')})",
             "measured": f"{'n/a' if share is None else f'{100 * share:.0f} %'} in true segment "
             f"({len(auto['groups'])} groups for {auto['true_segments']} segments), joints {_fmt(jm, 1000, 'mm', 1)}"
             + (f"; solve failed: {auto['error']}" if "error" in auto else ""),
@@ -344,3 +367,185 @@ def targets_table(
             "met": str(first["ik_frames_per_second"]["cpu"] >= TARGETS["ik_frames_per_second"]).lower(),
         })  # fmt: skip
     return rows
+
+
+# ------------------------------------------------------------ the synth-dense template
+#: A dense marker joins a segment only when at least this share of its skin weight
+#: comes from that segment's bones; below it the marker straddles a joint (its skin
+#: blends two segments) and rides neither rigidly, so the template leaves it out.
+DENSE_SEGMENT_WEIGHT = 0.8
+
+#: Park & Hodgins part (:data:`skincap.synth.marker_parts.PART_NAMES`) -> segment of
+#: the synth-sparse template. The abdomen (skin over the lumbar spine, which bends
+#: between pelvis and thorax) rides no rigid segment.
+_SEGMENT_OF_PART: dict[str, str | None] = {
+    "pelvis": "pelvis", "abdomen": None, "chest": "thorax", "upper_chest": "thorax",
+    "head": "head",
+    **{f"{p}_{s}": f"{q}_{s}" for s in "lr" for p, q in (
+        ("upperarm", "upperarm"), ("forearm", "forearm"), ("hand", "hand"),
+        ("thigh", "thigh"), ("shin", "shank"), ("foot", "foot"))},
+}  # fmt: skip
+
+
+def _relabel(value: Any, groups: dict[str, list[str]]) -> Any:
+    """``value`` (a template field) with every sparse marker label in a list of POINTS
+    replaced by its group of dense markers (``groups``)."""
+    if isinstance(value, list):
+        out: list[Any] = []
+        for v in value:
+            if isinstance(v, str) and v in groups:
+                out.extend(g for g in groups[v] if g not in out)
+            else:
+                out.append(_relabel(v, groups))
+        return out
+    if isinstance(value, dict):
+        return {k: _relabel(v, groups) for k, v in value.items()}
+    return value
+
+
+#: A sparse landmark becomes the group of up to this many dense markers (of its
+#: segment, among the nearest :data:`_LANDMARK_CANDIDATES`) whose centroid is nearest it.
+_LANDMARK_GROUP = 4
+_LANDMARK_CANDIDATES = 12
+
+
+def _landmark_group(points: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Indices into ``points (K, 3)`` whose mean is nearest ``target (3,)``; 1 mm per
+    extra marker breaks near-ties towards fewer markers."""
+    from itertools import combinations
+
+    near = np.argsort(np.linalg.norm(points - target, axis=1))[:_LANDMARK_CANDIDATES]
+    best, best_cost = near[:1], np.inf
+    for size in range(1, min(_LANDMARK_GROUP, near.size) + 1):
+        for combo in combinations(near.tolist(), size):
+            cost = float(np.linalg.norm(points[list(combo)].mean(axis=0) - target)) + 1e-3 * size
+            if cost < best_cost:
+                best, best_cost = np.array(combo), cost
+    return best
+
+
+def synth_dense_template(
+    *, vertices: int = 20_000, seed: int = 0, threshold: float = DENSE_SEGMENT_WEIGHT
+) -> dict[str, Any]:
+    """The ``synth-dense`` solve template, made from ``skincap synth --markers dense``'s layout.
+
+    The body and the dense layout are the ones ``skincap synth --markers dense
+    --vertices VERTICES --seed SEED`` makes (the procedural body; the layout seeded as
+    :func:`skincap.synth.generate.generate_capture` seeds it), so the labels
+    ``D000``... name the same skin points as in such a take. Each dense marker's skin
+    weights are summed per segment of the synth-sparse template
+    (:data:`_SEGMENT_OF_PART`); a marker rides the segment holding at least
+    ``threshold`` of its weight and is left out otherwise. The segments, joints,
+    frames, limits and joint-centre methods are synth-sparse's; every sparse landmark
+    its axes and end sites name is replaced by the group of up to four dense markers
+    riding the same segment whose centroid (in the bind pose) is nearest it. The
+    dense set has no markers on the landmarks synth-sparse's regressions start from
+    (iliac spines, the elbow and ankle over the joint), so each joint's regression
+    prior -- used where the take hardly turns the joint, and to place a centre on a
+    hinge axis -- is the centroid of the up to four markers of the segment and its
+    parent whose centroid is nearest the body's joint in the bind pose: a regression
+    fitted on this very body, as a real set's regressions are fitted on measured ones.
+
+    ``skincap/data/solve_template_synth_dense.json`` is this function's output
+    (``json.dumps`` one segment per line); ``tests/solve`` regenerates and compares it.
+
+    Returns
+    -------
+    dict
+        The template as JSON data (``name``, ``description``, ``layout``, ``segments``).
+    """
+    import json
+
+    from skincap.data import path as data_path
+    from skincap.synth.inputs import build_body
+    from skincap.synth.marker_parts import PART_NAMES, _joint_parts
+    from skincap.synth.markers import dense_marker_layout, place_markers, sparse_marker_layout
+
+    body = build_body("procedural", n_vertices=vertices, seed=seed)
+    if body.skin is None:
+        raise ValidationError("synth-dense: the procedural body came without a skin")
+    layout_seed = int(np.random.default_rng(seed).integers(0, 2**31 - 1, size=6)[1])
+    dense = dense_marker_layout(body, seed=layout_seed)
+    sparse = sparse_marker_layout(body, body.skin)
+    sparse_tpl = json.loads(data_path(BUILTIN_TEMPLATES["synth-sparse"]).read_text("utf-8"))
+    seg_names = [s["name"] for s in sparse_tpl["segments"]]
+
+    # skin weight of every vertex per segment (V, S); the abdomen counts for none
+    skin = body.skin
+    joint_part = _joint_parts(list(skin.skeleton.names), skin.skeleton.parents)
+    segment_of = [_SEGMENT_OF_PART[p] for p in PART_NAMES]
+    part_segment = np.array([-1 if s is None else seg_names.index(s) for s in segment_of])
+    joint_segment = np.where(joint_part >= 0, part_segment[joint_part], -1)
+    infl = joint_segment[skin.joint_indices]  # (V, K)
+    counted = infl >= 0
+    n_v, k = skin.joint_weights.shape
+    vertex_segment = np.zeros((n_v, len(seg_names)))
+    np.add.at(
+        vertex_segment,
+        (np.repeat(np.arange(n_v), k)[counted.ravel()], infl[counted]),
+        skin.joint_weights[counted],
+    )
+    corners = body.faces[dense.face]  # (N, 3)
+    share = np.einsum("nc,ncs->ns", dense.bary, vertex_segment[corners])  # (N, S)
+    total = np.einsum("nc,nc->n", dense.bary, skin.joint_weights.sum(axis=1)[corners])
+    share /= np.maximum(total, 1e-12)[:, None]  # of all the marker's weight, abdomen included
+    best = np.argmax(share, axis=1)
+    kept = share[np.arange(best.size), best] >= threshold
+
+    dense_pos, _ = place_markers(dense, body.vertices, body.faces)
+    sparse_pos, _ = place_markers(sparse, body.vertices, body.faces)
+    sparse_segment = {m: s["name"] for s in sparse_tpl["segments"] for m in s["markers"]}
+    groups: dict[str, list[str]] = {}
+    for i, label in enumerate(sparse.labels):
+        on = np.flatnonzero(kept & (best == seg_names.index(sparse_segment[label])))
+        if on.size == 0:
+            raise ValidationError(f"synth-dense: no dense marker rides {sparse_segment[label]}")
+        group = on[_landmark_group(dense_pos[on], sparse_pos[i])]
+        groups[label] = [dense.labels[int(g)] for g in sorted(group)]
+    joint_at = dict(zip(skin.skeleton.names, skin.bind_matrices[:, :3, 3], strict=True))
+    segments, misses = [], {}
+    for s, seg in enumerate(sparse_tpl["segments"]):
+        new = dict(seg)
+        new["markers"] = [dense.labels[int(i)] for i in np.flatnonzero(kept & (best == s))]
+        if seg.get("centre") is not None:
+            # the regression: the centroid of the few markers of this segment and its
+            # parent around the joint, fitted on the bind pose (the skeleton's joint)
+            pool = np.flatnonzero(kept & np.isin(best, [s, seg_names.index(seg["parent"])]))
+            joint = joint_at[seg["joint"]]
+            group = pool[_landmark_group(dense_pos[pool], joint)]
+            misses[seg["joint"]] = float(np.linalg.norm(dense_pos[group].mean(axis=0) - joint))
+            prior = {
+                "from": [dense.labels[int(g)] for g in sorted(group)],
+                "towards": new["markers"],
+                "distance": 0.0,
+            }
+            new["centre"] = {**seg["centre"], "prior": prior}
+        segments.append(_relabel(new, groups))
+    worst = max(misses, key=misses.__getitem__)
+    return {
+        "name": "synth-dense",
+        "description": (
+            f"skincap's synthetic dense set (`skincap synth --markers dense`, default body "
+            f"--vertices {vertices} --seed {seed}): {int(kept.sum())} of {dense.n_markers} "
+            f"markers, each on the segment carrying >= {threshold:g} of its skin weight "
+            f"(the other {int((~kept).sum())} straddle a joint); synth-sparse's segments, "
+            "each of its landmarks replaced by the few dense markers on the same segment "
+            "whose centroid is nearest it; each joint's regression prior is the centroid "
+            "of the few markers of the two segments around it nearest the joint in the "
+            f"bind pose (within {1000 * misses[worst]:.0f} mm there, {worst}). "
+            "Generated by skincap.evaluate.solve.synth_dense_template; do not edit."
+        ),
+        "layout": {"body": "procedural", "vertices": vertices, "seed": seed,
+                   "threshold": threshold, "markers": dense.n_markers},
+        "segments": segments,
+    }  # fmt: skip
+
+
+def template_json_text(template: dict[str, Any]) -> str:
+    """A template's JSON text as the built-in files lay it out: one segment per line."""
+    import json
+
+    head = {k: v for k, v in template.items() if k != "segments"}
+    lines = [f"  {json.dumps(k)}: {json.dumps(v)}," for k, v in head.items()]
+    segs = ",\n".join(f"    {json.dumps(s)}" for s in template["segments"])
+    return "{\n" + "\n".join(lines) + '\n  "segments": [\n' + segs + "\n  ]\n}\n"

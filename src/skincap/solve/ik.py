@@ -27,13 +27,23 @@ equations.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap._arrays import Progress
 from skincap.errors import ValidationError
 
-__all__ = ["solve_poses", "model_markers", "segment_origins", "fill_poses"]
+__all__ = [
+    "solve_poses",
+    "model_markers",
+    "segment_origins",
+    "fill_poses",
+    "refit_marker_offsets",
+    "limited_angle",
+    "LOSSES",
+]
 
 
 def segment_origins(
@@ -60,6 +70,49 @@ def model_markers(
     origins = segment_origins(parents, offsets, rotations, root)
     return origins[:, marker_segments] + np.einsum(
         "tmij,mj->tmi", rotations[:, marker_segments], marker_offsets
+    )
+
+
+def refit_marker_offsets(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    measured: np.ndarray,
+    rotations: np.ndarray,
+    root: np.ndarray,
+    fallback: np.ndarray,
+) -> np.ndarray:
+    """Each marker's offset in its segment's frame that best fits solved poses.
+
+    With the poses fixed, the least-squares offset of a marker is the mean over the
+    frames that see it of ``R_seg^T (y - o_seg)``: one step of block-coordinate
+    descent on the IK cost (poses, then offsets), so solving again from these poses
+    can only lower the squared residual. The calibration measured the offsets in
+    frames built from a few markers each; this puts them where the whole model,
+    joint centres and neighbours included, carries them.
+
+    Parameters
+    ----------
+    parents, offsets : the model's tree and joint offsets, as in :func:`solve_poses`
+    marker_segments : (M,) int
+    measured : (T, M, 3) float, metres, NaN where missing
+    rotations : (T, S, 3, 3) float, solved world rotations
+    root : (T, 3) float, metres
+    fallback : (M, 3) float, metres
+        The offset kept for a marker no frame sees.
+
+    Returns
+    -------
+    (M, 3) float64, metres
+    """
+    origins = segment_origins(parents, offsets, rotations, root)
+    seg = np.asarray(marker_segments, dtype=np.int64)
+    seen = np.isfinite(measured).all(axis=2)  # (T, M)
+    diff = np.where(seen[..., None], measured - origins[:, seg], 0.0)
+    local = np.einsum("tmji,tmj->mi", rotations[:, seg], diff)  # sum over seen frames
+    count = seen.sum(axis=0)
+    return np.where(
+        (count > 0)[:, None], local / np.maximum(count, 1)[:, None], np.asarray(fallback, float)
     )
 
 
@@ -120,6 +173,27 @@ def _log(r: np.ndarray) -> np.ndarray:
     return out
 
 
+def limited_angle(rel: np.ndarray, axis: int, bone_axis: int) -> np.ndarray:
+    """(...,) radians: the angle about coordinate ``axis`` of rotations ``rel (..., 3, 3)``
+    (a child's frame in its parent's), as the first of intrinsic Euler angles turning
+    about ``axis``, then the remaining axis, then the bone's own ``bone_axis`` last.
+
+    For a knee (flexion about x, the shank along y) that is x-z-y: flexion, then
+    ab/adduction, then the rotation about the bone, the joint coordinate system of
+    Grood & Suntay; it stays continuous through any rotation about the bone (a forearm
+    flexed and pronated at once), where a component of the rotation vector flips near a
+    half turn. ``axis == bone_axis`` limits the rotation about the bone itself.
+    """
+    rest = [k for k in range(3) if k not in (axis, bone_axis)]
+    order = [axis, rest[0], bone_axis] if axis != bone_axis else [axis, *rest]
+    seq = "".join("XYZ"[k] for k in order)
+    shape = rel.shape[:-2]
+    with warnings.catch_warnings():  # gimbal lock: a 90 deg middle angle, not anatomical
+        warnings.simplefilter("ignore", UserWarning)
+        first = Rotation.from_matrix(rel.reshape(-1, 3, 3)).as_euler(seq)[:, 0]
+    return first.reshape(shape)
+
+
 _SKEW_SIGN = np.array([1.0, -1.0, -1.0, 1.0, 1.0, -1.0])
 
 
@@ -146,25 +220,68 @@ class _Paths:
         self.local = np.array(pair_v, dtype=np.float64).reshape(-1, 3)
 
 
-def _cost(resid: np.ndarray, w: np.ndarray) -> np.ndarray:
-    return np.einsum("tm,tmi,tmi->t", w, resid, resid)
+#: Robust losses of a marker's distance ``s`` (metres) with scale ``c``: ``rho(s)`` and the
+#: IRLS weight ``rho'(s) / (2 s)`` (1 for a residual well inside the scale).
+LOSSES = ("squared", "huber", "cauchy")
+
+
+def _marker_loss(dist2: np.ndarray, loss: str, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Loss ``rho`` (m^2) and IRLS weight of squared marker distances ``dist2 (T, M)`` (m^2)."""
+    if loss == "squared":
+        return dist2, np.ones_like(dist2)
+    c2 = scale * scale
+    if loss == "huber":  # rho = s^2 inside the scale, 2 c s - c^2 beyond: linear growth
+        dist = np.sqrt(dist2)
+        far = dist > scale
+        rho = np.where(far, 2.0 * scale * dist - c2, dist2)
+        return rho, np.where(far, scale / np.where(far, dist, 1.0), 1.0)
+    # cauchy: rho = c^2 log(1 + s^2 / c^2), grows only logarithmically
+    return c2 * np.log1p(dist2 / c2), 1.0 / (1.0 + dist2 / c2)
+
+
+def _cost(
+    resid: np.ndarray, w: np.ndarray, loss: str = "squared", scale: float = 1.0
+) -> np.ndarray:
+    """(T,) robust cost (m^2) of marker residuals ``resid (T, M, 3)`` seen where ``w (T, M)`` is 1."""
+    rho, _ = _marker_loss(np.einsum("tmi,tmi->tm", resid, resid), loss, scale)
+    return np.einsum("tm,tm->t", w, rho)
 
 
 def _pose_cost(model: tuple, y: np.ndarray, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
     """(T,) cost (m^2) of poses for measured markers ``y (T, M, 3)`` (NaN: missing);
-    ``model`` is (parents, offsets, marker_segments, marker_offsets, springs)."""
-    parents, offsets, mseg, moff, springs = model
+    ``model`` is (parents, offsets, marker_segments, marker_offsets, springs, loss, scale)."""
+    parents, offsets, mseg, moff, springs, loss, scale = model
     seen = np.isfinite(y).all(axis=2)
     x = model_markers(parents, offsets, mseg, moff, rot, root)
     spring = springs.residuals(rot)
     resid = np.where(seen[..., None], x - np.where(seen[..., None], y, 0.0), 0.0)
-    return _cost(resid, seen.astype(np.float64)) + np.einsum("tli,tli->t", spring, spring)
+    return _cost(resid, seen.astype(np.float64), loss, scale) + np.einsum(
+        "tli,tli->t", spring, spring
+    )
 
 
 class _Springs:
     """The link segments' springs: residuals ``k log(R_s R_p^T)`` and their constant normal matrix."""
 
-    def __init__(self, parents: np.ndarray, stiffness: np.ndarray, n_par: int) -> None:
+    def __init__(
+        self,
+        parents: np.ndarray,
+        stiffness: np.ndarray,
+        n_par: int,
+        limits: np.ndarray | None = None,
+        limit_stiffness: float = 1.0,
+        bone_axes: np.ndarray | None = None,
+    ) -> None:
+        # joint limits (see solve_poses): one scalar residual per (segment, axis) bounded
+        lim = np.full((parents.size, 3, 2), np.nan) if limits is None else limits
+        self.lim_segment, self.lim_axis = np.nonzero(np.isfinite(lim).any(axis=2))
+        self.lim_parent = parents[self.lim_segment]
+        bones = np.ones(parents.size, dtype=np.int64) if bone_axes is None else bone_axes
+        self.lim_bone = bones[self.lim_segment]
+        lo_hi = lim[self.lim_segment, self.lim_axis]
+        self.lim_lo = np.where(np.isfinite(lo_hi[:, 0]), lo_hi[:, 0], -np.inf)
+        self.lim_hi = np.where(np.isfinite(lo_hi[:, 1]), lo_hi[:, 1], np.inf)
+        self.lim_k = float(limit_stiffness)
         self.segment = np.flatnonzero(stiffness > 0)
         self.parent = parents[self.segment]
         self.k = stiffness[self.segment]
@@ -178,14 +295,64 @@ class _Springs:
             self.normal[cp : cp + 3, cs : cs + 3] -= k**2 * eye
 
     def residuals(self, rot: np.ndarray) -> np.ndarray:
-        """(T, L, 3) metres-equivalent spring residuals of world rotations (T, S, 3, 3)."""
-        if self.segment.size == 0:
-            return np.zeros(rot.shape[:1] + (0, 3))
-        rel = rot[:, self.segment] @ rot[:, self.parent].transpose(0, 1, 3, 2)
-        return self.k[:, None] * _log(rel)
+        """(T, L + K, 3) metres-equivalent residuals of world rotations (T, S, 3, 3): the
+        L springs, then the K joint limits (their excess angle times the limit
+        stiffness in the first component, zeros after)."""
+        out = np.zeros(rot.shape[:1] + (self.segment.size + self.lim_segment.size, 3))
+        if self.segment.size:
+            rel = rot[:, self.segment] @ rot[:, self.parent].transpose(0, 1, 3, 2)
+            out[:, : self.segment.size] = self.k[:, None] * _log(rel)
+        if self.lim_segment.size:
+            out[:, self.segment.size :, 0] = self.lim_k * self._excess(rot)
+        return out
+
+    def _excess(self, rot: np.ndarray) -> np.ndarray:
+        """(T, K) radians beyond each joint limit (0 inside it)."""
+        rel = np.einsum("tkji,tkjl->tkil", rot[:, self.lim_parent], rot[:, self.lim_segment])
+        angle = np.stack(
+            [
+                limited_angle(rel[:, k], int(a), int(self.lim_bone[k]))
+                for k, a in enumerate(self.lim_axis)
+            ],
+            axis=1,
+        )
+        return angle - np.clip(angle, self.lim_lo, self.lim_hi)
+
+    def project(self, rot: np.ndarray) -> None:
+        """Turn each limited segment back inside its limits in place (``rot (T, S, 3, 3)``
+        world rotations, parents first): ``R_s <- exp(-excess u) R_s`` lowers the first
+        Euler angle by exactly the excess, so the LM starts from poses that keep them."""
+        for k in range(self.lim_segment.size):
+            excess = self._excess(rot)[:, k]
+            p, a = self.lim_parent[k], self.lim_axis[k]
+            turn = _exp(-excess[:, None] * rot[:, p, :, a])
+            rot[:, self.lim_segment[k]] = turn @ rot[:, self.lim_segment[k]]
+
+    def add_limits(self, h: np.ndarray, g: np.ndarray, rot: np.ndarray, r: np.ndarray) -> None:
+        """Add the joint limits' ``J^T J`` and ``J^T r`` to ``h (T, P, P)`` and ``g (T, P)``
+        in place, for poses ``rot`` and residuals ``r`` (from :meth:`residuals`).
+
+        The limited angle (:func:`limited_angle`) turns about the parent's axis
+        ``u = R_p e_a``; its row is taken as ``u`` for the segment's increment and ``-u``
+        for its parent's (exact for a pure hinge; LM accepts a step only when the true
+        cost falls); a limit that holds adds nothing."""
+        n = self.segment.size
+        for k in range(self.lim_segment.size):
+            s, p, a = self.lim_segment[k], self.lim_parent[k], self.lim_axis[k]
+            res = r[:, n + k, 0]  # (T,) k * excess
+            on = (res != 0.0)[:, None]
+            u = self.lim_k * rot[:, p, :, a] * on  # (T, 3) world axis, zero inside the limit
+            uu = np.einsum("ti,tj->tij", u, u)
+            cs, cp = 3 + 3 * s, 3 + 3 * p
+            h[:, cs : cs + 3, cs : cs + 3] += uu
+            h[:, cp : cp + 3, cp : cp + 3] += uu
+            h[:, cs : cs + 3, cp : cp + 3] -= uu
+            h[:, cp : cp + 3, cs : cs + 3] -= uu
+            g[:, cs : cs + 3] += u * res[:, None]
+            g[:, cp : cp + 3] -= u * res[:, None]
 
     def add_gradient(self, g: np.ndarray, r: np.ndarray) -> None:
-        """Add ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
+        """Add the springs' ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
         for k, (s, p) in enumerate(zip(self.segment, self.parent, strict=True)):
             g[:, 3 + 3 * s : 6 + 3 * s] += self.k[k] * r[:, k]
             g[:, 3 + 3 * p : 6 + 3 * p] -= self.k[k] * r[:, k]
@@ -206,6 +373,11 @@ def solve_poses(
     chunk: int = 512,
     link_stiffness: np.ndarray | None = None,
     warm_start: bool = True,
+    loss: str = "squared",
+    loss_scale: float = 0.02,
+    joint_limits: np.ndarray | None = None,
+    limit_stiffness: float = 10.0,
+    bone_axes: np.ndarray | None = None,
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares poses of a marker model, all frames at once.
@@ -239,6 +411,29 @@ def solve_poses(
     link_stiffness : (S,) float, metres per radian, optional
         Spring of each link segment towards its parent's orientation; 0 (the
         default for every segment) for none.
+    loss : {"squared", "huber", "cauchy"}, default "squared"
+        Loss of each marker's distance ``s`` to its model marker: ``s^2``; Huber
+        (``s^2`` up to ``loss_scale``, then linear) or Cauchy
+        (``c^2 log(1 + s^2 / c^2)``), so one marker that slides on the skin or was
+        mislabelled in a frame pulls its segment with a bounded force rather than
+        one growing with its distance (iteratively reweighted: each step's normal
+        equations weight a marker by ``rho'(s) / 2s``).
+    loss_scale : float, default 0.02
+        The robust loss's scale ``c``, metres: residuals well below it count as
+        squares.
+    joint_limits : (S, 3, 2) float, radians, optional
+        Per segment and axis of its parent's frame, the least and greatest angle
+        (NaN: unbounded) of ``R_parent^T R_segment`` about that axis
+        (:func:`limited_angle`; for a hinge about the parent's x axis: its flexion).
+        A pose beyond a limit pays ``(limit_stiffness * excess)^2``.
+    limit_stiffness : float, default 10.0
+        Metres per radian: 0.1 deg past a limit costs as much as a 1.7 cm marker
+        residual. The poses start inside the limits (each limited segment turned back
+        about its parent's axis), and the penalty keeps them there: on CMU 85_02 a knee
+        limited to 60 deg that the take bends to 133 deg stays under 62.5 deg.
+    bone_axes : (S,) int, optional
+        Each segment's long axis (0, 1, 2 for x, y, z; default y), the last of the
+        Euler angles of :func:`limited_angle`.
     progress : callable(fraction, label), optional
 
     Returns
@@ -270,7 +465,26 @@ def solve_poses(
         raise ValidationError(
             f"link_stiffness: expected ({s},) finite values >= 0, got shape {stiff.shape}"
         )
-    springs = _Springs(parents, stiff, n_par)
+    if loss not in LOSSES:
+        raise ValidationError(f"loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
+    if not (np.isfinite(loss_scale) and loss_scale > 0):
+        raise ValidationError(f"loss_scale: expected a positive number of metres, got {loss_scale}")
+    limits = None
+    if joint_limits is not None:
+        limits = np.asarray(joint_limits, dtype=np.float64)
+        lo, hi = limits[..., 0], limits[..., 1]
+        if limits.shape != (s, 3, 2) or (np.isfinite(lo) & np.isfinite(hi) & (lo > hi)).any():
+            raise ValidationError(
+                f"joint_limits: expected ({s}, 3, 2) radians with low <= high (NaN: none), "
+                f"got shape {limits.shape}"
+            )
+    if not (np.isfinite(limit_stiffness) and limit_stiffness > 0):
+        raise ValidationError(f"limit_stiffness: expected a positive number, got {limit_stiffness}")
+    bones = None if bone_axes is None else np.asarray(bone_axes, dtype=np.int64)
+    if bones is not None and (bones.shape != (s,) or ((bones < 0) | (bones > 2)).any()):
+        raise ValidationError(f"bone_axes: expected ({s},) values 0, 1 or 2")
+    springs = _Springs(parents, stiff, n_par, limits, float(limit_stiffness), bones)
+    springs.project(rot)  # start inside the joint limits
     out_rot = np.empty_like(rot)
     out_root = np.empty_like(root)
     passes = [np.arange(t_all)]
@@ -286,7 +500,7 @@ def solve_poses(
             rel = _log(np.einsum("tsji,tsjk->tsik", out_rot[before], out_rot[after]))
             mid_rot = out_rot[before] @ _exp(0.5 * rel)
             mid_root = 0.5 * (out_root[before] + out_root[after])
-            model = (parents, offsets, mseg, moff, springs)
+            model = (parents, offsets, mseg, moff, springs, loss, loss_scale)
             use = _pose_cost(model, y[frames], mid_rot, mid_root) < _pose_cost(
                 model, y[frames], rot[frames], root[frames]
             )
@@ -296,7 +510,7 @@ def solve_poses(
             sel = frames[start : start + chunk]
             out_rot[sel], out_root[sel] = _solve_chunk(
                 parents, offsets, mseg, moff, paths, springs, y[sel], rot[sel], root[sel],
-                n_par, iterations, tolerance, relative_tolerance,
+                n_par, iterations, tolerance, relative_tolerance, loss, float(loss_scale),
             )  # fmt: skip
             done += sel.size
             if progress is not None:
@@ -318,6 +532,8 @@ def _solve_chunk(
     iterations: int,
     tolerance: float,
     relative_tolerance: float,
+    loss: str,
+    scale: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     t, m, _ = y.shape
     seen = np.isfinite(y).all(axis=2)
@@ -326,7 +542,9 @@ def _solve_chunk(
     lam_all = np.full(t, 1e-3)
     x_all = model_markers(parents, offsets, mseg, moff, rot, root)
     spring_all = springs.residuals(rot)  # (T, L, 3)
-    cost_all = _cost(x_all - y_all, w_all) + np.einsum("tli,tli->t", spring_all, spring_all)
+    cost_all = _cost(x_all - y_all, w_all, loss, scale) + np.einsum(
+        "tli,tli->t", spring_all, spring_all
+    )
     # damping floor: keeps directions no marker constrains (a hidden hand) where they are
     floor = 1e-6
     active = np.arange(t)
@@ -347,11 +565,17 @@ def _solve_chunk(
         r_a, o_a, x, cost = rot[active], root[active], x_all[active], cost_all[active]
         spring = spring_all[active]
         ta = active.size
-        resid = (x - y0) * w[..., None]  # (Ta, M, 3), zero where missing
+        diff = x - y0
+        if loss == "squared":
+            sw = w  # 0/1: its own square root
+        else:  # IRLS: rows scaled by the square root of each marker's weight
+            _, irls = _marker_loss(np.einsum("tmi,tmi->tm", diff, diff), loss, scale)
+            sw = w * np.sqrt(irls)
+        resid = diff * sw[..., None]  # (Ta, M, 3), zero where missing
         v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
-        v *= w[:, paths.marker, None]  # rows of missing markers stay zero: weights are 0/1
+        v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
         jac = jac_all[:ta]
-        jac[:, all_rows, root_cols] = np.repeat(w, 3, axis=1)  # d x / d root origin
+        jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
         # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
         jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
         jt = jac.transpose(0, 2, 1)
@@ -359,6 +583,7 @@ def _solve_chunk(
         g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)  # (Ta, P)
         h += springs.normal
         springs.add_gradient(g, spring)
+        springs.add_limits(h, g, r_a, spring)
         diag = np.einsum("tii->ti", h)
         h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
         step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
@@ -366,7 +591,9 @@ def _solve_chunk(
         new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
         new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
         new_spring = springs.residuals(new_rot)
-        new_cost = _cost(new_x - y0, w) + np.einsum("tli,tli->t", new_spring, new_spring)
+        new_cost = _cost(new_x - y0, w, loss, scale) + np.einsum(
+            "tli,tli->t", new_spring, new_spring
+        )
         better = new_cost <= cost
         gain = cost - new_cost
         keep = active[better]

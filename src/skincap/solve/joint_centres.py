@@ -83,7 +83,13 @@ def _system(
 
 
 def score_centre(
-    r_parent: np.ndarray, t_parent: np.ndarray, r_child: np.ndarray, t_child: np.ndarray
+    r_parent: np.ndarray,
+    t_parent: np.ndarray,
+    r_child: np.ndarray,
+    t_child: np.ndarray,
+    *,
+    prior: tuple[np.ndarray, np.ndarray] | None = None,
+    prior_spread_deg: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Centre of a ball joint by SCoRE.
 
@@ -93,6 +99,17 @@ def score_centre(
         World rotations of the two segments' frames (NaN frames are skipped).
     t_parent, t_child : (T, 3) float, metres
         World origins of the frames.
+    prior : ((3,), (3,)) float, optional
+        A regression estimate of the centre in the parent's and the child's frame.
+    prior_spread_deg : float, default 0
+        With ``prior``: the directions of the solution (right singular vectors of the
+        stacked system) whose singular value ``s`` has ``s^2 < T radians(spread)^2`` --
+        a direction the joint determines through rotations of RMS spread ``s / sqrt(T)``
+        -- take the prior's component; the others the data's. A take that turns the
+        joint well about every axis is untouched (the exact-rotation recovery holds);
+        a walking ankle, whose few degrees of inversion are mostly soft-tissue wobble
+        and would place the centre anywhere along the dorsiflexion axis, keeps the
+        prior along it. 0: plain SCoRE.
 
     Returns
     -------
@@ -111,7 +128,16 @@ def score_centre(
     a, b = _system(r_parent, t_parent, r_child, t_child)
     if a.shape[0] < 9:
         raise ValidationError("score_centre: fewer than 3 frames where both segments are seen")
-    x, *_ = np.linalg.lstsq(a, b, rcond=None)
+    if prior is not None and prior_spread_deg > 0:
+        # the system's singular directions: those with s^2 >= T spread^2 from the data,
+        # the others (the take hardly turns the joint there) from the prior
+        x_prior = np.concatenate([np.asarray(p, float) for p in prior])
+        u, sv, vt = np.linalg.svd(a, full_matrices=False)
+        strong = sv**2 >= (a.shape[0] / 3) * np.radians(prior_spread_deg) ** 2
+        coef = np.where(strong, (u.T @ b) / np.where(strong, sv, 1.0), vt @ x_prior)
+        x = vt.T @ coef
+    else:
+        x, *_ = np.linalg.lstsq(a, b, rcond=None)
     rms = float(np.sqrt(np.mean((a @ x - b).reshape(-1, 3) ** 2) * 3)) if b.size else 0.0
     return x[:3], x[3:], rms
 

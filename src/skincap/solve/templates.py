@@ -44,6 +44,11 @@ a user writes one for their own set in the same form)::
   pulling it back to its parent's orientation, so the head or shoulder can translate
   relative to the trunk without absorbing every residual. ``markers`` may list markers
   riding it (an acromion marker on a clavicle) or be empty. ``axes`` is not needed.
+* ``limits``: optional joint limits, ``{"x": [LOW, HIGH], ...}`` in degrees (``null``
+  for an open end): bounds on the component along the parent's anatomical axis of
+  the rotation vector of the segment's frame in its parent's (for a knee, flexion
+  about x; with the frames above a straight joint is 0). Inverse kinematics enforces
+  them only when asked (``solve --joint-limits``), as a stiff penalty beyond the range.
 """
 
 from __future__ import annotations
@@ -62,6 +67,7 @@ __all__ = [
     "LINK_STIFFNESS_M_PER_RAD",
     "SegmentSpec",
     "Template",
+    "detect_template",
     "load_template",
     "strip_prefix",
 ]
@@ -71,6 +77,7 @@ BUILTIN_TEMPLATES: dict[str, str] = {
     "pig": "solve_template_pig.json",
     "cmu41": "solve_template_cmu41.json",
     "synth-sparse": "solve_template_synth_sparse.json",
+    "synth-dense": "solve_template_synth_dense.json",
     "aml62": "solve_template_aml62.json",
 }
 
@@ -98,6 +105,33 @@ class SegmentSpec:
     end: list[str] | None = None
     link: bool = False
     stiffness: float = LINK_STIFFNESS_M_PER_RAD
+    limits_deg: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)
+
+
+def _parse_limits(bad: Any, name: str, raw: Any) -> dict[str, tuple[float | None, float | None]]:
+    """``{"x": [low, high]}`` (degrees, ``null`` for none) -> validated dict."""
+    if raw is None:
+        return {}
+    if not isinstance(raw, dict):
+        raise bad(f"segment {name!r}: 'limits' must be an object such as {{\"x\": [-5, 150]}}")
+    out: dict[str, tuple[float | None, float | None]] = {}
+    for axis, pair in raw.items():
+        ok = (
+            axis in _AXES
+            and isinstance(pair, list)
+            and len(pair) == 2
+            and all(v is None or (isinstance(v, (int, float)) and abs(v) <= 180) for v in pair)
+        )
+        if not ok:
+            raise bad(
+                f"segment {name!r}: limits[{axis!r}] must be [low, high] in degrees "
+                "(-180..180 or null) on an axis x, y or z"
+            )
+        lo, hi = (None if v is None else float(v) for v in pair)
+        if lo is not None and hi is not None and lo > hi:
+            raise bad(f"segment {name!r}: limits[{axis!r}] low {lo:g} is above high {hi:g}")
+        out[axis] = (lo, hi)
+    return out
 
 
 @dataclass
@@ -211,6 +245,9 @@ def _parse(data: Any, source: str) -> Template:
                 raise bad(f"segment {name!r}: centre 'prior' needs 'harrington' or 'from'")
             if centre["kind"] == "hinge" and len(centre.get("flexion", [])) != 3:
                 raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
+        limits = _parse_limits(bad, name, raw.get("limits"))
+        if limits and parent is None:
+            raise bad(f"segment {name!r}: the root has no joint to limit")
         origin = raw.get("origin")
         if parent is None and origin is None:
             raise bad(f"segment {name!r}: the root needs an 'origin'")
@@ -231,6 +268,7 @@ def _parse(data: Any, source: str) -> Template:
                 else _points(f"segment {name!r} end", raw["end"]),
                 link=link,
                 stiffness=float(stiffness),
+                limits_deg=limits,
             )
         )
         names.add(name)
@@ -269,3 +307,26 @@ def load_template(template: str | os.PathLike[str]) -> Template:
     except json.JSONDecodeError as exc:
         raise FormatError(source, f"not JSON: {exc.msg}", line=exc.lineno) from None
     return _parse(data, source)
+
+
+def detect_template(
+    labels: list[str], *, candidates: tuple[str, ...] | None = None, min_share: float = 0.5
+) -> str | None:
+    """The built-in template a capture's labels match best, or None.
+
+    Each built-in template (or each of ``candidates``) is scored by the overlap of its
+    markers with ``labels`` (``Subject:`` prefixes stripped) over their union, so a set
+    that shares most labels with a larger one goes to the template it fills; the best
+    is returned when at least ``min_share`` of its own markers are present. Sets with
+    the same labels (synth-sparse and pig) tie, and the first in ``candidates`` (else
+    :data:`BUILTIN_TEMPLATES` order) wins.
+    """
+    present = {strip_prefix(x) for x in labels}
+    best, best_score = None, 0.0
+    for name in candidates or tuple(BUILTIN_TEMPLATES):
+        wanted = set(load_template(name).markers)
+        common = len(wanted & present)
+        score = common / len(wanted | present) if wanted else 0.0
+        if score > best_score and common >= min_share * len(wanted):
+            best, best_score = name, score
+    return best

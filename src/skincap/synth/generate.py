@@ -26,6 +26,7 @@ from skincap.synth.markers import (
     MarkerLayout,
     dense_marker_layout,
     place_markers,
+    place_rigid_markers,
     sparse_marker_layout,
 )
 from skincap.synth.rope import RopeResult, rope_occluders, simulate_rope
@@ -152,6 +153,10 @@ def generate_capture(
     step(0.25, "markers")
     layout = _marker_layout(body, cfg.markers, int(seeds[1]))
     true_positions, normals = place_markers(layout, frames, body.faces)
+    if "rigid" in layout.meta:  # the sparse set's pelvis markers ride the pelvis bone
+        order = [motion.skeleton.index(n) for n in body.skin.skeleton.names]
+        world = forward_kinematics(motion)[:, order]  # (T, J, 4, 4) in the skin's order
+        place_rigid_markers(layout, body, world, true_positions, normals)
     rope_result = None
     extra_points = extra_labels = extra_segments = None
     if cfg.rope != "none":

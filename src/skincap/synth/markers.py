@@ -446,15 +446,85 @@ def sparse_marker_layout(
     face, bary = _surface_points_from_rays(mesh, origins, dirs)
     lm = _landmark_joints(pos)
     hips = np.stack([lm["thigh_l"], lm["thigh_r"]])
-    face, bary = _bind_to_pelvis(mesh, face, bary, np.isin(labels, _PELVIS_LABELS), hips)
+    on_pelvis = np.isin(labels, _PELVIS_LABELS)
+    landmark_face, landmark_bary = face[on_pelvis], bary[on_pelvis]
+    face, bary = _bind_to_pelvis(mesh, face, bary, on_pelvis, hips)
     order = [labels.index(s) for s in SPARSE_LABELS]
+    meta: dict[str, Any] = {"kind": "sparse", "landmark_origin": origins[order]}
+    if mesh.skin is not None:
+        # the iliac spines at their landmarks, carried by the pelvis bone itself
+        pelvis_labels = [labels[k] for k in np.flatnonzero(on_pelvis)]
+        meta["rigid"] = {
+            "index": np.array([SPARSE_LABELS.index(x) for x in pelvis_labels], dtype=np.int64),
+            "joint": pelvis_joint(mesh.skin, hips),
+            "face": landmark_face,
+            "bary": landmark_bary,
+        }
     return MarkerLayout(
         face=face[order],
         bary=bary[order],
         labels=list(SPARSE_LABELS),
         surface_faces=None,
-        meta={"kind": "sparse", "landmark_origin": origins[order]},
+        meta=meta,
     )
+
+
+def pelvis_joint(skin: Skin, hip_positions: np.ndarray) -> int:
+    """The joint both hips hang from: the deepest common ancestor of the joints nearest
+    the hip joint centres ``hip_positions (2, 3)`` (CMU ``Hips``, MakeHuman ``root``)."""
+    parents = skin.skeleton.parents
+    where = skin.bind_matrices[:, :3, 3]
+    chains = []
+    for hip in hip_positions:
+        j = int(np.argmin(np.linalg.norm(where - hip, axis=1)))
+        chain = set()
+        while parents[j] >= 0:
+            j = int(parents[j])
+            chain.add(j)
+        chains.append(chain)
+    common = chains[0] & chains[1]
+    return max(common) if common else int(np.flatnonzero(parents < 0)[0])
+
+
+def place_rigid_markers(
+    layout: MarkerLayout,
+    mesh: Mesh,
+    world: np.ndarray,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    *,
+    radius: float = 0.0015,
+) -> None:
+    """Move the layout's bone-carried markers (``meta["rigid"]``) with their joint, in place.
+
+    Each such marker sits at its landmark on the bind-pose skin (``radius`` along the
+    normal) and moves rigidly with the joint: ``W_t B^-1`` applied to it, ``W_t`` the
+    joint's world transform in frame t and ``B`` its bind matrix -- on the bone rather
+    than on skin that the body's weights share with the spine and the thighs, so the
+    sparse set's pelvis markers are a rigid cluster over the pelvis's real width.
+
+    Parameters
+    ----------
+    layout : MarkerLayout
+    mesh : Mesh
+        The skinned bind-pose body the layout was made on.
+    world : (T, J, 4, 4) float
+        World transforms of the skin's joints per frame (metres).
+    positions, normals : (T, N, 3) float
+        :func:`place_markers` of the layout on the posed frames; overwritten for the
+        rigid markers. A layout without ``meta["rigid"]`` is left as it is.
+    """
+    rigid = layout.meta.get("rigid")
+    if rigid is None or mesh.skin is None:
+        return
+    rest = MarkerLayout(
+        face=rigid["face"], bary=rigid["bary"], labels=[str(k) for k in rigid["index"]]
+    )
+    p0, n0 = place_markers(rest, mesh.vertices, mesh.faces, radius=radius)  # (K, 3)
+    move = world[:, rigid["joint"]] @ np.linalg.inv(mesh.skin.bind_matrices[rigid["joint"]])
+    rot, shift = move[:, :3, :3], move[:, :3, 3]  # (T, 3, 3), (T, 3)
+    positions[:, rigid["index"]] = np.einsum("tij,kj->tki", rot, p0) + shift[:, None]
+    normals[:, rigid["index"]] = np.einsum("tij,kj->tki", rot, n0)
 
 
 # ---------------------------------------------------------------- dense layout

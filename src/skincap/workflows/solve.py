@@ -10,6 +10,7 @@ each file is written to a temporary name and renamed, so a failure leaves no out
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -59,6 +60,10 @@ def solve_file(
     report: str | os.PathLike[str] | None = None,
     force: bool = False,
     smooth_hz: float | None = None,
+    loss: str = "squared",
+    loss_scale_m: float = 0.02,
+    refine_offsets: int = 1,
+    joint_limits: bool = False,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Solve ``input_path`` and write the BVH (and the optional outputs).
@@ -81,6 +86,9 @@ def solve_file(
         Replace existing outputs.
     smooth_hz : float, optional
         Low-pass cut-off (Hz) of the solved poses; default none.
+    loss, loss_scale_m, refine_offsets, joint_limits
+        The IK's loss, its scale (metres), the rounds of marker-offset re-fitting and
+        whether the template's joint limits hold (:func:`skincap.solve.solve_markers`).
     progress : callable(fraction, label), optional
 
     Returns
@@ -97,6 +105,16 @@ def solve_file(
         raise ValidationError(
             f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
         )
+    from skincap.solve.ik import LOSSES
+
+    if loss not in LOSSES:
+        raise ValidationError(f"--loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
+    if not (math.isfinite(loss_scale_m) and loss_scale_m > 0):
+        raise ValidationError(
+            f"--loss-scale-cm: expected a positive length, got {loss_scale_m * 100:g}"
+        )
+    if refine_offsets < 0:
+        raise ValidationError(f"--refine-offsets: expected a count >= 0, got {refine_offsets}")
     markers = read_labelled_markers(input_path)
     if smooth_hz is not None and not 0.0 < smooth_hz < 0.5 * markers.rate:
         raise ValidationError(
@@ -111,7 +129,16 @@ def solve_file(
         tpl: Any = auto_template(markers).template
     else:
         tpl = template
-    result = solve_markers(markers, tpl, smooth_hz=smooth_hz, progress=progress)
+    result = solve_markers(
+        markers,
+        tpl,
+        smooth_hz=smooth_hz,
+        loss=loss,
+        loss_scale=loss_scale_m,
+        refine_offsets=refine_offsets,
+        joint_limits=joint_limits,
+        progress=progress,
+    )
     rep = result.report()
     rep["input"] = os.fspath(input_path)
     outputs: list[str] = []
