@@ -484,13 +484,13 @@ def _capsule_candidates(
     cos_min = np.where(
         inside, -np.inf, np.sqrt(np.clip(1.0 - (reach[:, None] / dist) ** 2, 0.0, 1.0)) - 1e-6
     )  # (T, C, K)
-    ray = points[:, None] - cameras[None, :, None]  # (T, C, N, 3)
-    ray /= np.maximum(np.linalg.norm(ray, axis=3, keepdims=True), 1e-300)
     out = np.zeros((t_n, n_m, c_n), dtype=bool)
-    block = max(1, int(max_elements) // max(c_n * n_m * k_n, 1))
+    block = max(1, int(max_elements) // max(c_n * n_m * k_n, 1))  # frames per block
     for t0 in range(0, t_n, block):
         sl = slice(t0, t0 + block)
-        cosang = np.matmul(ray[sl], unit_mid[sl].transpose(0, 1, 3, 2))  # (t, C, N, K)
+        ray = points[sl, None] - cameras[None, :, None]  # (t, C, N, 3)
+        ray /= np.maximum(np.linalg.norm(ray, axis=3, keepdims=True), 1e-300)
+        cosang = np.matmul(ray, unit_mid[sl].transpose(0, 1, 3, 2))  # (t, C, N, K)
         near = (cosang >= cos_min[sl][:, :, None, :]).any(axis=3)  # (t, C, N)
         out[sl] = near.transpose(0, 2, 1)
     return out & pairs
