@@ -13,6 +13,7 @@ from skincap.evaluate.cleanup import (
     format_fill_table,
     plot_fill_evaluation,
     punch_gaps,
+    punch_gaps_together,
 )
 
 
@@ -37,6 +38,50 @@ def test_punched_gaps_sit_on_visible_data(take):
             nb = idx[off[c] : off[c + 1]]
             ok = (present[s - 1 : s + ln + 1, nb] & ~punched[s : s + ln + 1, nb].any(0)).all(0)
             assert ok.sum() >= 3
+
+
+def test_gaps_of_every_length_share_rounds_without_touching(take):
+    markers, _ = take
+    present = ~markers.missing
+    off, idx = motion_neighbours(markers.positions)
+    lengths = (10, 30, 60)
+    rounds = punch_gaps_together(
+        present, (off, idx), lengths, 3, rng=np.random.default_rng(0), margin=5
+    )
+    rows = np.concatenate(rounds)
+    for length in lengths:  # every gap asked for, each of its own length
+        assert (rows[:, 2] == length).sum() == 3
+    # 3 x (12 + 32 + 62) frames of windows plus margins fit in the 150 frames only twice over
+    assert 2 <= len(rounds) < 3 * len(lengths)
+    assert any(len(np.unique(r[:, 2])) > 1 for r in rounds)  # lengths are mixed
+    for r in rounds:
+        windows = sorted((s - 1, s + ln) for _, s, ln in r)  # [first, last] kept frames
+        for (_, end), (start, _) in zip(windows[:-1], windows[1:], strict=True):
+            assert start - end > 2 * 5  # margins apart: no gap sees another's hole
+        for c, s, ln in r:
+            assert present[s - 1 : s + ln + 1, c].all()
+            nb = idx[off[c] : off[c + 1]]
+            assert present[s - 1 : s + ln + 1, nb].all(0).sum() >= 3
+
+
+def test_lengths_together_scores_every_length_with_fewer_fills(take):
+    markers, truth = take
+    kw = dict(methods=["local_pca", "linear"], gap_lengths=(10, 20), gaps=2, seed=4, truth=truth)
+    apart = evaluate_fill(markers, **kw)
+    together = evaluate_fill(markers, lengths_together=True, **kw)
+    assert apart["lengths_together"] is False and together["lengths_together"] is True
+    assert together["rounds"] == 1 < apart["rounds"] == 2  # each method fills once, not twice
+    for method in kw["methods"]:
+        for length, samples in (("10", 20), ("20", 40)):
+            per = together["results"][method][length]
+            assert per["gaps"] == 2 and per["samples"] == samples
+    # the same methods rank the same way, with errors of the same size
+    a = apart["results"]["local_pca"]["all"]["mm"]["mean"]
+    b = together["results"]["local_pca"]["all"]["mm"]["mean"]
+    assert 0.3 < a / b < 3.0
+    assert together["results"]["local_pca"]["all"]["mm"]["rmse"] < (
+        0.2 * together["results"]["linear"]["all"]["mm"]["rmse"]
+    )
 
 
 def test_evaluate_fill_report(take, tmp_path):

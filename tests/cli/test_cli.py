@@ -255,8 +255,16 @@ def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
     for heading in ("Cleanup", "Hole filling", "Rope tracking", "Skinning", "Timings"):
         assert heading in page
     assert page.count("data:image/png;base64,") >= 12  # maps, plots and rendered frames
-    figures = json.loads((folder / "results.json").read_text())["figures"]
+    results = json.loads((folder / "results.json").read_text())
+    figures = results["figures"]
     assert figures["synthetic"]["frames"] == 240
+    # CPU seconds of every step beside its wall-clock seconds, in the report too
+    assert results["cpu_timings"].keys() == results["timings"].keys()
+    assert 0 < figures["total_cpu_seconds"] and "CPU seconds" in page
+    assert f"{figures['total_cpu_seconds']:.0f} s of CPU" in result.stdout
+    # the gap-fill evaluation punches every length into shared rounds, and says so
+    fill_json = json.loads((folder / "fill_evaluation.json").read_text())
+    assert fill_json["lengths_together"] is True and "punched together" in page
     assert figures["cleanup"]["merged"] > 0 and figures["cleanup"]["wrong_rate"] < 0.1
     assert figures["tracking"]["f1"] > 0.7
     fill = figures["fill"]

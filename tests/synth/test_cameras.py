@@ -41,6 +41,11 @@ def take(body):
 
 
 @pytest.fixture(scope="module")
+def proxy(body):
+    return occlusion_proxy(body.vertices, body.faces)
+
+
+@pytest.fixture(scope="module")
 def capture(take, rig, body) -> CaptureResult:
     layout, frames, pos, nrm = take
     return simulate_capture(pos, nrm, layout.labels, rig, frames, body.faces, seed=7)
@@ -131,6 +136,87 @@ def test_capsules_occlude(take, rig, body) -> None:
     vis2 = visibility(pos[:1], nrm[:1], rig, frames[:1], body.faces, extra_segments=seg)[0]
     assert not vis2[n, c]
     assert (vis2 <= vis).all()
+
+
+def _rope_in_front(frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """10 rope markers and 15 rope segments (T, 15, 2, 3) swaying in front of the body."""
+    sway = 0.05 * np.sin(np.arange(frames))[:, None, None]
+    markers = np.linspace([-0.5, 0.2, 0.35], [0.5, 0.2, 0.35], 10)[None] + sway
+    axis = np.linspace([-0.6, 0.1, 0.3], [0.6, 0.35, 0.3], 16)[None] + sway
+    return markers, np.stack([axis[:, :-1], axis[:, 1:]], axis=2)
+
+
+def test_capsules_are_tested_exactly_on_the_pairs_that_can_meet_them(
+    take, rig, body, proxy
+) -> None:
+    from skincap.geometry.raycast import segments_near_capsules
+
+    layout, frames, pos, nrm = take
+    sl = slice(0, 60, 15)
+    _, segs = _rope_in_front(60)
+    args = (pos[sl], nrm[sl], rig, frames[sl], body.faces)
+    plain = visibility(*args, proxy=proxy)
+    got = visibility(*args, extra_segments=segs[sl], proxy=proxy)
+    # the reference: every pair the body leaves visible against every capsule
+    want = plain.copy()
+    for t in range(want.shape[0]):
+        ni, ci = np.nonzero(want[t])
+        s = segs[sl][t]
+        hit = segments_near_capsules(pos[sl][t, ni], rig.positions[ci], s[:, 0], s[:, 1], 0.01)
+        want[t, ni[hit], ci[hit]] = False
+    np.testing.assert_array_equal(got, want)
+    assert (plain & ~got).sum() >= 20  # the rope hides markers in every tested frame
+
+
+def test_capsule_candidates_keep_every_hit() -> None:
+    from skincap.geometry.raycast import segments_near_capsules
+    from skincap.synth.cameras import _capsule_candidates
+
+    rng = np.random.default_rng(5)
+    cams = rng.uniform(-4.0, 4.0, (6, 3))
+    pts = rng.uniform(-0.5, 0.5, (3, 200, 3))
+    a = rng.uniform(-0.6, 0.6, (3, 8, 3))
+    segs = np.stack([a, a + rng.normal(scale=0.1, size=a.shape)], axis=2)
+    # grazing pairs: markers whose ray to camera 0 passes just over 1 cm from a capsule end
+    to_end = segs[:, :4, 0] - cams[0]
+    side = np.cross(to_end, [0.0, 1.0, 0.0])
+    side /= np.linalg.norm(side, axis=2, keepdims=True)
+    pts[:, :4] = cams[0] + 1.7 * (to_end + 0.0100001 * side)
+    pairs = np.ones((3, 200, 6), dtype=bool)
+    cand = _capsule_candidates(pts, cams, segs, 0.01, pairs)
+    hits = np.zeros_like(pairs)
+    for t in range(3):
+        ni, ci = np.nonzero(pairs[t])
+        hits[t, ni, ci] = segments_near_capsules(
+            pts[t, ni], cams[ci], segs[t, :, 0], segs[t, :, 1], 0.01
+        )
+    assert hits.any() and not (hits & ~cand).any()  # no hit is ever pruned
+    assert cand.mean() < 0.5  # and most pairs are
+    assert cand[:, :4, 0].all()  # the grazing pairs are kept for the exact test
+
+
+def test_extra_markers_share_the_pass_over_the_body(take, rig, body, proxy) -> None:
+    layout, frames, pos, nrm = take
+    sl = slice(0, 60, 20)
+    rope, segs = _rope_in_front(60)
+    body_only = visibility(
+        pos[sl], nrm[sl], rig, frames[sl], body.faces, extra_segments=segs[sl], proxy=proxy
+    )
+    rope_only = visibility(rope[sl], None, rig, frames[sl], body.faces, proxy=proxy)
+    both = visibility(
+        np.concatenate([pos[sl], rope[sl]], axis=1),
+        np.concatenate([nrm[sl], np.zeros_like(rope[sl])], axis=1),
+        rig,
+        frames[sl],
+        body.faces,
+        extra_segments=segs[sl],
+        extra_markers=np.arange(pos.shape[1] + 10) >= pos.shape[1],
+        proxy=proxy,
+    )
+    np.testing.assert_array_equal(both, np.concatenate([body_only, rope_only], axis=1))
+    assert rope_only.any() and not rope_only.all()
+    with pytest.raises(ValidationError, match="extra_markers"):
+        visibility(pos[:1], nrm[:1], rig, frames[:1], body.faces, extra_markers=np.ones(3, bool))
 
 
 def test_occlusion_proxy_follows_the_mesh(body) -> None:

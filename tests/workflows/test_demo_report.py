@@ -63,3 +63,23 @@ def test_fill_verdict_is_the_reports_red_or_green_for_the_lowest_error():
     half = fill_verdict({"a": _fill(0.01, 2 * FILL_TARGET_MAX)})
     assert half["meets_mean"] and not half["meets_max"] and not half["meets_targets"]
     assert fill_verdict({"broken": _fill(None, None)}) is None
+
+
+def test_timings_give_wall_and_cpu_seconds_per_step():
+    from skincap.workflows.demo_report import _timings_section
+
+    html = _timings_section(
+        {"cleanup": 12.34, "tracking": 5.0}, 17.34, {"cleanup": 9.87}, 9.9
+    ).render()
+    assert "CPU seconds" in html
+    assert "12.3" in html and "9.9" in html  # the step's wall and CPU seconds
+    assert html.count("–") == 1  # a step without a CPU figure says so, no invented number
+
+
+def test_fill_section_says_how_the_gaps_were_punched():
+    from skincap.workflows.demo_report import _fill_rounds
+
+    assert _fill_rounds({"lengths_together": False, "rounds": 4}) == ""
+    assert _fill_rounds({}) == ""  # an older evaluation: nothing claimed
+    text = _fill_rounds({"lengths_together": True, "rounds": 2})
+    assert "punched together, 2 rounds" in text and "fills each round once" in text

@@ -64,7 +64,8 @@ def demo(
         )
     sv = figures["solve"]
     lines = [
-        f"demo: {len(result['outputs'])} files in {output} ({figures['total_seconds']:.0f} s)",
+        f"demo: {len(result['outputs'])} files in {output} ({figures['total_seconds']:.0f} s, "
+        f"{figures['total_cpu_seconds']:.0f} s of CPU)",
         f"  cleanup: {cl['merged']} fragments merged, {cl['wrongly_merged']} wrongly "
         f"({cl['wrong_rate'] * 100:.2f} %); {cl['invented_samples']} samples filled; "
         f"labelled trajectories {cl['labelled_missing_before'] * 100:.1f} % -> "

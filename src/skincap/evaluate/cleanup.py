@@ -25,6 +25,7 @@ from skincap.types import MarkerSet
 __all__ = [
     "PAPER_TABLE2",
     "punch_gaps",
+    "punch_gaps_together",
     "evaluate_fill",
     "plot_fill_evaluation",
     "format_fill_table",
@@ -112,6 +113,65 @@ def punch_gaps(
     return rounds
 
 
+def punch_gaps_together(
+    present: np.ndarray,
+    neighbours: tuple[np.ndarray, np.ndarray],
+    lengths: Sequence[int],
+    count: int,
+    *,
+    simultaneous: int = 1,
+    min_neighbours: int = 3,
+    margin: int = 5,
+    rng: np.random.Generator,
+) -> list[np.ndarray]:
+    """Gaps of every length packed into as few rounds as their windows allow.
+
+    As :func:`punch_gaps` for each length in turn (longest first), but a round takes
+    gaps of every length until none fits beside the others: the windows of one
+    round (with ``margin`` frames either side) still never overlap in time, so every
+    punched marker keeps its neighbours. Fewer rounds, fewer fills for the same gaps.
+
+    Returns
+    -------
+    list of (G_r, 3) int64 arrays, one per round
+        Rows ``(marker, start, length)``, lengths mixed.
+    """
+    t, n = present.shape
+    offsets, indices = neighbours
+    wanted = sorted({int(v) for v in lengths if int(v) + 2 <= t}, reverse=True)
+    cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])
+    made = dict.fromkeys(wanted, 0)
+    hopeless = {length: np.zeros(t, dtype=bool) for length in wanted}
+    rounds: list[np.ndarray] = []
+    while any(made[length] < count for length in wanted):
+        busy = np.zeros(t, dtype=bool)
+        rows: list[tuple[int, int, int]] = []
+        cb = np.concatenate([[0], np.cumsum(busy)])
+        for length in wanted:
+            starts_all = np.arange(1, t - length)
+            while made[length] < count:
+                lo = np.maximum(starts_all - 1 - margin, 0)
+                hi = np.minimum(starts_all + length + 1 + margin, t)
+                free = starts_all[(cb[hi] - cb[lo] == 0) & ~hopeless[length][starts_all]]
+                if free.size == 0:
+                    break
+                s = int(rng.choice(free))
+                chosen = _choose_markers(
+                    cs, s, length, offsets, indices, simultaneous, min_neighbours, rng
+                )
+                if chosen is None:
+                    hopeless[length][s] = True
+                    continue
+                busy[max(s - 1 - margin, 0) : s + length + 1 + margin] = True
+                cb = np.concatenate([[0], np.cumsum(busy)])
+                rows.extend((c, s, length) for c in chosen)
+                made[length] += 1
+        if not rows:
+            break
+        rounds.append(np.array(rows, dtype=np.int64))
+    return rounds
+
+
 def _choose_markers(
     cs: np.ndarray,
     s: int,
@@ -164,6 +224,7 @@ def evaluate_fill(
     min_neighbours: int = 3,
     rigid_blend: float | None = None,
     fill_own_gaps: bool = True,
+    lengths_together: bool = False,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Punch seeded gaps into visible data, fill them with each method and score them.
@@ -199,6 +260,13 @@ def evaluate_fill(
         missing neighbours are estimated and used). False fills the punched samples
         only, the take's own holes left open: much faster on a take with many holes,
         and a harder test where neighbours are missing.
+    lengths_together : bool, default False
+        Punch the gaps of every length into shared rounds
+        (:func:`punch_gaps_together`): each method fills each round once and the
+        errors are scored per gap length, instead of one set of rounds per length.
+        Far fewer fills (the whole-body PCA refits the take on every fill); a take
+        holds more holes at a time, and the gaps fall elsewhere than with False
+        (the same seed, another plan).
     progress : callable(fraction, label), optional
 
     Returns
@@ -221,20 +289,32 @@ def evaluate_fill(
     mnd = mean_neighbour_distance(p, csr)
     present = ~np.isnan(p[..., 0]) & ~np.isnan(ref[..., 0])
     rng = np.random.default_rng(seed)
-    plan = {
-        length: punch_gaps(
+    if lengths_together:
+        rounds = punch_gaps_together(
             present,
             csr,
-            length,
+            lengths,
             gaps,
             simultaneous=simultaneous,
             min_neighbours=min_neighbours,
             rng=rng,
         )
-        for length in lengths
-    }
+    else:
+        rounds = [
+            rows
+            for length in lengths
+            for rows in punch_gaps(
+                present,
+                csr,
+                length,
+                gaps,
+                simultaneous=simultaneous,
+                min_neighbours=min_neighbours,
+                rng=rng,
+            )
+        ]
     errors = _fill_punched(
-        markers, plan, methods, csr, mnd, ref, rigid_blend, fill_own_gaps, progress
+        markers, lengths, rounds, methods, csr, mnd, ref, rigid_blend, fill_own_gaps, progress
     )
     results = _fill_results(methods, lengths, *errors)
     best = _best(results, methods)
@@ -249,6 +329,8 @@ def evaluate_fill(
         "seed": seed,
         "rigid_blend": "per gap" if rigid_blend is None else float(rigid_blend),
         "fill_own_gaps": bool(fill_own_gaps),
+        "lengths_together": bool(lengths_together),
+        "rounds": len(rounds),
         "scored_against": "measured" if truth is None else "truth",
         "mean_neighbour_distance_mm": float(np.nanmean(mnd) * 1000.0)
         if np.isfinite(mnd).any()
@@ -291,7 +373,8 @@ _Errors = dict[str, dict[int, list[np.ndarray]]]
 
 def _fill_punched(
     markers: MarkerSet,
-    plan: dict[int, list[np.ndarray]],
+    lengths: list[int],
+    rounds: list[np.ndarray],
     methods: list[str],
     csr: Any,
     mnd: np.ndarray,
@@ -302,46 +385,52 @@ def _fill_punched(
 ) -> tuple[_Errors, _Errors, dict[str, dict[int, int]], dict[int, int]]:
     """Punch each planned round of gaps, fill it with every method, measure the errors.
 
-    Returns, per method and gap length, the errors of the punched samples (metres)
-    and the same divided by the marker's mean neighbour distance ``mnd`` (N,), the
-    samples left unfilled, and the gaps punched per length.
+    ``rounds`` holds (G_r, 3) rows ``(marker, start, length)``. Returns, per method and
+    gap length, the errors of the punched samples (metres) and the same divided by
+    the marker's mean neighbour distance ``mnd`` (N,), the samples left unfilled, and
+    the gaps punched per length.
     """
     p = markers.positions
     t, n, _ = p.shape
-    lengths = list(plan)
-    n_fills = sum(len(r) for r in plan.values()) * len(methods)
+    n_fills = len(rounds) * len(methods)
     errs: dict[str, dict[int, list[np.ndarray]]] = {m: {L: [] for L in lengths} for m in methods}
     nerrs: dict[str, dict[int, list[np.ndarray]]] = {m: {L: [] for L in lengths} for m in methods}
     unfilled = {m: dict.fromkeys(lengths, 0) for m in methods}
     punched_gaps = dict.fromkeys(lengths, 0)
     done = 0
-    for length, rounds in plan.items():
-        for rows in rounds:
-            punched = p.copy()
-            mask = np.zeros((t, n), dtype=bool)
-            for c, s, ln in rows:
-                mask[s : s + ln, c] = True
-            punched_gaps[length] += len(np.unique(rows[:, 1]))
-            punched[mask] = np.nan
-            take = MarkerSet(punched, markers.labels, markers.rate)
-            tt, nn = np.nonzero(mask)
-            for method in methods:
-                with warnings.catch_warnings():
-                    warnings.simplefilter("ignore", SkincapWarning)
-                    filled, _ = fill_gaps(
-                        take,
-                        settings=FillSettings(method=method, rigid_blend=rigid_blend),
-                        neighbours=csr,
-                        only=None if fill_own_gaps else mask,
-                    )
-                e = np.linalg.norm(filled[tt, nn] - ref[tt, nn], axis=-1)
+    for k, rows in enumerate(rounds):
+        punched = p.copy()
+        gap_length = np.zeros((t, n), dtype=np.int64)  # the length of the gap a sample is in
+        for c, s, ln in rows:
+            gap_length[s : s + ln, c] = ln
+        mask = gap_length > 0
+        round_lengths = [L for L in lengths if (rows[:, 2] == L).any()]
+        for L in round_lengths:
+            punched_gaps[L] += len(np.unique(rows[rows[:, 2] == L, 1]))
+        punched[mask] = np.nan
+        take = MarkerSet(punched, markers.labels, markers.rate)
+        tt, nn = np.nonzero(mask)
+        of_length = {L: gap_length[tt, nn] == L for L in round_lengths}
+        for method in methods:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SkincapWarning)
+                filled, _ = fill_gaps(
+                    take,
+                    settings=FillSettings(method=method, rigid_blend=rigid_blend),
+                    neighbours=csr,
+                    only=None if fill_own_gaps else mask,
+                )
+            e_all = np.linalg.norm(filled[tt, nn] - ref[tt, nn], axis=-1)
+            for L, sel in of_length.items():
+                e, marker = e_all[sel], nn[sel]
                 ok = np.isfinite(e)
-                unfilled[method][length] += int((~ok).sum())
-                errs[method][length].append(e[ok])
-                nerrs[method][length].append(e[ok] / mnd[nn[ok]])
-                done += 1
-                if progress is not None:
-                    progress(done / max(n_fills, 1), f"{method}, {length} frames")
+                unfilled[method][L] += int((~ok).sum())
+                errs[method][L].append(e[ok])
+                nerrs[method][L].append(e[ok] / mnd[marker[ok]])
+            done += 1
+            if progress is not None:
+                what = f"{round_lengths[0]} frames" if len(round_lengths) == 1 else f"round {k + 1}"
+                progress(done / max(n_fills, 1), f"{method}, {what}")
     return errs, nerrs, unfilled, punched_gaps
 
 

@@ -107,6 +107,7 @@ def write_demo_report(
     pictures: dict[str, list],
     figures: dict[str, Any],
     timings: dict[str, float],
+    cpu_timings: dict[str, float] | None = None,
     force: bool = False,
 ) -> Path:
     """Write ``folder/report.html`` (and its figure PNGs in ``folder/figures``).
@@ -132,7 +133,12 @@ def write_demo_report(
         _skinning_section(figures["skinning"], artefacts),
         _solve_section(figures["solve"], pictures.get("solve", [])),
         _frames_section(pictures),
-        _timings_section(timings, figures.get("total_seconds")),
+        _timings_section(
+            timings,
+            figures.get("total_seconds"),
+            cpu_timings or {},
+            figures.get("total_cpu_seconds"),
+        ),
         _look_section(folder),
     ]
     return write_html_report(
@@ -252,8 +258,9 @@ def _fill_section(fill_eval: dict[str, Any], fill_png: Path) -> Section:
         .text(
             f"Gaps of {', '.join(map(str, lengths))} frames, {fill_eval['gaps_per_length']} per "
             "length, punched into the measured body markers of the synthetic capture and "
-            "filled by each method; the take's own occlusion holes stay open, so a punched "
-            "marker often lacks some neighbours. Scored against the measured samples they "
+            f"filled by each method{_fill_rounds(fill_eval)}; the take's own occlusion holes "
+            "stay open, so a punched marker often lacks some neighbours. Scored against the "
+            "measured samples they "
             "replace: the markers carry 0.5 mm Gaussian noise per axis, so even a perfect "
             "fill is off by 0.8 mm on average. Errors in "
             f"units of the mean neighbour distance "
@@ -266,6 +273,18 @@ def _fill_section(fill_eval: dict[str, Any], fill_png: Path) -> Section:
             rows,
         )
         .figure(fill_png, "Mean fill error against gap length (log scale), paper's range shaded.")
+    )
+
+
+def _fill_rounds(fill_eval: dict[str, Any]) -> str:
+    """How the gaps were punched: all lengths together in shared rounds, or not."""
+    rounds = fill_eval.get("rounds")
+    if not fill_eval.get("lengths_together") or rounds is None:
+        return ""
+    return (
+        f" (the gaps of all lengths punched together, {rounds} "
+        f"{'round' if rounds == 1 else 'rounds'} whose gaps lie apart in time: each "
+        "method fills each round once)"
     )
 
 
@@ -405,20 +424,30 @@ def _frames_section(pictures: dict[str, list]) -> Section:
     )
 
 
-def _timings_section(timings: dict[str, float], total: float | None) -> Section:
-    """Timings of the run and the machine."""
+def _timings_section(
+    timings: dict[str, float],
+    total: float | None,
+    cpu_timings: dict[str, float],
+    total_cpu: float | None,
+) -> Section:
+    """Timings of the run and the machine: wall-clock and CPU seconds per step."""
     from skincap import __version__ as version
+
+    def cell(value: float | None) -> str:
+        return f"{value:.1f}" if value is not None else "–"
 
     return (
         Section("7. Timings")
         .table(
-            ["step", "seconds"],
-            [[k, f"{v:.1f}"] for k, v in timings.items()]
-            + [["total", f"{total:.1f}" if total else "–"]],
+            ["step", "seconds", "CPU seconds"],
+            [[k, cell(v), cell(cpu_timings.get(k))] for k, v in timings.items()]
+            + [["total", cell(total), cell(total_cpu)]],
         )
         .text(
             f"skincap {version}, Python {platform.python_version()}, "
-            f"{os.cpu_count()} CPU cores, {platform.machine()}.",
+            f"{os.cpu_count()} CPU cores, {platform.machine()}. CPU seconds are this "
+            "process's own (numba kernels compiling in the background are not counted); "
+            "on a busy machine the wall-clock seconds grow, the CPU seconds hardly.",
             note=True,
         )
     )
