@@ -170,7 +170,13 @@ def _window_frames(cloud: PointCloud, window_seconds: float) -> int:
 def _follow_window(
     cloud: PointCloud, start: np.ndarray, n_window: int, gamma: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Thesis window tracking: each trace takes the point nearest its average position.
+    """Thesis window tracking: each trace takes the point nearest its predicted position.
+
+    The thesis predicts every trace at its average position so far, which holds for a
+    rope that hangs still. Beyond it, a trace measured in the last two frames is
+    predicted at constant velocity, one measured in the last frame where it was: a
+    rope still settling (swinging down into its hang) is followed instead of losing
+    its traces, and a still rope is predicted where it is, as before.
 
     Returns the (W, S, 3) trace positions and the (W, S) temporary-marker flags.
     """
@@ -180,19 +186,19 @@ def _follow_window(
     pos[0] = start
     total = start.copy()
     for t in range(1, n_window):
-        avg = total / t
+        predicted = total / t
+        seen1 = ~temp[t - 1]
+        predicted[seen1] = pos[t - 1, seen1]
+        if t >= 2:
+            seen2 = seen1 & ~temp[t - 2]
+            predicted[seen2] += pos[t - 1, seen2] - pos[t - 2, seen2]
         frame = cloud.frame(t)
-        if frame.shape[0] == 0:
-            pos[t] = avg
-            temp[t] = True
-        else:
+        pos[t] = predicted
+        temp[t] = True
+        if frame.shape[0]:
             k = min(3, frame.shape[0])
-            d, i = cKDTree(frame).query(avg, k=k, distance_upper_bound=gamma)
-            d = d.reshape(s, k)
-            i = i.reshape(s, k)
-            rows, pts = gated_assignment(d, i, gamma)
-            pos[t] = avg
-            temp[t] = True
+            d, i = cKDTree(frame).query(predicted, k=k, distance_upper_bound=gamma)
+            rows, pts = gated_assignment(d.reshape(s, k), i.reshape(s, k), gamma)
             pos[t, rows] = frame[pts]
             temp[t, rows] = False
         total += pos[t]
