@@ -222,7 +222,9 @@ def _rest_spacing(chord: np.ndarray) -> np.ndarray:
     A chord shorter than ``_FOLDED`` times the median chord is a rope folded between
     its two markers (the bottom of a jump rope lying doubled on the floor), not a
     short piece of rope: its rest spacing is the median chord, so the link may open
-    to the tape spacing once the rope lifts.
+    to the tape spacing once the rope lifts. (Raising every chord below the median to
+    it, for the bends onto the floor too, was measured worse on the whole CMU take:
+    F1 0.990 -> 0.975.)
     """
     typical = float(np.median(chord))
     return np.where(chord < _FOLDED * typical, typical, chord)
