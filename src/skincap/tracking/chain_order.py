@@ -7,9 +7,13 @@ spanning tree (or any nearest-neighbour walk) jumps from arm to arm. Here the or
 the **shortest open path through all the points** (a shortest Hamiltonian path): a
 rope visits its markers one after the other with links of about the tape spacing, so
 the true order is the shortest way through them; jumping across to the other arm
-saves a link but must pay a long one to come back. The path is found by local search
-(2-opt and segment moves, Or-opt) from several nearest-neighbour walks; for the tens of
-markers of a rope this finds the optimum in milliseconds.
+saves a link but must pay a long one to come back. With a spacing prior a link shorter
+than the tape spacing costs one spacing (a step across the arms or over a fold earns
+nothing), and among paths as short the one that turns least wins. The path is found by
+local search (2-opt and segment moves, Or-opt) from nearest-neighbour walks, plain and
+keeping their heading; for the tens of markers of a rope this takes milliseconds.
+Known limit: a rope lying flat with its arms closer together than the spread of its
+own links (a ladder) has zigzag orders as short as the true one.
 
 :func:`off_chain_points` then names the points that do not belong on the rope's chain
 (a ghost or a duplicate beside a marker): both of their links are much shorter than the
@@ -26,8 +30,6 @@ __all__ = ["chain_length", "off_chain_points", "shortest_open_path", "typical_sp
 
 #: Nearest-neighbour walks started (from the points farthest from the centroid first).
 _WALKS = 4
-#: Double-bridge kicks tried on each walk's local optimum.
-_KICKS = 0
 #: Paths within this many metres of the shortest are as short (the turning decides).
 _TIE = 1e-6
 #: Longest segment moved by Or-opt, points.
@@ -66,9 +68,8 @@ def shortest_open_path(points: np.ndarray, spacing: float | None = None) -> np.n
     cost from all of them; each start (nearest-neighbour walks from the points
     farthest from the centroid) is improved by 2-opt (reverse a stretch) and Or-opt
     (move a stretch of up to three points elsewhere, either way round) until neither
-    shortens it, then kicked out of its local optimum (a double bridge, seeded) and
-    improved again, keeping the shortest. Every move's gain is computed for all
-    positions at once.
+    shortens it; of the paths as short, the one that turns least is kept. Every move's
+    gain is computed for all positions at once.
     """
     p = np.asarray(points, dtype=np.float64)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
@@ -81,17 +82,12 @@ def shortest_open_path(points: np.ndarray, spacing: float | None = None) -> np.n
     if spacing is not None:
         d[:n, :n] = np.maximum(d[:n, :n], float(spacing))
     far_first = np.argsort(-np.linalg.norm(p - p.mean(axis=0), axis=1), kind="stable")
-    rng = np.random.default_rng(0)
     best_tour, best_len = np.arange(n + 1), np.inf
     walks = [(int(a), w) for a in far_first[: min(_WALKS, n)] for w in (None, p)]
     best_turning = np.inf
     for start, heading in walks:
         tour = _improve(_nearest_neighbour_walk(d, start, heading), d)
         length = _tour_length(tour, d)
-        for _ in range(_KICKS if n >= 8 else 0):
-            kicked = _improve(_double_bridge(tour, rng), d)
-            if _tour_length(kicked, d) < length - _EPS:
-                tour, length = kicked, _tour_length(kicked, d)
         # of paths as short (a ladder of rungs shorter than the prior: zigzag or along
         # the arms), the one that turns least
         turning = _turning(p, tour)
@@ -113,14 +109,6 @@ def _turning(points: np.ndarray, tour: np.ndarray) -> float:
 
 def _tour_length(tour: np.ndarray, d: np.ndarray) -> float:
     return float(d[tour, np.roll(tour, -1)].sum())
-
-
-def _double_bridge(tour: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """``tour`` cut at three random places into A B C D and joined as A C B D: a move
-    2-opt and Or-opt cannot undo in one step."""
-    m = tour.size
-    i, j, k = np.sort(rng.choice(np.arange(1, m), size=3, replace=False))
-    return np.concatenate([tour[:i], tour[j:k], tour[i:j], tour[k:]])
 
 
 def _nearest_neighbour_walk(
