@@ -15,7 +15,9 @@ Importing this module imports numba; :func:`track_frames` compiles on its first 
 (about a minute of one core; cached on disk, loaded in about a second afterwards).
 ``track_rope(backend="auto")`` never waits for it: it runs the NumPy steps while
 :func:`skincap.tracking.tracker.warm_up_kernel` compiles these in a background
-process (:mod:`skincap.backends`).
+process (:mod:`skincap.backends`). The refusals and the re-acquisition are compiled in
+:mod:`skincap.tracking._refusals_numba` and :mod:`skincap.tracking._reacquire_numba`
+and re-exported here.
 """
 
 from __future__ import annotations
@@ -33,6 +35,12 @@ from skincap.tracking._numba_curve import (
     side_neighbours,
 )
 from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3, query_nearest
+from skincap.tracking._reacquire_numba import reacquire_on_shell
+from skincap.tracking._refusals_numba import (
+    reject_odd_motion,
+    reject_overstretched,
+    rigid_with_body,
+)
 
 __all__ = [
     "begin_frame",
@@ -170,136 +178,6 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
             body_vel[i, c] = points[i, c] - points[q, c]
 
 
-@numba.njit(**JIT)
-def _rope_taken_at(point_index, f, q):  # pragma: no cover - runs compiled
-    """True when a trace took the point q in frame f."""
-    for j in range(point_index.shape[1]):
-        if point_index[f, j] == q:
-            return True
-    return False
-
-
-@numba.njit(**JIT)
-def _follow_back(points, offsets, t, window, point, tol, traj):  # pragma: no cover
-    """Fill ``traj`` (W + 1, 3) with the point's path back by unambiguous nearest points
-    at constant velocity (last row the point); False where it is ambiguous."""
-    traj[window] = points[point]
-    vx = 0.0
-    vy = 0.0
-    vz = 0.0
-    for f in range(t - 1, t - window - 1, -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb - fa < 2:
-            return False
-        r = f - t + window
-        qx = traj[r + 1, 0] - vx
-        qy = traj[r + 1, 1] - vy
-        qz = traj[r + 1, 2] - vz
-        d1 = _INF
-        d2 = _INF
-        n1 = -1
-        for q in range(fa, fb):
-            dd = norm3(points[q, 0] - qx, points[q, 1] - qy, points[q, 2] - qz)
-            if dd < d1:
-                d2 = d1
-                d1 = dd
-                n1 = q
-            elif dd < d2:
-                d2 = dd
-        if not (d1 < 2.0 * tol and d2 > 2.0 * d1):
-            return False
-        traj[r] = points[n1]
-        vx = traj[r + 1, 0] - traj[r, 0]
-        vy = traj[r + 1, 1] - traj[r, 1]
-        vz = traj[r + 1, 2] - traj[r, 2]
-    return True
-
-
-@numba.njit(**JIT)
-def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):  # pragma: no cover
-    """True when the partner point ``c`` follows the path ``traj`` back through the
-    window at a constant distance ``dq``."""
-    qx = points[c, 0]
-    qy = points[c, 1]
-    qz = points[c, 2]
-    for f in range(t - 1, t - window - 1, -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb == fa:
-            return False
-        r = f - t + window
-        px = qx + traj[r, 0] - traj[r + 1, 0]
-        py = qy + traj[r, 1] - traj[r + 1, 1]
-        pz = qz + traj[r, 2] - traj[r + 1, 2]
-        best = _INF
-        n = fa
-        for q in range(fa, fb):
-            dd = norm3(points[q, 0] - px, points[q, 1] - py, points[q, 2] - pz)
-            if dd < best and not _rope_taken_at(point_index, f, q):
-                best = dd
-                n = q
-        qx = points[n, 0]
-        qy = points[n, 1]
-        qz = points[n, 2]
-        to_p = norm3(qx - traj[r, 0], qy - traj[r, 1], qz - traj[r, 2])
-        if not (best < tol and abs(to_p - dq) < tol):
-            return False
-    return True
-
-
-@numba.njit(**JIT)
-def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.rigid_with_body`."""
-    window = p.rigid_window
-    if t < window:
-        return False
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    spacing = p.median_spacing
-    tol = p.rigid_range * spacing
-    traj = np.empty((window + 1, 3))
-    whole = j >= 0
-    if whole:
-        for f in range(t - window, t):
-            if point_index[f, j] < 0:
-                whole = False
-                break
-    if whole:
-        traj[window] = points[point]
-        for f in range(t - window, t):
-            traj[f - t + window] = points[point_index[f, j]]
-    elif not _follow_back(points, offsets, t, window, point, tol, traj):
-        return False
-    far = 0.0
-    for r in range(window):
-        dd = norm3(
-            traj[r, 0] - traj[window, 0], traj[r, 1] - traj[window, 1], traj[r, 2] - traj[window, 2]
-        )
-        far = max(far, dd)
-    if far < p.rigid_move * spacing:
-        return False
-    found = 0
-    for c in range(offsets[t], offsets[t + 1]):
-        if c == point:
-            continue
-        dq = norm3(
-            points[c, 0] - traj[window, 0],
-            points[c, 1] - traj[window, 1],
-            points[c, 2] - traj[window, 2],
-        )
-        if not dq < p.rigid_radius * spacing:
-            continue
-        mine = False
-        for jj in range(state.taken.size):
-            if state.taken[jj] == c:
-                mine = True
-        if mine:
-            continue
-        if _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):
-            found += 1
-            if found >= p.rigid_partners:
-                return True
-    return False
-
-
 # ------------------------------------------------------------------ matching
 @numba.njit(**JIT)
 def _follows_other(state, t, row, candidate, pred, gamma):  # pragma: no cover
@@ -433,102 +311,6 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
     return hit_rows.size > 0
 
 
-# ------------------------------------------------------------------ refusals
-@numba.njit(**JIT)
-def _measured(known):  # pragma: no cover - runs compiled
-    """(n,) int64 the measured markers, in order."""
-    return np.nonzero(known)[0]
-
-
-@numba.njit(**JIT)
-def _link_limit(s, link_rest, ja, jb, gamma, p):  # pragma: no cover - runs compiled
-    """Largest chord between measured markers ja < jb, metres (neighbours: from the
-    larger of the rest arc length and the learnt ``link_rest``)."""
-    ds = s[jb] - s[ja]
-    if jb - ja == 1:
-        return max(ds, link_rest[ja]) + p.adjacent_stretch * gamma
-    return p.stretch * ds + gamma
-
-
-@numba.njit(**JIT)
-def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.reject_overstretched`."""
-    cur, s, gamma = state.cur, state.arclength, p.gamma
-    idx = _measured(state.known)
-    n = idx.size
-    if n < 2:
-        return
-    ok = True
-    for q in range(n - 1):
-        a, b = idx[q], idx[q + 1]
-        chord = norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
-        if not chord <= _link_limit(s, state.link_rest, a, b, gamma, p):
-            ok = False
-            break
-    if ok:
-        return
-    w = np.ones(n)
-    for q in range(n):
-        if rigid_with_body(state, t, idx[q], state.taken[idx[q]], p):
-            w[q] = -1.0
-    # the best chain by dynamic programming (as the reference's _keep_best_chain)
-    score = w.copy()
-    back = np.full(n, -1, np.int64)
-    for b in range(1, n):
-        best = -_INF
-        best_a = 0
-        for a in range(b):
-            ja, jb = idx[a], idx[b]
-            ds = s[jb] - s[ja]
-            dist = norm3(cur[ja, 0] - cur[jb, 0], cur[ja, 1] - cur[jb, 1], cur[ja, 2] - cur[jb, 2])
-            if dist <= _link_limit(s, state.link_rest, ja, jb, gamma, p):
-                dev = (ds - dist) / (ds if ds > 0 else 1.0)
-                squeeze = min(max(dev, 0.0), 1.0) + min(max(-dev, 0.0), 1.0)
-                gain = w[b] - 0.5 * squeeze
-            else:
-                gain = -_INF
-            cand = score[a] + gain
-            if cand > best:
-                best = cand
-                best_a = a
-        if best > score[b]:
-            score[b] = best
-            back[b] = best_a
-    keep = np.zeros(n, np.bool_)
-    b = int(np.argmax(score))
-    while b >= 0:
-        keep[b] = True
-        b = back[b]
-    for q in range(n):
-        if not keep[q]:
-            state.known[idx[q]] = False
-            state.taken[idx[q]] = -1
-
-
-@numba.njit(**JIT)
-def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.reject_odd_motion`."""
-    cur, prev, known = state.cur, state.positions[t - 1], state.known
-    m = known.size
-    odd = np.zeros(m, np.bool_)
-    for j in range(1, m - 1):
-        if not (known[j] and known[j - 1] and known[j + 1]):
-            continue
-        if state.temp_count[j] != 0:
-            continue
-        e = np.empty(3)
-        for c in range(3):
-            e[c] = (cur[j, c] - prev[j, c]) - 0.5 * (
-                (cur[j - 1, c] - prev[j - 1, c]) + (cur[j + 1, c] - prev[j + 1, c])
-            )
-        if norm3(e[0], e[1], e[2]) > p.gamma:
-            odd[j] = True
-    for j in range(m):
-        if odd[j]:
-            known[j] = False
-            state.taken[j] = -1
-
-
 # ------------------------------------------------------------------ predictions
 @numba.njit(**JIT)
 def residual_predictions(state, t, v_pred, p):  # pragma: no cover - runs compiled
@@ -603,131 +385,6 @@ def zipper_predictions(state, p):  # pragma: no cover - runs compiled
                     pred[j, c] = cur[j1, c] + (rest / norm) * e[c]
                 want[j] = True
     return np.nonzero(want)[0], pred
-
-
-# ------------------------------------------------------------------ re-acquisition
-@numba.njit(**JIT)
-def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.reacquire_on_shell`."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    known, cur, link_rest = state.known, state.cur, state.link_rest
-    m = known.size
-    if b == a:
-        return False
-    prev = state.positions[t - 1]
-    free = ~state.body[a:b]
-    for j in range(m):
-        if known[j]:
-            free[state.taken[j] - a] = False
-    if not free.any():  # nothing left to take: the passes below would find nothing
-        return False
-    found = False
-    if not known.any():
-        for j in (0, m - 1):
-            rest = link_rest[min(j, m - 2)]
-            want = prev[j] + state.velocity[j]
-            if _seat_nearest(state, t, j, want, rest, False, 0.0, 0.0, want, free, p):
-                found = True
-    for _ in range(m):
-        grew = False
-        for j in range(m):
-            for k in (j - 1, j + 1):
-                if known[j] or not (0 <= k < m and known[k]):
-                    continue
-                rest = link_rest[min(j, k)]
-                want = cur[k] + (prev[j] - prev[k])
-                inner = rest - p.gamma
-                outer = rest + p.adjacent_stretch * p.gamma
-                if _seat_nearest(
-                    state, t, j, want, rest, True, inner, outer, cur[k].copy(), free, p
-                ):
-                    grew = True
-        if not grew:
-            break
-        found = True
-    if found:
-        reject_overstretched(state, t, p)
-    return found
-
-
-@numba.njit(**JIT)
-def _seat_nearest(
-    state, t, j, want, gate, use_shell, inner, outer, centre, free, p
-):  # pragma: no cover
-    """Twin of the reference's ``_seat_nearest``: the shell is (``inner``, ``outer``,
-    ``centre``) when ``use_shell``."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    points = state.points
-    n = b - a
-    d = np.full(n, _INF)
-    n_ok = 0
-    for c in range(n):
-        if not free[c]:
-            continue
-        q = a + c
-        dc = norm3(points[q, 0] - want[0], points[q, 1] - want[1], points[q, 2] - want[2])
-        if not dc <= gate:
-            continue
-        if use_shell:
-            r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
-            if not (r >= inner and r <= outer):
-                continue
-        d[c] = dc
-        n_ok += 1
-    if n_ok == 0:  # the usual case for a trace still hidden
-        return False
-    while True:
-        best = -1
-        for c in range(n):
-            if d[c] < _INF and (best < 0 or d[c] < d[best]):
-                best = c
-        if best < 0:
-            return False
-        d[best] = _INF
-        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(state, t, -1, a + best, p):
-            continue
-        state.known[j] = True
-        state.taken[j] = a + best
-        for c in range(3):
-            state.cur[j, c] = points[a + best, c]
-        free[best] = False
-        return True
-
-
-@numba.njit(**JIT)
-def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
-    """Twin of the reference's ``_beside_trace``."""
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb == fa:
-            return False
-        best = _INF
-        n = -1
-        for q in range(fa, fb):
-            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
-            if dq < best:
-                best = dq
-                n = q
-        if not best <= p.gamma:
-            return False
-        mine = point_index[f, j]
-        if mine >= 0:
-            e = norm3(
-                points[n, 0] - points[mine, 0],
-                points[n, 1] - points[mine, 1],
-                points[n, 2] - points[mine, 2],
-            )
-            return n != mine and e > p.gamma
-        v0 = x0 - points[n, 0]
-        v1 = x1 - points[n, 1]
-        v2 = x2 - points[n, 2]
-        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
-    return False
 
 
 # ------------------------------------------------------------------ after matching
