@@ -14,6 +14,9 @@ from skincap.tracking._refusals_numba import reject_overstretched, rigid_with_bo
 __all__ = ["reacquire_on_shell"]
 
 _INF = np.inf
+# NumPy bools, not literals: _seat_nearest compiles once, not twice
+_SHELL = np.bool_(True)
+_NO_SHELL = np.bool_(False)
 
 
 @numba.njit(**JIT)
@@ -36,7 +39,7 @@ def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
         for j in (0, m - 1):
             rest = link_rest[min(j, m - 2)]
             want = prev[j] + state.velocity[j]
-            if _seat_nearest(state, t, j, want, rest, False, 0.0, 0.0, want, free, p):
+            if _seat_nearest(state, t, j, want, rest, _NO_SHELL, 0.0, 0.0, want, free, p):
                 found = True
     for _ in range(m):
         grew = False
@@ -49,7 +52,7 @@ def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
                 inner = rest - p.gamma
                 outer = rest + p.adjacent_stretch * p.gamma
                 if _seat_nearest(
-                    state, t, j, want, rest, True, inner, outer, cur[k].copy(), free, p
+                    state, t, j, want, rest, _SHELL, inner, outer, cur[k].copy(), free, p
                 ):
                     grew = True
         if not grew:
@@ -94,7 +97,9 @@ def _seat_nearest(
         if best < 0:
             return False
         d[best] = _INF
-        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(state, t, -1, a + best, p):
+        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(
+            state, t, np.int64(-1), a + best, p
+        ):
             continue
         state.known[j] = True
         state.taken[j] = a + best

@@ -5,14 +5,17 @@ Every public function here is the twin of the one of the same name and signature
 step does and why): the same ``(state, t, …, p)`` arguments, a
 :class:`~skincap.tracking.state.TrackState` changed in place and the run's
 :class:`~skincap.tracking.state.StepParams`. Loops replace the vectorised
-expressions, the KD-tree queries become a brute-force k-nearest search over the
-frame's few hundred points (:mod:`skincap.tracking._numba_search`), and the
-leave-one-out curve is evaluated directly. It takes the same points and invents the
+expressions, the KD-tree queries become a k-nearest search over the frame's few
+hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: a
+frame is bucketed once per matching pass, and only the cells within the gate are
+scanned; the body-point chains and the "follows something slower" refusal search
+the same way), and the leave-one-out curve is evaluated directly. It takes the same points and invents the
 same markers; invented positions agree to rounding (the order of a few additions
 differs).
 
 Importing this module imports numba; :func:`track_frames` compiles on its first call
-(about a minute of one core; cached on disk, loaded in about a second afterwards).
+(two to three minutes of one core, 44 functions compiled once each; cached on disk,
+loaded in about a second afterwards).
 ``track_rope(backend="auto")`` never waits for it: it runs the NumPy steps while
 :func:`skincap.tracking.tracker.warm_up_kernel` compiles these in a background
 process (:mod:`skincap.backends`). The refusals and the re-acquisition are compiled in
@@ -34,6 +37,7 @@ from skincap.tracking._numba_curve import (
     settle,
     side_neighbours,
 )
+from skincap.tracking._numba_grid import build_grid, grid_cells, grid_nearest
 from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3, query_nearest
 from skincap.tracking._reacquire_numba import reacquire_on_shell
 from skincap.tracking._refusals_numba import (
@@ -64,6 +68,9 @@ __all__ = [
 ]
 
 _INF = np.inf
+# the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
+_WIDE = np.bool_(True)
+_NARROW = np.bool_(False)
 
 
 @numba.njit(**JIT)
@@ -126,7 +133,7 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
     q_count = np.zeros(a - pa, np.int64)
     p_q = np.full(b - a, -1, np.int64)
     p_count = np.zeros(b - a, np.int64)
-    # the previous body points' predictions sorted by x: only those within eps in x
+    # the previous body points' predictions, bucketed: only those within eps are tried
     n_body = 0
     for q in range(pa, a):
         if body[q]:
@@ -137,39 +144,55 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
         if body[q]:
             qs[n_body] = q
             n_body += 1
-    px = np.empty(n_body)
+    px = np.empty((n_body, 3))
     for r in range(n_body):
-        px[r] = points[qs[r], 0] + body_vel[qs[r], 0]
-    order = np.argsort(px)
-    xs = px[order]
+        for c in range(3):
+            px[r, c] = points[qs[r], c] + body_vel[qs[r], c]
+    grid = build_grid(px, np.int64(0), n_body, eps)
+    axis, starts, order = grid[0], grid[3], grid[4]
     for i in range(a, b):
         body[i] = False
         for c in range(3):
             body_vel[i, c] = 0.0
-        lo = np.searchsorted(xs, points[i, 0] - eps)
-        hi = np.searchsorted(xs, points[i, 0] + eps, side="right")
-        for r in range(lo, hi):
-            q = qs[order[r]]
-            ex = points[i, 0] - (points[q, 0] + body_vel[q, 0])
-            ey = points[i, 1] - (points[q, 1] + body_vel[q, 1])
-            ez = points[i, 2] - (points[q, 2] + body_vel[q, 2])
-            if ex * ex + ey * ey + ez * ez < eps2:
-                p_count[i - a] += 1
-                q_count[q - pa] += 1
-                p_q[i - a] = q
+        first, last = grid_cells(grid, points[i, axis], eps)
+        for cell in range(first, last + 1):
+            for k in range(starts[cell], starts[cell + 1]):
+                r = order[k]
+                ex = points[i, 0] - px[r, 0]
+                ey = points[i, 1] - px[r, 1]
+                ez = points[i, 2] - px[r, 2]
+                if ex * ex + ey * ey + ez * ez < eps2:
+                    q = qs[r]
+                    p_count[i - a] += 1
+                    q_count[q - pa] += 1
+                    p_q[i - a] = q
+    # the predictions V of the traces measured in frame t - 1, bucketed as well
     measured_before = state.point_index[t - 1]
+    n_rope = 0
+    for j in range(measured_before.size):
+        if measured_before[j] >= 0:
+            n_rope += 1
+    rope_pred = np.empty((n_rope, 3))
+    n_rope = 0
+    for j in range(measured_before.size):
+        if measured_before[j] >= 0:
+            rope_pred[n_rope] = v_pred[j]
+            n_rope += 1
+    rope_grid = build_grid(rope_pred, np.int64(0), n_rope, eps)
+    rope_axis, rope_starts, rope_order = rope_grid[0], rope_grid[3], rope_grid[4]
     for i in range(a, b):
         if p_count[i - a] != 1 or q_count[p_q[i - a] - pa] != 1:
             continue
         near_rope = False
-        for j in range(measured_before.size):
-            if measured_before[j] < 0:
-                continue
-            ex = points[i, 0] - v_pred[j, 0]
-            ey = points[i, 1] - v_pred[j, 1]
-            ez = points[i, 2] - v_pred[j, 2]
-            if ex * ex + ey * ey + ez * ez < eps2:
-                near_rope = True
+        first, last = grid_cells(rope_grid, points[i, rope_axis], eps)
+        for cell in range(first, last + 1):
+            for k in range(rope_starts[cell], rope_starts[cell + 1]):
+                r = rope_order[k]
+                ex = points[i, 0] - rope_pred[r, 0]
+                ey = points[i, 1] - rope_pred[r, 1]
+                ez = points[i, 2] - rope_pred[r, 2]
+                if ex * ex + ey * ey + ez * ez < eps2:
+                    near_rope = True
         if near_rope:
             continue
         q = p_q[i - a]
@@ -180,9 +203,10 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
 
 # ------------------------------------------------------------------ matching
 @numba.njit(**JIT)
-def _follows_other(state, t, row, candidate, pred, gamma):  # pragma: no cover
+def _follows_other(state, t, row, candidate, pred, gamma, prev_grid):  # pragma: no cover
     """The candidate point lies within ``min(γ, D - γ)`` of a point of frame t - 1 the
-    rope did not take, ``D`` how far trace ``row`` is predicted to move."""
+    rope did not take, ``D`` how far trace ``row`` is predicted to move; ``prev_grid``
+    is frame t - 1's (:func:`~skincap.tracking._numba_grid.build_grid`)."""
     points = state.points
     last = state.positions[t - 1, row]
     lim = min(gamma, norm3(pred[0] - last[0], pred[1] - last[1], pred[2] - last[2]) - gamma)
@@ -190,17 +214,21 @@ def _follows_other(state, t, row, candidate, pred, gamma):  # pragma: no cover
         return False
     lim2 = lim * lim
     prev_taken = state.point_index[t - 1]
-    for q in range(state.offsets[t - 1], state.offsets[t]):
-        ex = points[candidate, 0] - points[q, 0]
-        ey = points[candidate, 1] - points[q, 1]
-        ez = points[candidate, 2] - points[q, 2]
-        if ex * ex + ey * ey + ez * ez < lim2:
-            mine = False
-            for j in range(prev_taken.size):
-                if prev_taken[j] == q:
-                    mine = True
-            if not mine:
-                return True
+    axis, starts, order = prev_grid[0], prev_grid[3], prev_grid[4]
+    first, last_cell = grid_cells(prev_grid, points[candidate, axis], lim)
+    for cell in range(first, last_cell + 1):
+        for k in range(starts[cell], starts[cell + 1]):
+            q = order[k]
+            ex = points[candidate, 0] - points[q, 0]
+            ey = points[candidate, 1] - points[q, 1]
+            ez = points[candidate, 2] - points[q, 2]
+            if ex * ex + ey * ey + ez * ez < lim2:
+                mine = False
+                for j in range(prev_taken.size):
+                    if prev_taken[j] == q:
+                        mine = True
+                if not mine:
+                    return True
     return False
 
 
@@ -217,8 +245,9 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
     kk = min(min(p.candidates, b - a) + n_taken, b - a)
     d = np.empty((rows.size, kk))
     ii = np.empty((rows.size, kk), np.int64)
+    grid = build_grid(state.points, a, b, p.gamma)
     for r in range(rows.size):
-        query_nearest(state.points, a, b, pred[rows[r]], kk, gate, d[r], ii[r])
+        grid_nearest(state.points, grid, b, pred[rows[r]], kk, gate, d[r], ii[r])
     if n_taken:
         for r in range(rows.size):
             for c in range(kk):
@@ -287,19 +316,31 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
                 for c in range(kk):
                     if d[r, c] >= gamma:
                         d[r, c] = _INF
+    judged = False  # frame t - 1's grid, built for the first candidate judged
     for r in range(rows.size):
         row = rows[r]
         if steady[row] and not 0 < row < m - 1:
             continue
         for c in range(kk):
-            if d[r, c] < _INF and _follows_other(state, t, row, ii[r, c], pred[row], gamma):
-                d[r, c] = _INF
+            if d[r, c] < _INF:
+                judged = True
+    if judged:
+        prev_grid = build_grid(state.points, state.offsets[t - 1], state.offsets[t], gamma)
+        for r in range(rows.size):
+            row = rows[r]
+            if steady[row] and not 0 < row < m - 1:
+                continue
+            for c in range(kk):
+                if d[r, c] < _INF and _follows_other(
+                    state, t, row, ii[r, c], pred[row], gamma, prev_grid
+                ):
+                    d[r, c] = _INF
     if wide:
         for r in range(rows.size):
             if steady[rows[r]]:
                 continue
             for c in range(kk):
-                if d[r, c] < gate and rigid_with_body(state, t, -1, ii[r, c], p):
+                if d[r, c] < gate and rigid_with_body(state, t, np.int64(-1), ii[r, c], p):
                     d[r, c] = _INF
         _refuse_off_spacing(state, rows, d, ii, gamma)
     hit_rows, pts = gated_assignment(d, ii, gate)
@@ -469,7 +510,7 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
 def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured`."""
     steady = _steady(state)
-    match_traces(state, t, np.nonzero(steady)[0], v_pred, False, p)
+    match_traces(state, t, np.nonzero(steady)[0], v_pred, _NARROW, p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     tried = v_pred.copy()
@@ -487,7 +528,7 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
                     want[j] = False
         if not want.any():
             break
-        if not match_traces(state, t, np.nonzero(want)[0], pred, True, p):
+        if not match_traces(state, t, np.nonzero(want)[0], pred, _WIDE, p):
             break
         reject_overstretched(state, t, p)
         reject_odd_motion(state, t, p)
@@ -499,12 +540,12 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
-    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, True, p)
+    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, _WIDE, p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     for _ in range(p.zipper_rounds):
         rows, zpred = zipper_predictions(state, p)
-        if rows.size == 0 or not match_traces(state, t, rows, zpred, True, p):
+        if rows.size == 0 or not match_traces(state, t, rows, zpred, _WIDE, p):
             break
         found_more = True
         reject_overstretched(state, t, p)

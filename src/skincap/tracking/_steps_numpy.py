@@ -21,7 +21,7 @@ A frame (:func:`track_frame`) runs::
     commit_frame                          row t of the results, velocity, counts
 
 Candidate points come from a KD-tree over the frame's points, built when the frame
-is first searched (the numba twin searches brute force). The refusals
+is first searched (the numba twin buckets it along one axis instead). The refusals
 (:func:`rigid_with_body`, ``reject_*``) live in :mod:`skincap.tracking._refusals_numpy`
 and the re-acquisition in :mod:`skincap.tracking._reacquire_numpy`; both are
 re-exported here, so this module names every step.
