@@ -23,7 +23,7 @@ import numpy as np
 
 from skincap.tracking._numba_search import JIT
 
-__all__ = ["build_grid", "grid_cells", "grid_nearest"]
+__all__ = ["build_grid", "grid_cells", "grid_nearest", "whole_frame"]
 
 _INF = np.inf
 
@@ -44,7 +44,7 @@ def build_grid(xyz, a, b, width):  # pragma: no cover - runs compiled
                 highs[ax] = x
     best_axis = 0
     best_pairs = -1
-    best_cells = 1
+    best_cells = np.int64(1)  # not a literal: _cell compiles once
     best_inv = 0.0
     for ax in range(3):
         n_cells, inv = _cell_count(lows[ax], highs[ax], width, n)
@@ -69,6 +69,15 @@ def build_grid(xyz, a, b, width):  # pragma: no cover - runs compiled
         order[fill[c]] = i
         fill[c] += 1
     return best_axis, lo, best_inv, starts, order
+
+
+@numba.njit(**JIT)
+def whole_frame(a, b):  # pragma: no cover - runs compiled
+    """The grid of rows ``a … b - 1`` as one cell of infinite width: searching it scans
+    every row (cheaper than :func:`build_grid` for a few searches)."""
+    starts = np.zeros(2, np.int64)
+    starts[1] = b - a
+    return np.int64(0), 0.0, 0.0, starts, np.arange(a, b)
 
 
 @numba.njit(**JIT)

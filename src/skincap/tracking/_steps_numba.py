@@ -37,7 +37,7 @@ from skincap.tracking._numba_curve import (
     settle,
     side_neighbours,
 )
-from skincap.tracking._numba_grid import build_grid, grid_cells, grid_nearest
+from skincap.tracking._numba_grid import build_grid, grid_cells, grid_nearest, whole_frame
 from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3, query_nearest
 from skincap.tracking._reacquire_numba import reacquire_on_shell
 from skincap.tracking._refusals_numba import (
@@ -71,6 +71,8 @@ _INF = np.inf
 # the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
 _WIDE = np.bool_(True)
 _NARROW = np.bool_(False)
+# bucketing a frame (_numba_grid) pays from about this many searches in it
+_GRID_QUERIES = 6
 
 
 @numba.njit(**JIT)
@@ -148,7 +150,7 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
     for r in range(n_body):
         for c in range(3):
             px[r, c] = points[qs[r], c] + body_vel[qs[r], c]
-    grid = build_grid(px, np.int64(0), n_body, eps)
+    grid = build_grid(px, np.int64(0), px.shape[0], eps)
     axis, starts, order = grid[0], grid[3], grid[4]
     for i in range(a, b):
         body[i] = False
@@ -178,7 +180,7 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
         if measured_before[j] >= 0:
             rope_pred[n_rope] = v_pred[j]
             n_rope += 1
-    rope_grid = build_grid(rope_pred, np.int64(0), n_rope, eps)
+    rope_grid = build_grid(rope_pred, np.int64(0), rope_pred.shape[0], eps)
     rope_axis, rope_starts, rope_order = rope_grid[0], rope_grid[3], rope_grid[4]
     for i in range(a, b):
         if p_count[i - a] != 1 or q_count[p_q[i - a] - pa] != 1:
@@ -245,9 +247,13 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
     kk = min(min(p.candidates, b - a) + n_taken, b - a)
     d = np.empty((rows.size, kk))
     ii = np.empty((rows.size, kk), np.int64)
-    grid = build_grid(state.points, a, b, p.gamma)
-    for r in range(rows.size):
-        grid_nearest(state.points, grid, b, pred[rows[r]], kk, gate, d[r], ii[r])
+    if rows.size < _GRID_QUERIES:  # a few questions: scanning beats bucketing
+        for r in range(rows.size):
+            query_nearest(state.points, a, b, pred[rows[r]], kk, gate, d[r], ii[r])
+    else:
+        grid = build_grid(state.points, a, b, p.gamma)
+        for r in range(rows.size):
+            grid_nearest(state.points, grid, b, pred[rows[r]], kk, gate, d[r], ii[r])
     if n_taken:
         for r in range(rows.size):
             for c in range(kk):
@@ -316,16 +322,20 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
                 for c in range(kk):
                     if d[r, c] >= gamma:
                         d[r, c] = _INF
-    judged = False  # frame t - 1's grid, built for the first candidate judged
+    judged = 0  # frame t - 1 is bucketed when enough candidates are judged
     for r in range(rows.size):
         row = rows[r]
         if steady[row] and not 0 < row < m - 1:
             continue
         for c in range(kk):
             if d[r, c] < _INF:
-                judged = True
+                judged += 1
     if judged:
-        prev_grid = build_grid(state.points, state.offsets[t - 1], state.offsets[t], gamma)
+        pa = state.offsets[t - 1]
+        # a single cell holding every point: a plain scan, without bucketing
+        prev_grid = whole_frame(pa, state.offsets[t])
+        if judged >= _GRID_QUERIES:
+            prev_grid = build_grid(state.points, pa, state.offsets[t], gamma)
         for r in range(rows.size):
             row = rows[r]
             if steady[row] and not 0 < row < m - 1:
