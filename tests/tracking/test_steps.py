@@ -252,7 +252,7 @@ def test_rigidity_test_agrees_between_backends() -> None:
 
 
 def test_a_stretched_link_drops_its_body_like_side(steps) -> None:  # type: ignore[no-untyped-def]
-    from skincap.tracking._steps_numpy import _keep_best_chain
+    from skincap.tracking._refusals_numpy import _keep_best_chain
 
     gamma = 0.03
     s = np.array([0.0, 0.12, 0.24])

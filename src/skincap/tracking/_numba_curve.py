@@ -208,6 +208,7 @@ def predict_ends(cur, known, prev, v_tilde, temp_count, spacing):  # pragma: no 
                 first = j
             last = j
     for j in range(first - 1, -1, -1):
-        _predict_end(cur, prev, v_tilde, temp_count, spacing, j, 1)
+        # np.int64, not a literal: one compiled signature for both sides
+        _predict_end(cur, prev, v_tilde, temp_count, spacing, j, np.int64(1))
     for j in range(last + 1, m):
-        _predict_end(cur, prev, v_tilde, temp_count, spacing, j, -1)
+        _predict_end(cur, prev, v_tilde, temp_count, spacing, j, np.int64(-1))

@@ -1,7 +1,9 @@
 """Brute-force nearest points and the one-to-one assignment, compiled (numba).
 
 The numba twins of :class:`scipy.spatial.cKDTree` queries (a frame holds a few
-hundred points: a brute-force k-nearest search is faster than a tree) and of
+hundred points: a brute-force k-nearest search is faster than a tree; the matching
+passes, which ask many at once, bucket the frame first with
+:mod:`skincap.tracking._numba_grid`) and of
 :func:`skincap.tracking.init.gated_assignment`, whose conflicts are resolved by the
 same shortest-augmenting-path assignment as :func:`scipy.optimize.linear_sum_assignment`
 (Crouse 2016, ported with its tie-breaking), so both backends take the same points.

@@ -5,17 +5,22 @@ Every public function here is the twin of the one of the same name and signature
 step does and why): the same ``(state, t, …, p)`` arguments, a
 :class:`~skincap.tracking.state.TrackState` changed in place and the run's
 :class:`~skincap.tracking.state.StepParams`. Loops replace the vectorised
-expressions, the KD-tree queries become a brute-force k-nearest search over the
-frame's few hundred points (:mod:`skincap.tracking._numba_search`), and the
-leave-one-out curve is evaluated directly. It takes the same points and invents the
+expressions, the KD-tree queries become a k-nearest search over the frame's few
+hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: a
+frame is bucketed once per matching pass, and only the cells within the gate are
+scanned; the body-point chains and the "follows something slower" refusal search
+the same way), and the leave-one-out curve is evaluated directly. It takes the same points and invents the
 same markers; invented positions agree to rounding (the order of a few additions
 differs).
 
 Importing this module imports numba; :func:`track_frames` compiles on its first call
-(about a minute of one core; cached on disk, loaded in about a second afterwards).
+(two to three minutes of one core, 44 functions compiled once each; cached on disk,
+loaded in about a second afterwards).
 ``track_rope(backend="auto")`` never waits for it: it runs the NumPy steps while
 :func:`skincap.tracking.tracker.warm_up_kernel` compiles these in a background
-process (:mod:`skincap.backends`).
+process (:mod:`skincap.backends`). The refusals and the re-acquisition are compiled in
+:mod:`skincap.tracking._refusals_numba` and :mod:`skincap.tracking._reacquire_numba`
+and re-exported here.
 """
 
 from __future__ import annotations
@@ -32,7 +37,14 @@ from skincap.tracking._numba_curve import (
     settle,
     side_neighbours,
 )
+from skincap.tracking._numba_grid import build_grid, grid_cells, grid_nearest, whole_frame
 from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3, query_nearest
+from skincap.tracking._reacquire_numba import reacquire_on_shell
+from skincap.tracking._refusals_numba import (
+    reject_odd_motion,
+    reject_overstretched,
+    rigid_with_body,
+)
 
 __all__ = [
     "begin_frame",
@@ -56,6 +68,11 @@ __all__ = [
 ]
 
 _INF = np.inf
+# the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
+_WIDE = np.bool_(True)
+_NARROW = np.bool_(False)
+# bucketing a frame (_numba_grid) pays from about this many searches in it
+_GRID_QUERIES = 6
 
 
 @numba.njit(**JIT)
@@ -118,7 +135,7 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
     q_count = np.zeros(a - pa, np.int64)
     p_q = np.full(b - a, -1, np.int64)
     p_count = np.zeros(b - a, np.int64)
-    # the previous body points' predictions sorted by x: only those within eps in x
+    # the previous body points' predictions, bucketed: only those within eps are tried
     n_body = 0
     for q in range(pa, a):
         if body[q]:
@@ -129,39 +146,55 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
         if body[q]:
             qs[n_body] = q
             n_body += 1
-    px = np.empty(n_body)
+    px = np.empty((n_body, 3))
     for r in range(n_body):
-        px[r] = points[qs[r], 0] + body_vel[qs[r], 0]
-    order = np.argsort(px)
-    xs = px[order]
+        for c in range(3):
+            px[r, c] = points[qs[r], c] + body_vel[qs[r], c]
+    grid = build_grid(px, np.int64(0), px.shape[0], eps)
+    axis, starts, order = grid[0], grid[3], grid[4]
     for i in range(a, b):
         body[i] = False
         for c in range(3):
             body_vel[i, c] = 0.0
-        lo = np.searchsorted(xs, points[i, 0] - eps)
-        hi = np.searchsorted(xs, points[i, 0] + eps, side="right")
-        for r in range(lo, hi):
-            q = qs[order[r]]
-            ex = points[i, 0] - (points[q, 0] + body_vel[q, 0])
-            ey = points[i, 1] - (points[q, 1] + body_vel[q, 1])
-            ez = points[i, 2] - (points[q, 2] + body_vel[q, 2])
-            if ex * ex + ey * ey + ez * ez < eps2:
-                p_count[i - a] += 1
-                q_count[q - pa] += 1
-                p_q[i - a] = q
+        first, last = grid_cells(grid, points[i, axis], eps)
+        for cell in range(first, last + 1):
+            for k in range(starts[cell], starts[cell + 1]):
+                r = order[k]
+                ex = points[i, 0] - px[r, 0]
+                ey = points[i, 1] - px[r, 1]
+                ez = points[i, 2] - px[r, 2]
+                if ex * ex + ey * ey + ez * ez < eps2:
+                    q = qs[r]
+                    p_count[i - a] += 1
+                    q_count[q - pa] += 1
+                    p_q[i - a] = q
+    # the predictions V of the traces measured in frame t - 1, bucketed as well
     measured_before = state.point_index[t - 1]
+    n_rope = 0
+    for j in range(measured_before.size):
+        if measured_before[j] >= 0:
+            n_rope += 1
+    rope_pred = np.empty((n_rope, 3))
+    n_rope = 0
+    for j in range(measured_before.size):
+        if measured_before[j] >= 0:
+            rope_pred[n_rope] = v_pred[j]
+            n_rope += 1
+    rope_grid = build_grid(rope_pred, np.int64(0), rope_pred.shape[0], eps)
+    rope_axis, rope_starts, rope_order = rope_grid[0], rope_grid[3], rope_grid[4]
     for i in range(a, b):
         if p_count[i - a] != 1 or q_count[p_q[i - a] - pa] != 1:
             continue
         near_rope = False
-        for j in range(measured_before.size):
-            if measured_before[j] < 0:
-                continue
-            ex = points[i, 0] - v_pred[j, 0]
-            ey = points[i, 1] - v_pred[j, 1]
-            ez = points[i, 2] - v_pred[j, 2]
-            if ex * ex + ey * ey + ez * ez < eps2:
-                near_rope = True
+        first, last = grid_cells(rope_grid, points[i, rope_axis], eps)
+        for cell in range(first, last + 1):
+            for k in range(rope_starts[cell], rope_starts[cell + 1]):
+                r = rope_order[k]
+                ex = points[i, 0] - rope_pred[r, 0]
+                ey = points[i, 1] - rope_pred[r, 1]
+                ez = points[i, 2] - rope_pred[r, 2]
+                if ex * ex + ey * ey + ez * ez < eps2:
+                    near_rope = True
         if near_rope:
             continue
         q = p_q[i - a]
@@ -170,141 +203,12 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
             body_vel[i, c] = points[i, c] - points[q, c]
 
 
-@numba.njit(**JIT)
-def _rope_taken_at(point_index, f, q):  # pragma: no cover - runs compiled
-    """True when a trace took the point q in frame f."""
-    for j in range(point_index.shape[1]):
-        if point_index[f, j] == q:
-            return True
-    return False
-
-
-@numba.njit(**JIT)
-def _follow_back(points, offsets, t, window, point, tol, traj):  # pragma: no cover
-    """Fill ``traj`` (W + 1, 3) with the point's path back by unambiguous nearest points
-    at constant velocity (last row the point); False where it is ambiguous."""
-    traj[window] = points[point]
-    vx = 0.0
-    vy = 0.0
-    vz = 0.0
-    for f in range(t - 1, t - window - 1, -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb - fa < 2:
-            return False
-        r = f - t + window
-        qx = traj[r + 1, 0] - vx
-        qy = traj[r + 1, 1] - vy
-        qz = traj[r + 1, 2] - vz
-        d1 = _INF
-        d2 = _INF
-        n1 = -1
-        for q in range(fa, fb):
-            dd = norm3(points[q, 0] - qx, points[q, 1] - qy, points[q, 2] - qz)
-            if dd < d1:
-                d2 = d1
-                d1 = dd
-                n1 = q
-            elif dd < d2:
-                d2 = dd
-        if not (d1 < 2.0 * tol and d2 > 2.0 * d1):
-            return False
-        traj[r] = points[n1]
-        vx = traj[r + 1, 0] - traj[r, 0]
-        vy = traj[r + 1, 1] - traj[r, 1]
-        vz = traj[r + 1, 2] - traj[r, 2]
-    return True
-
-
-@numba.njit(**JIT)
-def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):  # pragma: no cover
-    """True when the partner point ``c`` follows the path ``traj`` back through the
-    window at a constant distance ``dq``."""
-    qx = points[c, 0]
-    qy = points[c, 1]
-    qz = points[c, 2]
-    for f in range(t - 1, t - window - 1, -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb == fa:
-            return False
-        r = f - t + window
-        px = qx + traj[r, 0] - traj[r + 1, 0]
-        py = qy + traj[r, 1] - traj[r + 1, 1]
-        pz = qz + traj[r, 2] - traj[r + 1, 2]
-        best = _INF
-        n = fa
-        for q in range(fa, fb):
-            dd = norm3(points[q, 0] - px, points[q, 1] - py, points[q, 2] - pz)
-            if dd < best and not _rope_taken_at(point_index, f, q):
-                best = dd
-                n = q
-        qx = points[n, 0]
-        qy = points[n, 1]
-        qz = points[n, 2]
-        to_p = norm3(qx - traj[r, 0], qy - traj[r, 1], qz - traj[r, 2])
-        if not (best < tol and abs(to_p - dq) < tol):
-            return False
-    return True
-
-
-@numba.njit(**JIT)
-def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.rigid_with_body`."""
-    window = p.rigid_window
-    if t < window:
-        return False
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    spacing = p.median_spacing
-    tol = p.rigid_range * spacing
-    traj = np.empty((window + 1, 3))
-    whole = j >= 0
-    if whole:
-        for f in range(t - window, t):
-            if point_index[f, j] < 0:
-                whole = False
-                break
-    if whole:
-        traj[window] = points[point]
-        for f in range(t - window, t):
-            traj[f - t + window] = points[point_index[f, j]]
-    elif not _follow_back(points, offsets, t, window, point, tol, traj):
-        return False
-    far = 0.0
-    for r in range(window):
-        dd = norm3(
-            traj[r, 0] - traj[window, 0], traj[r, 1] - traj[window, 1], traj[r, 2] - traj[window, 2]
-        )
-        far = max(far, dd)
-    if far < p.rigid_move * spacing:
-        return False
-    found = 0
-    for c in range(offsets[t], offsets[t + 1]):
-        if c == point:
-            continue
-        dq = norm3(
-            points[c, 0] - traj[window, 0],
-            points[c, 1] - traj[window, 1],
-            points[c, 2] - traj[window, 2],
-        )
-        if not dq < p.rigid_radius * spacing:
-            continue
-        mine = False
-        for jj in range(state.taken.size):
-            if state.taken[jj] == c:
-                mine = True
-        if mine:
-            continue
-        if _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):
-            found += 1
-            if found >= p.rigid_partners:
-                return True
-    return False
-
-
 # ------------------------------------------------------------------ matching
 @numba.njit(**JIT)
-def _follows_other(state, t, row, candidate, pred, gamma):  # pragma: no cover
+def _follows_other(state, t, row, candidate, pred, gamma, prev_grid):  # pragma: no cover
     """The candidate point lies within ``min(γ, D - γ)`` of a point of frame t - 1 the
-    rope did not take, ``D`` how far trace ``row`` is predicted to move."""
+    rope did not take, ``D`` how far trace ``row`` is predicted to move; ``prev_grid``
+    is frame t - 1's (:func:`~skincap.tracking._numba_grid.build_grid`)."""
     points = state.points
     last = state.positions[t - 1, row]
     lim = min(gamma, norm3(pred[0] - last[0], pred[1] - last[1], pred[2] - last[2]) - gamma)
@@ -312,17 +216,21 @@ def _follows_other(state, t, row, candidate, pred, gamma):  # pragma: no cover
         return False
     lim2 = lim * lim
     prev_taken = state.point_index[t - 1]
-    for q in range(state.offsets[t - 1], state.offsets[t]):
-        ex = points[candidate, 0] - points[q, 0]
-        ey = points[candidate, 1] - points[q, 1]
-        ez = points[candidate, 2] - points[q, 2]
-        if ex * ex + ey * ey + ez * ez < lim2:
-            mine = False
-            for j in range(prev_taken.size):
-                if prev_taken[j] == q:
-                    mine = True
-            if not mine:
-                return True
+    axis, starts, order = prev_grid[0], prev_grid[3], prev_grid[4]
+    first, last_cell = grid_cells(prev_grid, points[candidate, axis], lim)
+    for cell in range(first, last_cell + 1):
+        for k in range(starts[cell], starts[cell + 1]):
+            q = order[k]
+            ex = points[candidate, 0] - points[q, 0]
+            ey = points[candidate, 1] - points[q, 1]
+            ez = points[candidate, 2] - points[q, 2]
+            if ex * ex + ey * ey + ez * ez < lim2:
+                mine = False
+                for j in range(prev_taken.size):
+                    if prev_taken[j] == q:
+                        mine = True
+                if not mine:
+                    return True
     return False
 
 
@@ -339,8 +247,13 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
     kk = min(min(p.candidates, b - a) + n_taken, b - a)
     d = np.empty((rows.size, kk))
     ii = np.empty((rows.size, kk), np.int64)
-    for r in range(rows.size):
-        query_nearest(state.points, a, b, pred[rows[r]], kk, gate, d[r], ii[r])
+    if rows.size < _GRID_QUERIES:  # a few questions: scanning beats bucketing
+        for r in range(rows.size):
+            query_nearest(state.points, a, b, pred[rows[r]], kk, gate, d[r], ii[r])
+    else:
+        grid = build_grid(state.points, a, b, p.gamma)
+        for r in range(rows.size):
+            grid_nearest(state.points, grid, b, pred[rows[r]], kk, gate, d[r], ii[r])
     if n_taken:
         for r in range(rows.size):
             for c in range(kk):
@@ -409,19 +322,35 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
                 for c in range(kk):
                     if d[r, c] >= gamma:
                         d[r, c] = _INF
+    judged = 0  # frame t - 1 is bucketed when enough candidates are judged
     for r in range(rows.size):
         row = rows[r]
         if steady[row] and not 0 < row < m - 1:
             continue
         for c in range(kk):
-            if d[r, c] < _INF and _follows_other(state, t, row, ii[r, c], pred[row], gamma):
-                d[r, c] = _INF
+            if d[r, c] < _INF:
+                judged += 1
+    if judged:
+        pa = state.offsets[t - 1]
+        # a single cell holding every point: a plain scan, without bucketing
+        prev_grid = whole_frame(pa, state.offsets[t])
+        if judged >= _GRID_QUERIES:
+            prev_grid = build_grid(state.points, pa, state.offsets[t], gamma)
+        for r in range(rows.size):
+            row = rows[r]
+            if steady[row] and not 0 < row < m - 1:
+                continue
+            for c in range(kk):
+                if d[r, c] < _INF and _follows_other(
+                    state, t, row, ii[r, c], pred[row], gamma, prev_grid
+                ):
+                    d[r, c] = _INF
     if wide:
         for r in range(rows.size):
             if steady[rows[r]]:
                 continue
             for c in range(kk):
-                if d[r, c] < gate and rigid_with_body(state, t, -1, ii[r, c], p):
+                if d[r, c] < gate and rigid_with_body(state, t, np.int64(-1), ii[r, c], p):
                     d[r, c] = _INF
         _refuse_off_spacing(state, rows, d, ii, gamma)
     hit_rows, pts = gated_assignment(d, ii, gate)
@@ -431,102 +360,6 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
         state.taken[row] = pts[h]
         state.cur[row] = state.points[pts[h]]
     return hit_rows.size > 0
-
-
-# ------------------------------------------------------------------ refusals
-@numba.njit(**JIT)
-def _measured(known):  # pragma: no cover - runs compiled
-    """(n,) int64 the measured markers, in order."""
-    return np.nonzero(known)[0]
-
-
-@numba.njit(**JIT)
-def _link_limit(s, link_rest, ja, jb, gamma, p):  # pragma: no cover - runs compiled
-    """Largest chord between measured markers ja < jb, metres (neighbours: from the
-    larger of the rest arc length and the learnt ``link_rest``)."""
-    ds = s[jb] - s[ja]
-    if jb - ja == 1:
-        return max(ds, link_rest[ja]) + p.adjacent_stretch * gamma
-    return p.stretch * ds + gamma
-
-
-@numba.njit(**JIT)
-def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.reject_overstretched`."""
-    cur, s, gamma = state.cur, state.arclength, p.gamma
-    idx = _measured(state.known)
-    n = idx.size
-    if n < 2:
-        return
-    ok = True
-    for q in range(n - 1):
-        a, b = idx[q], idx[q + 1]
-        chord = norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
-        if not chord <= _link_limit(s, state.link_rest, a, b, gamma, p):
-            ok = False
-            break
-    if ok:
-        return
-    w = np.ones(n)
-    for q in range(n):
-        if rigid_with_body(state, t, idx[q], state.taken[idx[q]], p):
-            w[q] = -1.0
-    # the best chain by dynamic programming (as the reference's _keep_best_chain)
-    score = w.copy()
-    back = np.full(n, -1, np.int64)
-    for b in range(1, n):
-        best = -_INF
-        best_a = 0
-        for a in range(b):
-            ja, jb = idx[a], idx[b]
-            ds = s[jb] - s[ja]
-            dist = norm3(cur[ja, 0] - cur[jb, 0], cur[ja, 1] - cur[jb, 1], cur[ja, 2] - cur[jb, 2])
-            if dist <= _link_limit(s, state.link_rest, ja, jb, gamma, p):
-                dev = (ds - dist) / (ds if ds > 0 else 1.0)
-                squeeze = min(max(dev, 0.0), 1.0) + min(max(-dev, 0.0), 1.0)
-                gain = w[b] - 0.5 * squeeze
-            else:
-                gain = -_INF
-            cand = score[a] + gain
-            if cand > best:
-                best = cand
-                best_a = a
-        if best > score[b]:
-            score[b] = best
-            back[b] = best_a
-    keep = np.zeros(n, np.bool_)
-    b = int(np.argmax(score))
-    while b >= 0:
-        keep[b] = True
-        b = back[b]
-    for q in range(n):
-        if not keep[q]:
-            state.known[idx[q]] = False
-            state.taken[idx[q]] = -1
-
-
-@numba.njit(**JIT)
-def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.reject_odd_motion`."""
-    cur, prev, known = state.cur, state.positions[t - 1], state.known
-    m = known.size
-    odd = np.zeros(m, np.bool_)
-    for j in range(1, m - 1):
-        if not (known[j] and known[j - 1] and known[j + 1]):
-            continue
-        if state.temp_count[j] != 0:
-            continue
-        e = np.empty(3)
-        for c in range(3):
-            e[c] = (cur[j, c] - prev[j, c]) - 0.5 * (
-                (cur[j - 1, c] - prev[j - 1, c]) + (cur[j + 1, c] - prev[j + 1, c])
-            )
-        if norm3(e[0], e[1], e[2]) > p.gamma:
-            odd[j] = True
-    for j in range(m):
-        if odd[j]:
-            known[j] = False
-            state.taken[j] = -1
 
 
 # ------------------------------------------------------------------ predictions
@@ -603,131 +436,6 @@ def zipper_predictions(state, p):  # pragma: no cover - runs compiled
                     pred[j, c] = cur[j1, c] + (rest / norm) * e[c]
                 want[j] = True
     return np.nonzero(want)[0], pred
-
-
-# ------------------------------------------------------------------ re-acquisition
-@numba.njit(**JIT)
-def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.reacquire_on_shell`."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    known, cur, link_rest = state.known, state.cur, state.link_rest
-    m = known.size
-    if b == a:
-        return False
-    prev = state.positions[t - 1]
-    free = ~state.body[a:b]
-    for j in range(m):
-        if known[j]:
-            free[state.taken[j] - a] = False
-    if not free.any():  # nothing left to take: the passes below would find nothing
-        return False
-    found = False
-    if not known.any():
-        for j in (0, m - 1):
-            rest = link_rest[min(j, m - 2)]
-            want = prev[j] + state.velocity[j]
-            if _seat_nearest(state, t, j, want, rest, False, 0.0, 0.0, want, free, p):
-                found = True
-    for _ in range(m):
-        grew = False
-        for j in range(m):
-            for k in (j - 1, j + 1):
-                if known[j] or not (0 <= k < m and known[k]):
-                    continue
-                rest = link_rest[min(j, k)]
-                want = cur[k] + (prev[j] - prev[k])
-                inner = rest - p.gamma
-                outer = rest + p.adjacent_stretch * p.gamma
-                if _seat_nearest(
-                    state, t, j, want, rest, True, inner, outer, cur[k].copy(), free, p
-                ):
-                    grew = True
-        if not grew:
-            break
-        found = True
-    if found:
-        reject_overstretched(state, t, p)
-    return found
-
-
-@numba.njit(**JIT)
-def _seat_nearest(
-    state, t, j, want, gate, use_shell, inner, outer, centre, free, p
-):  # pragma: no cover
-    """Twin of the reference's ``_seat_nearest``: the shell is (``inner``, ``outer``,
-    ``centre``) when ``use_shell``."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    points = state.points
-    n = b - a
-    d = np.full(n, _INF)
-    n_ok = 0
-    for c in range(n):
-        if not free[c]:
-            continue
-        q = a + c
-        dc = norm3(points[q, 0] - want[0], points[q, 1] - want[1], points[q, 2] - want[2])
-        if not dc <= gate:
-            continue
-        if use_shell:
-            r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
-            if not (r >= inner and r <= outer):
-                continue
-        d[c] = dc
-        n_ok += 1
-    if n_ok == 0:  # the usual case for a trace still hidden
-        return False
-    while True:
-        best = -1
-        for c in range(n):
-            if d[c] < _INF and (best < 0 or d[c] < d[best]):
-                best = c
-        if best < 0:
-            return False
-        d[best] = _INF
-        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(state, t, -1, a + best, p):
-            continue
-        state.known[j] = True
-        state.taken[j] = a + best
-        for c in range(3):
-            state.cur[j, c] = points[a + best, c]
-        free[best] = False
-        return True
-
-
-@numba.njit(**JIT)
-def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
-    """Twin of the reference's ``_beside_trace``."""
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb == fa:
-            return False
-        best = _INF
-        n = -1
-        for q in range(fa, fb):
-            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
-            if dq < best:
-                best = dq
-                n = q
-        if not best <= p.gamma:
-            return False
-        mine = point_index[f, j]
-        if mine >= 0:
-            e = norm3(
-                points[n, 0] - points[mine, 0],
-                points[n, 1] - points[mine, 1],
-                points[n, 2] - points[mine, 2],
-            )
-            return n != mine and e > p.gamma
-        v0 = x0 - points[n, 0]
-        v1 = x1 - points[n, 1]
-        v2 = x2 - points[n, 2]
-        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
-    return False
 
 
 # ------------------------------------------------------------------ after matching
@@ -812,7 +520,7 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
 def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured`."""
     steady = _steady(state)
-    match_traces(state, t, np.nonzero(steady)[0], v_pred, False, p)
+    match_traces(state, t, np.nonzero(steady)[0], v_pred, _NARROW, p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     tried = v_pred.copy()
@@ -830,7 +538,7 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
                     want[j] = False
         if not want.any():
             break
-        if not match_traces(state, t, np.nonzero(want)[0], pred, True, p):
+        if not match_traces(state, t, np.nonzero(want)[0], pred, _WIDE, p):
             break
         reject_overstretched(state, t, p)
         reject_odd_motion(state, t, p)
@@ -842,12 +550,12 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
-    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, True, p)
+    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, _WIDE, p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     for _ in range(p.zipper_rounds):
         rows, zpred = zipper_predictions(state, p)
-        if rows.size == 0 or not match_traces(state, t, rows, zpred, True, p):
+        if rows.size == 0 or not match_traces(state, t, rows, zpred, _WIDE, p):
             break
         found_more = True
         reject_overstretched(state, t, p)

@@ -21,7 +21,10 @@ A frame (:func:`track_frame`) runs::
     commit_frame                          row t of the results, velocity, counts
 
 Candidate points come from a KD-tree over the frame's points, built when the frame
-is first searched (the numba twin searches brute force).
+is first searched (the numba twin buckets it along one axis instead). The refusals
+(:func:`rigid_with_body`, ``reject_*``) live in :mod:`skincap.tracking._refusals_numpy`
+and the re-acquisition in :mod:`skincap.tracking._reacquire_numpy`; both are
+re-exported here, so this module names every step.
 """
 
 from __future__ import annotations
@@ -32,6 +35,13 @@ import weakref
 import numpy as np
 from scipy.spatial import cKDTree
 
+from skincap.tracking._reacquire_numpy import reacquire_on_shell
+from skincap.tracking._refusals_numpy import (
+    _squared_distances,
+    reject_odd_motion,
+    reject_overstretched,
+    rigid_with_body,
+)
 from skincap.tracking.curve import fill_interior_on_curve, settle_single_gaps
 from skincap.tracking.init import gated_assignment
 from skincap.tracking.state import StepParams, TrackState
@@ -181,109 +191,6 @@ def continue_body_chains(state: TrackState, t: int, v_pred: np.ndarray, p: StepP
     state.body_vel[a1:a2] = vel
 
 
-def _squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """(len(x), len(y)) squared distances, per axis (as the numba twin adds them)."""
-    dx = x[:, None, 0] - y[None, :, 0]
-    dy = x[:, None, 1] - y[None, :, 1]
-    dz = x[:, None, 2] - y[None, :, 2]
-    return dx * dx + dy * dy + dz * dz
-
-
-def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
-    """True when ``point`` of frame t moves rigidly with body points (beyond the thesis).
-
-    The point's path over the last ``p.rigid_window`` frames is trace ``j``'s points
-    where the trace was measured in all of them; otherwise (or ``j < 0``) the point is
-    followed backward itself at constant velocity, to the nearest point when that
-    lies within ``2 rigid_range`` spacings and the second nearest twice as far; a
-    frame without such a point means no evidence (False), as does a path moving less
-    than ``rigid_move`` spacings. Every point of frame t within ``rigid_radius``
-    spacings that the rope does not take (``state.taken``) is followed backward,
-    moving as the path moved, to the nearest point within ``rigid_range`` spacings of
-    that prediction the rope did not take; the point is body-like when at least
-    ``rigid_partners`` of them keep their distance to it within ``rigid_range``
-    spacings over the whole window. Spacings are the median rest spacing. Frames
-    before ``rigid_window``: False.
-    """
-    window = p.rigid_window
-    if t < window:
-        return False
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    spacing = p.median_spacing
-    tol = p.rigid_range * spacing
-    hist = point_index[t - window : t, j] if j >= 0 else np.full(window, -1)
-    if np.any(hist < 0):
-        traj = _follow_back(points, offsets, t, window, point, tol)
-        if traj is None:
-            return False
-    else:
-        traj = np.concatenate([points[hist], points[point][None]])  # (W + 1, 3)
-    if np.max(np.linalg.norm(traj - traj[-1], axis=1)) < p.rigid_move * spacing:
-        return False
-    a, b = int(offsets[t]), int(offsets[t + 1])
-    frame = points[a:b]
-    d0 = np.linalg.norm(frame - traj[-1], axis=1)
-    cand = (d0 < p.rigid_radius * spacing) & (np.arange(a, b) != point)
-    taken = state.taken
-    cand[taken[(taken >= a) & (taken < b)] - a] = False
-    found = 0
-    for c in np.nonzero(cand)[0]:
-        if _keeps_distance(points, offsets, point_index, t, window, traj, frame[c], d0[c], tol):
-            found += 1
-            if found >= p.rigid_partners:
-                return True
-    return False
-
-
-def _follow_back(
-    points: np.ndarray, offsets: np.ndarray, t: int, window: int, point: int, tol: float
-) -> np.ndarray | None:
-    """(W + 1, 3) the point's path back through the window by unambiguous nearest
-    points at constant velocity, last row the point; None where it is ambiguous."""
-    traj = np.empty((window + 1, 3))
-    traj[-1] = points[point]
-    v = np.zeros(3)
-    for f in range(t - 1, t - window - 1, -1):
-        fa, fb = int(offsets[f]), int(offsets[f + 1])
-        if fb - fa < 2:
-            return None
-        x = traj[f - t + window + 1]
-        dd = np.linalg.norm(points[fa:fb] - (x - v), axis=1)
-        o = np.argsort(dd)[:2]
-        if not (dd[o[0]] < 2.0 * tol and dd[o[1]] > 2.0 * dd[o[0]]):
-            return None
-        traj[f - t + window] = points[fa + o[0]]
-        v = x - traj[f - t + window]
-    return traj
-
-
-def _keeps_distance(
-    points: np.ndarray,
-    offsets: np.ndarray,
-    point_index: np.ndarray,
-    t: int,
-    window: int,
-    traj: np.ndarray,
-    q: np.ndarray,
-    dq: float,
-    tol: float,
-) -> bool:
-    """True when the partner at ``q`` (distance ``dq`` from the path's end) follows the
-    path ``traj`` (W + 1, 3) back through the window at a constant distance."""
-    for f in range(t - 1, t - window - 1, -1):
-        fa, fb = int(offsets[f]), int(offsets[f + 1])
-        if fb == fa:
-            return False
-        pred = q + (traj[f - t + window] - traj[f - t + window + 1])
-        dd = np.linalg.norm(points[fa:fb] - pred, axis=1)
-        dd[point_index[f][(point_index[f] >= fa) & (point_index[f] < fb)] - fa] = np.inf
-        n = int(np.argmin(dd))
-        q = points[fa + n]
-        if not (dd[n] < tol and abs(np.linalg.norm(q - traj[f - t + window]) - dq) < tol):
-            return False
-    return True
-
-
 # ------------------------------------------------------------------ matching
 def match_traces(
     state: TrackState, t: int, rows: np.ndarray, pred: np.ndarray, wide: bool, p: StepParams
@@ -400,114 +307,6 @@ def _follows_other(
     )
     out[r_idx, c_idx] = near.any(axis=1)
     return out
-
-
-# ------------------------------------------------------------------ refusals
-def reject_overstretched(state: TrackState, t: int, p: StepParams) -> None:
-    """Refuse taken points that would stretch the rope (beyond the thesis), in place.
-
-    Two measured markers ``a < b`` lie at most ``stretch (s_b - s_a) + γ`` apart,
-    neighbours at most their rest spacing plus ``adjacent_stretch γ``. When
-    consecutive measured markers break that, the measured markers kept are the best
-    chain in which every consecutive pair obeys it (:func:`_keep_best_chain`), a
-    marker on a point moving rigidly with body points (:func:`rigid_with_body`)
-    counting against it. The others are un-taken (``known``, ``taken``).
-    """
-    known = state.known
-    idx = np.nonzero(known)[0]
-    if idx.size < 2:
-        return
-    cur, s = state.cur, state.arclength
-    xs = cur[idx]
-    chord = np.linalg.norm(xs[1:] - xs[:-1], axis=1)
-    ds1 = s[idx[1:]] - s[idx[:-1]]
-    adjacent = idx[1:] - idx[:-1] == 1
-    link = state.link_rest[np.minimum(idx[:-1], state.link_rest.size - 1)]
-    lim1 = np.where(
-        adjacent, np.maximum(ds1, link) + p.adjacent_stretch * p.gamma, p.stretch * ds1 + p.gamma
-    )
-    if np.all(chord <= lim1):
-        return
-    rigid = np.array([rigid_with_body(state, t, int(j), int(state.taken[j]), p) for j in idx])
-    keep = _keep_best_chain(
-        cur[idx], s[idx], idx, rigid, p.gamma, p.stretch, p.adjacent_stretch, state.link_rest
-    )
-    rows = idx[~keep]
-    known[rows] = False
-    state.taken[rows] = -1
-
-
-def _keep_best_chain(
-    xs: np.ndarray,
-    si: np.ndarray,
-    idx: np.ndarray,
-    rigid: np.ndarray,
-    gamma: float,
-    stretch: float,
-    adjacent_stretch: float,
-    link_rest: np.ndarray | None = None,
-) -> np.ndarray:
-    """(n,) bool: the measured markers kept, by dynamic programming over the chain.
-
-    ``xs`` (n, 3) their positions, ``si`` (n,) rest arc lengths, ``idx`` (n,) marker
-    numbers, ``rigid`` (n,) bool body-like; ``link_rest`` (M - 1,) metres, each link's
-    learnt rest length (``TrackState.link_rest``), raises a neighbouring pair's limit
-    above its rest arc length (default: the arc length only). Each marker kept counts +1 (-1 where
-    body-like: the body-like side of a stretched link goes, never the rope-like
-    side), each link less half its deformation (chord below or beyond the rest arc
-    length, relative: a trace that slipped onto its neighbour's marker, or onto a
-    point beside the rope).
-    """
-    n = idx.size
-    dist = np.linalg.norm(xs[:, None] - xs[None, :], axis=2)  # (n, n)
-    ds = si[None, :] - si[:, None]  # s_b - s_a
-    adjacent = idx[None, :] - idx[:, None] == 1
-    rest = ds
-    if link_rest is not None:
-        link = link_rest[np.minimum(idx, link_rest.size - 1)]  # the link after each marker
-        rest = np.maximum(ds, link[:, None])
-    limit = np.where(adjacent, rest + adjacent_stretch * gamma, stretch * ds + gamma)
-    feasible = np.triu(dist <= limit, k=1)
-    dev = (ds - dist) / np.where(ds > 0, ds, 1.0)
-    squeeze = np.clip(dev, 0.0, 1.0) + np.clip(-dev, 0.0, 1.0)  # compressed or stretched
-    w = np.where(rigid, -1.0, 1.0)
-    gain = np.where(feasible, w[None, :] - 0.5 * squeeze, -np.inf)  # a link: marker − deformation
-    score = w.copy()
-    back = np.full(n, -1, dtype=np.int64)
-    for b in range(1, n):
-        cand = score[:b] + gain[:b, b]
-        a = int(np.argmax(cand))
-        if cand[a] > score[b]:
-            score[b] = cand[a]
-            back[b] = a
-    keep = np.zeros(n, dtype=bool)
-    b = int(np.argmax(score))
-    while b >= 0:
-        keep[b] = True
-        b = int(back[b])
-    return keep
-
-
-def reject_odd_motion(state: TrackState, t: int, p: StepParams) -> None:
-    """Refuse taken points that do not move with the rope (beyond the thesis), in place.
-
-    A steady inner marker whose two neighbours are measured moves, from frame t - 1,
-    within γ of the mean of their moves (the rope is smooth); a point that does not
-    belongs to something else. Markers that are not steady are not judged here: one
-    coming back from a gap "moves" by the error of its invented position.
-    """
-    known = state.known
-    steady = state.temp_count == 0
-    inner = known[1:-1] & known[:-2] & known[2:] & steady[1:-1]
-    if not inner.any():
-        return
-    move = state.cur - state.positions[t - 1]
-    expected = 0.5 * (move[:-2] + move[2:])
-    odd = inner & (np.linalg.norm(move[1:-1] - expected, axis=1) > p.gamma)
-    if odd.any():
-        idx = np.nonzero(odd)[0] + 1
-        known[idx] = False
-        state.taken[idx] = -1
 
 
 # ------------------------------------------------------------------ predictions
@@ -660,124 +459,6 @@ def zipper_predictions(state: TrackState, p: StepParams) -> tuple[np.ndarray, np
         pred[j[ok]] = a[ok] + (rest[ok] / norm[ok])[:, None] * d[ok]
         side[j[~ok]] = False
     return np.nonzero(lo | hi)[0], pred
-
-
-# ------------------------------------------------------------------ re-acquisition
-def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
-    """Find the rope again by following it out from what is measured (beyond the thesis).
-
-    Porter's initialisation follows the rope from marker to marker at the rope's
-    spacing; this does the same inside a frame for the traces still unknown after
-    every prediction missed (a hand reversing at 10 cm per frame, a hanging end that
-    swung while it was hidden). An unknown marker ``j`` beside a measured marker ``k``
-    takes the free point of frame t on the shell around ``k`` at its learnt rest
-    length (``link_rest``, from ``-γ`` to ``+adjacent_stretch γ``) nearest to where the
-    previous frame's link puts it, ``m_k + (x_j^{t-1} - x_k^{t-1})``, within one rest
-    length of that (the link turned by at most 60° in a frame). With nothing measured,
-    the two end traces are seeded first: the free point nearest to ``V`` within one
-    rest length. Free points are those the rope did not take, not body points and
-    not moving rigidly with body points (:func:`rigid_with_body`). Markers are
-    visited in order, each growing the chain for the next, until a pass finds
-    nothing; then :func:`reject_overstretched`. In place; True if any trace matched.
-    """
-    a, b = _frame_bounds(state, t)
-    known, cur, link_rest = state.known, state.cur, state.link_rest
-    m = known.size
-    if b == a:
-        return False
-    prev = state.positions[t - 1]
-    free = ~state.body[a:b]
-    free[state.taken[known] - a] = False
-    if not free.any():  # nothing left to take: the passes below would find nothing
-        return False
-    found = False
-    if not known.any():
-        for j in (0, m - 1):
-            rest = link_rest[min(j, m - 2)]
-            found |= _seat_nearest(state, t, j, prev[j] + state.velocity[j], rest, None, free, p)
-    for _ in range(m):
-        grew = False
-        for j in range(m):
-            for k in (j - 1, j + 1):
-                if known[j] or not (0 <= k < m and known[k]):
-                    continue
-                rest = link_rest[min(j, k)]
-                want = cur[k] + (prev[j] - prev[k])
-                shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
-                grew |= _seat_nearest(state, t, j, want, rest, shell, free, p)
-        if not grew:
-            break
-        found = True
-    if found:
-        reject_overstretched(state, t, p)
-    return found
-
-
-def _seat_nearest(
-    state: TrackState,
-    t: int,
-    j: int,
-    want: np.ndarray,
-    gate: float,
-    shell: tuple[float, float, np.ndarray] | None,
-    free: np.ndarray,
-    p: StepParams,
-) -> bool:
-    """Trace ``j`` takes the free point of frame t nearest to ``want`` (3,) within
-    ``gate`` metres (and within ``shell`` = (inner, outer radius, centre) if given)
-    that does not move rigidly with body points; ``free`` (frame's points,) bool is
-    updated. True if it took one."""
-    a, b = _frame_bounds(state, t)
-    frame = state.points[a:b]
-    d = np.sqrt(_squared_distances(frame, want[None])[:, 0])
-    ok = free & (d <= gate)
-    if shell is not None and ok.any():
-        r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
-        ok &= (r >= shell[0]) & (r <= shell[1])
-    n_ok = int(ok.sum())
-    if n_ok == 0:  # the usual case for a trace still hidden: skip the sort
-        return False
-    for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[:n_ok]:
-        if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
-            state, t, -1, a + int(c), p
-        ):
-            continue
-        state.known[j] = True
-        state.taken[j] = a + int(c)
-        state.cur[j] = frame[c]
-        free[c] = False
-        return True
-    return False
-
-
-def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
-    """True when ``point`` of frame t was seen beside trace ``j``'s own marker.
-
-    The point is followed back (nearest point within γ of where its last move takes
-    it) through the frames trace ``j`` was not measured in, up to ``rigid_window``
-    frames; at the first frame it was measured, a path that reaches another point
-    more than γ away means the two existed side by side: a hand marker beside the
-    held end, not the end coming back from a dropout. A path that breaks (moved
-    farther than γ from its prediction: the rope moving fast) is no evidence.
-    """
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x = points[point]
-    v = np.zeros(3)
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = int(offsets[f]), int(offsets[f + 1])
-        if fb == fa:
-            return False
-        d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
-        n = int(np.argmin(d))
-        if not d[n] <= p.gamma:
-            return False
-        mine = int(point_index[f, j])
-        if mine >= 0:
-            e = points[fa + n] - points[mine]
-            return fa + n != mine and bool(np.sqrt(e @ e) > p.gamma)
-        v = x - points[fa + n]
-        x = points[fa + n]
-    return False
 
 
 # ------------------------------------------------------------------ after matching

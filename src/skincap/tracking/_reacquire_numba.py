@@ -1,0 +1,145 @@
+"""The rope tracker's re-acquisition step compiled with numba: the twin of
+:mod:`skincap.tracking._reacquire_numpy` (the reference), re-exported by
+:mod:`skincap.tracking._steps_numba`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from skincap.tracking._numba_search import JIT, norm3
+from skincap.tracking._refusals_numba import reject_overstretched, rigid_with_body
+
+__all__ = ["reacquire_on_shell"]
+
+_INF = np.inf
+# NumPy bools, not literals: _seat_nearest compiles once, not twice
+_SHELL = np.bool_(True)
+_NO_SHELL = np.bool_(False)
+
+
+@numba.njit(**JIT)
+def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._reacquire_numpy.reacquire_on_shell`."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    known, cur, link_rest = state.known, state.cur, state.link_rest
+    m = known.size
+    if b == a:
+        return False
+    prev = state.positions[t - 1]
+    free = ~state.body[a:b]
+    for j in range(m):
+        if known[j]:
+            free[state.taken[j] - a] = False
+    if not free.any():  # nothing left to take: the passes below would find nothing
+        return False
+    found = False
+    if not known.any():
+        for j in (0, m - 1):
+            rest = link_rest[min(j, m - 2)]
+            want = prev[j] + state.velocity[j]
+            if _seat_nearest(state, t, j, want, rest, _NO_SHELL, 0.0, 0.0, want, free, p):
+                found = True
+    for _ in range(m):
+        grew = False
+        for j in range(m):
+            for k in (j - 1, j + 1):
+                if known[j] or not (0 <= k < m and known[k]):
+                    continue
+                rest = link_rest[min(j, k)]
+                want = cur[k] + (prev[j] - prev[k])
+                inner = rest - p.gamma
+                outer = rest + p.adjacent_stretch * p.gamma
+                if _seat_nearest(
+                    state, t, j, want, rest, _SHELL, inner, outer, cur[k].copy(), free, p
+                ):
+                    grew = True
+        if not grew:
+            break
+        found = True
+    if found:
+        reject_overstretched(state, t, p)
+    return found
+
+
+@numba.njit(**JIT)
+def _seat_nearest(
+    state, t, j, want, gate, use_shell, inner, outer, centre, free, p
+):  # pragma: no cover
+    """Twin of the reference's ``_seat_nearest``: the shell is (``inner``, ``outer``,
+    ``centre``) when ``use_shell``."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    points = state.points
+    n = b - a
+    d = np.full(n, _INF)
+    n_ok = 0
+    for c in range(n):
+        if not free[c]:
+            continue
+        q = a + c
+        dc = norm3(points[q, 0] - want[0], points[q, 1] - want[1], points[q, 2] - want[2])
+        if not dc <= gate:
+            continue
+        if use_shell:
+            r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
+            if not (r >= inner and r <= outer):
+                continue
+        d[c] = dc
+        n_ok += 1
+    if n_ok == 0:  # the usual case for a trace still hidden
+        return False
+    while True:
+        best = -1
+        for c in range(n):
+            if d[c] < _INF and (best < 0 or d[c] < d[best]):
+                best = c
+        if best < 0:
+            return False
+        d[best] = _INF
+        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(
+            state, t, np.int64(-1), a + best, p
+        ):
+            continue
+        state.known[j] = True
+        state.taken[j] = a + best
+        for c in range(3):
+            state.cur[j, c] = points[a + best, c]
+        free[best] = False
+        return True
+
+
+@numba.njit(**JIT)
+def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
+    """Twin of the reference's ``_beside_trace``."""
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = offsets[f], offsets[f + 1]
+        if fb == fa:
+            return False
+        best = _INF
+        n = -1
+        for q in range(fa, fb):
+            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
+            if dq < best:
+                best = dq
+                n = q
+        if not best <= p.gamma:
+            return False
+        mine = point_index[f, j]
+        if mine >= 0:
+            e = norm3(
+                points[n, 0] - points[mine, 0],
+                points[n, 1] - points[mine, 1],
+                points[n, 2] - points[mine, 2],
+            )
+            return n != mine and e > p.gamma
+        v0 = x0 - points[n, 0]
+        v1 = x1 - points[n, 1]
+        v2 = x2 - points[n, 2]
+        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
+    return False

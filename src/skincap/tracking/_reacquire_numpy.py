@@ -1,0 +1,140 @@
+"""The rope tracker's re-acquisition step in NumPy (the reference).
+
+Part of the per-frame steps of :mod:`skincap.tracking._steps_numpy` (which re-exports
+:func:`reacquire_on_shell`); its numba twin, of the same name and signature, is in
+:mod:`skincap.tracking._reacquire_numba`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skincap.tracking._refusals_numpy import (
+    _squared_distances,
+    reject_overstretched,
+    rigid_with_body,
+)
+from skincap.tracking.state import StepParams, TrackState
+
+__all__ = ["reacquire_on_shell"]
+
+
+def _frame_bounds(state: TrackState, t: int) -> tuple[int, int]:
+    return int(state.offsets[t]), int(state.offsets[t + 1])
+
+
+def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
+    """Find the rope again by following it out from what is measured (beyond the thesis).
+
+    Porter's initialisation follows the rope from marker to marker at the rope's
+    spacing; this does the same inside a frame for the traces still unknown after
+    every prediction missed (a hand reversing at 10 cm per frame, a hanging end that
+    swung while it was hidden). An unknown marker ``j`` beside a measured marker ``k``
+    takes the free point of frame t on the shell around ``k`` at its learnt rest
+    length (``link_rest``, from ``-γ`` to ``+adjacent_stretch γ``) nearest to where the
+    previous frame's link puts it, ``m_k + (x_j^{t-1} - x_k^{t-1})``, within one rest
+    length of that (the link turned by at most 60° in a frame). With nothing measured,
+    the two end traces are seeded first: the free point nearest to ``V`` within one
+    rest length. Free points are those the rope did not take, not body points and
+    not moving rigidly with body points (:func:`rigid_with_body`). Markers are
+    visited in order, each growing the chain for the next, until a pass finds
+    nothing; then :func:`reject_overstretched`. In place; True if any trace matched.
+    """
+    a, b = _frame_bounds(state, t)
+    known, cur, link_rest = state.known, state.cur, state.link_rest
+    m = known.size
+    if b == a:
+        return False
+    prev = state.positions[t - 1]
+    free = ~state.body[a:b]
+    free[state.taken[known] - a] = False
+    if not free.any():  # nothing left to take: the passes below would find nothing
+        return False
+    found = False
+    if not known.any():
+        for j in (0, m - 1):
+            rest = link_rest[min(j, m - 2)]
+            found |= _seat_nearest(state, t, j, prev[j] + state.velocity[j], rest, None, free, p)
+    for _ in range(m):
+        grew = False
+        for j in range(m):
+            for k in (j - 1, j + 1):
+                if known[j] or not (0 <= k < m and known[k]):
+                    continue
+                rest = link_rest[min(j, k)]
+                want = cur[k] + (prev[j] - prev[k])
+                shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
+                grew |= _seat_nearest(state, t, j, want, rest, shell, free, p)
+        if not grew:
+            break
+        found = True
+    if found:
+        reject_overstretched(state, t, p)
+    return found
+
+
+def _seat_nearest(
+    state: TrackState,
+    t: int,
+    j: int,
+    want: np.ndarray,
+    gate: float,
+    shell: tuple[float, float, np.ndarray] | None,
+    free: np.ndarray,
+    p: StepParams,
+) -> bool:
+    """Trace ``j`` takes the free point of frame t nearest to ``want`` (3,) within
+    ``gate`` metres (and within ``shell`` = (inner, outer radius, centre) if given)
+    that does not move rigidly with body points; ``free`` (frame's points,) bool is
+    updated. True if it took one."""
+    a, b = _frame_bounds(state, t)
+    frame = state.points[a:b]
+    d = np.sqrt(_squared_distances(frame, want[None])[:, 0])
+    ok = free & (d <= gate)
+    if shell is not None and ok.any():
+        r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
+        ok &= (r >= shell[0]) & (r <= shell[1])
+    n_ok = int(ok.sum())
+    if n_ok == 0:  # the usual case for a trace still hidden: skip the sort
+        return False
+    for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[:n_ok]:
+        if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
+            state, t, -1, a + int(c), p
+        ):
+            continue
+        state.known[j] = True
+        state.taken[j] = a + int(c)
+        state.cur[j] = frame[c]
+        free[c] = False
+        return True
+    return False
+
+
+def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
+    """True when ``point`` of frame t was seen beside trace ``j``'s own marker.
+
+    The point is followed back (nearest point within γ of where its last move takes
+    it) through the frames trace ``j`` was not measured in, up to ``rigid_window``
+    frames; at the first frame it was measured, a path that reaches another point
+    more than γ away means the two existed side by side: a hand marker beside the
+    held end, not the end coming back from a dropout. A path that breaks (moved
+    farther than γ from its prediction: the rope moving fast) is no evidence.
+    """
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x = points[point]
+    v = np.zeros(3)
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = int(offsets[f]), int(offsets[f + 1])
+        if fb == fa:
+            return False
+        d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
+        n = int(np.argmin(d))
+        if not d[n] <= p.gamma:
+            return False
+        mine = int(point_index[f, j])
+        if mine >= 0:
+            e = points[fa + n] - points[mine]
+            return fa + n != mine and bool(np.sqrt(e @ e) > p.gamma)
+        v = x - points[fa + n]
+        x = points[fa + n]
+    return False

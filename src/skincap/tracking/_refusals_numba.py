@@ -1,0 +1,241 @@
+"""The rope tracker's refusals compiled with numba: twins of
+:mod:`skincap.tracking._refusals_numpy` (the reference; its docstrings say what each
+step does and why), re-exported by :mod:`skincap.tracking._steps_numba`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from skincap.tracking._numba_search import JIT, norm3
+
+__all__ = ["reject_odd_motion", "reject_overstretched", "rigid_with_body"]
+
+_INF = np.inf
+
+
+@numba.njit(**JIT)
+def _rope_taken_at(point_index, f, q):  # pragma: no cover - runs compiled
+    """True when a trace took the point q in frame f."""
+    for j in range(point_index.shape[1]):
+        if point_index[f, j] == q:
+            return True
+    return False
+
+
+@numba.njit(**JIT)
+def _follow_back(points, offsets, t, window, point, tol, traj):  # pragma: no cover
+    """Fill ``traj`` (W + 1, 3) with the point's path back by unambiguous nearest points
+    at constant velocity (last row the point); False where it is ambiguous."""
+    traj[window] = points[point]
+    vx = 0.0
+    vy = 0.0
+    vz = 0.0
+    for f in range(t - 1, t - window - 1, -1):
+        fa, fb = offsets[f], offsets[f + 1]
+        if fb - fa < 2:
+            return False
+        r = f - t + window
+        qx = traj[r + 1, 0] - vx
+        qy = traj[r + 1, 1] - vy
+        qz = traj[r + 1, 2] - vz
+        d1 = _INF
+        d2 = _INF
+        n1 = -1
+        for q in range(fa, fb):
+            dd = norm3(points[q, 0] - qx, points[q, 1] - qy, points[q, 2] - qz)
+            if dd < d1:
+                d2 = d1
+                d1 = dd
+                n1 = q
+            elif dd < d2:
+                d2 = dd
+        if not (d1 < 2.0 * tol and d2 > 2.0 * d1):
+            return False
+        traj[r] = points[n1]
+        vx = traj[r + 1, 0] - traj[r, 0]
+        vy = traj[r + 1, 1] - traj[r, 1]
+        vz = traj[r + 1, 2] - traj[r, 2]
+    return True
+
+
+@numba.njit(**JIT)
+def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):  # pragma: no cover
+    """True when the partner point ``c`` follows the path ``traj`` back through the
+    window at a constant distance ``dq``."""
+    qx = points[c, 0]
+    qy = points[c, 1]
+    qz = points[c, 2]
+    for f in range(t - 1, t - window - 1, -1):
+        fa, fb = offsets[f], offsets[f + 1]
+        if fb == fa:
+            return False
+        r = f - t + window
+        px = qx + traj[r, 0] - traj[r + 1, 0]
+        py = qy + traj[r, 1] - traj[r + 1, 1]
+        pz = qz + traj[r, 2] - traj[r + 1, 2]
+        best = _INF
+        n = fa
+        for q in range(fa, fb):
+            dd = norm3(points[q, 0] - px, points[q, 1] - py, points[q, 2] - pz)
+            if dd < best and not _rope_taken_at(point_index, f, q):
+                best = dd
+                n = q
+        qx = points[n, 0]
+        qy = points[n, 1]
+        qz = points[n, 2]
+        to_p = norm3(qx - traj[r, 0], qy - traj[r, 1], qz - traj[r, 2])
+        if not (best < tol and abs(to_p - dq) < tol):
+            return False
+    return True
+
+
+@numba.njit(**JIT)
+def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._refusals_numpy.rigid_with_body`."""
+    window = p.rigid_window
+    if t < window:
+        return False
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    spacing = p.median_spacing
+    tol = p.rigid_range * spacing
+    traj = np.empty((window + 1, 3))
+    whole = j >= 0
+    if whole:
+        for f in range(t - window, t):
+            if point_index[f, j] < 0:
+                whole = False
+                break
+    if whole:
+        traj[window] = points[point]
+        for f in range(t - window, t):
+            traj[f - t + window] = points[point_index[f, j]]
+    elif not _follow_back(points, offsets, t, window, point, tol, traj):
+        return False
+    far = 0.0
+    for r in range(window):
+        dd = norm3(
+            traj[r, 0] - traj[window, 0], traj[r, 1] - traj[window, 1], traj[r, 2] - traj[window, 2]
+        )
+        far = max(far, dd)
+    if far < p.rigid_move * spacing:
+        return False
+    found = 0
+    for c in range(offsets[t], offsets[t + 1]):
+        if c == point:
+            continue
+        dq = norm3(
+            points[c, 0] - traj[window, 0],
+            points[c, 1] - traj[window, 1],
+            points[c, 2] - traj[window, 2],
+        )
+        if not dq < p.rigid_radius * spacing:
+            continue
+        mine = False
+        for jj in range(state.taken.size):
+            if state.taken[jj] == c:
+                mine = True
+        if mine:
+            continue
+        if _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):
+            found += 1
+            if found >= p.rigid_partners:
+                return True
+    return False
+
+
+# ------------------------------------------------------------------ refusals
+@numba.njit(**JIT)
+def _measured(known):  # pragma: no cover - runs compiled
+    """(n,) int64 the measured markers, in order."""
+    return np.nonzero(known)[0]
+
+
+@numba.njit(**JIT)
+def _link_limit(s, link_rest, ja, jb, gamma, p):  # pragma: no cover - runs compiled
+    """Largest chord between measured markers ja < jb, metres (neighbours: from the
+    larger of the rest arc length and the learnt ``link_rest``)."""
+    ds = s[jb] - s[ja]
+    if jb - ja == 1:
+        return max(ds, link_rest[ja]) + p.adjacent_stretch * gamma
+    return p.stretch * ds + gamma
+
+
+@numba.njit(**JIT)
+def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._refusals_numpy.reject_overstretched`."""
+    cur, s, gamma = state.cur, state.arclength, p.gamma
+    idx = _measured(state.known)
+    n = idx.size
+    if n < 2:
+        return
+    ok = True
+    for q in range(n - 1):
+        a, b = idx[q], idx[q + 1]
+        chord = norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
+        if not chord <= _link_limit(s, state.link_rest, a, b, gamma, p):
+            ok = False
+            break
+    if ok:
+        return
+    w = np.ones(n)
+    for q in range(n):
+        if rigid_with_body(state, t, idx[q], state.taken[idx[q]], p):
+            w[q] = -1.0
+    # the best chain by dynamic programming (as the reference's _keep_best_chain)
+    score = w.copy()
+    back = np.full(n, -1, np.int64)
+    for b in range(1, n):
+        best = -_INF
+        best_a = 0
+        for a in range(b):
+            ja, jb = idx[a], idx[b]
+            ds = s[jb] - s[ja]
+            dist = norm3(cur[ja, 0] - cur[jb, 0], cur[ja, 1] - cur[jb, 1], cur[ja, 2] - cur[jb, 2])
+            if dist <= _link_limit(s, state.link_rest, ja, jb, gamma, p):
+                dev = (ds - dist) / (ds if ds > 0 else 1.0)
+                squeeze = min(max(dev, 0.0), 1.0) + min(max(-dev, 0.0), 1.0)
+                gain = w[b] - 0.5 * squeeze
+            else:
+                gain = -_INF
+            cand = score[a] + gain
+            if cand > best:
+                best = cand
+                best_a = a
+        if best > score[b]:
+            score[b] = best
+            back[b] = best_a
+    keep = np.zeros(n, np.bool_)
+    b = int(np.argmax(score))
+    while b >= 0:
+        keep[b] = True
+        b = back[b]
+    for q in range(n):
+        if not keep[q]:
+            state.known[idx[q]] = False
+            state.taken[idx[q]] = -1
+
+
+@numba.njit(**JIT)
+def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._refusals_numpy.reject_odd_motion`."""
+    cur, prev, known = state.cur, state.positions[t - 1], state.known
+    m = known.size
+    odd = np.zeros(m, np.bool_)
+    for j in range(1, m - 1):
+        if not (known[j] and known[j - 1] and known[j + 1]):
+            continue
+        if state.temp_count[j] != 0:
+            continue
+        e = np.empty(3)
+        for c in range(3):
+            e[c] = (cur[j, c] - prev[j, c]) - 0.5 * (
+                (cur[j - 1, c] - prev[j - 1, c]) + (cur[j + 1, c] - prev[j + 1, c])
+            )
+        if norm3(e[0], e[1], e[2]) > p.gamma:
+            odd[j] = True
+    for j in range(m):
+        if odd[j]:
+            known[j] = False
+            state.taken[j] = -1
