@@ -168,3 +168,27 @@ def test_off_chain_points() -> None:
         [[0, 0.36, 0], [0, 0.24, 0], [0, 0.12, 0], [0, 0, 0], [0.03, 0, 0], [0.03, 0.12, 0]]
     )
     assert not off_chain_points(fold, SPACING).any()
+
+
+def _bunched_chain() -> np.ndarray:
+    """A chain whose chords shrink gradually to a third and grow back (markers bunched
+    where a rope curves, as in the synthetic jump scene's frame 0)."""
+    chords = SPACING * np.concatenate([np.linspace(1.0, 0.3, 12), np.linspace(0.3, 1.0, 12)])
+    return np.column_stack([np.concatenate([[0.0], np.cumsum(chords)]), np.zeros(25), np.zeros(25)])
+
+
+def test_a_bunched_chain_keeps_every_point() -> None:
+    chain = _bunched_chain()
+    assert not off_chain_points(chain, float(np.median(np.diff(chain[:, 0])))).any()
+    # a hidden marker's double link does not make its neighbours look like ghosts
+    line = np.delete(np.arange(10)[:, None] * np.array([[SPACING, 0.0, 0.0]]), 7, axis=0)
+    assert not off_chain_points(line, SPACING).any()
+
+
+def test_init_keeps_a_bunched_rope_s_chords_as_its_rest_spacing() -> None:
+    chain = _bunched_chain()
+    cloud, _ = _still_cloud(chain)
+    init = init_rope(cloud, markers=np.arange(chain.shape[0]))
+    assert init.n_markers == chain.shape[0]
+    assert init.meta["off_chain"] == 0 and init.meta["folded"] == 0 and init.meta["inserted"] == 0
+    np.testing.assert_allclose(init.spacing, np.abs(np.diff(chain[init.indices, 0])), atol=0.002)

@@ -239,9 +239,13 @@ def off_chain_points(points: np.ndarray, spacing: float, *, short: float = 0.6) 
     """Points of an ordered chain that are not on it: a ghost or duplicate beside a marker.
 
     An inner point ``j`` is off the chain when both its links are shorter than
-    ``short * spacing`` while its neighbours ``j - 1`` and ``j + 1`` lie within
-    ``(1 ± (1 - short)) * spacing`` of each other: the chain is whole without it. (A rope
-    folded back on itself has one short link between two markers, never two.)
+    ``short`` times the local spacing while its neighbours ``j - 1`` and ``j + 1`` lie
+    within ``(1 ± (1 - short))`` local spacings of each other: the chain is whole without
+    it. The local spacing is the shortest of ``spacing`` and the links just outside,
+    ``j - 2 → j - 1`` and ``j + 1 → j + 2``: a rope bunched where it bends has short
+    chords between real markers, but so have the links beside them, so skipping a marker
+    there would leave one long link among short ones. (A rope folded back on itself has
+    one short link between two markers, never two.)
 
     Parameters
     ----------
@@ -263,10 +267,16 @@ def off_chain_points(points: np.ndarray, spacing: float, *, short: float = 0.6) 
         return out
     link = np.linalg.norm(np.diff(p, axis=0), axis=1)  # (N - 1,)
     skip = np.linalg.norm(p[2:] - p[:-2], axis=1)  # (N - 2,) j - 1 to j + 1
+    # the links just outside inner point j (= 1 .. N - 2): j - 2 -> j - 1 and j + 1 -> j + 2
+    before = np.concatenate([[np.nan], link[:-2]])  # (N - 2,)
+    after = np.concatenate([link[2:], [np.nan]])
+    # the shortest of them and the typical spacing: a link across a hidden marker is
+    # twice the spacing and must not make its neighbours look short
+    local = np.fmin(np.fmin(before, after), spacing)
     inner = (
-        (link[:-1] < short * spacing)
-        & (link[1:] < short * spacing)
-        & (np.abs(skip - spacing) <= (1.0 - short) * spacing)
+        (link[:-1] < short * local)
+        & (link[1:] < short * local)
+        & (np.abs(skip - local) <= (1.0 - short) * local)
     )
     # of two neighbouring candidates, keep the one whose removal leaves the better link
     cand = np.flatnonzero(inner) + 1

@@ -219,15 +219,23 @@ def _chain_order(points: np.ndarray) -> np.ndarray:
 def _rest_spacing(chord: np.ndarray) -> np.ndarray:
     """Rest spacings ``l_j`` (M - 1,) metres from the mean chords of the window.
 
-    A chord shorter than ``_FOLDED`` times the median chord is a rope folded between
-    its two markers (the bottom of a jump rope lying doubled on the floor), not a
-    short piece of rope: its rest spacing is the median chord, so the link may open
-    to the tape spacing once the rope lifts. (Raising every chord below the median to
+    A chord shorter than ``_FOLDED`` times the median chord, and than ``_FOLDED`` times
+    the shorter of its neighbouring chords, is a rope folded between its two markers
+    (the bottom of a jump rope lying doubled on the floor), not a short piece of rope:
+    its rest spacing is the median chord, so the link may open to the tape spacing once
+    the rope lifts. A run of gradually shorter chords (markers bunched where the rope
+    curves) keeps its chords. (Raising every chord below the median to
     it, for the bends onto the floor too, was measured worse on the whole CMU take:
     F1 0.990 -> 0.975.)
     """
     typical = float(np.median(chord))
-    return np.where(chord < _FOLDED * typical, typical, chord)
+    # a fold is one short link between ordinary ones; a run of short chords is a rope
+    # bunched or curving smoothly (its markers' spacing changes gradually), kept as is
+    before = np.concatenate([[np.nan], chord[:-1]])
+    after = np.concatenate([chord[1:], [np.nan]])
+    beside = np.fmin(before, after)
+    isolated = ~(chord >= _FOLDED * beside)  # True also with no neighbour (NaN)
+    return np.where((chord < _FOLDED * typical) & isolated, typical, chord)
 
 
 # ------------------------------------------------------------------------- auto find
