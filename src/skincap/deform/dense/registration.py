@@ -287,6 +287,176 @@ def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
+# ------------------------------------------------------------------------ steps
+def _reporter(progress: Progress | None) -> Progress:
+    """``progress`` with the fraction clamped to [0, 1]; a no-op when ``progress`` is None."""
+
+    def report(fraction: float, message: str) -> None:
+        if progress is not None:
+            progress(float(min(max(fraction, 0.0), 1.0)), message)
+
+    return report
+
+
+def _seen_landmarks(
+    v: np.ndarray,
+    f: np.ndarray,
+    m: np.ndarray,
+    names: list[str],
+    seen: np.ndarray,
+    landmarks: object,
+) -> tuple[dict[str, int], np.ndarray, np.ndarray]:
+    """The landmarks to fit: given (checked) or automatic, those on unseen markers dropped.
+
+    ``v`` (V, 3) and ``m`` (M, 3) in metres, ``f`` (F, 3), ``seen`` (M,) bool. Warns
+    (:class:`SkincapWarning`, at :func:`register_mesh`'s caller) when landmarks are dropped.
+    Returns ``{label: vertex}`` kept, and the landmarks' marker indices (L,) and template
+    vertex indices (L,), int64, in the same order.
+    """
+    if landmarks is None:
+        chosen = automatic_landmarks(v, f, m, names)
+    else:
+        chosen = check_landmarks(landmarks, names, v.shape[0])
+    index = {s: k for k, s in enumerate(names)}
+    dropped = [s for s in chosen if not seen[index[s]]]
+    if dropped:
+        warnings.warn(
+            f"landmarks: {len(dropped)} landmark(s) on unseen markers ignored ({', '.join(dropped[:5])})",
+            SkincapWarning,
+            stacklevel=3,  # register_mesh's caller
+        )
+    chosen = {s: i for s, i in chosen.items() if seen[index[s]]}
+    lm_marker = np.array([index[s] for s in chosen], dtype=np.int64)
+    lm_vertex = np.array([chosen[s] for s in chosen], dtype=np.int64)
+    return chosen, lm_marker, lm_vertex
+
+
+def _normalised_homogeneous(v: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+    """The template about its centroid in units of its RMS radius, homogeneous.
+
+    ``v`` (V, 3) metres -> centre (3,) metres, scale (metres, 1.0 for a degenerate mesh)
+    and ``[(v - centre) / scale, 1]`` (V, 4), dimensionless.
+    """
+    n_v = v.shape[0]
+    centre = v.mean(axis=0)
+    scale = float(np.sqrt(((v - centre) ** 2).sum(axis=1).mean())) or 1.0
+    homog = np.concatenate([(v - centre) / scale, np.ones((n_v, 1))], axis=1)  # (V, 4)
+    return centre, scale, homog
+
+
+def _edge_incidence(f: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """(E, V) signed incidence of the unique mesh edges: +1 at the first end, -1 at the second.
+
+    ``incidenceᵀ incidence`` is the (V, V) graph Laplacian of the mesh.
+    """
+    edges = _edges(f)
+    return sp.csr_matrix(
+        (
+            np.concatenate([np.ones(len(edges)), -np.ones(len(edges))]),
+            (np.tile(np.arange(len(edges)), 2), np.concatenate([edges[:, 0], edges[:, 1]])),
+        ),
+        shape=(len(edges), n_vertices),
+    )
+
+
+def _template_transforms(n_vertices: int, centre: np.ndarray, scale: float) -> np.ndarray:
+    """X (4V, 3) that leaves every vertex at its template position.
+
+    Acting on the normalised homogeneous vertices, ``T_i = [I | 0]`` in original units:
+    the linear part is ``scale * I`` and the translation ``centre`` (metres).
+    """
+    x = np.zeros((4 * n_vertices, 3))
+    x.reshape(n_vertices, 4, 3)[:, :3, :] = np.eye(3) * scale
+    x.reshape(n_vertices, 4, 3)[:, 3, :] = centre
+    return x
+
+
+def _deformed(homog: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """(V, 3) deformed vertices, metres, from ``homog`` (V, 4) and the transforms X (4V, 3)."""
+    return np.einsum("vk,vkx->vx", homog, x.reshape(homog.shape[0], 4, 3))
+
+
+def _data_targets(
+    current: np.ndarray,
+    f: np.ndarray,
+    face: np.ndarray,
+    bary: np.ndarray,
+    marker_pts: np.ndarray,
+    marker_radius: float,
+) -> np.ndarray:
+    """(K, 3) points, metres, the closest surface points are pulled to.
+
+    The markers ``marker_pts`` (K, 3) themselves, or, with ``marker_radius`` > 0 (metres),
+    each moved that far inward along the normal of ``current`` (V, 3) interpolated at its
+    closest point (triangle ``face`` (K,), barycentric ``bary`` (K, 3)).
+    """
+    target = marker_pts
+    if marker_radius > 0:
+        normals = _vertex_normals(current, f)
+        n_at = np.einsum("kc,kcx->kx", bary, normals[f[face]])
+        n_at /= np.maximum(np.linalg.norm(n_at, axis=1, keepdims=True), 1e-12)
+        target = marker_pts - marker_radius * n_at
+    return target
+
+
+def _closest_point_iterations(
+    x: np.ndarray,
+    f: np.ndarray,
+    homog: np.ndarray,
+    marker_pts: np.ndarray,
+    base: sp.csr_matrix,
+    base_rhs: np.ndarray,
+    laplacian: sp.csr_matrix,
+    identity: sp.csr_matrix,
+    damping: float,
+    s: RegistrationSettings,
+    report: Progress,
+) -> tuple[np.ndarray, int]:
+    """Phase 2: all terms, closest points re-found every iteration.
+
+    From the transforms ``x`` (4V, 3); ``marker_pts`` (K, 3) the seen markers, metres;
+    ``base`` (4V, 4V) and ``base_rhs`` (4V, 3) the smoothness and landmark part of the
+    normal equations, ``laplacian`` (V, V) the weighted graph Laplacian for the
+    preconditioner. Returns the final X (4V, 3) and the iterations run (stops when no
+    vertex moved more than ``s.tolerance`` metres).
+    """
+    n_v = homog.shape[0]
+    iterations = 0
+    n_iter = int(s.fit_iterations)
+    precondition: _ComponentPreconditioner | None = None
+    for it in range(n_iter):
+        report(0.1 + 0.85 * it / max(n_iter, 1), f"closest-point iteration {it + 1}")
+        current = _deformed(homog, x)
+        _, face, bary = closest_points_on_mesh(current, f, marker_pts)
+        target = _data_targets(current, f, face, bary, marker_pts, s.marker_radius)
+        data_rows = _point_rows(f[face], bary, homog, n_v)
+        normal = (base + s.data_weight * (data_rows.T @ data_rows) + damping * identity).tocsr()
+        rhs = base_rhs + s.data_weight * (data_rows.T @ target) + damping * x
+        if precondition is None or it % _REFACTOR_EVERY == 0:
+            # the closest points drift slowly: the factors serve several iterations
+            precondition = _ComponentPreconditioner(laplacian, normal, n_v)
+        x_new = _solve_pcg(normal, rhs, x, precondition)
+        moved = float(np.abs(_deformed(homog, x_new) - current).max())
+        x = x_new
+        iterations = it + 1
+        if moved < s.tolerance:
+            break
+    return x, iterations
+
+
+def _original_affines(x: np.ndarray, centre: np.ndarray, scale: float) -> np.ndarray:
+    """(V, 3, 4) per-vertex affines on the template's own coordinates (metres).
+
+    ``x`` (4V, 3) acts on the normalised vertices ``(v - centre) / scale``; undoing the
+    normalisation divides the linear part by ``scale`` and moves ``centre`` into the
+    translation.
+    """
+    xs = x.reshape(-1, 4, 3)
+    linear = np.swapaxes(xs[:, :3, :], 1, 2) / scale  # (V, 3, 3) acting on original coords
+    translation = xs[:, 3, :] - np.einsum("vxk,k->vx", linear, centre)
+    return np.concatenate([linear, translation[:, :, None]], axis=2)
+
+
 # ------------------------------------------------------------------------ main
 def register_mesh(
     vertices: np.ndarray,
@@ -338,41 +508,13 @@ def register_mesh(
         )
     n_v = v.shape[0]
     seen = np.isfinite(m).all(axis=1)
-
-    def report(fraction: float, message: str) -> None:
-        if progress is not None:
-            progress(float(min(max(fraction, 0.0), 1.0)), message)
+    report = _reporter(progress)
 
     report(0.0, "landmarks")
-    if landmarks is None:
-        chosen = automatic_landmarks(v, f, m, names)
-    else:
-        chosen = check_landmarks(landmarks, names, n_v)
-    index = {s: k for k, s in enumerate(names)}
-    dropped = [s for s in chosen if not seen[index[s]]]
-    if dropped:
-        warnings.warn(
-            f"landmarks: {len(dropped)} landmark(s) on unseen markers ignored ({', '.join(dropped[:5])})",
-            SkincapWarning,
-            stacklevel=2,
-        )
-    chosen = {s: i for s, i in chosen.items() if seen[index[s]]}
-    lm_marker = np.array([index[s] for s in chosen], dtype=np.int64)
-    lm_vertex = np.array([chosen[s] for s in chosen], dtype=np.int64)
+    chosen, lm_marker, lm_vertex = _seen_landmarks(v, f, m, names, seen, landmarks)
 
-    # Normalised coordinates: about the centroid, in units of the RMS radius.
-    centre = v.mean(axis=0)
-    scale = float(np.sqrt(((v - centre) ** 2).sum(axis=1).mean())) or 1.0
-    homog = np.concatenate([(v - centre) / scale, np.ones((n_v, 1))], axis=1)  # (V, 4)
-
-    edges = _edges(f)
-    incidence = sp.csr_matrix(
-        (
-            np.concatenate([np.ones(len(edges)), -np.ones(len(edges))]),
-            (np.tile(np.arange(len(edges)), 2), np.concatenate([edges[:, 0], edges[:, 1]])),
-        ),
-        shape=(len(edges), n_v),
-    )
+    centre, scale, homog = _normalised_homogeneous(v)
+    incidence = _edge_incidence(f, n_v)
     # Σ_edges |T_i - T_j|² = trace(Xᵀ (L ⊗ I4) X) with L the graph Laplacian.
     smooth = sp.kron(incidence.T @ incidence, sp.identity(4), format="csr")
     identity = sp.identity(4 * n_v, format="csr")
@@ -380,13 +522,7 @@ def register_mesh(
     lm_rows = _point_rows(lm_vertex[:, None], np.ones((lm_vertex.size, 1)), homog, n_v)
     lm_target = m[lm_marker]
 
-    # Start: every vertex at its template position (T_i = [I | 0] in original units).
-    x = np.zeros((4 * n_v, 3))
-    x.reshape(n_v, 4, 3)[:, :3, :] = np.eye(3) * scale
-    x.reshape(n_v, 4, 3)[:, 3, :] = centre
-
-    def deformed(xx: np.ndarray) -> np.ndarray:
-        return np.einsum("vk,vkx->vx", homog, xx.reshape(n_v, 4, 3))
+    x = _template_transforms(n_v, centre, scale)
 
     s = settings
     laplacian = s.smoothness_weight * (incidence.T @ incidence).tocsr()
@@ -404,40 +540,15 @@ def register_mesh(
 
     # Phase 2: all terms, equal weights, closest points re-found each iteration.
     marker_pts = m[seen]
-    iterations = 0
-    n_iter = int(s.fit_iterations)
-    precondition: _ComponentPreconditioner | None = None
-    for it in range(n_iter):
-        report(0.1 + 0.85 * it / max(n_iter, 1), f"closest-point iteration {it + 1}")
-        current = deformed(x)
-        _, face, bary = closest_points_on_mesh(current, f, marker_pts)
-        target = marker_pts
-        if s.marker_radius > 0:
-            normals = _vertex_normals(current, f)
-            n_at = np.einsum("kc,kcx->kx", bary, normals[f[face]])
-            n_at /= np.maximum(np.linalg.norm(n_at, axis=1, keepdims=True), 1e-12)
-            target = marker_pts - s.marker_radius * n_at
-        data_rows = _point_rows(f[face], bary, homog, n_v)
-        normal = (base + s.data_weight * (data_rows.T @ data_rows) + damping * identity).tocsr()
-        rhs = base_rhs + s.data_weight * (data_rows.T @ target) + damping * x
-        if precondition is None or it % _REFACTOR_EVERY == 0:
-            # the closest points drift slowly: the factors serve several iterations
-            precondition = _ComponentPreconditioner(laplacian, normal, n_v)
-        x_new = _solve_pcg(normal, rhs, x, precondition)
-        moved = float(np.abs(deformed(x_new) - current).max())
-        x = x_new
-        iterations = it + 1
-        if moved < s.tolerance:
-            break
+    x, iterations = _closest_point_iterations(
+        x, f, homog, marker_pts, base, base_rhs, laplacian, identity, damping, s, report
+    )
 
     report(0.97, "distances")
-    out = deformed(x)
+    out = _deformed(homog, x)
     distance = np.full(m.shape[0], np.nan)
     distance[seen], _, _ = closest_points_on_mesh(out, f, marker_pts)
-    xs = x.reshape(n_v, 4, 3)
-    linear = np.swapaxes(xs[:, :3, :], 1, 2) / scale  # (V, 3, 3) acting on original coords
-    translation = xs[:, 3, :] - np.einsum("vxk,k->vx", linear, centre)
-    affine = np.concatenate([linear, translation[:, :, None]], axis=2)
+    affine = _original_affines(x, centre, scale)
     report(1.0, "registered")
     return Registration(
         vertices=out,
