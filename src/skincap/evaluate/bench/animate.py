@@ -218,85 +218,17 @@ def run_animate_benchmark(
     parts = part_frames(scene["reference"], scene["alpha"])
     ms: dict[str, float | None] = {}
     cpu_ms: dict[str, float | None] = {}
-    outputs: dict[str, np.ndarray] = {}
-
-    def timed(key: str, run: Callable[[], object]) -> None:
-        wall, cpu = _best_wall_and_cpu(run, repeat)
-        ms[key], cpu_ms[key] = 1e3 * wall / n_frames, 1e3 * cpu / n_frames
-
-    for backend in _BACKENDS:
-        try:
-            deformer = DenseDeformer(parts, scene["vertices"], scene["beta"], backend=backend)
-        except MissingDependencyError as exc:  # numba missing: reported, not fatal
-            notes.append(f"dense {backend} not measured: {exc}")
-            for method in METHODS:
-                ms[f"{method}_{backend}"] = cpu_ms[f"{method}_{backend}"] = None
-            continue
-        for method in METHODS:
-
-            def deform_all(
-                deformer: DenseDeformer = deformer, method: Method = cast("Method", method)
-            ) -> list[np.ndarray]:
-                return list(deformer.deform(scene["markers"], method, chunk=n_frames))
-
-            timed(f"{method}_{backend}", deform_all)
-            outputs[f"{method}_{backend}"] = np.concatenate(deform_all())
-    # our LBS of the same vertices: the parts as joints, β as two-influence weights
-    order = np.argsort(-scene["beta"], axis=1)[:, :2]
-    weights = np.take_along_axis(scene["beta"], order, axis=1)
-    weights /= weights.sum(axis=1, keepdims=True)
-    for backend in _BACKENDS:
-        try:
-            lbs = LinearBlendSkinning(
-                scene["vertices"], order, weights, n_joints=n_parts, backend=backend
-            )
-        except MissingDependencyError as exc:
-            notes.append(f"LBS {backend} not measured: {exc}")
-            ms[f"lbs_{backend}"] = cpu_ms[f"lbs_{backend}"] = None
-            continue
-        buffer = np.zeros((n_frames, n_vertices, 3))
-        timed(f"lbs_{backend}", partial(lbs.deform, scene["transforms"], out=buffer))
-
-    def ratio(a: str, b: str) -> float | None:
-        x, y = cpu_ms.get(a), cpu_ms.get(b)
-        return None if x is None or not y else x / y
-
-    ratios = {
-        f"{m}_{b} / lbs_{b}": ratio(f"{m}_{b}", f"lbs_{b}")
-        for b in ("numpy", "numba")
-        for m in METHODS
-    }
-    ratios.update({f"{m}_numpy / {m}_numba": ratio(f"{m}_numpy", f"{m}_numba") for m in METHODS})
-    max_abs_diff = {
-        f"{m}_numba vs {m}_numpy": float(
-            np.abs(outputs[f"{m}_numba"] - outputs[f"{m}_numpy"]).max()
-        )
-        if f"{m}_numba" in outputs and f"{m}_numpy" in outputs
-        else None
-        for m in METHODS
-    }
+    outputs = _time_dense_variants(scene, parts, n_frames, repeat, ms, cpu_ms, notes)
+    _time_lbs(scene, n_parts, n_vertices, n_frames, repeat, ms, cpu_ms, notes)
+    ratios = _cpu_ratios(cpu_ms)
+    max_abs_diff = _numba_vs_numpy_diff(outputs)
     first = _first_call(n_vertices, n_parts, n_markers, n_frames, seed) if first_call else None
     default_backend = DenseDeformer(parts, scene["vertices"][:1], scene["beta"][:1]).backend
     seconds: dict[str, float | None] = {"segmentation": None, "registration": None}
     if rom_frames > 0:
-        rom = chain_scene(1, n_parts, n_markers, rom_frames, seed=seed + 1)
-        t0 = time.perf_counter()
-        segment_marker_surface(rom["markers"], rom["reference"], rom["faces"], n_parts=n_parts)
-        seconds["segmentation"] = time.perf_counter() - t0
+        seconds["segmentation"] = _segmentation_seconds(n_parts, n_markers, rom_frames, seed)
     if registration:
         seconds["registration"] = _registration_seconds(scene, notes)
-
-    def met(key: str) -> bool | None:
-        value = ms.get(key)
-        return None if value is None else value <= GOALS_MS[key]
-
-    goals = {
-        "quadratic_rbf_numpy": met("quadratic_rbf_numpy"),
-        "quadratic_rbf_numba": met("quadratic_rbf_numba"),
-        "segmentation": None
-        if seconds["segmentation"] is None or rom_frames != 1000
-        else seconds["segmentation"] <= GOALS_S["segmentation_1000_frames"],
-    }
     config = {
         "vertices": n_vertices,
         "parts": n_parts,
@@ -313,12 +245,150 @@ def run_animate_benchmark(
         "max_abs_diff": max_abs_diff,
         "first_call": first,
         "seconds": seconds,
-        "goals": goals,
+        "goals": _goals_met(ms, seconds, rom_frames),
         "config": config,
         "notes": notes,
     }
     report["lines"] = _summary_lines(report)
     return report
+
+
+def _time_per_frame(
+    key: str,
+    run: Callable[[], object],
+    repeat: int,
+    n_frames: int,
+    ms: dict[str, float | None],
+    cpu_ms: dict[str, float | None],
+) -> None:
+    """Store under ``key`` in ``ms`` / ``cpu_ms`` the best wall / CPU milliseconds per
+    frame of ``run`` (one warm-up, then ``repeat`` calls of ``n_frames`` frames each)."""
+    wall, cpu = _best_wall_and_cpu(run, repeat)
+    ms[key], cpu_ms[key] = 1e3 * wall / n_frames, 1e3 * cpu / n_frames
+
+
+def _time_dense_variants(
+    scene: dict[str, np.ndarray],
+    parts: Any,
+    n_frames: int,
+    repeat: int,
+    ms: dict[str, float | None],
+    cpu_ms: dict[str, float | None],
+    notes: list[str],
+) -> dict[str, np.ndarray]:
+    """Time every dense method on each backend into ``ms`` / ``cpu_ms`` (ms/frame,
+    ``<method>_<backend>``; None and a note when the backend is missing).
+
+    Returns
+    -------
+    dict
+        ``<method>_<backend>`` -> (T, V, 3) float64 deformed vertices, metres.
+    """
+    outputs: dict[str, np.ndarray] = {}
+    for backend in _BACKENDS:
+        try:
+            deformer = DenseDeformer(parts, scene["vertices"], scene["beta"], backend=backend)
+        except MissingDependencyError as exc:  # numba missing: reported, not fatal
+            notes.append(f"dense {backend} not measured: {exc}")
+            for method in METHODS:
+                ms[f"{method}_{backend}"] = cpu_ms[f"{method}_{backend}"] = None
+            continue
+        for method in METHODS:
+
+            def deform_all(
+                deformer: DenseDeformer = deformer, method: Method = cast("Method", method)
+            ) -> list[np.ndarray]:
+                return list(deformer.deform(scene["markers"], method, chunk=n_frames))
+
+            _time_per_frame(f"{method}_{backend}", deform_all, repeat, n_frames, ms, cpu_ms)
+            outputs[f"{method}_{backend}"] = np.concatenate(deform_all())
+    return outputs
+
+
+def _time_lbs(
+    scene: dict[str, np.ndarray],
+    n_parts: int,
+    n_vertices: int,
+    n_frames: int,
+    repeat: int,
+    ms: dict[str, float | None],
+    cpu_ms: dict[str, float | None],
+    notes: list[str],
+) -> None:
+    """Time our LBS of the same vertices on each backend into ``ms`` / ``cpu_ms``
+    (ms/frame, ``lbs_<backend>``): the parts as joints, β as two-influence weights."""
+    order = np.argsort(-scene["beta"], axis=1)[:, :2]
+    weights = np.take_along_axis(scene["beta"], order, axis=1)
+    weights /= weights.sum(axis=1, keepdims=True)
+    for backend in _BACKENDS:
+        try:
+            lbs = LinearBlendSkinning(
+                scene["vertices"], order, weights, n_joints=n_parts, backend=backend
+            )
+        except MissingDependencyError as exc:
+            notes.append(f"LBS {backend} not measured: {exc}")
+            ms[f"lbs_{backend}"] = cpu_ms[f"lbs_{backend}"] = None
+            continue
+        buffer = np.zeros((n_frames, n_vertices, 3))
+        run = partial(lbs.deform, scene["transforms"], out=buffer)
+        _time_per_frame(f"lbs_{backend}", run, repeat, n_frames, ms, cpu_ms)
+
+
+def _cpu_ratios(cpu_ms: dict[str, float | None]) -> dict[str, float | None]:
+    """``<method>_<backend> / lbs_<backend>`` and ``<method>_numpy / <method>_numba`` of
+    the CPU ms/frame (None when either is missing or the divisor is 0)."""
+
+    def ratio(a: str, b: str) -> float | None:
+        x, y = cpu_ms.get(a), cpu_ms.get(b)
+        return None if x is None or not y else x / y
+
+    ratios = {
+        f"{m}_{b} / lbs_{b}": ratio(f"{m}_{b}", f"lbs_{b}")
+        for b in ("numpy", "numba")
+        for m in METHODS
+    }
+    ratios.update({f"{m}_numpy / {m}_numba": ratio(f"{m}_numpy", f"{m}_numba") for m in METHODS})
+    return ratios
+
+
+def _numba_vs_numpy_diff(outputs: dict[str, np.ndarray]) -> dict[str, float | None]:
+    """Largest absolute difference (metres) of each method's numba output from its NumPy
+    output (None unless both were measured)."""
+    return {
+        f"{m}_numba vs {m}_numpy": float(
+            np.abs(outputs[f"{m}_numba"] - outputs[f"{m}_numpy"]).max()
+        )
+        if f"{m}_numba" in outputs and f"{m}_numpy" in outputs
+        else None
+        for m in METHODS
+    }
+
+
+def _segmentation_seconds(n_parts: int, n_markers: int, rom_frames: int, seed: int) -> float:
+    """Wall-clock seconds of segmenting a ``rom_frames``-frame take of the chain's markers."""
+    rom = chain_scene(1, n_parts, n_markers, rom_frames, seed=seed + 1)
+    t0 = time.perf_counter()
+    segment_marker_surface(rom["markers"], rom["reference"], rom["faces"], n_parts=n_parts)
+    return time.perf_counter() - t0
+
+
+def _goals_met(
+    ms: dict[str, float | None], seconds: dict[str, float | None], rom_frames: int
+) -> dict[str, bool | None]:
+    """Whether each goal of :data:`GOALS_MS` / :data:`GOALS_S` is met (None: not measured,
+    or the segmentation was not timed on 1000 frames)."""
+
+    def met(key: str) -> bool | None:
+        value = ms.get(key)
+        return None if value is None else value <= GOALS_MS[key]
+
+    return {
+        "quadratic_rbf_numpy": met("quadratic_rbf_numpy"),
+        "quadratic_rbf_numba": met("quadratic_rbf_numba"),
+        "segmentation": None
+        if seconds["segmentation"] is None or rom_frames != 1000
+        else seconds["segmentation"] <= GOALS_S["segmentation_1000_frames"],
+    }
 
 
 def _summary_lines(report: dict[str, Any]) -> list[str]:
