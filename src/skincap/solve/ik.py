@@ -442,6 +442,39 @@ def solve_poses(
         World rotations, never NaN.
     root : (T, 3) float64, metres
     """
+    parents, offsets, mseg, moff, y = _checked_model_inputs(
+        parents, offsets, marker_segments, marker_offsets, measured, init_rotations, init_root
+    )
+    s = parents.size
+    rot, root = fill_poses(np.asarray(init_rotations, float), np.asarray(init_root, float), parents)
+    paths = _Paths(parents, offsets, mseg, moff)
+    n_par = 3 + 3 * s
+    stiff, limits, bones = _checked_ik_options(
+        s, link_stiffness, loss, loss_scale, joint_limits, limit_stiffness, bone_axes
+    )
+    springs = _Springs(parents, stiff, n_par, limits, float(limit_stiffness), bones)
+    springs.project(rot)  # start inside the joint limits
+    return _solve_in_passes(
+        parents, offsets, mseg, moff, paths, springs, y, rot, root, n_par, iterations,
+        tolerance, relative_tolerance, chunk, warm_start, loss, loss_scale, progress,
+    )  # fmt: skip
+
+
+def _checked_model_inputs(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    marker_segments: np.ndarray,
+    marker_offsets: np.ndarray,
+    measured: np.ndarray,
+    init_rotations: np.ndarray,
+    init_root: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The model and capture of :func:`solve_poses` as arrays, their shapes checked.
+
+    Returns ``parents (S,) int64``, ``offsets (S, 3) float64`` metres,
+    ``marker_segments (M,) int64``, ``marker_offsets (M, 3) float64`` metres and
+    ``measured (T, M, 3) float64`` metres; raises :class:`ValidationError` when the
+    markers or the initial poses ``(T, S, 3, 3)`` / ``(T, 3)`` do not fit them."""
     parents = np.asarray(parents, dtype=np.int64)
     offsets = np.asarray(offsets, dtype=np.float64)
     mseg = np.asarray(marker_segments, dtype=np.int64)
@@ -457,9 +490,23 @@ def solve_poses(
         raise ValidationError(
             "init_rotations/init_root: shapes do not match the frames and segments"
         )
-    rot, root = fill_poses(np.asarray(init_rotations, float), np.asarray(init_root, float), parents)
-    paths = _Paths(parents, offsets, mseg, moff)
-    n_par = 3 + 3 * s
+    return parents, offsets, mseg, moff, y
+
+
+def _checked_ik_options(
+    s: int,
+    link_stiffness: np.ndarray | None,
+    loss: str,
+    loss_scale: float,
+    joint_limits: np.ndarray | None,
+    limit_stiffness: float,
+    bone_axes: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """Check the options of :func:`solve_poses` for a model of ``s`` segments.
+
+    Returns the link stiffness ``(S,) float64`` (metres per radian, zeros when none),
+    the joint limits ``(S, 3, 2) float64`` radians or None, and the bone axes
+    ``(S,) int64`` or None; raises :class:`ValidationError` on a bad option."""
     stiff = np.zeros(s) if link_stiffness is None else np.asarray(link_stiffness, dtype=np.float64)
     if stiff.shape != (s,) or not (np.isfinite(stiff).all() and (stiff >= 0).all()):
         raise ValidationError(
@@ -483,8 +530,37 @@ def solve_poses(
     bones = None if bone_axes is None else np.asarray(bone_axes, dtype=np.int64)
     if bones is not None and (bones.shape != (s,) or ((bones < 0) | (bones > 2)).any()):
         raise ValidationError(f"bone_axes: expected ({s},) values 0, 1 or 2")
-    springs = _Springs(parents, stiff, n_par, limits, float(limit_stiffness), bones)
-    springs.project(rot)  # start inside the joint limits
+    return stiff, limits, bones
+
+
+def _solve_in_passes(
+    parents: np.ndarray,
+    offsets: np.ndarray,
+    mseg: np.ndarray,
+    moff: np.ndarray,
+    paths: _Paths,
+    springs: _Springs,
+    y: np.ndarray,
+    rot: np.ndarray,
+    root: np.ndarray,
+    n_par: int,
+    iterations: int,
+    tolerance: float,
+    relative_tolerance: float,
+    chunk: int,
+    warm_start: bool,
+    loss: str,
+    loss_scale: float,
+    progress: Progress | None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Solve every frame of ``y (T, M, 3)`` metres in chunks of ``chunk`` frames.
+
+    With ``warm_start`` (and 3 frames or more) the even frames are solved first and
+    the odd ones then start where :func:`_start_odd_frames_between` says (``rot``
+    ``(T, S, 3, 3)`` and ``root (T, 3)`` metres, the filled starting poses, are
+    changed in place). Returns the solved ``(T, S, 3, 3)`` world rotations and
+    ``(T, 3)`` root origins, metres."""
+    t_all = y.shape[0]
     out_rot = np.empty_like(rot)
     out_root = np.empty_like(root)
     passes = [np.arange(t_all)]
@@ -493,19 +569,8 @@ def solve_poses(
     done = 0
     for k, frames in enumerate(passes):
         if k == 1:
-            # odd frames start from the midpoint of their solved neighbours where that
-            # fits their markers better than their own start (a smooth motion)
-            before = frames - 1
-            after = np.minimum(frames + 1, passes[0][-1])
-            rel = _log(np.einsum("tsji,tsjk->tsik", out_rot[before], out_rot[after]))
-            mid_rot = out_rot[before] @ _exp(0.5 * rel)
-            mid_root = 0.5 * (out_root[before] + out_root[after])
             model = (parents, offsets, mseg, moff, springs, loss, loss_scale)
-            use = _pose_cost(model, y[frames], mid_rot, mid_root) < _pose_cost(
-                model, y[frames], rot[frames], root[frames]
-            )
-            rot[frames[use]] = mid_rot[use]
-            root[frames[use]] = mid_root[use]
+            _start_odd_frames_between(model, y, rot, root, out_rot, out_root, frames, passes[0][-1])
         for start in range(0, frames.size, chunk):
             sel = frames[start : start + chunk]
             out_rot[sel], out_root[sel] = _solve_chunk(
@@ -516,6 +581,36 @@ def solve_poses(
             if progress is not None:
                 progress(done / t_all, "inverse kinematics")
     return out_rot, out_root
+
+
+def _start_odd_frames_between(
+    model: tuple,
+    y: np.ndarray,
+    rot: np.ndarray,
+    root: np.ndarray,
+    out_rot: np.ndarray,
+    out_root: np.ndarray,
+    frames: np.ndarray,
+    last_even: int,
+) -> None:
+    """Start the odd ``frames`` from the midpoint of their solved neighbours where that
+    fits their markers better than their own start (a smooth motion).
+
+    ``model`` is the tuple :func:`_pose_cost` takes, ``y (T, M, 3)`` metres the
+    capture, ``rot (T, S, 3, 3)`` / ``root (T, 3)`` metres the starting poses (the
+    chosen frames are overwritten in place), ``out_rot`` / ``out_root`` the solved
+    poses of the even frames, ``last_even`` the last even frame (the neighbour after
+    an odd last frame)."""
+    before = frames - 1
+    after = np.minimum(frames + 1, last_even)
+    rel = _log(np.einsum("tsji,tsjk->tsik", out_rot[before], out_rot[after]))
+    mid_rot = out_rot[before] @ _exp(0.5 * rel)
+    mid_root = 0.5 * (out_root[before] + out_root[after])
+    use = _pose_cost(model, y[frames], mid_rot, mid_root) < _pose_cost(
+        model, y[frames], rot[frames], root[frames]
+    )
+    rot[frames[use]] = mid_rot[use]
+    root[frames[use]] = mid_root[use]
 
 
 def _solve_chunk(

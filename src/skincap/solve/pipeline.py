@@ -124,18 +124,65 @@ def solve_markers(
         if progress is not None:
             progress(0.2 + 0.8 * f, label)
 
-    limits = None
-    if joint_limits:
-        limits = model.joint_limits
-        if not np.isfinite(limits).any():
-            raise ValidationError(
-                f"joint limits: template {model.template.name} defines none (a segment's 'limits')"
-            )
+    limits = _template_limits(model) if joint_limits else None
     if refine_offsets < 0:
         raise ValidationError(f"refine_offsets: expected a count >= 0, got {refine_offsets}")
     measured = markers.positions[:, model.marker_columns]
+    model, rot, root = _solve_rounds(
+        model, measured, int(refine_offsets) + 1, iterations, loss, loss_scale, limits,
+        joint_limits, ik_progress,
+    )  # fmt: skip
+    if smooth_hz is not None:
+        rot, root = smooth_poses(rot, root, markers.rate, float(smooth_hz))
+    motion = motion_of(model, rot, root, markers.rate)
+    fitted, resid = _fitted_markers(model, markers, measured, rot, root)
+    return SolveResult(
+        motion=motion,
+        model=model,
+        fitted=fitted,
+        rotations=rot,
+        root=root,
+        residuals=resid,
+        smooth_hz=None if smooth_hz is None else float(smooth_hz),
+        ik={
+            "loss": loss,
+            "loss_scale_m": float(loss_scale),
+            "refine_offsets": int(refine_offsets),
+            "joint_limits": bool(joint_limits),
+        },
+    )
+
+
+def _template_limits(model: BodyModel) -> np.ndarray:
+    """The model's joint limits, ``(S, 3, 2)`` radians (NaN: none); raises
+    :class:`ValidationError` when its template defines none at all."""
+    limits = model.joint_limits
+    if not np.isfinite(limits).any():
+        raise ValidationError(
+            f"joint limits: template {model.template.name} defines none (a segment's 'limits')"
+        )
+    return limits
+
+
+def _solve_rounds(
+    model: BodyModel,
+    measured: np.ndarray,
+    rounds: int,
+    iterations: int,
+    loss: str,
+    loss_scale: float,
+    limits: np.ndarray | None,
+    joint_limits: bool,
+    ik_progress: Progress,
+) -> tuple[BodyModel, np.ndarray, np.ndarray]:
+    """Solve the poses ``rounds`` times from the calibration's, re-fitting the marker
+    offsets to the last poses before every round but the first.
+
+    ``measured (T, M, 3)`` metres are the model's markers (NaN: missing), ``limits``
+    the ``(S, 3, 2)`` joint limits in radians or None. Returns the model with its
+    re-fitted offsets, the ``(T, S, 3, 3)`` world rotations and the ``(T, 3)`` root
+    origins, metres; ``ik_progress`` sees the rounds' fractions in turn."""
     rot, root = model.init_rotations, model.init_origins
-    rounds = int(refine_offsets) + 1
     for k in range(rounds):
         if k > 0:
             model = replace(
@@ -165,8 +212,19 @@ def solve_markers(
             bone_axes=model.bone_axes if joint_limits else None,
             progress=round_progress,
         )
-    if smooth_hz is not None:
-        rot, root = smooth_poses(rot, root, markers.rate, float(smooth_hz))
+    return model, rot, root
+
+
+def _fitted_markers(
+    model: BodyModel,
+    markers: MarkerSet,
+    measured: np.ndarray,
+    rot: np.ndarray,
+    root: np.ndarray,
+) -> tuple[MarkerSet, np.ndarray]:
+    """The model's markers for poses ``rot (T, S, 3, 3)`` / ``root (T, 3)`` metres, as a
+    MarkerSet with the model's labels, and their ``(T, M)`` distances (metres, NaN
+    where missing) to the ``measured (T, M, 3)`` ones."""
     fitted_pos = model_markers(
         model.segment_parents,
         model.joint_offsets,
@@ -177,28 +235,13 @@ def solve_markers(
     )
     with np.errstate(invalid="ignore"):
         resid = np.linalg.norm(fitted_pos - measured, axis=2)
-    motion = motion_of(model, rot, root, markers.rate)
     fitted = MarkerSet(
         positions=fitted_pos,
         labels=list(model.marker_labels),
         rate=markers.rate,
         meta={k: v for k, v in markers.meta.items() if k in ("source_units", "up", "first_frame")},
     )
-    return SolveResult(
-        motion=motion,
-        model=model,
-        fitted=fitted,
-        rotations=rot,
-        root=root,
-        residuals=resid,
-        smooth_hz=None if smooth_hz is None else float(smooth_hz),
-        ik={
-            "loss": loss,
-            "loss_scale_m": float(loss_scale),
-            "refine_offsets": int(refine_offsets),
-            "joint_limits": bool(joint_limits),
-        },
-    )
+    return fitted, resid
 
 
 def _stats(r: np.ndarray) -> dict[str, float | None]:
