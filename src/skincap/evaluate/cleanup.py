@@ -92,9 +92,7 @@ def punch_gaps(
         while made < count:
             # a start is free when its window (with margins) touches no busy frame
             cb = np.concatenate([[0], np.cumsum(busy)])
-            lo = np.maximum(starts_all - 1 - margin, 0)
-            hi = np.minimum(starts_all + length + 1 + margin, t)
-            free = starts_all[(cb[hi] - cb[lo] == 0) & ~hopeless[starts_all]]
+            free = _free_starts(starts_all, cb, length, margin, hopeless)
             if free.size == 0:
                 break
             s = int(rng.choice(free))
@@ -150,9 +148,7 @@ def punch_gaps_together(
         for length in wanted:
             starts_all = np.arange(1, t - length)
             while made[length] < count:
-                lo = np.maximum(starts_all - 1 - margin, 0)
-                hi = np.minimum(starts_all + length + 1 + margin, t)
-                free = starts_all[(cb[hi] - cb[lo] == 0) & ~hopeless[length][starts_all]]
+                free = _free_starts(starts_all, cb, length, margin, hopeless[length])
                 if free.size == 0:
                     break
                 s = int(rng.choice(free))
@@ -170,6 +166,21 @@ def punch_gaps_together(
             break
         rounds.append(np.array(rows, dtype=np.int64))
     return rounds
+
+
+def _free_starts(
+    starts_all: np.ndarray, cb: np.ndarray, length: int, margin: int, hopeless: np.ndarray
+) -> np.ndarray:
+    """The starts (int, frames) among ``starts_all`` where a ``length``-frame gap fits.
+
+    A start is free when its window ``[s - 1, s + length]`` widened by ``margin``
+    frames either side (clipped to the T frames) touches no busy frame, given ``cb``
+    (T + 1,) the running count of busy frames, and it is not ``hopeless`` (T,) bool.
+    """
+    t = cb.size - 1
+    lo = np.maximum(starts_all - 1 - margin, 0)
+    hi = np.minimum(starts_all + length + 1 + margin, t)
+    return starts_all[(cb[hi] - cb[lo] == 0) & ~hopeless[starts_all]]
 
 
 def _choose_markers(
@@ -288,31 +299,9 @@ def evaluate_fill(
     csr = motion_neighbours(p) if neighbours is None else as_csr(neighbours, n)
     mnd = mean_neighbour_distance(p, csr)
     present = ~np.isnan(p[..., 0]) & ~np.isnan(ref[..., 0])
-    rng = np.random.default_rng(seed)
-    if lengths_together:
-        rounds = punch_gaps_together(
-            present,
-            csr,
-            lengths,
-            gaps,
-            simultaneous=simultaneous,
-            min_neighbours=min_neighbours,
-            rng=rng,
-        )
-    else:
-        rounds = [
-            rows
-            for length in lengths
-            for rows in punch_gaps(
-                present,
-                csr,
-                length,
-                gaps,
-                simultaneous=simultaneous,
-                min_neighbours=min_neighbours,
-                rng=rng,
-            )
-        ]
+    rounds = _plan_rounds(
+        present, csr, lengths, gaps, simultaneous, min_neighbours, seed, lengths_together
+    )
     errors = _fill_punched(
         markers, lengths, rounds, methods, csr, mnd, ref, rigid_blend, fill_own_gaps, progress
     )
@@ -366,6 +355,49 @@ def _checked_fill_options(
     if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
         raise ValidationError(f"rigid_blend: expected a weight in [0, 1], got {rigid_blend!r}")
     return methods, lengths
+
+
+def _plan_rounds(
+    present: np.ndarray,
+    csr: tuple[np.ndarray, np.ndarray],
+    lengths: list[int],
+    gaps: int,
+    simultaneous: int,
+    min_neighbours: int,
+    seed: int,
+    lengths_together: bool,
+) -> list[np.ndarray]:
+    """The seeded rounds of gaps :func:`evaluate_fill` punches.
+
+    ``present`` (T, N) bool, ``csr`` the neighbours (offsets (N + 1,), indices (E,)),
+    ``lengths`` in frames. Returns (G_r, 3) int64 rows ``(marker, start, length)`` per
+    round: shared rounds of every length (:func:`punch_gaps_together`) if
+    ``lengths_together``, else the rounds of each length in turn (:func:`punch_gaps`).
+    """
+    rng = np.random.default_rng(seed)
+    if lengths_together:
+        return punch_gaps_together(
+            present,
+            csr,
+            lengths,
+            gaps,
+            simultaneous=simultaneous,
+            min_neighbours=min_neighbours,
+            rng=rng,
+        )
+    return [
+        rows
+        for length in lengths
+        for rows in punch_gaps(
+            present,
+            csr,
+            length,
+            gaps,
+            simultaneous=simultaneous,
+            min_neighbours=min_neighbours,
+            rng=rng,
+        )
+    ]
 
 
 _Errors = dict[str, dict[int, list[np.ndarray]]]

@@ -619,6 +619,63 @@ def _default_gamma(start: np.ndarray) -> float:
     return gamma
 
 
+def _check_rope_request(
+    cloud: PointCloud,
+    box: Sequence[float] | np.ndarray | None,
+    markers: Sequence[int] | np.ndarray | None,
+    auto: bool,
+) -> None:
+    """Raise unless exactly one of ``box``, ``markers`` or ``auto`` selects the rope
+    and ``cloud`` has at least 2 frames."""
+    chosen = sum([box is not None, markers is not None, bool(auto)])
+    if chosen != 1:
+        raise ValidationError(
+            "rope: give exactly one of box=, markers= or auto=True to select the rope"
+        )
+    if cloud.n_frames < 2:
+        raise ValidationError(f"cloud: need at least 2 frames to track, got {cloud.n_frames}")
+
+
+def _followed_traces(
+    temp: np.ndarray, max_temp_markers: int, n_window: int, n_selected: int
+) -> np.ndarray:
+    """(K,) bool: the traces with at most ``min(max_temp_markers, n_window // 2)``
+    temporary markers in ``temp`` (W, K) bool; raises if fewer than 3 remain."""
+    limit = min(max_temp_markers, n_window // 2)
+    keep = temp.sum(axis=0) <= limit
+    if keep.sum() < 3:
+        raise ValidationError(
+            f"rope: only {int(keep.sum())} of {n_selected} selected points could be followed "
+            f"through the first {n_window} frames; is the rope still there?"
+        )
+    return keep
+
+
+def _ordered_chain(
+    sel: np.ndarray, pos: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The followed traces ordered along the rope, ghosts beside a marker dropped.
+
+    ``sel`` (K,) int64 frame-0 indices and ``pos`` (W, K, 3) metres, the traces
+    through the window. Returns the kept indices (M,) and mean positions (M, 3) in
+    order along the rope, the mean chord of each link over the window (M - 1,)
+    metres, and the (K,) bool off-chain mask (in chain order) of the dropped traces.
+    Raises if fewer than 3 points form the chain or two traces coincide.
+    """
+    mean = pos.mean(axis=0)
+    order = _chain_order(mean)
+    sel, pos, mean = sel[order], pos[:, order], mean[order]
+    chord = np.linalg.norm(np.diff(mean, axis=0), axis=1)
+    off = off_chain_points(mean, float(np.median(chord)))  # a ghost beside a marker
+    if (~off).sum() < 3:
+        raise ValidationError(f"rope: only {int((~off).sum())} selected points form a chain")
+    sel, pos, mean = sel[~off], pos[:, ~off], mean[~off]
+    chord = np.linalg.norm(np.diff(pos, axis=1), axis=2).mean(axis=0)
+    if np.any(chord <= 0):
+        raise ValidationError("rope: two selected traces coincide")
+    return sel, mean, chord, off
+
+
 def init_rope(
     cloud: PointCloud,
     *,
@@ -671,13 +728,7 @@ def init_rope(
         Not exactly one selection given, a bad box or index, fewer than 3 rope points
         selected or surviving the window.
     """
-    chosen = sum([box is not None, markers is not None, bool(auto)])
-    if chosen != 1:
-        raise ValidationError(
-            "rope: give exactly one of box=, markers= or auto=True to select the rope"
-        )
-    if cloud.n_frames < 2:
-        raise ValidationError(f"cloud: need at least 2 frames to track, got {cloud.n_frames}")
+    _check_rope_request(cloud, box, markers, auto)
     p0 = cloud.frame(0)
     sel, method, rejected = _select_rope_points(cloud, box, markers, window_seconds)
     if sel.size < 3:
@@ -691,25 +742,8 @@ def init_rope(
     if max_temp_markers is None:
         max_temp_markers = max(1, int(round(cloud.rate)))
     pos, temp = _follow_window(cloud, start, n_window, float(gamma))
-    limit = min(int(max_temp_markers), n_window // 2)
-    keep = temp.sum(axis=0) <= limit
-    if keep.sum() < 3:
-        raise ValidationError(
-            f"rope: only {int(keep.sum())} of {sel.size} selected points could be followed "
-            f"through the first {n_window} frames; is the rope still there?"
-        )
-    sel, pos = sel[keep], pos[:, keep]
-    mean = pos.mean(axis=0)
-    order = _chain_order(mean)
-    sel, pos, mean = sel[order], pos[:, order], mean[order]
-    chord = np.linalg.norm(np.diff(mean, axis=0), axis=1)
-    off = off_chain_points(mean, float(np.median(chord)))  # a ghost beside a marker
-    if (~off).sum() < 3:
-        raise ValidationError(f"rope: only {int((~off).sum())} selected points form a chain")
-    sel, pos, mean = sel[~off], pos[:, ~off], mean[~off]
-    chord = np.linalg.norm(np.diff(pos, axis=1), axis=2).mean(axis=0)
-    if np.any(chord <= 0):
-        raise ValidationError("rope: two selected traces coincide")
+    keep = _followed_traces(temp, int(max_temp_markers), n_window, sel.size)
+    sel, mean, chord, off = _ordered_chain(sel[keep], pos[:, keep])
     spacing = _rest_spacing(chord)
     folded = int(np.count_nonzero(spacing != chord))
     sel, mean, spacing, inserted = _insert_unseen(sel, mean, spacing)
