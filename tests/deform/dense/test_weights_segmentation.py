@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -248,3 +250,22 @@ def test_segmentation_and_blend_weights_invariants_on_a_real_capture(data_dir, c
     single = spread.sum(axis=1) == 1
     np.testing.assert_array_equal(alpha[single], spread[single])
     assert not (alpha > 0)[~spread & spread.any(axis=1)[:, None]].any()
+
+
+def test_simplex_least_squares_ignores_the_entries_a_row_cannot_use() -> None:
+    # row 0 may use entries 0 and 1; its entry 2 (a part it is no candidate of) is
+    # empty, so every subset with it is singular. Row 1 may use all three. No warning
+    # escapes, and row 0's answer is the one of its own 2x2 problem.
+    from skincap.deform.dense.weights import _simplex_least_squares
+
+    gram = np.array(
+        [
+            [[2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 0.0]],
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        ]
+    )
+    usable = np.array([[True, True, False], [True, True, True]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        w = _simplex_least_squares(gram, usable)
+    np.testing.assert_allclose(w, [[0.5, 0.5, 0.0], [1 / 3, 1 / 3, 1 / 3]], atol=1e-6)

@@ -166,17 +166,21 @@ def _simplex_least_squares(gram: np.ndarray, usable: np.ndarray) -> np.ndarray:
     for size in range(1, k + 1):
         for subset in itertools.combinations(range(k), size):
             s = list(subset)
-            ok = usable[:, s].all(axis=1)
-            if not ok.any():
+            rows = np.flatnonzero(usable[:, s].all(axis=1))  # only rows whose entries exist
+            if rows.size == 0:
                 continue
-            sol = np.linalg.solve(g[:, s][:, :, s], np.ones((n, size, 1)))[..., 0]
-            total = sol.sum(axis=1, keepdims=True)
-            w = sol / np.where(np.abs(total) > 0, total, 1.0)
-            value = np.einsum("nk,nkl,nl->n", w, g[:, s][:, :, s], w)
-            better = ok & (w >= 0).all(axis=1) & np.isfinite(value) & (value < best)
-            best = np.where(better, value, best)
-            weights[better] = 0.0
-            weights[np.ix_(better, s)] = w[better]
+            g_s = g[rows][:, s][:, :, s]
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                # a singular G_S gives inf/NaN here; such a row fails isfinite below
+                sol = np.linalg.solve(g_s, np.ones((rows.size, size, 1)))[..., 0]
+                total = sol.sum(axis=1, keepdims=True)
+                w = sol / np.where(np.abs(total) > 0, total, 1.0)
+                value = np.einsum("nk,nkl,nl->n", w, g_s, w)
+            better = (w >= 0).all(axis=1) & np.isfinite(value) & (value < best[rows])
+            take = rows[better]
+            best[take] = value[better]
+            weights[take] = 0.0
+            weights[np.ix_(take, s)] = w[better]
     return weights
 
 
