@@ -34,6 +34,8 @@ from skincap.errors import MissingDependencyError, SkincapWarning, ValidationErr
 __all__ = [
     "numba_available",
     "resolve_backend",
+    "KernelWatch",
+    "RECHECK_SECONDS",
     "kernel_ready",
     "compile_in_background",
     "start_pending_compiles",
@@ -79,6 +81,51 @@ def numba_available() -> bool:
 def _compile_policy() -> str:
     value = os.environ.get("SKINCAP_COMPILE", "background").strip().lower()
     return "inline" if value == "inline" else "background"
+
+
+#: How often (seconds) an ``auto`` run that started on NumPy asks whether its kernel
+#: has landed in the cache (an ask reads numba's cache index: about a millisecond).
+RECHECK_SECONDS = 1.0
+
+
+class KernelWatch:
+    """Whether a kernel compiling in the background has landed, asked at most every
+    :data:`RECHECK_SECONDS`.
+
+    An ``auto`` run that started on the NumPy reference (the tracker, the skeletal and
+    the dense deformers) holds one and asks :meth:`landed` between batches, so a long
+    take switches to the kernel mid-run. Once the kernel has landed, or numba cannot
+    set it up (``resolve_backend`` warned already), it never asks again.
+
+    Parameters
+    ----------
+    dispatcher : callable() -> numba dispatcher
+        Builds (or returns) the kernel's dispatcher; called only when asking.
+    waiting : bool
+        False: there is nothing to wait for (:meth:`landed` is always False).
+    """
+
+    def __init__(self, dispatcher: Any, waiting: bool) -> None:
+        self._dispatcher = dispatcher
+        self.waiting = bool(waiting)
+        self._next_check = time.monotonic() + RECHECK_SECONDS
+
+    def landed(self) -> bool:
+        """True once, when the kernel is first found compiled (or in the cache)."""
+        if not self.waiting:
+            return False
+        now = time.monotonic()
+        if now < self._next_check:
+            return False
+        self._next_check = now + RECHECK_SECONDS
+        try:
+            ready = kernel_ready(self._dispatcher())
+        except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
+            ready = False
+            self.waiting = False
+        if ready:
+            self.waiting = False
+        return bool(ready)
 
 
 def kernel_ready(dispatcher: Any) -> bool:

@@ -240,7 +240,7 @@ def test_auto_takes_the_kernel_mid_run_once_the_background_compile_lands(
     monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: ready["now"])
     monkeypatch.setattr(backends, "compile_in_background", lambda name, dispatcher: True)
     monkeypatch.setattr(tracker, "_track_frames_dispatcher", lambda: stand_in_kernel)
-    monkeypatch.setattr(tracker, "_RECHECK_S", 0.0)
+    monkeypatch.setattr(backends, "RECHECK_SECONDS", 0.0)
     cloud, rope_markers = tracker.warm_up_take()
     init = init_rope(cloud, markers=rope_markers)
     mixed = track_rope(cloud, init, progress=numpy_progress)

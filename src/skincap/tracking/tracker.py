@@ -86,7 +86,6 @@ The steps are written twice, with the same names and signatures: in NumPy
 
 from __future__ import annotations
 
-import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -173,11 +172,6 @@ class RopeTrack:
             invented=self.invented & np.isfinite(self.positions).all(axis=2),
             meta=dict(self.meta),
         )
-
-
-# a NumPy run waiting for the background compile looks in numba's cache at most this
-# often (a look reads the cache index: about a millisecond)
-_RECHECK_S = 1.0
 
 
 def _track_frames_dispatcher() -> Any:
@@ -273,10 +267,10 @@ def track_rope(
         from skincap.tracking._steps_numpy import track_frames
     # "auto" got NumPy because the kernel is compiling in the background: both step
     # backends share the state, so the kernel takes over once it is in the cache
-    awaiting_kernel = (
-        backend == "auto" and track_frames.__module__.endswith("_numpy") and numba_available()
+    watch = backends.KernelWatch(
+        _track_frames_dispatcher,
+        backend == "auto" and track_frames.__module__.endswith("_numpy") and numba_available(),
     )
-    next_check = time.monotonic() + _RECHECK_S
     # frames in chunks of about a hundredth of the take, reporting after each
     t_frames = cloud.n_frames
     every = max(1, t_frames // 100)
@@ -284,13 +278,8 @@ def track_rope(
     while t0 < t_frames:
         t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
         track_frames(state, t0, t1, params)
-        if awaiting_kernel and time.monotonic() >= next_check:
-            next_check = time.monotonic() + _RECHECK_S
-            try:
-                if backends.kernel_ready(_track_frames_dispatcher()):
-                    track_frames, awaiting_kernel = _track_frames_dispatcher(), False
-            except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
-                awaiting_kernel = False
+        if watch.landed():
+            track_frames = _track_frames_dispatcher()
         if progress is not None and (t1 - 1) % every == 0:
             progress((t1 - 1) / t_frames)
         t0 = t1

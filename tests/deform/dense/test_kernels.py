@@ -121,7 +121,7 @@ def test_auto_runs_numpy_while_the_kernel_compiles_then_takes_it(
     monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
     monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: compiled)
     monkeypatch.setattr(backends, "compile_in_background", lambda n, d: started.append(n) or True)
-    monkeypatch.setattr(dense_deformer, "_RECHECK_S", 0.0)
+    monkeypatch.setattr(backends, "RECHECK_SECONDS", 0.0)
     take = _random_take(3)
     parts = part_frames(take["reference"], take["alpha"])
     motion = fit_part_motion(take["markers"], parts)

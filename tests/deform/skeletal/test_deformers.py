@@ -458,13 +458,12 @@ def test_auto_takes_the_kernel_once_the_background_compile_lands(
     monkeypatch: pytest.MonkeyPatch, cls: type
 ) -> None:
     from skincap import backends
-    from skincap.deform.skeletal import deformers
 
     compiled = False
     monkeypatch.delenv("SKINCAP_COMPILE", raising=False)
     monkeypatch.setattr(backends, "kernel_ready", lambda dispatcher: compiled)
     monkeypatch.setattr(backends, "compile_in_background", lambda n, d: True)
-    monkeypatch.setattr(deformers, "_RECHECK_S", 0.0)
+    monkeypatch.setattr(backends, "RECHECK_SECONDS", 0.0)
     rest, idx, w, matrices = random_rig(16, n_vertices=40)
     ref = cls(rest, idx, w, backend="numpy").deform(matrices)
     d = cls(rest, idx, w)

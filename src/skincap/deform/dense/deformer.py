@@ -38,7 +38,6 @@ NumPy; the per-frame vertex evaluation (eqs. 8-9) runs the numba kernel of
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Literal
@@ -76,10 +75,6 @@ METHODS: tuple[str, ...] = ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf")
 #: Fewest measured members for a part's rigid fit at a frame.
 MIN_PART_MARKERS = 3
 Backend = Literal["auto", "numba", "numpy"]
-
-# a deformer running NumPy while its kernel compiles in the background looks in numba's
-# cache at most this often (a look reads the cache index: about a millisecond)
-_RECHECK_S = 1.0
 
 
 def warm_up_kernel() -> None:
@@ -308,8 +303,9 @@ class DenseDeformer:
         self.backend = _resolve_backend(backend)
         # "auto" got NumPy because the kernel is compiling in the background: take it
         # as soon as it lands in the cache, so a long take is not NumPy throughout
-        self._awaiting_kernel = backend == "auto" and self.backend == "numpy" and numba_available()
-        self._next_kernel_check = time.monotonic() + _RECHECK_S
+        self._kernel_watch = backends.KernelWatch(
+            dense_dispatcher, backend == "auto" and self.backend == "numpy" and numba_available()
+        )
 
     def deform_block(self, motion: PartMotion) -> np.ndarray:
         """Vertex positions for a block of fitted frames (eqs. 8-9).
@@ -334,8 +330,8 @@ class DenseDeformer:
             self._rbf_scale,
             rbf_members,
         )
-        if self._awaiting_kernel:
-            self._adopt_compiled_kernel()
+        if self._kernel_watch.landed():
+            self.backend = "numba"
         if self.backend == "numba":
             return deform_vertices_numba(
                 self._vertex_local,
@@ -346,21 +342,6 @@ class DenseDeformer:
             )
         moved = move_pairs_numpy(self.pair_basis, self._part_start, *fields)
         return blend_pairs(moved, self._blend)
-
-    def _adopt_compiled_kernel(self) -> None:
-        """Switch to the numba kernel once the background compile has cached it."""
-        now = time.monotonic()
-        if now < self._next_kernel_check:
-            return
-        self._next_kernel_check = now + _RECHECK_S
-        try:
-            ready = backends.kernel_ready(dense_dispatcher())
-        except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
-            self._awaiting_kernel = False
-            return
-        if ready:
-            self.backend = "numba"
-            self._awaiting_kernel = False
 
     def deform(
         self,

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import abc
 import functools
-import time
 from collections.abc import Callable, Iterator
 from typing import Any, Literal
 
@@ -70,10 +69,6 @@ Backend = Literal["auto", "numba", "numpy"]
 
 # below this largest deviation of A^T A from I (and det A > 0) a matrix counts as rigid
 _RIGID_TOL = 1e-9
-
-# a deformer running NumPy while its kernel compiles in the background looks in numba's
-# cache at most this often (a look reads the cache index: about a millisecond)
-_RECHECK_S = 1.0
 
 
 # ------------------------------------------------------------------------ numba
@@ -342,8 +337,10 @@ class SkinningDeformer(abc.ABC):
         self.backend = _resolve_backend(backend, self.method)
         # "auto" got NumPy because the kernel is compiling in the background: take the
         # kernel as soon as it lands in the cache (a long take is not NumPy throughout)
-        self._awaiting_kernel = backend == "auto" and self.backend == "numpy" and numba_available()
-        self._next_kernel_check = time.monotonic() + _RECHECK_S
+        self._kernel_watch = backends.KernelWatch(
+            _KERNELS[self.method][1],
+            backend == "auto" and self.backend == "numpy" and numba_available(),
+        )
         # NumPy kernels work on batches of about 2**19 vertex-frames: the temporaries
         # stay a few MB and the per-call overheads are shared by several frames
         self._numpy_step = max(1, 2**19 // max(1, n_v))
@@ -437,8 +434,8 @@ class SkinningDeformer(abc.ABC):
                 )
             result = out.reshape(shape)
         if shape[0] and shape[1]:
-            if self._awaiting_kernel:
-                self._adopt_compiled_kernel()
+            if self._kernel_watch.landed():
+                self.backend = "numba"
             if self.backend == "numba":
                 self._numba_all(m, result)
             else:
@@ -448,21 +445,6 @@ class SkinningDeformer(abc.ABC):
         if out is not None:
             return out
         return result[0] if single else result
-
-    def _adopt_compiled_kernel(self) -> None:
-        """Switch to the numba kernel once the background compile has cached it."""
-        now = time.monotonic()
-        if now < self._next_kernel_check:
-            return
-        self._next_kernel_check = now + _RECHECK_S
-        try:
-            ready = backends.kernel_ready(_KERNELS[self.method][1]())
-        except RuntimeError:  # numba cannot set the kernel up (resolve_backend warned)
-            self._awaiting_kernel = False
-            return
-        if ready:
-            self.backend = "numba"
-            self._awaiting_kernel = False
 
     def deform_chunks(self, matrices: np.ndarray, chunk: int = 64) -> Iterator[np.ndarray]:
         """Deform a whole motion chunk by chunk.
