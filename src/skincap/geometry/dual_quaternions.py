@@ -32,6 +32,7 @@ from skincap.geometry.rotations import (
     last_axis_array,
     matrix_to_quat,
     quat_conjugate,
+    quat_identity,
     quat_multiply,
     quat_to_matrix,
 )
@@ -67,10 +68,8 @@ def dq_identity(shape: tuple[int, ...] | int = ()) -> np.ndarray:
     -------
     (*S, 8) float64
     """
-    lead = (shape,) if isinstance(shape, int) else tuple(shape)
-    out = np.zeros(lead + (8,), dtype=np.float64)
-    out[..., 3] = 1.0
-    return out
+    real = quat_identity(shape)
+    return np.concatenate([real, np.zeros_like(real)], axis=-1)
 
 
 def dq_from_quat_translation(quat: np.ndarray, translation: np.ndarray) -> np.ndarray:
