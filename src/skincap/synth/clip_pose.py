@@ -241,6 +241,27 @@ class ClipPose:
         current = quat_apply(self.world(j), self.segment(landmark))  # (T, 3)
         self.turn_world(landmark, swing(current, target, weight))
 
+    def _bend_to_reach(
+        self, upper: str, middle: str, end: str, target: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The hinge bend of the two-bone chain ``upper -> middle -> end`` that reaches ``target``.
+
+        Returns the rest bones ``a0`` (``upper`` to ``middle`` joint) and ``b0``
+        (``middle`` to ``end``), (3,) metres; the (T, 3) world position of the ``upper``
+        joint; and the (T,) radians by which the ``middle`` joint must bend beyond its
+        rest angle for the chain to span from there to ``target`` (T, 3) (law of
+        cosines). Targets beyond reach give 0: the chain keeps its rest angle.
+        """
+        a0 = self.rest[self.lm[middle]] - self.rest[self.lm[upper]]
+        b0 = self.rest[self.lm[end]] - self.rest[self.lm[middle]]
+        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
+        base = self.position(self.lm[upper])  # (T, 3)
+        dist = np.linalg.norm(target - base, axis=-1)
+        # interior angle at the middle joint now and at rest
+        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
+        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
+        return a0, b0, base, np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)
+
     def leg_ik(self, side: str, ankle: np.ndarray, foot: np.ndarray | None = None) -> None:
         """Two-bone IK: put the ankle at ``ankle`` (T, 3), knee forward, foot at ``foot``.
 
@@ -252,15 +273,9 @@ class ClipPose:
         thigh, shin, foot_lm = f"thigh_{side}", f"shin_{side}", f"foot_{side}"
         if not self.has(thigh, shin, foot_lm):
             return
-        a0 = self.rest[self.lm[shin]] - self.rest[self.lm[thigh]]  # hip -> knee (3,)
-        b0 = self.rest[self.lm[foot_lm]] - self.rest[self.lm[shin]]  # knee -> ankle
-        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
-        hip = self.position(self.lm[thigh])  # (T, 3)
-        dist = np.linalg.norm(ankle - hip, axis=-1)
-        # interior knee angle now and at rest (law of cosines)
-        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
-        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
-        bend = np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)  # (T,) radians
+        # a0 hip -> knee, b0 knee -> ankle at rest (3,); hip (T, 3)
+        a0, b0, hip, bend = self._bend_to_reach(thigh, shin, foot_lm, ankle)
+        l1 = np.linalg.norm(a0)
         hinge = unit(X_AXIS - np.dot(X_AXIS, a0) / (l1 * l1) * a0)  # knee axis, shin goes back
         self.local[:, self.lm[shin]] = axis_angle(hinge, bend)
         reach = a0 + quat_apply(self.local[:, self.lm[shin]], b0)  # (T, 3) thigh frame
@@ -286,15 +301,9 @@ class ClipPose:
         up, fore, hand = f"upperarm_{side}", f"forearm_{side}", f"hand_{side}"
         if not self.has(up, fore, hand):
             return
-        a0 = self.rest[self.lm[fore]] - self.rest[self.lm[up]]  # shoulder -> elbow (3,)
-        b0 = self.rest[self.lm[hand]] - self.rest[self.lm[fore]]  # elbow -> wrist
-        l1, l2 = np.linalg.norm(a0), np.linalg.norm(b0)
-        shoulder = self.position(self.lm[up])  # (T, 3)
+        # a0 shoulder -> elbow, b0 elbow -> wrist at rest (3,); shoulder (T, 3)
+        a0, b0, shoulder, bend = self._bend_to_reach(up, fore, hand, wrist)
         reach_vec = wrist - shoulder
-        dist = np.linalg.norm(reach_vec, axis=-1)
-        cos_now = np.clip((l1 * l1 + l2 * l2 - dist * dist) / (2 * l1 * l2), -1.0, 1.0)
-        cos_rest = np.clip(np.dot(-a0, b0) / (l1 * l2), -1.0, 1.0)
-        bend = np.maximum(np.arccos(cos_rest) - np.arccos(cos_now), 0.0)  # (T,) radians
         hinge = unit(np.cross(a0, Z_AXIS))  # forearm bends towards +Z at rest
         self.local[:, self.lm[fore]] = axis_angle(hinge, bend)
         # the same two directions in the upper arm's rest frame and in the world:

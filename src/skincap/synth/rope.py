@@ -101,6 +101,12 @@ def _hand_clock(n_frames: int, rate: float, hang_seconds: float) -> tuple[int, f
     return n_frames, rate, np.clip(t - hang_seconds, 0.0, None)
 
 
+def _turns_elapsed(frequency: np.ndarray, rate: float) -> np.ndarray:
+    """(T,) turns made since frame 0 at the per-frame turn rate ``frequency`` (T,) Hz:
+    its integral over time by the trapezoid rule, frames ``1 / rate`` seconds apart."""
+    return np.concatenate([[0.0], np.cumsum(0.5 * (frequency[1:] + frequency[:-1]) / rate)])
+
+
 def jump_rope_hands(
     n_frames: int,
     rate: float,
@@ -163,9 +169,9 @@ def jump_rope_hands(
 
     f0 = min(0.65, frequency)
     freq = (f0 + (frequency - f0) * decay) * (1.0 + 0.03 * wobble[:, 0] * decay)
-    # Phase: the integral of the turn rate, held at zero in the hanging window.
-    phase = np.concatenate([[0.0], np.cumsum(0.5 * (freq[1:] + freq[:-1]) / rate)])
-    phase = 2.0 * np.pi * np.where(tau > 0.0, phase - phase[np.argmax(tau > 0.0) - 1], 0.0)
+    # Phase: the turns so far, held at zero in the hanging window.
+    turns = _turns_elapsed(freq, rate)
+    phase = 2.0 * np.pi * np.where(tau > 0.0, turns - turns[np.argmax(tau > 0.0) - 1], 0.0)
     radius = (0.45 + (0.15 - 0.45) * decay) * ease * (1.0 + 0.08 * wobble[:, 1] * decay)
     # The circle's centre sits up and forward of the resting hand (along 45°) by the
     # radius and the hand enters it up and back (angle -45°): the first move lifts the
@@ -222,7 +228,7 @@ def whip_hand(
     rng = np.random.default_rng(seed)
     ease = _smoothstep(tau / 0.4)
     f = frequency * (1.0 + 0.05 * np.sin(2.0 * np.pi * rng.uniform(0.1, 0.3) * tau))
-    phase = 2.0 * np.pi * np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) / rate)])
+    phase = 2.0 * np.pi * _turns_elapsed(f, rate)
     amp = 0.6 * ease
     out = np.empty((n_frames, 3))
     out[:, 0] = -0.25 + amp * 0.6 * np.sin(phase)
