@@ -19,6 +19,7 @@ from skincap.geometry.rotations import (
     matrix_to_quat,
     quat_apply,
     quat_conjugate,
+    quat_identity,
     quat_multiply,
 )
 from skincap.types import Motion, Skeleton
@@ -160,8 +161,7 @@ class ClipPose:
         self.rest = rest_positions(skeleton)  # (J, 3)
         self.lm = find_landmarks(skeleton)
         self.n = n_frames
-        self.local = np.zeros((n_frames, skeleton.n_joints, 4))
-        self.local[..., 3] = 1.0
+        self.local = quat_identity((n_frames, skeleton.n_joints))
         self.root = int(np.nonzero(self.parents < 0)[0][0])
         self.root_offset = np.zeros((n_frames, 3))  # displacement from the rest, metres
 
@@ -177,8 +177,7 @@ class ClipPose:
 
     def world(self, j: int) -> np.ndarray:
         """(T, 4) world rotation of joint ``j`` (identity for j = -1)."""
-        w = np.zeros((self.n, 4))
-        w[:, 3] = 1.0
+        w = quat_identity(self.n)
         if j < 0:
             return w
         for k in self.chain(j):
@@ -279,10 +278,10 @@ class ClipPose:
         hinge = unit(X_AXIS - np.dot(X_AXIS, a0) / (l1 * l1) * a0)  # knee axis, shin goes back
         self.local[:, self.lm[shin]] = axis_angle(hinge, bend)
         reach = a0 + quat_apply(self.local[:, self.lm[shin]], b0)  # (T, 3) thigh frame
-        self.local[:, self.lm[thigh]] = np.array([0.0, 0.0, 0.0, 1.0])
+        self.local[:, self.lm[thigh]] = quat_identity()
         wp = self.world(int(self.parents[self.lm[thigh]]))
         self.turn_world(thigh, swing(quat_apply(wp, reach), ankle - hip))
-        w_foot = np.array([0.0, 0.0, 0.0, 1.0]) if foot is None else foot
+        w_foot = quat_identity() if foot is None else foot
         w_shin = self.world(int(self.parents[self.lm[foot_lm]]))
         self.local[:, self.lm[foot_lm]] = quat_multiply(quat_conjugate(w_shin), w_foot)
 
