@@ -6,7 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from skincap._arrays import as_finite_array
+from skincap._arrays import as_finite_array, broadcast_leading
 from skincap._arrays import interior_runs as find_gaps
 from skincap.errors import ValidationError
 from skincap.evaluate.summary import summarize
@@ -68,3 +68,11 @@ def test_as_finite_array_checks_shape_and_finiteness_and_copies_on_request():
         as_finite_array([[0.0, np.nan, 1.0]], "points", (None, 3))
     with pytest.raises(ValidationError, match="ragged: expected a float array of shape"):
         as_finite_array([[1.0], [1.0, 2.0]], "ragged", (None, None))
+
+
+def test_broadcast_leading_gives_the_common_shape_or_the_callers_message():
+    assert broadcast_leading((4, 1), (3,), (), error="unused") == (4, 3)
+    assert broadcast_leading((), error="unused") == ()
+    with pytest.raises(ValidationError, match=r"^a \(2,\) and b \(3,\): no broadcast$") as info:
+        broadcast_leading((2,), (3,), error="a (2,) and b (3,): no broadcast")
+    assert info.value.__cause__ is None  # the house message alone, not numpy's

@@ -22,6 +22,7 @@ __all__ = [
     "as_points",
     "as_trajectories",
     "as_finite_array",
+    "broadcast_leading",
     "check_positive",
     "check_nonnegative",
     "check_finite",
@@ -115,6 +116,19 @@ def as_finite_array(
     if not np.isfinite(arr).all():
         raise ValidationError(f"{name}: must be finite")
     return arr
+
+
+def broadcast_leading(*shapes: tuple[int, ...], error: str) -> tuple[int, ...]:
+    """The shape the leading (batch) axes ``shapes`` broadcast to, or a ValidationError.
+
+    ``np.broadcast_shapes(*shapes)``; when they do not broadcast, a
+    :class:`ValidationError` whose message is ``error`` (name the arguments and give
+    their shapes).
+    """
+    try:
+        return np.broadcast_shapes(*shapes)
+    except ValueError:
+        raise ValidationError(error) from None
 
 
 # ------------------------------------------------------------------ scalar arguments

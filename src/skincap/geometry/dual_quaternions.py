@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from skincap._arrays import broadcast_leading
 from skincap.errors import ValidationError
 from skincap.geometry.rotations import (
     divide_or_nan,
@@ -96,12 +97,11 @@ def dq_from_quat_translation(quat: np.ndarray, translation: np.ndarray) -> np.nd
     """
     q = last_axis_array("quat", quat, 4, "shape (..., 4) (x, y, z, w)")
     t = last_axis_array("translation", translation, 3, "shape (..., 3)")
-    try:
-        lead = np.broadcast_shapes(q.shape[:-1], t.shape[:-1])
-    except ValueError:
-        raise ValidationError(
-            f"quat {q.shape} and translation {t.shape}: leading axes do not broadcast"
-        ) from None
+    lead = broadcast_leading(
+        q.shape[:-1],
+        t.shape[:-1],
+        error=f"quat {q.shape} and translation {t.shape}: leading axes do not broadcast",
+    )
     n = np.linalg.norm(q, axis=-1, keepdims=True)
     q = np.broadcast_to(divide_or_nan(q, n), lead + (4,))
     t = np.broadcast_to(t, lead + (3,))

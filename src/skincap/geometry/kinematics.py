@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from skincap._arrays import broadcast_leading
 from skincap.errors import ValidationError
 from skincap.geometry.rotations import quat_to_matrix
 from skincap.types import Motion, Skeleton
@@ -58,12 +59,11 @@ def _prepare(
         raise ValidationError(
             f"translations: expected shape (..., {j}, 3) for {j} joints, got {t.shape}"
         )
-    try:
-        lead = np.broadcast_shapes(q.shape[:-2], t.shape[:-2])
-    except ValueError:
-        raise ValidationError(
-            f"rotations {q.shape} and translations {t.shape}: leading (frame) axes do not broadcast"
-        ) from None
+    lead = broadcast_leading(
+        q.shape[:-2],
+        t.shape[:-2],
+        error=f"rotations {q.shape} and translations {t.shape}: leading (frame) axes do not broadcast",
+    )
     q = np.broadcast_to(q, lead + (j, 4)).reshape(-1, j, 4)
     t = np.broadcast_to(t, lead + (j, 3)).reshape(-1, j, 3)
     return parents, q, t, lead

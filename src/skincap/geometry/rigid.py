@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from skincap._arrays import broadcast_leading
 from skincap.errors import ValidationError
 
 __all__ = ["apply_rigid", "fit_rigid", "invert_rigid"]
@@ -143,12 +144,11 @@ def _valid_weighted_points(
         raise ValidationError(
             f"src and dst must have the same number of points K; got {s.shape} and {d.shape}"
         )
-    try:
-        lead = np.broadcast_shapes(s.shape[:-2], d.shape[:-2])
-    except ValueError as exc:
-        raise ValidationError(
-            f"src {s.shape} and dst {d.shape} leading axes do not broadcast"
-        ) from exc
+    lead = broadcast_leading(
+        s.shape[:-2],
+        d.shape[:-2],
+        error=f"src {s.shape} and dst {d.shape} leading axes do not broadcast",
+    )
     k = s.shape[-2]
     valid = np.isfinite(s).all(axis=-1) & np.isfinite(d).all(axis=-1)
     valid = np.broadcast_to(valid, (*lead, k))
@@ -168,10 +168,12 @@ def _valid_weighted_points(
         if m.shape[-1:] != (k,):
             raise ValidationError(f"mask must have shape (..., {k}); got {m.shape}")
         valid = valid & m
-    try:
-        lead = np.broadcast_shapes(lead, valid.shape[:-1], w.shape[:-1])
-    except ValueError as exc:
-        raise ValidationError("weights/mask leading axes do not broadcast with the points") from exc
+    lead = broadcast_leading(
+        lead,
+        valid.shape[:-1],
+        w.shape[:-1],
+        error="weights/mask leading axes do not broadcast with the points",
+    )
     valid = np.broadcast_to(valid, (*lead, k))
     return valid, w, lead
 
