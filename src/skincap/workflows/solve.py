@@ -64,6 +64,7 @@ def solve_file(
     loss_scale_m: float = 0.02,
     refine_offsets: int = 1,
     joint_limits: bool = False,
+    reject_jumps: bool = True,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Solve ``input_path`` and write the BVH (and the optional outputs).
@@ -88,14 +89,15 @@ def solve_file(
         Low-pass cut-off (Hz) of the solved poses; default none.
     loss, loss_scale_m, refine_offsets, joint_limits
         The IK's loss, its scale (metres), the rounds of marker-offset re-fitting and
-        whether the template's joint limits hold (:func:`skincap.solve.solve_markers`).
+        whether the template's joint limits hold, whether samples that jump off their
+        segment are left out (:func:`skincap.solve.solve_markers`).
     progress : callable(fraction, label), optional
 
     Returns
     -------
     dict
         ``frames``, ``joints``, ``markers``, ``rms_m``, ``max_m``, ``template``,
-        ``outputs`` (the files written).
+        ``rejected`` (samples left out as jumps), ``outputs`` (the files written).
     """
     if Path(output_path).suffix.lower() != ".bvh":
         raise ValidationError(
@@ -137,6 +139,7 @@ def solve_file(
         loss_scale=loss_scale_m,
         refine_offsets=refine_offsets,
         joint_limits=joint_limits,
+        reject_jumps=reject_jumps,
         progress=progress,
     )
     rep = result.report()
@@ -164,6 +167,7 @@ def solve_file(
         "markers": rep["markers_used"],
         "rms_m": rep["overall"]["rms_m"],
         "max_m": rep["overall"]["max_m"],
+        "rejected": rep["rejected_samples"]["count"],
         "outputs": outputs,
     }
 
