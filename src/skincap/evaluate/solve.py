@@ -46,6 +46,8 @@ __all__ = [
     "targets_table",
     "DENSE_SEGMENT_WEIGHT",
     "synth_dense_template",
+    "synth_dense_body_check",
+    "SYNTH_DENSE_MIN_AGREEMENT",
     "template_json_text",
 ]
 
@@ -539,6 +541,34 @@ def synth_dense_template(
                    "threshold": threshold, "markers": dense.n_markers},
         "segments": segments,
     }  # fmt: skip
+
+
+#: Least share of synth-dense's markers that must ride their template segment on a
+#: take's body (by its ``truth/marker_parts.csv``). On the default body all 289 do; on
+#: another seed or vertex count the labels name other skin points (9 % on seed 1,
+#: 12,000 vertices), so a check between the two cannot misjudge.
+SYNTH_DENSE_MIN_AGREEMENT = 0.9
+
+
+def synth_dense_body_check(marker_parts: dict[str, str]) -> tuple[int, int]:
+    """How many of synth-dense's markers ride their template segment on a given body.
+
+    Parameters
+    ----------
+    marker_parts : dict
+        Marker label -> true near-rigid part (``truth/marker_parts.csv`` of a
+        ``skincap synth --markers dense`` folder; part names of
+        :data:`skincap.synth.marker_parts.PART_NAMES`).
+
+    Returns
+    -------
+    (agreeing, total) : (int, int)
+        Template markers whose part belongs to their segment, and all template markers.
+    """
+    tpl = load_template("synth-dense")
+    pairs = [(m, s.name) for s in tpl.segments for m in s.markers]
+    agree = sum(1 for m, seg in pairs if _SEGMENT_OF_PART.get(marker_parts.get(m, "")) == seg)
+    return agree, len(pairs)
 
 
 def template_json_text(template: dict[str, Any]) -> str:
