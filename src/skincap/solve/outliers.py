@@ -66,7 +66,7 @@ def jumped_samples(
             f"measured/fitted: expected two (T, M, 3) arrays, got {y.shape} and {x.shape}"
         )
     t, m, _ = y.shape
-    seen = np.isfinite(y).all(axis=2) & np.isfinite(x).all(axis=2)  # (T, M)
+    seen = np.asarray(np.isfinite(y).all(axis=2) & np.isfinite(x).all(axis=2))  # (T, M)
     if t < 2 or not seen.any():
         return np.zeros((t, m), dtype=bool)
     e = np.where(seen[..., None], y - np.where(np.isfinite(x), x, 0.0), 0.0)
