@@ -121,10 +121,14 @@ def test_the_ik_options_reach_the_report(tmp_path):
     result = run(
         "solve", DATA / "cmu_85_02.c3d", "-o", tmp_path / "x.bvh", "--report", report,
         "--joint-limits", "--loss", "huber", "--loss-scale-cm", "3", "--refine-offsets", "0",
+        "--keep-jumps",
     )  # fmt: skip
     assert result.exit_code == 0, result.output
     ik = json.loads(report.read_text())["ik"]
-    assert ik == {"loss": "huber", "loss_scale_m": 0.03, "refine_offsets": 0, "joint_limits": True}
+    assert ik == {
+        "loss": "huber", "loss_scale_m": 0.03, "refine_offsets": 0, "joint_limits": True,
+        "reject_jumps": False,
+    }  # fmt: skip
 
 
 def test_unlabelled_capture_is_refused(tmp_path):

@@ -10,6 +10,7 @@ from scipy.spatial.transform import Rotation
 from skincap.errors import SkincapWarning
 from skincap.evaluate.solve import (
     flexion_errors_deg,
+    group_accuracy,
     joint_errors,
     labelled_from_fragments,
     residual_distribution,
@@ -101,3 +102,24 @@ def test_eval_solve_cli_on_a_real_capture(tmp_path, data_dir):
     assert row["measure"] == "marker RMS residual, real (cmu_85_02.c3d)"
     assert result["real"]["cmu_85_02.c3d"]["residual"]["rms_m"] < 0.012
     assert result["real"]["cmu_85_02.c3d"]["residual"]["per_marker"]["Male:LKNE"]["p95_m"] < 0.03
+
+
+def test_group_accuracy_counts_each_marker_against_its_group_majority():
+    truth = {"LSHO": "upperarm_l", "LUPA": "upperarm_l", "LELB": "forearm_l",
+             "LFRM": "forearm_l", "LWRA": "forearm_l", "LFIN": "hand_l", "C7": "thorax"}  # fmt: skip
+    groups = [
+        ["Sub:LSHO", "LUPA", "LELB"],  # the elbow marker went with the upper arm
+        ["LFRM", "LWRA", "LFIN"],  # the finger marker with the forearm
+        ["C7", "ghost"],  # an unknown label is not counted
+        ["other"],
+    ]
+    share, per, misplaced = group_accuracy(groups, truth)
+    assert share == 5 / 7
+    assert per == {
+        "upperarm_l": {"markers": 2, "right": 2},
+        "forearm_l": {"markers": 3, "right": 2},
+        "hand_l": {"markers": 1, "right": 0},
+        "thorax": {"markers": 1, "right": 1},
+    }
+    assert misplaced == {"LELB": "upperarm_l", "LFIN": "forearm_l"}
+    assert group_accuracy([["x"]], truth) == (None, {}, {})

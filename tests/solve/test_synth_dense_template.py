@@ -93,3 +93,47 @@ def test_a_short_dense_take_is_solved_near_its_true_joints():
     assert result["angle_median_deg"] < ANGLE_BOUND_DEG
     assert result["residual"]["rms_m"] < RMS_BOUND_M
     assert np.isfinite(result["residual"]["max_m"])
+
+
+def _parts_file(folder, parts):
+    (folder / "truth").mkdir(parents=True)
+    rows = "".join(f"{m},{p}\n" for m, p in parts.items())
+    (folder / "truth" / "marker_parts.csv").write_text("marker,part\n" + rows, encoding="utf-8")
+
+
+def _true_parts(share_right):
+    """Marker -> part as on a body where ``share_right`` of synth-dense's markers ride
+    their template segment (the rest put on the head, or the pelvis for head markers)."""
+    from skincap.evaluate.solve import _SEGMENT_OF_PART
+
+    part_of = {seg: part for part, seg in _SEGMENT_OF_PART.items() if seg is not None}
+    pairs = [(m, s.name) for s in load_template("synth-dense").segments for m in s.markers]
+    n_right = int(round(share_right * len(pairs)))
+    return {
+        m: part_of[seg] if k < n_right else ("pelvis" if seg == "head" else "head")
+        for k, (m, seg) in enumerate(pairs)
+    }
+
+
+def test_synth_dense_is_checked_against_the_take_body(tmp_path):
+    from skincap.errors import FormatError
+    from skincap.evaluate.solve import SYNTH_DENSE_MIN_AGREEMENT, synth_dense_body_check
+    from skincap.workflows.solve import check_synth_dense_body
+
+    total = len(load_template("synth-dense").markers)
+    assert synth_dense_body_check(_true_parts(1.0)) == (total, total)
+    assert synth_dense_body_check(_true_parts(0.5))[0] == round(0.5 * total)
+    assert synth_dense_body_check({}) == (0, total)
+    good, other = tmp_path / "default_body", tmp_path / "seed_1"
+    _parts_file(good, _true_parts(1.0))
+    _parts_file(other, _true_parts(SYNTH_DENSE_MIN_AGREEMENT - 0.05))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkincapWarning)
+        check_synth_dense_body(good)  # the folder, its capture or its truth markers
+        check_synth_dense_body(good / "capture.c3d")
+        check_synth_dense_body(good / "truth" / "markers.c3d")
+    for where in (other, other / "capture.c3d", other / "truth" / "markers.c3d"):
+        with pytest.raises(FormatError, match=r"fits only the body of .*--seed 0.* of its"):
+            check_synth_dense_body(where)
+    with pytest.warns(SkincapWarning, match="cannot be checked"):
+        check_synth_dense_body(tmp_path / "loose.c3d")

@@ -104,6 +104,15 @@ def solve(
             "knee and elbow flexion).",
         ),
     ] = False,
+    keep_jumps: Annotated[
+        bool,
+        typer.Option(
+            "--keep-jumps",
+            help="Fit every sample, even a piece of a track that jumps off its segment "
+            "and back (a swapped label); by default such samples are left out and listed "
+            "in the report.",
+        ),
+    ] = False,
     force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
@@ -142,6 +151,7 @@ def solve(
                 loss_scale_m=loss_scale_cm / 100.0,
                 refine_offsets=refine_offsets,
                 joint_limits=joint_limits,
+                reject_jumps=not keep_jumps,
                 progress=advance,
             )
     if json_output:
@@ -150,7 +160,8 @@ def solve(
     out.print(
         f"{input_file} -> {output}: {summary['frames']} frames, {summary['joints']} joints, "
         f"{summary['markers']} markers ({summary['template']}), RMS residual "
-        f"{summary['rms_m'] * 100:.2f} cm, max {summary['max_m'] * 100:.2f} cm",
+        f"{summary['rms_m'] * 100:.2f} cm, max {summary['max_m'] * 100:.2f} cm"
+        + (f", {summary['rejected']} jumped samples left out" if summary["rejected"] else ""),
         markup=False,
         soft_wrap=True,
     )

@@ -28,6 +28,7 @@ equations.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -247,15 +248,14 @@ def _cost(
     return np.einsum("tm,tm->t", w, rho)
 
 
-def _pose_cost(model: tuple, y: np.ndarray, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
-    """(T,) cost (m^2) of poses for measured markers ``y (T, M, 3)`` (NaN: missing);
-    ``model`` is (parents, offsets, marker_segments, marker_offsets, springs, loss, scale)."""
-    parents, offsets, mseg, moff, springs, loss, scale = model
+def _pose_cost(problem: _IKProblem, y: np.ndarray, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """(T,) cost (m^2) of poses ``rot (T, S, 3, 3)``, ``root (T, 3)`` for measured markers
+    ``y (T, M, 3)`` metres (NaN: missing)."""
     seen = np.isfinite(y).all(axis=2)
-    x = model_markers(parents, offsets, mseg, moff, rot, root)
-    spring = springs.residuals(rot)
+    x = problem.markers(rot, root)
+    spring = problem.springs.residuals(rot)
     resid = np.where(seen[..., None], x - np.where(seen[..., None], y, 0.0), 0.0)
-    return _cost(resid, seen.astype(np.float64), loss, scale) + np.einsum(
+    return _cost(resid, seen.astype(np.float64), problem.loss, problem.loss_scale) + np.einsum(
         "tli,tli->t", spring, spring
     )
 
@@ -358,6 +358,34 @@ class _Springs:
             g[:, 3 + 3 * p : 6 + 3 * p] -= self.k[k] * r[:, k]
 
 
+@dataclass(frozen=True, eq=False)
+class _IKProblem:
+    """One inverse-kinematics problem: the model, its Jacobian paths and the LM settings.
+
+    ``parents (S,)`` int64, ``offsets (S, 3)`` metres, ``mseg (M,)`` int64, ``moff (M, 3)``
+    metres (as in :func:`solve_poses`); ``paths`` and ``springs`` precomputed from them;
+    ``n_par = 3 + 3 S`` parameters per frame; the stopping rule (``iterations``,
+    ``tolerance`` m^2, ``relative_tolerance``) and the marker loss (``loss``,
+    ``loss_scale`` metres)."""
+
+    parents: np.ndarray
+    offsets: np.ndarray
+    mseg: np.ndarray
+    moff: np.ndarray
+    paths: _Paths
+    springs: _Springs
+    n_par: int
+    iterations: int
+    tolerance: float
+    relative_tolerance: float
+    loss: str
+    loss_scale: float
+
+    def markers(self, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
+        """(T, M, 3) model markers, metres, of poses ``rot (T, S, 3, 3)``, ``root (T, 3)``."""
+        return model_markers(self.parents, self.offsets, self.mseg, self.moff, rot, root)
+
+
 def solve_poses(
     parents: np.ndarray,
     offsets: np.ndarray,
@@ -454,10 +482,11 @@ def solve_poses(
     )
     springs = _Springs(parents, stiff, n_par, limits, float(limit_stiffness), bones)
     springs.project(rot)  # start inside the joint limits
-    return _solve_in_passes(
-        parents, offsets, mseg, moff, paths, springs, y, rot, root, n_par, iterations,
-        tolerance, relative_tolerance, chunk, warm_start, loss, loss_scale, progress,
+    problem = _IKProblem(
+        parents, offsets, mseg, moff, paths, springs, n_par, int(iterations), float(tolerance),
+        float(relative_tolerance), loss, float(loss_scale),
     )  # fmt: skip
+    return _solve_in_passes(problem, y, rot, root, chunk, warm_start, progress)
 
 
 def _checked_model_inputs(
@@ -534,23 +563,12 @@ def _checked_ik_options(
 
 
 def _solve_in_passes(
-    parents: np.ndarray,
-    offsets: np.ndarray,
-    mseg: np.ndarray,
-    moff: np.ndarray,
-    paths: _Paths,
-    springs: _Springs,
+    problem: _IKProblem,
     y: np.ndarray,
     rot: np.ndarray,
     root: np.ndarray,
-    n_par: int,
-    iterations: int,
-    tolerance: float,
-    relative_tolerance: float,
     chunk: int,
     warm_start: bool,
-    loss: str,
-    loss_scale: float,
     progress: Progress | None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Solve every frame of ``y (T, M, 3)`` metres in chunks of ``chunk`` frames.
@@ -569,14 +587,12 @@ def _solve_in_passes(
     done = 0
     for k, frames in enumerate(passes):
         if k == 1:
-            model = (parents, offsets, mseg, moff, springs, loss, loss_scale)
-            _start_odd_frames_between(model, y, rot, root, out_rot, out_root, frames, passes[0][-1])
+            _start_odd_frames_between(
+                problem, y, rot, root, out_rot, out_root, frames, passes[0][-1]
+            )
         for start in range(0, frames.size, chunk):
             sel = frames[start : start + chunk]
-            out_rot[sel], out_root[sel] = _solve_chunk(
-                parents, offsets, mseg, moff, paths, springs, y[sel], rot[sel], root[sel],
-                n_par, iterations, tolerance, relative_tolerance, loss, float(loss_scale),
-            )  # fmt: skip
+            out_rot[sel], out_root[sel] = _solve_chunk(problem, y[sel], rot[sel], root[sel])
             done += sel.size
             if progress is not None:
                 progress(done / t_all, "inverse kinematics")
@@ -584,7 +600,7 @@ def _solve_in_passes(
 
 
 def _start_odd_frames_between(
-    model: tuple,
+    problem: _IKProblem,
     y: np.ndarray,
     rot: np.ndarray,
     root: np.ndarray,
@@ -596,7 +612,7 @@ def _start_odd_frames_between(
     """Start the odd ``frames`` from the midpoint of their solved neighbours where that
     fits their markers better than their own start (a smooth motion).
 
-    ``model`` is the tuple :func:`_pose_cost` takes, ``y (T, M, 3)`` metres the
+    ``problem`` the model and its loss, ``y (T, M, 3)`` metres the
     capture, ``rot (T, S, 3, 3)`` / ``root (T, 3)`` metres the starting poses (the
     chosen frames are overwritten in place), ``out_rot`` / ``out_root`` the solved
     poses of the even frames, ``last_even`` the last even frame (the neighbour after
@@ -606,30 +622,22 @@ def _start_odd_frames_between(
     rel = _log(np.einsum("tsji,tsjk->tsik", out_rot[before], out_rot[after]))
     mid_rot = out_rot[before] @ _exp(0.5 * rel)
     mid_root = 0.5 * (out_root[before] + out_root[after])
-    use = _pose_cost(model, y[frames], mid_rot, mid_root) < _pose_cost(
-        model, y[frames], rot[frames], root[frames]
+    use = _pose_cost(problem, y[frames], mid_rot, mid_root) < _pose_cost(
+        problem, y[frames], rot[frames], root[frames]
     )
     rot[frames[use]] = mid_rot[use]
     root[frames[use]] = mid_root[use]
 
 
 def _solve_chunk(
-    parents: np.ndarray,
-    offsets: np.ndarray,
-    mseg: np.ndarray,
-    moff: np.ndarray,
-    paths: _Paths,
-    springs: _Springs,
-    y: np.ndarray,
-    rot: np.ndarray,
-    root: np.ndarray,
-    n_par: int,
-    iterations: int,
-    tolerance: float,
-    relative_tolerance: float,
-    loss: str,
-    scale: float,
+    problem: _IKProblem, y: np.ndarray, rot: np.ndarray, root: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt on the frames of ``y (T, M, 3)`` metres from poses ``rot``
+    ``(T, S, 3, 3)`` / ``root (T, 3)`` metres (changed in place and returned)."""
+    parents, offsets, mseg, moff = problem.parents, problem.offsets, problem.mseg, problem.moff
+    paths, springs, n_par = problem.paths, problem.springs, problem.n_par
+    loss, scale = problem.loss, problem.loss_scale
+    tolerance, relative_tolerance = problem.tolerance, problem.relative_tolerance
     t, m, _ = y.shape
     seen = np.isfinite(y).all(axis=2)
     w_all = seen.astype(np.float64)  # (T, M)
@@ -653,7 +661,7 @@ def _solve_chunk(
     # the six non-zero entries of each pair's 3x3 block, in the order of _SKEW_SIGN
     skew_rows = (rows[:, None] + np.array([0, 0, 1, 1, 2, 2])).reshape(-1)
     skew_cols = (cols[:, None] + np.array([1, 2, 0, 2, 0, 1])).reshape(-1)
-    for _ in range(iterations):
+    for _ in range(problem.iterations):
         if active.size == 0:
             break
         w, y0, lam = w_all[active], y_all[active], lam_all[active]

@@ -28,6 +28,7 @@ __all__ = [
     "solve_file",
     "read_labelled_markers",
     "read_synth_take",
+    "check_synth_dense_body",
     "synth_take_in_memory",
     "evaluate_solve",
 ]
@@ -64,6 +65,7 @@ def solve_file(
     loss_scale_m: float = 0.02,
     refine_offsets: int = 1,
     joint_limits: bool = False,
+    reject_jumps: bool = True,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Solve ``input_path`` and write the BVH (and the optional outputs).
@@ -88,14 +90,15 @@ def solve_file(
         Low-pass cut-off (Hz) of the solved poses; default none.
     loss, loss_scale_m, refine_offsets, joint_limits
         The IK's loss, its scale (metres), the rounds of marker-offset re-fitting and
-        whether the template's joint limits hold (:func:`skincap.solve.solve_markers`).
+        whether the template's joint limits hold, whether samples that jump off their
+        segment are left out (:func:`skincap.solve.solve_markers`).
     progress : callable(fraction, label), optional
 
     Returns
     -------
     dict
         ``frames``, ``joints``, ``markers``, ``rms_m``, ``max_m``, ``template``,
-        ``outputs`` (the files written).
+        ``rejected`` (samples left out as jumps), ``outputs`` (the files written).
     """
     if Path(output_path).suffix.lower() != ".bvh":
         raise ValidationError(
@@ -123,6 +126,8 @@ def solve_file(
         )
     from skincap.solve import solve_markers
 
+    if template == "synth-dense":
+        check_synth_dense_body(input_path)
     if template == "auto":
         from skincap.solve.auto import auto_template
 
@@ -137,6 +142,7 @@ def solve_file(
         loss_scale=loss_scale_m,
         refine_offsets=refine_offsets,
         joint_limits=joint_limits,
+        reject_jumps=reject_jumps,
         progress=progress,
     )
     rep = result.report()
@@ -164,6 +170,7 @@ def solve_file(
         "markers": rep["markers_used"],
         "rms_m": rep["overall"]["rms_m"],
         "max_m": rep["overall"]["max_m"],
+        "rejected": rep["rejected_samples"]["count"],
         "outputs": outputs,
     }
 
@@ -197,6 +204,59 @@ def read_synth_take(folder: str | os.PathLike[str]) -> tuple[MarkerSet, Any]:
     mapping = {r["fragment"]: r["truth"] for r in rows}
     truth = read_bvh(root / "truth" / "motion.bvh", units="m")
     return labelled_from_fragments(capture, mapping), truth
+
+
+def check_synth_dense_body(capture: str | os.PathLike[str]) -> None:
+    """Refuse the synth-dense template for a take made on another synthetic body.
+
+    synth-dense's labels ``D000``... name skin points of the body of ``skincap synth
+    --markers dense --vertices 20000 --seed 0``; on any other body they sit elsewhere.
+    A take in a ``skincap synth`` folder (``capture`` is ``DIR/capture.c3d`` or
+    ``DIR/truth/markers.c3d``, or ``DIR`` itself) is checked against that folder's
+    ``truth/marker_parts.csv``; for any other capture nothing tells the body, and a
+    :class:`~skincap.errors.SkincapWarning` says so.
+
+    Raises
+    ------
+    FormatError
+        Fewer than :data:`~skincap.evaluate.solve.SYNTH_DENSE_MIN_AGREEMENT` of the
+        template's markers ride their segment on the folder's body.
+    """
+    import csv
+    import warnings
+
+    from skincap.errors import SkincapWarning
+    from skincap.evaluate.solve import SYNTH_DENSE_MIN_AGREEMENT, synth_dense_body_check
+
+    path = Path(capture)
+    folders = [path] if path.is_dir() else [path.parent, path.parent.parent]
+    parts_file = next(
+        (
+            f / "truth" / "marker_parts.csv"
+            for f in folders
+            if (f / "truth" / "marker_parts.csv").is_file()
+        ),
+        None,
+    )
+    if parts_file is None:
+        warnings.warn(
+            "template synth-dense: its labels name skin points of the default synthetic body "
+            "(skincap synth --markers dense --vertices 20000 --seed 0); this capture is not in "
+            "a skincap synth folder, so which body it comes from cannot be checked",
+            SkincapWarning,
+            stacklevel=2,
+        )
+        return
+    with open(parts_file, newline="", encoding="utf-8") as fh:
+        parts = {row.get("marker", ""): row.get("part", "") for row in csv.DictReader(fh)}
+    agree, total = synth_dense_body_check(parts)
+    if agree < SYNTH_DENSE_MIN_AGREEMENT * total:
+        raise FormatError(
+            parts_file,
+            f"template synth-dense fits only the body of 'skincap synth --markers dense "
+            f"--vertices 20000 --seed 0': on this take's body {agree} of its {total} markers "
+            "ride their segment; make the take with those options",
+        )
 
 
 def synth_take_in_memory(
@@ -248,6 +308,12 @@ def evaluate_solve(
         if synth_dir is not None:
             markers, truth = read_synth_take(synth_dir)
             source = os.fspath(synth_dir)
+            from skincap.solve.templates import detect_template
+
+            if detect_template(markers.labels, candidates=("synth-sparse", "synth-dense")) == (
+                "synth-dense"
+            ):
+                check_synth_dense_body(synth_dir)
         else:
 
             def sub(f: float, label: str) -> None:
