@@ -31,8 +31,6 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
-from skincap.geometry.rigid import fit_rigid
-
 __all__ = [
     "connect_parts",
     "merge_groups_by_rigid_residual",
@@ -214,20 +212,47 @@ def _relabel(labels: np.ndarray) -> np.ndarray:
     return out
 
 
-def _marker_errors(x: np.ndarray, r: np.ndarray, parts: np.ndarray, n_parts: int) -> np.ndarray:
-    """(N, P) mean squared distance of every marker from every part's rigid motion, m².
+def _motions_of_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(G, T, 18) sums -> best rigid motions ``x ≈ R r + d``: (G, T, 3, 3), (G, T, 3).
 
-    A part's motion (reference -> frame t) is fitted to its markers; a marker never
-    measured, or a part never fitted, gives inf.
+    Kabsch on the centred cross-covariance; NaN where a group has fewer than three
+    markers at a frame.
     """
-    member = (parts[None, :] == np.arange(n_parts)[:, None])[None]  # (1, P, N)
-    rot, trans = fit_rigid(r[None, None], x[:, None], mask=member)  # (T, P, 3, 3), (T, P, 3)
-    pred = np.einsum("tpab,nb->tpna", rot, r) + trans[:, :, None, :]  # (T, P, N, 3)
-    sq = ((pred - x[:, None]) ** 2).sum(-1)  # (T, P, N), NaN where missing or unfitted
+    n = sums[..., 0]
+    safe = np.maximum(n, 1.0)[..., None]
+    cx, cr = sums[..., 1:4] / safe, sums[..., 4:7] / safe
+    h = sums[..., 9:].reshape(*sums.shape[:-1], 3, 3) - n[..., None, None] * (
+        cx[..., :, None] * cr[..., None, :]
+    )  # Σ (x - cx)(r - cr)ᵀ
+    u, _, vt = np.linalg.svd(h)
+    flip = np.linalg.det(u @ vt) < 0
+    u[..., 2] *= np.where(flip, -1.0, 1.0)[..., None]
+    rot = u @ vt
+    shift = cx - np.einsum("...ab,...b->...a", rot, cr)
+    bad = n < 3
+    return np.where(bad[..., None, None], np.nan, rot), np.where(bad[..., None], np.nan, shift)
+
+
+def _marker_errors(
+    x: np.ndarray, r: np.ndarray, marker_sums: np.ndarray, parts: np.ndarray, wanted: np.ndarray
+) -> np.ndarray:
+    """(N, P) mean squared distance of markers from parts' rigid motions, m².
+
+    Each part's motion (reference -> frame t) is fitted to its markers; only the
+    ``wanted`` (N, P) pairs are measured, the rest and a marker never measured with its
+    part fitted are inf.
+    """
+    rot, shift = _motions_of_sums(_group_sums(marker_sums, parts, wanted.shape[1]))
+    marker_of, part_of = np.nonzero(wanted)
+    pred = np.einsum("mtab,mb->tma", rot[part_of], r[marker_of]) + shift[part_of].transpose(1, 0, 2)
+    sq = ((pred - x[:, marker_of]) ** 2).sum(-1)  # (T, pairs), NaN where missing or unfitted
     seen = np.isfinite(sq)
     count = seen.sum(axis=0)
-    err = np.where(seen, sq, 0.0).sum(axis=0) / np.maximum(count, 1)
-    return np.where(count > 0, err, np.inf).T
+    err = np.full(wanted.shape, np.inf)
+    err[marker_of, part_of] = np.where(
+        count > 0, np.where(seen, sq, 0.0).sum(axis=0) / np.maximum(count, 1), np.inf
+    )
+    return err
 
 
 def _neighbour_parts(parts: np.ndarray, edges: np.ndarray, n_parts: int) -> np.ndarray:
@@ -269,14 +294,16 @@ def refine_marker_parts(
     parts : (N,) int64
         Every part connected on the marker surface (through ``edges``).
     errors : (N, P) float64, m²
-        Every marker's mean squared distance from every part's rigid motion, for the
-        returned parts (inf where it cannot be measured).
+        Every marker's mean squared distance from the rigid motion of its part and of
+        its neighbours' parts, for the returned parts (inf for other parts and where it
+        cannot be measured).
     """
     x, r = _centred_take(positions, reference)
     e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     labels = _relabel(np.asarray(parts, dtype=np.int64))
     n_p = int(labels.max()) + 1
-    err = _marker_errors(x, r, labels, n_p)
+    sums = _marker_sums(x, r)
+    err = _marker_errors(x, r, sums, labels, _neighbour_parts(labels, e, n_p))
     for _ in range(int(rounds)):
         cand = _neighbour_parts(labels, e, n_p) & np.isfinite(err)
         best = np.argmin(np.where(cand, err, np.inf), axis=1)
@@ -292,7 +319,7 @@ def refine_marker_parts(
         if np.array_equal(new, labels):
             break
         labels = new
-        err = _marker_errors(x, r, labels, n_p)
+        err = _marker_errors(x, r, sums, labels, _neighbour_parts(labels, e, n_p))
     return labels, err
 
 
