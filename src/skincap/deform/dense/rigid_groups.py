@@ -31,7 +31,10 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
+from skincap.deform.dense.weights import candidates_from_marker_parts, part_motion_errors
+
 __all__ = [
+    "compact_labels",
     "connect_parts",
     "merge_groups_by_rigid_residual",
     "refine_marker_parts",
@@ -160,7 +163,7 @@ def merge_groups_by_rigid_residual(
     (N,) int64
         Groups numbered ``0 … G'-1`` (-1 kept).
     """
-    labels = _relabel(np.asarray(groups, dtype=np.int64))
+    labels = compact_labels(np.asarray(groups, dtype=np.int64))
     n_g = int(labels.max()) + 1
     size = np.bincount(labels[labels >= 0], minlength=n_g).astype(np.int64)
     x, r = _centred_take(positions, reference)
@@ -195,7 +198,7 @@ def merge_groups_by_rigid_residual(
         cost = np.concatenate([cost[~hit], _pair_costs(sums, own, moved)])
     merged = np.where(labels >= 0, into[np.maximum(labels, 0)], -1)
     loose = (merged >= 0) & (size[np.maximum(merged, 0)] < int(min_markers))
-    return _relabel(np.where(loose, -1, merged))
+    return compact_labels(np.where(loose, -1, merged))
 
 
 def _pair_costs(sums: np.ndarray, own: np.ndarray, pairs: np.ndarray) -> np.ndarray:
@@ -205,7 +208,8 @@ def _pair_costs(sums: np.ndarray, own: np.ndarray, pairs: np.ndarray) -> np.ndar
     return _residual_of_sums(sums[pairs[:, 0]] + sums[pairs[:, 1]]) - own[pairs].sum(1)
 
 
-def _relabel(labels: np.ndarray) -> np.ndarray:
+def compact_labels(labels: np.ndarray) -> np.ndarray:
+    """(n,) int labels renumbered ``0 … G-1`` in order of their value; -1 (none) kept."""
     out = np.full(labels.shape, -1, dtype=np.int64)
     ok = labels >= 0
     out[ok] = np.unique(labels[ok], return_inverse=True)[1]
@@ -243,28 +247,7 @@ def _marker_errors(
     part fitted are inf.
     """
     rot, shift = _motions_of_sums(_group_sums(marker_sums, parts, wanted.shape[1]))
-    marker_of, part_of = np.nonzero(wanted)
-    pred = np.einsum("mtab,mb->tma", rot[part_of], r[marker_of]) + shift[part_of].transpose(1, 0, 2)
-    sq = ((pred - x[:, marker_of]) ** 2).sum(-1)  # (T, pairs), NaN where missing or unfitted
-    seen = np.isfinite(sq)
-    count = seen.sum(axis=0)
-    err = np.full(wanted.shape, np.inf)
-    err[marker_of, part_of] = np.where(
-        count > 0, np.where(seen, sq, 0.0).sum(axis=0) / np.maximum(count, 1), np.inf
-    )
-    return err
-
-
-def _neighbour_parts(parts: np.ndarray, edges: np.ndarray, n_parts: int) -> np.ndarray:
-    """(N, P) bool: a marker's own part and the parts of its surface neighbours."""
-    out = np.zeros((parts.size, n_parts), dtype=bool)
-    own = parts >= 0
-    out[np.flatnonzero(own), parts[own]] = True
-    for a, b in ((0, 1), (1, 0)):
-        src, dst = edges[:, a], edges[:, b]
-        ok = (parts[src] >= 0) & (parts[dst] >= 0)
-        out[src[ok], parts[dst[ok]]] = True
-    return out
+    return part_motion_errors(x, r, rot.swapaxes(0, 1), shift.swapaxes(0, 1), wanted)
 
 
 def refine_marker_parts(
@@ -300,12 +283,12 @@ def refine_marker_parts(
     """
     x, r = _centred_take(positions, reference)
     e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-    labels = _relabel(np.asarray(parts, dtype=np.int64))
+    labels = compact_labels(np.asarray(parts, dtype=np.int64))
     n_p = int(labels.max()) + 1
     sums = _marker_sums(x, r)
-    err = _marker_errors(x, r, sums, labels, _neighbour_parts(labels, e, n_p))
+    err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
     for _ in range(int(rounds)):
-        cand = _neighbour_parts(labels, e, n_p) & np.isfinite(err)
+        cand = candidates_from_marker_parts(labels, e, n_p) & np.isfinite(err)
         best = np.argmin(np.where(cand, err, np.inf), axis=1)
         on = (labels >= 0) & cand.any(axis=1)
         rows = np.arange(labels.size)
@@ -319,7 +302,7 @@ def refine_marker_parts(
         if np.array_equal(new, labels):
             break
         labels = new
-        err = _marker_errors(x, r, sums, labels, _neighbour_parts(labels, e, n_p))
+        err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
     return labels, err
 
 

@@ -39,6 +39,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
 from skincap.deform.dense.rigid_groups import (
+    compact_labels,
     merge_groups_by_rigid_residual,
     refine_marker_parts,
     surface_edges,
@@ -278,18 +279,11 @@ def _fix_up(
     same = sparse.csr_matrix((np.ones(inner.sum()), (rows[inner], cols[inner])), shape=adj.shape)
     _, piece = connected_components(same, directed=False)
     piece = np.where(keep, piece, -1)
-    piece = _relabel(piece)
+    piece = compact_labels(piece)
     piece = _absorb_small(piece, adj, feat, min_triangles)
     n_markers = int(faces.max()) + 1
     piece = _absorb_few_markers(piece, faces, n_markers, adj, feat, min_markers)
-    return _relabel(piece), n_groups
-
-
-def _relabel(labels: np.ndarray) -> np.ndarray:
-    out = np.full(labels.shape, -1)
-    ok = labels >= 0
-    out[ok] = np.unique(labels[ok], return_inverse=True)[1]
-    return out
+    return compact_labels(piece), n_groups
 
 
 def _group_means(labels: np.ndarray, feat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -331,7 +325,7 @@ def _absorb_small(
         first = np.ones(order.size, dtype=bool)
         first[1:] = r[order][1:] != r[order][:-1]
         labels[r[order][first]] = target[order][first]
-    labels = _relabel(labels)
+    labels = compact_labels(labels)
     while int(labels.max()) + 1 > 1:  # one small piece at a time, smallest first
         means, size = _group_means(labels, feat)
         g = _group_adjacency(labels, adj)
@@ -342,7 +336,7 @@ def _absorb_small(
         nbrs = g.indices[g.indptr[piece] : g.indptr[piece + 1]]
         best = nbrs[np.argmin(((means[nbrs] - means[piece]) ** 2).sum(1))]
         labels[labels == piece] = best
-        labels = _relabel(labels)
+        labels = compact_labels(labels)
     return labels
 
 
@@ -355,7 +349,7 @@ def _absorb_few_markers(
     min_markers: int,
 ) -> np.ndarray:
     """Parts holding fewer than ``min_markers`` markers join their best-following neighbour."""
-    labels = _relabel(tri_parts)
+    labels = compact_labels(tri_parts)
     while int(labels.max()) + 1 > 1:  # the part with the fewest markers first
         counts = np.bincount(
             _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
@@ -369,7 +363,7 @@ def _absorb_few_markers(
         nbrs = g.indices[g.indptr[part] : g.indptr[part + 1]]
         best = nbrs[np.argmin(((means[nbrs] - means[part]) ** 2).sum(1))]
         labels[labels == part] = best
-        labels = _relabel(labels)
+        labels = compact_labels(labels)
     # a piece of the surface too small to fit and with no neighbour to join (a loose
     # island of a sparse marker surface) belongs to no part: its markers get weights
     # from their motion alone (:func:`skincap.deform.dense.weights.marker_blend_weights`)
@@ -377,7 +371,7 @@ def _absorb_few_markers(
         _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
     )[1:]
     loose = (labels >= 0) & (counts[np.maximum(labels, 0)] < min_markers)
-    return _relabel(np.where(loose, -1, labels))
+    return compact_labels(np.where(loose, -1, labels))
 
 
 def _marker_majority(faces: np.ndarray, tri_parts: np.ndarray, n_markers: int) -> np.ndarray:
