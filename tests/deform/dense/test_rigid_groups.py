@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from mesh_grids import grid_triangles
@@ -117,3 +118,29 @@ def test_triangle_parts_take_the_majority_then_the_best_follower() -> None:
     faces3 = np.array([[0, 2, 3]])
     assert triangle_parts_from_markers(faces3, parts, err)[0] in (1, 2)  # three parts: not 0
     assert triangle_parts_from_markers(np.array([[4, 5, 4]]), parts, err)[0] == -1
+
+
+def test_a_take_that_does_not_move_warns_that_it_cannot_be_segmented() -> None:
+    import warnings
+
+    from skincap.deform.dense.rig import build_dense_rig
+    from skincap.errors import SkincapWarning
+
+    ref, faces = _strip()
+    still = np.repeat(ref[None], 10, axis=0)
+    with pytest.warns(SkincapWarning, match="1 near-rigid parts found of the 3 asked"):
+        rig = build_dense_rig(
+            ref, faces, [f"m{i}" for i in range(ref.shape[0])], ref, faces, still, n_parts=3
+        )
+    assert rig.n_parts == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a moving take with enough parts: quiet
+        build_dense_rig(
+            ref,
+            faces,
+            [f"m{i}" for i in range(ref.shape[0])],
+            ref,
+            faces,
+            _three_segments(ref),
+            n_parts=3,
+        )
