@@ -119,10 +119,20 @@ def _principal_coordinates(feat: np.ndarray, *, energy: float = 1.0 - 1e-6) -> n
     cuts the mean-shift products from (frames x 9) columns to a few dozen.
     """
     centred = feat - feat.mean(axis=0)
-    u, s, _ = np.linalg.svd(centred, full_matrices=False)
-    share = np.cumsum(s**2) / max(float((s**2).sum()), 1e-300)
+    # the eigen-decomposition of the smaller Gram matrix (rows x rows or columns x
+    # columns) gives the same coordinates as an SVD of the rows, up to each axis' sign,
+    # at a fraction of the cost
+    if centred.shape[0] <= centred.shape[1]:
+        power, vecs = np.linalg.eigh(centred @ centred.T)  # ascending
+        power, vecs = power[::-1].clip(0.0), vecs[:, ::-1]
+        coords = vecs * np.sqrt(power)
+    else:
+        power, vecs = np.linalg.eigh(centred.T @ centred)
+        power, vecs = power[::-1].clip(0.0), vecs[:, ::-1]
+        coords = centred @ vecs
+    share = np.cumsum(power) / max(float(power.sum()), 1e-300)
     k = int(np.searchsorted(share, energy)) + 1
-    return u[:, :k] * s[:k]
+    return coords[:, :k]
 
 
 def _mean_shift(x: np.ndarray, bandwidth: float, iterations: int = 40) -> np.ndarray:
