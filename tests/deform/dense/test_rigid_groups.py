@@ -144,3 +144,14 @@ def test_a_take_that_does_not_move_warns_that_it_cannot_be_segmented() -> None:
             _three_segments(ref),
             n_parts=3,
         )
+
+
+def test_refinement_never_leaves_a_part_under_three_markers() -> None:
+    ref, faces = _strip()
+    x = _three_segments(ref)
+    start = np.digitize(ref[:, 0], [0.14, 0.30])
+    start[ref[:, 0] < 0.01] = 3  # a column of 4 markers as its own part, rigid with part 0
+    start[(ref[:, 0] < 0.01) & (ref[:, 1] > 0.05)] = 0  # ... then cut to 2 markers
+    parts, err = refine_marker_parts(start, surface_edges(faces), x, ref, min_markers=3)
+    counts = np.bincount(parts[parts >= 0])
+    assert counts.min() >= 3 and err.shape[1] == parts.max() + 1

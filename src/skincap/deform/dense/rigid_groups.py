@@ -303,7 +303,36 @@ def refine_marker_parts(
             break
         labels = new
         err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
+    # a part the connection left under min_markers joins the neighbour it follows best
+    labels = _absorb_small_parts(connect_parts(labels, e, err), e, err, int(min_markers))
+    n_p = int(labels.max()) + 1
+    err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
     return labels, err
+
+
+def _absorb_small_parts(
+    parts: np.ndarray, edges: np.ndarray, errors: np.ndarray, min_markers: int
+) -> np.ndarray:
+    """Parts under ``min_markers`` join, whole, the adjacent part they follow best
+    (smallest first); one with no neighbour becomes -1. Renumbered ``0 … P'-1``."""
+    labels = np.asarray(parts, dtype=np.int64).copy()
+    n_p = errors.shape[1]
+    err = np.where(np.isfinite(errors), errors, np.inf)
+    for _ in range(n_p):
+        counts = np.bincount(labels[labels >= 0], minlength=n_p)
+        small = np.flatnonzero((counts > 0) & (counts < min_markers))
+        if not small.size:
+            break
+        part = int(small[np.argmin(counts[small])])
+        inside = labels == part
+        cand = candidates_from_marker_parts(labels, edges, n_p)[inside].any(axis=0)
+        cand[part] = False
+        if not cand.any():
+            labels[inside] = -1
+            continue
+        cost = np.where(cand, np.where(np.isfinite(err[inside]), err[inside], 1e6).sum(0), np.inf)
+        labels[inside] = int(np.argmin(cost))
+    return compact_labels(labels)
 
 
 def connect_parts(parts: np.ndarray, edges: np.ndarray, errors: np.ndarray) -> np.ndarray:
