@@ -167,3 +167,17 @@ def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) 
     # synthetic jumprope the blend weights lower it (2.45 -> 2.03 mm).
     assert held["held_out"] == 6 and held["markers"] == 60 and held["mean_m"] < 7e-3
     assert json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"] == held
+
+
+def test_the_default_marker_height_is_where_synth_puts_its_markers() -> None:
+    import inspect
+
+    from skincap.cli.animate import eval_animate
+    from skincap.evaluate.animate import SYNTH_MARKER_HEIGHT_M, evaluate_animate
+    from skincap.synth.markers import place_markers
+
+    synth = inspect.signature(place_markers).parameters["radius"].default
+    assert SYNTH_MARKER_HEIGHT_M == synth
+    assert inspect.signature(evaluate_animate).parameters["marker_radius"].default == synth
+    cli_mm = inspect.signature(eval_animate).parameters["marker_radius"].default
+    assert cli_mm == pytest.approx(synth * 1e3)

@@ -177,7 +177,10 @@ _Template = Annotated[
 ]
 _TemplateRadius = Annotated[
     float,
-    typer.Option(help="Marker centres' height above the skin for --template's registration, mm."),
+    typer.Option(
+        help="Marker centres' height above the skin for --template's registration, mm "
+        "(synth puts them 1.5 mm out)."
+    ),
 ]
 _SynthFrames = Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")]
 _SynthVertices = Annotated[int, typer.Option(help="Procedural body vertices of a --synth take.")]
@@ -195,7 +198,7 @@ def eval_animate(
     synth: _SynthClip = None,
     rom: _RomFolder = None,
     template: _Template = None,
-    marker_radius: _TemplateRadius = 0.0,
+    marker_radius: _TemplateRadius = 1.5,
     frames: _SynthFrames = 240,
     vertices: _SynthVertices = 5000,
     parts: _Parts = 17,

@@ -43,6 +43,7 @@ from skincap.errors import FormatError, ValidationError
 from skincap.io.synth_truth import read_marker_parts
 
 __all__ = [
+    "SYNTH_MARKER_HEIGHT_M",
     "TARGETS",
     "adjusted_rand_index",
     "evaluate_animate",
@@ -52,6 +53,11 @@ __all__ = [
     "plot_vertex_errors",
     "vertex_errors",
 ]
+
+#: Height of a synthetic marker's centre above the skin, metres: the ``radius`` of
+#: :func:`skincap.synth.markers.place_markers` (a test keeps the two equal). The
+#: registered-template row registers to markers that sit this far out by default.
+SYNTH_MARKER_HEIGHT_M = 0.0015
 
 #: The targets of issue #16 (metres or fractions).
 TARGETS: dict[str, Any] = {
@@ -288,7 +294,7 @@ def evaluate_animate(
     rom: str | os.PathLike[str] | None = None,
     template: Any = None,
     template_landmarks: dict[str, int] | None = None,
-    marker_radius: float = 0.0,
+    marker_radius: float = SYNTH_MARKER_HEIGHT_M,
     n_parts: int = 17,
     held_out_fraction: float = 0.1,
     seed: int = 0,
@@ -313,7 +319,8 @@ def evaluate_animate(
     template_landmarks : dict of str to int, optional
         Marker label -> template vertex (default: found automatically).
     marker_radius : float, metres
-        Height of the marker centres above the skin, for the registration.
+        Height of the marker centres above the skin, for the registration (default
+        :data:`SYNTH_MARKER_HEIGHT_M`, where ``skincap synth`` puts them).
     n_parts : int
     held_out_fraction : float
     seed : int

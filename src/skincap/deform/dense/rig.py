@@ -15,6 +15,7 @@ only the plain arrays of :meth:`DenseRig.to_arrays`.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -31,7 +32,7 @@ from skincap.deform.dense.weights import (
     spread_candidates,
     vertex_part_weights,
 )
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 
 __all__ = ["DenseRig", "build_dense_rig", "marker_weights_of", "RIG_ARRAYS"]
 
@@ -223,6 +224,12 @@ def build_dense_rig(
     Returns
     -------
     DenseRig
+
+    Warns
+    -----
+    SkincapWarning
+        Fewer parts than ``n_parts`` came out: the take moves too little to segment, or
+        the marker surface is in fewer pieces than that and they move alike.
     """
     ref = np.asarray(reference, dtype=np.float64)
     rom = np.asarray(range_of_motion, dtype=np.float64)
@@ -231,6 +238,15 @@ def build_dense_rig(
             f"range_of_motion must have shape (T, {ref.shape[0]}, 3); got {rom.shape}"
         )
     seg = segment_marker_surface(rom, ref, surface_faces, n_parts=n_parts, progress=progress)
+    if seg.n_parts < int(n_parts):
+        warnings.warn(
+            f"range of motion: {seg.n_parts} near-rigid parts found of the {int(n_parts)} asked "
+            f"(mean shift: {seg.mean_shift_groups} group(s)); either the take moves too little "
+            "to tell the parts apart or its marker surface has fewer connected pieces; "
+            "a range-of-motion take that moves every joint (--rom) segments the body",
+            SkincapWarning,
+            stacklevel=2,
+        )
     candidates = candidates_from_triangle_parts(
         surface_faces, seg.triangle_parts, ref.shape[0], seg.n_parts
     )

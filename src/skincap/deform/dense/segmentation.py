@@ -10,16 +10,23 @@
 3. **Automatic fix-up** (the paper's manual step): every group is split into
    pieces connected on the surface; pieces smaller than ``min_triangles`` and
    triangles with no rotation (a corner never seen) join the adjacent group whose
-   rotations they follow best; then adjacent groups are merged, cheapest first by
-   Ward's criterion on their mean rotation sequences, until ``n_parts`` remain. Before
-   the merging, a piece that holds fewer than ``min_markers`` markers joins the
-   adjacent piece whose rotations it follows best (a part needs three markers for its
-   rigid fit), so the target counts only parts that can be fitted; the bandwidth is
-   halved while fewer than ``n_parts`` pieces remain to merge. Every part is
-   connected on the marker surface by construction.
+   rotations they follow best, and so do pieces holding fewer than ``min_markers``
+   markers (a part needs three for its rigid fit); the bandwidth is halved while
+   fewer than ``n_parts`` pieces remain. Each marker takes the piece most of its
+   triangles belong to.
+4. **Merging and seams** (:mod:`.rigid_groups`): adjacent marker groups are merged,
+   the pair whose union moves least rigidly over the take last (the smallest added
+   rigid-fit residual first), until ``n_parts`` remain; then every seam marker moves
+   to the adjacent part whose rigid motion predicts its trajectory best, a few
+   rounds, every part kept connected on the marker surface (through its edges) and
+   at ``min_markers`` markers or more. Merging by rotation-sequence means (Ward) put
+   a hand into its forearm and the chest into the upper chest while slivers of one
+   upper arm stayed apart: on the synthetic 720- and 1000-frame ranges of motion the
+   adjusted Rand index against the true parts went from 0.76 / 0.77 to 0.89 / 0.88.
 
-Markers take the part most of their triangles belong to; a marker on triangles of
-several parts is a boundary marker (see :mod:`.weights`).
+Each triangle takes the part of most of its corners (three parts: the one whose motion
+follows its corners best); a marker on triangles of several parts is a boundary marker
+(see :mod:`.weights`).
 """
 
 from __future__ import annotations
@@ -31,6 +38,13 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
+from skincap.deform.dense.rigid_groups import (
+    compact_labels,
+    merge_groups_by_rigid_residual,
+    refine_marker_parts,
+    surface_edges,
+    triangle_parts_from_markers,
+)
 from skincap.errors import ValidationError
 
 __all__ = ["Segmentation", "segment_marker_surface", "triangle_rotations"]
@@ -43,10 +57,12 @@ class Segmentation:
     Attributes
     ----------
     triangle_parts : (F,) int64
-        Part of every marker-surface triangle, ``0 … P-1``; -1 on a loose piece of the
-        surface holding fewer than ``min_markers`` markers.
+        Part of every marker-surface triangle, ``0 … P-1`` (the part of most of its
+        corners); -1 when no corner has a part.
     marker_parts : (N,) int64
-        Part of every marker (the majority of its triangles; -1 for a marker on none).
+        Part of every marker; -1 for a marker on no triangle or on a loose piece of the
+        surface holding fewer than ``min_markers`` markers. Every part's markers are
+        connected through the surface's edges.
     n_parts : int
     mean_shift_groups : int
         Groups mean shift found before the fix-up (the paper's Fig. 5a).
@@ -103,10 +119,20 @@ def _principal_coordinates(feat: np.ndarray, *, energy: float = 1.0 - 1e-6) -> n
     cuts the mean-shift products from (frames x 9) columns to a few dozen.
     """
     centred = feat - feat.mean(axis=0)
-    u, s, _ = np.linalg.svd(centred, full_matrices=False)
-    share = np.cumsum(s**2) / max(float((s**2).sum()), 1e-300)
+    # the eigen-decomposition of the smaller Gram matrix (rows x rows or columns x
+    # columns) gives the same coordinates as an SVD of the rows, up to each axis' sign,
+    # at a fraction of the cost
+    if centred.shape[0] <= centred.shape[1]:
+        power, vecs = np.linalg.eigh(centred @ centred.T)  # ascending
+        power, vecs = power[::-1].clip(0.0), vecs[:, ::-1]
+        coords = vecs * np.sqrt(power)
+    else:
+        power, vecs = np.linalg.eigh(centred.T @ centred)
+        power, vecs = power[::-1].clip(0.0), vecs[:, ::-1]
+        coords = centred @ vecs
+    share = np.cumsum(power) / max(float(power.sum()), 1e-300)
     k = int(np.searchsorted(share, energy)) + 1
-    return u[:, :k] * s[:k]
+    return coords[:, :k]
 
 
 def _mean_shift(x: np.ndarray, bandwidth: float, iterations: int = 40) -> np.ndarray:
@@ -211,22 +237,32 @@ def segment_marker_surface(
         feat = np.where(seen, feat, ident[None, :])
     feat = _principal_coordinates(feat)
     adj = _triangle_adjacency(f)
+    n_markers = ref.shape[0]
     width = float(bandwidth)
-    for _ in range(5):  # a narrower bandwidth until the fix-up can reach n_parts
+    for _ in range(5):  # a narrower bandwidth until there are n_parts groups to merge
         labels = np.full(n_f, -1)
         labels[good] = _mean_shift(feat[good], width)
-        tri_parts, n_groups = _fix_up(
-            labels, adj, feat, (int(min_triangles), int(min_markers), int(n_parts)), f
-        )
-        if int(tri_parts.max()) + 1 >= int(n_parts):
+        tri_groups, n_groups = _fix_up(labels, adj, feat, (int(min_triangles), int(min_markers)), f)
+        groups = _marker_majority(f, tri_groups, n_markers)
+        if int(groups.max()) + 1 >= int(n_parts):
             break
         width *= 0.5
     if progress:
+        progress(0.6)
+    edges = surface_edges(f)
+    x_used = x[::step]
+    groups = merge_groups_by_rigid_residual(
+        groups, edges, x_used, ref, int(n_parts), min_markers=int(min_markers)
+    )
+    marker_parts, errors = refine_marker_parts(
+        groups, edges, x_used, ref, min_markers=int(min_markers)
+    )
+    if progress:
         progress(1.0)
     return Segmentation(
-        triangle_parts=tri_parts,
-        marker_parts=_marker_majority(f, tri_parts, ref.shape[0]),
-        n_parts=int(tri_parts.max()) + 1,
+        triangle_parts=triangle_parts_from_markers(f, marker_parts, errors),
+        marker_parts=marker_parts,
+        n_parts=int(marker_parts.max()) + 1,
         mean_shift_groups=n_groups,
         bandwidth=width,
     )
@@ -236,15 +272,15 @@ def _fix_up(
     labels: np.ndarray,
     adj: sparse.csr_matrix,
     feat: np.ndarray,
-    sizes: tuple[int, int, int],
+    sizes: tuple[int, int],
     faces: np.ndarray,
 ) -> tuple[np.ndarray, int]:
-    """Connected pieces, small ones absorbed, merged down to ``n_parts``; and the group count.
+    """Connected pieces with small ones absorbed; and the mean-shift group count.
 
-    ``sizes`` is ``(min_triangles, min_markers, n_parts)``. Pieces with too few markers
-    are absorbed *before* the merging, so the merges count only parts that can be fitted.
+    ``sizes`` is ``(min_triangles, min_markers)``: pieces with fewer triangles, then
+    pieces with fewer markers, join the neighbour whose rotations they follow best.
     """
-    min_triangles, min_markers, n_parts = sizes
+    min_triangles, min_markers = sizes
     n_groups = int(labels.max()) + 1
     # split every group into surface-connected pieces
     rows, cols = adj.nonzero()
@@ -253,19 +289,11 @@ def _fix_up(
     same = sparse.csr_matrix((np.ones(inner.sum()), (rows[inner], cols[inner])), shape=adj.shape)
     _, piece = connected_components(same, directed=False)
     piece = np.where(keep, piece, -1)
-    piece = _relabel(piece)
+    piece = compact_labels(piece)
     piece = _absorb_small(piece, adj, feat, min_triangles)
     n_markers = int(faces.max()) + 1
     piece = _absorb_few_markers(piece, faces, n_markers, adj, feat, min_markers)
-    piece = _merge_to_target(piece, adj, feat, int(n_parts))
-    return _relabel(piece), n_groups
-
-
-def _relabel(labels: np.ndarray) -> np.ndarray:
-    out = np.full(labels.shape, -1)
-    ok = labels >= 0
-    out[ok] = np.unique(labels[ok], return_inverse=True)[1]
-    return out
+    return compact_labels(piece), n_groups
 
 
 def _group_means(labels: np.ndarray, feat: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -307,7 +335,7 @@ def _absorb_small(
         first = np.ones(order.size, dtype=bool)
         first[1:] = r[order][1:] != r[order][:-1]
         labels[r[order][first]] = target[order][first]
-    labels = _relabel(labels)
+    labels = compact_labels(labels)
     while int(labels.max()) + 1 > 1:  # one small piece at a time, smallest first
         means, size = _group_means(labels, feat)
         g = _group_adjacency(labels, adj)
@@ -318,27 +346,7 @@ def _absorb_small(
         nbrs = g.indices[g.indptr[piece] : g.indptr[piece + 1]]
         best = nbrs[np.argmin(((means[nbrs] - means[piece]) ** 2).sum(1))]
         labels[labels == piece] = best
-        labels = _relabel(labels)
-    return labels
-
-
-def _merge_to_target(
-    labels: np.ndarray, adj: sparse.csr_matrix, feat: np.ndarray, target: int
-) -> np.ndarray:
-    """Merge adjacent groups, smallest Ward cost first, until ``target`` remain."""
-    labels = _relabel(labels)
-    while int(labels.max()) + 1 > target:
-        means, size = _group_means(labels, feat)
-        g = _group_adjacency(labels, adj)
-        a, b = g.nonzero()
-        upper = a < b
-        a, b = a[upper], b[upper]
-        if not a.size:
-            break
-        ward = size[a] * size[b] / (size[a] + size[b]) * ((means[a] - means[b]) ** 2).sum(1)
-        k = int(np.argmin(ward))
-        labels[labels == b[k]] = a[k]
-        labels = _relabel(labels)
+        labels = compact_labels(labels)
     return labels
 
 
@@ -351,7 +359,7 @@ def _absorb_few_markers(
     min_markers: int,
 ) -> np.ndarray:
     """Parts holding fewer than ``min_markers`` markers join their best-following neighbour."""
-    labels = _relabel(tri_parts)
+    labels = compact_labels(tri_parts)
     while int(labels.max()) + 1 > 1:  # the part with the fewest markers first
         counts = np.bincount(
             _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
@@ -365,7 +373,7 @@ def _absorb_few_markers(
         nbrs = g.indices[g.indptr[part] : g.indptr[part + 1]]
         best = nbrs[np.argmin(((means[nbrs] - means[part]) ** 2).sum(1))]
         labels[labels == part] = best
-        labels = _relabel(labels)
+        labels = compact_labels(labels)
     # a piece of the surface too small to fit and with no neighbour to join (a loose
     # island of a sparse marker surface) belongs to no part: its markers get weights
     # from their motion alone (:func:`skincap.deform.dense.weights.marker_blend_weights`)
@@ -373,7 +381,7 @@ def _absorb_few_markers(
         _marker_majority(faces, labels, n_markers) + 1, minlength=int(labels.max()) + 2
     )[1:]
     loose = (labels >= 0) & (counts[np.maximum(labels, 0)] < min_markers)
-    return _relabel(np.where(loose, -1, labels))
+    return compact_labels(np.where(loose, -1, labels))
 
 
 def _marker_majority(faces: np.ndarray, tri_parts: np.ndarray, n_markers: int) -> np.ndarray:

@@ -45,6 +45,7 @@ __all__ = [
     "candidates_from_triangle_parts",
     "marker_blend_weights",
     "marker_part_weights",
+    "part_motion_errors",
     "spread_candidates",
     "vertex_part_weights",
 ]
@@ -247,7 +248,7 @@ def marker_blend_weights(
     rot, trans = _fit_part_motions(x, ref, mem)  # (T, P, 3, 3), (T, P, 3)
     k = int(min(max(1, int(max_candidates)), cand.sum(axis=1).max()))
     # each marker's k best candidates by their single-part error, padded
-    single = _single_part_errors(x, ref, rot, trans, cand)  # (N, P), inf off-candidate
+    single = part_motion_errors(x, ref, rot, trans, cand)  # (N, P), inf off-candidate
     order = np.argsort(single, axis=1, kind="stable")[:, :k]  # (N, k)
     usable = np.take_along_axis(cand & np.isfinite(single), order, axis=1)
     usable[:, 0] = True  # the best one (a marker never seen keeps its first candidate)
@@ -264,10 +265,31 @@ def marker_blend_weights(
     return alpha / alpha.sum(axis=1, keepdims=True)
 
 
-def _single_part_errors(
-    x: np.ndarray, ref: np.ndarray, rot: np.ndarray, trans: np.ndarray, cand: np.ndarray
+def part_motion_errors(
+    positions: np.ndarray,
+    reference: np.ndarray,
+    rotation: np.ndarray,
+    translation: np.ndarray,
+    pairs: np.ndarray,
 ) -> np.ndarray:
-    """(N, P) mean squared distance of each marker from a candidate part's rigid motion."""
+    """Mean squared distance of markers from where parts' rigid motions carry them.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference : (N, 3) float, metres
+    rotation : (T, P, 3, 3) float, reference -> frame t (NaN where a part is unfitted)
+    translation : (T, P, 3) float, metres
+    pairs : (N, P) bool
+        The (marker, part) pairs to measure.
+
+    Returns
+    -------
+    (N, P) float64, m²
+        Over the frames where both the marker and the part are; inf off ``pairs`` and
+        where there is no such frame.
+    """
+    x, ref, rot, trans, cand = positions, reference, rotation, translation, pairs
     n, n_p = cand.shape
     marker_of, part_of = np.nonzero(cand)
     predicted = np.einsum("tnab,nb->tna", rot[:, part_of], ref[marker_of]) + trans[:, part_of]
@@ -337,15 +359,7 @@ def marker_part_weights(
     # rigid motion of every part from its inside markers: reference -> frame t
     rot, trans = fit_rigid(ref[None, None], x[:, None], fit_from.T[None])  # (T, P, 3, 3), (T, P, 3)
     # only the (marker, part) pairs that matter: candidates and the fitting markers
-    marker_of, part_of = np.nonzero(cand | fit_from)
-    predicted = np.einsum("tnab,nb->tna", rot[:, part_of], ref[marker_of]) + trans[:, part_of]
-    sq = ((predicted - x[:, marker_of]) ** 2).sum(-1)  # (T, pairs), NaN where unseen
-    seen = np.isfinite(sq)
-    count = seen.sum(axis=0)
-    err2 = np.full((n, n_p), np.inf)
-    err2[marker_of, part_of] = np.where(
-        count > 0, np.where(seen, sq, 0.0).sum(axis=0) / np.maximum(count, 1), np.inf
-    )
+    err2 = part_motion_errors(x, ref, rot, trans, cand | fit_from)
     own = np.where(fit_from, err2, np.nan)
     with np.errstate(invalid="ignore"):
         scale2 = np.nanmean(np.where(np.isfinite(own), own, np.nan), axis=0)  # (P,)

@@ -1,0 +1,422 @@
+"""Marker groups judged by how rigidly they move: merged to a part count, seams refined.
+
+Mean shift on triangle rotations (:mod:`.segmentation`) finds groups that turn alike,
+but it cannot say which two groups are one limb: two slivers of an upper arm and the
+upper arm and its hand may all be "a few degrees apart". What a near-rigid part must
+do is move rigidly, so the groups are judged by that, on their markers:
+
+* **Rigid residual.** The least-squares rigid fit of a marker set from the reference
+  pose to each frame leaves ``E = Σ_t Σ_i ||R_t r_i + d_t - x_i(t)||²``. Its minimum
+  follows from a few sums over the markers (count, sums of ``x`` and ``r``, of their
+  squares and of ``x rᵀ``: Kabsch/Umeyama, ``E_t = Sxx_c + Srr_c - 2 (σ₁ + σ₂ ± σ₃)``
+  of the centred cross-covariance), and sums add: the residual of a union of groups
+  costs one 3x3 SVD per frame, whatever the groups' sizes.
+* **Merging** (:func:`merge_groups_by_rigid_residual`): adjacent groups are merged,
+  the pair whose union adds the least residual first (Ward's rule with the rigid
+  residual as the within-group scatter), until the target count remains. A hand
+  never joins its forearm while slivers of one limb remain, however the rotations of
+  their triangles compare.
+* **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
+  markers and each marker moves to the part, its own or a neighbour's, whose motion
+  predicts its trajectory best (a k-means step with rigid motions as the centres),
+  a few rounds; a part keeps at least ``min_markers`` markers and stays connected on
+  the marker surface (:func:`connect_parts`).
+
+All residuals are mean squared distances per frame, m².
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse.csgraph import connected_components
+
+from skincap.deform.dense.weights import candidates_from_marker_parts, part_motion_errors
+
+__all__ = [
+    "compact_labels",
+    "connect_parts",
+    "merge_groups_by_rigid_residual",
+    "refine_marker_parts",
+    "rigid_residuals",
+    "surface_edges",
+    "triangle_parts_from_markers",
+]
+
+#: Per-frame sums of one marker set: count, Σx (3), Σr (3), Σ|x|², Σ|r|², Σ x rᵀ (9).
+_N_SUMS = 18
+
+
+def surface_edges(faces: np.ndarray) -> np.ndarray:
+    """(E, 2) int64 unique undirected edges of a triangle list, smaller index first."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    return np.unique(e, axis=0) if e.size else e.reshape(0, 2)
+
+
+def _centred_take(positions: np.ndarray, reference: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (T, N, 3) and reference (N, 3) with their centroids removed (for rounding),
+    NaN where a marker is missing or has no reference position."""
+    x = np.asarray(positions, dtype=np.float64)
+    r = np.asarray(reference, dtype=np.float64)
+    r_ok = np.isfinite(r).all(axis=1)
+    x = np.where(r_ok[None, :, None], x, np.nan)
+    with np.errstate(invalid="ignore"):
+        r = r - r[r_ok].mean(axis=0) if r_ok.any() else r
+        seen = np.isfinite(x).all(axis=-1)
+        centre = np.where(seen[..., None], x, 0.0).sum(1) / np.maximum(seen.sum(1), 1)[:, None]
+    return x - centre[:, None, :], r
+
+
+def _marker_sums(x: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(N, T, 18) per-marker sums (:data:`_N_SUMS`); zero where the marker is missing."""
+    seen = np.isfinite(x).all(axis=-1) & np.isfinite(r).all(axis=-1)[None, :]  # (T, N)
+    xs = np.where(seen[..., None], x, 0.0).transpose(1, 0, 2)  # (N, T, 3)
+    rs = np.where(seen.T[..., None], np.where(np.isfinite(r), r, 0.0)[:, None, :], 0.0)
+    out = np.empty((x.shape[1], x.shape[0], _N_SUMS))
+    out[..., 0] = seen.T
+    out[..., 1:4] = xs
+    out[..., 4:7] = rs
+    out[..., 7] = (xs * xs).sum(-1)
+    out[..., 8] = (rs * rs).sum(-1)
+    out[..., 9:] = (xs[..., :, None] * rs[..., None, :]).reshape(*xs.shape[:2], 9)
+    return out
+
+
+def _residual_of_sums(sums: np.ndarray) -> np.ndarray:
+    """(..., T, 18) sums -> (...) rigid residual, mean squared distance per frame (m²).
+
+    Frames where the set has fewer than three markers add nothing.
+    """
+    n = sums[..., 0]
+    safe = np.maximum(n, 1.0)
+    sx, sr = sums[..., 1:4], sums[..., 4:7]
+    h = sums[..., 9:].reshape(*sums.shape[:-1], 3, 3)
+    h = h - sx[..., :, None] * sr[..., None, :] / safe[..., None, None]
+    sv = np.linalg.svd(h, compute_uv=False)  # (..., T, 3), descending
+    sign = np.where(np.linalg.det(h) < 0, -1.0, 1.0)
+    spread = sums[..., 7] - (sx * sx).sum(-1) / safe + sums[..., 8] - (sr * sr).sum(-1) / safe
+    e = np.maximum(spread - 2.0 * (sv[..., 0] + sv[..., 1] + sign * sv[..., 2]), 0.0)
+    return np.where(n >= 3, e, 0.0).sum(-1) / max(sums.shape[-2], 1)
+
+
+def rigid_residuals(positions: np.ndarray, reference: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Rigid-fit residual of every marker group over a take.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference : (N, 3) float, metres
+    groups : (N,) int, group of every marker (-1 = none)
+
+    Returns
+    -------
+    (G,) float64, m²
+        ``Σ_t Σ_i ||R_t r_i + d_t - x_i(t)||² / T`` for the best rigid motion of each
+        group at each frame (frames where it has fewer than three markers count 0).
+    """
+    x, r = _centred_take(positions, reference)
+    g = np.asarray(groups, dtype=np.int64)
+    sums = _group_sums(_marker_sums(x, r), g, int(g.max()) + 1)
+    return _residual_of_sums(sums)
+
+
+def _group_sums(marker_sums: np.ndarray, groups: np.ndarray, n_groups: int) -> np.ndarray:
+    """(G, T, 18) sums of every group from the (N, T, 18) per-marker sums."""
+    on = groups >= 0
+    member = sparse.csr_matrix(
+        (np.ones(on.sum()), (groups[on], np.flatnonzero(on))),
+        shape=(n_groups, groups.size),
+    )
+    n, t, k = marker_sums.shape
+    return np.asarray(member @ marker_sums.reshape(n, t * k)).reshape(n_groups, t, k)
+
+
+def merge_groups_by_rigid_residual(
+    groups: np.ndarray,
+    edges: np.ndarray,
+    positions: np.ndarray,
+    reference: np.ndarray,
+    target: int,
+    *,
+    min_markers: int = 3,
+) -> np.ndarray:
+    """Merge adjacent marker groups, least added rigid residual first, to ``target`` groups.
+
+    Groups with fewer than ``min_markers`` markers (too few for a rigid fit) merge
+    first, each into the neighbour whose motion it follows best, whatever the count.
+
+    Parameters
+    ----------
+    groups : (N,) int, group of every marker (-1 = none: never merged)
+    edges : (E, 2) int, marker-surface edges (groups are adjacent through them)
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference : (N, 3) float, metres
+    target : int
+        Groups to keep; fewer merges happen when no adjacent pair is left.
+    min_markers : int
+        Smallest group kept; a smaller one with no neighbour (a loose island of the
+        surface) becomes -1.
+
+    Returns
+    -------
+    (N,) int64
+        Groups numbered ``0 … G'-1`` (-1 kept).
+    """
+    labels = compact_labels(np.asarray(groups, dtype=np.int64))
+    n_g = int(labels.max()) + 1
+    size = np.bincount(labels[labels >= 0], minlength=n_g).astype(np.int64)
+    x, r = _centred_take(positions, reference)
+    sums = _group_sums(_marker_sums(x, r), labels, n_g)  # (G, T, 18)
+    own = _residual_of_sums(sums)  # (G,)
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    ga, gb = labels[e[:, 0]], labels[e[:, 1]]
+    keep = (ga >= 0) & (gb >= 0) & (ga != gb)
+    pairs = np.unique(np.sort(np.stack([ga[keep], gb[keep]], axis=1), axis=1), axis=0)
+    cost = _pair_costs(sums, own, pairs)
+    into = np.arange(n_g)  # where each original group went
+    alive = np.ones(n_g, dtype=bool)
+    while pairs.shape[0]:
+        small = (size[pairs] < int(min_markers)).any(axis=1)
+        if small.any():  # too small to fit: merged first, whatever the count
+            k = int(np.flatnonzero(small)[np.argmin(cost[small])])
+        elif (alive & (size >= int(min_markers))).sum() > target:  # loose tiny ones: no count
+            k = int(np.argmin(cost))
+        else:
+            break
+        a, b = (int(v) for v in pairs[k])
+        sums[a] += sums[b]
+        size[a] += size[b]
+        own[a] = _residual_of_sums(sums[a])
+        into[into == b] = a
+        alive[b] = False
+        # pairs away from a and b keep their cost; b's pairs become a's and are re-costed
+        hit = ((pairs == a) | (pairs == b)).any(axis=1)
+        moved = np.sort(np.where(pairs[hit] == b, a, pairs[hit]), axis=1)
+        moved = np.unique(moved[moved[:, 0] != moved[:, 1]], axis=0)
+        pairs = np.concatenate([pairs[~hit], moved])
+        cost = np.concatenate([cost[~hit], _pair_costs(sums, own, moved)])
+    merged = np.where(labels >= 0, into[np.maximum(labels, 0)], -1)
+    loose = (merged >= 0) & (size[np.maximum(merged, 0)] < int(min_markers))
+    return compact_labels(np.where(loose, -1, merged))
+
+
+def _pair_costs(sums: np.ndarray, own: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Residual a merge of each pair of groups would add, (pairs,) m²."""
+    if not pairs.shape[0]:
+        return np.zeros(0)
+    return _residual_of_sums(sums[pairs[:, 0]] + sums[pairs[:, 1]]) - own[pairs].sum(1)
+
+
+def compact_labels(labels: np.ndarray) -> np.ndarray:
+    """(n,) int labels renumbered ``0 … G-1`` in order of their value; -1 (none) kept."""
+    out = np.full(labels.shape, -1, dtype=np.int64)
+    ok = labels >= 0
+    out[ok] = np.unique(labels[ok], return_inverse=True)[1]
+    return out
+
+
+def _motions_of_sums(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(G, T, 18) sums -> best rigid motions ``x ≈ R r + d``: (G, T, 3, 3), (G, T, 3).
+
+    Kabsch on the centred cross-covariance; NaN where a group has fewer than three
+    markers at a frame.
+    """
+    n = sums[..., 0]
+    safe = np.maximum(n, 1.0)[..., None]
+    cx, cr = sums[..., 1:4] / safe, sums[..., 4:7] / safe
+    h = sums[..., 9:].reshape(*sums.shape[:-1], 3, 3) - n[..., None, None] * (
+        cx[..., :, None] * cr[..., None, :]
+    )  # Σ (x - cx)(r - cr)ᵀ
+    u, _, vt = np.linalg.svd(h)
+    flip = np.linalg.det(u @ vt) < 0
+    u[..., 2] *= np.where(flip, -1.0, 1.0)[..., None]
+    rot = u @ vt
+    shift = cx - np.einsum("...ab,...b->...a", rot, cr)
+    bad = n < 3
+    return np.where(bad[..., None, None], np.nan, rot), np.where(bad[..., None], np.nan, shift)
+
+
+def _marker_errors(
+    x: np.ndarray, r: np.ndarray, marker_sums: np.ndarray, parts: np.ndarray, wanted: np.ndarray
+) -> np.ndarray:
+    """(N, P) mean squared distance of markers from parts' rigid motions, m².
+
+    Each part's motion (reference -> frame t) is fitted to its markers; only the
+    ``wanted`` (N, P) pairs are measured, the rest and a marker never measured with its
+    part fitted are inf.
+    """
+    rot, shift = _motions_of_sums(_group_sums(marker_sums, parts, wanted.shape[1]))
+    return part_motion_errors(x, r, rot.swapaxes(0, 1), shift.swapaxes(0, 1), wanted)
+
+
+def refine_marker_parts(
+    parts: np.ndarray,
+    edges: np.ndarray,
+    positions: np.ndarray,
+    reference: np.ndarray,
+    *,
+    min_markers: int = 3,
+    rounds: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move seam markers to the adjacent part whose rigid motion follows them best.
+
+    Parameters
+    ----------
+    parts : (N,) int, part of every marker (-1 = none: left alone)
+    edges : (E, 2) int, marker-surface edges
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference : (N, 3) float, metres
+    min_markers : int
+        A part never drops below this many markers.
+    rounds : int
+        Most reassignment rounds (it stops when no marker moves).
+
+    Returns
+    -------
+    parts : (N,) int64
+        Every part connected on the marker surface (through ``edges``).
+    errors : (N, P) float64, m²
+        Every marker's mean squared distance from the rigid motion of its part and of
+        its neighbours' parts, for the returned parts (inf for other parts and where it
+        cannot be measured).
+    """
+    x, r = _centred_take(positions, reference)
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    labels = compact_labels(np.asarray(parts, dtype=np.int64))
+    n_p = int(labels.max()) + 1
+    sums = _marker_sums(x, r)
+    err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
+    for _ in range(int(rounds)):
+        cand = candidates_from_marker_parts(labels, e, n_p) & np.isfinite(err)
+        best = np.argmin(np.where(cand, err, np.inf), axis=1)
+        on = (labels >= 0) & cand.any(axis=1)
+        rows = np.arange(labels.size)
+        own_err = err[rows, np.maximum(labels, 0)]
+        better = on & (err[rows, best] < own_err * (1.0 - 1e-6))
+        new = np.where(better, best, labels)
+        counts = np.bincount(new[new >= 0], minlength=n_p)
+        starved = counts < int(min_markers)  # keep those parts' markers where they were
+        new = np.where(starved[np.maximum(labels, 0)] & (labels >= 0), labels, new)
+        new = connect_parts(new, e, err)
+        if np.array_equal(new, labels):
+            break
+        labels = new
+        err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
+    # a part the connection left under min_markers joins the neighbour it follows best
+    labels = _absorb_small_parts(connect_parts(labels, e, err), e, err, int(min_markers))
+    n_p = int(labels.max()) + 1
+    err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
+    return labels, err
+
+
+def _absorb_small_parts(
+    parts: np.ndarray, edges: np.ndarray, errors: np.ndarray, min_markers: int
+) -> np.ndarray:
+    """Parts under ``min_markers`` join, whole, the adjacent part they follow best
+    (smallest first); one with no neighbour becomes -1. Renumbered ``0 … P'-1``."""
+    labels = np.asarray(parts, dtype=np.int64).copy()
+    n_p = errors.shape[1]
+    err = np.where(np.isfinite(errors), errors, np.inf)
+    for _ in range(n_p):
+        counts = np.bincount(labels[labels >= 0], minlength=n_p)
+        small = np.flatnonzero((counts > 0) & (counts < min_markers))
+        if not small.size:
+            break
+        part = int(small[np.argmin(counts[small])])
+        inside = labels == part
+        cand = candidates_from_marker_parts(labels, edges, n_p)[inside].any(axis=0)
+        cand[part] = False
+        if not cand.any():
+            labels[inside] = -1
+            continue
+        cost = np.where(cand, np.where(np.isfinite(err[inside]), err[inside], 1e6).sum(0), np.inf)
+        labels[inside] = int(np.argmin(cost))
+    return compact_labels(labels)
+
+
+def connect_parts(parts: np.ndarray, edges: np.ndarray, errors: np.ndarray) -> np.ndarray:
+    """Make every part one connected piece of the marker surface.
+
+    A part's pieces other than its largest join, whole, the adjacent part whose rigid
+    motion follows them best (least summed ``errors``); repeated until every part is
+    one piece (a joined piece touches its new part, so each round only removes pieces).
+
+    Parameters
+    ----------
+    parts : (N,) int (-1 = none)
+    edges : (E, 2) int, marker-surface edges
+    errors : (N, P) float, m², each marker's error under each part's motion
+
+    Returns
+    -------
+    (N,) int64
+    """
+    labels = np.asarray(parts, dtype=np.int64).copy()
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    n = labels.size
+    err = np.asarray(errors, dtype=np.float64)
+    big = 1e3 * max(float(err[np.isfinite(err)].max(initial=0.0)), 1e-12)
+    err = np.where(np.isfinite(err), err, big)  # a part that cannot be measured: last
+    for _ in range(n):
+        same = (labels[e[:, 0]] == labels[e[:, 1]]) & (labels[e[:, 0]] >= 0)
+        graph = sparse.csr_matrix((np.ones(same.sum()), (e[same, 0], e[same, 1])), shape=(n, n))
+        _, piece = connected_components(graph, directed=False)
+        on = np.flatnonzero(labels >= 0)
+        size = np.bincount(piece[on], minlength=n)
+        # each part's largest piece stays (ties: the lowest piece number)
+        order = on[np.lexsort((piece[on], -size[piece[on]], labels[on]))]
+        first = np.ones(order.size, dtype=bool)
+        first[1:] = labels[order][1:] != labels[order][:-1]
+        largest = np.full(int(labels.max()) + 1, -1)
+        largest[labels[order[first]]] = piece[order[first]]
+        stray = np.zeros(n, dtype=bool)
+        stray[on] = piece[on] != largest[labels[on]]
+        if not stray.any():
+            break
+        touch = np.zeros((n, err.shape[1]), dtype=bool)  # (pieces, P): parts a stray piece touches
+        for a, b in ((0, 1), (1, 0)):
+            src, dst = e[:, a], e[:, b]
+            ok = stray[src] & (labels[dst] >= 0) & (labels[dst] != labels[src])
+            touch[piece[src[ok]], labels[dst[ok]]] = True
+        member = sparse.csr_matrix(
+            (np.ones(stray.sum()), (piece[stray], np.flatnonzero(stray))), shape=(n, n)
+        )
+        cost = np.asarray(member @ err)  # (pieces, P) summed error of each piece
+        pick = np.argmin(np.where(touch, cost, np.inf), axis=1)
+        go = stray & touch.any(axis=1)[piece]
+        if not go.any():
+            break
+        labels[go] = pick[piece[go]]
+    return labels
+
+
+def triangle_parts_from_markers(
+    faces: np.ndarray, parts: np.ndarray, errors: np.ndarray
+) -> np.ndarray:
+    """Part of every triangle: the part of most of its corners.
+
+    A triangle whose three corners lie in three parts takes the one whose rigid motion
+    follows its corners best (least summed ``errors``); one with no labelled corner, -1.
+
+    Parameters
+    ----------
+    faces : (F, 3) int
+    parts : (N,) int (-1 = none)
+    errors : (N, P) float, m²
+
+    Returns
+    -------
+    (F,) int64
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    lab = np.asarray(parts, dtype=np.int64)[f]  # (F, 3)
+    n_p = errors.shape[1]
+    votes = np.zeros((f.shape[0], n_p))
+    on = lab >= 0
+    np.add.at(votes, (np.nonzero(on)[0], lab[on]), 1.0)
+    finite = np.where(np.isfinite(errors), errors, 0.0)
+    cost = finite[f].sum(axis=1)  # (F, P)
+    tie_break = 0.5 * cost / max(float(cost.max()), 1e-300)  # below one vote
+    score = np.where(votes > 0, votes - tie_break, -np.inf)
+    return np.where(on.any(axis=1), np.argmax(score, axis=1), -1)

@@ -1,0 +1,157 @@
+"""Marker groups by rigid residual: the closed-form residual, merging, seam refinement."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mesh_grids import grid_triangles
+from skincap.deform.dense.rigid_groups import (
+    connect_parts,
+    merge_groups_by_rigid_residual,
+    refine_marker_parts,
+    rigid_residuals,
+    surface_edges,
+    triangle_parts_from_markers,
+)
+from skincap.geometry.rigid import fit_rigid
+
+
+def _strip(nx: int = 12, ny: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    x, y = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    ref = np.stack([0.04 * x.ravel(), 0.04 * y.ravel(), np.zeros(x.size)], axis=1)
+    return ref, grid_triangles(nx, ny)
+
+
+def _three_segments(ref: np.ndarray, n_frames: int = 30) -> np.ndarray:
+    """Strip cut at x = 0.14 and 0.30: the middle turns about y, the end turns about z
+    on top of it (a hinged limb of three rigid segments)."""
+    t = np.sin(np.linspace(0, np.pi, n_frames)) ** 2
+    first = Rotation.from_rotvec(np.radians(60.0) * t[:, None] * [0, -1.0, 0]).as_matrix()
+    second = Rotation.from_rotvec(np.radians(45.0) * t[:, None] * [0, 0, 1.0]).as_matrix()
+    p1, p2 = np.array([0.14, 0, 0]), np.array([0.30, 0, 0])
+    mid = np.einsum("tab,nb->tna", first, ref - p1) + p1
+    far_local = np.einsum("tab,nb->tna", second, ref - p2) + p2
+    far = np.einsum("tab,tnb->tna", first, far_local - p1) + p1
+    seg = np.digitize(ref[:, 0], [0.14, 0.30])
+    return np.where(
+        (seg == 0)[None, :, None], ref[None], np.where((seg == 1)[None, :, None], mid, far)
+    )
+
+
+def test_residual_from_sums_equals_a_direct_rigid_fit() -> None:
+    rng = np.random.default_rng(1)
+    ref = rng.normal(size=(40, 3))
+    rot = Rotation.random(6, random_state=2).as_matrix()
+    x = np.einsum("tab,nb->tna", rot, ref) + rng.normal(size=(6, 1, 3))
+    x = x + rng.normal(scale=0.01, size=x.shape)
+    x[2, 5] = np.nan  # a missing sample counts nowhere
+    groups = np.repeat([0, 1, -1, 2], 10)
+    got = rigid_residuals(x, ref, groups)
+    for g in range(3):
+        m = groups == g
+        r, t = fit_rigid(ref[m][None], x[:, m])
+        sq = ((np.einsum("tab,nb->tna", r, ref[m]) + t[:, None] - x[:, m]) ** 2).sum(-1)
+        np.testing.assert_allclose(got[g], np.nansum(sq) / x.shape[0], rtol=1e-6, atol=1e-12)
+
+
+def test_rigid_groups_have_no_residual() -> None:
+    ref, _ = _strip()
+    x = _three_segments(ref)
+    truth = np.digitize(ref[:, 0], [0.14, 0.30])
+    np.testing.assert_allclose(rigid_residuals(x, ref, truth), 0.0, atol=1e-12)
+    assert rigid_residuals(x, ref, np.zeros(ref.shape[0], int))[0] > 1e-4
+
+
+def test_merging_single_markers_finds_the_rigid_segments() -> None:
+    ref, faces = _strip()
+    x = _three_segments(ref)
+    truth = np.digitize(ref[:, 0], [0.14, 0.30])
+    got = merge_groups_by_rigid_residual(np.arange(ref.shape[0]), surface_edges(faces), x, ref, 3)
+    assert got.max() == 2
+    # the same partition up to names (each true segment is one group and vice versa)
+    assert len(set(zip(truth.tolist(), got.tolist(), strict=True))) == 3
+
+
+def test_merging_keeps_a_loose_tiny_group_out() -> None:
+    ref, faces = _strip()
+    x = _three_segments(ref)
+    groups = np.digitize(ref[:, 0], [0.14, 0.30])
+    edges = surface_edges(faces)
+    edges = edges[~np.isin(edges, [0, 1]).any(axis=1)]  # markers 0 and 1: an island
+    groups[[0, 1]] = 3
+    got = merge_groups_by_rigid_residual(groups, edges, x, ref, 3)
+    assert (got[[0, 1]] == -1).all() and got.max() == 2
+
+
+def test_refinement_moves_seam_markers_to_the_segment_they_move_with() -> None:
+    ref, faces = _strip()
+    x = _three_segments(ref)
+    truth = np.digitize(ref[:, 0], [0.14, 0.30])
+    start = np.digitize(ref[:, 0], [0.10, 0.34])  # seams one column off
+    edges = surface_edges(faces)
+    parts, err = refine_marker_parts(start, edges, x, ref)
+    np.testing.assert_array_equal(parts, truth)
+    assert err.shape == (ref.shape[0], 3)
+    np.testing.assert_allclose(err[np.arange(ref.shape[0]), parts], 0.0, atol=1e-12)
+
+
+def test_a_stray_piece_joins_the_part_it_touches_and_follows() -> None:
+    ref, faces = _strip(6, 2)  # markers 0..11, column-major: x index = i // 2
+    edges = surface_edges(faces)
+    parts = np.repeat([0, 0, 1, 1, 0, 2], 2)  # part 0 has a stray piece at column 4
+    err = np.zeros((12, 3))
+    err[8:10, 1] = 1.0  # the stray piece follows part 2 better than part 1
+    got = connect_parts(parts, edges, err)
+    np.testing.assert_array_equal(got, np.repeat([0, 0, 1, 1, 2, 2], 2))
+
+
+def test_triangle_parts_take_the_majority_then_the_best_follower() -> None:
+    faces = np.array([[0, 1, 2], [0, 1, 3], [3, 4, 5]])
+    parts = np.array([0, 0, 1, 2, -1, -1])
+    err = np.zeros((6, 3))
+    err[:, 0] = 1.0  # corners 0, 1 follow part 0 badly
+    got = triangle_parts_from_markers(faces, parts, err)
+    assert got[0] == 0  # two corners of part 0
+    assert got[1] == 0  # 0, 0, 2: two of part 0
+    faces3 = np.array([[0, 2, 3]])
+    assert triangle_parts_from_markers(faces3, parts, err)[0] in (1, 2)  # three parts: not 0
+    assert triangle_parts_from_markers(np.array([[4, 5, 4]]), parts, err)[0] == -1
+
+
+def test_a_take_that_does_not_move_warns_that_it_cannot_be_segmented() -> None:
+    import warnings
+
+    from skincap.deform.dense.rig import build_dense_rig
+    from skincap.errors import SkincapWarning
+
+    ref, faces = _strip()
+    still = np.repeat(ref[None], 10, axis=0)
+    with pytest.warns(SkincapWarning, match="1 near-rigid parts found of the 3 asked"):
+        rig = build_dense_rig(
+            ref, faces, [f"m{i}" for i in range(ref.shape[0])], ref, faces, still, n_parts=3
+        )
+    assert rig.n_parts == 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a moving take with enough parts: quiet
+        build_dense_rig(
+            ref,
+            faces,
+            [f"m{i}" for i in range(ref.shape[0])],
+            ref,
+            faces,
+            _three_segments(ref),
+            n_parts=3,
+        )
+
+
+def test_refinement_never_leaves_a_part_under_three_markers() -> None:
+    ref, faces = _strip()
+    x = _three_segments(ref)
+    start = np.digitize(ref[:, 0], [0.14, 0.30])
+    start[ref[:, 0] < 0.01] = 3  # a column of 4 markers as its own part, rigid with part 0
+    start[(ref[:, 0] < 0.01) & (ref[:, 1] > 0.05)] = 0  # ... then cut to 2 markers
+    parts, err = refine_marker_parts(start, surface_edges(faces), x, ref, min_markers=3)
+    counts = np.bincount(parts[parts >= 0])
+    assert counts.min() >= 3 and err.shape[1] == parts.max() + 1
