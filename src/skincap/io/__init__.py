@@ -25,6 +25,7 @@ The modules are imported on first use, so importing :mod:`skincap.io` stays chea
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
 from typing import Any
@@ -40,43 +41,33 @@ __all__ = [
     "kind_of_extension",
 ]
 
-READ_EXTENSIONS = (
-    ".c3d",
-    ".trc",
-    ".csv",
-    ".bvh",
-    ".obj",
-    ".ply",
-    ".gltf",
-    ".glb",
-    ".mhskel",
-    ".mhw",
-)
-WRITE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply")
-
-_KIND = {
-    ".c3d": "markers",
-    ".trc": "markers",
-    ".csv": "markers",
-    ".bvh": "motion",
-    ".obj": "mesh",
-    ".ply": "mesh",
-    ".gltf": "mesh",
-    ".glb": "mesh",
-    ".mhskel": "rig",
-    ".mhw": "weights",
+#: extension -> (kind of data, module, reader function); the module is imported on
+#: first use. The order is the one error messages list the extensions in.
+_READERS: dict[str, tuple[str, str, str]] = {
+    ".c3d": ("markers", "skincap.io.c3d", "read_c3d"),
+    ".trc": ("markers", "skincap.io.trc", "read_trc"),
+    ".csv": ("markers", "skincap.io.csv", "read_csv"),
+    ".bvh": ("motion", "skincap.io.bvh", "read_bvh"),
+    ".obj": ("mesh", "skincap.io.mesh", "read_obj"),
+    ".ply": ("mesh", "skincap.io.mesh", "read_ply"),
+    ".gltf": ("mesh", "skincap.io.gltf.reader", "read_gltf"),
+    ".glb": ("mesh", "skincap.io.gltf.reader", "read_gltf"),
+    ".mhskel": ("rig", "skincap.io.makehuman", "read_mhskel"),
+    ".mhw": ("weights", "skincap.io.makehuman", "read_mhw"),
 }
+READ_EXTENSIONS = tuple(_READERS)
+WRITE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply")
 
 
 def kind_of_extension(path: str | os.PathLike[str]) -> str:
     """The kind of data a file's extension promises (``markers``, ``motion``, ``mesh``…)."""
     ext = Path(path).suffix.lower()
-    if ext not in _KIND:
+    if ext not in _READERS:
         raise FormatError(
             path,
             f"unknown file type {ext or '(no extension)'!r}; skincap reads {', '.join(READ_EXTENSIONS)}",
         )
-    return _KIND[ext]
+    return _READERS[ext][0]
 
 
 def read(path: str | os.PathLike[str], **options: Any) -> Any:
@@ -99,43 +90,10 @@ def read(path: str | os.PathLike[str], **options: Any) -> Any:
 
 
 def _read_by_extension(path: str | os.PathLike[str], **options: Any) -> Any:
-    ext = Path(path).suffix.lower()
-    kind_of_extension(path)
-    if ext == ".c3d":
-        from skincap.io.c3d import read_c3d
-
-        return read_c3d(path, **options)
-    if ext == ".trc":
-        from skincap.io.trc import read_trc
-
-        return read_trc(path, **options)
-    if ext == ".csv":
-        from skincap.io.csv import read_csv
-
-        return read_csv(path, **options)
-    if ext == ".bvh":
-        from skincap.io.bvh import read_bvh
-
-        return read_bvh(path, **options)
-    if ext == ".obj":
-        from skincap.io.mesh import read_obj
-
-        return read_obj(path, **options)
-    if ext == ".ply":
-        from skincap.io.mesh import read_ply
-
-        return read_ply(path, **options)
-    if ext in (".gltf", ".glb"):
-        from skincap.io.gltf.reader import read_gltf
-
-        return read_gltf(path, **options)
-    if ext == ".mhskel":
-        from skincap.io.makehuman import read_mhskel
-
-        return read_mhskel(path, **options)
-    from skincap.io.makehuman import read_mhw
-
-    return read_mhw(path, **options)
+    kind_of_extension(path)  # an unknown extension fails here, naming the known ones
+    _, module, function = _READERS[Path(path).suffix.lower()]
+    reader = getattr(importlib.import_module(module), function)
+    return reader(path, **options)
 
 
 def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
