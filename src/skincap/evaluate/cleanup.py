@@ -77,33 +77,17 @@ def punch_gaps(
         Rows ``(marker, start, length)``; all gaps of a round can be punched into the
         same copy of the take.
     """
-    t, n = present.shape
-    if length + 2 > t:
-        return []
-    cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])
-    rounds: list[np.ndarray] = []
-    made = 0
-    hopeless = np.zeros(t, dtype=bool)  # starts where no gap fits
-    while made < count:
-        placed = _place_gaps(
-            cs,
-            neighbours,
-            length,
-            count - made,
-            busy=np.zeros(t, dtype=bool),
-            hopeless=hopeless,
-            simultaneous=simultaneous,
-            min_neighbours=min_neighbours,
-            margin=margin,
-            rng=rng,
-        )
-        if not placed:
-            break
-        made += len(placed)
-        rounds.append(
-            np.array([(c, s, length) for s, chosen in placed for c in chosen], dtype=np.int64)
-        )
-    return rounds
+    # the one-length case of punch_gaps_together: a round holds gaps of this length only
+    return punch_gaps_together(
+        present,
+        neighbours,
+        [length],
+        count,
+        simultaneous=simultaneous,
+        min_neighbours=min_neighbours,
+        margin=margin,
+        rng=rng,
+    )
 
 
 def punch_gaps_together(
