@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from skincap.errors import FormatError, naming_file
+from skincap.types import MarkerSet, Mesh, Motion, PointCloud
 
 __all__ = [
     "read",
@@ -56,7 +57,18 @@ _READERS: dict[str, tuple[str, str, str]] = {
     ".mhw": ("weights", "skincap.io.makehuman", "read_mhw"),
 }
 READ_EXTENSIONS = tuple(_READERS)
-WRITE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply")
+
+#: (data type, extension) -> (module, writer function), imported on first use.
+_WRITERS: dict[tuple[type, str], tuple[str, str]] = {
+    (MarkerSet, ".c3d"): ("skincap.io.c3d", "write_c3d"),
+    (MarkerSet, ".trc"): ("skincap.io.trc", "write_trc"),
+    (MarkerSet, ".csv"): ("skincap.io.csv", "write_vicon_csv"),
+    (PointCloud, ".csv"): ("skincap.io.csv", "write_points_csv"),
+    (Motion, ".bvh"): ("skincap.io.bvh", "write_bvh"),
+    (Mesh, ".obj"): ("skincap.io.mesh", "write_obj"),
+    (Mesh, ".ply"): ("skincap.io.mesh", "write_ply"),
+}
+WRITE_EXTENSIONS = tuple(dict.fromkeys(ext for _, ext in _WRITERS))
 
 
 def kind_of_extension(path: str | os.PathLike[str]) -> str:
@@ -118,8 +130,6 @@ def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
     FormatError
         Not a mesh file, or a malformed one.
     """
-    from skincap.types import Mesh
-
     p = Path(path)
     ext = p.suffix.lower()
     if ext == ".obj" and any(p.parent.glob("*.mhskel")):
@@ -152,44 +162,14 @@ def write(obj: Any, path: str | os.PathLike[str], *, force: bool = False, **opti
 def _write_by_extension(
     obj: Any, path: str | os.PathLike[str], *, force: bool, **options: Any
 ) -> None:
-    from skincap.types import MarkerSet, Mesh, Motion, PointCloud
-
     ext = Path(path).suffix.lower()
     if ext not in WRITE_EXTENSIONS:
         raise FormatError(
             path,
             f"cannot write {ext or '(no extension)'!r} files; skincap writes {', '.join(WRITE_EXTENSIONS)}",
         )
-    if isinstance(obj, MarkerSet):
-        if ext == ".c3d":
-            from skincap.io.c3d import write_c3d
-
-            return write_c3d(obj, path, force=force, **options)
-        if ext == ".trc":
-            from skincap.io.trc import write_trc
-
-            return write_trc(obj, path, force=force, **options)
-        if ext == ".csv":
-            from skincap.io.csv import write_vicon_csv
-
-            return write_vicon_csv(obj, path, force=force, **options)
-    elif isinstance(obj, PointCloud):
-        if ext == ".csv":
-            from skincap.io.csv import write_points_csv
-
-            return write_points_csv(obj, path, force=force, **options)
-    elif isinstance(obj, Motion):
-        if ext == ".bvh":
-            from skincap.io.bvh import write_bvh
-
-            return write_bvh(obj, path, force=force, **options)
-    elif isinstance(obj, Mesh):
-        if ext == ".obj":
-            from skincap.io.mesh import write_obj
-
-            return write_obj(obj, path, force=force, **options)
-        if ext == ".ply":
-            from skincap.io.mesh import write_ply
-
-            return write_ply(obj, path, force=force, **options)
+    for (data_type, suffix), (module, function) in _WRITERS.items():
+        if suffix == ext and isinstance(obj, data_type):
+            writer = getattr(importlib.import_module(module), function)
+            return writer(obj, path, force=force, **options)
     raise FormatError(path, f"cannot write a {type(obj).__name__} as {ext}")
