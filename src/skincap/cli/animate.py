@@ -8,8 +8,17 @@ from typing import Annotated, Any
 import typer
 
 from skincap.cli._app import _user_errors, app, eval_app, out, print_json, stage_progress
+from skincap.cli._options import (
+    EvalJsonOption,
+    ForceOption,
+    MeshUnitsOption,
+    OutputFolderOption,
+    SynthFramesOption,
+    SynthVerticesOption,
+)
 
-# one alias per option, so each verb's signature reads as a list
+# one alias per option, so each verb's signature reads as a list; the options other
+# verbs share (same flag, same help) come from cli/_options.py
 _MeshArg = Annotated[
     Path | None,
     typer.Argument(
@@ -65,8 +74,6 @@ _Rig = Annotated[Path | None, typer.Option(help="Use a saved subject rig (R.npz)
 _Report = Annotated[
     Path | None, typer.Option(help="JSON report: parts, registration, per-frame timing.")
 ]
-_MeshUnits = Annotated[str | None, typer.Option(help="Mesh length unit (default m; MakeHuman dm).")]
-_Force = Annotated[bool, typer.Option("--force", help="Replace existing outputs.")]
 _Json = Annotated[bool, typer.Option("--json", help="Print the report as JSON.")]
 
 
@@ -86,8 +93,8 @@ def animate(
     save_rig: _SaveRig = None,
     rig: _Rig = None,
     report: _Report = None,
-    mesh_units: _MeshUnits = None,
-    force: _Force = False,
+    mesh_units: MeshUnitsOption = None,
+    force: ForceOption = False,
     json_output: _Json = False,
 ) -> None:
     """Animate a body mesh with a dense marker take (Park & Hodgins 2006, §5).
@@ -148,7 +155,6 @@ def animate(
 _EVAL_OUTPUTS = ("animate_eval.json", "animate_errors.png")
 
 
-_EvalOutput = Annotated[Path, typer.Option("-o", "--output", help="Output folder.")]
 _SynthDir = Annotated[
     Path | None,
     typer.Argument(
@@ -182,28 +188,25 @@ _TemplateRadius = Annotated[
         "(synth puts them 1.5 mm out)."
     ),
 ]
-_SynthFrames = Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")]
-_SynthVertices = Annotated[int, typer.Option(help="Procedural body vertices of a --synth take.")]
 _EvalSeed = Annotated[
     int, typer.Option(help="Seed of the held-out markers (and of a --synth take).")
 ]
-_EvalJson = Annotated[bool, typer.Option("--json", help="Print the result as JSON.")]
 _EvalForce = Annotated[bool, typer.Option("--force", help="Replace outputs of an earlier run.")]
 
 
 @eval_app.command("animate")
 def eval_animate(
-    output: _EvalOutput,
+    output: OutputFolderOption,
     input_dir: _SynthDir = None,
     synth: _SynthClip = None,
     rom: _RomFolder = None,
     template: _Template = None,
     marker_radius: _TemplateRadius = 1.5,
-    frames: _SynthFrames = 240,
-    vertices: _SynthVertices = 5000,
+    frames: SynthFramesOption = 240,
+    vertices: SynthVerticesOption = 5000,
     parts: _Parts = 17,
     seed: _EvalSeed = 0,
-    json_output: _EvalJson = False,
+    json_output: EvalJsonOption = False,
     force: _EvalForce = False,
 ) -> None:
     """Measure the dense chain against the true skin (Park & Hodgins Fig. 7 and 8 as numbers).

@@ -77,38 +77,17 @@ def punch_gaps(
         Rows ``(marker, start, length)``; all gaps of a round can be punched into the
         same copy of the take.
     """
-    t, n = present.shape
-    offsets, indices = neighbours
-    if length + 2 > t:
-        return []
-    cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])
-    starts_all = np.arange(1, t - length)  # window [s-1, s+length] inside the take
-    rounds: list[np.ndarray] = []
-    made = 0
-    hopeless = np.zeros(t, dtype=bool)  # starts where no gap fits
-    while made < count:
-        busy = np.zeros(t, dtype=bool)
-        rows: list[tuple[int, int]] = []
-        while made < count:
-            # a start is free when its window (with margins) touches no busy frame
-            cb = np.concatenate([[0], np.cumsum(busy)])
-            free = _free_starts(starts_all, cb, length, margin, hopeless)
-            if free.size == 0:
-                break
-            s = int(rng.choice(free))
-            chosen = _choose_markers(
-                cs, s, length, offsets, indices, simultaneous, min_neighbours, rng
-            )
-            if chosen is None:
-                hopeless[s] = True
-                continue
-            busy[max(s - 1 - margin, 0) : s + length + 1 + margin] = True
-            rows.extend((c, s) for c in chosen)
-            made += 1
-        if not rows:
-            break
-        rounds.append(np.array([(c, s, length) for c, s in rows], dtype=np.int64))
-    return rounds
+    # the one-length case of punch_gaps_together: a round holds gaps of this length only
+    return punch_gaps_together(
+        present,
+        neighbours,
+        [length],
+        count,
+        simultaneous=simultaneous,
+        min_neighbours=min_neighbours,
+        margin=margin,
+        rng=rng,
+    )
 
 
 def punch_gaps_together(
@@ -135,7 +114,6 @@ def punch_gaps_together(
         Rows ``(marker, start, length)``, lengths mixed.
     """
     t, n = present.shape
-    offsets, indices = neighbours
     wanted = sorted({int(v) for v in lengths if int(v) + 2 <= t}, reverse=True)
     cs = np.vstack([np.zeros((1, n), dtype=np.int64), np.cumsum(present, axis=0)])
     made = dict.fromkeys(wanted, 0)
@@ -144,28 +122,71 @@ def punch_gaps_together(
     while any(made[length] < count for length in wanted):
         busy = np.zeros(t, dtype=bool)
         rows: list[tuple[int, int, int]] = []
-        cb = np.concatenate([[0], np.cumsum(busy)])
         for length in wanted:
-            starts_all = np.arange(1, t - length)
-            while made[length] < count:
-                free = _free_starts(starts_all, cb, length, margin, hopeless[length])
-                if free.size == 0:
-                    break
-                s = int(rng.choice(free))
-                chosen = _choose_markers(
-                    cs, s, length, offsets, indices, simultaneous, min_neighbours, rng
-                )
-                if chosen is None:
-                    hopeless[length][s] = True
-                    continue
-                busy[max(s - 1 - margin, 0) : s + length + 1 + margin] = True
-                cb = np.concatenate([[0], np.cumsum(busy)])
-                rows.extend((c, s, length) for c in chosen)
-                made[length] += 1
+            placed = _place_gaps(
+                cs,
+                neighbours,
+                length,
+                count - made[length],
+                busy=busy,
+                hopeless=hopeless[length],
+                simultaneous=simultaneous,
+                min_neighbours=min_neighbours,
+                margin=margin,
+                rng=rng,
+            )
+            made[length] += len(placed)
+            rows.extend((c, s, length) for s, chosen in placed for c in chosen)
         if not rows:
             break
         rounds.append(np.array(rows, dtype=np.int64))
     return rounds
+
+
+def _place_gaps(
+    cs: np.ndarray,
+    neighbours: tuple[np.ndarray, np.ndarray],
+    length: int,
+    wanted: int,
+    *,
+    busy: np.ndarray,
+    hopeless: np.ndarray,
+    simultaneous: int,
+    min_neighbours: int,
+    margin: int,
+    rng: np.random.Generator,
+) -> list[tuple[int, list[int]]]:
+    """Up to ``wanted`` gaps of ``length`` frames placed into one round.
+
+    Draws a free start (:func:`_free_starts`), then its markers
+    (:func:`_choose_markers`), until ``wanted`` gaps are placed or no start is free.
+    ``cs`` (T + 1, N) int64 is the running count of present samples. ``busy`` (T,)
+    bool, the round's taken frames, gains each placed window with its margins;
+    ``hopeless`` (T,) bool, the starts where no gap of this length fits, gains each
+    start that finds too few markers. Both are updated in place.
+
+    Returns
+    -------
+    list of (start, markers)
+        In the order placed; ``markers`` holds ``simultaneous`` marker indices.
+    """
+    offsets, indices = neighbours
+    starts_all = np.arange(1, busy.size - length)  # window [s-1, s+length] inside the take
+    cb = np.concatenate([[0], np.cumsum(busy)])  # running count of busy frames
+    placed: list[tuple[int, list[int]]] = []
+    while len(placed) < wanted:
+        free = _free_starts(starts_all, cb, length, margin, hopeless)
+        if free.size == 0:
+            break
+        s = int(rng.choice(free))
+        chosen = _choose_markers(cs, s, length, offsets, indices, simultaneous, min_neighbours, rng)
+        if chosen is None:
+            hopeless[s] = True
+            continue
+        busy[max(s - 1 - margin, 0) : s + length + 1 + margin] = True
+        cb = np.concatenate([[0], np.cumsum(busy)])
+        placed.append((s, chosen))
+    return placed
 
 
 def _free_starts(

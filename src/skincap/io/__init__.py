@@ -25,11 +25,13 @@ The modules are imported on first use, so importing :mod:`skincap.io` stays chea
 
 from __future__ import annotations
 
+import importlib
 import os
 from pathlib import Path
 from typing import Any
 
 from skincap.errors import FormatError, naming_file
+from skincap.types import MarkerSet, Mesh, Motion, PointCloud
 
 __all__ = [
     "read",
@@ -40,43 +42,44 @@ __all__ = [
     "kind_of_extension",
 ]
 
-READ_EXTENSIONS = (
-    ".c3d",
-    ".trc",
-    ".csv",
-    ".bvh",
-    ".obj",
-    ".ply",
-    ".gltf",
-    ".glb",
-    ".mhskel",
-    ".mhw",
-)
-WRITE_EXTENSIONS = (".c3d", ".trc", ".csv", ".bvh", ".obj", ".ply")
-
-_KIND = {
-    ".c3d": "markers",
-    ".trc": "markers",
-    ".csv": "markers",
-    ".bvh": "motion",
-    ".obj": "mesh",
-    ".ply": "mesh",
-    ".gltf": "mesh",
-    ".glb": "mesh",
-    ".mhskel": "rig",
-    ".mhw": "weights",
+#: extension -> (kind of data, module, reader function); the module is imported on
+#: first use. The order is the one error messages list the extensions in.
+_READERS: dict[str, tuple[str, str, str]] = {
+    ".c3d": ("markers", "skincap.io.c3d", "read_c3d"),
+    ".trc": ("markers", "skincap.io.trc", "read_trc"),
+    ".csv": ("markers", "skincap.io.csv", "read_csv"),
+    ".bvh": ("motion", "skincap.io.bvh", "read_bvh"),
+    ".obj": ("mesh", "skincap.io.mesh", "read_obj"),
+    ".ply": ("mesh", "skincap.io.mesh", "read_ply"),
+    ".gltf": ("mesh", "skincap.io.gltf.reader", "read_gltf"),
+    ".glb": ("mesh", "skincap.io.gltf.reader", "read_gltf"),
+    ".mhskel": ("rig", "skincap.io.makehuman", "read_mhskel"),
+    ".mhw": ("weights", "skincap.io.makehuman", "read_mhw"),
 }
+READ_EXTENSIONS = tuple(_READERS)
+
+#: (data type, extension) -> (module, writer function), imported on first use.
+_WRITERS: dict[tuple[type, str], tuple[str, str]] = {
+    (MarkerSet, ".c3d"): ("skincap.io.c3d", "write_c3d"),
+    (MarkerSet, ".trc"): ("skincap.io.trc", "write_trc"),
+    (MarkerSet, ".csv"): ("skincap.io.csv", "write_vicon_csv"),
+    (PointCloud, ".csv"): ("skincap.io.csv", "write_points_csv"),
+    (Motion, ".bvh"): ("skincap.io.bvh", "write_bvh"),
+    (Mesh, ".obj"): ("skincap.io.mesh", "write_obj"),
+    (Mesh, ".ply"): ("skincap.io.mesh", "write_ply"),
+}
+WRITE_EXTENSIONS = tuple(dict.fromkeys(ext for _, ext in _WRITERS))
 
 
 def kind_of_extension(path: str | os.PathLike[str]) -> str:
     """The kind of data a file's extension promises (``markers``, ``motion``, ``mesh``…)."""
     ext = Path(path).suffix.lower()
-    if ext not in _KIND:
+    if ext not in _READERS:
         raise FormatError(
             path,
             f"unknown file type {ext or '(no extension)'!r}; skincap reads {', '.join(READ_EXTENSIONS)}",
         )
-    return _KIND[ext]
+    return _READERS[ext][0]
 
 
 def read(path: str | os.PathLike[str], **options: Any) -> Any:
@@ -99,43 +102,10 @@ def read(path: str | os.PathLike[str], **options: Any) -> Any:
 
 
 def _read_by_extension(path: str | os.PathLike[str], **options: Any) -> Any:
-    ext = Path(path).suffix.lower()
-    kind_of_extension(path)
-    if ext == ".c3d":
-        from skincap.io.c3d import read_c3d
-
-        return read_c3d(path, **options)
-    if ext == ".trc":
-        from skincap.io.trc import read_trc
-
-        return read_trc(path, **options)
-    if ext == ".csv":
-        from skincap.io.csv import read_csv
-
-        return read_csv(path, **options)
-    if ext == ".bvh":
-        from skincap.io.bvh import read_bvh
-
-        return read_bvh(path, **options)
-    if ext == ".obj":
-        from skincap.io.mesh import read_obj
-
-        return read_obj(path, **options)
-    if ext == ".ply":
-        from skincap.io.mesh import read_ply
-
-        return read_ply(path, **options)
-    if ext in (".gltf", ".glb"):
-        from skincap.io.gltf.reader import read_gltf
-
-        return read_gltf(path, **options)
-    if ext == ".mhskel":
-        from skincap.io.makehuman import read_mhskel
-
-        return read_mhskel(path, **options)
-    from skincap.io.makehuman import read_mhw
-
-    return read_mhw(path, **options)
+    kind_of_extension(path)  # an unknown extension fails here, naming the known ones
+    _, module, function = _READERS[Path(path).suffix.lower()]
+    reader = getattr(importlib.import_module(module), function)
+    return reader(path, **options)
 
 
 def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
@@ -160,8 +130,6 @@ def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
     FormatError
         Not a mesh file, or a malformed one.
     """
-    from skincap.types import Mesh
-
     p = Path(path)
     ext = p.suffix.lower()
     if ext == ".obj" and any(p.parent.glob("*.mhskel")):
@@ -194,44 +162,14 @@ def write(obj: Any, path: str | os.PathLike[str], *, force: bool = False, **opti
 def _write_by_extension(
     obj: Any, path: str | os.PathLike[str], *, force: bool, **options: Any
 ) -> None:
-    from skincap.types import MarkerSet, Mesh, Motion, PointCloud
-
     ext = Path(path).suffix.lower()
     if ext not in WRITE_EXTENSIONS:
         raise FormatError(
             path,
             f"cannot write {ext or '(no extension)'!r} files; skincap writes {', '.join(WRITE_EXTENSIONS)}",
         )
-    if isinstance(obj, MarkerSet):
-        if ext == ".c3d":
-            from skincap.io.c3d import write_c3d
-
-            return write_c3d(obj, path, force=force, **options)
-        if ext == ".trc":
-            from skincap.io.trc import write_trc
-
-            return write_trc(obj, path, force=force, **options)
-        if ext == ".csv":
-            from skincap.io.csv import write_vicon_csv
-
-            return write_vicon_csv(obj, path, force=force, **options)
-    elif isinstance(obj, PointCloud):
-        if ext == ".csv":
-            from skincap.io.csv import write_points_csv
-
-            return write_points_csv(obj, path, force=force, **options)
-    elif isinstance(obj, Motion):
-        if ext == ".bvh":
-            from skincap.io.bvh import write_bvh
-
-            return write_bvh(obj, path, force=force, **options)
-    elif isinstance(obj, Mesh):
-        if ext == ".obj":
-            from skincap.io.mesh import write_obj
-
-            return write_obj(obj, path, force=force, **options)
-        if ext == ".ply":
-            from skincap.io.mesh import write_ply
-
-            return write_ply(obj, path, force=force, **options)
+    for (data_type, suffix), (module, function) in _WRITERS.items():
+        if suffix == ext and isinstance(obj, data_type):
+            writer = getattr(importlib.import_module(module), function)
+            return writer(obj, path, force=force, **options)
     raise FormatError(path, f"cannot write a {type(obj).__name__} as {ext}")

@@ -107,52 +107,59 @@ def skin_file(
         ``mesh``, ``motion``, ``outputs``, ``files``, ``vertices``, ``height_m``,
         ``joints``, ``frames``, ``rate`` (Hz), ``method``, ``weights``.
     """
-    from skincap.io.output_safety import guard_outputs
-
-    mesh_path, motion_path, output = Path(mesh_path), Path(motion_path), Path(output)
-    name_map = None if name_map is None else Path(name_map)
-    with guard_outputs(
-        [*mesh_input_files(mesh_path), motion_path, name_map],
-        skin_output_files(output),
-        folders=[] if output.suffix else [output],
-        force=force,
-    ):
-        return _skin(
-            mesh_path,
-            motion_path,
-            output,
-            method=method,
-            weights=weights,
-            name_map=name_map,
-            units=units,
-            mesh_units=mesh_units,
-            max_influences=max_influences,
-            force=force,
-            progress=progress,
-            notify=notify,
-        )
-
-
-def _skin(
-    mesh_path: Path,
-    motion_path: Path,
-    output: Path,
-    *,
-    method: str,
-    weights: str | None,
-    name_map: Path | None,
-    units: str | None,
-    mesh_units: str | None,
-    max_influences: int,
-    force: bool,
-    progress: FrameProgress | None,
-    notify: Callable[[str], None] | None,
-) -> dict[str, Any]:
     from skincap import io
     from skincap.deform.skeletal.pipeline import prepare_skinning
     from skincap.evaluate.summary import mesh_height
     from skincap.io.bvh import read_bvh
+    from skincap.io.output_safety import guard_outputs
 
+    mesh_path, motion_path, output = Path(mesh_path), Path(motion_path), Path(output)
+    map_path = None if name_map is None else Path(name_map)
+    with guard_outputs(
+        [*mesh_input_files(mesh_path), motion_path, map_path],
+        skin_output_files(output),
+        folders=[] if output.suffix else [output],
+        force=force,
+    ):
+        _check_skin_request(output, method=method, weights=weights, force=force)
+        mesh = io.read_mesh(mesh_path, units=mesh_units)
+        motion = read_bvh(motion_path, units=units)
+        if not output.suffix:  # before binding, which can take minutes for a bare mesh
+            _check_obj_sequence(mesh, motion.n_frames, output, notify)
+        setup = prepare_skinning(
+            mesh,
+            motion,
+            weights=weights,
+            name_map=map_path,
+            max_influences=max_influences,  # type: ignore[arg-type]
+        )
+        frames = setup.motion.n_frames
+        if progress is not None:
+            progress(0.0, frames)
+
+        def advance(fraction: float) -> None:
+            if progress is not None:
+                progress(fraction * frames, frames)
+
+        written = write_skinned(setup, output, method=method, force=force, progress=advance)
+        return {
+            "mesh": str(mesh_path),
+            "motion": str(motion_path),
+            "outputs": [str(p) for p in (written if output.suffix else [output])],
+            "files": len(written),
+            "vertices": setup.mesh.n_vertices,
+            "height_m": mesh_height(setup.mesh),
+            "joints": setup.mesh.skin.skeleton.n_joints,
+            "frames": frames,
+            "rate": setup.motion.rate,
+            "method": method,
+            "weights": setup.report["weights"],
+        }
+
+
+def _check_skin_request(output: Path, *, method: str, weights: str | None, force: bool) -> None:
+    """Refuse an unknown method, weights or output extension, DQS into ``.glb``, and a
+    non-empty output folder without ``force``, before any input is read."""
     ext = output.suffix.lower()
     if method not in ("lbs", "dqs"):
         raise FormatError(output, f"--method must be lbs or dqs, got {method!r}")
@@ -170,39 +177,6 @@ def _skin(
         raise FormatError(output, f"--weights must be auto or file, got {weights!r}")
     if not ext and output.is_dir() and any(output.iterdir()) and not force:
         raise OutputExistsError(output)
-    mesh = io.read_mesh(mesh_path, units=mesh_units)
-    motion = read_bvh(motion_path, units=units)
-    if not ext:  # before binding, which can take minutes for a bare mesh
-        _check_obj_sequence(mesh, motion.n_frames, output, notify)
-    setup = prepare_skinning(
-        mesh,
-        motion,
-        weights=weights,
-        name_map=name_map,
-        max_influences=max_influences,  # type: ignore[arg-type]
-    )
-    frames = setup.motion.n_frames
-    if progress is not None:
-        progress(0.0, frames)
-
-    def advance(fraction: float) -> None:
-        if progress is not None:
-            progress(fraction * frames, frames)
-
-    written = write_skinned(setup, output, method=method, force=force, progress=advance)
-    return {
-        "mesh": str(mesh_path),
-        "motion": str(motion_path),
-        "outputs": [str(p) for p in (written if output.suffix else [output])],
-        "files": len(written),
-        "vertices": setup.mesh.n_vertices,
-        "height_m": mesh_height(setup.mesh),
-        "joints": setup.mesh.skin.skeleton.n_joints,
-        "frames": frames,
-        "rate": setup.motion.rate,
-        "method": method,
-        "weights": setup.report["weights"],
-    }
 
 
 def _check_obj_sequence(
