@@ -3,13 +3,14 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import numpy as np
 import pytest
 from typer.testing import CliRunner
 
 from skincap.cli import app
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.io.c3d import read_c3d
 from skincap.synth.real_capture import find_hand_markers, hand_path, real_capture_with_rope
 from skincap.types import MarkerSet
@@ -113,6 +114,26 @@ def test_a_capture_without_hands_names_the_option(data_dir) -> None:  # type: ig
         real_capture_with_rope(legs, rope="whip")
     with pytest.raises(ValidationError, match="no single marker named 'NOSE'"):
         real_capture_with_rope(legs, rope="whip", hands=[["NOSE"]])
+
+
+def test_a_rope_held_at_the_floor_lies_doubled_and_says_so() -> None:
+    # "hands" 5 cm above the floor and 6 cm apart (a take without hands, leg markers
+    # named instead, as the OptiTrack take's knee and foot): the 2.8 m jump rope lies
+    # doubled on the floor, its arms centimetres apart, beyond any rope tracker
+    pos = np.array([[0.0, 0.05, 0.0], [0.06, 0.05, 0.0], [0.1, 0.0, -0.3], [0.1, 0.4, -0.2]])
+    low = MarkerSet(np.repeat(pos[None], 10, axis=0), ["LHAND", "RHAND", "TOE", "KNEE"], 120.0)
+    with pytest.warns(SkincapWarning, match="lies doubled"):
+        take = real_capture_with_rope(low, rope="jump", seed=0)
+    assert take.summary["rope_doubled_markers"] > 22 // 4
+
+
+def test_a_jump_rope_in_real_hands_is_not_doubled(cmu) -> None:  # type: ignore[no-untyped-def]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkincapWarning)
+        take = real_capture_with_rope(
+            MarkerSet(cmu.positions[:20], cmu.labels, cmu.rate), rope="jump", seed=1
+        )
+    assert take.summary["rope_doubled_markers"] == 0
 
 
 @pytest.mark.slow

@@ -71,3 +71,14 @@ def test_hands_with_a_gap_are_refused() -> None:
     hands[2, 0] = np.nan
     with pytest.raises(ValidationError, match="finite"):
         simulate_rope_pbd(hands, RATE)
+
+
+def test_a_rope_laid_out_far_from_rest_opens_the_take_at_rest() -> None:
+    """Hands low and apart over a floor (a seated performer's, pyomeca's): the rope,
+    laid out along the floor before it settles, is still by frame 0 (it fell 40 cm in
+    the still window when the settling stopped after a fixed second)."""
+    hands = _still(40, (0.0, 0.06, 0.0), (0.5, 0.56, 0.0))
+    rope = simulate_rope_pbd(hands, 100.0, mode="jump", length=2.8, n_markers=22, floor=0.05)
+    moved = np.linalg.norm(rope.particles - rope.particles[:1], axis=2).max()
+    assert moved < 1e-3
+    assert rope.particles[..., 1].min() >= 0.05 - 1e-9

@@ -101,12 +101,13 @@ def test_init_orders_the_u_rope_and_gives_the_fold_the_tape_spacing() -> None:
     assert init.n_markers == n and init.meta["inserted"] == 0
     assert _is_rope_order(init.indices, n)
     # the folded link's rest spacing is the tape's, not its 4 cm chord; the others
-    # are their chords (a bend shortens a chord a little)
+    # are their chords, or the rope a bend between their markers holds: the tape's
     chords = np.linalg.norm(np.diff(rope[init.indices], axis=0), axis=1)
     folded = chords < 0.5 * SPACING
     assert folded.sum() == 1 == init.meta["folded"]
     np.testing.assert_allclose(init.spacing[folded], SPACING, atol=0.002)
-    np.testing.assert_allclose(init.spacing[~folded], chords[~folded], atol=0.002)
+    assert np.all(init.spacing[~folded] >= chords[~folded] - 0.002)
+    np.testing.assert_allclose(init.spacing[~folded], SPACING, rtol=0.03)
 
 
 def test_init_inserts_one_trace_for_a_hidden_marker_and_none_elsewhere() -> None:
@@ -192,3 +193,17 @@ def test_init_keeps_a_bunched_rope_s_chords_as_its_rest_spacing() -> None:
     assert init.n_markers == chain.shape[0]
     assert init.meta["off_chain"] == 0 and init.meta["folded"] == 0 and init.meta["inserted"] == 0
     np.testing.assert_allclose(init.spacing, np.abs(np.diff(chain[init.indices, 0])), atol=0.002)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_init_gives_a_link_bent_onto_the_floor_the_rope_its_corner_holds(seed: int) -> None:
+    # the arms of a U turn 90° onto the floor (and the floor arms 45° twice) between
+    # two markers: the chord across a corner is shorter than the 12 cm of rope
+    rope = _u_rope(arm_gap=0.3, seed=seed)
+    chords = np.linalg.norm(np.diff(rope, axis=0), axis=1)
+    assert chords.min() < 0.93 * SPACING  # the scene has sharply bent links
+    cloud, _ = _still_cloud(rope)
+    init = init_rope(cloud, markers=np.arange(rope.shape[0]))
+    assert init.n_markers == rope.shape[0] and init.meta["inserted"] == 0
+    # every link at the tape spacing: within 3 % (the corner model's equal legs)
+    np.testing.assert_allclose(init.spacing, SPACING, rtol=0.03)

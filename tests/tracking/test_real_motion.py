@@ -25,7 +25,8 @@ SCENES = {
     "pyomeca_whip": ("pyomeca_markers_analogs.c3d", 200, 300, "whip", None),
     "pig_jump": ("btk_pig_calibration_hole_unlabeled_fragments.c3d", 0, 150, "jump", None),
     # a jump rope whose bottom lies doubled on the floor in the still window: its arms
-    # pass within a spacing (the ordering of init_rope), then lifts with the hands
+    # pass within a spacing (the ordering of init_rope), bend onto the floor (the rest
+    # length of a bent link: F1 0.959 -> 0.999 with the settled rope) and lift
     "cmu_jump": ("cmu_85_02.c3d", 240, 240, "jump", None),
     "aml_jump": ("aml_PronetoRun01_labeled.c3d", 900, 350, "jump", None),
     "c3dorg_jump": ("c3dorg_sample01_Eb015pr.c3d", 0, 200, "jump", [["LFT1"], ["RFT1"]]),
@@ -89,23 +90,8 @@ def test_invented_rope_markers_stay_within_the_ropes_reach(tracked, name: str) -
         assert any(f"{int(track.lost.sum())} of" in str(w.message) for w in caught)
 
 
-#: Scenes known to miss the F1 target, with the figure measured (strict: a fix shows)
-BELOW_TARGET = {
-    "cmu_jump": "F1 0.959 on this window (0.990 over the whole take): the rope lifting "
-    "off the floor, links bent onto the floor in the still window (issue #15)",
-}
-
-
 @pytest.mark.slow
-@pytest.mark.parametrize(
-    "name",
-    [
-        pytest.param(n, marks=pytest.mark.xfail(strict=True, reason=BELOW_TARGET[n]))
-        if n in BELOW_TARGET
-        else n
-        for n in SCENES
-    ],
-)
+@pytest.mark.parametrize("name", list(SCENES))
 def test_issue_targets_rope_body_f1_and_no_trace_lost(tracked, name: str) -> None:  # type: ignore[no-untyped-def]
     # issue #15's targets on every scene: F1 >= 0.99 (the fast CMU hand reversing at
     # 9-15 cm per frame included: 0.741 over the whole take before re-acquisition on

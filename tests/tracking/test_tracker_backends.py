@@ -113,6 +113,7 @@ _STEPS = (
     "match_missing",
     "zipper_predictions",
     "reacquire_on_shell",
+    "unshift_chain",
     "swap_onto_curve",
     "place_invented",
     "commit_frame",

@@ -13,13 +13,14 @@ are added as a capture system makes them. The result is a
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 from typing import Any, Literal
 
 import numpy as np
 
 from skincap._arrays import Progress
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.synth.generate import SynthCapture
 from skincap.synth.reconstruction import (
     Fragments,
@@ -192,6 +193,16 @@ def real_capture_with_rope(
     held = np.stack([hand_path(markers, g) for g in groups[::-1]], axis=1)  # (T, H, 3)
     step(0.1, "rope (PBD)")
     rope_sim, length, floor = _rope_in_hands(markers, held, rope, rope_length, rope_markers)
+    doubled = _doubled_markers(rope_sim.markers[0], rope_sim.marker_param)
+    if 4 * doubled > len(rope_sim.labels):
+        warnings.warn(
+            f"rope: {doubled} of {len(rope_sim.labels)} rope markers lie within half a "
+            "spacing of another part of the rope in the first frame (the rope lies "
+            "doubled, its held ends too low or too close: are the hands hand markers?); "
+            "rope tracking cannot tell such markers apart",
+            SkincapWarning,
+            stacklevel=2,
+        )
     step(0.8, "dropouts and ghosts")
     every = np.concatenate([markers.positions, rope_sim.markers], axis=1)  # (T, N + R, 3)
     seen, noisy = _what_cameras_see(
@@ -217,6 +228,7 @@ def real_capture_with_rope(
         "rope_simulator": "pbd",
         "rope_length_m": float(length),
         "rope_max_length_error": float(rope_sim.meta["max_length_error"]),
+        "rope_doubled_markers": int(doubled),
         "fragments": int(fragments.n_columns - n_ghosts),
         "labelled_fragments": int(fragments.labelled.sum()),
         "missing_fraction": int((~seen[:, :n_body]).sum()) / max(t_n * n_body, 1),
@@ -341,6 +353,17 @@ def _rope_in_hands(
         lay_direction=away,
     )
     return rope_sim, length, floor
+
+
+def _doubled_markers(first: np.ndarray, param: np.ndarray) -> int:
+    """How many rope markers (``first`` (R, 3) metres, at arc lengths ``param`` (R,))
+    lie within half a spacing of a marker three or more places along the rope: a rope
+    lying doubled on itself, whose arms no tracker can tell apart."""
+    spacing = float(np.median(np.diff(param)))
+    d = np.linalg.norm(first[:, None] - first[None], axis=2)  # (R, R)
+    index = np.arange(first.shape[0])
+    far = np.abs(index[:, None] - index[None]) >= 3
+    return int(np.count_nonzero(np.where(far, d, np.inf).min(axis=1) < 0.5 * spacing))
 
 
 def _what_cameras_see(

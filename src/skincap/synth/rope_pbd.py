@@ -82,7 +82,9 @@ def simulate_rope_pbd(
         Horizontal direction in which the part of the starting rope that would reach
         below the floor is laid along it (default +Z).
     settle_seconds : float
-        Time the rope hangs at the first frame's hands before frame 0, seconds.
+        Time the rope hangs at the first frame's hands before frame 0, seconds; it
+        hangs on (up to ten times as long) until no particle moves 5 µm in a frame,
+        so frame 0 opens with the rope at rest.
 
     Returns
     -------
@@ -216,15 +218,44 @@ class _Chain:
                 x[below, 2] = self.x_prev[below, 2]
 
 
+#: Damping rate (1/s) while the rope settles before frame 0: about critical for a
+#: rope pendulum of a metre or two (2 sqrt(g / L) = 4-6 /s). A heavier one (20 /s)
+#: caps the fall at g / k = 0.5 m/s and leaves a rope laid out far from its rest
+#: shape still falling through the still window.
+_SETTLE_DAMPING = 6.0
+#: The rope is settled when no particle moves more than this in a frame (metres) ...
+_SETTLED_MOVE = 5e-6
+#: ... or after this many times ``settle_seconds`` (a rope that never comes to rest).
+_SETTLE_LIMIT = 10
+
+
+def _settle(chain: _Chain, hands: np.ndarray, substeps: int, settle_steps: int) -> None:
+    """Let the chain come to rest at the hands ``hands`` (3,) or (2, 3), in place.
+
+    At least ``settle_steps`` substeps, then frame by frame until the largest move
+    of a particle over a frame is below ``_SETTLED_MOVE`` (at most ``_SETTLE_LIMIT``
+    times as long): the take's still window must show the rope still, whatever shape
+    it was laid out in. The velocity is zeroed at the end.
+    """
+    keep = 1.0 - min(_SETTLE_DAMPING * chain.dt, 1.0)
+    for _ in range(settle_steps):
+        chain.substep(hands, keep)
+    for _ in range(_SETTLE_LIMIT * max(settle_steps, substeps) // substeps):
+        before = chain.x.copy()
+        for _ in range(substeps):
+            chain.substep(hands, keep)
+        if np.abs(chain.x - before).max() < _SETTLED_MOVE:
+            break
+    chain.x_prev = chain.x.copy()
+
+
 def _play(
     chain: _Chain, held: np.ndarray, substeps: int, settle_steps: int, *, keep: float
 ) -> np.ndarray:
-    """(T, P, 3) metres: the chain settled at the first frame's hands with a heavier
-    damping, then driven through the take, the hands ``held`` (T, 3) or (T, 2, 3)
-    interpolated linearly within each frame's ``substeps``."""
-    for _ in range(settle_steps):
-        chain.substep(held[0], 1.0 - min(20.0 * chain.dt, 1.0))
-    chain.x_prev = chain.x.copy()
+    """(T, P, 3) metres: the chain settled at the first frame's hands
+    (:func:`_settle`), then driven through the take, the hands ``held`` (T, 3) or
+    (T, 2, 3) interpolated linearly within each frame's ``substeps``."""
+    _settle(chain, held[0], substeps, settle_steps)
     out = np.zeros((held.shape[0], *chain.x.shape))
     out[0] = chain.x
     for t in range(1, held.shape[0]):

@@ -64,6 +64,7 @@ __all__ = [
     "swap_onto_curve",
     "track_frame",
     "track_frames",
+    "unshift_chain",
     "zipper_predictions",
 ]
 
@@ -492,6 +493,52 @@ def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
 
 
 @numba.njit(**JIT)
+def unshift_chain(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.unshift_chain`."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    known, taken, cur, gamma = state.known, state.taken, state.cur, p.gamma
+    m = known.size
+    if b == a or m < 3 or known.all():
+        return False
+    for e in (0, m - 1):
+        step = 1 if e == 0 else -1
+        if not (known[e] and known[e + step]) or state.temp_count[e] != 0:
+            continue
+        v = state.positions[t - 1, e] + state.velocity[e]
+        miss = norm3(cur[e, 0] - v[0], cur[e, 1] - v[1], cur[e, 2] - v[2])
+        if miss <= 2.0 * gamma:
+            continue
+        q, best = -1, _INF
+        for i in range(a, b):
+            if state.body[i] or is_taken(i, known, taken):
+                continue
+            x = state.points[i]
+            d = norm3(x[0] - v[0], x[1] - v[1], x[2] - v[2])
+            if d < best:
+                q, best = i, d
+        if q < 0 or not best < gamma:
+            continue
+        x = state.points[q]
+        gap = norm3(x[0] - cur[e, 0], x[1] - cur[e, 1], x[2] - cur[e, 2])
+        link = state.link_rest[0 if e == 0 else m - 2]
+        if abs(gap - link) > gamma:
+            continue
+        u = e  # the first trace not found from e
+        while known[u]:
+            u += step
+        j = u
+        while j != e:
+            taken[j] = taken[j - step]
+            cur[j] = cur[j - step]
+            j -= step
+        known[u] = True
+        taken[e] = q
+        cur[e] = state.points[q]
+        return True
+    return False
+
+
+@numba.njit(**JIT)
 def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.place_invented`."""
     known, cur = state.known, state.cur
@@ -580,7 +627,9 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
             if not state.known.all():
                 if reacquire_on_shell(state, t, p):
                     found_more = True
-    swapped = swap_onto_curve(state, t, p)
+    swapped = unshift_chain(state, t, p)
+    if swap_onto_curve(state, t, p):
+        swapped = True
     place_invented(state, t, pred, found_more or swapped, p)
     commit_frame(state, t, p)
 

@@ -16,6 +16,7 @@ A frame (:func:`track_frame`) runs::
     match_missing                         the rest at pred, then the zipper
         match_traces / reject_* / zipper_predictions
     reacquire_on_shell                    the rest followed out along the rope
+    unshift_chain                         a chain matched one marker along moves back
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
     commit_frame                          row t of the results, velocity, counts
@@ -64,6 +65,7 @@ __all__ = [
     "swap_onto_curve",
     "track_frame",
     "track_frames",
+    "unshift_chain",
     "zipper_predictions",
 ]
 
@@ -508,6 +510,52 @@ def swap_onto_curve(state: TrackState, t: int, p: StepParams) -> bool:
     return bool(hit_rows.size)
 
 
+def unshift_chain(state: TrackState, t: int, p: StepParams) -> bool:
+    """Undo a run of traces matched one marker along the rope (beyond the thesis), in place.
+
+    A rope sliding along itself by about a spacing in one frame (a whip jerked
+    lengthwise, a jump rope's arm pulled through the hand's turn) can be matched with
+    every trace of a run on its neighbour's marker: the chain's shape holds, the
+    trace past the run finds nothing and the marker at the rope's end is left free.
+    For an end trace ``e`` (steady) measured with its neighbour, the run is ``e`` up to
+    the first trace not found, ``u``. When ``e`` lies more than ``2 γ`` from its own
+    prediction V_e and the free point nearest V_e (not taken, not a body point) lies
+    within γ of V_e and at ``e``'s link rest length (± γ) from ``e``'s point, the run
+    moves one marker towards ``u`` (which takes the point of its neighbour) and ``e``
+    takes that point. Tries end 0 first; at most one run moves. True if one moved.
+    """
+    a, b = _frame_bounds(state, t)
+    known, taken, cur = state.known, state.taken, state.cur
+    m = known.size
+    if b == a or m < 3 or known.all():
+        return False
+    pts = state.points[a:b]
+    free = ~state.body[a:b]
+    free[taken[known] - a] = False
+    gamma = p.gamma
+    for e in (0, m - 1):
+        step = 1 if e == 0 else -1
+        if not (known[e] and known[e + step]) or state.temp_count[e] != 0:
+            continue
+        v = state.positions[t - 1, e] + state.velocity[e]
+        if np.sum((cur[e] - v) ** 2) <= (2.0 * gamma) ** 2:
+            continue
+        d2 = np.where(free, np.sum((pts - v) ** 2, axis=1), np.inf)
+        q = int(np.argmin(d2))
+        if not d2[q] < gamma * gamma:
+            continue
+        link = state.link_rest[0 if e == 0 else m - 2]
+        if abs(float(np.linalg.norm(pts[q] - cur[e])) - link) > gamma:
+            continue
+        order = np.arange(m) if e == 0 else np.arange(m - 1, -1, -1)
+        u = int(order[np.argmin(known[order])])  # the first trace not found from e
+        run = order[: abs(u - e) + 1]  # e … u
+        taken[run[1:]], cur[run[1:]] = taken[run[:-1]].copy(), cur[run[:-1]].copy()
+        known[u], taken[e], cur[e] = True, a + q, pts[q]
+        return True
+    return False
+
+
 def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: StepParams) -> None:
     """Temporary markers for the traces not found, in ``cur``.
 
@@ -586,7 +634,8 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
             found_more = match_missing(state, t, pred, p)
             if not state.known.all():
                 found_more |= reacquire_on_shell(state, t, p)
-    swapped = swap_onto_curve(state, t, p)
+    swapped = unshift_chain(state, t, p)
+    swapped |= swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
     commit_frame(state, t, p)
 

@@ -71,6 +71,11 @@ Beyond the thesis:
   than 60°); with nothing measured the two end traces are seeded first at V. Body
   points, points moving rigidly with body points and points seen beside the trace's
   own marker in the frames before (a hand marker beside the held end) are refused.
+* A run of traces matched one marker along the rope (``unshift_chain``: a whip jerked
+  lengthwise by about a spacing in a frame keeps its shape, so every trace of the run
+  takes its neighbour's marker) moves back one marker when its end trace lies more
+  than 2 γ from its own prediction and a free point lies within γ of that prediction
+  at the end link's rest length.
 * Each link's rest length (``link_rest``) is the longest chord accepted between its
   two measured markers, at most ``stretch`` times the spacing of the still window,
   whose hanging rope is slack (8.2 cm chords for 9.2 cm of rope): the neighbour limit
