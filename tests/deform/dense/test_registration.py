@@ -79,7 +79,8 @@ def test_markers_on_the_surface_leave_it_in_place() -> None:
     reg = register_mesh(v, f, markers, _labels(80), landmarks={})
     np.testing.assert_allclose(reg.vertices, v, atol=1e-6)
     assert reg.marker_distance.max() < 1e-6
-    assert reg.iterations <= 2
+    # one closest-point iteration per stage: nothing moves
+    assert reg.iterations == len(RegistrationSettings().smoothness_schedule)
 
 
 def _flat_patch(n: int = 21, size: float = 0.4) -> tuple[np.ndarray, np.ndarray]:
@@ -146,8 +147,10 @@ def test_marker_radius_puts_the_surface_inside_the_markers() -> None:
     rng = np.random.default_rng(5)
     face = rng.integers(0, f.shape[0], 120)
     bary = rng.dirichlet(np.ones(3), 120)
-    a, b, c = v[f[face, 0]], v[f[face, 1]], v[f[face, 2]]
-    normal = np.cross(b - a, c - a)
+    # as synth places markers: along the interpolated vertex normal (radial on a sphere)
+    normal = np.einsum(
+        "nk,nkx->nx", bary, v[f[face]] / np.linalg.norm(v[f[face]], axis=2)[..., None]
+    )
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     markers = np.einsum("nk,nkx->nx", bary, v[f[face]]) + 0.005 * normal  # 5 mm out
     reg = register_mesh(
@@ -159,7 +162,12 @@ def test_marker_radius_puts_the_surface_inside_the_markers() -> None:
         settings=RegistrationSettings(marker_radius=0.005),
     )
     # the surface stays on the sphere, 5 mm under the markers (it may slide along it)
-    assert np.abs(np.linalg.norm(reg.vertices, axis=1) - 0.2).mean() < 5e-4
+    radial = np.linalg.norm(reg.vertices, axis=1) - 0.2
+    # within 1 mm of the sphere (ignoring the radius would put it 5 mm out): the rest is
+    # the coarse facets' sagitta (1.7 mm) and their normals differing from the
+    # interpolated ones, which a low final stiffness follows
+    assert abs(radial.mean()) < 1e-3
+    assert np.abs(radial).mean() < 1e-3
     assert np.abs(np.nanmean(reg.marker_distance) - 0.005) < 5e-4
 
 
@@ -206,7 +214,8 @@ def test_too_few_seen_markers_is_an_error_even_with_enough_rows() -> None:
 @pytest.mark.parametrize(
     "kwargs",
     [
-        {"smoothness_weight": 0.0},
+        {"smoothness_schedule": (1.0, 0.0)},
+        {"smoothness_schedule": ()},
         {"data_weight": -1.0},
         {"fit_iterations": -1},
         {"marker_radius": np.nan},

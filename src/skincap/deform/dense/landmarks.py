@@ -93,6 +93,14 @@ def _knn_graph(points: np.ndarray, k: int) -> sp.csr_matrix:
 def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
     """The head top, left hand, right hand, left foot, right foot of a body.
 
+    Upright and facing +Z is assumed (left = +X), so the sides and the head come from
+    position and only the tips from geodesics: the head is the highest node; each foot
+    is the node of its side geodesically farthest from the head; each hand the node
+    farthest from the head among those of its side reaching out at least half as far
+    as the side's widest node and above the lower third of the body. A short-cut of
+    the graph between the feet (sparse foot markers) or between a hand and a thigh
+    then does not turn a knee or a hip into an extremity.
+
     Parameters
     ----------
     points : (N, 3) float, metres
@@ -106,27 +114,30 @@ def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarr
         Node of each extremity, in the order head, left hand, right hand, left foot,
         right foot.
     centre : int
-        Node nearest the centroid (the start of the search).
+        Node nearest the centroid (the origin of the depth coordinate).
     """
     centre = int(np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1)))
-    nearest = dijkstra(graph, indices=centre)
-    picked: list[int] = []
-    for _ in range(5):
-        far = np.where(np.isfinite(nearest), nearest, -1.0)
-        node = int(np.argmax(far))
-        picked.append(node)
-        nearest = np.minimum(nearest, dijkstra(graph, indices=node))
-    nodes = np.array(picked)
-    y = points[nodes, 1]
-    head = nodes[np.argmax(y)]
-    rest = nodes[nodes != head]
-    feet = rest[np.argsort(points[rest, 1])[:2]]
-    hands = np.setdiff1d(rest, feet)
-    if hands.size != 2 or feet.size != 2:
+    head = int(np.argmax(points[:, 1]))
+    from_head = dijkstra(graph, indices=head)
+    reach = np.where(np.isfinite(from_head), from_head, -1.0)
+    lateral = points[:, 0] - points[centre, 0]  # + left, - right
+    floor, top = float(points[:, 1].min()), float(points[head, 1])
+    above_knees = points[:, 1] > floor + (top - floor) / 3.0
+    picked = [head]
+    for side in (1.0, -1.0):  # the hands: left, right
+        out = side * lateral
+        arm = (out > 0.5 * out.max()) & above_knees
+        if not arm.any():
+            raise ValidationError("landmarks: cannot find the hands of the body")
+        picked.append(int(np.argmax(np.where(arm, reach, -np.inf))))
+    for side in (1.0, -1.0):  # the feet: left, right
+        leg = (side * lateral > 0) & ~above_knees
+        if not leg.any():
+            raise ValidationError("landmarks: cannot find the feet of the body")
+        picked.append(int(np.argmax(np.where(leg, reach, -np.inf))))
+    if len(set(picked)) != 5:
         raise ValidationError("landmarks: cannot find the head, hands and feet of the body")
-    lh, rh = hands[np.argsort(-points[hands, 0])]
-    lf, rf = feet[np.argsort(-points[feet, 0])]
-    return np.array([head, lh, rh, lf, rf], dtype=np.int64), np.int64(centre)
+    return np.array(picked, dtype=np.int64), np.int64(centre)
 
 
 def geodesic_signature(points: np.ndarray, graph: sp.csr_matrix) -> np.ndarray:
