@@ -527,8 +527,13 @@ def _registered_template_row(
         "landmarks": len(reg.landmarks),
         "seconds": time.perf_counter() - t0,
         "cpu_seconds": time.process_time() - cpu0,
+        # the markers' residual: their centres sit one marker radius above the skin
         **registration_errors(
-            reg.vertices, template.faces, truth[0], skin_faces, reg.marker_distance
+            reg.vertices,
+            template.faces,
+            truth[0],
+            skin_faces,
+            np.abs(reg.marker_distance - marker_radius),
         ),
     }
     rig = build_dense_rig(

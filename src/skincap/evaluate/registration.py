@@ -55,7 +55,9 @@ def registration_errors(
     true_faces : (F', 3) int
         Its triangles.
     marker_distance : (M,) float, metres, optional
-        Each marker's distance to the registered surface (NaN: unseen, skipped).
+        Each marker's residual: its distance to the registered surface, less the
+        marker radius when the surface was fitted under the marker centres (NaN:
+        unseen, skipped).
 
     Returns
     -------
