@@ -13,11 +13,14 @@ vertex is ``T_i [v_i; 1]``. The transforms minimise
   edge, so that the template keeps its shape where no marker pulls;
 - landmarks (``E_l``): a marker's chosen vertex goes to the marker.
 
-The schedule is the paper's: first smoothness and landmarks only (the model is placed
-and posed globally: one linear solve), then all three terms with equal weights until the
-closest points stop moving. Each solve is one sparse linear least-squares problem: its
-normal equations ``N X = R`` (``N`` is ``4V x 4V``, shared by the three coordinates) are
-factored once per iteration (SuperLU) and solved for the three columns of ``X``.
+The schedule is the paper's first phase, then Allen et al.'s annealing: first
+smoothness and landmarks only (the model is placed and posed globally: one linear
+solve), then all three terms with the smoothness weight falling stage by stage
+(:attr:`RegistrationSettings.smoothness_schedule`) and the landmarks fading with it,
+each stage a few closest-point iterations. Each solve is one sparse linear
+least-squares problem: its normal equations ``N X = R`` (``N`` is ``4V x 4V``, shared
+by the three coordinates) are factored once per iteration (SuperLU, COLAMD ordering)
+and solved for the three columns of ``X``.
 
 Vertices are expressed about the template's centroid in units of its RMS radius
 before solving, so the linear part of ``T`` and its translation are commensurate in the
@@ -125,7 +128,7 @@ class Registration:
     marker_distance : (M,) float64, metres
         Each marker's distance to the registered surface; NaN for an unseen marker.
     iterations : int
-        Closest-point iterations the second phase ran.
+        Closest-point iterations run, summed over the stages of the schedule.
     """
 
     vertices: np.ndarray
