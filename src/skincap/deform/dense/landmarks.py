@@ -90,7 +90,7 @@ def _knn_graph(points: np.ndarray, k: int) -> sp.csr_matrix:
     return g
 
 
-def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarray, int]:
     """The head top, left hand, right hand, left foot, right foot of a body.
 
     Upright and facing +Z is assumed (left = +X), so the sides and the head come from
@@ -137,7 +137,7 @@ def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarr
         picked.append(int(np.argmax(np.where(leg, reach, -np.inf))))
     if len(set(picked)) != 5:
         raise ValidationError("landmarks: cannot find the head, hands and feet of the body")
-    return np.array(picked, dtype=np.int64), np.int64(centre)
+    return np.array(picked, dtype=np.int64), centre
 
 
 def geodesic_signature(points: np.ndarray, graph: sp.csr_matrix) -> np.ndarray:
