@@ -38,6 +38,8 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from scipy.sparse.csgraph import dijkstra
+from scipy.spatial import cKDTree
 
 from skincap._arrays import Progress
 from skincap.deform.dense.landmarks import automatic_landmarks
@@ -84,6 +86,9 @@ class RegistrationSettings:
     #: Pull of every transform toward its previous value (damping; keeps an unobserved
     #: part of the mesh, e.g. a separate eyeball, where it was).
     damping: float = 1e-6
+    #: Deformation nodes whose transforms every vertex's transform blends (the unknowns:
+    #: 4 x 3 per node); a template with fewer vertices gets one node per vertex.
+    nodes: int = 1500
     #: Radius of the markers, metres: the surface is fitted this far inside each marker
     #: (along the surface normal at its closest point); 0 fits the marker centres.
     marker_radius: float = 0.0
@@ -102,6 +107,8 @@ class RegistrationSettings:
             raise ValidationError(
                 "smoothness_schedule: weights must be > 0 (they hold the mesh together)"
             )
+        if int(self.nodes) < 1:
+            raise ValidationError(f"nodes: expected >= 1, got {self.nodes!r}")
         if int(self.fit_iterations) < 0:
             raise ValidationError(f"fit_iterations: expected >= 0, got {self.fit_iterations!r}")
         for name in ("tolerance", "marker_radius"):
@@ -285,22 +292,84 @@ def _seen_landmarks(
     return chosen, lm_marker, lm_vertex
 
 
+def _farthest_point_nodes(v: np.ndarray, count: int) -> np.ndarray:
+    """``count`` vertex indices spread over ``v`` (V, 3) by farthest-point sampling.
+
+    Deterministic (starts at the highest vertex); one O(V) NumPy pass per node.
+    """
+    first = int(np.argmax(v[:, 1]))
+    chosen = np.empty(count, dtype=np.int64)
+    chosen[0] = first
+    nearest = np.linalg.norm(v - v[first], axis=1)
+    for k in range(1, count):
+        chosen[k] = int(np.argmax(nearest))
+        nearest = np.minimum(nearest, np.linalg.norm(v - v[chosen[k]], axis=1))
+    return chosen
+
+
+def _node_basis(v: np.ndarray, f: np.ndarray, count: int) -> sp.csr_matrix:
+    """(V, n) smooth partition of unity: each vertex's weights over ``n`` deformation nodes.
+
+    The nodes are ``count`` farthest-point samples of the vertices (all vertices, the
+    identity, when ``count >= V``). A vertex starts on the node nearest along the mesh
+    (geodesic Voronoi cells, so an arm near the torso does not follow it; a vertex of a
+    separate small piece, e.g. an eye, takes the node nearest in space), then the
+    weights are averaged over mesh neighbours for about one node spacing, blending the
+    cells' transforms across their borders. Rows sum to 1.
+    """
+    n_v = v.shape[0]
+    if count >= n_v:
+        return sp.identity(n_v, format="csr")
+    nodes = _farthest_point_nodes(v, count)
+    e = _edges(f)
+    length = np.maximum(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1), 1e-12)
+    graph = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(n_v, n_v)).tocsr()
+    dist, _, source = dijkstra(
+        graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
+    )
+    node_of = np.full(n_v, -1, dtype=np.int64)
+    node_of[nodes] = np.arange(count)
+    cell = np.where(np.isfinite(dist), node_of[np.maximum(source, 0)], -1)
+    stray = cell < 0
+    if stray.any():
+        cell[stray] = cKDTree(v[nodes]).query(v[stray])[1]
+    basis = sp.csr_matrix((np.ones(n_v), (np.arange(n_v), cell)), shape=(n_v, count))
+    # the blend: a few steps of neighbour averaging, about one node spacing wide
+    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    spacing = float(np.sqrt(area.sum() / count))
+    steps = int(np.clip(round(spacing / float(np.median(length))), 1, 12))
+    adjacency = (graph + graph.T + sp.identity(n_v)).astype(bool).astype(np.float64)
+    average = sp.diags(1.0 / np.asarray(adjacency.sum(axis=1)).ravel()) @ adjacency
+    for _ in range(steps):
+        basis = (average @ basis).tocsr()
+        basis.data[basis.data < 1e-3] = 0.0
+        basis.eliminate_zeros()
+        basis = (sp.diags(1.0 / np.asarray(basis.sum(axis=1)).ravel()) @ basis).tocsr()
+    return basis
+
+
 class _AffineSystem:
     """The template in normalised coordinates and the fixed parts of the normal equations.
 
     Vertices are taken about their centroid in units of their RMS radius, so the
     linear part of a transform and its translation weigh alike in the smoothness term.
-    The unknown ``X`` (4V, 3) stacks the transposed transforms, ``X[4 i : 4 i + 4] = T_iᵀ``,
-    and a deformed vertex is ``[v_i; 1]ᵀ X[4 i : 4 i + 4]``.
+    Per-vertex transforms are blends of ``n`` node transforms (:func:`_node_basis`):
+    ``X = (B ⊗ I4) Y`` with ``B`` (V, n). The unknown ``Y`` (4n, 3) stacks the node
+    transforms transposed, ``Y[4 a : 4 a + 4] = T_aᵀ``, and a deformed vertex is
+    ``[v_i; 1]ᵀ X[4 i : 4 i + 4]``. The smoothness term stays the paper's, over the
+    template's edges: ``Σ_edges |T_i - T_j|² = trace(Yᵀ ((Bᵀ L B) ⊗ I4) Y)``.
     """
 
-    def __init__(self, v: np.ndarray, f: np.ndarray) -> None:
+    def __init__(self, v: np.ndarray, f: np.ndarray, nodes: int) -> None:
         n_v = v.shape[0]
         self.n_vertices = n_v
         self.faces = f
         self.centre = v.mean(axis=0)
         self.scale = float(np.sqrt(((v - self.centre) ** 2).sum(axis=1).mean())) or 1.0
         self.homog = np.concatenate([(v - self.centre) / self.scale, np.ones((n_v, 1))], axis=1)
+        self.basis = _node_basis(v, f, int(nodes))
+        self.n_nodes = self.basis.shape[1]
+        self.expand = sp.kron(self.basis, sp.identity(4), format="csr")  # (4V, 4n)
         edges = _edges(f)
         n_e = len(edges)
         incidence = sp.csr_matrix(
@@ -310,28 +379,33 @@ class _AffineSystem:
             ),
             shape=(n_e, n_v),
         )
-        #: graph Laplacian L (V, V): Σ_edges |T_i - T_j|² = trace(Xᵀ (L ⊗ I4) X)
-        self.laplacian = (incidence.T @ incidence).tocsr()
-        self.smoothness = sp.kron(self.laplacian, sp.identity(4), format="csr")
-        self.identity = sp.identity(4 * n_v, format="csr")
+        difference = incidence @ self.basis  # (E, n): T_i - T_j per edge, from the nodes
+        self.smoothness = sp.kron(difference.T @ difference, sp.identity(4), format="csr")
+        self.identity = sp.identity(4 * self.n_nodes, format="csr")
 
     def template_transforms(self) -> np.ndarray:
-        """X (4V, 3) of the template itself: ``T_i = [I | 0]`` in the original units."""
-        x = np.zeros((4 * self.n_vertices, 3))
-        x.reshape(self.n_vertices, 4, 3)[:, :3, :] = np.eye(3) * self.scale
-        x.reshape(self.n_vertices, 4, 3)[:, 3, :] = self.centre
-        return x
+        """Y (4n, 3) of the template itself: ``T_a = [I | 0]`` in the original units."""
+        y = np.zeros((4 * self.n_nodes, 3))
+        y.reshape(self.n_nodes, 4, 3)[:, :3, :] = np.eye(3) * self.scale
+        y.reshape(self.n_nodes, 4, 3)[:, 3, :] = self.centre
+        return y
 
-    def deformed(self, x: np.ndarray) -> np.ndarray:
+    def vertex_transforms(self, y: np.ndarray) -> np.ndarray:
+        """X (4V, 3): every vertex's transform, blended from the nodes' Y (4n, 3)."""
+        return np.asarray(self.expand @ y)
+
+    def deformed(self, y: np.ndarray) -> np.ndarray:
         """(V, 3) deformed vertices, metres."""
+        x = self.vertex_transforms(y)
         return np.einsum("vk,vkx->vx", self.homog, x.reshape(self.n_vertices, 4, 3))
 
     def point_rows(self, corners: np.ndarray, weights: np.ndarray) -> sp.csr_matrix:
-        return _point_rows(corners, weights, self.homog, self.n_vertices)
+        """(K, 4n) rows mapping Y to K barycentric surface points (see :func:`_point_rows`)."""
+        return (_point_rows(corners, weights, self.homog, self.n_vertices) @ self.expand).tocsr()
 
-    def affine(self, x: np.ndarray) -> np.ndarray:
+    def affine(self, y: np.ndarray) -> np.ndarray:
         """(V, 3, 4) per-vertex affines acting on the template's own coordinates."""
-        xs = x.reshape(self.n_vertices, 4, 3)
+        xs = self.vertex_transforms(y).reshape(self.n_vertices, 4, 3)
         linear = np.swapaxes(xs[:, :3, :], 1, 2) / self.scale
         translation = xs[:, 3, :] - np.einsum("vxk,k->vx", linear, self.centre)
         return np.concatenate([linear, translation[:, :, None]], axis=2)
@@ -452,7 +526,7 @@ def register_mesh(
 
     report(0.0, "landmarks")
     chosen, lm_marker, lm_vertex = _seen_landmarks(landmarks, v, f, m, names)
-    system = _AffineSystem(v, f)
+    system = _AffineSystem(v, f, settings.nodes)
     lm_rows = system.point_rows(lm_vertex[:, None], np.ones((lm_vertex.size, 1)))
     lm_targets = m[lm_marker]
     x = system.template_transforms()
