@@ -46,8 +46,10 @@ def _labels(n: int) -> list[str]:
     return [f"M{i:03d}" for i in range(n)]
 
 
-def test_a_mesh_under_a_global_affine_is_recovered() -> None:
-    """Markers on an affinely moved copy: recovered to < 1e-3 of the scale (0.2 m here)."""
+@pytest.mark.parametrize("nodes", [1500, 60])
+def test_a_mesh_under_a_global_affine_is_recovered(nodes: int) -> None:
+    """Markers on an affinely moved copy: recovered to < 1e-3 of the scale (0.2 m here),
+    with one node per vertex (1500 >= V) and with 60 blended nodes."""
     v, f = _sphere()
     a = np.array([[1.1, 0.1, 0.0], [0.05, 0.9, 0.1], [0.0, -0.1, 1.2]])
     b = np.array([0.3, 1.0, -0.2])
@@ -57,7 +59,9 @@ def test_a_mesh_under_a_global_affine_is_recovered() -> None:
     markers = np.concatenate([moved[lm_vertices], _surface_points(moved, f, 60)])
     labels = _labels(markers.shape[0])
     landmarks = {labels[k]: int(i) for k, i in enumerate(lm_vertices)}
-    reg = register_mesh(v, f, markers, labels, landmarks=landmarks)
+    reg = register_mesh(
+        v, f, markers, labels, landmarks=landmarks, settings=RegistrationSettings(nodes=nodes)
+    )
     assert isinstance(reg, Registration)
     np.testing.assert_allclose(reg.vertices, moved, atol=1e-4)
     np.testing.assert_allclose(
@@ -248,6 +252,24 @@ def test_the_inputs_are_not_modified() -> None:
     register_mesh(v, f, markers, _labels(40), landmarks={"M000": 3})
     for a, b in zip((v, f, markers), copies, strict=True):
         np.testing.assert_array_equal(a, b)
+
+
+def test_the_node_basis_is_a_partition_of_unity_and_loose_pieces_follow_the_body() -> None:
+    from skincap.deform.dense.registration import _node_basis
+
+    v, f = _sphere()
+    loose_v = v[:3] * 0.1 + [0.0, 0.0, 0.19]  # a small loose triangle inside the sphere
+    v2 = np.concatenate([v, loose_v])
+    f2 = np.concatenate([f, [[v.shape[0], v.shape[0] + 1, v.shape[0] + 2]]])
+    basis = _node_basis(v2, f2, 40)
+    assert basis.shape == (v2.shape[0], 40)
+    np.testing.assert_allclose(np.asarray(basis.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    assert (basis.data >= 0).all()
+    # every node lies on the sphere (the main piece): no column lives on the loose piece
+    # alone (the blend never crosses pieces), and the loose piece uses sphere nodes
+    assert (np.asarray(basis[: v.shape[0]].sum(axis=0)).ravel() > 0).all()
+    # a vertex blends nearby nodes only (a local basis, not a global average)
+    assert np.diff(basis.indptr).max() < 20
 
 
 # --------------------------------------------------------------- on a body mesh

@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from skincap._arrays import Progress
@@ -312,18 +312,24 @@ def _node_basis(v: np.ndarray, f: np.ndarray, count: int) -> sp.csr_matrix:
 
     The nodes are ``count`` farthest-point samples of the vertices (all vertices, the
     identity, when ``count >= V``). A vertex starts on the node nearest along the mesh
-    (geodesic Voronoi cells, so an arm near the torso does not follow it; a vertex of a
-    separate small piece, e.g. an eye, takes the node nearest in space), then the
+    (geodesic Voronoi cells, so an arm near the torso does not follow it; the nodes lie
+    on the largest connected piece, and a vertex of another piece, e.g. an eye, takes
+    the node nearest in space, so it moves with the body), then the
     weights are averaged over mesh neighbours for about one node spacing, blending the
     cells' transforms across their borders. Rows sum to 1.
     """
     n_v = v.shape[0]
     if count >= n_v:
         return sp.identity(n_v, format="csr")
-    nodes = _farthest_point_nodes(v, count)
     e = _edges(f)
     length = np.maximum(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1), 1e-12)
     graph = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(n_v, n_v)).tocsr()
+    # nodes on the main piece only: a loose piece (eye, teeth) has no edge to the body,
+    # so nodes of its own would be held by nothing and could fly off
+    _, piece = connected_components(graph, directed=False)
+    main = np.nonzero(piece == np.bincount(piece).argmax())[0]
+    nodes = main[_farthest_point_nodes(v[main], min(count, main.size))]
+    count = nodes.size
     dist, _, source = dijkstra(
         graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
     )
