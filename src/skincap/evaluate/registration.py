@@ -31,6 +31,23 @@ REGISTRATION_TARGETS: dict[str, float] = {
 }
 
 
+#: Query points per closest-point call: bounds the memory of the candidate pairs
+#: (about 0.1 GB per block on a 20k-vertex body instead of 1.5 GB in one call).
+_QUERY_BLOCK = 2000
+
+
+def _distances_to_surface(
+    vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
+) -> np.ndarray:
+    """(N,) distance of each of ``points`` (N, 3) to the mesh, metres, in blocks of points."""
+    return np.concatenate(
+        [
+            closest_points_on_mesh(vertices, faces, points[k : k + _QUERY_BLOCK])[0]
+            for k in range(0, points.shape[0], _QUERY_BLOCK)
+        ]
+    )
+
+
 def _summary(d: np.ndarray) -> tuple[float, float, float]:
     return float(d.mean()), float(np.percentile(d, 95)), float(d.max())
 
@@ -79,8 +96,8 @@ def registration_errors(
             raise ValidationError(f"{name}: expected shape (V, 3), got {value.shape}")
         if not np.isfinite(value).all():
             raise ValidationError(f"{name}: vertices must be finite")
-    forward, _, _ = closest_points_on_mesh(true, np.asarray(true_faces), reg)
-    backward, _, _ = closest_points_on_mesh(reg, np.asarray(faces), true)
+    forward = _distances_to_surface(true, np.asarray(true_faces), reg)
+    backward = _distances_to_surface(reg, np.asarray(faces), true)
     out: dict[str, Any] = {}
     for prefix, d in (("surface_to_true_skin", forward), ("true_skin_to_surface", backward)):
         mean, p95, top = _summary(d)
