@@ -211,7 +211,7 @@ def check_landmarks(landmarks: object, labels: list[str], n_vertices: int) -> di
         )
     known = set(labels)
     out: dict[str, int] = {}
-    for label, vertex in landmarks.items():  # type: ignore[attr-defined]
+    for label, vertex in landmarks.items():
         if str(label) not in known:
             raise ValidationError(f"landmarks: {label!r} is not a marker label")
         if isinstance(vertex, bool) or not isinstance(vertex, (int, np.integer)):
