@@ -126,7 +126,9 @@ def test_a_registered_template_row_measures_distance_to_the_true_skin(folder) ->
     )
     row = next(r for r in result["rows"] if r["case"] == "registered_template")
     assert row["measured"] and row["mean_m"] < 4e-3  # the template started ~10 mm off
-    assert result["registration"]["markers_to_surface_mean_m"] == pytest.approx(0.008, abs=0.0015)
+    # the markers' residual beyond their 8 mm radius
+    assert result["registration"]["markers_to_surface_mean_m"] < 0.0015
+    assert result["registration"]["true_skin_to_surface_mean_m"] < 4e-3
     assert result["targets"]["quadratic_rbf_registered_template_rms_m"]["value"] == row["rms_m"]
 
 

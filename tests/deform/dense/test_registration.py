@@ -46,7 +46,10 @@ def _labels(n: int) -> list[str]:
     return [f"M{i:03d}" for i in range(n)]
 
 
-def test_a_mesh_under_a_global_affine_is_recovered() -> None:
+@pytest.mark.parametrize("nodes", [1500, 60])
+def test_a_mesh_under_a_global_affine_is_recovered(nodes: int) -> None:
+    """Markers on an affinely moved copy: recovered to < 1e-3 of the scale (0.2 m here),
+    with one node per vertex (1500 >= V) and with 60 blended nodes."""
     v, f = _sphere()
     a = np.array([[1.1, 0.1, 0.0], [0.05, 0.9, 0.1], [0.0, -0.1, 1.2]])
     b = np.array([0.3, 1.0, -0.2])
@@ -56,7 +59,9 @@ def test_a_mesh_under_a_global_affine_is_recovered() -> None:
     markers = np.concatenate([moved[lm_vertices], _surface_points(moved, f, 60)])
     labels = _labels(markers.shape[0])
     landmarks = {labels[k]: int(i) for k, i in enumerate(lm_vertices)}
-    reg = register_mesh(v, f, markers, labels, landmarks=landmarks)
+    reg = register_mesh(
+        v, f, markers, labels, landmarks=landmarks, settings=RegistrationSettings(nodes=nodes)
+    )
     assert isinstance(reg, Registration)
     np.testing.assert_allclose(reg.vertices, moved, atol=1e-4)
     np.testing.assert_allclose(
@@ -79,7 +84,8 @@ def test_markers_on_the_surface_leave_it_in_place() -> None:
     reg = register_mesh(v, f, markers, _labels(80), landmarks={})
     np.testing.assert_allclose(reg.vertices, v, atol=1e-6)
     assert reg.marker_distance.max() < 1e-6
-    assert reg.iterations <= 2
+    # one closest-point iteration per stage: nothing moves
+    assert reg.iterations == len(RegistrationSettings().smoothness_schedule)
 
 
 def _flat_patch(n: int = 21, size: float = 0.4) -> tuple[np.ndarray, np.ndarray]:
@@ -146,8 +152,10 @@ def test_marker_radius_puts_the_surface_inside_the_markers() -> None:
     rng = np.random.default_rng(5)
     face = rng.integers(0, f.shape[0], 120)
     bary = rng.dirichlet(np.ones(3), 120)
-    a, b, c = v[f[face, 0]], v[f[face, 1]], v[f[face, 2]]
-    normal = np.cross(b - a, c - a)
+    # as synth places markers: along the interpolated vertex normal (radial on a sphere)
+    normal = np.einsum(
+        "nk,nkx->nx", bary, v[f[face]] / np.linalg.norm(v[f[face]], axis=2)[..., None]
+    )
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     markers = np.einsum("nk,nkx->nx", bary, v[f[face]]) + 0.005 * normal  # 5 mm out
     reg = register_mesh(
@@ -159,7 +167,12 @@ def test_marker_radius_puts_the_surface_inside_the_markers() -> None:
         settings=RegistrationSettings(marker_radius=0.005),
     )
     # the surface stays on the sphere, 5 mm under the markers (it may slide along it)
-    assert np.abs(np.linalg.norm(reg.vertices, axis=1) - 0.2).mean() < 5e-4
+    radial = np.linalg.norm(reg.vertices, axis=1) - 0.2
+    # within 1 mm of the sphere (ignoring the radius would put it 5 mm out): the rest is
+    # the coarse facets' sagitta (1.7 mm) and their normals differing from the
+    # interpolated ones, which a low final stiffness follows
+    assert abs(radial.mean()) < 1e-3
+    assert np.abs(radial).mean() < 1e-3
     assert np.abs(np.nanmean(reg.marker_distance) - 0.005) < 5e-4
 
 
@@ -206,7 +219,8 @@ def test_too_few_seen_markers_is_an_error_even_with_enough_rows() -> None:
 @pytest.mark.parametrize(
     "kwargs",
     [
-        {"smoothness_weight": 0.0},
+        {"smoothness_schedule": (1.0, 0.0)},
+        {"smoothness_schedule": ()},
         {"data_weight": -1.0},
         {"fit_iterations": -1},
         {"marker_radius": np.nan},
@@ -240,6 +254,24 @@ def test_the_inputs_are_not_modified() -> None:
         np.testing.assert_array_equal(a, b)
 
 
+def test_the_node_basis_is_a_partition_of_unity_and_loose_pieces_follow_the_body() -> None:
+    from skincap.deform.dense.registration import _node_basis
+
+    v, f = _sphere()
+    loose_v = v[:3] * 0.1 + [0.0, 0.0, 0.19]  # a small loose triangle inside the sphere
+    v2 = np.concatenate([v, loose_v])
+    f2 = np.concatenate([f, [[v.shape[0], v.shape[0] + 1, v.shape[0] + 2]]])
+    basis = _node_basis(v2, f2, 40)
+    assert basis.shape == (v2.shape[0], 40)
+    np.testing.assert_allclose(np.asarray(basis.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    assert (basis.data >= 0).all()
+    # every node lies on the sphere (the main piece): no column lives on the loose piece
+    # alone (the blend never crosses pieces), and the loose piece uses sphere nodes
+    assert (np.asarray(basis[: v.shape[0]].sum(axis=0)).ravel() > 0).all()
+    # a vertex blends nearby nodes only (a local basis, not a global average)
+    assert np.diff(basis.indptr).max() < 20
+
+
 # --------------------------------------------------------------- on a body mesh
 @pytest.fixture(scope="module")
 def body() -> tuple[np.ndarray, np.ndarray]:
@@ -253,13 +285,51 @@ def body() -> tuple[np.ndarray, np.ndarray]:
 def test_automatic_landmarks_on_the_same_body_land_near_their_markers(body) -> None:
     v, f = body
     # an even spread like a marker layout: farthest-point sampling of surface points
-    from skincap.deform.dense.landmarks import _spread
+    from skincap.deform.dense.landmarks import LIMB_FRACTIONS
+    from skincap.deform.dense.registration import _farthest_point_nodes
 
     dense = _surface_points(v, f, 6000, seed=6)
-    markers = dense[_spread(dense, 300)]
+    markers = dense[_farthest_point_nodes(dense, 300)]
     labels = _labels(300)
     lm = automatic_landmarks(v, f, markers, labels)
-    assert len(lm) == 40
+    assert 0.8 * (1 + 4 * len(LIMB_FRACTIONS)) <= len(lm) <= 1 + 4 * len(LIMB_FRACTIONS)
     index = {s: k for k, s in enumerate(labels)}
     gap = np.array([np.linalg.norm(v[i] - markers[index[s]]) for s, i in lm.items()])
     assert np.median(gap) < 0.05 and np.percentile(gap, 90) < 0.12
+
+
+@pytest.mark.slow
+def test_a_procedural_body_registered_to_another_ones_dense_markers() -> None:
+    """Pipeline against ground truth: a 3000-vertex body onto the markers of a shorter,
+    differently jittered body (dense layout, 1.5 mm markers), compared surface to surface.
+
+    Both stand in the T-pose, so no landmarks are needed (the data term and the falling
+    stiffness do it): measured 3.8 mm true skin -> surface and 4.7 mm surface -> true
+    skin mean, against 17.9 and 19.8 mm before registering.
+    """
+    from skincap.evaluate.registration import registration_errors
+    from skincap.synth.body import procedural_body
+    from skincap.synth.markers import dense_marker_layout, place_markers
+    from skincap.synth.skeleton import synth_skeleton
+
+    template = procedural_body(synth_skeleton(1.75), n_vertices=3000, seed=0)
+    true = procedural_body(synth_skeleton(1.66), n_vertices=6000, seed=3)
+    layout = dense_marker_layout(true, target=350, seed=1)
+    markers, _ = place_markers(layout, true.vertices, true.faces, radius=0.0015)
+    labels = _labels(markers.shape[0])
+    reg = register_mesh(
+        template.vertices,
+        template.faces,
+        markers,
+        labels,
+        landmarks={},
+        settings=RegistrationSettings(marker_radius=0.0015),
+    )
+    residual = np.abs(reg.marker_distance - 0.0015)
+    errors = registration_errors(reg.vertices, template.faces, true.vertices, true.faces, residual)
+    before = registration_errors(template.vertices, template.faces, true.vertices, true.faces)
+    assert errors["markers_to_surface_mean_m"] < 2e-4
+    assert errors["true_skin_to_surface_mean_m"] < 5e-3
+    assert errors["surface_to_true_skin_mean_m"] < 6.5e-3
+    assert errors["true_skin_to_surface_p95_m"] < 0.3 * before["true_skin_to_surface_p95_m"]
+    assert errors["targets"]["markers_to_surface_mean_m"]["met"] is True

@@ -3,25 +3,29 @@
 Park & Hodgins placed 40 landmarks by hand (elbows, knees, ...). Here they are found
 from geometry alone, so any layout works -- skincap's dense and sparse synthetic sets,
 named anatomical markers (CMU, Plug-in Gait) and unnamed ones -- and the template may
-stand in another pose (an A-pose MakeHuman body against T-pose markers):
+stand in another pose (an A-pose MakeHuman body against T-pose markers) and have other
+proportions (longer arms):
 
-1. The five extremities (head top, hands, feet) of the template and of the markers:
-   geodesic farthest-point sampling from the point nearest the centroid, on the mesh
-   edges for the template and on a k-nearest-neighbour graph for the markers; the
-   highest is the head, the two lowest the feet, the others the hands; left is +X
-   (skincap: Y up, the body faces +Z).
-2. Every vertex and every marker gets a pose-invariant signature: its geodesic
-   distances to the five extremities over the body's geodesic height (head to feet),
-   plus its depth (Z about the centre, same scale), which tells front from back.
-3. A spread subset of the markers (farthest-point sampling in space, ``count`` of
-   them, the paper's 40) takes the vertex with the nearest signature.
+1. The five extremities (head top, hands, feet) of the template and of the markers
+   (:func:`body_extremities`), on the mesh edges for the template and on a
+   k-nearest-neighbour graph for the markers.
+2. Along the shortest path from each hand and each foot to the head, the node at each
+   of the same fractions of the path's length (:data:`LIMB_FRACTIONS`: the tip, the
+   wrist or ankle, the elbow or knee, up to the shoulder or hip): a fraction of a limb
+   is the same anatomy on a long and a short body, in a T-pose and an A-pose, and the
+   sides match because the extremities do.
+3. Each such marker takes the template vertex at the same place on the same path.
 
 A marker label that carries a side (``L...``/``R...`` anatomical names) is not used:
 the side comes from the geometry, so unnamed dense markers are treated alike.
 
 Limits: the markers' graph must join the body through the markers (a hand closer to
 a thigh than to its forearm's markers would short-cut the geodesics), and both the
-template and the markers stand upright, facing +Z, arms not above the head.
+template and the markers stand upright, facing +Z, arms not above the head. The
+markers' path zig-zags between markers and the outermost hand or foot marker is not
+the fingertip or toe, so a landmark is centimetres off (the tests bound it): good for
+placing, posing and sizing the template; its final shape is left to the markers'
+closest points (:mod:`skincap.deform.dense.registration` fades the landmarks out).
 """
 
 from __future__ import annotations
@@ -33,10 +37,11 @@ from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
 
-__all__ = ["automatic_landmarks", "body_extremities", "geodesic_signature", "LANDMARK_COUNT"]
+__all__ = ["LIMB_FRACTIONS", "automatic_landmarks", "body_extremities", "limb_path_nodes"]
 
-#: Landmarks chosen by default (Park & Hodgins placed 40 by hand).
-LANDMARK_COUNT = 40
+#: Fractions of each hand-to-head and foot-to-head path that get a landmark: the tip,
+#: the wrist or ankle, the elbow or knee, up to the shoulder or hip.
+LIMB_FRACTIONS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5)
 
 #: Neighbours per marker in the markers' geodesic graph.
 MARKER_NEIGHBOURS = 6
@@ -90,8 +95,16 @@ def _knn_graph(points: np.ndarray, k: int) -> sp.csr_matrix:
     return g
 
 
-def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarray, np.ndarray]:
+def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarray, int]:
     """The head top, left hand, right hand, left foot, right foot of a body.
+
+    Upright and facing +Z is assumed (left = +X), so the sides and the head come from
+    position and only the tips from geodesics: the head is the highest node; each foot
+    is the node of its side geodesically farthest from the head; each hand the node
+    farthest from the head among those of its side reaching out at least half as far
+    as the side's widest node and above the lower third of the body. A short-cut of
+    the graph between the feet (sparse foot markers) or between a hand and a thigh
+    then does not turn a knee or a hip into an extremity.
 
     Parameters
     ----------
@@ -106,58 +119,64 @@ def body_extremities(points: np.ndarray, graph: sp.csr_matrix) -> tuple[np.ndarr
         Node of each extremity, in the order head, left hand, right hand, left foot,
         right foot.
     centre : int
-        Node nearest the centroid (the start of the search).
+        Node nearest the centroid (the origin of the depth coordinate).
     """
     centre = int(np.argmin(np.linalg.norm(points - points.mean(axis=0), axis=1)))
-    nearest = dijkstra(graph, indices=centre)
-    picked: list[int] = []
-    for _ in range(5):
-        far = np.where(np.isfinite(nearest), nearest, -1.0)
-        node = int(np.argmax(far))
-        picked.append(node)
-        nearest = np.minimum(nearest, dijkstra(graph, indices=node))
-    nodes = np.array(picked)
-    y = points[nodes, 1]
-    head = nodes[np.argmax(y)]
-    rest = nodes[nodes != head]
-    feet = rest[np.argsort(points[rest, 1])[:2]]
-    hands = np.setdiff1d(rest, feet)
-    if hands.size != 2 or feet.size != 2:
+    head = int(np.argmax(points[:, 1]))
+    from_head = dijkstra(graph, indices=head)
+    reach = np.where(np.isfinite(from_head), from_head, -1.0)
+    lateral = points[:, 0] - points[centre, 0]  # + left, - right
+    floor, top = float(points[:, 1].min()), float(points[head, 1])
+    above_knees = points[:, 1] > floor + (top - floor) / 3.0
+    picked = [head]
+    for side in (1.0, -1.0):  # the hands: left, right
+        out = side * lateral
+        arm = (out > 0.5 * out.max()) & above_knees
+        if not arm.any():
+            raise ValidationError("landmarks: cannot find the hands of the body")
+        picked.append(int(np.argmax(np.where(arm, reach, -np.inf))))
+    for side in (1.0, -1.0):  # the feet: left, right
+        leg = (side * lateral > 0) & ~above_knees
+        if not leg.any():
+            raise ValidationError("landmarks: cannot find the feet of the body")
+        picked.append(int(np.argmax(np.where(leg, reach, -np.inf))))
+    if len(set(picked)) != 5:
         raise ValidationError("landmarks: cannot find the head, hands and feet of the body")
-    lh, rh = hands[np.argsort(-points[hands, 0])]
-    lf, rf = feet[np.argsort(-points[feet, 0])]
-    return np.array([head, lh, rh, lf, rf], dtype=np.int64), np.int64(centre)
+    return np.array(picked, dtype=np.int64), centre
 
 
-def geodesic_signature(points: np.ndarray, graph: sp.csr_matrix) -> np.ndarray:
-    """(N, 6) pose-invariant coordinates of every node: see the module docstring.
+def limb_path_nodes(
+    points: np.ndarray, graph: sp.csr_matrix, fractions: tuple[float, ...] = LIMB_FRACTIONS
+) -> np.ndarray:
+    """Nodes at fixed fractions of the shortest paths from the hands and feet to the head.
 
-    Columns: geodesic distance to the head, left hand, right hand, left foot, right
-    foot, over the body's geodesic height; then depth (Z about the centre node) on the
-    same scale.
+    Parameters
+    ----------
+    points : (N, 3) float, metres
+        Nodes (mesh vertices or markers), Y up, facing +Z, left = +X.
+    graph : (N, N) sparse
+        Edge lengths between neighbouring nodes (one component).
+    fractions : tuple of P float in [0, 1], default :data:`LIMB_FRACTIONS`
+        Where along each path, from the hand or foot (0) toward the head (1).
+
+    Returns
+    -------
+    (1 + 4 P,) int64
+        The head, then for the left hand, right hand, left foot and right foot in turn
+        the node at each fraction: the node minimising its detour over the shortest
+        path plus its miss of the fraction's distance from the extremity (two distance
+        fields per path, vectorised; no path is walked).
     """
-    nodes, centre = body_extremities(points, graph)
-    d = dijkstra(graph, indices=nodes).T  # (N, 5)
-    height = 0.5 * (d[nodes[3], 0] + d[nodes[4], 0])
-    if not np.isfinite(height) or height <= 0:
-        raise ValidationError("landmarks: the body's head and feet are not connected")
-    depth = (points[:, 2] - points[centre, 2])[:, None]
-    sig = np.concatenate([d, depth], axis=1) / height
-    return np.where(np.isfinite(sig), sig, 1e3)
-
-
-def _spread(points: np.ndarray, count: int) -> np.ndarray:
-    """``count`` indices of ``points`` by farthest-point sampling (deterministic)."""
-    n = points.shape[0]
-    count = min(count, n)
-    first = int(np.argmax(points[:, 1]))
-    chosen = [first]
-    nearest = np.linalg.norm(points - points[first], axis=1)
-    for _ in range(count - 1):
-        k = int(np.argmax(nearest))
-        chosen.append(k)
-        nearest = np.minimum(nearest, np.linalg.norm(points - points[k], axis=1))
-    return np.array(chosen, dtype=np.int64)
+    fr = np.asarray(fractions, dtype=np.float64)
+    nodes, _ = body_extremities(points, graph)
+    d = dijkstra(graph, indices=nodes)  # (5, N) from head, hands, feet
+    picked = [nodes[:1]]
+    for tip in range(1, 5):
+        length = d[0, nodes[tip]]
+        detour = d[0] + d[tip] - length  # (N,) 0 on a shortest path
+        miss = np.abs(d[tip][None, :] - fr[:, None] * length) + detour[None, :]  # (P, N)
+        picked.append(np.argmin(np.where(np.isfinite(miss), miss, np.inf), axis=1))
+    return np.concatenate(picked).astype(np.int64)
 
 
 def automatic_landmarks(
@@ -166,7 +185,7 @@ def automatic_landmarks(
     markers: np.ndarray,
     labels: list[str],
     *,
-    count: int = LANDMARK_COUNT,
+    fractions: tuple[float, ...] = LIMB_FRACTIONS,
 ) -> dict[str, int]:
     """Landmarks found from geometry: marker label -> template vertex.
 
@@ -178,13 +197,14 @@ def automatic_landmarks(
     markers : (M, 3) float, metres
         Reference-pose markers in the same convention; NaN rows are skipped.
     labels : list of M str
-    count : int, default 40
-        How many landmarks (spread over the markers).
+    fractions : tuple of float, default :data:`LIMB_FRACTIONS`
+        Where along each limb's path a landmark goes (:func:`limb_path_nodes`).
 
     Returns
     -------
     dict of str to int
-        ``count`` (or fewer, when fewer markers are seen) landmarks.
+        Up to ``1 + 4 len(fractions)`` landmarks (a marker picked twice, on sparse
+        markers, keeps its first vertex).
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
@@ -201,18 +221,19 @@ def automatic_landmarks(
         raise ValidationError(
             f"markers: need at least 6 seen markers to find landmarks, got {seen.size}"
         )
-    if int(count) < 1:
-        raise ValidationError(f"count: expected >= 1, got {count!r}")
+    fr = tuple(float(a) for a in fractions)
+    if not fr or not all(0.0 <= a <= 1.0 for a in fr):
+        raise ValidationError(f"fractions: expected values in [0, 1], got {fractions!r}")
     # The template: its largest connected piece (eyes, teeth... are separate pieces).
     graph = _mesh_graph(v, f)
     n_comp, comp = connected_components(graph, directed=False)
     body = (
         np.nonzero(comp == np.bincount(comp).argmax())[0] if n_comp > 1 else np.arange(v.shape[0])
     )
-    sub = graph[body][:, body]
-    vertex_sig = geodesic_signature(v[body], sub)
+    vertex_nodes = body[limb_path_nodes(v[body], graph[body][:, body], fr)]
     pts = m[seen]
-    marker_sig = geodesic_signature(pts, _knn_graph(pts, MARKER_NEIGHBOURS))
-    pick = _spread(pts, int(count))
-    _, nearest = cKDTree(vertex_sig).query(marker_sig[pick])
-    return {names[seen[p]]: int(body[j]) for p, j in zip(pick, nearest, strict=True)}
+    marker_nodes = seen[limb_path_nodes(pts, _knn_graph(pts, MARKER_NEIGHBOURS), fr)]
+    out: dict[str, int] = {}
+    for marker, vertex in zip(marker_nodes.tolist(), vertex_nodes.tolist(), strict=True):
+        out.setdefault(names[marker], int(vertex))  # at most 1 + 4 P entries
+    return out

@@ -1,0 +1,53 @@
+"""Surface-to-surface registration errors against an analytic case."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from skincap.errors import ValidationError
+from skincap.evaluate.registration import registration_errors
+
+
+def _grid(n: int = 11, size: float = 0.5, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
+    v = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], axis=1)
+    idx = np.arange(n * n).reshape(n, n)
+    a, b, c, d = (
+        idx[:-1, :-1].ravel(),
+        idx[1:, :-1].ravel(),
+        idx[1:, 1:].ravel(),
+        idx[:-1, 1:].ravel(),
+    )
+    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def test_a_parallel_plane_is_its_offset_away_both_ways() -> None:
+    true_v, true_f = _grid()
+    reg_v, reg_f = _grid(n=7, z=0.004)  # other vertices, 4 mm above
+    out = registration_errors(reg_v, reg_f, true_v, true_f, np.array([0.0005, np.nan, 0.0015]))
+    for key in ("surface_to_true_skin", "true_skin_to_surface"):
+        for stat in ("mean", "p95", "max"):
+            assert out[f"{key}_{stat}_m"] == pytest.approx(0.004, abs=1e-12)
+    assert out["markers_to_surface_mean_m"] == pytest.approx(0.001)
+    assert out["targets"]["surface_to_true_skin_mean_m"]["met"] is False
+    assert out["targets"]["markers_to_surface_mean_m"]["met"] is True
+
+
+def test_a_missing_half_shows_only_from_the_true_side() -> None:
+    true_v, true_f = _grid()
+    half = true_v[:, 0] <= 0.25 + 1e-9
+    keep = half[true_f].all(axis=1)
+    remap = np.cumsum(half) - 1
+    out = registration_errors(true_v[half], remap[true_f[keep]], true_v, true_f)
+    assert out["surface_to_true_skin_max_m"] == pytest.approx(0.0, abs=1e-12)
+    assert out["true_skin_to_surface_max_m"] == pytest.approx(0.25)
+    assert "markers_to_surface_mean_m" not in out
+
+
+def test_nan_vertices_are_refused() -> None:
+    v, f = _grid()
+    bad = v.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ValidationError, match="registered"):
+        registration_errors(bad, f, v, f)
