@@ -45,7 +45,7 @@ def build_motion(
     another rig; a BVH is retargeted onto the body and cut to ``frames``/``seconds``.
     """
     from skincap.deform.skeletal.retarget import retarget
-    from skincap.synth.clips import CLIPS, make_clip
+    from skincap.synth.clips import CLIPS, clip_frame_count, make_clip
     from skincap.synth.skeleton import synth_skeleton
 
     if body.skin is None:
@@ -73,10 +73,9 @@ def build_motion(
 
     source = read_bvh(path, units=units)
     n = source.n_frames
-    if frames is not None:
-        n = min(n, int(frames))
-    elif seconds is not None:
-        n = min(n, max(1, int(round(seconds * source.rate))))
+    if frames is not None or seconds is not None:
+        # the clips' own check: frames a positive integer, seconds positive, not both
+        n = min(n, clip_frame_count(frames, seconds, source.rate))
     if n < source.n_frames:
         source = Motion(
             source.skeleton,
