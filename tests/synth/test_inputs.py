@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from skincap.errors import ValidationError
+from skincap.errors import FormatError, ValidationError
 from skincap.synth.inputs import build_body, build_motion
 
 BVH = Path(__file__).parents[1] / "data" / "cmu_131_01_bvh11.bvh"
@@ -40,3 +40,13 @@ def test_bvh_motion_cut_to_frames_or_seconds(body):
     assert cut.n_frames == 5
     # more than the file holds: the whole file, as before
     assert build_motion(body, str(BVH), units="cmu", frames=10**6).n_frames == full.n_frames
+
+
+def test_bvh_motion_without_frames_is_refused(body, tmp_path):
+    # the header and the first line of MOTION kept, 'Frames: 0' and no rows
+    lines = BVH.read_text().splitlines()
+    at = lines.index("MOTION")
+    empty = tmp_path / "empty_motion.bvh"
+    empty.write_text("\n".join([*lines[: at + 1], "Frames: 0", lines[at + 2]]) + "\n")
+    with pytest.raises(FormatError, match=r"empty_motion\.bvh.*no motion frames"):
+        build_motion(body, str(empty), units="cmu")

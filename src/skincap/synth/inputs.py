@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skincap.errors import ValidationError
+from skincap.errors import FormatError, ValidationError
 from skincap.types import Mesh, Motion
 
 __all__ = ["build_body", "build_motion"]
@@ -72,6 +72,8 @@ def build_motion(
     from skincap.io.bvh import read_bvh
 
     source = read_bvh(path, units=units)
+    if source.n_frames == 0:
+        raise FormatError(path, "no motion frames ('Frames: 0'); a synthetic take needs one")
     n = source.n_frames
     if frames is not None or seconds is not None:
         # the clips' own check: frames a positive integer, seconds positive, not both
