@@ -426,8 +426,7 @@ def _load_file(path: Path, units: str | None) -> list[Layer]:
 
         if is_rope_curve_csv(path):
             return [_read_rope_curve(path)]
-        options = {"units": units} if units else {}
-        obj = io.read(path, **options)
+        obj = io.read(path)  # every CSV says its unit (points CSV: metres); no units=
         if isinstance(obj, PointCloud):
             return [PointLayer(name, obj.rate, path, cloud=obj)]
         return [_marker_layer(name, obj, path)]
