@@ -216,3 +216,27 @@ def test_quaternion_solver_equals_svd_on_a_large_batch() -> None:
     np.testing.assert_allclose(t_q, t_s, atol=1e-9, equal_nan=True)
     with pytest.raises(ValidationError, match="method"):
         fit_rigid(src, dst, method="eig")
+
+
+@pytest.mark.parametrize(
+    ("weights", "mask"),
+    [
+        (np.ones((3, 5)), None),  # 3 weight rows against 4 frames of points
+        (None, np.ones((2, 5), dtype=bool)),
+        (np.ones((4, 5)), np.ones((3, 5), dtype=bool)),
+    ],
+)
+def test_weights_or_mask_that_do_not_broadcast_are_a_validation_error(weights, mask):
+    src = np.random.default_rng(0).normal(size=(4, 5, 3))
+    with pytest.raises(ValidationError, match=r"weights/mask leading axes do not broadcast"):
+        fit_rigid(src, src, weights=weights, mask=mask)
+
+
+def test_weights_with_leading_axes_broadcast_against_the_points():
+    rng = np.random.default_rng(1)
+    src = rng.normal(size=(5, 3))
+    rot = Rotation.random(4, random_state=2).as_matrix()  # (4, 3, 3)
+    dst = np.einsum("fij,kj->fki", rot, src)  # (4, 5, 3)
+    r, t = fit_rigid(src, dst, weights=np.ones((4, 5)))
+    np.testing.assert_allclose(r, rot, atol=1e-9)
+    np.testing.assert_allclose(t, 0.0, atol=1e-9)

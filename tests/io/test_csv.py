@@ -298,6 +298,8 @@ def test_points_rate_inferred(tmp_path):
         ("1,0.1,1,2,3\n0,0,1,2,3\n", 3, "non-decreasing"),
         ("0,0,1,2,3\n1.5,0.1,1,2,3\n", 3, "integers"),
         ("0,0,1,2,3\n1,0.1,1,2,nan\n", 3, "non-finite"),
+        ("0,0,1,2,3\n99999999999,0.01,1,2,3\n", 3, "at most 10000000 frames"),
+        ("0,0,1,2,3\n1e300,0.01,1,2,3\n", 3, "at most 10000000 frames"),
     ],
 )
 def test_points_bad_rows(tmp_path, body, line, match):
@@ -306,6 +308,16 @@ def test_points_bad_rows(tmp_path, body, line, match):
     with pytest.raises(FormatError, match=match) as e:
         read_points_csv(f)
     assert e.value.line == line and "pts.csv" in str(e.value)
+
+
+def test_points_declared_frame_count_is_bounded(tmp_path):
+    # '# frames=' past the bound would size the offsets (T + 1,) from the header alone
+    f = tmp_path / "pts.csv"
+    f.write_text("# rate=100\n# frames=99999999999\nframe,time,x,y,z\n0,0,1,2,3\n")
+    with pytest.raises(FormatError, match=r"pts\.csv.*frames=99999999999.*at most 10000000"):
+        read_points_csv(f)
+    f.write_text("# rate=100\n# frames=10000000\nframe,time,x,y,z\n0,0,1,2,3\n")
+    assert read_points_csv(f).n_frames == 10_000_000
 
 
 # --------------------------------------------------------------------------- sniff

@@ -97,6 +97,31 @@ def test_errors_name_the_file(tmp_path):
         load_scene([lonely])
 
 
+def test_frameless_takes_are_refused_naming_the_file(tmp_path):
+    lines = (DATA / "cmu_131_01_bvh11.bvh").read_text().splitlines()
+    at = lines.index("MOTION")
+    bvh = tmp_path / "still.bvh"
+    bvh.write_text("\n".join([*lines[: at + 1], "Frames: 0", lines[at + 2]]) + "\n")
+    points = tmp_path / "none.csv"
+    points.write_text("# rate=100\n# frames=0\nframe,time,x,y,z\n")
+    for path, units in ((bvh, "cmu"), (points, None)):
+        with pytest.raises(FormatError, match=rf"{path.name}: has no frames to show"):
+            load_scene([path], units=units)
+    # next to a take with frames, too: the empty one is named
+    with pytest.raises(FormatError, match=r"still\.bvh: has no frames to show"):
+        load_scene([DATA / "cmu_85_02.c3d", bvh], units="cmu")
+
+
+def test_units_for_files_that_do_not_say_leave_csv_files_alone(tmp_path):
+    # every CSV says its unit; --units (for BVH, OBJ) used to reach the CSV readers
+    points = tmp_path / "p.csv"
+    points.write_text("frame,time,x,y,z\n0,0,1,2,3\n1,0.01,1,2,4\n")
+    vicon = DATA / "pyomeca_vicon_nexus_trajectories.csv"
+    scene = load_scene([points, vicon], units="cm")
+    np.testing.assert_array_equal(scene.layers[0].points_at(1), [[1.0, 2.0, 4.0]])
+    assert scene.layers[1].n_frames == load_scene([vicon]).layers[0].n_frames
+
+
 def test_overlay_names_stay_unique_and_invented_flags_survive():
     markers = read_c3d(DATA / "kt_optitrack_walking.c3d")
     motion = read_bvh(DATA / "cmu_131_01_bvh11.bvh", units="cmu")

@@ -150,30 +150,34 @@ def _valid_weighted_points(
         error=f"src {s.shape} and dst {d.shape} leading axes do not broadcast",
     )
     k = s.shape[-2]
-    valid = np.isfinite(s).all(axis=-1) & np.isfinite(d).all(axis=-1)
-    valid = np.broadcast_to(valid, (*lead, k))
-    if weights is None:
-        w = np.ones((*lead, k))
-    else:
-        w = np.asarray(weights, dtype=np.float64)
-        if w.shape[-1:] != (k,):
-            raise ValidationError(f"weights must have shape (..., {k}); got {w.shape}")
-        if np.any(w < 0):
-            raise ValidationError("weights must be non-negative")
-        valid = valid & np.isfinite(w) & (w > 0)
-    if mask is not None:
-        m = np.asarray(mask)
+    w = None if weights is None else np.asarray(weights, dtype=np.float64)
+    if w is not None and w.shape[-1:] != (k,):
+        raise ValidationError(f"weights must have shape (..., {k}); got {w.shape}")
+    m = None if mask is None else np.asarray(mask)
+    if m is not None:
         if m.dtype != bool:
             raise ValidationError(f"mask must be boolean; got dtype {m.dtype}")
         if m.shape[-1:] != (k,):
             raise ValidationError(f"mask must have shape (..., {k}); got {m.shape}")
-        valid = valid & m
+    # before any combination, so a mismatch is this message rather than numpy's
     lead = broadcast_leading(
         lead,
-        valid.shape[:-1],
-        w.shape[:-1],
-        error="weights/mask leading axes do not broadcast with the points",
+        *(a.shape[:-1] for a in (w, m) if a is not None),
+        error=(
+            f"weights/mask leading axes do not broadcast with the points': weights "
+            f"{None if w is None else w.shape}, mask {None if m is None else m.shape}, "
+            f"points {lead + (k, 3)}"
+        ),
     )
+    valid = np.isfinite(s).all(axis=-1) & np.isfinite(d).all(axis=-1)
+    if w is None:
+        w = np.ones((*lead, k))
+    else:
+        if np.any(w < 0):
+            raise ValidationError("weights must be non-negative")
+        valid = valid & np.isfinite(w) & (w > 0)
+    if m is not None:
+        valid = valid & m
     valid = np.broadcast_to(valid, (*lead, k))
     return valid, w, lead
 

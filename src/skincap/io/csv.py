@@ -472,6 +472,7 @@ def _motive_data_rows(
 
 
 # -------------------------------------------------------------------- point clouds
+MAX_POINT_FRAMES = 10_000_000  # ~28 h at 100 Hz; offsets (T + 1,) int64 = 80 MB
 _POINTS_HEADERS = (["frame", "time", "x", "y", "z"], ["frame", "time", "x", "y", "z", "id"])
 
 
@@ -504,7 +505,8 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
     ------
     FormatError
         Unknown header, ragged rows, non-numeric or non-finite fields, decreasing or
-        negative frames, times that disagree with the rate (with the line number).
+        negative frames, times that disagree with the rate (with the line number);
+        more than ``max(MAX_POINT_FRAMES, M)`` frames (a frame number or ``# frames=``).
     """
     p = check_readable(path)
     lines = read_text_lines(p)
@@ -595,6 +597,15 @@ def _point_frames(p: Path, frames_f: np.ndarray, numbers: list[int]) -> np.ndarr
                 f"frame {frames_f[r]!r}: frames must be integers >= 0, non-decreasing",
                 line=numbers[r],
             )
+        too_far = frames_f >= _point_frame_limit(frames_f.size)
+        if too_far.any():
+            r = int(np.argmax(too_far))
+            raise FormatError(
+                p,
+                f"frame {frames_f[r]:.12g}: at most {_point_frame_limit(frames_f.size)} frames "
+                f"are read from {frames_f.size} points",
+                line=numbers[r],
+            )
     return frames_f.astype(np.int64)
 
 
@@ -617,7 +628,19 @@ def _points_frame_count(
                 line=numbers[-1],
             )
         n_frames = declared
+    limit = _point_frame_limit(frames.size)
+    if n_frames > limit:
+        raise FormatError(
+            p, f"'# frames={n_frames}' for {frames.size} points; at most {limit} are read", line=1
+        )
     return n_frames
+
+
+def _point_frame_limit(n_points: int) -> int:
+    """The most frames a file of ``n_points`` rows may claim: empty frames cost no bytes
+    in the file but 8 in the offsets, so a far-off frame number or a ``# frames=``
+    header must not make the reader allocate without bound."""
+    return max(MAX_POINT_FRAMES, n_points)
 
 
 def _points_rate(

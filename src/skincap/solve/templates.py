@@ -300,12 +300,20 @@ def load_template(template: str | os.PathLike[str]) -> Template:
             raise ValidationError(
                 f"template: {key!r} is neither a file nor one of {', '.join(BUILTIN_TEMPLATES)} or auto"
             )
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise FormatError(
+                path, f"not UTF-8 text (byte {exc.start})", offset=exc.start
+            ) from None
         source = key
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise FormatError(source, f"not JSON: {exc.msg}", line=exc.lineno) from None
+    except RecursionError:
+        raise FormatError(source, "not JSON: nested too deeply") from None
     return _parse(data, source)
 
 

@@ -86,6 +86,7 @@ __all__ = [
     "DEFAULT_SECONDS",
     "HOLD_SECONDS",
     "BLEND_SECONDS",
+    "clip_frame_count",
     "make_clip",
 ]
 
@@ -488,7 +489,10 @@ _CLIP_FUNCS: dict[str, Callable[[ClipPose, np.ndarray, np.ndarray, np.random.Gen
 
 
 # ------------------------------------------------------------------ public
-def _n_frames(frames: Any, seconds: Any, rate: float) -> int:
+def clip_frame_count(frames: Any, seconds: Any, rate: float) -> int:
+    """Frames of a clip from ``frames`` (a positive integer) or ``seconds`` (positive,
+    finite) at ``rate`` Hz; neither: :data:`DEFAULT_SECONDS`. ValidationError for both,
+    or for a bad value."""
     if frames is not None and seconds is not None:
         raise ValidationError("frames and seconds: give one or neither, not both")
     if frames is not None:
@@ -566,7 +570,7 @@ def make_clip(
     )
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValidationError(f"seed: expected a non-negative integer, got {seed!r}")
-    n = _n_frames(frames, seconds, r)
+    n = clip_frame_count(frames, seconds, r)
     t = np.arange(n) / r  # (T,) seconds
     env = quintic((t - HOLD_SECONDS) / BLEND_SECONDS)  # (T,) 0 during the hold
     pose = ClipPose(skeleton, n)

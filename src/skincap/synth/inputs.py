@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skincap.errors import ValidationError
+from skincap.errors import FormatError, ValidationError
 from skincap.types import Mesh, Motion
 
 __all__ = ["build_body", "build_motion"]
@@ -45,7 +45,7 @@ def build_motion(
     another rig; a BVH is retargeted onto the body and cut to ``frames``/``seconds``.
     """
     from skincap.deform.skeletal.retarget import retarget
-    from skincap.synth.clips import CLIPS, make_clip
+    from skincap.synth.clips import CLIPS, clip_frame_count, make_clip
     from skincap.synth.skeleton import synth_skeleton
 
     if body.skin is None:
@@ -72,11 +72,12 @@ def build_motion(
     from skincap.io.bvh import read_bvh
 
     source = read_bvh(path, units=units)
+    if source.n_frames == 0:
+        raise FormatError(path, "no motion frames ('Frames: 0'); a synthetic take needs one")
     n = source.n_frames
-    if frames is not None:
-        n = min(n, int(frames))
-    elif seconds is not None:
-        n = min(n, max(1, int(round(seconds * source.rate))))
+    if frames is not None or seconds is not None:
+        # the clips' own check: frames a positive integer, seconds positive, not both
+        n = min(n, clip_frame_count(frames, seconds, source.rate))
     if n < source.n_frames:
         source = Motion(
             source.skeleton,

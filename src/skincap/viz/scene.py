@@ -308,8 +308,8 @@ def load_scene(
     Raises
     ------
     FormatError
-        A path that does not exist, a file skincap cannot read, or a folder with
-        nothing to show.
+        A path that does not exist, a file skincap cannot read or with no frames,
+        or a folder with nothing to show.
     """
     if not paths:
         raise ValidationError("load_scene: no paths given")
@@ -366,6 +366,9 @@ def load_scene(
         layers.append(_load_pc2(cache, obj, float(pc2_rate), units))
     if not layers:
         raise FormatError(Path(paths[0]), "nothing in it that skincap can show")
+    for lay in layers:  # a frame-less take (Frames: 0, an empty cache) has no pose to draw
+        if lay.n_frames == 0:
+            raise FormatError(lay.source or Path(paths[0]), "has no frames to show")
     _make_names_unique(layers)
     return Scene(layers)
 
@@ -423,8 +426,7 @@ def _load_file(path: Path, units: str | None) -> list[Layer]:
 
         if is_rope_curve_csv(path):
             return [_read_rope_curve(path)]
-        options = {"units": units} if units else {}
-        obj = io.read(path, **options)
+        obj = io.read(path)  # every CSV says its unit (points CSV: metres); no units=
         if isinstance(obj, PointCloud):
             return [PointLayer(name, obj.rate, path, cloud=obj)]
         return [_marker_layer(name, obj, path)]

@@ -124,6 +124,8 @@ def skin_file(
         _check_skin_request(output, method=method, weights=weights, force=force)
         mesh = io.read_mesh(mesh_path, units=mesh_units)
         motion = read_bvh(motion_path, units=units)
+        if motion.n_frames == 0:  # every output is an animation; none of them can be empty
+            raise FormatError(motion_path, "no motion frames ('Frames: 0'); nothing to skin")
         if not output.suffix:  # before binding, which can take minutes for a bare mesh
             _check_obj_sequence(mesh, motion.n_frames, output, notify)
         setup = prepare_skinning(

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from skincap._arrays import Progress
-from skincap.errors import FormatError, ValidationError
+from skincap.errors import FormatError, ValidationError, naming_file
 from skincap.io import read, write
 from skincap.io._common import atomic_output
 from skincap.types import MarkerSet
@@ -335,7 +335,8 @@ def evaluate_solve(
     for path in real:
         if progress is not None:
             progress(0.85, f"solving {Path(path).name}")
-        reals[Path(path).name] = evaluate_real(read_labelled_markers(path), real_template)
+        with naming_file(path):  # "the take has 1 frames" says which --real take
+            reals[Path(path).name] = evaluate_real(read_labelled_markers(path), real_template)
     if synthetic is None and not reals:
         raise ValidationError("give a synth folder, --synth MOTION or --real FILE (at least one)")
     result: dict[str, Any] = {
