@@ -23,7 +23,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skincap.tracking._numba_search import JIT, keep_nearest
+from skincap.tracking._numba_search import JIT
 
 __all__ = ["build_grid", "fill_grid", "grid_cells", "grid_nearest", "grid_rows"]
 
@@ -52,17 +52,19 @@ def fill_grid(xyz, a, b, width, starts, order):  # pragma: no cover - runs compi
     best_cells = np.int64(1)  # not a literal: _cell compiles once
     best_inv = 0.0
     best_lo = 0.0
+    lows = np.full(3, _INF)
+    highs = np.full(3, -_INF)
+    for i in range(a, b):
+        for ax in range(3):
+            x = xyz[i, ax]
+            if x < lows[ax]:
+                lows[ax] = x
+            if x > highs[ax]:
+                highs[ax] = x
     counts = starts  # scratch while the axis is chosen: one count per cell
     for ax in range(3):
-        lo = _INF
-        hi = -_INF
-        for i in range(a, b):
-            x = xyz[i, ax]
-            if x < lo:
-                lo = x
-            if x > hi:
-                hi = x
-        n_cells, inv = _cell_count(lo, hi, width, n)
+        lo = lows[ax]
+        n_cells, inv = _cell_count(lo, highs[ax], width, n)
         counts[:n_cells] = 0
         for i in range(a, b):
             counts[_cell(xyz[i, ax], lo, inv, n_cells)] += 1
@@ -130,7 +132,8 @@ def grid_cells(grid, x, bound):  # pragma: no cover - runs compiled
 def grid_nearest(points, grid, b, q, kk, bound, d_out, i_out):  # pragma: no cover
     """The kk nearest of the grid's points (rows of ``points`` below ``b``) to q (3,)
     strictly within ``bound`` metres, ascending by (distance, index); inf and index
-    ``b`` (cKDTree's "missing") beyond. The same answer as a scan of every point."""
+    ``b`` (cKDTree's "missing") beyond. The same answer as a scan of every point (the
+    numba twin of a :class:`scipy.spatial.cKDTree` query)."""
     order = grid[4]
     bound2 = bound * bound
     for c in range(kk):
@@ -139,7 +142,28 @@ def grid_nearest(points, grid, b, q, kk, bound, d_out, i_out):  # pragma: no cov
     n_found = 0
     k0, k1 = grid_rows(grid, q[grid[0]], bound)
     for k in range(k0, k1):
-        n_found = keep_nearest(points, order[k], q, bound, bound2, kk, n_found, d_out, i_out)
+        p = order[k]
+        dx = q[0] - points[p, 0]
+        dy = q[1] - points[p, 1]
+        dz = q[2] - points[p, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 > bound2 * (1.0 + 1e-9):
+            continue
+        d = np.sqrt(d2)
+        if not d < bound:
+            continue
+        if n_found == kk and (d > d_out[kk - 1] or (d == d_out[kk - 1] and p > i_out[kk - 1])):
+            continue
+        # insertion into the kk kept so far, ascending by (distance, index)
+        pos = n_found if n_found < kk else kk - 1
+        while pos > 0 and (d_out[pos - 1] > d or (d_out[pos - 1] == d and i_out[pos - 1] > p)):
+            d_out[pos] = d_out[pos - 1]
+            i_out[pos] = i_out[pos - 1]
+            pos -= 1
+        d_out[pos] = d
+        i_out[pos] = p
+        if n_found < kk:
+            n_found += 1
 
 
 @numba.njit(**JIT)

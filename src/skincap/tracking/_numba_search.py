@@ -1,10 +1,7 @@
-"""Brute-force nearest points and the one-to-one assignment, compiled (numba).
+"""The one-to-one assignment and small helpers of the compiled tracker (numba).
 
-The numba twins of :class:`scipy.spatial.cKDTree` queries (a frame holds a few
-hundred points: a brute-force k-nearest search is faster than a tree; the matching
-passes, which ask many at once, bucket the frame first with
-:mod:`skincap.tracking._numba_grid`) and of
-:func:`skincap.tracking.init.gated_assignment`, whose conflicts are resolved by the
+The numba twin of :func:`skincap.tracking.init.gated_assignment` (the nearest-point
+queries are in :mod:`skincap.tracking._numba_grid`), whose conflicts are resolved by the
 same shortest-augmenting-path assignment as :func:`scipy.optimize.linear_sum_assignment`
 (Crouse 2016, ported with its tie-breaking), so both backends take the same points.
 """
@@ -14,59 +11,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = [
-    "JIT",
-    "gated_assignment",
-    "is_taken",
-    "keep_nearest",
-    "linear_sum_assignment",
-    "norm3",
-    "query_nearest",
-]
+__all__ = ["JIT", "gated_assignment", "is_taken", "linear_sum_assignment", "norm3"]
 
 _INF = np.inf
 
 #: Options of every compiled function of the tracker (cached on disk).
 JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
-
-
-@numba.njit(**JIT)
-def query_nearest(points, a, b, q, kk, bound, d_out, i_out):  # pragma: no cover - runs compiled
-    """kk nearest of points[a:b] to q strictly within ``bound``, ascending; inf beyond."""
-    bound2 = bound * bound
-    for c in range(kk):
-        d_out[c] = _INF
-        i_out[c] = b  # cKDTree's "missing" index (n), made global below
-    n_found = 0
-    for p in range(a, b):
-        n_found = keep_nearest(points, p, q, bound, bound2, kk, n_found, d_out, i_out)
-
-
-@numba.njit(**JIT)
-def keep_nearest(points, p, q, bound, bound2, kk, n_found, d_out, i_out):  # pragma: no cover
-    """Insert point ``p`` into the kk nearest found so far (``n_found`` of them in
-    ``d_out``/``i_out``, ascending by (distance, index)) when it lies strictly within
-    ``bound`` (``bound2`` its square) of q (3,); returns the new count. Shared by the
-    scan above and the bucketed search (:func:`~skincap.tracking._numba_grid.grid_nearest`)."""
-    dx = q[0] - points[p, 0]
-    dy = q[1] - points[p, 1]
-    dz = q[2] - points[p, 2]
-    d2 = dx * dx + dy * dy + dz * dz
-    if d2 > bound2 * (1.0 + 1e-9):
-        return n_found
-    d = np.sqrt(d2)
-    if not d < bound:
-        return n_found
-    if n_found == kk and (d > d_out[kk - 1] or (d == d_out[kk - 1] and p > i_out[kk - 1])):
-        return n_found
-    pos = n_found if n_found < kk else kk - 1
-    while pos > 0 and (d_out[pos - 1] > d or (d_out[pos - 1] == d and i_out[pos - 1] > p)):
-        d_out[pos] = d_out[pos - 1]
-        i_out[pos] = i_out[pos - 1]
-        pos -= 1
-    d_out[pos] = d
-    i_out[pos] = p
-    return n_found + 1 if n_found < kk else n_found
 
 
 @numba.njit(**JIT)

@@ -6,21 +6,25 @@ step does and why): the same ``(state, t, …, p)`` arguments, a
 :class:`~skincap.tracking.state.TrackState` changed in place and the run's
 :class:`~skincap.tracking.state.StepParams`. Loops replace the vectorised
 expressions, the KD-tree queries become a k-nearest search over the frame's few
-hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: a
-frame is bucketed once per matching pass, and only the cells within the gate are
-scanned; the body-point chains and the "follows something slower" refusal search
-the same way), and the leave-one-out curve is evaluated directly. It takes the same points and invents the
-same markers; invented positions agree to rounding (the order of a few additions
-differs).
+hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: each
+frame is bucketed once, into buffers the state keeps (:func:`frame_grid`), and every
+search of that frame and of the next scans only the cells within its gate: the
+matching passes, the body-point chains and the "follows something slower" refusal),
+and the leave-one-out curve is evaluated directly. It takes the same points and
+invents the same markers; invented positions agree to rounding (the order of a few
+additions differs).
 
 Importing this module imports numba; :func:`track_frames` compiles on its first call
-(two to three minutes of one core, 44 functions compiled once each; cached on disk,
-loaded in about a second afterwards).
-``track_rope(backend="auto")`` never waits for it: it runs the NumPy steps while
-:func:`skincap.tracking.tracker.warm_up_kernel` compiles these in a background
-process (:mod:`skincap.backends`). The refusals and the re-acquisition are compiled in
-:mod:`skincap.tracking._refusals_numba` and :mod:`skincap.tracking._reacquire_numba`
-and re-exported here.
+(one to two minutes of one core; cached on disk, loaded in about a second afterwards).
+The steps that run once a frame and only orchestrate others (:func:`track_frame`,
+:func:`match_measured`, :func:`match_missing`) are inlined into their caller
+(``inline="always"``): numba links every callee's code into each compiled function,
+so each separately compiled layer of the call tree compiled the whole tracker again
+(a quarter of the compile time). ``track_rope(backend="auto")`` never waits for it:
+it runs the NumPy steps while :func:`skincap.tracking.tracker.warm_up_kernel`
+compiles these in a background process (:mod:`skincap.backends`). The refusals and
+the re-acquisition are compiled in :mod:`skincap.tracking._refusals_numba` and
+:mod:`skincap.tracking._reacquire_numba` and re-exported here.
 """
 
 from __future__ import annotations
@@ -500,7 +504,7 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
 
 
 # ------------------------------------------------------------------ a frame
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured`."""
     steady = _steady(state)
@@ -531,7 +535,7 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
                 tried[j] = pred[j]
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
     found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, _WIDE, p)
@@ -547,7 +551,7 @@ def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     return found_more
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def track_frame(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.track_frame`."""
     has_points = state.offsets[t + 1] > state.offsets[t]
