@@ -8,7 +8,20 @@ import pytest
 pytest.importorskip("numba")
 
 from skincap.tracking._numba_grid import build_grid, grid_cells, grid_nearest  # noqa: E402
-from skincap.tracking._numba_search import query_nearest  # noqa: E402
+
+
+def _scan(
+    points: np.ndarray, a: int, b: int, q: np.ndarray, kk: int, bound: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """The kk nearest of points[a:b] to q strictly within ``bound``, by every distance:
+    ascending by (distance, index), inf and index b beyond (as cKDTree)."""
+    dx, dy, dz = q[0] - points[a:b, 0], q[1] - points[a:b, 1], q[2] - points[a:b, 2]
+    d = np.sqrt(dx * dx + dy * dy + dz * dz)
+    rows = np.flatnonzero(d < bound)
+    rows = rows[np.lexsort((rows, d[rows]))][:kk]
+    d_out, i_out = np.full(kk, np.inf), np.full(kk, b, np.int64)
+    d_out[: rows.size], i_out[: rows.size] = d[rows], rows + a
+    return d_out, i_out
 
 
 def _frames(rng: np.random.Generator) -> list[np.ndarray]:
@@ -39,9 +52,8 @@ def test_grid_nearest_equals_a_scan_of_every_point(bound: float) -> None:
         queries = np.concatenate([queries, [[np.nan, 0.0, 0.0], [0.0, 1e9, 0.0]]])
         kk = min(4, b - a)
         for q in np.ascontiguousarray(queries):
-            d_scan, i_scan = np.empty(kk), np.empty(kk, np.int64)
+            d_scan, i_scan = _scan(points, a, b, q, kk, bound)
             d_grid, i_grid = np.empty(kk), np.empty(kk, np.int64)
-            query_nearest(points, a, b, q, kk, bound, d_scan, i_scan)
             grid_nearest(points, grid, b, q, kk, bound, d_grid, i_grid)
             np.testing.assert_array_equal(d_grid, d_scan)
             np.testing.assert_array_equal(i_grid, i_scan)
@@ -70,16 +82,22 @@ def test_the_axis_is_the_one_that_spreads_the_points_most_evenly() -> None:
     assert build_grid(points, 0, 300, 0.02)[0] == 2
 
 
-def test_the_whole_frame_as_one_cell_scans_every_point() -> None:
-    from skincap.tracking._numba_grid import whole_frame
+def test_each_frame_is_bucketed_once_into_the_state_as_build_grid_buckets_it() -> None:
+    from skincap.synth.scenes import jump_rope_scene
+    from skincap.tracking._steps_numba import frame_grid
+    from skincap.tracking.init import init_rope
+    from skincap.tracking.settings import TrackSettings
+    from skincap.tracking.state import start_tracking
 
-    rng = np.random.default_rng(6)
-    points = np.ascontiguousarray(rng.uniform(-1.0, 1.0, (120, 3)))
-    grid = whole_frame(10, 110)
-    for q in np.ascontiguousarray(rng.uniform(-1.0, 1.0, (20, 3))):
-        d_scan, i_scan = np.empty(3), np.empty(3, np.int64)
-        d_grid, i_grid = np.empty(3), np.empty(3, np.int64)
-        query_nearest(points, 10, 110, q, 3, 0.4, d_scan, i_scan)
-        grid_nearest(points, grid, 110, q, 3, 0.4, d_grid, i_grid)
-        np.testing.assert_array_equal(d_grid, d_scan)
-        np.testing.assert_array_equal(i_grid, i_scan)
+    cloud, _, first = jump_rope_scene(frames=40, points_per_frame=60, rope_markers=6, seed=2)
+    state, params = start_tracking(cloud, init_rope(cloud, markers=first), TrackSettings())
+    assert (state.grid_info[:, 0] < 0).all()  # nothing bucketed before a frame is searched
+    for t in (0, 17, 39):
+        a, b = cloud.offsets[t], cloud.offsets[t + 1]
+        want = build_grid(state.points, a, b, params.gamma)
+        for _ in range(2):  # built on the first call, read back on the second
+            got = frame_grid(state, t, params)
+            assert got[:3] == want[:3]
+            np.testing.assert_array_equal(got[3], want[3])
+            np.testing.assert_array_equal(got[4], want[4])
+    assert (state.grid_info[:, 0] >= 0).sum() == 3

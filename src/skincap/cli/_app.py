@@ -277,6 +277,10 @@ def install_termination_handlers() -> None:
 
 def main() -> None:
     """Console-script entry point."""
+    # numba's parallel kernels pick TBB first when a system libtbb is installed (Blender's
+    # packages bring one), and TBB's shutdown has spun for minutes at exit on a loaded
+    # machine: OpenMP, then numba's own workqueue, first (read when numba loads, later)
+    os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "omp workqueue tbb")
     install_termination_handlers()
     try:
         app()

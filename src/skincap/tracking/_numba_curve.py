@@ -55,15 +55,23 @@ def interp_along(known, values, s):  # pragma: no cover - runs compiled
         hb, ha = before[j] >= 0, after[j] < m
         if not (hb or ha):
             continue
-        b = min(max(before[j], 0), m - 1)
-        a = min(max(after[j], 0), m - 1)
         if hb and ha:
-            w = (s[j] - s[b]) / (s[a] - s[b])
+            w = (s[j] - s[before[j]]) / (s[after[j]] - s[before[j]])
         else:
             w = 0.0 if hb else 1.0
-        for c in range(3):
-            out[j, c] = (1.0 - w) * values[b, c] + w * values[a, c]
+        _blend_sides(values, before, after, j, 1.0 - w, w, out)
     return out
+
+
+@numba.njit(**JIT)
+def _blend_sides(values, before, after, j, w_before, w_after, out):  # pragma: no cover
+    """``out[j] = w_before values[before[j]] + w_after values[after[j]]`` (M, 3), a
+    missing side's index clipped into the rope (the caller weights it 0)."""
+    m = values.shape[0]
+    b = min(max(before[j], 0), m - 1)
+    a = min(max(after[j], 0), m - 1)
+    for c in range(3):
+        out[j, c] = w_before * values[b, c] + w_after * values[a, c]
 
 
 @numba.njit(**JIT)
@@ -170,10 +178,7 @@ def neighbour_velocity(known, velocity, fallback):  # pragma: no cover - runs co
             beta = n_a / (n_a + n_b)
         else:
             beta = 1.0 if hb else 0.0
-        vb = velocity[min(max(before[j], 0), m - 1)]
-        va = velocity[min(max(after[j], 0), m - 1)]
-        for c in range(3):
-            out[j, c] = beta * vb[c] + (1.0 - beta) * va[c]
+        _blend_sides(velocity, before, after, j, beta, 1.0 - beta, out)
     return out
 
 

@@ -3,13 +3,15 @@
 A frame holds a few hundred points and a step asks, for each of a few dozen rope
 markers, which points lie within a gate of a few centimetres. Scanning every point
 for every question was a third of the compiled tracker's time (``skincap bench
-track``); bucketing the frame once per step into cells one gate wide along the axis
-that spreads it most evenly (fewest pairs of points sharing a cell), then scanning
-only the cells a gate reaches, asks the same question of ~5 % of the points.
+track``); bucketing the frame into cells one gate wide along the axis that spreads
+it most evenly (fewest pairs of points sharing a cell), then scanning only the cells
+a gate reaches, asks the same question of ~5 % of the points. The tracker buckets
+each frame once (:func:`fill_grid` into buffers its state keeps) and every step of
+that frame and of the next searches the same grid.
 
 A grid is the tuple ``(axis, lo, inv_width, starts, order)``: ``axis`` (0, 1, 2),
 ``lo`` the smallest coordinate along it (metres), ``inv_width`` one over the cell
-width (1/metres), ``starts`` (C + 1,) int64 where cell c's rows are
+width (1/metres; 0 for a single cell of infinite width), ``starts`` (C + 1,) int64 where cell c's rows are
 ``order[starts[c]:starts[c + 1]]``, and ``order`` (n,) int64 the rows of the
 bucketed array (global row numbers ``a … b - 1``), cell by cell, ascending within a
 cell. Every search here finds exactly what a scan of all the rows finds: the grid
@@ -23,7 +25,7 @@ import numpy as np
 
 from skincap.tracking._numba_search import JIT
 
-__all__ = ["build_grid", "grid_cells", "grid_nearest", "whole_frame"]
+__all__ = ["build_grid", "fill_grid", "grid_cells", "grid_nearest", "grid_rows"]
 
 _INF = np.inf
 
@@ -32,7 +34,24 @@ _INF = np.inf
 def build_grid(xyz, a, b, width):  # pragma: no cover - runs compiled
     """The grid of rows ``a … b - 1`` of ``xyz`` (P, 3) float64, cells ``width`` metres
     (wider where that would make more cells than rows). See the module docstring."""
+    starts = np.empty(b - a + 2, np.int64)
+    order = np.empty(b - a, np.int64)
+    axis, lo, inv, n_cells = fill_grid(xyz, a, b, width, starts, order)
+    return axis, lo, inv, starts[: n_cells + 1], order
+
+
+@numba.njit(**JIT)
+def fill_grid(xyz, a, b, width, starts, order):  # pragma: no cover - runs compiled
+    """Bucket rows ``a … b - 1`` of ``xyz`` into ``starts`` (at least b - a + 2 slots)
+    and ``order`` (b - a,) as :func:`build_grid` does, without allocating them;
+    returns ``(axis, lo, inv_width, cells)``: the grid is ``(axis, lo, inv_width,
+    starts[:cells + 1], order)``."""
     n = b - a
+    best_axis = 0
+    best_pairs = -1
+    best_cells = np.int64(1)  # not a literal: _cell compiles once
+    best_inv = 0.0
+    best_lo = 0.0
     lows = np.full(3, _INF)
     highs = np.full(3, -_INF)
     for i in range(a, b):
@@ -42,42 +61,32 @@ def build_grid(xyz, a, b, width):  # pragma: no cover - runs compiled
                 lows[ax] = x
             if x > highs[ax]:
                 highs[ax] = x
-    best_axis = 0
-    best_pairs = -1
-    best_cells = np.int64(1)  # not a literal: _cell compiles once
-    best_inv = 0.0
+    counts = starts  # scratch while the axis is chosen: one count per cell
     for ax in range(3):
-        n_cells, inv = _cell_count(lows[ax], highs[ax], width, n)
-        counts = np.zeros(n_cells, np.int64)
+        lo = lows[ax]
+        n_cells, inv = _cell_count(lo, highs[ax], width, n)
+        counts[:n_cells] = 0
         for i in range(a, b):
-            counts[_cell(xyz[i, ax], lows[ax], inv, n_cells)] += 1
+            counts[_cell(xyz[i, ax], lo, inv, n_cells)] += 1
         pairs = 0
         for c in range(n_cells):
             pairs += counts[c] * counts[c]
         if best_pairs < 0 or pairs < best_pairs:
-            best_axis, best_pairs, best_cells, best_inv = ax, pairs, n_cells, inv
-    lo = lows[best_axis] if n else 0.0
-    starts = np.zeros(best_cells + 1, np.int64)
+            best_axis, best_pairs, best_cells, best_inv, best_lo = ax, pairs, n_cells, inv, lo
+    lo = best_lo if n else 0.0
+    starts[: best_cells + 1] = 0
     for i in range(a, b):
         starts[_cell(xyz[i, best_axis], lo, best_inv, best_cells) + 1] += 1
     for c in range(best_cells):
         starts[c + 1] += starts[c]
-    fill = starts[:-1].copy()
-    order = np.empty(n, np.int64)
-    for i in range(a, b):  # ascending rows within each cell
+    for i in range(a, b):  # ascending rows within each cell; starts[c] runs ahead meanwhile
         c = _cell(xyz[i, best_axis], lo, best_inv, best_cells)
-        order[fill[c]] = i
-        fill[c] += 1
-    return best_axis, lo, best_inv, starts, order
-
-
-@numba.njit(**JIT)
-def whole_frame(a, b):  # pragma: no cover - runs compiled
-    """The grid of rows ``a … b - 1`` as one cell of infinite width: searching it scans
-    every row (cheaper than :func:`build_grid` for a few searches)."""
-    starts = np.zeros(2, np.int64)
-    starts[1] = b - a
-    return np.int64(0), 0.0, 0.0, starts, np.arange(a, b)
+        order[starts[c]] = i
+        starts[c] += 1
+    for c in range(best_cells, 0, -1):  # back to each cell's first slot
+        starts[c] = starts[c - 1]
+    starts[0] = 0
+    return best_axis, lo, best_inv, best_cells
 
 
 @numba.njit(**JIT)
@@ -123,35 +132,46 @@ def grid_cells(grid, x, bound):  # pragma: no cover - runs compiled
 def grid_nearest(points, grid, b, q, kk, bound, d_out, i_out):  # pragma: no cover
     """The kk nearest of the grid's points (rows of ``points`` below ``b``) to q (3,)
     strictly within ``bound`` metres, ascending by (distance, index); inf and index
-    ``b`` (cKDTree's "missing") beyond. The same answer as a scan of every point."""
+    ``b`` (cKDTree's "missing") beyond. The same answer as a scan of every point (the
+    numba twin of a :class:`scipy.spatial.cKDTree` query)."""
     order = grid[4]
     bound2 = bound * bound
     for c in range(kk):
         d_out[c] = _INF
         i_out[c] = b
     n_found = 0
-    first, last = grid_cells(grid, q[grid[0]], bound)
-    starts = grid[3]
-    for cell in range(first, last + 1):
-        for r in range(starts[cell], starts[cell + 1]):
-            p = order[r]
-            dx = q[0] - points[p, 0]
-            dy = q[1] - points[p, 1]
-            dz = q[2] - points[p, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 > bound2 * (1.0 + 1e-9):
-                continue
-            d = np.sqrt(d2)
-            if not d < bound:
-                continue
-            if n_found == kk and (d > d_out[kk - 1] or (d == d_out[kk - 1] and p > i_out[kk - 1])):
-                continue
-            pos = n_found if n_found < kk else kk - 1
-            while pos > 0 and (d_out[pos - 1] > d or (d_out[pos - 1] == d and i_out[pos - 1] > p)):
-                d_out[pos] = d_out[pos - 1]
-                i_out[pos] = i_out[pos - 1]
-                pos -= 1
-            d_out[pos] = d
-            i_out[pos] = p
-            if n_found < kk:
-                n_found += 1
+    k0, k1 = grid_rows(grid, q[grid[0]], bound)
+    for k in range(k0, k1):
+        p = order[k]
+        dx = q[0] - points[p, 0]
+        dy = q[1] - points[p, 1]
+        dz = q[2] - points[p, 2]
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 > bound2 * (1.0 + 1e-9):
+            continue
+        d = np.sqrt(d2)
+        if not d < bound:
+            continue
+        if n_found == kk and (d > d_out[kk - 1] or (d == d_out[kk - 1] and p > i_out[kk - 1])):
+            continue
+        # insertion into the kk kept so far, ascending by (distance, index)
+        pos = n_found if n_found < kk else kk - 1
+        while pos > 0 and (d_out[pos - 1] > d or (d_out[pos - 1] == d and i_out[pos - 1] > p)):
+            d_out[pos] = d_out[pos - 1]
+            i_out[pos] = i_out[pos - 1]
+            pos -= 1
+        d_out[pos] = d
+        i_out[pos] = p
+        if n_found < kk:
+            n_found += 1
+
+
+@numba.njit(**JIT)
+def grid_rows(grid, x, bound):  # pragma: no cover - runs compiled
+    """``(k0, k1)``: ``grid[4][k0:k1]`` are the rows in the cells a search ``bound``
+    metres around coordinate ``x`` reaches along the grid's axis (the cells are
+    consecutive, so their rows are one run of ``order``); empty for none or NaN."""
+    first, last = grid_cells(grid, x, bound)
+    if first > last:
+        return 0, 0
+    return grid[3][first], grid[3][last + 1]

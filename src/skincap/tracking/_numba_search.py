@@ -1,10 +1,7 @@
-"""Brute-force nearest points and the one-to-one assignment, compiled (numba).
+"""The one-to-one assignment and small helpers of the compiled tracker (numba).
 
-The numba twins of :class:`scipy.spatial.cKDTree` queries (a frame holds a few
-hundred points: a brute-force k-nearest search is faster than a tree; the matching
-passes, which ask many at once, bucket the frame first with
-:mod:`skincap.tracking._numba_grid`) and of
-:func:`skincap.tracking.init.gated_assignment`, whose conflicts are resolved by the
+The numba twin of :func:`skincap.tracking.init.gated_assignment` (the nearest-point
+queries are in :mod:`skincap.tracking._numba_grid`), whose conflicts are resolved by the
 same shortest-augmenting-path assignment as :func:`scipy.optimize.linear_sum_assignment`
 (Crouse 2016, ported with its tie-breaking), so both backends take the same points.
 """
@@ -14,43 +11,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["JIT", "gated_assignment", "is_taken", "linear_sum_assignment", "norm3", "query_nearest"]
+__all__ = ["JIT", "gated_assignment", "is_taken", "linear_sum_assignment", "norm3"]
 
 _INF = np.inf
 
 #: Options of every compiled function of the tracker (cached on disk).
 JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
-
-
-@numba.njit(**JIT)
-def query_nearest(points, a, b, q, kk, bound, d_out, i_out):  # pragma: no cover - runs compiled
-    """kk nearest of points[a:b] to q strictly within ``bound``, ascending; inf beyond."""
-    bound2 = bound * bound
-    for c in range(kk):
-        d_out[c] = _INF
-        i_out[c] = b  # cKDTree's "missing" index (n), made global below
-    n_found = 0
-    for p in range(a, b):
-        dx = q[0] - points[p, 0]
-        dy = q[1] - points[p, 1]
-        dz = q[2] - points[p, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        if d2 > bound2 * (1.0 + 1e-9):
-            continue
-        d = np.sqrt(d2)
-        if not d < bound:
-            continue
-        if n_found == kk and d >= d_out[kk - 1]:
-            continue
-        pos = n_found if n_found < kk else kk - 1
-        while pos > 0 and d_out[pos - 1] > d:
-            d_out[pos] = d_out[pos - 1]
-            i_out[pos] = i_out[pos - 1]
-            pos -= 1
-        d_out[pos] = d
-        i_out[pos] = p
-        if n_found < kk:
-            n_found += 1
 
 
 @numba.njit(**JIT)
@@ -146,20 +112,18 @@ def linear_sum_assignment(cost_in):  # pragma: no cover - runs compiled
 def gated_assignment(dist, cand, gate):  # pragma: no cover - runs compiled
     """As :func:`skincap.tracking.init.gated_assignment`: (rows, points) one-to-one."""
     r_n, k_n = dist.shape
-    any_ok = False
-    n_first = 0
+    rows_u = np.empty(r_n, np.int64)  # the rows with a candidate within the gate
     n_any = 0
+    n_first = 0
     for r in range(r_n):
-        row_ok = False
         for c in range(k_n):
             if dist[r, c] < gate:
-                row_ok = True
-        if row_ok:
-            n_any += 1
-            any_ok = True
+                rows_u[n_any] = r
+                n_any += 1
+                break
         if dist[r, 0] < gate:
             n_first += 1
-    if not any_ok:
+    if n_any == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64)
     # fast path: every row's nearest candidate is free of conflicts
     distinct = True
@@ -170,30 +134,18 @@ def gated_assignment(dist, cand, gate):  # pragma: no cover - runs compiled
             if dist[r2, 0] < gate and cand[r2, 0] == cand[r, 0]:
                 distinct = False
     if distinct and n_first == n_any:
-        rows = np.empty(n_first, np.int64)
         pts = np.empty(n_first, np.int64)
-        n = 0
-        for r in range(r_n):
-            if dist[r, 0] < gate:
-                rows[n] = r
-                pts[n] = cand[r, 0]
-                n += 1
-        return rows, pts
+        for n in range(n_first):
+            pts[n] = cand[rows_u[n], 0]
+        return rows_u[:n_first].copy(), pts
     # unique rows and unique points (sorted), as np.unique in the reference
-    rows_u = np.empty(n_any, np.int64)
-    n = 0
-    all_pts = np.empty(r_n * k_n, np.int64)
+    all_pts = np.empty(n_any * k_n, np.int64)
     n_p = 0
-    for r in range(r_n):
-        row_ok = False
+    for ri in range(n_any):
         for c in range(k_n):
-            if dist[r, c] < gate:
-                row_ok = True
-                all_pts[n_p] = cand[r, c]
+            if dist[rows_u[ri], c] < gate:
+                all_pts[n_p] = cand[rows_u[ri], c]
                 n_p += 1
-        if row_ok:
-            rows_u[n] = r
-            n += 1
     pts_u = np.unique(all_pts[:n_p])
     big = 1e6 * max(gate, 1.0)
     cost = np.full((n_any, pts_u.size), big)

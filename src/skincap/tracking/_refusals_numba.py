@@ -10,13 +10,13 @@ import numpy as np
 
 from skincap.tracking._numba_search import JIT, norm3
 
-__all__ = ["reject_odd_motion", "reject_overstretched", "rigid_with_body"]
+__all__ = ["reject_odd_motion", "reject_overstretched", "rigid_with_body", "taken_in_frame"]
 
 _INF = np.inf
 
 
 @numba.njit(**JIT)
-def _rope_taken_at(point_index, f, q):  # pragma: no cover - runs compiled
+def taken_in_frame(point_index, f, q):  # pragma: no cover - runs compiled
     """True when a trace took the point q in frame f."""
     for j in range(point_index.shape[1]):
         if point_index[f, j] == q:
@@ -79,7 +79,7 @@ def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol): 
         n = fa
         for q in range(fa, fb):
             dd = norm3(points[q, 0] - px, points[q, 1] - py, points[q, 2] - pz)
-            if dd < best and not _rope_taken_at(point_index, f, q):
+            if dd < best and not taken_in_frame(point_index, f, q):
                 best = dd
                 n = q
         qx = points[n, 0]

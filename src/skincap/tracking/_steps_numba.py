@@ -6,21 +6,25 @@ step does and why): the same ``(state, t, …, p)`` arguments, a
 :class:`~skincap.tracking.state.TrackState` changed in place and the run's
 :class:`~skincap.tracking.state.StepParams`. Loops replace the vectorised
 expressions, the KD-tree queries become a k-nearest search over the frame's few
-hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: a
-frame is bucketed once per matching pass, and only the cells within the gate are
-scanned; the body-point chains and the "follows something slower" refusal search
-the same way), and the leave-one-out curve is evaluated directly. It takes the same points and invents the
-same markers; invented positions agree to rounding (the order of a few additions
-differs).
+hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: each
+frame is bucketed once, into buffers the state keeps (:func:`frame_grid`), and every
+search of that frame and of the next scans only the cells within its gate: the
+matching passes, the body-point chains and the "follows something slower" refusal),
+and the leave-one-out curve is evaluated directly. It takes the same points and
+invents the same markers; invented positions agree to rounding (the order of a few
+additions differs).
 
 Importing this module imports numba; :func:`track_frames` compiles on its first call
-(two to three minutes of one core, 44 functions compiled once each; cached on disk,
-loaded in about a second afterwards).
-``track_rope(backend="auto")`` never waits for it: it runs the NumPy steps while
-:func:`skincap.tracking.tracker.warm_up_kernel` compiles these in a background
-process (:mod:`skincap.backends`). The refusals and the re-acquisition are compiled in
-:mod:`skincap.tracking._refusals_numba` and :mod:`skincap.tracking._reacquire_numba`
-and re-exported here.
+(one to two minutes of one core; cached on disk, loaded in about a second afterwards).
+The steps that run once a frame and only orchestrate others (:func:`track_frame`,
+:func:`match_measured`, :func:`match_missing`) are inlined into their caller
+(``inline="always"``): numba links every callee's code into each compiled function,
+so each separately compiled layer of the call tree compiled the whole tracker again
+(a quarter of the compile time). ``track_rope(backend="auto")`` never waits for it:
+it runs the NumPy steps while :func:`skincap.tracking.tracker.warm_up_kernel`
+compiles these in a background process (:mod:`skincap.backends`). The refusals and
+the re-acquisition are compiled in :mod:`skincap.tracking._refusals_numba` and
+:mod:`skincap.tracking._reacquire_numba` and re-exported here.
 """
 
 from __future__ import annotations
@@ -37,13 +41,14 @@ from skincap.tracking._numba_curve import (
     settle,
     side_neighbours,
 )
-from skincap.tracking._numba_grid import build_grid, grid_cells, grid_nearest, whole_frame
-from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3, query_nearest
+from skincap.tracking._numba_grid import fill_grid, grid_nearest, grid_rows
+from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3
 from skincap.tracking._reacquire_numba import reacquire_on_shell
 from skincap.tracking._refusals_numba import (
     reject_odd_motion,
     reject_overstretched,
     rigid_with_body,
+    taken_in_frame,
 )
 
 __all__ = [
@@ -72,8 +77,6 @@ _INF = np.inf
 # the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
 _WIDE = np.bool_(True)
 _NARROW = np.bool_(False)
-# bucketing a frame (_numba_grid) pays from about this many searches in it
-_GRID_QUERIES = 6
 
 
 @numba.njit(**JIT)
@@ -131,72 +134,44 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
     """Twin of :func:`skincap.tracking._steps_numpy.continue_body_chains`."""
     points, body, body_vel = state.points, state.body, state.body_vel
     pa, a, b = state.offsets[t - 1], state.offsets[t], state.offsets[t + 1]
-    eps = p.body_chain_gate * p.gamma
-    eps2 = eps * eps
-    q_count = np.zeros(a - pa, np.int64)
-    p_q = np.full(b - a, -1, np.int64)
-    p_count = np.zeros(b - a, np.int64)
-    # the previous body points' predictions, bucketed: only those within eps are tried
-    n_body = 0
-    for q in range(pa, a):
-        if body[q]:
-            n_body += 1
-    qs = np.empty(n_body, np.int64)
-    n_body = 0
-    for q in range(pa, a):
-        if body[q]:
-            qs[n_body] = q
-            n_body += 1
-    px = np.empty((n_body, 3))
-    for r in range(n_body):
-        for c in range(3):
-            px[r, c] = points[qs[r], c] + body_vel[qs[r], c]
-    grid = build_grid(px, np.int64(0), px.shape[0], eps)
-    axis, starts, order = grid[0], grid[3], grid[4]
     for i in range(a, b):
         body[i] = False
         for c in range(3):
             body_vel[i, c] = 0.0
-        first, last = grid_cells(grid, points[i, axis], eps)
-        for cell in range(first, last + 1):
-            for k in range(starts[cell], starts[cell + 1]):
-                r = order[k]
-                ex = points[i, 0] - px[r, 0]
-                ey = points[i, 1] - px[r, 1]
-                ez = points[i, 2] - px[r, 2]
-                if ex * ex + ey * ey + ez * ez < eps2:
-                    q = qs[r]
-                    p_count[i - a] += 1
-                    q_count[q - pa] += 1
-                    p_q[i - a] = q
-    # the predictions V of the traces measured in frame t - 1, bucketed as well
-    measured_before = state.point_index[t - 1]
-    n_rope = 0
-    for j in range(measured_before.size):
-        if measured_before[j] >= 0:
-            n_rope += 1
-    rope_pred = np.empty((n_rope, 3))
-    n_rope = 0
-    for j in range(measured_before.size):
-        if measured_before[j] >= 0:
-            rope_pred[n_rope] = v_pred[j]
-            n_rope += 1
-    rope_grid = build_grid(rope_pred, np.int64(0), rope_pred.shape[0], eps)
-    rope_axis, rope_starts, rope_order = rope_grid[0], rope_grid[3], rope_grid[4]
-    for i in range(a, b):
-        if p_count[i - a] != 1 or q_count[p_q[i - a] - pa] != 1:
+    if b == a:
+        return
+    eps = p.body_chain_gate * p.gamma
+    # frame t's points near where each body point of frame t - 1 goes (its velocity)
+    grid = frame_grid(state, t, p)
+    q_count = np.zeros(a - pa, np.int64)
+    p_q = np.full(b - a, -1, np.int64)
+    p_count = np.zeros(b - a, np.int64)
+    for q in range(pa, a):
+        if not body[q]:
             continue
-        near_rope = False
-        first, last = grid_cells(rope_grid, points[i, rope_axis], eps)
-        for cell in range(first, last + 1):
-            for k in range(rope_starts[cell], rope_starts[cell + 1]):
-                r = rope_order[k]
-                ex = points[i, 0] - rope_pred[r, 0]
-                ey = points[i, 1] - rope_pred[r, 1]
-                ez = points[i, 2] - rope_pred[r, 2]
-                if ex * ex + ey * ey + ez * ez < eps2:
-                    near_rope = True
-        if near_rope:
+        x = points[q, 0] + body_vel[q, 0]
+        y = points[q, 1] + body_vel[q, 1]
+        z = points[q, 2] + body_vel[q, 2]
+        k0, k1 = _rows_within(grid, x, y, z, eps)
+        for k in range(k0, k1):
+            i = grid[4][k]
+            if _closer(points, i, x, y, z, eps):
+                p_count[i - a] += 1
+                q_count[q - pa] += 1
+                p_q[i - a] = q
+    # and near the predictions V of the traces measured in frame t - 1
+    near_rope = np.zeros(b - a, np.bool_)
+    for j in range(v_pred.shape[0]):
+        if state.point_index[t - 1, j] < 0:
+            continue
+        x, y, z = v_pred[j, 0], v_pred[j, 1], v_pred[j, 2]
+        k0, k1 = _rows_within(grid, x, y, z, eps)
+        for k in range(k0, k1):
+            i = grid[4][k]
+            if _closer(points, i, x, y, z, eps):
+                near_rope[i - a] = True
+    for i in range(a, b):
+        if p_count[i - a] != 1 or near_rope[i - a] or q_count[p_q[i - a] - pa] != 1:
             continue
         q = p_q[i - a]
         body[i] = True
@@ -204,34 +179,76 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
             body_vel[i, c] = points[i, c] - points[q, c]
 
 
+@numba.njit(**JIT)
+def frame_grid(state, t, p):  # pragma: no cover - runs compiled
+    """Frame t's points bucketed in cells γ wide (a
+    :mod:`~skincap.tracking._numba_grid` grid), built on the first call for the frame
+    into the state's ``grid_*`` buffers and returned from them afterwards."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    s0 = a + 2 * t
+    info = state.grid_info
+    if info[t, 0] < 0.0:
+        axis, lo, inv, cells = fill_grid(
+            state.points,
+            a,
+            b,
+            p.gamma,
+            state.grid_starts[s0 : b + 2 * t + 2],
+            state.grid_order[a:b],
+        )
+        info[t, 0], info[t, 1], info[t, 2], info[t, 3] = axis, lo, inv, cells
+    cells = np.int64(info[t, 3])
+    return (
+        np.int64(info[t, 0]),
+        info[t, 1],
+        info[t, 2],
+        state.grid_starts[s0 : s0 + cells + 1],
+        state.grid_order[a:b],
+    )
+
+
+@numba.njit(**JIT)
+def _rows_within(grid, x, y, z, bound):  # pragma: no cover - runs compiled
+    """:func:`~skincap.tracking._numba_grid.grid_rows` around the point (x, y, z)."""
+    axis = grid[0]
+    return grid_rows(grid, x if axis == 0 else (y if axis == 1 else z), bound)
+
+
+@numba.njit(**JIT)
+def _closer(points, i, x, y, z, bound):  # pragma: no cover - runs compiled
+    """Point i lies strictly within ``bound`` metres of (x, y, z) (squared distances
+    added per axis, as the NumPy twin adds them)."""
+    ex = points[i, 0] - x
+    ey = points[i, 1] - y
+    ez = points[i, 2] - z
+    return ex * ex + ey * ey + ez * ez < bound * bound
+
+
 # ------------------------------------------------------------------ matching
 @numba.njit(**JIT)
 def _follows_other(state, t, row, candidate, pred, gamma, prev_grid):  # pragma: no cover
     """The candidate point lies within ``min(γ, D - γ)`` of a point of frame t - 1 the
     rope did not take, ``D`` how far trace ``row`` is predicted to move; ``prev_grid``
-    is frame t - 1's (:func:`~skincap.tracking._numba_grid.build_grid`)."""
+    is frame t - 1's (:func:`frame_grid`)."""
     points = state.points
-    last = state.positions[t - 1, row]
-    lim = min(gamma, norm3(pred[0] - last[0], pred[1] - last[1], pred[2] - last[2]) - gamma)
+    lim = min(
+        gamma,
+        norm3(
+            pred[row, 0] - state.positions[t - 1, row, 0],
+            pred[row, 1] - state.positions[t - 1, row, 1],
+            pred[row, 2] - state.positions[t - 1, row, 2],
+        )
+        - gamma,
+    )
     if lim <= 0.0:
         return False
-    lim2 = lim * lim
-    prev_taken = state.point_index[t - 1]
-    axis, starts, order = prev_grid[0], prev_grid[3], prev_grid[4]
-    first, last_cell = grid_cells(prev_grid, points[candidate, axis], lim)
-    for cell in range(first, last_cell + 1):
-        for k in range(starts[cell], starts[cell + 1]):
-            q = order[k]
-            ex = points[candidate, 0] - points[q, 0]
-            ey = points[candidate, 1] - points[q, 1]
-            ez = points[candidate, 2] - points[q, 2]
-            if ex * ex + ey * ey + ez * ez < lim2:
-                mine = False
-                for j in range(prev_taken.size):
-                    if prev_taken[j] == q:
-                        mine = True
-                if not mine:
-                    return True
+    x, y, z = points[candidate, 0], points[candidate, 1], points[candidate, 2]
+    k0, k1 = _rows_within(prev_grid, x, y, z, lim)
+    for k in range(k0, k1):
+        q = prev_grid[4][k]
+        # squared distances as the NumPy twin adds them (candidate minus q)
+        if _closer(points, q, x, y, z, lim) and not taken_in_frame(state.point_index, t - 1, q):
+            return True
     return False
 
 
@@ -248,13 +265,9 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
     kk = min(min(p.candidates, b - a) + n_taken, b - a)
     d = np.empty((rows.size, kk))
     ii = np.empty((rows.size, kk), np.int64)
-    if rows.size < _GRID_QUERIES:  # a few questions: scanning beats bucketing
-        for r in range(rows.size):
-            query_nearest(state.points, a, b, pred[rows[r]], kk, gate, d[r], ii[r])
-    else:
-        grid = build_grid(state.points, a, b, p.gamma)
-        for r in range(rows.size):
-            grid_nearest(state.points, grid, b, pred[rows[r]], kk, gate, d[r], ii[r])
+    grid = frame_grid(state, t, p)
+    for r in range(rows.size):
+        grid_nearest(state.points, grid, b, pred[rows[r]], kk, gate, d[r], ii[r])
     if n_taken:
         for r in range(rows.size):
             for c in range(kk):
@@ -294,72 +307,46 @@ def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs c
 
 @numba.njit(**JIT)
 def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.match_traces`."""
+    """Twin of :func:`skincap.tracking._steps_numpy.match_traces`; the refusals of
+    each candidate are asked cheapest first, and none once one refuses."""
     a, b = state.offsets[t], state.offsets[t + 1]
     if rows.size == 0 or b == a:
         return False
     gamma = p.gamma
     gate = p.wide_gate * gamma if wide else gamma
     m = state.known.size
-    steady = _steady(state)
-    prev = state.positions[t - 1]
     d, ii = _candidates(state, t, rows, pred, gate, p)
-    kk = d.shape[1]
-    for r in range(rows.size):
-        if steady[rows[r]]:
-            continue
-        for c in range(kk):
-            if d[r, c] < _INF and state.body[ii[r, c]]:
-                d[r, c] = _INF
-    if wide and gate > gamma:
-        for r in range(rows.size):
-            row = rows[r]
-            if not steady[row]:
-                continue
-            ex = pred[row, 0] - prev[row, 0]
-            ey = pred[row, 1] - prev[row, 1]
-            ez = pred[row, 2] - prev[row, 2]
-            if ex * ex + ey * ey + ez * ez <= gamma * gamma:
-                for c in range(kk):
-                    if d[r, c] >= gamma:
-                        d[r, c] = _INF
-    judged = 0  # frame t - 1 is bucketed when enough candidates are judged
+    prev_grid = frame_grid(state, t - 1, p)
     for r in range(rows.size):
         row = rows[r]
-        if steady[row] and not 0 < row < m - 1:
-            continue
-        for c in range(kk):
-            if d[r, c] < _INF:
-                judged += 1
-    if judged:
-        pa = state.offsets[t - 1]
-        # a single cell holding every point: a plain scan, without bucketing
-        prev_grid = whole_frame(pa, state.offsets[t])
-        if judged >= _GRID_QUERIES:
-            prev_grid = build_grid(state.points, pa, state.offsets[t], gamma)
-        for r in range(rows.size):
-            row = rows[r]
-            if steady[row] and not 0 < row < m - 1:
+        steady = state.temp_count[row] == 0
+        slow = False  # a steady trace predicted to move at most γ: nothing beyond γ
+        if wide and gate > gamma and steady:
+            ex = pred[row, 0] - state.positions[t - 1, row, 0]
+            ey = pred[row, 1] - state.positions[t - 1, row, 1]
+            ez = pred[row, 2] - state.positions[t - 1, row, 2]
+            slow = ex * ex + ey * ey + ez * ez <= gamma * gamma
+        judged = not steady or 0 < row < m - 1  # the ends of a steady rope are exempt
+        for c in range(d.shape[1]):
+            if not d[r, c] < _INF:  # beyond the gate, or taken
                 continue
-            for c in range(kk):
-                if d[r, c] < _INF and _follows_other(
-                    state, t, row, ii[r, c], pred[row], gamma, prev_grid
-                ):
-                    d[r, c] = _INF
+            i = ii[r, c]
+            if (
+                (not steady and state.body[i])
+                or (slow and d[r, c] >= gamma)
+                or (judged and _follows_other(state, t, row, i, pred, gamma, prev_grid))
+                or (wide and not steady and rigid_with_body(state, t, np.int64(-1), i, p))
+            ):
+                d[r, c] = _INF
     if wide:
-        for r in range(rows.size):
-            if steady[rows[r]]:
-                continue
-            for c in range(kk):
-                if d[r, c] < gate and rigid_with_body(state, t, np.int64(-1), ii[r, c], p):
-                    d[r, c] = _INF
         _refuse_off_spacing(state, rows, d, ii, gamma)
     hit_rows, pts = gated_assignment(d, ii, gate)
     for h in range(hit_rows.size):
         row = rows[hit_rows[h]]
         state.known[row] = True
         state.taken[row] = pts[h]
-        state.cur[row] = state.points[pts[h]]
+        for c in range(3):
+            state.cur[row, c] = state.points[pts[h], c]
     return hit_rows.size > 0
 
 
@@ -479,8 +466,9 @@ def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
     kk = min(min(p.candidates, b - a) + n_taken, b - a)
     d = np.empty((n_odd, kk))
     ii = np.empty((n_odd, kk), np.int64)
+    grid = frame_grid(state, t, p)
     for r in range(n_odd):
-        query_nearest(state.points, a, b, c_all[r], kk, gamma, d[r], ii[r])
+        grid_nearest(state.points, grid, b, c_all[r], kk, gamma, d[r], ii[r])
         for c in range(kk):
             if is_taken(ii[r, c], known, taken) or d[r, c] > dev_all[r] - gamma:
                 d[r, c] = _INF
@@ -563,7 +551,7 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
 
 
 # ------------------------------------------------------------------ a frame
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured`."""
     steady = _steady(state)
@@ -594,7 +582,7 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
                 tried[j] = pred[j]
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
     found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, _WIDE, p)
@@ -610,7 +598,7 @@ def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     return found_more
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def track_frame(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.track_frame`."""
     has_points = state.offsets[t + 1] > state.offsets[t]

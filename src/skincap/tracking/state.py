@@ -11,7 +11,8 @@ arrays in place; the tuples themselves are never rebuilt during a run.
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from dataclasses import fields
+from typing import NamedTuple, get_type_hints
 
 import numpy as np
 
@@ -55,6 +56,16 @@ class TrackState(NamedTuple):
         known        (M,) bool                measured this frame
         taken        (M,) int64               the point each trace took, -1 if none
 
+    The compiled steps' index of each frame's points (:mod:`skincap.tracking._numba_grid`),
+    built when a frame is first searched (the NumPy steps do not use it)::
+
+        grid_info    (T, 4) float64           axis (-1: not built yet), lowest coordinate
+                                              along it (metres), 1 / cell width (1/metres),
+                                              number of cells
+        grid_starts  (P + 2 T,) int64         frame t's cell starts, from offsets[t] + 2 t
+        grid_order   (P,) int64               frame t's points cell by cell, at
+                                              offsets[t]:offsets[t + 1]
+
     Learnt while tracking::
 
         link_rest    (M - 1,) float64, metres  each link's rest length as the rope has
@@ -81,6 +92,9 @@ class TrackState(NamedTuple):
     cur: np.ndarray
     known: np.ndarray
     taken: np.ndarray
+    grid_info: np.ndarray
+    grid_starts: np.ndarray
+    grid_order: np.ndarray
     link_rest: np.ndarray
 
 
@@ -131,23 +145,19 @@ def leave_one_out_weights(s: np.ndarray) -> np.ndarray:
 
 def step_params(cloud_rate: float, init: RopeInit, settings: TrackSettings) -> StepParams:
     """The run's :class:`StepParams` from the take's rate (Hz), the init and the settings."""
+    # the fields TrackSettings shares by name, as plain numbers of the field's type
+    kinds = get_type_hints(StepParams)  # name -> int or float
+    shared = {
+        f.name: kinds[f.name](getattr(settings, f.name))
+        for f in fields(settings)
+        if f.name in StepParams._fields
+    }
     return StepParams(
         gamma=float(init.gamma),
         max_temp_markers=int(init.max_temp_markers),
-        candidates=int(settings.candidates),
-        retry_rounds=int(settings.retry_rounds),
-        wide_gate=float(settings.wide_gate),
-        stretch=float(settings.stretch),
-        adjacent_stretch=float(settings.adjacent_stretch),
-        body_chain_gate=float(settings.body_chain_gate),
         rigid_window=int(round(settings.rigid_window_s * cloud_rate)),
-        rigid_move=float(settings.rigid_move),
-        rigid_radius=float(settings.rigid_radius),
-        rigid_range=float(settings.rigid_range),
-        rigid_partners=int(settings.rigid_partners),
-        zipper_rounds=int(settings.zipper_rounds),
-        settle=float(settings.settle),
         median_spacing=float(np.median(init.spacing)),
+        **shared,
     )
 
 
@@ -193,6 +203,9 @@ def start_tracking(
         cur=np.zeros((m, 3)),
         known=np.zeros(m, dtype=bool),
         taken=np.full(m, -1, dtype=np.int64),
+        grid_info=np.full((t_frames, 4), -1.0),
+        grid_starts=np.zeros(points.shape[0] + 2 * t_frames, dtype=np.int64),
+        grid_order=np.zeros(points.shape[0], dtype=np.int64),
         link_rest=spacing.copy(),
     )
     return state, step_params(cloud.rate, init, settings)
