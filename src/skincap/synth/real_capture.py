@@ -123,6 +123,72 @@ def _dropout_runs(
     return dropped
 
 
+def _warn_if_rope_doubled(doubled: int, n_rope: int) -> None:
+    """Warn (:class:`~skincap.errors.SkincapWarning`, reported at the caller of
+    :func:`real_capture_with_rope`) when more than a quarter of the ``n_rope`` rope
+    markers are ``doubled`` (:func:`_doubled_markers`) in the first frame."""
+    if 4 * doubled > n_rope:
+        warnings.warn(
+            f"rope: {doubled} of {n_rope} rope markers lie within half a "
+            "spacing of another part of the rope in the first frame (the rope lies "
+            "doubled, its held ends too low or too close: are the hands hand markers?); "
+            "rope tracking cannot tell such markers apart",
+            SkincapWarning,
+            stacklevel=3,
+        )
+
+
+def _capture_summary(
+    markers: MarkerSet,
+    groups: list[list[int]],
+    n_still: int,
+    rope: str,
+    rope_sim: RopeResult,
+    length: float,
+    floor: float | None,
+    doubled: int,
+    fragments: Fragments,
+    n_ghosts: int,
+    seen: np.ndarray,
+    samples: Samples,
+    *,
+    dropout: float,
+    noise_mm: float,
+    seed: int,
+) -> dict[str, Any]:
+    """The ``summary`` of :func:`real_capture_with_rope`'s take: counts, the rope's
+    length and floor height (metres), the hands' marker names (``groups``: each hand's
+    column indices, left then right, as :func:`_hand_columns` returns them), the
+    ``n_still`` held frames, the missing fraction of the N body markers in the
+    (T, N + R) bool ``seen``, and the options that made it.
+    """
+    t_n, n_body = markers.n_frames, markers.n_markers
+    return {
+        "frames": int(t_n),
+        "rate": float(markers.rate),
+        "markers": int(n_body),
+        "marker_set": "real",
+        "source": str(markers.meta.get("path", markers.meta.get("source", ""))),
+        "hands": [[markers.labels[c] for c in g] for g in groups[::-1]],
+        "still_frames": n_still,
+        "rope_markers": len(rope_sim.labels),
+        "rope": rope,
+        "rope_simulator": "pbd",
+        "rope_length_m": float(length),
+        "rope_max_length_error": float(rope_sim.meta["max_length_error"]),
+        "rope_doubled_markers": int(doubled),
+        "fragments": int(fragments.n_columns - n_ghosts),
+        "labelled_fragments": int(fragments.labelled.sum()),
+        "missing_fraction": int((~seen[:, :n_body]).sum()) / max(t_n * n_body, 1),
+        "ghosts": int(n_ghosts),
+        "points": int(samples.frame.size),
+        "dropout": float(dropout),
+        "noise_mm": float(noise_mm),
+        "floor_m": floor,
+        "seed": int(seed),
+    }
+
+
 def real_capture_with_rope(
     markers: MarkerSet,
     *,
@@ -194,15 +260,7 @@ def real_capture_with_rope(
     step(0.1, "rope (PBD)")
     rope_sim, length, floor = _rope_in_hands(markers, held, rope, rope_length, rope_markers)
     doubled = _doubled_markers(rope_sim.markers[0], rope_sim.marker_param)
-    if 4 * doubled > len(rope_sim.labels):
-        warnings.warn(
-            f"rope: {doubled} of {len(rope_sim.labels)} rope markers lie within half a "
-            "spacing of another part of the rope in the first frame (the rope lies "
-            "doubled, its held ends too low or too close: are the hands hand markers?); "
-            "rope tracking cannot tell such markers apart",
-            SkincapWarning,
-            stacklevel=2,
-        )
+    _warn_if_rope_doubled(doubled, len(rope_sim.labels))
     step(0.8, "dropouts and ghosts")
     every = np.concatenate([markers.positions, rope_sim.markers], axis=1)  # (T, N + R, 3)
     seen, noisy = _what_cameras_see(
@@ -215,30 +273,23 @@ def real_capture_with_rope(
         rng, samples, n_ghosts, t_n, markers.rate, truth_labels, n_body, meta
     )
     truth = MarkerSet(every, truth_labels, markers.rate, meta=dict(meta))
-    summary = {
-        "frames": int(t_n),
-        "rate": float(markers.rate),
-        "markers": int(n_body),
-        "marker_set": "real",
-        "source": str(markers.meta.get("path", markers.meta.get("source", ""))),
-        "hands": [[markers.labels[c] for c in g] for g in groups[::-1]],
-        "still_frames": n_still,
-        "rope_markers": len(rope_sim.labels),
-        "rope": rope,
-        "rope_simulator": "pbd",
-        "rope_length_m": float(length),
-        "rope_max_length_error": float(rope_sim.meta["max_length_error"]),
-        "rope_doubled_markers": int(doubled),
-        "fragments": int(fragments.n_columns - n_ghosts),
-        "labelled_fragments": int(fragments.labelled.sum()),
-        "missing_fraction": int((~seen[:, :n_body]).sum()) / max(t_n * n_body, 1),
-        "ghosts": int(n_ghosts),
-        "points": int(samples.frame.size),
-        "dropout": float(dropout),
-        "noise_mm": float(noise_mm),
-        "floor_m": floor,
-        "seed": int(seed),
-    }
+    summary = _capture_summary(
+        markers,
+        groups,
+        n_still,
+        rope,
+        rope_sim,
+        length,
+        floor,
+        doubled,
+        fragments,
+        n_ghosts,
+        seen,
+        samples,
+        dropout=dropout,
+        noise_mm=noise_mm,
+        seed=seed,
+    )
     step(1.0, "done")
     return SynthCapture(
         capture=capture,

@@ -51,6 +51,112 @@ def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
     return data if len(keep) == data.n_markers else data.select(keep)
 
 
+def _check_solve_options(
+    output_path: str | os.PathLike[str],
+    markers_out: str | os.PathLike[str] | None,
+    loss: str,
+    loss_scale_m: float,
+    refine_offsets: int,
+) -> None:
+    """Refuse :func:`solve_file`'s options that need no input read: the output
+    extensions, the IK loss, its scale ``loss_scale_m`` (metres, reported in cm as the
+    CLI's ``--loss-scale-cm``) and the count of offset-refining rounds.
+
+    Raises
+    ------
+    ValidationError
+        The first bad option, in that order.
+    """
+    if Path(output_path).suffix.lower() != ".bvh":
+        raise ValidationError(
+            f"-o: the solved motion is written as .bvh, got {Path(output_path).name!r}"
+        )
+    if markers_out is not None and Path(markers_out).suffix.lower() not in MARKER_OUTPUTS:
+        raise ValidationError(
+            f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
+        )
+    from skincap.solve.ik import LOSSES
+
+    if loss not in LOSSES:
+        raise ValidationError(f"--loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
+    if not (math.isfinite(loss_scale_m) and loss_scale_m > 0):
+        raise ValidationError(
+            f"--loss-scale-cm: expected a positive length, got {loss_scale_m * 100:g}"
+        )
+    if refine_offsets < 0:
+        raise ValidationError(f"--refine-offsets: expected a count >= 0, got {refine_offsets}")
+
+
+def _check_smooth_hz(smooth_hz: float | None, rate: float) -> None:
+    """Refuse a low-pass cut-off ``smooth_hz`` (Hz) outside (0, Nyquist) of the
+    capture's frame ``rate`` (Hz); ``None`` (no smoothing) passes.
+
+    Raises
+    ------
+    ValidationError
+        ``smooth_hz`` is not between 0 and half of ``rate``.
+    """
+    if smooth_hz is not None and not 0.0 < smooth_hz < 0.5 * rate:
+        raise ValidationError(
+            f"--smooth-hz: expected between 0 and {0.5 * rate:g} Hz (half the "
+            f"{rate:g} Hz frame rate), got {smooth_hz:g}"
+        )
+
+
+def _resolve_template(template: str, input_path: str | os.PathLike[str], markers: MarkerSet) -> Any:
+    """The template :func:`~skincap.solve.solve_markers` takes for ``template``: the
+    name or JSON path as given, or for ``"auto"`` the template fitted to ``markers``
+    (:func:`~skincap.solve.auto.auto_template`). ``"synth-dense"`` first checks that
+    ``input_path`` is a dense synthetic take (:func:`check_synth_dense_body`).
+    """
+    if template == "synth-dense":
+        check_synth_dense_body(input_path)
+    if template == "auto":
+        from skincap.solve.auto import auto_template
+
+        tpl: Any = auto_template(markers).template
+    else:
+        tpl = template
+    return tpl
+
+
+def _write_solve_outputs(
+    result: Any,
+    rep: dict[str, Any],
+    output_path: str | os.PathLike[str],
+    markers_out: str | os.PathLike[str] | None,
+    report: str | os.PathLike[str] | None,
+    *,
+    force: bool,
+    units: str,
+) -> list[str]:
+    """Write the solve's BVH (lengths in ``units``), the fitted markers and the JSON
+    report ``rep``, the last two when asked; all or nothing: a failed write removes
+    what this call wrote before it, and re-raises.
+
+    Returns
+    -------
+    list of str
+        The paths written, in that order.
+    """
+    outputs: list[str] = []
+    try:  # all or nothing: a failed write removes what this call wrote before it
+        write(result.motion, output_path, force=force, units=units)
+        outputs.append(os.fspath(output_path))
+        if markers_out is not None:
+            write(result.fitted, markers_out, force=force)
+            outputs.append(os.fspath(markers_out))
+        if report is not None:
+            with atomic_output(report, force=force) as tmp:
+                tmp.write_text(json.dumps(rep, indent=1) + "\n", encoding="utf-8")
+            outputs.append(os.fspath(report))
+    except BaseException:
+        for done in outputs:
+            Path(done).unlink(missing_ok=True)
+        raise
+    return outputs
+
+
 def solve_file(
     input_path: str | os.PathLike[str],
     output_path: str | os.PathLike[str],
@@ -100,40 +206,12 @@ def solve_file(
         ``frames``, ``joints``, ``markers``, ``rms_m``, ``max_m``, ``template``,
         ``rejected`` (samples left out as jumps), ``outputs`` (the files written).
     """
-    if Path(output_path).suffix.lower() != ".bvh":
-        raise ValidationError(
-            f"-o: the solved motion is written as .bvh, got {Path(output_path).name!r}"
-        )
-    if markers_out is not None and Path(markers_out).suffix.lower() not in MARKER_OUTPUTS:
-        raise ValidationError(
-            f"--markers-out: expected {', '.join(MARKER_OUTPUTS)}, got {Path(markers_out).name!r}"
-        )
-    from skincap.solve.ik import LOSSES
-
-    if loss not in LOSSES:
-        raise ValidationError(f"--loss: expected one of {', '.join(LOSSES)}, got {loss!r}")
-    if not (math.isfinite(loss_scale_m) and loss_scale_m > 0):
-        raise ValidationError(
-            f"--loss-scale-cm: expected a positive length, got {loss_scale_m * 100:g}"
-        )
-    if refine_offsets < 0:
-        raise ValidationError(f"--refine-offsets: expected a count >= 0, got {refine_offsets}")
+    _check_solve_options(output_path, markers_out, loss, loss_scale_m, refine_offsets)
     markers = read_labelled_markers(input_path)
-    if smooth_hz is not None and not 0.0 < smooth_hz < 0.5 * markers.rate:
-        raise ValidationError(
-            f"--smooth-hz: expected between 0 and {0.5 * markers.rate:g} Hz (half the "
-            f"{markers.rate:g} Hz frame rate), got {smooth_hz:g}"
-        )
+    _check_smooth_hz(smooth_hz, markers.rate)
     from skincap.solve import solve_markers
 
-    if template == "synth-dense":
-        check_synth_dense_body(input_path)
-    if template == "auto":
-        from skincap.solve.auto import auto_template
-
-        tpl: Any = auto_template(markers).template
-    else:
-        tpl = template
+    tpl = _resolve_template(template, input_path, markers)
     result = solve_markers(
         markers,
         tpl,
@@ -147,21 +225,9 @@ def solve_file(
     )
     rep = result.report()
     rep["input"] = os.fspath(input_path)
-    outputs: list[str] = []
-    try:  # all or nothing: a failed write removes what this call wrote before it
-        write(result.motion, output_path, force=force, units=units)
-        outputs.append(os.fspath(output_path))
-        if markers_out is not None:
-            write(result.fitted, markers_out, force=force)
-            outputs.append(os.fspath(markers_out))
-        if report is not None:
-            with atomic_output(report, force=force) as tmp:
-                tmp.write_text(json.dumps(rep, indent=1) + "\n", encoding="utf-8")
-            outputs.append(os.fspath(report))
-    except BaseException:
-        for done in outputs:
-            Path(done).unlink(missing_ok=True)
-        raise
+    outputs = _write_solve_outputs(
+        result, rep, output_path, markers_out, report, force=force, units=units
+    )
     return {
         "input": os.fspath(input_path),
         "template": rep["template"],
