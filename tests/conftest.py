@@ -2,11 +2,23 @@
 
 from __future__ import annotations
 
+import hashlib
+import importlib
 import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import settings
+
+from skincap.backends import WARM_UPS, kernel_ready
+
+try:
+    import fcntl
+except ImportError:  # Windows
+    fcntl = None  # type: ignore[assignment]
 
 # Property tests explore new random cases on every developer run; CI
 # (HYPOTHESIS_PROFILE=ci, set by .ci/run) replays one fixed derandomised set, so a run
@@ -22,6 +34,60 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
 os.environ.setdefault("SKINCAP_COMPILE", "inline")
 
 DATA = Path(__file__).parent / "data"
+
+
+_COMPILED: set[str] = set()
+
+
+def _compile_once(name: str, get_dispatcher: Callable[[], Any]) -> None:
+    """Make sure numba kernel ``name`` is compiled (in this process or numba's cache),
+    compiling it in one process at a time.
+
+    Under pytest-xdist two workers reaching an uncompiled kernel would both compile it
+    (the tracker: ~2 min of CPU each, ~120 s of the suite's wall time). Here the first
+    worker takes a file lock and runs the kernel's warm-up (``backends.WARM_UPS``: a
+    tiny run with the production argument types, compiled into numba's cache); a
+    worker that arrives meanwhile waits on the lock, then only loads the cache.
+    """
+    if name in _COMPILED or fcntl is None or name not in WARM_UPS:
+        return
+    _COMPILED.add(name)  # first: the warm-up below resolves its backend too
+    try:
+        ready = kernel_ready(get_dispatcher())
+    except Exception:  # noqa: BLE001 - numba cannot set it up: the test itself says so
+        return
+    if ready:
+        return
+    key = f"{name}|{Path(__file__).resolve()}|{os.environ.get('NUMBA_CACHE_DIR', '')}"
+    lock = Path(tempfile.gettempdir()) / (
+        f"skincap-tests-compile-{hashlib.sha1(key.encode()).hexdigest()[:12]}.lock"
+    )
+    with lock.open("a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
+        module, function = WARM_UPS[name].split(":")
+        getattr(importlib.import_module(module), function)()
+
+
+def _resolving_once(resolve: Callable[..., str]) -> Callable[..., str]:
+    """``resolve_backend`` that compiles the chosen numba kernel once per run first."""
+
+    def resolve_backend(backend: str, **options: Any) -> str:
+        used = resolve(backend, **options)
+        kernel = options.get("kernel")
+        if used == "numba" and kernel is not None:
+            _compile_once(*kernel)
+        return used
+
+    return resolve_backend
+
+
+def pytest_sessionstart(session: pytest.Session) -> None:
+    """Every numba kernel compiles once per run, not once per xdist worker: the modules
+    with a kernel (those of ``backends.WARM_UPS``) resolve their backend through
+    :func:`_resolving_once`."""
+    for where in WARM_UPS.values():
+        module = importlib.import_module(where.split(":")[0])
+        module.resolve_backend = _resolving_once(module.resolve_backend)  # type: ignore[attr-defined]
 
 
 @pytest.fixture(scope="session")
