@@ -5,7 +5,10 @@ from __future__ import annotations
 import hashlib
 import importlib
 import os
+import subprocess
+import sys
 import tempfile
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,6 +16,7 @@ from typing import Any
 import pytest
 from hypothesis import settings
 
+from skincap import backends
 from skincap.backends import WARM_UPS, kernel_ready
 
 try:
@@ -58,10 +62,18 @@ def _compile_once(name: str, get_dispatcher: Callable[[], Any]) -> None:
         return
     if ready:
         return
+    _compile_locked(name, _lock_path(name))
+
+
+def _lock_path(name: str) -> Path:
+    """The file lock of kernel ``name``'s compile in this checkout and numba cache."""
     key = f"{name}|{Path(__file__).resolve()}|{os.environ.get('NUMBA_CACHE_DIR', '')}"
-    lock = Path(tempfile.gettempdir()) / (
-        f"skincap-tests-compile-{hashlib.sha1(key.encode()).hexdigest()[:12]}.lock"
-    )
+    digest = hashlib.sha1(key.encode()).hexdigest()[:12]
+    return Path(tempfile.gettempdir()) / f"skincap-tests-compile-{digest}.lock"
+
+
+def _compile_locked(name: str, lock: Path) -> None:
+    """Run kernel ``name``'s warm-up holding ``lock`` (waiting for whoever holds it)."""
     with lock.open("a") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)  # released when the file closes
         module, function = WARM_UPS[name].split(":")
@@ -81,10 +93,61 @@ def _resolving_once(resolve: Callable[..., str]) -> Callable[..., str]:
     return resolve_backend
 
 
+#: Kernels whose compile the xdist controller starts before the workers run tests (the
+#: tracker's takes ~2 min of CPU; the others a few seconds, compiled where needed).
+_COMPILE_AHEAD = ("tracking",)
+_ahead: list[subprocess.Popen[bytes]] = []
+
+
+def _start_compiles_ahead(config: pytest.Config) -> None:
+    """In the controller of a ``-n 2`` run: compile the slow kernels in a process of
+    their own, holding their locks, beside the two workers from the first second
+    (instead of inside whichever worker first needs them, while the other idles)."""
+    if fcntl is None or hasattr(config, "workerinput") or not config.getvalue("numprocesses"):
+        return
+    for name in _COMPILE_AHEAD:
+        module, function = backends.DISPATCHERS[name].split(":")
+        try:
+            if kernel_ready(getattr(importlib.import_module(module), function)()):
+                continue
+        except Exception:  # noqa: BLE001 - numba cannot set it up: the tests say so
+            continue
+        code = (
+            "import sys; sys.path[:0] = sys.argv[3:]; import conftest; "
+            "conftest._compile_locked(sys.argv[1], conftest.Path(sys.argv[2]))"
+        )
+        _ahead.append(
+            subprocess.Popen(
+                [
+                    sys.executable,
+                    "-c",
+                    code,
+                    name,
+                    str(_lock_path(name)),
+                    str(Path(__file__).parent),
+                ],
+                stdin=subprocess.DEVNULL,
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+            )
+        )
+    if _ahead:  # give the compiles their locks before a worker asks
+        time.sleep(2.0)
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    """A compile started ahead and still running (a short run) is stopped."""
+    for child in _ahead:
+        if child.poll() is None:
+            child.terminate()
+            child.wait(timeout=30)
+
+
 def pytest_sessionstart(session: pytest.Session) -> None:
     """Every numba kernel compiles once per run, not once per xdist worker: the modules
     with a kernel (those of ``backends.WARM_UPS``) resolve their backend through
-    :func:`_resolving_once`."""
+    :func:`_resolving_once`; under xdist the tracker's compile starts at once."""
+    _start_compiles_ahead(session.config)
     for where in WARM_UPS.values():
         module = importlib.import_module(where.split(":")[0])
         module.resolve_backend = _resolving_once(module.resolve_backend)  # type: ignore[attr-defined]
