@@ -103,7 +103,11 @@ def _start_compiles_ahead(config: pytest.Config) -> None:
     """In the controller of a ``-n 2`` run: compile the slow kernels in a process of
     their own, holding their locks, beside the two workers from the first second
     (instead of inside whichever worker first needs them, while the other idles)."""
-    if fcntl is None or hasattr(config, "workerinput") or not config.getvalue("numprocesses"):
+    if (
+        fcntl is None
+        or hasattr(config, "workerinput")
+        or not getattr(config.option, "numprocesses", None)
+    ):
         return
     for name in _COMPILE_AHEAD:
         module, function = backends.DISPATCHERS[name].split(":")
