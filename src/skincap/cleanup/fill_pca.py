@@ -8,6 +8,7 @@ is taken out. A baseline for the local methods of :mod:`skincap.cleanup.fill_loc
 from __future__ import annotations
 
 import numpy as np
+import scipy.linalg
 
 from skincap.cleanup.fill_temporal import fill_linear, previous_next_present
 
@@ -74,19 +75,12 @@ def fill_pca(
     src = np.where(prev >= 0, prev, nxt)
     zi[still] = z[src[still], col[still]]
     miss = ~obs
+    q = 0
     for _ in range(max_iterations):
         mu = zi.mean(axis=0)
         c = zi - mu
-        if c.shape[1] <= c.shape[0]:  # principal axes from the (3M, 3M) covariance
-            ev, vec = np.linalg.eigh(c.T @ c)
-        else:  # or from the (T, T) Gram matrix: axes c^T u / |c^T u|
-            ev, u = np.linalg.eigh(c @ c.T)
-            vec = c.T @ u
-            vec /= np.maximum(np.linalg.norm(vec, axis=0), 1e-300)
-        ev, vec = np.maximum(ev[::-1], 0.0), vec[:, ::-1]
-        frac = np.cumsum(ev) / max(float(ev.sum()), 1e-300)
-        q = int(min(np.searchsorted(frac, variance) + 1, len(ev)))
-        v = vec[:, :q]  # (3M, q)
+        v = _leading_axes(c, variance, q)  # (3M, q)
+        q = v.shape[1]
         recon = mu + (c @ v) @ v.T
         change = np.abs(recon[miss] - zi[miss]).max() if miss.any() else 0.0
         zi[miss] = recon[miss]
@@ -98,6 +92,51 @@ def fill_pca(
     block[sub] = filled[sub]
     p[:, cols] = block
     return p + travel
+
+
+def _leading_axes(c: np.ndarray, variance: float, hint: int = 0) -> np.ndarray:
+    """(D, q) the principal axes of the centred rows ``c`` (F, D) that keep ``variance``.
+
+    The eigenproblem of the smaller of the (D, D) covariance and the (F, F) Gram
+    matrix (axes ``c^T u / |c^T u|``), solved only for the leading ``k`` eigenpairs
+    (LAPACK ``syevr``; ``k`` a few more than ``hint``, the previous iteration's ``q``,
+    doubled until they hold ``variance`` of the trace): cheaper than the whole
+    decomposition when ``q`` is a few dozen of hundreds. Same axes as
+    :func:`_leading_axes_full`, the reference, up to sign and rounding.
+    """
+    gram_rows = c.shape[1] > c.shape[0]
+    a = c @ c.T if gram_rows else c.T @ c
+    n = a.shape[0]
+    total = max(float(np.trace(a)), 1e-300)
+    k = min(n, max(hint + 8, 16))
+    while True:
+        ev, vec = scipy.linalg.eigh(a, subset_by_index=[n - k, n - 1], driver="evr")
+        ev, vec = np.maximum(ev[::-1], 0.0), vec[:, ::-1]
+        # all of them: the reference's sum (the trace differs in the last bits)
+        frac = np.cumsum(ev) / (max(float(ev.sum()), 1e-300) if k == n else total)
+        if frac[-1] >= variance or k == n:
+            break
+        k = min(n, 2 * k)
+    q = int(min(np.searchsorted(frac, variance) + 1, k))
+    vec = vec[:, :q]
+    if gram_rows:
+        vec = c.T @ vec
+        vec /= np.maximum(np.linalg.norm(vec, axis=0), 1e-300)
+    return vec
+
+
+def _leading_axes_full(c: np.ndarray, variance: float) -> np.ndarray:
+    """The reference of :func:`_leading_axes`: the whole eigendecomposition."""
+    if c.shape[1] <= c.shape[0]:  # principal axes from the (D, D) covariance
+        ev, vec = np.linalg.eigh(c.T @ c)
+    else:  # or from the (F, F) Gram matrix: axes c^T u / |c^T u|
+        ev, u = np.linalg.eigh(c @ c.T)
+        vec = c.T @ u
+        vec /= np.maximum(np.linalg.norm(vec, axis=0), 1e-300)
+    ev, vec = np.maximum(ev[::-1], 0.0), vec[:, ::-1]
+    frac = np.cumsum(ev) / max(float(ev.sum()), 1e-300)
+    q = int(min(np.searchsorted(frac, variance) + 1, len(ev)))
+    return vec[:, :q]
 
 
 def _body_travel(p: np.ndarray, present: np.ndarray, usable: np.ndarray) -> np.ndarray:

@@ -13,7 +13,6 @@ stay exact because the segment origins still follow the tree.
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import butter, sosfiltfilt
 
 from skincap.errors import ValidationError
 from skincap.geometry.rotations import matrix_to_quat, quat_to_matrix
@@ -69,6 +68,9 @@ def smooth_poses(
     t = rot.shape[0]
     if t < MIN_SMOOTH_FRAMES:
         return rot.copy(), org.copy()
+    # imported here: scipy.signal costs ~0.9 s of CPU, and a solve smooths only on request
+    from scipy.signal import butter, sosfiltfilt
+
     sos = butter(2, cutoff_hz / nyquist, output="sos")
     q = matrix_to_quat(rot)  # (T, S, 4)
     # q and -q are the same rotation: flip each frame to the side of the previous one
