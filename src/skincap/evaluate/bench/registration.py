@@ -33,8 +33,7 @@ def registration_seconds(
         ``ratio_to_lu`` (registration CPU over that), ``marker_distance_mean_m`` after
         registration and ``marker_distance_before_m`` (to the template as given).
     """
-    from skincap.deform.dense.landmarks import _spread
-    from skincap.deform.dense.registration import register_mesh
+    from skincap.deform.dense.registration import _farthest_point_nodes, register_mesh
     from skincap.synth.body import procedural_body
     from skincap.synth.skeleton import synth_skeleton
 
@@ -44,7 +43,7 @@ def registration_seconds(
     face = rng.integers(0, f.shape[0], 30 * int(n_markers))
     bary = rng.dirichlet(np.ones(3), face.size)
     candidates = np.einsum("nk,nkx->nx", bary, v[f[face]])
-    markers = candidates[_spread(candidates, int(n_markers))] * 1.04 + [0.0, 0.0, 0.03]
+    markers = candidates[_farthest_point_nodes(candidates, min(int(n_markers), len(candidates)))] * 1.04 + [0.0, 0.0, 0.03]
     labels = [f"D{i:03d}" for i in range(markers.shape[0])]
 
     edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
