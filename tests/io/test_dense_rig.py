@@ -76,3 +76,20 @@ def test_malformed_rigs_are_refused(tmp_path) -> None:
         read_dense_rig(path)
     with pytest.raises(FormatError, match=".npz"):
         write_dense_rig(tmp_path / "r.rig", rig.to_arrays(), list(rig.labels), {})
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b'{"format": "\xff"}', r"r\.json.*not UTF-8 text \(byte 12\)"),
+        (b"[" * 100_000, r"r\.json.*nested too deeply"),
+        (b'{"format": ', r"r\.json.*invalid rig sidecar JSON"),
+    ],
+)
+def test_hostile_sidecar_bytes_are_one_format_error(tmp_path, content, message) -> None:
+    rig = _rig()
+    path = tmp_path / "r.npz"
+    write_dense_rig(path, rig.to_arrays(), list(rig.labels), rig.settings)
+    path.with_suffix(".json").write_bytes(content)
+    with pytest.raises(FormatError, match=message):
+        read_dense_rig(path)

@@ -26,6 +26,7 @@ import numpy as np
 
 from skincap.errors import FormatError
 from skincap.io._common import atomic_output, check_readable
+from skincap.io.json_file import read_json
 
 __all__ = ["RIG_FORMAT", "RIG_VERSION", "dense_rig_files", "read_dense_rig", "write_dense_rig"]
 
@@ -122,10 +123,7 @@ def read_dense_rig(
     if not sidecar.exists():
         raise FormatError(npz, f"the rig's sidecar {sidecar.name} is missing beside it")
     check_readable(sidecar)
-    try:
-        meta = json.loads(sidecar.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise FormatError(sidecar, f"not JSON ({exc})") from None
+    meta = read_json(sidecar, what="rig sidecar JSON")
     if not isinstance(meta, dict) or meta.get("format") != RIG_FORMAT:
         raise FormatError(sidecar, f"not a skincap dense rig sidecar (format {RIG_FORMAT!r})")
     if meta.get("version") != RIG_VERSION:

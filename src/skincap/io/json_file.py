@@ -10,7 +10,7 @@ from typing import Any
 from skincap.errors import FormatError
 from skincap.io._common import atomic_output
 
-__all__ = ["parse_json", "write_json"]
+__all__ = ["parse_json", "read_json", "write_json"]
 
 
 def parse_json(path: str | os.PathLike[str], text: str, *, what: str = "JSON") -> Any:
@@ -27,6 +27,24 @@ def parse_json(path: str | os.PathLike[str], text: str, *, what: str = "JSON") -
         raise FormatError(Path(path), f"invalid {what}: {exc.msg}", line=exc.lineno) from None
     except RecursionError:
         raise FormatError(Path(path), f"invalid {what}: nested too deeply") from None
+
+
+def read_json(path: str | os.PathLike[str], *, what: str = "JSON") -> Any:
+    """The JSON document in the file ``path`` (UTF-8).
+
+    Raises
+    ------
+    FormatError
+        The bytes are not UTF-8 (names the byte), not JSON or nested too deeply to
+        parse (see :func:`parse_json`).
+    """
+    p = Path(path)
+    raw = p.read_bytes()
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(p, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    return parse_json(p, text, what=what)
 
 
 def write_json(

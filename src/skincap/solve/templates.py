@@ -53,7 +53,6 @@ a user writes one for their own set in the same form)::
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,6 +60,7 @@ from typing import Any
 
 from skincap.data import path as data_path
 from skincap.errors import FormatError, ValidationError
+from skincap.io.json_file import parse_json, read_json
 
 __all__ = [
     "BUILTIN_TEMPLATES",
@@ -292,28 +292,16 @@ def load_template(template: str | os.PathLike[str]) -> Template:
     """
     key = os.fspath(template)
     if key in BUILTIN_TEMPLATES:
-        text = data_path(BUILTIN_TEMPLATES[key]).read_text(encoding="utf-8")
         source = f"template {key}"
+        data = parse_json(source, data_path(BUILTIN_TEMPLATES[key]).read_text("utf-8"))
     else:
         path = Path(key)
         if not path.is_file():
             raise ValidationError(
                 f"template: {key!r} is neither a file nor one of {', '.join(BUILTIN_TEMPLATES)} or auto"
             )
-        raw = path.read_bytes()
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError as exc:
-            raise FormatError(
-                path, f"not UTF-8 text (byte {exc.start})", offset=exc.start
-            ) from None
         source = key
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FormatError(source, f"not JSON: {exc.msg}", line=exc.lineno) from None
-    except RecursionError:
-        raise FormatError(source, "not JSON: nested too deeply") from None
+        data = read_json(path, what="template JSON")
     return _parse(data, source)
 
 
