@@ -62,6 +62,32 @@ def test_synth_cli_rejects_bad_options(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--vertices", "0"], "--vertices: expected 2000..200000 for the procedural body, got 0"),
+        (["--vertices", "999999"], "--vertices: expected 2000..200000"),
+    ],
+)
+def test_synth_bad_option_is_named_not_the_output(tmp_path, data_dir, extra, message):
+    c3d = data_dir / "cmu_85_02.c3d"
+    out = tmp_path / "take"
+    result = run("synth", *[a.format(c3d=c3d) for a in extra], "-o", out)
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"skincap: error: {message}"), result.stderr
+    assert not out.exists()
+
+
+def test_synth_makehuman_body_ignores_vertices(tmp_path):
+    # --vertices sizes the procedural body only: the shipped rig is taken as it is
+    out = tmp_path / "take"
+    result = run("synth", "--body", "makehuman", "--vertices", "0", "--motion", "tpose",
+                 "--markers", "sparse", "--frames", "2", "-o", out)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "summary.json").read_text())["frames"] == 2
+
+
 @pytest.mark.slow
 def test_synth_corruption_is_recorded_and_clean_repairs_it(tmp_path):
     """--spikes/--swaps/--prop land in capture.c3d as corruption.json says, and clean

@@ -246,9 +246,16 @@ def synth_folder(
     """
     from skincap.errors import FormatError, ValidationError
     from skincap.io.output_safety import guard_outputs
+    from skincap.synth.body import VERTEX_COUNT_RANGE
     from skincap.synth.generate import generate_capture
     from skincap.synth.inputs import build_body, build_motion
 
+    if body == "procedural":  # before any work, named as the option (not the output)
+        low, high = VERTEX_COUNT_RANGE
+        if not low <= vertices <= high:
+            raise ValidationError(
+                f"--vertices: expected {low}..{high} for the procedural body, got {vertices}"
+            )
     root = Path(output)
     motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
     report = progress if progress is not None else (lambda fraction, label: None)
