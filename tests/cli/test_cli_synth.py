@@ -67,6 +67,17 @@ def test_synth_cli_rejects_bad_options(tmp_path):
     [
         (["--vertices", "0"], "--vertices: expected 2000..200000 for the procedural body, got 0"),
         (["--vertices", "999999"], "--vertices: expected 2000..200000"),
+        (["--noise-mm", "-1"], "--noise-mm: expected a finite number >= 0, got -1"),
+        (["--noise-mm", "nan"], "--noise-mm: expected a finite number >= 0, got nan"),
+        (["--soft-tissue", "-0.5"], "--soft-tissue: expected a finite number >= 0"),
+        (["--swaps", "-2"], "--swaps: expected a finite number >= 0, got -2"),
+        (["--seconds", "nan"], "--seconds: expected a positive number, got nan"),
+        (["--rope", "lasso"], "--rope: expected none, jump or whip, got 'lasso'"),
+        (["--real-markers", "{c3d}", "--rope", "whip", "--noise-mm", "-1"], "--noise-mm: expected"),
+        (
+            ["--real-markers", "{c3d}", "--rope", "none"],
+            "--rope: --real-markers needs whip or jump",
+        ),
     ],
 )
 def test_synth_bad_option_is_named_not_the_output(tmp_path, data_dir, extra, message):
