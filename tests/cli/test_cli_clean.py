@@ -117,7 +117,16 @@ def test_clean_real_unlabelled_file(data_dir: Path, tmp_path: Path) -> None:
 def test_clean_errors(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
     src, _ = synth_c3d
     result = run("clean", src, "-o", tmp_path / "x.c3d", "--method", "magic")
-    assert result.exit_code == 2 and "--method" in result.output
+    assert result.exit_code == 2 and "--method: expected one of" in result.output
+    assert (
+        "x.c3d" not in result.output and "got 'magic'" in result.output
+    )  # the option, not the output
+    for blend in ("5", "nan", "-0.1"):
+        result = run("clean", src, "-o", tmp_path / "x.c3d", "--rigid-blend", blend)
+        assert (
+            result.exit_code == 2 and "--rigid-blend: expected a weight in [0, 1]" in result.output
+        )
+    assert not (tmp_path / "x.c3d").exists()
     result = run("clean", src, "-o", tmp_path / "x.trc")
     assert result.exit_code == 2 and ".c3d" in result.output
     result = run("clean", src, "-o", tmp_path / "x.c3d", "--reference-frame", "100000")

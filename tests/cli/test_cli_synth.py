@@ -62,6 +62,43 @@ def test_synth_cli_rejects_bad_options(tmp_path):
     assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--vertices", "0"], "--vertices: expected 2000..200000 for the procedural body, got 0"),
+        (["--vertices", "999999"], "--vertices: expected 2000..200000"),
+        (["--noise-mm", "-1"], "--noise-mm: expected a finite number >= 0, got -1"),
+        (["--noise-mm", "nan"], "--noise-mm: expected a finite number >= 0, got nan"),
+        (["--soft-tissue", "-0.5"], "--soft-tissue: expected a finite number >= 0"),
+        (["--swaps", "-2"], "--swaps: expected a finite number >= 0, got -2"),
+        (["--seconds", "nan"], "--seconds: expected a positive number, got nan"),
+        (["--rope", "lasso"], "--rope: expected none, jump or whip, got 'lasso'"),
+        (["--real-markers", "{c3d}", "--rope", "whip", "--noise-mm", "-1"], "--noise-mm: expected"),
+        (
+            ["--real-markers", "{c3d}", "--rope", "none"],
+            "--rope: --real-markers needs whip or jump",
+        ),
+    ],
+)
+def test_synth_bad_option_is_named_not_the_output(tmp_path, data_dir, extra, message):
+    c3d = data_dir / "cmu_85_02.c3d"
+    out = tmp_path / "take"
+    result = run("synth", *[a.format(c3d=c3d) for a in extra], "-o", out)
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"skincap: error: {message}"), result.stderr
+    assert not out.exists()
+
+
+def test_synth_makehuman_body_ignores_vertices(tmp_path):
+    # --vertices sizes the procedural body only: the shipped rig is taken as it is
+    out = tmp_path / "take"
+    result = run("synth", "--body", "makehuman", "--vertices", "0", "--motion", "tpose",
+                 "--markers", "sparse", "--frames", "2", "-o", out)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "summary.json").read_text())["frames"] == 2
+
+
 @pytest.mark.slow
 def test_synth_corruption_is_recorded_and_clean_repairs_it(tmp_path):
     """--spikes/--swaps/--prop land in capture.c3d as corruption.json says, and clean

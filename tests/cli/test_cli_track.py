@@ -170,6 +170,18 @@ def test_track_usage_errors(scene, tmp_path) -> None:  # type: ignore[no-untyped
     assert result.exit_code == 2 and "skincap: error:" in result.output
 
 
+@pytest.mark.parametrize("window", ["-1", "nan", "inf", "0"])
+@pytest.mark.parametrize("rope", [["--rope", "auto"], []])  # checked before the rope choice too
+def test_track_refuses_a_bad_window_naming_the_option(scene, tmp_path, window, rope) -> None:  # type: ignore[no-untyped-def]
+    folder, _, _ = scene
+    out = tmp_path / "out"
+    result = run("track", folder / "points.csv", *rope, f"--window={window}", "-o", out)
+    assert result.exit_code == 2, result.output
+    errors = [ln for ln in result.output.splitlines() if ln.startswith("skincap: error:")]
+    assert len(errors) == 1 and "--window: expected seconds > 0" in errors[0], result.output
+    assert "Traceback" not in result.output and not out.exists()
+
+
 def test_track_help_has_example() -> None:
     result = run("track", "--help")
     assert result.exit_code == 0 and "Example: skincap track" in result.output

@@ -11,7 +11,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from skincap.errors import FormatError, OutputExistsError, SkincapError, UnitWarning
+from skincap.errors import (
+    FormatError,
+    OutputExistsError,
+    SkincapError,
+    UnitWarning,
+    ValidationError,
+)
 from skincap.io._common import to_y_up
 from skincap.io.c3d import read_c3d, write_c3d
 from skincap.types import MarkerSet
@@ -267,6 +273,22 @@ def test_writer_without_c3d_suffix(tmp_path):
     write_c3d(m, out)
     assert out.exists() and list(tmp_path.iterdir()) == [out]
     assert read_c3d(out).n_markers == 26
+
+
+@pytest.mark.parametrize("n_frames, n_markers", [(5, 0), (0, 2), (0, 0)])
+def test_writer_refuses_a_take_without_frames_or_markers(tmp_path, n_frames, n_markers):
+    # a 0-marker take used to be written and read back with 0 frames: its length was lost
+    m = MarkerSet(np.zeros((n_frames, n_markers, 3)), [f"m{i}" for i in range(n_markers)], 100.0)
+    with pytest.raises(ValidationError, match=r"a C3D needs at least one (frame|marker), got 0"):
+        write_c3d(m, tmp_path / "empty.c3d")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_writer_keeps_a_take_of_model_outputs_only(tmp_path):
+    angles = {"LKneeAngles": np.tile([10.0, 2.0, 3.0], (4, 1))}
+    m = MarkerSet(np.zeros((4, 0, 3)), [], 100.0, meta={"model_outputs": {"angles": angles}})
+    write_c3d(m, tmp_path / "angles.c3d")
+    assert ezc3d.c3d(str(tmp_path / "angles.c3d"))["data"]["points"].shape == (4, 1, 4)
 
 
 # ------------------------------------------------------------------------- malformed

@@ -222,7 +222,14 @@ def test_triangulate_polygons_fan() -> None:
 @pytest.mark.parametrize(
     ("text", "line", "fragment"),
     [
-        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "vertex index 4 out of range"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 4\n", 4, "index 4 out of range (file has 3 vertices)"),
+        ("v 0 0 0\nf 1 1 2\n", 2, "index 2 out of range (file has 1 vertex)"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//2\n", 5, "(file has 1 normal)"),
+        (
+            "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nf 1/1 2/2 3/3\n",
+            6,
+            "has 2 texture coordinates)",
+        ),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -4\n", 4, "out of range"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", 4, "index 0"),
         ("v 0 0 0\nv 1 zero 0\nv 0 1 0\nf 1 2 3\n", 2, "'zero' is not a number"),

@@ -156,7 +156,11 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(arm, tmp_path):
         (("animate", "--rig", rig, other, "-o", tmp_path / "o.pc2"), "r.npz", "another marker set"),
         (("animate", mesh_path, take_path, "--rom", other, "-o", tmp_path / "o.pc2"), "other.c3d", "lacks"),
         (("animate", mesh_path, take_path, "-o", tmp_path / "o.abc"), "o.abc", "cannot write"),
-        (("animate", mesh_path, take_path, "--method", "cubic", "-o", tmp_path / "o.pc2"), "o.pc2", "--method"),
+        # an option at fault is named with the inputs, not the output it would have gone to
+        (("animate", mesh_path, take_path, "--method", "cubic", "-o", tmp_path / "o.pc2"), take_path.name, "--method: expected one of"),
+        (("animate", mesh_path, take_path, "--parts", "0", "-o", tmp_path / "o.pc2"), take_path.name, "--parts: expected 1..200, got 0"),
+        (("animate", mesh_path, take_path, "--parts", "201", "-o", tmp_path / "o.pc2"), take_path.name, "--parts: expected 1..200"),
+        (("animate", mesh_path, take_path, "--marker-radius", "nan", "-o", tmp_path / "o.pc2"), take_path.name, "--marker-radius: expected 0-50 mm"),
     ]  # fmt: skip
     for args, name, what in cases:
         before = set(tmp_path.iterdir())
@@ -164,6 +168,7 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(arm, tmp_path):
         assert res.exit_code == 2, (args, res.output)
         lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
         assert len(lines) == 1 and name in lines[0] and what in lines[0], res.output
+        assert "o.pc2" not in lines[0] or name == "o.pc2", res.output
         assert _nothing_written(tmp_path, before), args
 
 

@@ -33,3 +33,49 @@ def test_convert_bvh_counts_joints_and_refuses_other_outputs(tmp_path, data_dir)
     with pytest.raises(FormatError, match="cannot write '.xyz'"):
         convert_file(src, tmp_path / "copy.xyz", units="cm")
     assert not (tmp_path / "copy.trc").exists() and not (tmp_path / "copy.xyz").exists()
+
+
+def _trc(path, n_frames_header: int, labels: list[str], rows: int):
+    """A minimal TRC: ``rows`` data rows of zeros for ``labels``, NumFrames as given."""
+    names = "".join(f"\t{name}\t\t" for name in labels)
+    axes = "".join(f"X{i}\tY{i}\tZ{i}\t" for i in range(1, len(labels) + 1))
+    data = "".join(f"{f + 1}\t{f / 100}" + "\t0" * (3 * len(labels)) + "\n" for f in range(rows))
+    path.write_text(
+        f"PathFileType\t4\t(X/Y/Z)\t{path.name}\n"
+        "DataRate\tCameraRate\tNumFrames\tNumMarkers\tUnits\tOrigDataRate\tOrigDataStartFrame\tOrigNumFrames\n"
+        f"100.0\t100.0\t{n_frames_header}\t{len(labels)}\tmm\t100.0\t1\t{n_frames_header}\n"
+        f"Frame#\tTime{names}\n\t\t{axes}\n\n{data}"
+    )
+    return path
+
+
+def _c3d_without_markers(path):
+    """A 5-frame C3D with no POINTs, written by ezc3d (skincap's writer refuses one)."""
+    import ezc3d
+
+    c3d = ezc3d.c3d()
+    c3d["parameters"]["POINT"]["RATE"]["value"] = [100.0]
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = ["mm"]
+    c3d["data"]["points"] = np.zeros((4, 0, 5))
+    c3d.write(str(path))
+    return path
+
+
+@pytest.mark.parametrize(
+    "make, fragment",
+    [
+        (lambda d: _trc(d / "no_frames.trc", 0, ["a", "b"], 0), "at least one frame, got 0"),
+        (lambda d: _trc(d / "no_markers.trc", 3, [], 3), "at least one marker, got 0"),
+        (lambda d: _c3d_without_markers(d / "no_markers.c3d"), "at least one marker, got 0"),
+    ],
+)
+def test_empty_capture_to_c3d_names_the_input(tmp_path, make, fragment):
+    src = make(tmp_path)
+    before = src.read_bytes()
+    dst = tmp_path / "out" / "x.c3d"
+    dst.parent.mkdir()
+    with pytest.raises(FormatError, match=fragment) as info:
+        convert_file(src, dst)
+    assert info.value.path is not None and str(info.value.path) == str(src)
+    assert not dst.exists() and list(dst.parent.iterdir()) == []
+    assert src.read_bytes() == before

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -79,6 +80,8 @@ def track(
 
     outputs = [output / name for name in OUTPUT_NAMES]
     with _user_errors(), frame_bar("tracking the rope") as advance:
+        if not (math.isfinite(window) and window > 0):  # before the rope checks: -1, nan, inf
+            raise ValidationError(f"--window: expected seconds > 0, got {window:g}")
         given = [rope_box is not None, rope_markers is not None, rope is not None]
         if sum(given) != 1:
             raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")

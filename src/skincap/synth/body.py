@@ -47,7 +47,10 @@ from skincap.geometry.sweep import KeyEllipses, Sweep, frames_from_axes
 from skincap.synth.skeleton import SYNTH_JOINTS
 from skincap.types import Mesh, Skeleton, Skin
 
-__all__ = ["procedural_body", "body_parts", "BodyPart"]
+__all__ = ["procedural_body", "body_parts", "BodyPart", "VERTEX_COUNT_RANGE"]
+
+#: Vertex counts :func:`procedural_body` builds, inclusive.
+VERTEX_COUNT_RANGE = (2_000, 200_000)
 
 #: Reference stature of the radii below (metres).
 _REF_HEIGHT = 1.75
@@ -541,9 +544,10 @@ def procedural_body(
         target = int(n_vertices)
     except (TypeError, ValueError):
         raise ValidationError(f"n_vertices: expected an integer, got {n_vertices!r}") from None
-    if target != n_vertices or not 2_000 <= target <= 200_000:
+    low, high = VERTEX_COUNT_RANGE
+    if target != n_vertices or not low <= target <= high:
         raise ValidationError(
-            f"n_vertices: expected an integer in 2000..200000, got {n_vertices!r}"
+            f"n_vertices: expected an integer in {low}..{high}, got {n_vertices!r}"
         )
     skeleton, pos = _check_skeleton(skeleton)
     height = _height_of(skeleton, np.stack(list(pos.values())))

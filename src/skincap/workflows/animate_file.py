@@ -193,6 +193,7 @@ def animate_file(
     from skincap.io.output_safety import guard_outputs
     from skincap.workflows.skin_file import mesh_input_files
 
+    _check_options(method, n_parts, marker_radius_mm)
     markers_path, output = Path(markers_path), Path(output)
     given = {"mesh": mesh_path, "rom": rom, "surface": surface, "landmarks": landmarks,
              "rig": rig, "save_rig": save_rig, "report": report}  # fmt: skip
@@ -228,6 +229,18 @@ def animate_file(
         )  # fmt: skip
 
 
+def _check_options(method: str, n_parts: int, marker_radius_mm: float) -> None:
+    """Refuse a bad option before any file is touched, naming the option (not the output)."""
+    from skincap.deform.dense.deformer import METHODS
+
+    if method not in METHODS:
+        raise ValidationError(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
+    if not 0.0 <= marker_radius_mm <= 50.0:  # NaN fails too
+        raise ValidationError(f"--marker-radius: expected 0-50 mm, got {marker_radius_mm}")
+    if not 1 <= n_parts <= 200:
+        raise ValidationError(f"--parts: expected 1..200, got {n_parts}")
+
+
 def _animate(
     paths: dict[str, Path | None],
     markers_path: Path,
@@ -243,15 +256,8 @@ def _animate(
     progress: Progress | None,
 ) -> dict[str, Any]:
     from skincap import io
-    from skincap.deform.dense.deformer import METHODS
     from skincap.deform.dense.rig import DenseRig
 
-    if method not in METHODS:
-        raise FormatError(output, f"--method must be one of {', '.join(METHODS)}, got {method!r}")
-    if not 0.0 <= marker_radius_mm <= 50.0:
-        raise FormatError(output, f"--marker-radius must be 0-50 mm, got {marker_radius_mm}")
-    if not 1 <= n_parts <= 200:
-        raise FormatError(output, f"--parts must be in 1..200, got {n_parts}")
     take = labelled_markers(io.read(markers_path), markers_path)
     positions, filled = _filled(take, markers_path)
     labels = [str(s) for s in take.labels]
@@ -476,7 +482,7 @@ def _timed_frames(
     """The deformer's chunks, each one's wall time and frame count appended to ``timing``."""
     blocks = subject.deformer().deform(
         positions,
-        cast("Method", method),  # checked against METHODS by _animate
+        cast("Method", method),  # checked against METHODS by _check_options
         chunk=CHUNK_FRAMES,
         progress=_stage(progress, "deformation"),
     )

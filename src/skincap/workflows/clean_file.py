@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from skincap._arrays import Progress
-from skincap.errors import FormatError
+from skincap.errors import FormatError, ValidationError
 
 if TYPE_CHECKING:
     from skincap.cleanup.surface import MarkerSurface
@@ -158,11 +158,14 @@ def clean_file(
     src, output = Path(src), Path(output)
     inputs = [src, surface, fragment_truth]
     outputs = [output] if report is None else [output, report]
+    # options first, before any file is touched, named as the option (not the output)
+    if method not in FILL_METHODS:
+        raise ValidationError(
+            f"--method: expected one of {', '.join(FILL_METHODS)}, got {method!r}"
+        )
+    if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+        raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
     with guard_outputs(inputs, outputs, force=force):
-        if method not in FILL_METHODS:
-            raise FormatError(output, f"--method must be one of {', '.join(FILL_METHODS)}")
-        if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
-            raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
         if output.suffix.lower() != ".c3d":
             raise FormatError(output, "the cleaned capture is written as .c3d")
         markers = io.read(src)

@@ -89,6 +89,12 @@ def _convert_checked(
             obj = PointCloud.from_markerset(obj)
         elif isinstance(obj, PointCloud) and out_ext != ".csv":
             obj = obj.to_markerset()
+        if out_ext == ".c3d" and isinstance(obj, MarkerSet):
+            from skincap.io.c3d import c3d_emptiness
+
+            empty = c3d_emptiness(obj)
+            if empty is not None:  # the input is at fault, not the output path
+                raise FormatError(src, f"cannot convert to {dst.name}: {empty}")
         io.write(obj, dst, force=force)
         return {"frames": obj.n_frames}
     if isinstance(obj, Motion):

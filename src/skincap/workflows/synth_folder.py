@@ -30,6 +30,7 @@ marker_surface, motion, mesh, body and marker_parts files are not written.
 from __future__ import annotations
 
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from skincap._arrays import Progress
-from skincap.errors import OutputExistsError
+from skincap.errors import OutputExistsError, ValidationError
 from skincap.io._common import atomic_output
 from skincap.synth.corrupt import CorruptionTruth
 from skincap.synth.generate import SynthCapture
@@ -183,6 +184,23 @@ def _jsonable(value: Any) -> Any:
     return value
 
 
+def _check_length(frames: int | None, seconds: float | None, *, min_frames: int) -> None:
+    """Refuse --frames and --seconds together, or out of range, naming the option."""
+    if frames is not None and seconds is not None:
+        raise ValidationError("give --frames or --seconds, not both")
+    if frames is not None and frames < min_frames:
+        raise ValidationError(f"--frames: expected at least {min_frames}, got {frames}")
+    if seconds is not None and not (math.isfinite(seconds) and seconds > 0):
+        raise ValidationError(f"--seconds: expected a positive number, got {seconds:g}")
+
+
+def _check_not_negative(*options: tuple[str, float]) -> None:
+    """Refuse a negative or non-finite value of each ``(option, value)``, naming the option."""
+    for option, value in options:
+        if not (math.isfinite(value) and value >= 0):
+            raise ValidationError(f"{option}: expected a finite number >= 0, got {value:g}")
+
+
 def synth_folder(
     output: str | os.PathLike[str],
     *,
@@ -240,31 +258,37 @@ def synth_folder(
 
     Raises
     ------
+    ValidationError
+        An option out of range, named as the CLI option, before anything is read
+        or written.
     FormatError
-        An option out of range (named as the CLI option), or corruption the take
-        cannot hold.
+        Corruption the take cannot hold.
     """
-    from skincap.errors import FormatError, ValidationError
+    from skincap.errors import FormatError
     from skincap.io.output_safety import guard_outputs
+    from skincap.synth.body import VERTEX_COUNT_RANGE
     from skincap.synth.generate import generate_capture
     from skincap.synth.inputs import build_body, build_motion
 
+    _check_length(frames, seconds, min_frames=1)
+    if markers not in ("dense", "sparse"):
+        raise ValidationError(f"--markers: expected dense or sparse, got {markers!r}")
+    if rope not in ("none", "jump", "whip"):
+        raise ValidationError(f"--rope: expected none, jump or whip, got {rope!r}")
+    if body == "procedural":
+        low, high = VERTEX_COUNT_RANGE
+        if not low <= vertices <= high:
+            raise ValidationError(
+                f"--vertices: expected {low}..{high} for the procedural body, got {vertices}"
+            )
+    _check_not_negative(("--soft-tissue", soft_tissue), ("--noise-mm", noise_mm))
+    _check_not_negative(("--spikes", spikes), ("--swaps", swaps))
     root = Path(output)
     motion_file = Path(motion) if motion.lower().endswith(".bvh") else None
     report = progress if progress is not None else (lambda fraction, label: None)
     with guard_outputs(
         [motion_file], [root / name for name in OUTPUT_FILES], folders=[root], force=force
     ):
-        if frames is not None and seconds is not None:
-            raise FormatError(root, "give --frames or --seconds, not both")
-        if frames is not None and frames < 1 or seconds is not None and seconds <= 0:
-            raise FormatError(root, "--frames/--seconds must be positive")
-        if markers not in ("dense", "sparse") or rope not in ("none", "jump", "whip"):
-            raise FormatError(root, "--markers must be dense or sparse; --rope none, jump or whip")
-        if soft_tissue < 0 or noise_mm < 0:
-            raise FormatError(root, "--soft-tissue and --noise-mm must not be negative")
-        if spikes < 0 or swaps < 0:
-            raise FormatError(root, "--spikes and --swaps must not be negative")
         report(0.0, f"{body} body")
         mesh = build_body(body, n_vertices=vertices, seed=seed)
         report(0.05, "motion")
@@ -322,29 +346,26 @@ def real_rope_folder(
 
     Raises
     ------
+    ValidationError
+        An option out of range, named as the CLI option, before anything is read.
     FormatError
-        An option out of range (named as the CLI option), a capture that is not
-        labelled markers, or hands that cannot be found.
+        A capture that is not labelled markers, or hands that cannot be found.
     """
     from skincap import io
-    from skincap.errors import FormatError, ValidationError
+    from skincap.errors import FormatError
     from skincap.io.output_safety import guard_outputs
     from skincap.synth.real_capture import real_capture_with_rope
     from skincap.types import MarkerSet
 
+    if rope not in ("whip", "jump"):
+        raise ValidationError(f"--rope: --real-markers needs whip or jump, got {rope!r}")
+    _check_length(frames, seconds, min_frames=2)
+    _check_not_negative(("--noise-mm", noise_mm))
     root = Path(output)
     report = progress if progress is not None else (lambda fraction, label: None)
     with guard_outputs(
         [Path(source)], [root / name for name in OUTPUT_FILES], folders=[root], force=force
     ):
-        if rope not in ("whip", "jump"):
-            raise FormatError(root, "--real-markers needs --rope whip or --rope jump")
-        if frames is not None and seconds is not None:
-            raise FormatError(root, "give --frames or --seconds, not both")
-        if frames is not None and frames < 2 or seconds is not None and seconds <= 0:
-            raise FormatError(root, "--frames must be at least 2 and --seconds positive")
-        if noise_mm < 0:
-            raise FormatError(root, "--noise-mm must not be negative")
         groups = None
         if hands is not None:
             groups = [[n for n in part.split(",") if n.strip()] for part in hands.split(":")]

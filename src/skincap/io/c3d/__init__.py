@@ -46,6 +46,6 @@ markers, the product asked for, with no way around; the warning names what is lo
 
 from skincap.io.c3d.reader import read_c3d
 from skincap.io.c3d.scan import MODEL_OUTPUT_GROUPS
-from skincap.io.c3d.writer import write_c3d
+from skincap.io.c3d.writer import c3d_emptiness, write_c3d
 
-__all__ = ["read_c3d", "write_c3d", "MODEL_OUTPUT_GROUPS"]
+__all__ = ["read_c3d", "write_c3d", "c3d_emptiness", "MODEL_OUTPUT_GROUPS"]

@@ -33,7 +33,7 @@ from skincap.io.c3d.scan import INVENTED_MASK, MODEL_OUTPUT_GROUPS
 from skincap.io.narrowing import FLOAT32_MAX, check_float32
 from skincap.types import MarkerSet
 
-__all__ = ["write_c3d"]
+__all__ = ["write_c3d", "c3d_emptiness"]
 
 
 # --------------------------------------------------------------------------- write
@@ -75,6 +75,8 @@ def write_c3d(
     Raises
     ------
     OutputExistsError, ValidationError
+        ValidationError also for 0 frames, or 0 markers and no model outputs
+        (:func:`c3d_emptiness`).
     FormatError
         A value the file cannot hold (a coordinate beyond float32, a label over 255
         bytes), naming the value and where it is; nothing is written.
@@ -93,8 +95,9 @@ def write_c3d(
     up_key = str(up if up is not None else meta.get("up", "z")).lower()
     if up_key not in ("y", "z"):
         raise ValidationError(f"up: expected 'y' or 'z', got {up_key!r}")
-    if markers.n_frames == 0:
-        raise ValidationError("markers: a C3D needs at least one frame")
+    empty = c3d_emptiness(markers)
+    if empty is not None:
+        raise ValidationError(f"markers: {empty}")
     target = Path(path)
 
     points = _points_to_write(markers, units, up_key)
@@ -155,6 +158,21 @@ class _Points:
     residuals: np.ndarray
     groups: dict[str, list[str]]
     model_units: dict[str, Any]
+
+
+def c3d_emptiness(markers: MarkerSet) -> str | None:
+    """Why ``markers`` cannot be a C3D because it is empty, or None if it is not.
+
+    A C3D needs at least one frame and at least one POINT: a marker or a
+    ``meta["model_outputs"]`` series. A 0-point file would read back with 0 frames,
+    so it is refused rather than written with the frame count lost.
+    """
+    if markers.n_frames == 0:
+        return "a C3D needs at least one frame, got 0 frames"
+    model_outputs = markers.meta.get("model_outputs") or {}
+    if markers.n_markers == 0 and not any(model_outputs.values()):
+        return "a C3D needs at least one marker, got 0 markers"
+    return None
 
 
 def _points_to_write(markers: MarkerSet, units: str, up_key: str) -> _Points:

@@ -227,6 +227,15 @@ def _corner_fields(path: Path, p: _ObjParse) -> tuple[np.ndarray, np.ndarray, np
     return out[0], out[1], out[2]
 
 
+#: Plurals of the OBJ element names used in messages ("vertexs" read as a typo).
+_PLURAL = {"vertex": "vertices"}
+
+
+def _count_of(n: int, noun: str) -> str:
+    """``n`` and ``noun`` agreeing: "1 vertex", "3 vertices", "0 normals"."""
+    return f"{n} {noun if n == 1 else _PLURAL.get(noun, noun + 's')}"
+
+
 def _resolve(
     path: Path,
     raw: np.ndarray,
@@ -249,7 +258,7 @@ def _resolve(
         val = "missing" if missing[k] else str(int(raw[k]))
         raise FormatError(
             path,
-            f"face: {what} index {val} out of range (file has {total} {what}s)",
+            f"face: {what} index {val} out of range (file has {_count_of(total, what)})",
             line=int(lines[k]),
         )
     return np.where(missing, -1, idx).astype(np.int64)
