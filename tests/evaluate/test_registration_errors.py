@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mesh_grids import grid_triangles
 from skincap.errors import ValidationError
 from skincap.evaluate.registration import registration_errors
 
@@ -12,14 +13,7 @@ from skincap.evaluate.registration import registration_errors
 def _grid(n: int = 11, size: float = 0.5, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
     v = np.stack([x.ravel(), y.ravel(), np.full(x.size, z)], axis=1)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = (
-        idx[:-1, :-1].ravel(),
-        idx[1:, :-1].ravel(),
-        idx[1:, 1:].ravel(),
-        idx[:-1, 1:].ravel(),
-    )
-    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return v, grid_triangles(n, n)
 
 
 def test_a_parallel_plane_is_its_offset_away_both_ways() -> None:

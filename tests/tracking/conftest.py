@@ -34,6 +34,19 @@ def rope_truth_indices(take) -> np.ndarray:  # type: ignore[no-untyped-def]
     return np.nonzero(np.char.startswith(labels, "rope_"))[0]
 
 
+@pytest.fixture(params=["numpy", "numba"])
+def steps(request):  # type: ignore[no-untyped-def]
+    """The step module of each backend: the step tests run on both."""
+    if request.param == "numpy":
+        from skincap.tracking import _steps_numpy
+
+        return _steps_numpy
+    pytest.importorskip("numba")
+    from skincap.tracking import _steps_numba
+
+    return _steps_numba
+
+
 def blank_state(cloud, spacing, *, gamma: float = 0.03, **settings):  # type: ignore[no-untyped-def]
     """(TrackState, StepParams) for hand-made step tests: M = len(spacing) + 1 traces,
     every result and carried array zero (positions), -1 (indices) or False, all traces

@@ -10,16 +10,6 @@ from skincap.tracking import _steps_numpy
 from skincap.types import PointCloud
 
 
-@pytest.fixture(params=["numpy", "numba"])
-def steps(request):  # type: ignore[no-untyped-def]
-    if request.param == "numpy":
-        return _steps_numpy
-    pytest.importorskip("numba")
-    from skincap.tracking import _steps_numba
-
-    return _steps_numba
-
-
 def _cloud(*frames: np.ndarray) -> PointCloud:
     counts = [f.shape[0] for f in frames]
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)

@@ -11,21 +11,10 @@ import numpy as np
 import pytest
 
 from conftest import blank_state
-from skincap.tracking import _steps_numpy
 from skincap.types import PointCloud
 
 SPACING = 0.12
 M = 6
-
-
-@pytest.fixture(params=["numpy", "numba"])
-def steps(request):  # type: ignore[no-untyped-def]
-    if request.param == "numpy":
-        return _steps_numpy
-    pytest.importorskip("numba")
-    from skincap.tracking import _steps_numba
-
-    return _steps_numba
 
 
 def _frames(slide: float, extra: np.ndarray | None = None) -> tuple[PointCloud, np.ndarray]:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from mesh_grids import grid_triangles
 from skincap.deform.dense.landmarks import automatic_landmarks
 from skincap.deform.dense.registration import (
     MIN_MARKERS,
@@ -91,14 +92,7 @@ def test_markers_on_the_surface_leave_it_in_place() -> None:
 def _flat_patch(n: int = 21, size: float = 0.4) -> tuple[np.ndarray, np.ndarray]:
     x, y = np.meshgrid(np.linspace(0, size, n), np.linspace(0, size, n), indexing="ij")
     v = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
-    idx = np.arange(n * n).reshape(n, n)
-    a, b, c, d = (
-        idx[:-1, :-1].ravel(),
-        idx[1:, :-1].ravel(),
-        idx[1:, 1:].ravel(),
-        idx[:-1, 1:].ravel(),
-    )
-    return v, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return v, grid_triangles(n, n)
 
 
 def test_smoothness_keeps_a_flat_patch_flat() -> None:
