@@ -233,6 +233,21 @@ class _Calibrator:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(count[:, None] > 0, total / count[:, None], np.nan)
 
+    def prior_points(self, pr: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarray | None]:
+        """A ``from``/``towards`` prior's (T, 3) start and target points (target None
+        for a prior with neither ``towards`` nor ``towards_line``)."""
+        start = self.point(list(pr["from"]), where)
+        if "towards_line" in pr:
+            # towards the nearest point of a line (e.g. shoulder centre -> mid-wrist):
+            # from a marker on a joint's skin, that direction points into the joint
+            a = self.point(_as_list(pr["towards_line"][0]), where)
+            b = self.point(_as_list(pr["towards_line"][1]), where)
+            d = _unit(b - a)
+            return start, a + d * np.einsum("ti,ti->t", start - a, d)[:, None]
+        if "towards" in pr:
+            return start, self.point(_as_list(pr["towards"]), where)
+        return start, None
+
     def prior(self, spec: SegmentSpec) -> np.ndarray:
         assert spec.centre is not None  # checked by the template parser
         pr = spec.centre["prior"]
@@ -242,21 +257,56 @@ class _Calibrator:
             lp, rp = (self.point([m], where) for m in pr["psis"])
             left, right = jc.harrington_hip_centres(la, ra, lp, rp)
             return left if pr["harrington"] == "left" else right
-        start = self.point(list(pr["from"]), where)
-        if "towards_line" in pr:
-            # towards the nearest point of a line (e.g. shoulder centre -> mid-wrist):
-            # from a marker on a joint's skin, that direction points into the joint
-            a = self.point(_as_list(pr["towards_line"][0]), where)
-            b = self.point(_as_list(pr["towards_line"][1]), where)
-            d = _unit(b - a)
-            towards = a + d * np.einsum("ti,ti->t", start - a, d)[:, None]
-        elif "towards" in pr:
-            towards = self.point(list(pr["towards"]), where)
-        else:
+        start, towards = self.prior_points(pr, where)
+        if towards is None:
             return start
         if "fraction" in pr:
             return start + float(pr["fraction"]) * (towards - start)
         return start + float(pr.get("distance", 0.0)) * _unit(towards - start)
+
+    def along_axis(
+        self, spec: SegmentSpec, r_parent: np.ndarray, r_child: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The axis a ball joint's prior ``along`` names, ``(a_p, a_c)`` (3,) unit in the
+        parent's and the child's technical frames, or None (no ``along``, or the named
+        hinge axis was not found).
+
+        ``"axis"``: the joint's own principal axis of rotation
+        (:func:`~skincap.solve.joint_centres.principal_axis`); ``"hinge:SEGMENT"``: that
+        segment's hinge axis (an ankle's along its knee's: in a walk the foot turns most
+        about the shank's long axis, so its own principal axis is not the flexion axis).
+        """
+        assert spec.centre is not None
+        along = spec.centre["prior"].get("along")
+        if along == "axis":
+            return jc.principal_axis(r_parent, r_child)
+        if not isinstance(along, str) or along.removeprefix("hinge:") not in self.hinge_world:
+            return None
+        world = self.hinge_world[along.removeprefix("hinge:")]  # (T, 3)
+        ap, ac = (
+            _unit(_nanmedian0(np.einsum("tji,tj->ti", r, world))) for r in (r_parent, r_child)
+        )
+        if not (np.isfinite(ap).all() and np.isfinite(ac).all()):
+            return None
+        return ap, ac
+
+    def prior_along(self, spec: SegmentSpec, axis_world: np.ndarray) -> np.ndarray:
+        """(T, 3) the prior ``from + distance * axis`` for a prior with ``"along": "axis"``.
+
+        ``axis_world (T, 3)``: the joint's functional axis per frame (unit), signed here
+        so that it points on average towards the prior's ``towards`` points: from a
+        marker on the joint's lateral skin the centre lies along the axis, whatever
+        the direction to the other side's marker (in a walk the feet and knees are
+        not side by side, so ``towards`` alone points partly forwards or back).
+        """
+        assert spec.centre is not None
+        pr = spec.centre["prior"]
+        where = f"joint {spec.joint} (segment {spec.name})"
+        start, towards = self.prior_points(pr, where)
+        assert towards is not None  # the template parser requires it with "along"
+        dots = np.einsum("ti,ti->t", axis_world, towards - start)
+        sign = -1.0 if np.nansum(dots) < 0 else 1.0
+        return start + float(pr["distance"]) * sign * axis_world
 
     # steps --------------------------------------------------------------------
     def technical(self, spec: SegmentSpec, extra: np.ndarray | None = None) -> None:
@@ -287,6 +337,7 @@ class _Calibrator:
                 self.tech[spec.name] = parent
             return
         child_markers = self.present(spec)
+        along = spec.centre["prior"].get("along")
         method = "regression"
         spread: list[float] = []
         centre_w = prior_w
@@ -307,8 +358,27 @@ class _Calibrator:
                 )  # fmt: skip
                 fitted = (cp, cc)
                 method = "SCoRE"
+                axis = self.along_axis(spec, rp, rc)
+                if axis is not None:
+                    ap, ac = axis
+                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
+                    pp, pc = (
+                        _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
+                        for r, t in ((rp, tp), (rc, tc))
+                    )
+                    if np.isfinite(pp).all() and np.isfinite(pc).all():
+                        fitted = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
+                        method = "SCoRE + regression along the axis"
             elif s[0] >= self.min_spread and np.isfinite(pp).all():
                 ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
+                if along == "axis":
+                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
+                    pp, pc = (
+                        _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
+                        for r, t in ((rp, tp), (rc, tc))
+                    )
+                    if np.isfinite(pp).all() and np.isfinite(pc).all():
+                        cp, cc = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
                 fitted = (cp, cc)
                 self.axes_local[spec.name] = (ap, ac)
                 method = "SARA" if kind == "hinge" else "SARA axis + regression"
@@ -337,6 +407,11 @@ class _Calibrator:
                 elif s2[0] >= self.min_spread and np.isfinite(pp).all():
                     c, axis = jc.sphere_centre(y, pp, hinge=True)
                     assert axis is not None  # hinge=True always returns the axis
+                    if along == "axis":
+                        prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, axis))
+                        pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+                        if np.isfinite(pp).all():
+                            c = jc.closest_on_line(c, axis, pp)
                     self.axes_local[spec.name] = (axis, np.full(3, np.nan))
                     method = (
                         "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"

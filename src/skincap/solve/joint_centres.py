@@ -42,6 +42,8 @@ __all__ = [
     "direction_spread",
     "harrington_hip_centres",
     "closest_on_line",
+    "principal_axis",
+    "slide_along_axis",
 ]
 
 #: Least RMS spread of the relative rotation (degrees) along a principal axis that
@@ -177,12 +179,36 @@ def sara_axis(
     x0 = np.linalg.pinv(a, rcond=1e-10) @ b
     # x0 has no component along the null vector (minimum norm); slide along it
     x0 = x0 - null * (x0 @ null) / (null @ null)
-    if prior_parent is not None and prior_child is not None:
-        prior = np.concatenate([np.asarray(prior_parent, float), np.asarray(prior_child, float)])
-        x0 = x0 + null * ((prior - x0) @ null) / (null @ null)
     axis_p = null[:3] / np.linalg.norm(null[:3])
     axis_c = null[3:] / np.linalg.norm(null[3:])
+    if prior_parent is not None and prior_child is not None:
+        cp, cc = slide_along_axis(x0[:3], x0[3:], null[:3], null[3:], prior_parent, prior_child)
+        return axis_p, axis_c, cp, cc
     return axis_p, axis_c, x0[:3], x0[3:]
+
+
+def slide_along_axis(
+    centre_parent: np.ndarray,
+    centre_child: np.ndarray,
+    axis_parent: np.ndarray,
+    axis_child: np.ndarray,
+    prior_parent: np.ndarray,
+    prior_child: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The centre moved along the joint's axis to the point nearest a prior.
+
+    The centre ``(c_p, c_c)`` and the axis ``(a_p, a_c)`` (``R_p a_p = R_c a_c``: one
+    world line) are given in the parent's and the child's frame; the result is
+    ``(c_p + s a_p, c_c + s a_c)`` with ``s`` the least-squares fit of the prior in
+    both frames, so only the position along the axis -- the one a joint turning
+    about that axis does not determine -- changes. All (3,) float, metres; the axes
+    need not be unit (they are scaled alike).
+    """
+    c = np.concatenate([np.asarray(centre_parent, float), np.asarray(centre_child, float)])
+    n = np.concatenate([np.asarray(axis_parent, float), np.asarray(axis_child, float)])
+    prior = np.concatenate([np.asarray(prior_parent, float), np.asarray(prior_child, float)])
+    c = c + n * ((prior - c) @ n) / (n @ n)
+    return c[:3], c[3:]
 
 
 def sphere_centre(
@@ -271,6 +297,28 @@ def motion_spread(r_parent: np.ndarray, r_child: np.ndarray) -> np.ndarray:
     mean = Rotation.from_matrix(rel).mean()
     vec = (mean.inv() * Rotation.from_matrix(rel)).as_rotvec()
     return _spread_deg(vec)
+
+
+def principal_axis(r_parent: np.ndarray, r_child: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The axis a joint turns about most, in the parent's and the child's frame.
+
+    The first principal direction of the relative rotations ``R_p^T R_c`` about their
+    mean (:func:`motion_spread`'s largest spread): ``(a_p, a_c)``, (3,) unit float64
+    each, ``a_p = M a_c`` with ``M`` the mean relative rotation; the sign is arbitrary.
+    Its RMS spread is :func:`motion_spread`'s first value. NaN frames are skipped;
+    NaN axes with fewer than three frames.
+    """
+    r_p = np.asarray(r_parent, float)
+    r_c = np.asarray(r_child, float)
+    ok = np.isfinite(r_p).all(axis=(1, 2)) & np.isfinite(r_c).all(axis=(1, 2))
+    if ok.sum() < 3:
+        return np.full(3, np.nan), np.full(3, np.nan)
+    rel = Rotation.from_matrix(np.einsum("tji,tjk->tik", r_p[ok], r_c[ok]))
+    mean = rel.mean()
+    vec = (mean.inv() * rel).as_rotvec()  # small turns about the mean, child's frame
+    vec = vec - vec.mean(axis=0)
+    axis_c = np.linalg.svd(vec, full_matrices=False)[2][0]
+    return mean.apply(axis_c), axis_c
 
 
 def direction_spread(points_parent: np.ndarray, centre: np.ndarray) -> np.ndarray:

@@ -29,6 +29,14 @@ a user writes one for their own set in the same form)::
   or ``{"from": POINTS, "towards": POINTS, "distance": metres | "fraction": f}``
   (``"towards_line": [POINTS, POINTS]`` instead of ``towards``: towards the nearest
   point of that line, e.g. from the elbow marker towards the shoulder-wrist line).
+  ``"along": "axis"`` (with ``towards`` and ``distance``): once the joint's functional
+  axis is found (a hinge's SARA or sphere-fit axis; a ball joint's principal axis of
+  rotation) the prior is ``distance`` from ``from`` along that axis, signed towards
+  ``towards``, and the centre takes the prior's place along the axis -- the one
+  direction a joint that mostly flexes does not determine. ``"along":
+  "hinge:SEGMENT"`` uses that segment's hinge axis instead (an ankle along its knee's
+  axis). From a knee marker, the other knee is not straight medial in a walk (the
+  legs pass each other), so ``towards`` alone misplaces the centre along the axis.
 * ``axes``: the anatomical frame. The first entry's axis is exact (``FROM`` -> ``TO``),
   the second is orthogonalised; the third follows (right-handed). A second entry may
   be ``"hinge:SEGMENT"`` (that segment's joint axis, ``"-hinge:..."`` reversed) or
@@ -243,6 +251,20 @@ def _parse(data: Any, source: str) -> Template:
             prior = centre.get("prior")
             if not isinstance(prior, dict) or not ("harrington" in prior or "from" in prior):
                 raise bad(f"segment {name!r}: centre 'prior' needs 'harrington' or 'from'")
+            along = prior.get("along")
+            if along is not None and not (
+                along == "axis"
+                or (isinstance(along, str) and along.removeprefix("hinge:") in names)
+                and along.startswith("hinge:")
+            ):
+                raise bad(
+                    f"segment {name!r}: prior 'along' must be 'axis' or 'hinge:SEGMENT' "
+                    f"(an earlier segment), got {along!r}"
+                )
+            if along is not None and not (
+                ("towards" in prior or "towards_line" in prior) and "distance" in prior
+            ):
+                raise bad(f"segment {name!r}: prior 'along' needs 'towards' and a 'distance'")
             if centre["kind"] == "hinge" and len(centre.get("flexion", [])) != 3:
                 raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
         limits = _parse_limits(bad, name, raw.get("limits"))
