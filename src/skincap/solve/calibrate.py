@@ -38,6 +38,15 @@ __all__ = ["BodyModel", "calibrate", "match_markers", "MIN_CALIBRATION_FRAMES"]
 #: Fewest frames with markers a take needs to be calibrated on.
 MIN_CALIBRATION_FRAMES = 10
 
+#: A parent marker whose distance to a SCoRE joint centre has an SD over the take
+#: above this (metres) and LOOSE_FACTOR times the median of the parent's other markers
+#: does not define the parent's frame for that joint (:meth:`_Calibrator.score_without_loose`).
+LOOSE_FLOOR_M = 0.003
+LOOSE_FACTOR = 1.5
+#: ... while at least this many markers stay: three markers of a trunk (C7, CLAV, STRN)
+#: may lie near one line, a frame badly determined about it.
+LOOSE_KEEP = 4
+
 _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
 
@@ -188,6 +197,7 @@ class _Calibrator:
         self.hinge_world: dict[str, np.ndarray] = {}
         self.methods: dict[str, str] = {}
         self.spreads: dict[str, list[float]] = {}
+        self.loose: dict[str, list[str]] = {}  # segment -> parent markers SCoRE left out
         self.anat: dict[str, np.ndarray] = {}
         self.origin: dict[str, np.ndarray] = {}
 
@@ -263,6 +273,52 @@ class _Calibrator:
         if "fraction" in pr:
             return start + float(pr["fraction"]) * (towards - start)
         return start + float(pr.get("distance", 0.0)) * _unit(towards - start)
+
+    def score_without_loose(
+        self,
+        spec: SegmentSpec,
+        rp: np.ndarray,
+        tp: np.ndarray,
+        rc: np.ndarray,
+        tc: np.ndarray,
+        cp: np.ndarray,
+        cc: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, list[str]]:
+        """SCoRE again with the parent's frame built without its markers that do not
+        keep their distance to the joint centre.
+
+        A parent cluster that spans a bending part of the body (a thorax from T10 to
+        C7: the shoulders ride the upper thorax) is not rigid about the joint, and the
+        fit absorbs the bend. Each round drops the parent marker whose distance to the
+        centre ``(c_p, c_c)`` varies most over the take when its SD is above
+        :data:`LOOSE_FLOOR_M` and :data:`LOOSE_FACTOR` times the median SD of the
+        others, rebuilds the parent's technical frame from the rest (at least
+        :data:`LOOSE_KEEP`) and fits again. Returns the parent frame used ``(T, 3, 3)``, ``(T, 3)``, the
+        centre in both frames and the markers dropped (empty: unchanged).
+        """
+        assert spec.parent is not None
+        names = self.present(self.template.segment(spec.parent))
+        loose: list[str] = []
+        while len(names) - len(loose) > LOOSE_KEEP:
+            kept = [n for n in names if n not in loose]
+            pts = np.stack([self.marker(n) for n in kept], axis=1)  # (T, K, 3)
+            centre = 0.5 * (to_world(rp, tp, cp[None])[:, 0] + to_world(rc, tc, cc[None])[:, 0])
+            dist = np.linalg.norm(pts - centre[:, None], axis=2)  # (T, K), NaN where unseen
+            ok = np.isfinite(dist)
+            if (ok.sum(axis=0) < MIN_CALIBRATION_FRAMES).any():
+                break
+            sd = np.array([np.std(dist[ok[:, k], k]) for k in range(len(kept))])
+            worst = int(np.argmax(sd))
+            others = np.delete(sd, worst)
+            if sd[worst] <= max(LOOSE_FLOOR_M, LOOSE_FACTOR * float(np.median(others))):
+                break
+            rest = np.delete(pts, worst, axis=1)
+            if (np.isfinite(rest).all(axis=2).sum(axis=1) >= 3).sum() < MIN_CALIBRATION_FRAMES:
+                break
+            _, rp, tp = cluster_frames(rest)
+            cp, cc, _ = jc.score_centre(rp, tp, rc, tc)
+            loose.append(kept[worst])
+        return rp, tp, cp, cc, loose
 
     def along_axis(
         self, spec: SegmentSpec, r_parent: np.ndarray, r_child: np.ndarray
@@ -356,8 +412,13 @@ class _Calibrator:
                     prior=(pp, pc) if usable else None,
                     prior_spread_deg=self.score_prior_spread_deg,
                 )  # fmt: skip
-                fitted = (cp, cc)
                 method = "SCoRE"
+                rp, tp, cp, cc, loose = self.score_without_loose(spec, rp, tp, rc, tc, cp, cc)
+                if loose:
+                    self.loose[spec.name] = loose
+                    method = f"SCoRE without {', '.join(loose)}"
+                    pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+                fitted = (cp, cc)
                 axis = self.along_axis(spec, rp, rc)
                 if axis is not None:
                     ap, ac = axis
