@@ -48,7 +48,12 @@ def test_solve_writes_bvh_markers_and_report(solved):
     assert markers.n_markers == 41 and markers.n_frames == 810
     rep = json.loads(report.read_text())
     assert rep["overall"]["rms_m"] < 0.012
-    assert set(rep["joint_centres"]["LeftHip"]) == {"segment", "method", "range_of_motion_deg"}
+    assert set(rep["joint_centres"]["LeftHip"]) == {
+        "segment", "method", "range_of_motion_deg", "fit_singular_values"
+    }  # fmt: skip
+    # a shoulder between two framed segments: its SCoRE system's conditioning
+    sv = rep["joint_centres"]["LeftShoulder"]["fit_singular_values"]
+    assert len(sv) == 6 and sv == sorted(sv, reverse=True) and 0 < sv[5] < sv[0] < 1.5
     assert len(rep["per_frame_rms_m"]) == 810 and len(rep["per_marker"]) == 41
     assert rep["bone_lengths_m"]["LeftKnee"] > 0.3
 

@@ -75,6 +75,10 @@ class BodyModel:
     fixed : dict segment -> list of (joint name, (3,) position in the segment's frame)
     methods : dict segment -> str, how its proximal joint centre was found
     spreads_deg : dict segment -> list of float, range of motion used to decide
+    fit_singular_values : dict segment -> list of 6 float
+        For a joint between two framed segments, the SCoRE/SARA system's singular
+        values over sqrt(T) (:func:`skincap.solve.joint_centres.fit_singular_values`):
+        how well the take determines its centre and axis.
     link_stiffness : (S,) float64, metres per radian
         The spring holding each ``link`` segment to its parent's orientation in
         inverse kinematics; 0 for the other segments.
@@ -100,6 +104,7 @@ class BodyModel:
     fixed: dict[str, list[tuple[str, np.ndarray]]] = field(default_factory=dict)
     methods: dict[str, str] = field(default_factory=dict)
     spreads_deg: dict[str, list[float]] = field(default_factory=dict)
+    fit_singular_values: dict[str, list[float]] = field(default_factory=dict)
     link_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
     joint_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 2)))
     bone_axes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -198,6 +203,7 @@ class _Calibrator:
         self.methods: dict[str, str] = {}
         self.spreads: dict[str, list[float]] = {}
         self.loose: dict[str, list[str]] = {}  # segment -> parent markers SCoRE left out
+        self.conditions: dict[str, list[float]] = {}  # segment -> fit_singular_values
         self.anat: dict[str, np.ndarray] = {}
         self.origin: dict[str, np.ndarray] = {}
 
@@ -405,6 +411,7 @@ class _Calibrator:
             pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
             pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
             fitted: tuple[np.ndarray, np.ndarray] | None = None
+            sv = jc.fit_singular_values(rp, tp, rc, tc)
             if kind == "ball" and s[1] >= self.min_spread:
                 usable = np.isfinite(pp).all() and np.isfinite(pc).all()
                 cp, cc, _ = jc.score_centre(
@@ -418,6 +425,7 @@ class _Calibrator:
                     self.loose[spec.name] = loose
                     method = f"SCoRE without {', '.join(loose)}"
                     pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+                    sv = jc.fit_singular_values(rp, tp, rc, tc)
                 fitted = (cp, cc)
                 axis = self.along_axis(spec, rp, rc)
                 if axis is not None:
@@ -443,6 +451,7 @@ class _Calibrator:
                 fitted = (cp, cc)
                 self.axes_local[spec.name] = (ap, ac)
                 method = "SARA" if kind == "hinge" else "SARA axis + regression"
+            self.conditions[spec.name] = [round(float(v), 4) for v in sv]
             if fitted is not None:
                 cp, cc = fitted
                 wp = to_world(rp, tp, cp[None])[:, 0]
@@ -716,6 +725,7 @@ def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
         fixed=fixed,
         methods=dict(cal.methods),
         spreads_deg=dict(cal.spreads),
+        fit_singular_values=dict(cal.conditions),
         link_stiffness=np.array([s.stiffness if s.link else 0.0 for s in segs]),
         joint_limits=_joint_limits(segs),
         bone_axes=np.array(

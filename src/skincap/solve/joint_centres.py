@@ -44,6 +44,7 @@ __all__ = [
     "closest_on_line",
     "principal_axis",
     "slide_along_axis",
+    "fit_singular_values",
 ]
 
 #: Least RMS spread of the relative rotation (degrees) along a principal axis that
@@ -82,6 +83,26 @@ def _system(
     a = np.concatenate([r_p[ok], -r_c[ok]], axis=2).reshape(-1, 6)  # (3T', 6)
     b = (t_c[ok] - t_p[ok]).reshape(-1)
     return a, b
+
+
+def fit_singular_values(
+    r_parent: np.ndarray, t_parent: np.ndarray, r_child: np.ndarray, t_child: np.ndarray
+) -> np.ndarray:
+    """(6,) singular values of the SCoRE/SARA system over ``sqrt(T)``, descending.
+
+    Each is the RMS rotation (radians, small angles) with which the take determines the
+    centre along one direction of the solution: the three largest are about
+    ``sqrt(2)`` (the centre's common translation), the three smallest measure the
+    joint's range about each axis. Their ratio is the fit's condition: a centre error
+    ``e`` along the last direction moves the fitted points by ``e * s[5]`` on average,
+    so soft-tissue motion of ``d`` metres places it within about ``d / s[5]``. The last
+    over the fifth near 0: a clean hinge (SARA's axis is well defined). Zeros for fewer
+    than three frames with both poses.
+    """
+    a, _ = _system(r_parent, t_parent, r_child, t_child)
+    if a.shape[0] < 9:
+        return np.zeros(6)
+    return np.linalg.svd(a, compute_uv=False) / np.sqrt(a.shape[0] / 3)
 
 
 def score_centre(

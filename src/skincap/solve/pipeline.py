@@ -360,6 +360,7 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
                 "segment": model.segment_names[s],
                 "method": model.methods.get(model.segment_names[s], "root"),
                 "range_of_motion_deg": model.spreads_deg.get(model.segment_names[s], []),
+                "fit_singular_values": model.fit_singular_values.get(model.segment_names[s], []),
             }
             for s in range(1, model.n_segments)
         },
