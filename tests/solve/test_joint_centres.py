@@ -149,3 +149,55 @@ def test_too_few_frames_is_an_error():
     eye = np.repeat(np.eye(3)[None], 2, axis=0)
     with pytest.raises(ValidationError):
         jc.score_centre(eye, np.zeros((2, 3)), eye, np.zeros((2, 3)))
+
+
+def test_principal_axis_is_the_axis_the_joint_turns_about_most():
+    rng = np.random.default_rng(21)
+    axis = np.array([0.6, 0.0, 0.8])
+    # a hinge about a fixed axis, in a mean pose turned away from the parent's frame
+    turn = Rotation.from_rotvec(
+        np.radians(40) * np.sin(np.linspace(0, 6 * np.pi, 300))[:, None] * axis
+    )
+    mean = Rotation.from_rotvec([0.3, -0.5, 0.2])
+    r_p, t_p, r_c, t_c, _, _ = _two_segments(rng, (mean * turn).as_matrix(), t=300)
+    ap, ac = jc.principal_axis(r_p, r_c)
+    # the axis in the child's frame, and in the parent's the same line (a_p = M a_c)
+    assert abs(ac @ axis) == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(ap, mean.apply(ac), atol=1e-9)
+    assert np.linalg.norm(ap) == pytest.approx(1.0)
+    nan = np.full((2, 3, 3), np.nan)
+    assert np.isnan(jc.principal_axis(nan, nan)[0]).all()
+
+
+def test_slide_along_axis_changes_the_centre_only_along_the_axis():
+    rng = np.random.default_rng(22)
+    axis_c = np.array([0.0, 0.0, 1.0])
+    turn = rng.uniform(-0.8, 0.8, size=(200, 1)) * axis_c
+    r_p, t_p, r_c, t_c, cp, cc = _two_segments(rng, Rotation.from_rotvec(turn).as_matrix())
+    ap, ac, got_p, got_c = jc.sara_axis(r_p, t_p, r_c, t_c)
+    # a prior 2 cm along the axis and 1 cm across it: the centre goes 2 cm along, exactly
+    prior_p = cp + 0.02 * ap + 0.01 * np.cross(ap, [1.0, 0.0, 0.0])
+    prior_c = cc + 0.02 * ac
+    sp, sc = jc.slide_along_axis(cp, cc, ap, ac, prior_p, prior_c)
+    np.testing.assert_allclose(sp, cp + 0.02 * ap, atol=1e-9)
+    np.testing.assert_allclose(sc, cc + 0.02 * ac, atol=1e-9)
+    # the slid centre is still on the joint's axis: both frames place it at one point
+    world_p = np.einsum("tij,j->ti", r_p, sp) + t_p
+    world_c = np.einsum("tij,j->ti", r_c, sc) + t_c
+    np.testing.assert_allclose(world_p, world_c, atol=1e-9)
+
+
+def test_fit_singular_values_measure_the_range_about_each_axis():
+    rng = np.random.default_rng(23)
+    rel = Rotation.from_rotvec(rng.normal(scale=0.6, size=(400, 3))).as_matrix()
+    r_p, t_p, r_c, t_c, _, _ = _two_segments(rng, rel, t=400)
+    wide = jc.fit_singular_values(r_p, t_p, r_c, t_c)
+    axis = np.array([0.0, 0.0, 1.0])
+    hinge = Rotation.from_rotvec(rng.uniform(-0.8, 0.8, size=(400, 1)) * axis).as_matrix()
+    r_p, t_p, r_c, t_c, _, _ = _two_segments(rng, hinge, t=400)
+    narrow = jc.fit_singular_values(r_p, t_p, r_c, t_c)
+    assert np.all(np.diff(wide) <= 0) and wide[0] < np.sqrt(2) + 1e-9
+    assert wide[5] > 0.3  # turned well about every axis
+    assert narrow[5] < 1e-9 < narrow[4]  # a hinge: its axis is the one direction not determined
+    eye = np.repeat(np.eye(3)[None], 2, axis=0)
+    assert not jc.fit_singular_values(eye, np.zeros((2, 3)), eye, np.zeros((2, 3))).any()
