@@ -43,6 +43,12 @@ MIN_CALIBRATION_FRAMES = 10
 #: does not define the parent's frame for that joint (:meth:`_Calibrator.score_without_loose`).
 LOOSE_FLOOR_M = 0.003
 LOOSE_FACTOR = 1.5
+#: A ball joint whose prior lies ``along`` an axis (a template's word that the prior is
+#: good there) takes the prior's component along every direction of its SCoRE solution
+#: that the take turns it through less than this RMS spread, degrees
+#: (:func:`skincap.solve.joint_centres.score_centre`'s ``prior_spread_deg``): the
+#: synthetic walk's ankles 11.4 / 14.7 -> 4.5 / 7.8 mm.
+ALONG_PRIOR_SPREAD_DEG = 10.0
 #: ... while at least this many markers stay: three markers of a trunk (C7, CLAV, STRN)
 #: may lie near one line, a frame badly determined about it.
 LOOSE_KEEP = 4
@@ -436,6 +442,12 @@ class _Calibrator:
                         for r, t in ((rp, tp), (rc, tc))
                     )
                     if np.isfinite(pp).all() and np.isfinite(pc).all():
+                        # a prior trusted along the axis: it also takes the directions
+                        # the take hardly determines (under ALONG_PRIOR_SPREAD_DEG)
+                        cp, cc, _ = jc.score_centre(
+                            rp, tp, rc, tc, prior=(pp, pc),
+                            prior_spread_deg=max(self.score_prior_spread_deg, ALONG_PRIOR_SPREAD_DEG),
+                        )  # fmt: skip
                         fitted = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
                         method = "SCoRE + regression along the axis"
             elif s[0] >= self.min_spread and np.isfinite(pp).all():
