@@ -245,6 +245,11 @@ def evaluate_synthetic(
         "methods": {
             result.model.template.segment(s).joint: m for s, m in result.model.methods.items()
         },
+        # how well the take determines each functionally fitted centre (radians RMS)
+        "fit_singular_values": {
+            result.model.template.segment(s).joint: v
+            for s, v in result.model.fit_singular_values.items()
+        },
         "ik_frames_per_second": ik_frames_per_second(result, markers),
         "markers": len(result.model.marker_labels),
     }
@@ -259,6 +264,11 @@ def evaluate_real(markers: MarkerSet, template: str = "cmu41") -> dict[str, Any]
         "residual": residual_distribution(result.residuals, result.model.marker_labels),
         "methods": {
             result.model.template.segment(s).joint: m for s, m in result.model.methods.items()
+        },
+        # how well the take determines each functionally fitted centre (radians RMS)
+        "fit_singular_values": {
+            result.model.template.segment(s).joint: v
+            for s, v in result.model.fit_singular_values.items()
         },
         "ik_frames_per_second": ik_frames_per_second(result, markers),
         "markers": len(result.model.marker_labels),
