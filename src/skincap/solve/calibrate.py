@@ -9,7 +9,11 @@ From a labelled capture and a :class:`~skincap.solve.templates.Template`:
    markers, and the template's regression prior when the range of motion is below
    :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG` (a :class:`SkincapWarning`
    names the joint) -- a child made of two markers then gets its technical frame from
-   them and its joint centre;
+   them and its joint centre. SCoRE is fitted again without a parent marker that does
+   not keep its distance to the centre (:meth:`_Calibrator.score_without_loose`: a
+   thorax bends between T10 and the shoulders); a prior marked ``"along"`` is placed
+   along the joint's functional axis and gives the centre its place on it (a knee, an
+   ankle: :mod:`skincap.solve.templates`);
 3. anatomical frames from the template's axes, held constant in the technical frames;
 4. the model's constants: each joint's offset in its parent's anatomical frame (bone
    lengths constant over the take) and each marker's offset in its segment's frame
@@ -433,9 +437,9 @@ class _Calibrator:
                     pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
                     sv = jc.fit_singular_values(rp, tp, rc, tc)
                 fitted = (cp, cc)
-                axis = self.along_axis(spec, rp, rc)
-                if axis is not None:
-                    ap, ac = axis
+                along_axes = self.along_axis(spec, rp, rc)
+                if along_axes is not None:
+                    ap, ac = along_axes
                     prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
                     pp, pc = (
                         _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
