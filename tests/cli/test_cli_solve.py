@@ -49,8 +49,10 @@ def test_solve_writes_bvh_markers_and_report(solved):
     rep = json.loads(report.read_text())
     assert rep["overall"]["rms_m"] < 0.012
     assert set(rep["joint_centres"]["LeftHip"]) == {
-        "segment", "method", "range_of_motion_deg", "fit_singular_values"
+        "segment", "method", "range_of_motion_deg", "fit_singular_values",
+        "parent_markers_left_out",
     }  # fmt: skip
+    assert rep["joint_centres"]["LeftShoulder"]["parent_markers_left_out"] == []  # a rigid thorax
     # a shoulder between two framed segments: its SCoRE system's conditioning
     sv = rep["joint_centres"]["LeftShoulder"]["fit_singular_values"]
     assert len(sv) == 6 and sv == sorted(sv, reverse=True) and 0 < sv[5] < sv[0] < 1.5

@@ -89,6 +89,9 @@ class BodyModel:
         For a joint between two framed segments, the SCoRE/SARA system's singular
         values over sqrt(T) (:func:`skincap.solve.joint_centres.fit_singular_values`):
         how well the take determines its centre and axis.
+    loose_markers : dict segment -> list of str
+        The parent markers SCoRE left out of the parent's frame for that segment's
+        joint (they did not keep their distance to it), in the order dropped.
     link_stiffness : (S,) float64, metres per radian
         The spring holding each ``link`` segment to its parent's orientation in
         inverse kinematics; 0 for the other segments.
@@ -115,6 +118,7 @@ class BodyModel:
     methods: dict[str, str] = field(default_factory=dict)
     spreads_deg: dict[str, list[float]] = field(default_factory=dict)
     fit_singular_values: dict[str, list[float]] = field(default_factory=dict)
+    loose_markers: dict[str, list[str]] = field(default_factory=dict)
     link_stiffness: np.ndarray = field(default_factory=lambda: np.zeros(0))
     joint_limits: np.ndarray = field(default_factory=lambda: np.zeros((0, 3, 2)))
     bone_axes: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
@@ -433,7 +437,11 @@ class _Calibrator:
                 rp, tp, cp, cc, loose = self.score_without_loose(spec, rp, tp, rc, tc, cp, cc)
                 if loose:
                     self.loose[spec.name] = loose
-                    method = f"SCoRE without {', '.join(loose)}"
+                    method = (
+                        f"SCoRE without {', '.join(loose)}"
+                        if len(loose) <= 3
+                        else f"SCoRE without {len(loose)} parent markers"
+                    )
                     pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
                     sv = jc.fit_singular_values(rp, tp, rc, tc)
                 fitted = (cp, cc)
@@ -742,6 +750,7 @@ def _model(cal: _Calibrator, markers: MarkerSet) -> BodyModel:
         methods=dict(cal.methods),
         spreads_deg=dict(cal.spreads),
         fit_singular_values=dict(cal.conditions),
+        loose_markers=dict(cal.loose),
         link_stiffness=np.array([s.stiffness if s.link else 0.0 for s in segs]),
         joint_limits=_joint_limits(segs),
         bone_axes=np.array(

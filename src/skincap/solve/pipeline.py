@@ -335,7 +335,8 @@ def _stats(r: np.ndarray) -> dict[str, float | None]:
 
 def residual_report(result: SolveResult) -> dict[str, Any]:
     """JSON-ready report: overall, per-marker and per-frame RMS residuals (metres),
-    the joint-centre method and range of motion per joint, bone lengths (metres)."""
+    per joint the centre's method, range of motion (degrees), fit singular values
+    (radians RMS) and the parent markers SCoRE left out, bone lengths (metres)."""
     model = result.model
     r = result.residuals
     seen = np.isfinite(r)
@@ -361,6 +362,7 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
                 "method": model.methods.get(model.segment_names[s], "root"),
                 "range_of_motion_deg": model.spreads_deg.get(model.segment_names[s], []),
                 "fit_singular_values": model.fit_singular_values.get(model.segment_names[s], []),
+                "parent_markers_left_out": model.loose_markers.get(model.segment_names[s], []),
             }
             for s in range(1, model.n_segments)
         },
