@@ -19,6 +19,13 @@ def test_markerset_shape_error_names_field_and_shapes():
         MarkerSet(np.zeros((4, 2)), ["a", "b"], 100)
 
 
+def test_markerset_counts_and_clock():
+    ms = _markers(t=5, n=3)  # 100 Hz
+    assert (ms.n_frames, ms.n_markers) == (5, 3)
+    assert ms.duration == pytest.approx(0.05, abs=1e-15)
+    np.testing.assert_allclose(ms.times, [0.0, 0.01, 0.02, 0.03, 0.04], rtol=0, atol=1e-15)
+
+
 def test_markerset_label_count_and_uniqueness():
     with pytest.raises(ValidationError, match="expected 2 labels"):
         MarkerSet(np.zeros((1, 2, 3)), ["a"], 100)

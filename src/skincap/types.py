@@ -19,6 +19,7 @@ import numpy as np
 from skincap.errors import ValidationError
 
 __all__ = [
+    "MarkerTrajectories",
     "MarkerSet",
     "PointCloud",
     "Skeleton",
@@ -95,8 +96,38 @@ def _check_rate(rate: Any) -> float:
 
 
 # ----------------------------------------------------------------------- MarkerSet
+class MarkerTrajectories:
+    """Counts and clock of N marker trajectories sampled at one rate.
+
+    A base for the types that hold ``positions`` (T, N, 3) metres at ``rate`` Hz
+    (:class:`MarkerSet`, the tracker's ``RopeTrack``): they get :attr:`n_frames`,
+    :attr:`n_markers`, :attr:`duration` and :attr:`times` from here.
+    """
+
+    positions: np.ndarray
+    rate: float
+
+    @property
+    def n_frames(self) -> int:
+        return int(self.positions.shape[0])
+
+    @property
+    def n_markers(self) -> int:
+        return int(self.positions.shape[1])
+
+    @property
+    def duration(self) -> float:
+        """Seconds from the first to one frame past the last, ``T / rate``."""
+        return self.n_frames / self.rate
+
+    @property
+    def times(self) -> np.ndarray:
+        """(T,) float64 seconds from the first frame."""
+        return np.arange(self.n_frames) / self.rate
+
+
 @dataclass(eq=False)
-class MarkerSet:
+class MarkerSet(MarkerTrajectories):
     """Labelled marker trajectories.
 
     Attributes
@@ -152,24 +183,6 @@ class MarkerSet:
             _check_shape("invented", inv, (t, n))
             self.invented = inv.astype(bool)
         self.meta = dict(self.meta)
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.positions.shape[0])
-
-    @property
-    def n_markers(self) -> int:
-        return int(self.positions.shape[1])
-
-    @property
-    def duration(self) -> float:
-        """Seconds from the first to one frame past the last, ``T / rate``."""
-        return self.n_frames / self.rate
-
-    @property
-    def times(self) -> np.ndarray:
-        """(T,) float64 seconds from the first frame."""
-        return np.arange(self.n_frames) / self.rate
 
     @property
     def missing(self) -> np.ndarray:

@@ -98,3 +98,10 @@ def test_local_smoothing_keeps_fast_rigid_motion_and_removes_noise():
     assert after < 0.75 * before, (before, after)
     mask = np.zeros(truth.shape[:2], bool)
     np.testing.assert_array_equal(smooth_local(noisy, nb, mask=mask), noisy)
+    # both smoothers refuse a mask of the wrong shape, naming it and both shapes
+    bad = np.ones((truth.shape[0], truth.shape[1] + 1), bool)
+    want = rf"mask: expected shape \({truth.shape[0]}, {truth.shape[1]}\), got \({bad.shape[0]}, {bad.shape[1]}\)"
+    with pytest.raises(ValidationError, match=want):
+        smooth_local(noisy, nb, mask=bad)
+    with pytest.raises(ValidationError, match=want):
+        smooth_trajectories(noisy, lam=0.1, iterations=30, mask=bad)

@@ -64,6 +64,7 @@ def test_eval_track_on_a_synth_folder(take_dir, tmp_path):
     )
     assert forced.exit_code == 0, forced.output
     assert json.loads(forced.stdout)["settings"]["gaps"] == [10]
+    assert forced.stdout == (out / "track_eval.json").read_text()  # what it wrote
 
 
 def test_eval_track_rejects_a_broken_truth_file(take_dir, tmp_path):

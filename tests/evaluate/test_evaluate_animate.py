@@ -163,6 +163,8 @@ def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) 
     )
     assert res.exit_code == 0, res.output
     held = json.loads(res.output)["held_out"]
+    # --json prints exactly what the verb wrote
+    assert res.stdout == (tmp_path / "ev" / "animate_eval.json").read_text()
     # The surface built from this 60-marker toy falls in three pieces (both end rings
     # apart), so at --parts 2 the elbow is not split: the held-out figure is that of a
     # wrong segmentation (Gaussian weights 4.4 mm, blend weights 6.2 mm); on the

@@ -175,8 +175,16 @@ def test_bad_arguments_raise_validation_error() -> None:
         fit_rigid(pts, pts, mask=np.ones(4))
     with pytest.raises(ValidationError, match="broadcast"):
         fit_rigid(np.zeros((2, 4, 3)), np.zeros((3, 4, 3)))
-    with pytest.raises(ValidationError, match="rotation"):
-        apply_rigid(np.eye(2), np.zeros(3), pts)
+    # apply_rigid and invert_rigid check the transform alike, naming the bad array
+    for transform in (lambda r, t: apply_rigid(r, t, pts), invert_rigid):
+        with pytest.raises(
+            ValidationError, match=r"rotation must have shape \(\.\.\., 3, 3\); got \(2, 2\)"
+        ):
+            transform(np.eye(2), np.zeros(3))
+        with pytest.raises(
+            ValidationError, match=r"translation must have shape \(\.\.\., 3\); got \(2,\)"
+        ):
+            transform(np.eye(3), np.zeros(2))
 
 
 @settings(max_examples=150, deadline=None)

@@ -8,7 +8,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from skincap.errors import FormatError, SkincapError
-from skincap.io.synth_truth import read_fragment_truth, read_point_truth
+from skincap.io.synth_truth import read_fragment_truth, read_marker_parts, read_point_truth
 from skincap.types import PointCloud
 
 
@@ -77,6 +77,20 @@ def test_fragment_truth_reader(tmp_path):
     path.write_bytes(b"fragment,truth\n*1,L\xffASI\n")
     with pytest.raises(FormatError, match="not UTF-8"):
         read_fragment_truth(path)
+
+
+def test_truth_readers_name_the_first_byte_that_is_not_utf8(tmp_path):
+    # byte 19 (18) is the 0xff: the fragment and marker-part readers report its offset
+    path = tmp_path / "truth.csv"
+    path.write_bytes(b"fragment,truth\n*1,L\xffASI\n")
+    want = f"{path}: byte 19: not UTF-8 text (byte 19)"
+    with pytest.raises(FormatError) as err:
+        read_fragment_truth(path)
+    assert str(err.value) == want
+    path.write_bytes(b"marker,part\nLASI,p\xffelvis\n")
+    with pytest.raises(FormatError) as err:
+        read_marker_parts(path)
+    assert str(err.value) == want.replace("19", "18")
 
 
 def test_marker_parts_round_trip_and_bad_files(tmp_path):

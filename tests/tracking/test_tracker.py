@@ -160,3 +160,23 @@ def test_lone_gaps_settle_toward_the_rest_spacings(whip_take) -> None:  # type: 
     # measured: mean 7.7 mm -> 6.0 mm, worst 5.0 cm -> 2.8 cm over these 30 lone 20-frame gaps
     assert settled.mean() < 0.85 * plain.mean()
     assert settled.max() < 0.7 * plain.max()
+
+
+def test_rope_track_counts_and_clock_match_its_markerset() -> None:
+    # RopeTrack and MarkerSet share MarkerTrajectories: same counts and clock
+    t, m, rate = 7, 4, 120.0
+    positions = np.arange(t * m * 3, dtype=np.float64).reshape(t, m, 3)
+    init = RopeInit(np.arange(m), positions[0], np.ones(m - 1), gamma=0.1, max_temp_markers=5)
+    track = RopeTrack(
+        positions=positions,
+        invented=np.zeros((t, m), dtype=bool),
+        point_index=np.zeros((t, m), dtype=np.int64),
+        lost_frames=np.zeros((t, m), dtype=bool),
+        labels=init.labels,
+        rate=rate,
+        init=init,
+    )
+    ms = track.to_markerset()
+    assert (track.n_frames, track.n_markers) == (ms.n_frames, ms.n_markers) == (t, m)
+    assert track.duration == ms.duration == t / rate
+    np.testing.assert_array_equal(track.times, np.arange(t) / rate)

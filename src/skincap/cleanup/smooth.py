@@ -50,6 +50,17 @@ __all__ = [
 ]
 
 
+def _within_mask(change: np.ndarray, mask: Any) -> np.ndarray:
+    """``change`` (T, N) bool restricted to the caller's ``mask`` (T, N) bool, if any."""
+    if mask is None:
+        return change
+    m = np.asarray(mask, dtype=bool)
+    if m.shape != change.shape:
+        t, n = change.shape
+        raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
+    return change & m
+
+
 def _check_lam_n(lam: float, iterations: int) -> None:
     if not (np.isfinite(lam) and 0 < lam <= 0.125):
         raise ValidationError(f"lam: expected 0 < lam <= 1/8 (stability), got {lam!r}")
@@ -187,12 +198,7 @@ def smooth_trajectories(
     run_end = np.minimum.accumulate(
         np.where(valid & ~np.vstack([valid[1:], np.zeros((1, n), bool)]), frame, t)[::-1], axis=0
     )[::-1]
-    change = valid & (run_end - run_start + 1 >= 5)
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool)
-        if m.shape != (t, n):
-            raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
-        change &= m
+    change = _within_mask(valid & (run_end - run_start + 1 >= 5), mask)
     coeff = {-2: 1.0, -1: -4.0, 1: -4.0, 2: 1.0}
     # Inside a run the neighbour at offset k is z shifted by k frames; only the samples
     # whose neighbour lies past their run end take the odd reflection, so gather those
@@ -290,12 +296,7 @@ def smooth_local(
     if rot is None:
         return p.copy()
     has_frame = ~np.isnan(tr[..., 0])
-    change = present & has_frame
-    if mask is not None:
-        m = np.asarray(mask, dtype=bool)
-        if m.shape != (t, n):
-            raise ValidationError(f"mask: expected shape ({t}, {n}), got {m.shape}")
-        change &= m
+    change = _within_mask(present & has_frame, mask)
     sm = smooth_trajectories(local, lam=lam, iterations=iterations, mask=change)
     back = apply_rigid(rot, tr, sm[:, :, None, :])[:, :, 0]
     if max_move is not None:

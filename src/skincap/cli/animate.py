@@ -221,7 +221,6 @@ def eval_animate(
 
     Example: skincap eval animate take_jumprope --rom take_rom --template makehuman -o eval_dense
     """
-    import json
 
     from skincap.errors import ValidationError
     from skincap.evaluate.animate import plot_vertex_errors
@@ -257,7 +256,7 @@ def eval_animate(
             title=f"Vertex RMS error: {input_dir}",
         )
     if json_output:
-        print(json.dumps(result, indent=2, allow_nan=False))
+        print_json(result)
         return
     _print_eval_table(result)
     out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)
@@ -349,7 +348,6 @@ def _eval_capture(
     capture: Path, json_path: Path, parts: int, seed: int, force: bool, json_output: bool
 ) -> None:
     """``eval animate CAPTURE``: the held-out test on a real (or any labelled) capture."""
-    import json
 
     from skincap import io
     from skincap.evaluate.animate import held_out_on_capture
@@ -360,7 +358,7 @@ def _eval_capture(
     json_path.parent.mkdir(parents=True, exist_ok=True)
     write_json(json_path, result, force=force, indent=2, allow_nan=False)
     if json_output:
-        print(json.dumps(result, indent=2, allow_nan=False))
+        print_json(result)
         return
     out.print(
         f"{capture.name}: held out {held['held_out']} of {held['markers']} markers "

@@ -180,6 +180,15 @@ def _int_list(text: str, option: str) -> list[int]:
     return values
 
 
+def _fill_method_list(text: str) -> list[str]:
+    """``--methods``: comma-separated names, each one of ``FILL_METHODS``."""
+    chosen = [m.strip() for m in text.split(",") if m.strip()]
+    unknown = [m for m in chosen if m not in FILL_METHODS]
+    if unknown or not chosen:
+        raise FormatError("--methods", f"unknown {unknown}; choose from {', '.join(FILL_METHODS)}")
+    return chosen
+
+
 @eval_app.command("fill")
 def eval_fill(
     src: Annotated[Path, typer.Argument(help="Capture with labelled markers (.c3d/.trc/.csv).")],
@@ -222,13 +231,7 @@ def eval_fill(
         from skincap.io.json_file import write_json
         from skincap.types import MarkerSet
 
-        chosen = None if methods is None else [m.strip() for m in methods.split(",") if m.strip()]
-        if chosen is not None:
-            unknown = [m for m in chosen if m not in FILL_METHODS]
-            if unknown or not chosen:
-                raise FormatError(
-                    "--methods", f"unknown {unknown}; choose from {', '.join(FILL_METHODS)}"
-                )
+        chosen = None if methods is None else _fill_method_list(methods)
         lengths = _int_list(gap_lengths, "--gap-lengths")
         if gaps < 1 or simultaneous < 1:
             raise FormatError("--gaps/--simultaneous", "must be at least 1")
@@ -307,12 +310,7 @@ def bench_clean(
     with _user_errors():
         from skincap.evaluate.bench.cleanup import run_clean_benchmark
 
-        chosen = [m.strip() for m in methods.split(",") if m.strip()]
-        unknown = [m for m in chosen if m not in FILL_METHODS]
-        if unknown or not chosen:
-            raise FormatError(
-                "--methods", f"unknown {unknown}; choose from {', '.join(FILL_METHODS)}"
-            )
+        chosen = _fill_method_list(methods)
         if markers < 4:
             raise FormatError("--markers", "must be at least 4")
         results = run_clean_benchmark(

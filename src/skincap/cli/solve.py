@@ -7,7 +7,7 @@ Registered on :data:`skincap.cli._app.app` / ``eval_app`` / ``bench_app`` when
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
@@ -15,34 +15,21 @@ from skincap.cli._app import (
     _user_errors,
     app,
     bench_app,
-    err,
     eval_app,
     out,
     print_bench_results,
     print_json,
+    stage_progress,
+)
+from skincap.cli._options import (
+    BenchJsonOption,
+    EvalJsonOption,
+    ForceOption,
+    OutputFolderOption,
+    SynthFramesOption,
+    SynthVerticesOption,
 )
 from skincap.errors import ValidationError
-
-
-def _percent_progress() -> Any:
-    """A transient progress bar on stderr in percent (hidden off a terminal)."""
-    from rich.progress import (
-        BarColumn,
-        Progress,
-        TaskProgressColumn,
-        TextColumn,
-        TimeRemainingColumn,
-    )
-
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TaskProgressColumn(),
-        TimeRemainingColumn(),
-        console=err,
-        transient=True,
-        disable=not err.is_terminal,
-    )
 
 
 @app.command()
@@ -113,7 +100,7 @@ def solve(
             "in the report.",
         ),
     ] = False,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
+    force: ForceOption = False,
     json_output: Annotated[
         bool, typer.Option("--json", help="Print the summary as JSON (counts, residuals, files).")
     ] = False,
@@ -132,12 +119,7 @@ def solve(
 
     outputs = [p for p in (output, markers_out, report) if p is not None]
     with _user_errors(), guard_outputs([input_file], outputs, force=force):
-        with _percent_progress() as progress:
-            task = progress.add_task("calibration", total=100.0)
-
-            def advance(fraction: float, label: str) -> None:
-                progress.update(task, completed=100.0 * fraction, description=label)
-
+        with stage_progress("calibration") as advance:
             summary = solve_file(
                 input_file,
                 output,
@@ -176,9 +158,7 @@ def eval_solve(
             "(solved with synth-sparse or synth-dense, whichever its labels match)."
         ),
     ] = None,
-    output: Annotated[Path, typer.Option("-o", "--output", help="Output folder.")] = Path(
-        "eval_solve"
-    ),
+    output: OutputFolderOption = Path("eval_solve"),
     synth: Annotated[
         str | None,
         typer.Option(
@@ -189,13 +169,11 @@ def eval_solve(
         list[Path] | None, typer.Option("--real", help="A real labelled capture (repeatable).")
     ] = None,
     template: Annotated[str, typer.Option(help="Template of the --real captures.")] = "cmu41",
-    frames: Annotated[int, typer.Option(help="Frames of a --synth take (120 Hz).")] = 600,
-    vertices: Annotated[
-        int, typer.Option(help="Procedural body vertices of a --synth take.")
-    ] = 8000,
+    frames: SynthFramesOption = 600,
+    vertices: SynthVerticesOption = 8000,
     seed: Annotated[int, typer.Option(help="Seed of a --synth take.")] = 0,
-    force: Annotated[bool, typer.Option("--force", help="Replace existing outputs.")] = False,
-    json_output: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    force: ForceOption = False,
+    json_output: EvalJsonOption = False,
 ) -> None:
     """Measure the solver against issue #17's targets and print the table.
 
@@ -213,12 +191,7 @@ def eval_solve(
     with _user_errors(), guard_outputs(inputs, [output / "solve_eval.json"], force=force):
         if input_dir is not None and synth is not None:
             raise ValidationError("give a synth folder or --synth, not both")
-        with _percent_progress() as progress:
-            task = progress.add_task("eval solve", total=100.0)
-
-            def advance(fraction: float, label: str) -> None:
-                progress.update(task, completed=100.0 * fraction, description=label)
-
+        with stage_progress("eval solve") as advance:
             result = evaluate_solve(
                 output, synth_dir=input_dir, synth_motion=synth, real=list(real or []),
                 real_template=template, frames=frames, vertices=vertices, seed=seed,
@@ -250,9 +223,7 @@ def bench_solve(
     ] = None,
     template: Annotated[str, typer.Option(help="Template of INPUT.")] = "cmu41",
     frames: Annotated[int, typer.Option(help="Frames of the synthetic take (120 Hz).")] = 600,
-    json_output: Annotated[
-        bool, typer.Option("--json", help="Print the measurements as JSON.")
-    ] = False,
+    json_output: BenchJsonOption = False,
 ) -> None:
     """IK frames per second (and against SciPy frame by frame), and a one-minute C3D -> BVH solve.
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Annotated, Any
@@ -311,7 +310,7 @@ def eval_track(
         write_json(paths[0], result, force=force, indent=2, allow_nan=False)
         plot_gap_repair(result, paths[1], force=force, title=f"Gap repair: {source}")
     if json_output:
-        print(json.dumps(result, indent=2, allow_nan=False))
+        print_json(result)
         return
     _print_eval_table(result)
     out.print(f"wrote {paths[0]} and {paths[1]}", markup=False, soft_wrap=True)

@@ -326,6 +326,17 @@ def _quaternion_matrix(q: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(np.moveaxis(m, -1, 0))
 
 
+def _rigid_arrays(rotation: np.ndarray, translation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``rotation`` (..., 3, 3) and ``translation`` (..., 3) as float64, or a ValidationError."""
+    r = np.asarray(rotation, dtype=np.float64)
+    t = np.asarray(translation, dtype=np.float64)
+    if r.shape[-2:] != (3, 3):
+        raise ValidationError(f"rotation must have shape (..., 3, 3); got {r.shape}")
+    if t.shape[-1:] != (3,):
+        raise ValidationError(f"translation must have shape (..., 3); got {t.shape}")
+    return r, t
+
+
 def apply_rigid(rotation: np.ndarray, translation: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply ``R @ p + t`` to points, batched.
 
@@ -341,13 +352,8 @@ def apply_rigid(rotation: np.ndarray, translation: np.ndarray, points: np.ndarra
     (..., M, 3) float64
         Transformed points; NaN propagates (a NaN transform or point gives NaN).
     """
-    r = np.asarray(rotation, dtype=np.float64)
-    t = np.asarray(translation, dtype=np.float64)
     p = _points("points", points)
-    if r.shape[-2:] != (3, 3):
-        raise ValidationError(f"rotation must have shape (..., 3, 3); got {r.shape}")
-    if t.shape[-1:] != (3,):
-        raise ValidationError(f"translation must have shape (..., 3); got {t.shape}")
+    r, t = _rigid_arrays(rotation, translation)
     return np.einsum("...ij,...mj->...mi", r, p) + t[..., None, :]
 
 
@@ -364,11 +370,6 @@ def invert_rigid(rotation: np.ndarray, translation: np.ndarray) -> tuple[np.ndar
     R_inv : (..., 3, 3) float64
     t_inv : (..., 3) float64
     """
-    r = np.asarray(rotation, dtype=np.float64)
-    t = np.asarray(translation, dtype=np.float64)
-    if r.shape[-2:] != (3, 3):
-        raise ValidationError(f"rotation must have shape (..., 3, 3); got {r.shape}")
-    if t.shape[-1:] != (3,):
-        raise ValidationError(f"translation must have shape (..., 3); got {t.shape}")
+    r, t = _rigid_arrays(rotation, translation)
     rt = np.swapaxes(r, -1, -2)
     return rt, -np.einsum("...ij,...j->...i", rt, t)

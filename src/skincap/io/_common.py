@@ -27,6 +27,7 @@ __all__ = [
     "up_rotation",
     "finite_frame_chunks",
     "read_file_bytes",
+    "read_utf8_text",
 ]
 
 #: Length units skincap reads and writes, as metres per unit. ``cmu`` is the length
@@ -126,6 +127,21 @@ def read_file_bytes(path: Path, *, what: str = "") -> bytes:
     except OSError as exc:
         label = f"cannot read {what}" if what else "cannot read"
         raise FormatError(path, f"{label}: {exc.strerror or exc}") from None
+
+
+def read_utf8_text(path: Path) -> str:
+    """The text of the UTF-8 file ``path`` (universal newlines, as ``Path.read_text``).
+
+    Raises
+    ------
+    FormatError
+        The bytes are not UTF-8, naming the byte offset of the first bad byte. An
+        OSError (permissions, a folder) passes through for the CLI to report.
+    """
+    try:
+        return path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
 
 
 @contextlib.contextmanager

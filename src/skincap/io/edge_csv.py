@@ -11,7 +11,7 @@ import os
 import numpy as np
 
 from skincap.errors import FormatError
-from skincap.io._common import check_readable
+from skincap.io._common import check_readable, read_utf8_text
 
 __all__ = ["read_edge_csv"]
 
@@ -40,10 +40,7 @@ def read_edge_csv(path: str | os.PathLike[str], labels: list[str]) -> np.ndarray
         unknown label (with the line), or no edge at all.
     """
     p = check_readable(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(p, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    text = read_utf8_text(p)
     index = {lab: i for i, lab in enumerate(labels)}
     pairs: list[tuple[int, int]] = []
     for number, line in enumerate(text.splitlines(), start=1):

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from skincap.errors import FormatError
-from skincap.io._common import atomic_output, check_readable
+from skincap.io._common import atomic_output, check_readable, read_utf8_text
 from skincap.types import MarkerSet, PointCloud
 
 __all__ = [
@@ -52,10 +52,7 @@ def read_fragment_truth(path: str | os.PathLike[str]) -> dict[str, str]:
         the line), or no row at all.
     """
     p = check_readable(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(p, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    text = read_utf8_text(p)
     truth: dict[str, str] = {}
     for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
@@ -121,10 +118,7 @@ def read_marker_parts(path: str | os.PathLike[str]) -> dict[str, str]:
         non-empty cells, a marker listed twice (with the line), or no row.
     """
     p = check_readable(path)
-    try:
-        text = p.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise FormatError(p, f"not UTF-8 text (byte {exc.start})", offset=exc.start) from None
+    text = read_utf8_text(p)
     lines = text.splitlines()
     if not lines or lines[0].strip() != "marker,part":
         raise FormatError(p, "expected the header 'marker,part'", line=1)

@@ -105,13 +105,13 @@ from skincap.tracking.init import RopeInit
 from skincap.tracking.physical import bound_invented
 from skincap.tracking.settings import TrackSettings
 from skincap.tracking.state import start_tracking
-from skincap.types import MarkerSet, PointCloud
+from skincap.types import MarkerSet, MarkerTrajectories, PointCloud
 
 __all__ = ["RopeTrack", "TrackSettings", "track_rope"]
 
 
 @dataclass(eq=False)
-class RopeTrack:
+class RopeTrack(MarkerTrajectories):
     """The tracked rope.
 
     Attributes
@@ -145,14 +145,6 @@ class RopeTrack:
     rate: float
     init: RopeInit
     meta: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def n_frames(self) -> int:
-        return int(self.positions.shape[0])
-
-    @property
-    def n_markers(self) -> int:
-        return int(self.positions.shape[1])
 
     @property
     def lost(self) -> np.ndarray:

@@ -24,7 +24,7 @@ from typing import Any
 
 from skincap.errors import FormatError, OutputExistsError
 from skincap.io.mesh_animation_files import animation_output_files, write_mesh_animation
-from skincap.workflows.progress import FrameProgress
+from skincap.workflows.progress import FrameProgress, frame_fractions
 
 __all__ = [
     "SKIN_OUTPUTS",
@@ -136,14 +136,9 @@ def skin_file(
             max_influences=max_influences,  # type: ignore[arg-type]
         )
         frames = setup.motion.n_frames
-        if progress is not None:
-            progress(0.0, frames)
-
-        def advance(fraction: float) -> None:
-            if progress is not None:
-                progress(fraction * frames, frames)
-
-        written = write_skinned(setup, output, method=method, force=force, progress=advance)
+        written = write_skinned(
+            setup, output, method=method, force=force, progress=frame_fractions(progress, frames)
+        )
         return {
             "mesh": str(mesh_path),
             "motion": str(motion_path),

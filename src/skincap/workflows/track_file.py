@@ -32,7 +32,7 @@ from skincap.io.rope_curve import write_rope_curve
 from skincap.tracking.curve import resample_by_arclength
 from skincap.tracking.tracker import RopeTrack
 from skincap.types import MarkerSet, PointCloud
-from skincap.workflows.progress import FrameProgress
+from skincap.workflows.progress import FrameProgress, frame_fractions
 
 __all__ = [
     "OUTPUT_NAMES",
@@ -126,15 +126,7 @@ def track_file(
             init = init_rope(cloud, markers=markers, window_seconds=window_seconds)
         else:
             init = init_rope(cloud, auto=True, window_seconds=window_seconds)
-        frames = cloud.n_frames
-        if progress is not None:
-            progress(0.0, frames)
-
-        def advance(fraction: float) -> None:
-            if progress is not None:
-                progress(fraction * frames, frames)
-
-        result = track_rope(cloud, init, progress=advance)
+        result = track_rope(cloud, init, progress=frame_fractions(progress, cloud.n_frames))
         return write_track_outputs(cloud, result, out, force=force)
 
 

@@ -24,7 +24,11 @@ from typing import Literal
 import numpy as np
 
 from skincap._arrays import as_finite_array
-from skincap.deform.skeletal.weights import bone_heat_weights, limit_influences
+from skincap.deform.skeletal.weights import (
+    bone_heat_weights,
+    check_max_influences,
+    limit_influences,
+)
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics, rest_positions
 from skincap.types import Mesh, Motion, Skeleton, Skin
@@ -223,11 +227,7 @@ def bind_mesh(
         raise ValidationError(f"mesh: expected a Mesh, got {type(mesh).__name__}")
     if weights not in ("auto", "file"):
         raise ValidationError(f"weights: expected 'auto' or 'file', got {weights!r}")
-    m = int(max_influences)
-    if m < 1:
-        raise ValidationError(
-            f"max_influences: expected a positive integer, got {max_influences!r}"
-        )
+    m = check_max_influences(max_influences)
     file_skin = mesh.skin
     target, default_rest = _target_skeleton(file_skin, skeleton, weights)
     n_j = target.n_joints

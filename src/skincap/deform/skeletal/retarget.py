@@ -182,15 +182,23 @@ def _paired_ancestor(parents: np.ndarray, owner: np.ndarray, j: int) -> int:
     return -1
 
 
-def _consistent(
-    pairs: list[tuple[int, tuple[int, ...]]], src: Skeleton, tgt: Skeleton
-) -> int | None:
-    """Index of the first pair that breaks the hierarchy, or None when all keep it."""
+def _owners(
+    src: Skeleton, tgt: Skeleton, pairs: list[tuple[int, tuple[int, ...]]]
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pair index of every source (Js,) and target (Jt,) joint, -1 where unpaired."""
     s_owner = np.full(src.n_joints, -1)
     t_owner = np.full(tgt.n_joints, -1)
     for i, (s, ts) in enumerate(pairs):
         s_owner[s] = i
         t_owner[list(ts)] = i
+    return s_owner, t_owner
+
+
+def _consistent(
+    pairs: list[tuple[int, tuple[int, ...]]], src: Skeleton, tgt: Skeleton
+) -> int | None:
+    """Index of the first pair that breaks the hierarchy, or None when all keep it."""
+    s_owner, t_owner = _owners(src, tgt, pairs)
     for i, (s, ts) in enumerate(pairs):
         a = _paired_ancestor(src.parents, s_owner, s)
         for t in ts:
@@ -357,6 +365,15 @@ def _twist_to_fit(axis: np.ndarray, us: np.ndarray, vs: np.ndarray) -> np.ndarra
 
 
 # ------------------------------------------------------------------ public
+def _kept_meta(source: Motion) -> dict[str, Any]:
+    """What a retargeted Motion keeps of ``source.meta``: units, axes, frame numbering."""
+    return {
+        k: source.meta[k]
+        for k in ("source_units", "up", "first_frame", "frame_time")
+        if k in source.meta
+    }
+
+
 def _target_rig(target: Mesh | Skin | Skeleton) -> Skin | Skeleton:
     if isinstance(target, Mesh):
         if target.skin is None:
@@ -406,11 +423,7 @@ def _on_own_rig(source: Motion, rig: Skin | Skeleton, scale: str | float) -> Mot
         else _scale(scale, src, tgt, [], {}, np.zeros((0, 3)), np.zeros((0, 3)))
     )
     translations[:, ~inner] = s_val * trans[:, idx[~inner]]  # roots: the source's world path
-    meta = {
-        k: source.meta[k]
-        for k in ("source_units", "up", "first_frame", "frame_time")
-        if k in source.meta
-    }
+    meta = _kept_meta(source)
     meta["retarget"] = {
         "source_convention": detect_convention(src.names),
         "target_convention": detect_convention(tgt.names),
@@ -535,11 +548,7 @@ def retarget(
     tgt_land = np.mean([fk[:, list(pairs[k][1])].mean(axis=1) for k in landmark], axis=0)
     root = heads[0] + (s_val * src_land - tgt_land)
 
-    meta = {
-        k: source.meta[k]
-        for k in ("source_units", "up", "first_frame", "frame_time")
-        if k in source.meta
-    }
+    meta = _kept_meta(source)
     meta["retarget"] = {
         **report,
         "name_map": {src.names[s]: [tgt.names[t] for t in ts] for s, ts in pairs},
@@ -560,12 +569,8 @@ def retarget(
 def _pair_owners(
     src: Skeleton, tgt: Skeleton, pairs: list[tuple[int, tuple[int, ...]]]
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Pair index of every source (Js,) and target (Jt,) joint, -1 where unpaired."""
-    s_owner = np.full(src.n_joints, -1)
-    t_owner = np.full(tgt.n_joints, -1)
-    for i, (s, ts) in enumerate(pairs):
-        s_owner[s] = i
-        t_owner[list(ts)] = i
+    """:func:`_owners`, refusing a target root that no source joint drives."""
+    s_owner, t_owner = _owners(src, tgt, pairs)
     if t_owner[0] < 0:
         raise ValidationError(
             f"name_map: the target root {tgt.names[0]!r} is not driven by any source joint; "

@@ -59,6 +59,7 @@ __all__ = [
     "bone_heat_weight_matrix",
     "bone_heat_weights",
     "limit_influences",
+    "check_max_influences",
 ]
 
 #: Relative distance tolerance under which two bones are equally near (Blender's).
@@ -326,6 +327,16 @@ def bone_heat_weight_matrix(
     return out
 
 
+def check_max_influences(max_influences: int) -> int:
+    """``max_influences`` (joints per vertex) as an int >= 1, or a ValidationError."""
+    m = int(max_influences)
+    if m < 1:
+        raise ValidationError(
+            f"max_influences: expected a positive integer, got {max_influences!r}"
+        )
+    return m
+
+
 def limit_influences(
     indices: np.ndarray, weights: np.ndarray, max_influences: int = 4
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -357,11 +368,7 @@ def limit_influences(
         raise ValidationError(f"indices: expected integers, got dtype {idx.dtype}")
     if not np.isfinite(w).all():
         raise ValidationError("weights: must be finite")
-    m = int(max_influences)
-    if m < 1:
-        raise ValidationError(
-            f"max_influences: expected a positive integer, got {max_influences!r}"
-        )
+    m = check_max_influences(max_influences)
     idx = idx.astype(np.int64)
     n_v, k = w.shape
     k_out = min(k, m)
@@ -461,11 +468,7 @@ def bone_heat_weights(
     >>> bool(np.allclose(w.sum(axis=1), 1.0))
     True
     """
-    m = int(max_influences)
-    if m < 1:
-        raise ValidationError(
-            f"max_influences: expected a positive integer, got {max_influences!r}"
-        )
+    m = check_max_influences(max_influences)
     dense = bone_heat_weight_matrix(
         mesh,
         joint_positions,
