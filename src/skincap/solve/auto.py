@@ -28,12 +28,10 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from scipy.spatial.distance import squareform
 
 from skincap.errors import ValidationError
-from skincap.solve import joint_centres as jc
-from skincap.solve.segments import cluster_frames, to_local
+from skincap.solve.auto_tree import grow_tree
 from skincap.solve.templates import SegmentSpec, Template, strip_prefix
 from skincap.types import MarkerSet
 
@@ -148,84 +146,32 @@ def auto_template(
     group_of = fcluster(tree, t=max_spread, criterion="distance")
     groups = [np.nonzero(group_of == g)[0] for g in np.unique(group_of)]
     groups = [g for g in groups if g.size >= min_markers]
-    framed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for k, g in enumerate(groups):
-        if g.size >= 3:
-            try:
-                _, rot, trans = cluster_frames(pos_all[:, g])
-            except ValidationError:
-                continue
-            framed[k] = (rot, trans)
-    if not framed:
+    sub = pos_all[frames]
+    centroid = np.nanmean(sub.reshape(-1, 3), axis=0)
+    # the root: the group of three or more markers nearest the markers' centroid (the trunk)
+    big = [k for k, g in enumerate(groups) if g.size >= 3]
+    if not big:
         raise ValidationError("auto template: no group of three rigidly moving markers")
-    s = len(groups)
-    resid = np.full((s, s), np.inf)
-    for a in range(s):
-        for b in range(a + 1, s):
-            resid[a, b] = resid[b, a] = _joint_residual(a, b, groups, framed, pos_all)
-    # the tree over the framed groups; a group of one or two markers has no frame to
-    # carry a child, so it hangs as a leaf off the framed group that explains it best
-    big = sorted(framed)
-    sub = resid[np.ix_(big, big)]
-    # csgraph reads zeros (and values within ~1e-8 of zero) as missing edges: shift by 1 um
-    mst = minimum_spanning_tree(np.where(np.isfinite(sub), sub + 1e-6, 0.0))
-    graph = mst + mst.T
-    centroid = np.nanmean(pos_all.reshape(-1, 3), axis=0)
     dist = [
-        float(np.linalg.norm(np.nanmean(pos_all[:, groups[k]].reshape(-1, 3), axis=0) - centroid))
+        float(np.linalg.norm(np.nanmean(sub[:, groups[k]].reshape(-1, 3), axis=0) - centroid))
         for k in big
     ]
-    root_sub = int(np.argmin(dist))
-    order_sub, preds_sub = breadth_first_order(graph, root_sub, directed=False)
-    order = [big[int(k)] for k in order_sub]
-    parent_of = {
-        big[int(k)]: (-1 if int(k) == root_sub else big[int(preds_sub[k])]) for k in order_sub
-    }
-    for k in range(s):
-        if k in framed:
-            continue
-        best = min(big, key=lambda b: resid[k, b])
-        if np.isfinite(resid[k, best]):
-            parent_of[k] = best
-            order.append(k)
+    found = grow_tree(sub, groups, big[int(np.argmin(dist))])
+    order = found.order
     new_index = {k: i for i, k in enumerate(order)}
     parents = np.array(
-        [-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order], dtype=np.int64
+        [-1 if found.parents[k] < 0 else new_index[found.parents[k]] for k in order],
+        dtype=np.int64,
     )
-    fit = np.array(
-        [0.0 if p < 0 else float(resid[order[i], order[p]]) for i, p in enumerate(parents)]
-    )
+    fit = np.array([found.cost_m[k] for k in order])
     names = [[strip_prefix(labels[m]) for m in groups[k]] for k in order]
-    template = _as_template(names, parents, order, framed)
+    template = _as_template(names, parents)
     return AutoResult(
         template=template, groups=names, parents=parents, fit_residual_m=fit, spread_m=spread
     )
 
 
-def _joint_residual(a, b, groups, framed, pos) -> float:
-    if a in framed and b in framed:
-        (ra, ta), (rb, tb) = framed[a], framed[b]
-        try:
-            _, _, rms = jc.score_centre(ra, ta, rb, tb)
-        except ValidationError:
-            return np.inf
-        return rms
-    if a not in framed and b not in framed:
-        return np.inf
-    frame_of, small = (a, b) if a in framed else (b, a)
-    rot, trans = framed[frame_of]
-    y = to_local(rot, trans, pos[:, groups[small]])
-    if (np.isfinite(y).all(axis=2).any(axis=1)).sum() < 10:
-        return np.inf
-    centre, _ = jc.sphere_centre(y)
-    dist = np.linalg.norm(y - centre, axis=2)
-    with np.errstate(invalid="ignore"):
-        return float(np.sqrt(np.nanmean((dist - np.nanmean(dist, axis=0)) ** 2)))
-
-
-def _as_template(
-    names: list[list[str]], parents: np.ndarray, order: list[int], framed: dict
-) -> Template:
+def _as_template(names: list[list[str]], parents: np.ndarray) -> Template:
     segs: list[SegmentSpec] = []
     children = {i: [c for c in range(len(parents)) if parents[c] == i] for i in range(len(parents))}
     for i, group in enumerate(names):

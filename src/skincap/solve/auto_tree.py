@@ -1,0 +1,232 @@
+"""The tree of ``--template auto``: which marker group hangs from which, grown root first.
+
+Kirk, O'Brien & Forsyth (2005) join two marker groups by the point that keeps a constant
+distance to every marker of both; the cost of the joint is how badly that holds, and the
+skeleton is the minimum spanning tree of those costs. Here the joint of a candidate
+edge (parent ``a``, child ``b``) is the common sphere centre of ``b``'s markers in
+``a``'s technical frame (:func:`~skincap.solve.joint_centres.sphere_centre`: a point
+fixed in ``a`` whose distance to each marker of ``b`` stays constant) and the cost is
+the RMS change of those distances over the take (metres). One cost for every edge,
+whatever the child's marker count, so the costs compare.
+
+A group needs a frame to carry children, and a group of two markers has none of its
+own (two points give no rotation about the line through them). Once it is joined, its
+joint centre is a third point fixed in it, so the two markers and the centre frame it
+(Kirk's remedy of fitting joints without per-segment frames, done root first): the
+tree is grown from the root like Prim's minimum spanning tree, each step adding the
+cheapest edge from a group in the tree that has a frame, and a two-marker group that
+joins becomes a carrier. Groups of one marker never carry and join last, as leaves.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from skincap.errors import ValidationError
+from skincap.solve import joint_centres as jc
+from skincap.solve.segments import cluster_frames, to_local, to_world
+
+__all__ = ["AutoTree", "grow_tree", "joint_cost", "MIN_FRAMES", "MIN_TRIANGLE_HEIGHT_M"]
+
+#: Fewest frames in which a candidate parent's frame and a child marker are both known
+#: for the edge to be fitted.
+MIN_FRAMES = 10
+
+#: A two-marker group is framed by its markers and its joint centre only when the
+#: centre lies at least this far (metres, median over the take) from the line through
+#: the two markers: nearer, the frame's turn about that line is noise.
+MIN_TRIANGLE_HEIGHT_M = 0.02
+
+
+@dataclass(eq=False)
+class AutoTree:
+    """The tree :func:`grow_tree` found.
+
+    Attributes
+    ----------
+    order : list of int
+        Group indices, parents before children (the root first).
+    parents : dict int -> int
+        Each group's parent group (-1 for the root); groups the tree could not join are
+        absent.
+    cost_m : dict int -> float
+        The joint cost of the edge to the parent, metres (0 for the root).
+    how : dict int -> str
+        How each group is framed and joined: ``"own frame"`` (three or more markers),
+        ``"frame from its joint"`` (two markers and the joint centre),
+        ``"leaf, no frame"`` (one marker, or two in line with their joint).
+    centres_parent : dict int -> (3,) float64
+        The fitted joint centre in the parent's technical frame, metres.
+    frames : dict int -> ((T, 3, 3), (T, 3))
+        The technical frame of every group that has one, on the frames given.
+    """
+
+    order: list[int]
+    parents: dict[int, int]
+    cost_m: dict[int, float]
+    how: dict[int, str]
+    centres_parent: dict[int, np.ndarray]
+    frames: dict[int, tuple[np.ndarray, np.ndarray]]
+
+
+def joint_cost(
+    rot: np.ndarray, trans: np.ndarray, child: np.ndarray
+) -> tuple[float, np.ndarray | None, np.ndarray | None]:
+    """Kirk's joint cost of child markers about the best point fixed in a parent frame.
+
+    Parameters
+    ----------
+    rot : (T, 3, 3) float
+        The parent's technical rotations (NaN where unknown).
+    trans : (T, 3) float, metres
+        The parent's technical origins.
+    child : (T, K, 3) float, metres
+        The child's markers, NaN where missing.
+
+    Returns
+    -------
+    cost : float, metres
+        RMS over markers and frames of the change of each marker's distance to the
+        centre (its distance minus that marker's mean distance); ``inf`` when fewer
+        than :data:`MIN_FRAMES` frames see the parent and a child marker.
+    centre : (3,) float64 or None
+        The centre in the parent's frame (a least-squares choice along the axis when
+        the joint turns about one axis only), None with ``inf``.
+    axis : (3,) float64 or None
+        The unit hinge axis in the parent's frame when the child's markers turn about
+        one axis only (their directions from the centre spread less than
+        :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG` about the second), else None.
+    """
+    y = to_local(rot, trans, child)  # (T, K, 3)
+    seen = np.isfinite(y).all(axis=2)  # (T, K)
+    if seen.any(axis=1).sum() < MIN_FRAMES:
+        return np.inf, None, None
+    y = np.where(seen[..., None], y, np.nan)
+    try:
+        centre, _ = jc.sphere_centre(y)
+    except ValidationError:
+        return np.inf, None, None
+    axis = None
+    if jc.direction_spread(y, centre)[1] < jc.MIN_SPREAD_DEG:
+        _, axis = jc.sphere_centre(y, hinge=True)
+    dist = np.linalg.norm(y - centre, axis=2)  # (T, K), NaN where unseen
+    count = seen.sum(axis=0)
+    mean = np.where(seen, dist, 0.0).sum(axis=0) / np.maximum(count, 1)
+    dev = np.where(seen, dist - mean, 0.0)
+    return float(np.sqrt((dev**2).sum() / seen.sum())), centre, axis
+
+
+#: Distance (metres) along a hinge axis of the second point a two-marker child takes
+#: from it.
+AXIS_POINT_M = 0.1
+
+
+def _frame_from_joint(
+    markers: np.ndarray, fixed: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Technical frame of two markers ``(T, 2, 3)`` and the points of their joint fixed
+    in them ``(T, P, 3)`` (the centre; on a hinge also a second point of its axis), or
+    None when those points lie in line with the markers (see
+    :data:`MIN_TRIANGLE_HEIGHT_M`)."""
+    a, b = markers[:, 0], markers[:, 1]
+    ab = b - a
+    with np.errstate(invalid="ignore", divide="ignore"):
+        height = (
+            np.linalg.norm(np.cross(ab[:, None], fixed - a[:, None]), axis=2)
+            / np.linalg.norm(ab, axis=1)[:, None]
+        )  # (T, P)
+    height = np.nanmax(np.where(np.isfinite(height), height, -np.inf), axis=1)
+    ok = np.isfinite(height)
+    if ok.sum() < MIN_FRAMES or float(np.median(height[ok])) < MIN_TRIANGLE_HEIGHT_M:
+        return None
+    _, rot, trans = cluster_frames(np.concatenate([markers, fixed], axis=1))
+    return rot, trans
+
+
+def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> AutoTree:
+    """Grow the skeleton's tree from ``root`` over the marker groups.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres
+        The markers (NaN where missing); ``T`` may be a subsample of the take.
+    groups : list of (K,) int arrays
+        Marker columns of each group.
+    root : int
+        The group the tree starts from; it must have three or more markers.
+
+    Returns
+    -------
+    AutoTree
+
+    Raises
+    ------
+    ValidationError
+        The root group cannot be framed (fewer than three markers seen together).
+    """
+    frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for k, g in enumerate(groups):
+        if g.size >= 3:
+            try:
+                _, rot, trans = cluster_frames(positions[:, g])
+            except ValidationError:
+                continue
+            if np.isfinite(rot).all(axis=(1, 2)).sum() >= MIN_FRAMES:
+                frames[k] = (rot, trans)
+    if root not in frames:
+        raise ValidationError("auto template: the root group has no frame (three markers seen)")
+    own = set(frames)
+    parents = {root: -1}
+    cost_m = {root: 0.0}
+    how = {root: "own frame"}
+    centres: dict[int, np.ndarray] = {}
+    order = [root]
+    # candidate edges: (parent, child) -> (cost, centre in the parent's frame)
+    edges: dict[tuple[int, int], tuple[float, np.ndarray | None, np.ndarray | None]] = {}
+
+    def add_edges_from(a: int) -> None:
+        rot, trans = frames[a]
+        for b, g in enumerate(groups):
+            if b not in parents:
+                edges[(a, b)] = joint_cost(rot, trans, positions[:, g])
+
+    add_edges_from(root)
+    carriers_pending = [k for k in range(len(groups)) if groups[k].size >= 2]
+    # groups that can carry children (two or more markers) first, then the single markers
+    for wanted in (carriers_pending, list(range(len(groups)))):
+        while True:
+            open_edges = [
+                (c, a, b) for (a, b), (c, _, _) in edges.items()
+                if b not in parents and b in wanted and np.isfinite(c)
+            ]  # fmt: skip
+            if not open_edges:
+                break
+            c, a, b = min(open_edges)
+            _, centre, axis = edges[(a, b)]
+            assert centre is not None  # finite cost comes with a centre
+            parents[b], cost_m[b], centres[b] = a, float(c), centre
+            order.append(b)
+            if b in own:
+                how[b] = "own frame"
+            elif groups[b].size == 2:
+                rot, trans = frames[a]
+                fixed = (
+                    centre[None]
+                    if axis is None
+                    else np.stack([centre, centre + AXIS_POINT_M * axis])
+                )
+                framed = _frame_from_joint(positions[:, groups[b]], to_world(rot, trans, fixed))
+                if framed is not None:
+                    frames[b] = framed
+                    how[b] = "frame from its joint"
+                else:
+                    how[b] = "leaf, no frame"
+            else:
+                how[b] = "leaf, no frame"
+            if b in frames:
+                add_edges_from(b)
+    return AutoTree(
+        order=order, parents=parents, cost_m=cost_m, how=how, centres_parent=centres, frames=frames
+    )
