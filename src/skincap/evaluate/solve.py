@@ -29,7 +29,7 @@ from skincap.geometry.kinematics import joint_positions
 from skincap.solve import load_template, solve_markers
 from skincap.solve.auto import auto_template
 from skincap.solve.ik import solve_poses
-from skincap.solve.templates import BUILTIN_TEMPLATES, detect_template, strip_prefix
+from skincap.solve.templates import BUILTIN_TEMPLATES, Template, detect_template, strip_prefix
 from skincap.types import MarkerSet, Motion
 
 __all__ = [
@@ -42,6 +42,7 @@ __all__ = [
     "evaluate_synthetic",
     "evaluate_real",
     "evaluate_auto",
+    "matched_joint_errors",
     "group_accuracy",
     "ik_frames_per_second",
     "targets_table",
@@ -310,6 +311,71 @@ def group_accuracy(
     return (right / total if total else None), per, misplaced
 
 
+def matched_joint_errors(
+    groups: list[list[str]],
+    parents: np.ndarray,
+    template: Template,
+    truth: Motion,
+    solved: Motion,
+) -> dict[str, dict[str, Any]]:
+    """Each true joint's error at the auto joint that joins the same two segments.
+
+    A found group stands for the true segment most of its markers ride
+    (:func:`group_accuracy`'s majority); the true joint between segments ``P`` and
+    ``C`` (``C``'s ``joint`` in ``template``) is matched to the found joint whose child
+    group stands for ``C`` and whose parent group stands for ``P``. Stricter than the
+    nearest joint: a joint the tree put between the wrong segments is not found.
+
+    Parameters
+    ----------
+    groups : list of lists of str
+        Marker labels per found segment, in the found template's order.
+    parents : (S,) int
+        Each found segment's parent (-1: root).
+    template : Template
+        The true segments (the take's named template).
+    truth, solved : Motion
+        The true motion and the one solved with the found template (its joints are
+        ``joint_<segment index>``).
+
+    Returns
+    -------
+    dict
+        True joint name -> ``{"auto_joint", "auto_segment", "mean_m", "max_m"}`` (metres),
+        or ``{"auto_joint": None}`` where no found joint joins those segments; only the
+        joints of :data:`EVAL_JOINTS` the true skeleton has.
+    """
+    true_segment = {m: s.name for s in template.segments for m in s.markers}
+    stands_for = []
+    for group in groups:
+        segs = [true_segment[m] for m in (strip_prefix(x) for x in group) if m in true_segment]
+        stands_for.append(max(sorted(set(segs)), key=segs.count) if segs else None)
+    tj, sj = joint_positions(truth), joint_positions(solved)
+    n = min(tj.shape[0], sj.shape[0])
+    out: dict[str, dict[str, Any]] = {}
+    for spec in template.segments[1:]:
+        if spec.joint not in EVAL_JOINTS or spec.joint not in truth.skeleton.names:
+            continue
+        hits = [
+            c for c, p in enumerate(parents)
+            if p >= 0 and stands_for[c] == spec.name and stands_for[p] == spec.parent
+        ]  # fmt: skip
+        name = f"joint_{hits[0]}" if hits else None
+        if name is None or name not in solved.skeleton.names:
+            out[spec.joint] = {"auto_joint": None}
+            continue
+        d = np.linalg.norm(
+            sj[:n, solved.skeleton.index(name)] - tj[:n, truth.skeleton.index(spec.joint)], axis=1
+        )
+        out[spec.joint] = {
+            "auto_joint": name,
+            "auto_segment": f"segment_{hits[0]}",
+            "mean_m": float(d.mean()),
+            "max_m": float(d.max()),
+        }
+    return out
+
+
 def evaluate_auto(markers: MarkerSet, truth: Motion, template: str | None = None) -> dict[str, Any]:
     """``--template auto`` on a labelled synthetic take against the true segments and joints.
 
@@ -343,6 +409,16 @@ def evaluate_auto(markers: MarkerSet, truth: Motion, template: str | None = None
             per[name] = float(d.min())
     out["nearest_joint_error_m"] = per
     out["joint_mean_m"] = float(np.mean(list(per.values()))) if per else None
+    matched = matched_joint_errors(found.groups, found.parents, tpl, truth, result.motion)
+    for entry in matched.values():
+        seg = entry.get("auto_segment")
+        if seg is not None:
+            entry["method"] = result.model.methods.get(seg)
+            entry["tree"] = found.joint_how[int(seg.rsplit("_", 1)[1])]
+    out["matched_joints"] = matched
+    found_errors = [v["mean_m"] for v in matched.values() if v.get("mean_m") is not None]
+    out["matched_joint_mean_m"] = float(np.mean(found_errors)) if found_errors else None
+    out["matched_joints_found"] = len(found_errors)
     out["residual_rms_m"] = residual_distribution(result.residuals, result.model.marker_labels)[
         "rms_m"
     ]

@@ -24,14 +24,16 @@ BVH's rest pose is not a T-pose and retargeting onto a named rig does not apply.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
 from skincap.errors import ValidationError
-from skincap.solve.auto_tree import grow_tree
+from skincap.solve import joint_centres as jc
+from skincap.solve.auto_tree import AutoTree, grow_tree
+from skincap.solve.segments import to_local, to_world
 from skincap.solve.templates import SegmentSpec, Template, strip_prefix
 from skincap.types import MarkerSet
 
@@ -55,6 +57,11 @@ class AutoResult:
         Residual of the joint fit joining each segment to its parent (0 for the root).
     spread_m : (N, N) float64
         Standard deviation of every pair's distance (NaN where never seen together).
+    joint_how : list of S str
+        How each segment is framed and joined (:class:`~skincap.solve.auto_tree.AutoTree`'s
+        ``how``: ``"own frame"``, ``"frame from its joint"``, ``"leaf, no frame"``).
+    unjoined : list of lists of str
+        Marker groups no joint could join to the tree (not in the template).
     """
 
     template: Template
@@ -62,6 +69,8 @@ class AutoResult:
     parents: np.ndarray
     fit_residual_m: np.ndarray
     spread_m: np.ndarray
+    joint_how: list[str] = field(default_factory=list)
+    unjoined: list[list[str]] = field(default_factory=list)
 
 
 def distance_spread(positions: np.ndarray, *, chunk: int = 32) -> np.ndarray:
@@ -165,13 +174,75 @@ def auto_template(
     )
     fit = np.array([found.cost_m[k] for k in order])
     names = [[strip_prefix(labels[m]) for m in groups[k]] for k in order]
-    template = _as_template(names, parents)
+    template = _as_template(
+        names,
+        parents,
+        [found.spread_deg.get(k) for k in order],
+        [k != order[0] and _perpendicular_ok(found, sub, groups, k) for k in order],
+    )
     return AutoResult(
-        template=template, groups=names, parents=parents, fit_residual_m=fit, spread_m=spread
+        template=template,
+        groups=names,
+        parents=parents,
+        fit_residual_m=fit,
+        spread_m=spread,
+        joint_how=[found.how[k] for k in order],
+        unjoined=[
+            [strip_prefix(labels[m]) for m in g]
+            for k, g in enumerate(groups)
+            if k not in found.parents
+        ],
     )
 
 
-def _as_template(names: list[list[str]], parents: np.ndarray) -> Template:
+#: A joint turns as a hinge when its second principal range of motion is under this
+#: share of its first (or under :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG`):
+#: SCoRE's centre along the axis then rests on that little turn, mostly skin motion.
+HINGE_RATIO = 0.25
+
+
+def _is_hinge(spread_deg: np.ndarray) -> bool:
+    """Whether a joint's ``(3,)`` range of motion (degrees, largest first) is a hinge's."""
+    first, second = float(spread_deg[0]), float(spread_deg[1])
+    return first >= jc.MIN_SPREAD_DEG and second < max(jc.MIN_SPREAD_DEG, HINGE_RATIO * first)
+
+
+def _perpendicular_ok(
+    tree: AutoTree, positions: np.ndarray, groups: list[np.ndarray], k: int
+) -> bool:
+    """Whether hinge ``k``'s centre may be the foot of the perpendicular from its
+    parent's own joint: that joint is known and calibration will see the hinge turn
+    from it (its first range of motion, measured as
+    :func:`~skincap.solve.calibrate.calibrate` measures it, at least
+    :data:`PERPENDICULAR_MIN_FACTOR` times :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG`),
+    so it never falls back to the prior itself -- which would put the joint on the
+    parent's."""
+    p = tree.parents[k]
+    grand = tree.parents.get(p, -1)
+    if grand < 0 or p not in tree.frames or grand not in tree.frames:
+        return False
+    need = PERPENDICULAR_MIN_FACTOR * jc.MIN_SPREAD_DEG
+    if k in tree.frames and tree.how[k] == "own frame":
+        return float(tree.spread_deg[k][0]) >= need
+    rot, trans = tree.frames[p]
+    joint = to_world(*tree.frames[grand], tree.centres_parent[p][None])  # (T, 1, 3)
+    seen_from = np.nanmedian(to_local(rot, trans, joint)[:, 0], axis=0)
+    if not np.isfinite(seen_from).all():
+        return False
+    y = to_local(rot, trans, positions[:, groups[k]])
+    return float(jc.direction_spread(y, seen_from)[0]) >= need
+
+
+#: See :func:`_perpendicular_ok`.
+PERPENDICULAR_MIN_FACTOR = 1.5
+
+
+def _as_template(
+    names: list[list[str]],
+    parents: np.ndarray,
+    spreads: list[np.ndarray | None],
+    perpendicular: list[bool],
+) -> Template:
     segs: list[SegmentSpec] = []
     children = {i: [c for c in range(len(parents)) if parents[c] == i] for i in range(len(parents))}
     for i, group in enumerate(names):
@@ -192,6 +263,15 @@ def _as_template(names: list[list[str]], parents: np.ndarray) -> Template:
                 "kind": "ball",
                 "prior": {"from": list(parent_markers), "towards": list(group), "fraction": 0.5},
             }
+            spread = spreads[i]
+            if spread is not None and _is_hinge(spread):
+                # SARA's axis; the centre is the point of it nearest the prior
+                centre["kind"] = "hinge"
+                centre["flexion"] = [list(parent_markers), f"@segment_{i}", list(group)]
+                if perpendicular[i]:
+                    # a bone runs square to its hinge: the centre is the point of the
+                    # axis nearest the parent's own joint
+                    centre["prior"] = {"from": [f"@segment_{p}"]}
         segs.append(
             SegmentSpec(
                 name=f"segment_{i}",

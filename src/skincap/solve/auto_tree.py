@@ -61,6 +61,10 @@ class AutoTree:
         The fitted joint centre in the parent's technical frame, metres.
     frames : dict int -> ((T, 3, 3), (T, 3))
         The technical frame of every group that has one, on the frames given.
+    spread_deg : dict int -> (3,) float64
+        Each joint's RMS range of motion along its principal axes, degrees, largest
+        first (:func:`~skincap.solve.joint_centres.motion_spread`; for a child without
+        a frame the spread of its markers' directions, third value 0).
     """
 
     order: list[int]
@@ -69,6 +73,7 @@ class AutoTree:
     how: dict[int, str]
     centres_parent: dict[int, np.ndarray]
     frames: dict[int, tuple[np.ndarray, np.ndarray]]
+    spread_deg: dict[int, np.ndarray]
 
 
 def joint_cost(
@@ -181,6 +186,7 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
     parents = {root: -1}
     cost_m = {root: 0.0}
     how = {root: "own frame"}
+    spread_deg: dict[int, np.ndarray] = {}
     centres: dict[int, np.ndarray] = {}
     order = [root]
     # candidate edges: (parent, child) -> (cost, centre in the parent's frame)
@@ -225,8 +231,30 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
                     how[b] = "leaf, no frame"
             else:
                 how[b] = "leaf, no frame"
+            spread_deg[b] = _spread(frames[a], frames.get(b), positions[:, groups[b]], centre)
             if b in frames:
                 add_edges_from(b)
     return AutoTree(
-        order=order, parents=parents, cost_m=cost_m, how=how, centres_parent=centres, frames=frames
+        order=order,
+        parents=parents,
+        cost_m=cost_m,
+        how=how,
+        centres_parent=centres,
+        frames=frames,
+        spread_deg=spread_deg,
     )
+
+
+def _spread(
+    parent: tuple[np.ndarray, np.ndarray],
+    child: tuple[np.ndarray, np.ndarray] | None,
+    markers: np.ndarray,
+    centre: np.ndarray,
+) -> np.ndarray:
+    """(3,) RMS range of motion (degrees) of a joint along its principal axes, largest
+    first: of the relative rotation of two frames, or for a child without a frame of
+    its markers' directions from the centre (third value 0)."""
+    if child is not None:
+        return jc.motion_spread(parent[0], child[0])
+    y = to_local(parent[0], parent[1], markers)
+    return np.append(jc.direction_spread(y, centre), 0.0)
