@@ -77,7 +77,10 @@ class AutoTree:
 
 
 def joint_cost(
-    rot: np.ndarray, trans: np.ndarray, child: np.ndarray
+    rot: np.ndarray,
+    trans: np.ndarray,
+    child: np.ndarray,
+    child_frame: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[float, np.ndarray | None, np.ndarray | None]:
     """Kirk's joint cost of child markers about the best point fixed in a parent frame.
 
@@ -89,6 +92,11 @@ def joint_cost(
         The parent's technical origins.
     child : (T, K, 3) float, metres
         The child's markers, NaN where missing.
+    child_frame : ((T, 3, 3), (T, 3)), optional
+        The child's own technical frame, when it has one: the centre is then SCoRE's
+        (:func:`~skincap.solve.joint_centres.score_centre`, a point fixed in both
+        frames, so the child must turn about it too, not only keep its distances),
+        and the cost is still the change of the markers' distances to it.
 
     Returns
     -------
@@ -109,13 +117,16 @@ def joint_cost(
     if seen.any(axis=1).sum() < MIN_FRAMES:
         return np.inf, None, None
     y = np.where(seen[..., None], y, np.nan)
+    axis = None
     try:
-        centre, _ = jc.sphere_centre(y)
+        if child_frame is not None:
+            centre, _, _ = jc.score_centre(rot, trans, *child_frame)
+        else:
+            centre, _ = jc.sphere_centre(y)
+            if jc.direction_spread(y, centre)[1] < jc.MIN_SPREAD_DEG:
+                _, axis = jc.sphere_centre(y, hinge=True)
     except ValidationError:
         return np.inf, None, None
-    axis = None
-    if jc.direction_spread(y, centre)[1] < jc.MIN_SPREAD_DEG:
-        _, axis = jc.sphere_centre(y, hinge=True)
     dist = np.linalg.norm(y - centre, axis=2)  # (T, K), NaN where unseen
     count = seen.sum(axis=0)
     mean = np.where(seen, dist, 0.0).sum(axis=0) / np.maximum(count, 1)
@@ -183,6 +194,7 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
     if root not in frames:
         raise ValidationError("auto template: the root group has no frame (three markers seen)")
     own = set(frames)
+    own_frames = dict(frames)
     parents = {root: -1}
     cost_m = {root: 0.0}
     how = {root: "own frame"}
@@ -196,7 +208,7 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
         rot, trans = frames[a]
         for b, g in enumerate(groups):
             if b not in parents:
-                edges[(a, b)] = joint_cost(rot, trans, positions[:, g])
+                edges[(a, b)] = joint_cost(rot, trans, positions[:, g], own_frames.get(b))
 
     add_edges_from(root)
     carriers_pending = [k for k in range(len(groups)) if groups[k].size >= 2]
@@ -218,12 +230,13 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
                 how[b] = "own frame"
             elif groups[b].size == 2:
                 rot, trans = frames[a]
-                fixed = (
-                    centre[None]
-                    if axis is None
-                    else np.stack([centre, centre + AXIS_POINT_M * axis])
-                )
-                framed = _frame_from_joint(positions[:, groups[b]], to_world(rot, trans, fixed))
+                pair = positions[:, groups[b]]
+                framed = _frame_from_joint(pair, to_world(rot, trans, centre[None]))
+                if framed is None and axis is not None:
+                    # a hinge whose fitted centre fell in line with the markers: any
+                    # point of its axis is fixed in both segments, so take a second one
+                    fixed = np.stack([centre, centre + AXIS_POINT_M * axis])
+                    framed = _frame_from_joint(pair, to_world(rot, trans, fixed))
                 if framed is not None:
                     frames[b] = framed
                     how[b] = "frame from its joint"

@@ -1,0 +1,121 @@
+"""``--template auto``'s tree: two-marker segments framed by their joint, grown root first."""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from skincap.geometry.kinematics import joint_positions
+from skincap.solve import solve_markers
+from skincap.solve.auto import auto_template
+from skincap.solve.auto_tree import _frame_from_joint, joint_cost
+from skincap.solve.segments import cluster_frames, to_world
+from skincap.types import MarkerSet
+
+#: Marker positions in each segment's frame (origin at its proximal joint), metres.
+_PELVIS = [[0.12, 0.05, 0.08], [-0.12, 0.05, 0.08], [0.06, 0.08, -0.1], [-0.06, 0.08, -0.1],
+           [0.0, 0.15, -0.12], [0.0, 0.12, 0.1]]  # fmt: skip
+_THIGH = [[0.07, -0.2, 0.03], [0.06, -0.38, 0.0]]
+_SHANK = [[0.06, -0.15, 0.02], [0.05, -0.38, -0.01]]
+_FOOT = [[0.0, -0.05, -0.05], [0.04, -0.06, 0.1], [-0.01, -0.06, 0.15]]
+_HIP = np.array([0.1, -0.1, 0.0])  # in the pelvis
+_BONE = np.array([0.0, -0.4, 0.0])  # knee in the thigh, ankle in the shank
+
+
+def _leg_take(n: int = 400, seed: int = 3):
+    """A pelvis, a two-marker thigh (ball hip), a two-marker shank (knee: a hinge about
+    the thigh's x, square to the bone) and a three-marker foot (ball ankle), exact.
+
+    Returns the take, the true (T, 3) hip, knee and ankle centres, and the labels per
+    segment.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / 100.0
+
+    def wobble(amplitude_deg):
+        w = rng.uniform(1.0, 3.0, 3)
+        phase = rng.uniform(0, 6, 3)
+        return Rotation.from_rotvec(
+            np.radians(amplitude_deg) * np.sin(np.outer(t, w) + phase)
+        ).as_matrix()
+
+    r_pelvis = wobble([8.0, 8.0, 8.0])
+    o_pelvis = np.stack([0.3 * t, 0.9 + 0.02 * np.sin(3 * t), 0.0 * t], axis=1)
+    r_thigh = r_pelvis @ wobble([35.0, 25.0, 25.0])
+    knee_flex = np.radians(35.0) * (1 - np.cos(2.3 * t))
+    r_shank = r_thigh @ Rotation.from_euler("x", knee_flex[:, None]).as_matrix()
+    r_foot = r_shank @ wobble([25.0, 20.0, 15.0])
+    hip = o_pelvis + r_pelvis @ _HIP
+    knee = hip + r_thigh @ _BONE
+    ankle = knee + r_shank @ _BONE
+
+    def ride(rot, origin, local):
+        return origin[:, None] + np.einsum("tij,kj->tki", rot, np.asarray(local))
+
+    parts = {
+        "P": ride(r_pelvis, o_pelvis, _PELVIS),
+        "T": ride(r_thigh, hip, _THIGH),
+        "S": ride(r_shank, knee, _SHANK),
+        "F": ride(r_foot, ankle, _FOOT),
+    }
+    labels = [f"{k}{i}" for k, v in parts.items() for i in range(v.shape[1])]
+    take = MarkerSet(np.concatenate(list(parts.values()), axis=1), labels, 100.0)
+    segments = {k: [f"{k}{i}" for i in range(v.shape[1])] for k, v in parts.items()}
+    return take, {"hip": hip, "knee": knee, "ankle": ankle}, segments
+
+
+def test_two_marker_thigh_and_shank_carry_the_leg_chain():
+    take, truth, segments = _leg_take()
+    found = auto_template(take)
+    assert sorted(sorted(g) for g in found.groups) == sorted(segments.values())
+    seg_of = {g[0][0]: k for k, g in enumerate(found.groups)}
+    edges = {
+        tuple(sorted((found.groups[c][0][0], found.groups[p][0][0])))
+        for c, p in enumerate(found.parents)
+        if p >= 0
+    }
+    assert edges == {("P", "T"), ("S", "T"), ("F", "S")}
+    assert found.parents[seg_of["P"]] == -1  # the pelvis is nearest the markers' centroid
+    assert found.joint_how[seg_of["T"]] == "frame from its joint"
+    assert found.joint_how[seg_of["S"]] == "frame from its joint"
+    assert found.joint_how[seg_of["F"]] == "own frame"
+    assert found.fit_residual_m.max() < 1e-6  # exact data: every joint keeps its distances
+    # the knee turns about one axis only: a hinge, centred square to the thigh bone
+    knee_spec = found.template.segments[seg_of["S"]]
+    assert knee_spec.centre["kind"] == "hinge"
+    assert knee_spec.centre["prior"] == {"from": [f"@segment_{seg_of['T']}"]}
+    assert found.template.segments[seg_of["T"]].centre["kind"] == "ball"
+
+    result = solve_markers(take, found.template)
+    assert np.nanmax(result.residuals) < 1e-4
+    pos = joint_positions(result.motion)
+    names = result.motion.skeleton.names
+    for joint, seg in (("hip", "T"), ("knee", "S"), ("ankle", "F")):
+        solved = pos[:, names.index(f"joint_{seg_of[seg]}")]
+        err = np.linalg.norm(solved - truth[joint], axis=1)
+        assert err.max() < 1e-4, (joint, err.max())
+
+
+def test_joint_cost_is_zero_at_a_joint_and_large_across_two():
+    take, truth, segments = _leg_take()
+    cols = {k: [take.labels.index(m) for m in v] for k, v in segments.items()}
+    _, rot, trans = cluster_frames(take.positions[:, cols["P"]])
+    cost_thigh, centre, axis = joint_cost(rot, trans, take.positions[:, cols["T"]])
+    assert cost_thigh < 1e-9
+    assert axis is None  # the hip turns about three axes
+    hip = to_world(rot, trans, centre[None])[:, 0]
+    assert np.abs(hip - truth["hip"]).max() < 1e-9
+    cost_shank, _, _ = joint_cost(rot, trans, take.positions[:, cols["S"]])
+    assert cost_shank > 0.005  # hip and knee together keep no distance constant
+
+
+def test_a_two_marker_group_in_line_with_its_joint_gets_no_frame():
+    t = 20
+    a = np.zeros((t, 3))
+    b = np.tile([0.0, -0.3, 0.0], (t, 1))
+    markers = np.stack([a, b], axis=1)
+    in_line = np.tile([0.0, 0.2, 0.005], (t, 1, 1))  # 5 mm off the line through a and b
+    assert _frame_from_joint(markers, in_line) is None
+    aside = np.tile([0.05, 0.2, 0.0], (t, 1, 1))
+    framed = _frame_from_joint(markers, aside)
+    assert framed is not None and np.isfinite(framed[0]).all()
