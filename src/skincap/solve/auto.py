@@ -211,29 +211,49 @@ def _perpendicular_ok(
     tree: AutoTree, positions: np.ndarray, groups: list[np.ndarray], k: int
 ) -> bool:
     """Whether hinge ``k``'s centre may be the foot of the perpendicular from its
-    parent's own joint: that joint is known and calibration will see the hinge turn
-    from it (its first range of motion, measured as
-    :func:`~skincap.solve.calibrate.calibrate` measures it, at least
-    :data:`PERPENDICULAR_MIN_FACTOR` times :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG`),
-    so it never falls back to the prior itself -- which would put the joint on the
-    parent's."""
+    parent's own joint ``J``.
+
+    That holds for a limb (a thigh runs from the hip square to the knee's axis), not
+    for a parent whose own joint lies on or near the child's axis (a pelvis hung from
+    one hip, carrying the other). So ``J`` must be known, the direction from ``J`` to
+    the midpoint of the two segments' markers (roughly the bone) must make at least
+    :data:`PERPENDICULAR_MIN_ANGLE_DEG` with the hinge axis (in the parent's frame), and
+    calibration must see the hinge turn from it (first range of motion at least
+    :data:`PERPENDICULAR_MIN_FACTOR` times
+    :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG`, measured as
+    :func:`~skincap.solve.calibrate.calibrate` measures it) so that it never falls
+    back to the prior itself, which would put the joint on the parent's.
+    """
     p = tree.parents[k]
     grand = tree.parents.get(p, -1)
     if grand < 0 or p not in tree.frames or grand not in tree.frames:
         return False
-    need = PERPENDICULAR_MIN_FACTOR * jc.MIN_SPREAD_DEG
-    if k in tree.frames and tree.how[k] == "own frame":
-        return float(tree.spread_deg[k][0]) >= need
     rot, trans = tree.frames[p]
     joint = to_world(*tree.frames[grand], tree.centres_parent[p][None])  # (T, 1, 3)
-    seen_from = np.nanmedian(to_local(rot, trans, joint)[:, 0], axis=0)
-    if not np.isfinite(seen_from).all():
+    seen_from = np.nanmedian(to_local(rot, trans, joint)[:, 0], axis=0)  # J in the parent
+    y = to_local(rot, trans, positions[:, groups[k]])  # child markers in the parent
+    x = to_local(rot, trans, positions[:, groups[p]])  # parent markers in the parent
+    middle = 0.5 * (np.nanmedian(x.reshape(-1, 3), axis=0) + np.nanmedian(y.reshape(-1, 3), axis=0))
+    if not (np.isfinite(seen_from).all() and np.isfinite(middle).all()):
         return False
-    y = to_local(rot, trans, positions[:, groups[k]])
-    return float(jc.direction_spread(y, seen_from)[0]) >= need
+    need = PERPENDICULAR_MIN_FACTOR * jc.MIN_SPREAD_DEG
+    try:
+        if k in tree.frames:
+            axis, _, cp, _ = jc.sara_axis(rot, trans, *tree.frames[k])
+            turns = float(tree.spread_deg[k][0]) >= need
+        else:
+            cp, axis = jc.sphere_centre(y, hinge=True)
+            turns = float(jc.direction_spread(y, seen_from)[0]) >= need
+    except ValidationError:
+        return False
+    assert axis is not None  # hinge=True returns the axis
+    bone = middle - seen_from
+    cos = abs(float(bone @ axis)) / max(float(np.linalg.norm(bone) * np.linalg.norm(axis)), 1e-12)
+    return turns and cos <= np.cos(np.radians(PERPENDICULAR_MIN_ANGLE_DEG))
 
 
 #: See :func:`_perpendicular_ok`.
+PERPENDICULAR_MIN_ANGLE_DEG = 60.0
 PERPENDICULAR_MIN_FACTOR = 1.5
 
 
