@@ -25,6 +25,7 @@ BVH's rest pose is not a T-pose and retargeting onto a named rig does not apply.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
@@ -238,6 +239,7 @@ def _perpendicular_ok(
         return False
     need = PERPENDICULAR_MIN_FACTOR * jc.MIN_SPREAD_DEG
     try:
+        axis: np.ndarray | None
         if k in tree.frames:
             axis, _, cp, _ = jc.sara_axis(rot, trans, *tree.frames[k])
             turns = float(tree.spread_deg[k][0]) >= need
@@ -246,7 +248,8 @@ def _perpendicular_ok(
             turns = float(jc.direction_spread(y, seen_from)[0]) >= need
     except ValidationError:
         return False
-    assert axis is not None  # hinge=True returns the axis
+    if axis is None:  # hinge=True always returns one
+        return False
     bone = middle - seen_from
     cos = abs(float(bone @ axis)) / max(float(np.linalg.norm(bone) * np.linalg.norm(axis)), 1e-12)
     return turns and cos <= np.cos(np.radians(PERPENDICULAR_MIN_ANGLE_DEG))
@@ -272,7 +275,7 @@ def _as_template(
             origin = list(group)
             primary = ["y", list(group), [f"@segment_{kids[0]}"] if kids else [group[0]]]
             secondary = ["x", [group[0]], [group[-1]]] if len(group) > 1 else ["x", "parent"]
-            centre = None
+            centre: dict[str, Any] | None = None
         else:
             origin = None
             end = [f"@segment_{kids[0]}"] if kids else list(group)
@@ -284,7 +287,7 @@ def _as_template(
                 "prior": {"from": list(parent_markers), "towards": list(group), "fraction": 0.5},
             }
             spread = spreads[i]
-            if spread is not None and _is_hinge(spread):
+            if spread is not None and _is_hinge(spread) and centre is not None:
                 # SARA's axis; the centre is the point of it nearest the prior
                 centre["kind"] = "hinge"
                 centre["flexion"] = [list(parent_markers), f"@segment_{i}", list(group)]
