@@ -119,3 +119,17 @@ def test_a_two_marker_group_in_line_with_its_joint_gets_no_frame():
     aside = np.tile([0.05, 0.2, 0.0], (t, 1, 1))
     framed = _frame_from_joint(markers, aside)
     assert framed is not None and np.isfinite(framed[0]).all()
+
+
+def test_reach_is_the_median_distance_to_the_nearest_child_marker():
+    from skincap.solve.auto_tree import _reach
+
+    t = 30
+    rot = np.broadcast_to(np.eye(3), (t, 3, 3)).copy()
+    trans = np.zeros((t, 3))
+    child = np.zeros((t, 2, 3))
+    child[:, 0] = [0.5, 0.0, 0.0]
+    child[:, 1] = [0.0, 0.2, 0.0]
+    child[:10, 1] = np.nan  # hidden: the other marker is the nearest there
+    assert _reach(rot, trans, np.zeros(3), child) == 0.2
+    assert _reach(rot, trans, np.zeros(3), np.full((t, 1, 3), np.nan)) == np.inf

@@ -34,6 +34,13 @@ __all__ = ["AutoTree", "grow_tree", "joint_cost", "MIN_FRAMES", "MIN_TRIANGLE_HE
 #: for the edge to be fitted.
 MIN_FRAMES = 10
 
+#: A joint lies where its two segments meet: a fitted centre farther than this
+#: (metres, median over the take) from every marker of the child is implausible, and
+#: such an edge is taken only when the child has no other (a fit of two distances
+#: can keep them nearly constant about a far point by chance, e.g. a chest pair
+#: about a point half a metre beyond a thigh in a breakdance).
+MAX_JOINT_REACH_M = 0.35
+
 #: A two-marker group is framed by its markers and its joint centre only when the
 #: centre lies at least this far (metres, median over the take) from the line through
 #: the two markers: nearer, the frame's turn about that line is noise.
@@ -203,12 +210,19 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
     order = [root]
     # candidate edges: (parent, child) -> (cost, centre in the parent's frame)
     edges: dict[tuple[int, int], tuple[float, np.ndarray | None, np.ndarray | None]] = {}
+    far: set[tuple[int, int]] = set()  # edges whose centre lies beyond MAX_JOINT_REACH_M
 
     def add_edges_from(a: int) -> None:
         rot, trans = frames[a]
         for b, g in enumerate(groups):
             if b not in parents:
                 edges[(a, b)] = joint_cost(rot, trans, positions[:, g], own_frames.get(b))
+                centre = edges[(a, b)][1]
+                if (
+                    centre is not None
+                    and _reach(rot, trans, centre, positions[:, g]) > MAX_JOINT_REACH_M
+                ):
+                    far.add((a, b))
 
     add_edges_from(root)
     carriers_pending = [k for k in range(len(groups)) if groups[k].size >= 2]
@@ -216,12 +230,12 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
     for wanted in (carriers_pending, list(range(len(groups)))):
         while True:
             open_edges = [
-                (c, a, b) for (a, b), (c, _, _) in edges.items()
+                ((a, b) in far, c, a, b) for (a, b), (c, _, _) in edges.items()
                 if b not in parents and b in wanted and np.isfinite(c)
             ]  # fmt: skip
             if not open_edges:
                 break
-            c, a, b = min(open_edges)
+            _, c, a, b = min(open_edges)
             _, centre, axis = edges[(a, b)]
             assert centre is not None  # finite cost comes with a centre
             parents[b], cost_m[b], centres[b] = a, float(c), centre
@@ -256,6 +270,16 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
         frames=frames,
         spread_deg=spread_deg,
     )
+
+
+def _reach(rot: np.ndarray, trans: np.ndarray, centre: np.ndarray, child: np.ndarray) -> float:
+    """Median over frames (metres) of the distance from a centre fixed in a parent's
+    frame to the nearest of the child's markers ``(T, K, 3)``."""
+    world = to_world(rot, trans, centre[None])  # (T, 1, 3)
+    d = np.linalg.norm(child - world, axis=2)  # (T, K), NaN where unseen
+    nearest = np.min(np.where(np.isfinite(d), d, np.inf), axis=1)
+    nearest = nearest[np.isfinite(nearest)]
+    return float(np.median(nearest)) if nearest.size else np.inf
 
 
 def _spread(
