@@ -133,3 +133,85 @@ def test_reach_is_the_median_distance_to_the_nearest_child_marker():
     child[:10, 1] = np.nan  # hidden: the other marker is the nearest there
     assert _reach(rot, trans, np.zeros(3), child) == 0.2
     assert _reach(rot, trans, np.zeros(3), np.full((t, 1, 3), np.nan)) == np.inf
+
+
+def test_hinge_centred_between_its_neighbours_moves_no_marker():
+    from skincap.solve.auto_hinges import centre_hinges_between_neighbours
+    from skincap.solve.calibrate import calibrate
+    from skincap.solve.ik import model_markers, segment_origins
+
+    take, truth, _ = _leg_take()
+    found = auto_template(take)
+    shank = next(k for k, g in enumerate(found.groups) if g[0].startswith("S"))
+    spec = found.template.segments[shank]
+    thigh = spec.parent
+    # a prior off to the side (the shank's lateral markers): the knee lands on its
+    # axis but away from the bones
+    spec.centre["prior"] = {"from": list(spec.markers)}
+    before = calibrate(take, found.template)
+    after = centre_hinges_between_neighbours(before)
+    assert after.methods[spec.name].endswith("centred between its neighbours' joints")
+    assert after.methods[thigh] == before.methods[thigh]  # a ball: untouched
+
+    def knee_error(model):
+        args = (model.segment_parents, model.joint_offsets)
+        origins = segment_origins(*args, model.init_rotations, model.init_origins)
+        return np.nanmax(np.linalg.norm(origins[:, shank] - truth["knee"], axis=1))
+
+    assert knee_error(before) > 0.02
+    assert knee_error(after) < 1e-6
+
+    # every marker, and every other joint, stays where it was in the world
+    def world(model):
+        return model_markers(
+            model.segment_parents, model.joint_offsets, model.marker_segments,
+            model.marker_offsets, model.init_rotations, model.init_origins,
+        )  # fmt: skip
+
+    np.testing.assert_allclose(world(after), world(before), atol=1e-6)
+    foot = next(k for k, g in enumerate(found.groups) if g[0].startswith("F"))
+    args = (after.init_rotations, after.init_origins)
+    np.testing.assert_allclose(
+        segment_origins(after.segment_parents, after.joint_offsets, *args)[:, foot],
+        segment_origins(before.segment_parents, before.joint_offsets, *args)[:, foot],
+        atol=1e-6,
+    )
+    assert before.joint_offsets is not after.joint_offsets  # the input is not changed
+
+
+def test_calibrate_auto_solves_the_exact_leg():
+    from skincap.solve.auto import calibrate_auto
+
+    take, truth, _ = _leg_take()
+    found = auto_template(take)
+    result = solve_markers(take, calibrate_auto(take, found))
+    assert np.nanmax(result.residuals) < 1e-4
+    pos = joint_positions(result.motion)
+    shank = next(k for k, g in enumerate(found.groups) if g[0].startswith("S"))
+    knee = pos[:, result.motion.skeleton.names.index(f"joint_{shank}")]
+    assert np.linalg.norm(knee - truth["knee"], axis=1).max() < 1e-4
+
+
+def test_solve_template_auto_from_the_command_line(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from skincap.cli import app
+    from skincap.io import write
+    from skincap.io.bvh import read_bvh
+
+    take, _, _ = _leg_take()
+    write(take, tmp_path / "leg.c3d")
+    out, report = tmp_path / "leg.bvh", tmp_path / "leg.json"
+    args = ["solve", tmp_path / "leg.c3d", "--template", "auto", "-o", out, "--report", report]
+    result = CliRunner().invoke(app, [str(a) for a in args])
+    assert result.exit_code == 0, result.output
+    rep = json.loads(report.read_text())
+    assert rep["template"] == "auto"
+    assert rep["overall"]["rms_m"] < 1e-3  # the C3D stores millimetres as float32
+    methods = [v["method"] for v in rep["joint_centres"].values()]
+    assert sorted(methods) == sorted(
+        ["sphere fit", "sphere-fit axis, centred between its neighbours' joints", "SCoRE"]
+    )
+    assert read_bvh(out, units="cm").skeleton.n_joints == 5  # root, three joints, the foot end

@@ -28,7 +28,7 @@ import numpy as np
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import joint_positions
 from skincap.solve import load_template, solve_markers
-from skincap.solve.auto import auto_template
+from skincap.solve.auto import auto_template, calibrate_auto
 from skincap.solve.ik import solve_poses
 from skincap.solve.templates import BUILTIN_TEMPLATES, Template, detect_template, strip_prefix
 from skincap.types import MarkerSet, Motion
@@ -402,7 +402,7 @@ def evaluate_auto(markers: MarkerSet, truth: Motion, template: str | None = None
         "misplaced": misplaced,
     }
     try:
-        result = solve_markers(markers, found.template)
+        result = solve_markers(markers, calibrate_auto(markers, found))
     except Exception as exc:  # noqa: BLE001 - the evaluation reports any failure as data
         out["error"] = str(exc)
         return out

@@ -33,12 +33,14 @@ from scipy.spatial.distance import squareform
 
 from skincap.errors import ValidationError
 from skincap.solve import joint_centres as jc
+from skincap.solve.auto_hinges import centre_hinges_between_neighbours
 from skincap.solve.auto_tree import AutoTree, grow_tree
+from skincap.solve.calibrate import BodyModel, calibrate
 from skincap.solve.segments import to_local, to_world
 from skincap.solve.templates import SegmentSpec, Template, strip_prefix
 from skincap.types import MarkerSet
 
-__all__ = ["AutoResult", "auto_template", "distance_spread"]
+__all__ = ["AutoResult", "auto_template", "calibrate_auto", "distance_spread"]
 
 #: Frames used for the pairwise statistics (evenly spaced over the take).
 MAX_FRAMES = 400
@@ -316,3 +318,26 @@ def _as_template(
     return Template(
         name="auto", description="found from the markers' motion (Kirk et al. 2005)", segments=segs
     )
+
+
+def calibrate_auto(markers: MarkerSet, found: AutoResult | None = None) -> BodyModel:
+    """The body model ``--template auto`` solves: found, calibrated, hinges centred.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Labelled markers, metres (NaN where missing).
+    found : AutoResult, optional
+        :func:`auto_template`'s result on ``markers`` (found again when omitted).
+
+    Returns
+    -------
+    BodyModel
+        :func:`~skincap.solve.calibrate.calibrate` on the found template, each hinge
+        then moved along its axis between its neighbours' joints
+        (:func:`~skincap.solve.auto_hinges.centre_hinges_between_neighbours`); pass it
+        to :func:`~skincap.solve.solve_markers` as the template.
+    """
+    if found is None:
+        found = auto_template(markers)
+    return centre_hinges_between_neighbours(calibrate(markers, found.template))
