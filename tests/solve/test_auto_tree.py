@@ -215,3 +215,30 @@ def test_solve_template_auto_from_the_command_line(tmp_path):
         ["sphere fit", "sphere-fit axis, centred between its neighbours' joints", "SCoRE"]
     )
     assert read_bvh(out, units="cm").skeleton.n_joints == 5  # root, three joints, the foot end
+
+
+def test_a_marker_that_turns_its_group_leaves_it():
+    from skincap.solve.auto_tree import _loose_marker
+
+    take, truth, segments = _leg_take()
+    cols = {k: [take.labels.index(m) for m in v] for k, v in segments.items()}
+    pos = take.positions
+    parent = cluster_frames(pos[:, cols["P"]])[1:]
+    thigh = pos[:, cols["T"]]
+    # a rigid four-marker thigh: the two thigh markers and two more on the bone
+    rng = np.random.default_rng(5)
+    _, rot, trans = cluster_frames(np.concatenate([thigh, truth["hip"][:, None]], axis=1))
+    extra = to_world(rot, trans, rng.normal(scale=0.05, size=(2, 3)))
+    rigid = np.concatenate([thigh, extra], axis=1)
+    # ... and one whose fourth marker sits 4 cm from a point it turns about (a finger
+    # beyond a wrist), so its distances to the others hardly change
+    t = np.arange(pos.shape[0]) / 100.0
+    wrist = extra[:, 1]
+    wobble = Rotation.from_rotvec(np.outer(np.sin(3 * t), [0.0, 0.0, 0.5])).as_matrix()
+    finger = wrist + np.einsum("tij,tjk,k->ti", rot, wobble, [0.0, -0.04, 0.0])
+    loose = np.concatenate([thigh, extra[:, :1], finger[:, None]], axis=1)
+    cols_all = np.arange(4)
+    for group, expected in ((rigid, None), (loose, 3)):
+        frame = cluster_frames(group)[1:]
+        cost, _, _ = joint_cost(*parent, group, frame)
+        assert _loose_marker(parent, group, cols_all, cost) == expected

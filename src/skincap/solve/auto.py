@@ -169,6 +169,7 @@ def auto_template(
         for k in big
     ]
     found = grow_tree(sub, groups, big[int(np.argmin(dist))])
+    groups = found.groups
     order = found.order
     new_index = {k: i for i, k in enumerate(order)}
     parents = np.array(
