@@ -241,4 +241,4 @@ def test_a_marker_that_turns_its_group_leaves_it():
     for group, expected in ((rigid, None), (loose, 3)):
         frame = cluster_frames(group)[1:]
         cost, _, _ = joint_cost(*parent, group, frame)
-        assert _loose_marker(parent, group, cols_all, cost) == expected
+        assert _loose_marker([parent], group, cols_all, cost) == expected

@@ -242,7 +242,8 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
             if not open_edges:
                 break
             _, c, a, b = min(open_edges)
-            loose = _loose_marker(frames[a], positions, groups[b], c) if b in own else None
+            carriers = [frames[t] for t in order if t in frames]
+            loose = _loose_marker(carriers, positions, groups[b], c) if b in own else None
             if loose is not None:
                 # the group's frame turns with one marker that is not on it (a hand
                 # marker near the wrist): it leaves as a group of its own
@@ -305,12 +306,17 @@ LOOSE_MARKER_MIN_DROP_M = 0.002
 
 
 def _loose_marker(
-    parent: tuple[np.ndarray, np.ndarray], positions: np.ndarray, group: np.ndarray, cost: float
+    carriers: list[tuple[np.ndarray, np.ndarray]],
+    positions: np.ndarray,
+    group: np.ndarray,
+    cost: float,
 ) -> int | None:
-    """Index in ``group`` of the marker whose absence makes the joint with ``parent``
-    cheapest, when that cost is under :data:`LOOSE_MARKER_GAIN` times ``cost`` (the
-    joint's cost with the whole group) and :data:`LOOSE_MARKER_MIN_DROP_M` below it;
-    None otherwise, or for fewer than four markers."""
+    """Index in ``group`` of the marker without which the group's cheapest joint with
+    any of the ``carriers`` (frames of the groups in the tree) is cheapest, when that
+    cost is under :data:`LOOSE_MARKER_GAIN` times ``cost`` (the cheapest joint with the
+    whole group) and :data:`LOOSE_MARKER_MIN_DROP_M` below it; None otherwise, or for
+    fewer than four markers. All carriers are tried, as the whole group's frame may
+    have drawn it to the wrong one."""
     if group.size < 4 or not np.isfinite(cost):
         return None
     best, best_cost = None, min(LOOSE_MARKER_GAIN * cost, cost - LOOSE_MARKER_MIN_DROP_M)
@@ -320,7 +326,7 @@ def _loose_marker(
             _, rot, trans = cluster_frames(rest)
         except ValidationError:
             continue
-        c, _, _ = joint_cost(*parent, rest, (rot, trans))
+        c = min(joint_cost(*parent, rest, (rot, trans))[0] for parent in carriers)
         if c < best_cost:
             best, best_cost = k, c
     return best
