@@ -218,7 +218,7 @@ def test_solve_template_auto_from_the_command_line(tmp_path):
 
 
 def test_a_marker_that_turns_its_group_leaves_it():
-    from skincap.solve.auto_tree import _loose_marker
+    from skincap.solve.auto_tree import _better_members
 
     take, truth, segments = _leg_take()
     cols = {k: [take.labels.index(m) for m in v] for k, v in segments.items()}
@@ -238,7 +238,17 @@ def test_a_marker_that_turns_its_group_leaves_it():
     finger = wrist + np.einsum("tij,tjk,k->ti", rot, wobble, [0.0, -0.04, 0.0])
     loose = np.concatenate([thigh, extra[:, :1], finger[:, None]], axis=1)
     cols_all = np.arange(4)
-    for group, expected in ((rigid, None), (loose, 3)):
-        frame = cluster_frames(group)[1:]
-        cost, _, _ = joint_cost(*parent, group, frame)
-        assert _loose_marker([parent], group, cols_all, cost) == expected
+    frame = cluster_frames(rigid)[1:]
+    cost, _, _ = joint_cost(*parent, rigid, frame)
+    assert _better_members([parent], rigid, cols_all, [], cost) is None
+    frame = cluster_frames(loose)[1:]
+    cost, _, _ = joint_cost(*parent, loose, frame)
+    members, out, taken = _better_members([parent], loose, cols_all, [], cost)
+    assert members.tolist() == [0, 1, 2] and out.tolist() == [3] and taken is None
+    # three markers, the finger one of them, and the fourth thigh marker alone: they
+    # change places
+    both = np.concatenate([loose, extra[:, 1:]], axis=1)  # columns 0-3 as above, 4: thigh
+    group = np.array([0, 1, 3])
+    cost, _, _ = joint_cost(*parent, both[:, group], cluster_frames(both[:, group])[1:])
+    members, out, taken = _better_members([parent], both, group, [np.array([4])], cost)
+    assert sorted(members.tolist()) == [0, 1, 4] and out.tolist() == [3] and taken == 0

@@ -243,18 +243,30 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
                 break
             _, c, a, b = min(open_edges)
             carriers = [frames[t] for t in order if t in frames]
-            loose = _loose_marker(carriers, positions, groups[b], c) if b in own else None
-            if loose is not None:
-                # the group's frame turns with one marker that is not on it (a hand
-                # marker near the wrist): it leaves as a group of its own
-                groups.append(groups[b][loose : loose + 1])
-                groups[b] = np.delete(groups[b], loose)
-                _, rot_b, trans_b = cluster_frames(positions[:, groups[b]])
+            singles = [k for k, g in enumerate(groups) if g.size == 1 and k not in parents]
+            better = (
+                _better_members(carriers, positions, groups[b], [groups[k] for k in singles], c)
+                if b in own
+                else None
+            )
+            if better is not None:
+                # the group's frame turns with a marker that does not ride it (a hand
+                # marker near the wrist): it leaves as a group of its own, or changes
+                # places with a single marker that rides the segment
+                members, out, taken = better
+                groups[b] = members
+                if taken is None:
+                    groups.append(out)
+                    moved = len(groups) - 1
+                else:
+                    moved = singles[taken]
+                    groups[moved] = out
+                _, rot_b, trans_b = cluster_frames(positions[:, members])
                 frames[b] = own_frames[b] = (rot_b, trans_b)
                 for t in order:
                     if t in frames:
                         add_edge(t, b)
-                        add_edge(t, len(groups) - 1)
+                        add_edge(t, moved)
                 continue
             _, centre, axis = edges[(a, b)]
             assert centre is not None  # finite cost comes with a centre
@@ -305,30 +317,58 @@ LOOSE_MARKER_GAIN = 0.5
 LOOSE_MARKER_MIN_DROP_M = 0.002
 
 
-def _loose_marker(
+#: A single marker may change places with a marker of a group only when its distance
+#: to the group's markers varies (standard deviation, metres, averaged) by less than this.
+SWAP_MAX_SPREAD_M = 0.016
+
+
+def _better_members(
     carriers: list[tuple[np.ndarray, np.ndarray]],
     positions: np.ndarray,
     group: np.ndarray,
+    singles: list[np.ndarray],
     cost: float,
-) -> int | None:
-    """Index in ``group`` of the marker without which the group's cheapest joint with
-    any of the ``carriers`` (frames of the groups in the tree) is cheapest, when that
-    cost is under :data:`LOOSE_MARKER_GAIN` times ``cost`` (the cheapest joint with the
-    whole group) and :data:`LOOSE_MARKER_MIN_DROP_M` below it; None otherwise, or for
-    fewer than four markers. All carriers are tried, as the whole group's frame may
-    have drawn it to the wrong one."""
-    if group.size < 4 or not np.isfinite(cost):
+) -> tuple[np.ndarray, np.ndarray, int | None] | None:
+    """A change of a framed group's markers that makes its joint far cheaper.
+
+    Tried: leaving one marker out (groups of four or more), and changing one marker
+    for one of the ``singles`` (single-marker groups not yet joined) whose distances to
+    the group hardly vary (:data:`SWAP_MAX_SPREAD_M`). Each variant is scored by its
+    cheapest joint with any of the ``carriers`` (frames of the groups in the tree:
+    the whole group's frame may have drawn it to the wrong one); the best is taken
+    when under :data:`LOOSE_MARKER_GAIN` times ``cost`` (the cheapest joint with the
+    group as it is) and :data:`LOOSE_MARKER_MIN_DROP_M` below it.
+
+    Returns
+    -------
+    (members, out, taken) or None
+        The group's new marker columns, the column(s) that leave it (a new single
+        group), and the index in ``singles`` of the single it took (None: none).
+    """
+    if group.size < 3 or not np.isfinite(cost):
         return None
-    best, best_cost = None, min(LOOSE_MARKER_GAIN * cost, cost - LOOSE_MARKER_MIN_DROP_M)
+    variants: list[tuple[np.ndarray, np.ndarray, int | None]] = []
     for k in range(group.size):
-        rest = positions[:, np.delete(group, k)]
+        rest = np.delete(group, k)
+        if rest.size >= 3:
+            variants.append((rest, group[k : k + 1], None))
+    for j, single in enumerate(singles):
+        d = np.linalg.norm(positions[:, group] - positions[:, single], axis=2)  # (T, K)
+        if np.isfinite(d).sum(axis=0).min() < MIN_FRAMES:
+            continue
+        if float(np.mean(np.nanstd(d, axis=0))) >= SWAP_MAX_SPREAD_M:
+            continue
+        for k in range(group.size):
+            variants.append((np.append(np.delete(group, k), single), group[k : k + 1], j))
+    best, best_cost = None, min(LOOSE_MARKER_GAIN * cost, cost - LOOSE_MARKER_MIN_DROP_M)
+    for members, out, taken in variants:
         try:
-            _, rot, trans = cluster_frames(rest)
+            _, rot, trans = cluster_frames(positions[:, members])
         except ValidationError:
             continue
-        c = min(joint_cost(*parent, rest, (rot, trans))[0] for parent in carriers)
+        c = min(joint_cost(*parent, positions[:, members], (rot, trans))[0] for parent in carriers)
         if c < best_cost:
-            best, best_cost = k, c
+            best, best_cost = (members, out, taken), c
     return best
 
 
