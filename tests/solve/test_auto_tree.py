@@ -252,3 +252,14 @@ def test_a_marker_that_turns_its_group_leaves_it():
     cost, _, _ = joint_cost(*parent, both[:, group], cluster_frames(both[:, group])[1:])
     members, out, taken = _better_members([parent], both, group, [np.array([4])], cost)
     assert sorted(members.tolist()) == [0, 1, 4] and out.tolist() == [3] and taken == 0
+
+
+def test_only_bones_square_to_the_hinge_place_it():
+    from skincap.solve.auto_hinges import _square_to
+
+    axis = np.array([1.0, 0.0, 0.0])
+    thigh = np.tile([0.02, 0.4, 0.0], (5, 1))  # 87 deg from the axis
+    other_hip = np.tile([-0.18, 0.02, 0.03], (5, 1))  # along it (a pelvis)
+    assert _square_to(thigh, axis)
+    assert not _square_to(other_hip, axis)
+    assert not _square_to(np.zeros((5, 3)), axis)

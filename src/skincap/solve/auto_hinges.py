@@ -22,7 +22,7 @@ from scipy.spatial.transform import Rotation
 
 from skincap.solve.calibrate import BodyModel
 
-__all__ = ["HINGE_METHODS", "centre_hinges_between_neighbours", "hinge_axis"]
+__all__ = ["HINGE_METHODS", "MIN_BONE_ANGLE_DEG", "centre_hinges_between_neighbours", "hinge_axis"]
 
 #: The calibration methods (:attr:`BodyModel.methods`) that found a hinge's axis.
 HINGE_METHODS = ("SARA", "sphere-fit axis")
@@ -44,17 +44,35 @@ def hinge_axis(r_parent: np.ndarray, r_child: np.ndarray) -> np.ndarray | None:
     return vt[0]
 
 
+#: A neighbour's joint counts only when its bone (hinge -> that joint) makes at least
+#: this angle with the hinge's axis (degrees): a pelvis hung from one hip does not run
+#: square to that hip's axis towards the other hip.
+MIN_BONE_ANGLE_DEG = 60.0
+
+
+def _square_to(bone: np.ndarray, axis: np.ndarray) -> bool:
+    """Whether bone vectors ``(T, 3)`` make, in the median, at least
+    :data:`MIN_BONE_ANGLE_DEG` with the unit ``axis``."""
+    length = np.linalg.norm(bone, axis=1)
+    ok = length > 1e-9
+    if not ok.any():
+        return False
+    cos = float(np.median(np.abs(bone[ok] @ axis) / length[ok]))
+    return cos <= np.cos(np.radians(MIN_BONE_ANGLE_DEG))
+
+
 def centre_hinges_between_neighbours(model: BodyModel) -> BodyModel:
     """Slide each hinge along its axis to the mean of its neighbours' perpendicular feet.
 
     A segment whose joint was found as a hinge (:data:`HINGE_METHODS`), whose parent is
     not the root (the root's origin is no joint) and that has children: its joint
-    ``k`` moves along the axis ``a`` (:func:`hinge_axis` on the calibrated frames) to
-    ``k + a ((s_p + s_d) / 2)``, with ``s_p = (J_p - k) . a`` for the parent's own
-    joint ``J_p`` and ``s_d`` the median over the take of ``(J_d - k) . a`` for the
-    children's joints ``J_d`` (all in the parent's anatomical frame). The child's
-    markers, end site, fixed joints and children's joints are re-expressed so they do
-    not move in the world; ``methods`` notes the change.
+    ``k`` moves along the axis ``a`` (:func:`hinge_axis` on the calibrated frames) by
+    the mean of ``(J - k) . a`` (the median over the take) over its neighbours'
+    joints ``J`` -- the parent's own joint and the children's -- whose bone ``J - k``
+    runs square enough to the axis (:data:`MIN_BONE_ANGLE_DEG`), all in the parent's
+    anatomical frame; with no such neighbour it stays. The child's markers, end site,
+    fixed joints and children's joints are re-expressed so they do not move in the
+    world; ``methods`` notes the change.
 
     Parameters
     ----------
@@ -85,10 +103,15 @@ def centre_hinges_between_neighbours(model: BodyModel) -> BodyModel:
         rel = np.einsum("tji,tjk->tik", rot[:, p], rot[:, c])  # (T, 3, 3) child in parent
         ok = np.isfinite(rel).all(axis=(1, 2))
         k = offsets[c]
-        s_parent = float((-k) @ axis)  # J_p is the parent's origin
-        distal = k + np.einsum("tij,kj->tki", rel[ok], offsets[kids])  # (T', K, 3)
-        s_distal = float(np.median((distal - k) @ axis))
-        shift_p = axis * 0.5 * (s_parent + s_distal)  # in the parent's frame
+        # each neighbour's joint relative to the hinge, in the parent's frame: the
+        # parent's own (its origin) and, over the take, the children's
+        bones = [-k[None]] + [
+            np.einsum("tij,j->ti", rel[ok], offsets[kid]) for kid in kids
+        ]  # each (T', 3)
+        feet = [float(np.median(b @ axis)) for b in bones if _square_to(b, axis)]
+        if not feet:
+            continue
+        shift_p = axis * float(np.mean(feet))  # in the parent's frame
         shift_c = np.median(np.einsum("tji,j->ti", rel[ok], shift_p), axis=0)  # in the child's
         offsets[c] = k + shift_p
         offsets[kids] -= shift_c
