@@ -242,7 +242,11 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
             if not open_edges:
                 break
             _, c, a, b = min(open_edges)
-            carriers = [frames[t] for t in order if t in frames]
+            # the parents worth trying: those the whole group is not far from
+            carriers = [
+                frames[t] for t in order
+                if t in frames and edges.get((t, b), (np.inf,))[0] <= CARRIER_FACTOR * c
+            ]  # fmt: skip
             singles = [k for k, g in enumerate(groups) if g.size == 1 and k not in parents]
             better = (
                 _better_members(carriers, positions, groups[b], [groups[k] for k in singles], c)
@@ -317,6 +321,10 @@ LOOSE_MARKER_GAIN = 0.5
 LOOSE_MARKER_MIN_DROP_M = 0.002
 
 
+#: The carriers :func:`_better_members` tries for a group: those whose joint with the
+#: whole group costs at most this many times the cheapest.
+CARRIER_FACTOR = 3.0
+
 #: A single marker may change places with a marker of a group only when its distance
 #: to the group's markers varies (standard deviation, metres, averaged) by less than this.
 SWAP_MAX_SPREAD_M = 0.016
@@ -362,8 +370,8 @@ def _better_members(
             variants.append((np.append(np.delete(group, k), single), group[k : k + 1], j))
     best, best_cost = None, min(LOOSE_MARKER_GAIN * cost, cost - LOOSE_MARKER_MIN_DROP_M)
     for members, out, taken in variants:
-        try:
-            _, rot, trans = cluster_frames(positions[:, members])
+        try:  # one round of the cluster fit is enough to rank the variants
+            _, rot, trans = cluster_frames(positions[:, members], iterations=1)
         except ValidationError:
             continue
         c = min(joint_cost(*parent, positions[:, members], (rot, trans))[0] for parent in carriers)
