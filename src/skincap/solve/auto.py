@@ -6,20 +6,25 @@ motion capture data":
 1. **Segments by distance constancy.** Markers on one rigid segment keep their mutual
    distances. The cost of a pair is the standard deviation of its distance over the
    frames where both are seen; markers are grouped by average-linkage clustering on
-   that cost, cut at ``max_spread`` (metres). Groups of one or two markers are kept
-   (they ride a segment their neighbours' joint will frame).
-2. **Joint fits.** For every pair of segments with frames, SCoRE's residual (the RMS
-   distance between the two segments' estimates of the common centre) says how well a
-   joint explains their relative motion; a segment of one or two markers is fitted as
-   a sphere fit in each candidate parent's frame (its residual: the RMS spread of the
-   markers' distances to the centre).
-3. **The tree**: the minimum spanning tree of the fit residuals, rooted at the segment
-   nearest the markers' centroid (the trunk), oriented away from it.
+   that cost, cut at ``max_spread`` (metres). Groups of one or two markers are kept.
+2. **Joint fits and the tree** (:mod:`skincap.solve.auto_tree`): a joint's cost is
+   how much the child's markers' distances to the best point fixed in the parent
+   change (Kirk's joint cost; SCoRE's point when the child has a frame); the tree is
+   grown from the trunk (the group of three or more markers nearest the markers'
+   centroid) one cheapest joint at a time, a two-marker group framed by its joint
+   centre once it joins, so it carries the next; a marker that turns its group's
+   frame without riding it leaves the group (or changes places with a lone marker).
+3. **Hinge or ball**: a joint whose second range of motion is under
+   :data:`HINGE_RATIO` of its first is a hinge (SARA); the point on its axis starts at
+   the foot of the perpendicular from the parent's joint where the parent's bone runs
+   square to the axis, and after calibration (:func:`calibrate_auto`) sits between
+   its neighbours' joints (:mod:`skincap.solve.auto_hinges`).
 
 The result is a :class:`~skincap.solve.templates.Template` with generic names
 (``segment_0``, ``joint_0``...), which :func:`skincap.solve.solve_markers` solves like
-any other; its anatomical axes are arbitrary (the bones point along the tree), so the
-BVH's rest pose is not a T-pose and retargeting onto a named rig does not apply.
+any other (or :func:`calibrate_auto`'s model, with the hinges placed); its anatomical
+axes are arbitrary (the bones point along the tree), so the BVH's rest pose is not a
+T-pose and retargeting onto a named rig does not apply.
 """
 
 from __future__ import annotations
@@ -57,7 +62,8 @@ class AutoResult:
         Marker labels per segment, in template order.
     parents : (S,) int64, -1 for the root
     fit_residual_m : (S,) float64
-        Residual of the joint fit joining each segment to its parent (0 for the root).
+        The joint cost (:func:`~skincap.solve.auto_tree.joint_cost`, metres) of the
+        joint joining each segment to its parent (0 for the root).
     spread_m : (N, N) float64
         Standard deviation of every pair's distance (NaN where never seen together).
     joint_how : list of S str
