@@ -5,6 +5,7 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import SkincapWarning
@@ -159,3 +160,27 @@ def test_matched_joints_join_the_same_segments_or_are_not_found():
     wrong = matched_joint_errors(groups, np.array([-1, 2, 0]), truth_tpl, truth, solved)
     assert wrong["LeftShoulder"] == {"auto_joint": None}
     assert wrong["LeftElbow"] == {"auto_joint": None}
+
+
+@pytest.mark.slow
+def test_auto_template_on_the_synthetic_sparse_walk(data_dir):
+    """Issue #17's row: the true segment of >= 95 % of markers, joints <= 20 mm (19.6 mm
+    measured; the two-marker thighs and shanks must carry the legs' chain)."""
+    from skincap.evaluate.solve import evaluate_auto
+    from skincap.workflows.solve import synth_take_in_memory
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        markers, truth = synth_take_in_memory(
+            str(data_dir / "cmu_131_01_bvh11.bvh"), frames=600, vertices=8000, seed=0
+        )
+        result = evaluate_auto(markers, truth)
+    assert result["share_in_true_segment"] >= 0.95
+    assert result["matched_joints_found"] == 12  # every listed joint between its segments
+    assert result["matched_joint_mean_m"] < 0.022
+    for leg in ("LeftHip", "RightHip", "LeftKnee", "RightKnee"):
+        assert result["matched_joints"][leg]["mean_m"] < 0.03, leg
+    assert (
+        "centred between its neighbours' joints" in result["matched_joints"]["LeftKnee"]["method"]
+    )
+    assert result["matched_joints"]["LeftHip"]["tree"] == "frame from its joint"
