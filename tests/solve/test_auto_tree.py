@@ -263,3 +263,21 @@ def test_only_bones_square_to_the_hinge_place_it():
     assert _square_to(thigh, axis)
     assert not _square_to(other_hip, axis)
     assert not _square_to(np.zeros((5, 3)), axis)
+
+
+def test_markers_no_joint_can_join_are_named_and_left_out():
+    import pytest
+
+    from skincap.errors import SkincapWarning
+
+    take, _, segments = _leg_take()
+    pos = take.positions.copy()
+    foot = [take.labels.index(m) for m in segments["F"]]
+    others = [k for k in range(take.n_markers) if k not in foot]
+    half = pos.shape[0] // 2
+    pos[:half, foot] = np.nan  # the foot is seen only when the rest is not
+    pos[half:, others] = np.nan
+    with pytest.warns(SkincapWarning, match="F0, F1, F2"):
+        found = auto_template(MarkerSet(pos, take.labels, 100.0))
+    assert sorted(found.unjoined) == [["F0", "F1", "F2"]]
+    assert all(not g[0].startswith("F") for g in found.groups)

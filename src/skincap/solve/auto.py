@@ -29,6 +29,7 @@ T-pose and retargeting onto a named rig does not apply.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -36,7 +37,7 @@ import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
 from scipy.spatial.distance import squareform
 
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.solve import joint_centres as jc
 from skincap.solve.auto_hinges import centre_hinges_between_neighbours
 from skincap.solve.auto_tree import AutoTree, grow_tree
@@ -148,6 +149,12 @@ def auto_template(
     ValidationError
         Fewer than three markers, or no group of three markers seen together (no
         segment gets a frame, so no joint can be fitted).
+
+    Warns
+    -----
+    SkincapWarning
+        Groups no joint could join to the tree (named; they are left out of the
+        template).
     """
     labels = [s for s in markers.labels if not s.startswith("*")]
     cols = [markers.labels.index(s) for s in labels]
@@ -190,6 +197,17 @@ def auto_template(
         [found.spread_deg.get(k) for k in order],
         [k != order[0] and _perpendicular_ok(found, sub, groups, k) for k in order],
     )
+    unjoined = [
+        [strip_prefix(labels[m]) for m in g] for k, g in enumerate(groups) if k not in found.parents
+    ]
+    if unjoined:
+        warnings.warn(
+            "auto template: no joint joins marker(s) "
+            f"{', '.join(m for g in unjoined for m in g)} to the rest (seen too seldom with "
+            "a segment that has a frame); they are not solved",
+            SkincapWarning,
+            stacklevel=2,
+        )
     return AutoResult(
         template=template,
         groups=names,
@@ -197,11 +215,7 @@ def auto_template(
         fit_residual_m=fit,
         spread_m=spread,
         joint_how=[found.how[k] for k in order],
-        unjoined=[
-            [strip_prefix(labels[m]) for m in g]
-            for k, g in enumerate(groups)
-            if k not in found.parents
-        ],
+        unjoined=unjoined,
     )
 
 
