@@ -281,3 +281,18 @@ def test_markers_no_joint_can_join_are_named_and_left_out():
         found = auto_template(MarkerSet(pos, take.labels, 100.0))
     assert sorted(found.unjoined) == [["F0", "F1", "F2"]]
     assert all(not g[0].startswith("F") for g in found.groups)
+
+
+def test_a_model_calibrated_on_another_take_is_refused():
+    import pytest
+
+    from skincap.errors import ValidationError
+    from skincap.solve.auto import calibrate_auto
+
+    take, _, _ = _leg_take()
+    model = calibrate_auto(take)
+    renamed = MarkerSet(take.positions, [f"x{k}" for k in range(take.n_markers)], 100.0)
+    with pytest.raises(ValidationError, match="other labels"):
+        solve_markers(renamed, model)
+    with pytest.raises(ValidationError, match="other labels"):
+        solve_markers(take.select(list(range(5))), model)

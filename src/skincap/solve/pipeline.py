@@ -133,6 +133,12 @@ def solve_markers(
         progress(0.0, "calibration")
     if isinstance(template, BodyModel):
         model = template
+        cols = model.marker_columns
+        if cols.size and (
+            cols.max() >= markers.n_markers
+            or [markers.labels[c] for c in cols] != list(model.marker_labels)
+        ):
+            raise ValidationError("the body model was calibrated on a take with other labels")
     else:
         tpl = template if isinstance(template, Template) else load_template(template)
         model = calibrate(markers, tpl)
