@@ -6,38 +6,47 @@ motion capture data":
 1. **Segments by distance constancy.** Markers on one rigid segment keep their mutual
    distances. The cost of a pair is the standard deviation of its distance over the
    frames where both are seen; markers are grouped by average-linkage clustering on
-   that cost, cut at ``max_spread`` (metres). Groups of one or two markers are kept
-   (they ride a segment their neighbours' joint will frame).
-2. **Joint fits.** For every pair of segments with frames, SCoRE's residual (the RMS
-   distance between the two segments' estimates of the common centre) says how well a
-   joint explains their relative motion; a segment of one or two markers is fitted as
-   a sphere fit in each candidate parent's frame (its residual: the RMS spread of the
-   markers' distances to the centre).
-3. **The tree**: the minimum spanning tree of the fit residuals, rooted at the segment
-   nearest the markers' centroid (the trunk), oriented away from it.
+   that cost, cut at ``max_spread`` (metres). Groups of one or two markers are kept.
+2. **Joint fits and the tree** (:mod:`skincap.solve.auto_tree`): a joint's cost is
+   how much the child's markers' distances to the best point fixed in the parent
+   change (Kirk's joint cost; SCoRE's point when the child has a frame); the tree is
+   grown from the trunk (the group of three or more markers nearest the markers'
+   centroid) one cheapest joint at a time, a two-marker group framed by its joint
+   centre once it joins, so it carries the next; a marker that turns its group's
+   frame without riding it leaves the group (or changes places with a lone marker).
+3. **Hinge or ball**: a joint whose second range of motion is under
+   :data:`HINGE_RATIO` of its first is a hinge (SARA); the point on its axis starts at
+   the foot of the perpendicular from the parent's joint where the parent's bone runs
+   square to the axis, and after calibration (:func:`calibrate_auto`) sits between
+   its neighbours' joints (:mod:`skincap.solve.auto_hinges`).
 
 The result is a :class:`~skincap.solve.templates.Template` with generic names
 (``segment_0``, ``joint_0``...), which :func:`skincap.solve.solve_markers` solves like
-any other; its anatomical axes are arbitrary (the bones point along the tree), so the
-BVH's rest pose is not a T-pose and retargeting onto a named rig does not apply.
+any other (or :func:`calibrate_auto`'s model, with the hinges placed); its anatomical
+axes are arbitrary (the bones point along the tree), so the BVH's rest pose is not a
+T-pose and retargeting onto a named rig does not apply.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from scipy.cluster.hierarchy import fcluster, linkage
-from scipy.sparse.csgraph import breadth_first_order, minimum_spanning_tree
 from scipy.spatial.distance import squareform
 
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.solve import joint_centres as jc
-from skincap.solve.segments import cluster_frames, to_local
+from skincap.solve.auto_hinges import centre_hinges_between_neighbours
+from skincap.solve.auto_tree import AutoTree, grow_tree
+from skincap.solve.calibrate import BodyModel, calibrate
+from skincap.solve.segments import to_local, to_world
 from skincap.solve.templates import SegmentSpec, Template, strip_prefix
 from skincap.types import MarkerSet
 
-__all__ = ["AutoResult", "auto_template", "distance_spread"]
+__all__ = ["AutoResult", "auto_template", "calibrate_auto", "distance_spread"]
 
 #: Frames used for the pairwise statistics (evenly spaced over the take).
 MAX_FRAMES = 400
@@ -54,9 +63,15 @@ class AutoResult:
         Marker labels per segment, in template order.
     parents : (S,) int64, -1 for the root
     fit_residual_m : (S,) float64
-        Residual of the joint fit joining each segment to its parent (0 for the root).
+        The joint cost (:func:`~skincap.solve.auto_tree.joint_cost`, metres) of the
+        joint joining each segment to its parent (0 for the root).
     spread_m : (N, N) float64
         Standard deviation of every pair's distance (NaN where never seen together).
+    joint_how : list of S str
+        How each segment is framed and joined (:class:`~skincap.solve.auto_tree.AutoTree`'s
+        ``how``: ``"own frame"``, ``"frame from its joint"``, ``"leaf, no frame"``).
+    unjoined : list of lists of str
+        Marker groups no joint could join to the tree (not in the template).
     """
 
     template: Template
@@ -64,6 +79,8 @@ class AutoResult:
     parents: np.ndarray
     fit_residual_m: np.ndarray
     spread_m: np.ndarray
+    joint_how: list[str] = field(default_factory=list)
+    unjoined: list[list[str]] = field(default_factory=list)
 
 
 def distance_spread(positions: np.ndarray, *, chunk: int = 32) -> np.ndarray:
@@ -132,6 +149,12 @@ def auto_template(
     ValidationError
         Fewer than three markers, or no group of three markers seen together (no
         segment gets a frame, so no joint can be fitted).
+
+    Warns
+    -----
+    SkincapWarning
+        Groups no joint could join to the tree (named; they are left out of the
+        template).
     """
     labels = [s for s in markers.labels if not s.startswith("*")]
     cols = [markers.labels.index(s) for s in labels]
@@ -148,83 +171,123 @@ def auto_template(
     group_of = fcluster(tree, t=max_spread, criterion="distance")
     groups = [np.nonzero(group_of == g)[0] for g in np.unique(group_of)]
     groups = [g for g in groups if g.size >= min_markers]
-    framed: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for k, g in enumerate(groups):
-        if g.size >= 3:
-            try:
-                _, rot, trans = cluster_frames(pos_all[:, g])
-            except ValidationError:
-                continue
-            framed[k] = (rot, trans)
-    if not framed:
+    sub = pos_all[frames]
+    centroid = np.nanmean(sub.reshape(-1, 3), axis=0)
+    # the root: the group of three or more markers nearest the markers' centroid (the trunk)
+    big = [k for k, g in enumerate(groups) if g.size >= 3]
+    if not big:
         raise ValidationError("auto template: no group of three rigidly moving markers")
-    s = len(groups)
-    resid = np.full((s, s), np.inf)
-    for a in range(s):
-        for b in range(a + 1, s):
-            resid[a, b] = resid[b, a] = _joint_residual(a, b, groups, framed, pos_all)
-    # the tree over the framed groups; a group of one or two markers has no frame to
-    # carry a child, so it hangs as a leaf off the framed group that explains it best
-    big = sorted(framed)
-    sub = resid[np.ix_(big, big)]
-    # csgraph reads zeros (and values within ~1e-8 of zero) as missing edges: shift by 1 um
-    mst = minimum_spanning_tree(np.where(np.isfinite(sub), sub + 1e-6, 0.0))
-    graph = mst + mst.T
-    centroid = np.nanmean(pos_all.reshape(-1, 3), axis=0)
     dist = [
-        float(np.linalg.norm(np.nanmean(pos_all[:, groups[k]].reshape(-1, 3), axis=0) - centroid))
+        float(np.linalg.norm(np.nanmean(sub[:, groups[k]].reshape(-1, 3), axis=0) - centroid))
         for k in big
     ]
-    root_sub = int(np.argmin(dist))
-    order_sub, preds_sub = breadth_first_order(graph, root_sub, directed=False)
-    order = [big[int(k)] for k in order_sub]
-    parent_of = {
-        big[int(k)]: (-1 if int(k) == root_sub else big[int(preds_sub[k])]) for k in order_sub
-    }
-    for k in range(s):
-        if k in framed:
-            continue
-        best = min(big, key=lambda b: resid[k, b])
-        if np.isfinite(resid[k, best]):
-            parent_of[k] = best
-            order.append(k)
+    found = grow_tree(sub, groups, big[int(np.argmin(dist))])
+    groups = found.groups
+    order = found.order
     new_index = {k: i for i, k in enumerate(order)}
     parents = np.array(
-        [-1 if parent_of[k] < 0 else new_index[parent_of[k]] for k in order], dtype=np.int64
+        [-1 if found.parents[k] < 0 else new_index[found.parents[k]] for k in order],
+        dtype=np.int64,
     )
-    fit = np.array(
-        [0.0 if p < 0 else float(resid[order[i], order[p]]) for i, p in enumerate(parents)]
-    )
+    fit = np.array([found.cost_m[k] for k in order])
     names = [[strip_prefix(labels[m]) for m in groups[k]] for k in order]
-    template = _as_template(names, parents, order, framed)
+    template = _as_template(
+        names,
+        parents,
+        [found.spread_deg.get(k) for k in order],
+        [k != order[0] and _perpendicular_ok(found, sub, groups, k) for k in order],
+    )
+    unjoined = [
+        [strip_prefix(labels[m]) for m in g] for k, g in enumerate(groups) if k not in found.parents
+    ]
+    if unjoined:
+        warnings.warn(
+            "auto template: no joint joins marker(s) "
+            f"{', '.join(m for g in unjoined for m in g)} to the rest (seen too seldom with "
+            "a segment that has a frame); they are not solved",
+            SkincapWarning,
+            stacklevel=2,
+        )
     return AutoResult(
-        template=template, groups=names, parents=parents, fit_residual_m=fit, spread_m=spread
+        template=template,
+        groups=names,
+        parents=parents,
+        fit_residual_m=fit,
+        spread_m=spread,
+        joint_how=[found.how[k] for k in order],
+        unjoined=unjoined,
     )
 
 
-def _joint_residual(a, b, groups, framed, pos) -> float:
-    if a in framed and b in framed:
-        (ra, ta), (rb, tb) = framed[a], framed[b]
-        try:
-            _, _, rms = jc.score_centre(ra, ta, rb, tb)
-        except ValidationError:
-            return np.inf
-        return rms
-    if a not in framed and b not in framed:
-        return np.inf
-    frame_of, small = (a, b) if a in framed else (b, a)
-    rot, trans = framed[frame_of]
-    y = to_local(rot, trans, pos[:, groups[small]])
-    if (np.isfinite(y).all(axis=2).any(axis=1)).sum() < 10:
-        return np.inf
-    centre, _ = jc.sphere_centre(y)
-    dist = np.linalg.norm(y - centre, axis=2)
-    with np.errstate(invalid="ignore"):
-        return float(np.sqrt(np.nanmean((dist - np.nanmean(dist, axis=0)) ** 2)))
+#: A joint turns as a hinge when its second principal range of motion is under this
+#: share of its first (or under :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG`):
+#: SCoRE's centre along the axis then rests on that little turn, mostly skin motion.
+HINGE_RATIO = 0.25
+
+
+def _is_hinge(spread_deg: np.ndarray) -> bool:
+    """Whether a joint's ``(3,)`` range of motion (degrees, largest first) is a hinge's."""
+    first, second = float(spread_deg[0]), float(spread_deg[1])
+    return first >= jc.MIN_SPREAD_DEG and second < max(jc.MIN_SPREAD_DEG, HINGE_RATIO * first)
+
+
+def _perpendicular_ok(
+    tree: AutoTree, positions: np.ndarray, groups: list[np.ndarray], k: int
+) -> bool:
+    """Whether hinge ``k``'s centre may be the foot of the perpendicular from its
+    parent's own joint ``J``.
+
+    That holds for a limb (a thigh runs from the hip square to the knee's axis), not
+    for a parent whose own joint lies on or near the child's axis (a pelvis hung from
+    one hip, carrying the other). So ``J`` must be known, the direction from ``J`` to
+    the midpoint of the two segments' markers (roughly the bone) must make at least
+    :data:`PERPENDICULAR_MIN_ANGLE_DEG` with the hinge axis (in the parent's frame), and
+    calibration must see the hinge turn from it (first range of motion at least
+    :data:`PERPENDICULAR_MIN_FACTOR` times
+    :data:`~skincap.solve.joint_centres.MIN_SPREAD_DEG`, measured as
+    :func:`~skincap.solve.calibrate.calibrate` measures it) so that it never falls
+    back to the prior itself, which would put the joint on the parent's.
+    """
+    p = tree.parents[k]
+    grand = tree.parents.get(p, -1)
+    if grand < 0 or p not in tree.frames or grand not in tree.frames:
+        return False
+    rot, trans = tree.frames[p]
+    joint = to_world(*tree.frames[grand], tree.centres_parent[p][None])  # (T, 1, 3)
+    seen_from = np.nanmedian(to_local(rot, trans, joint)[:, 0], axis=0)  # J in the parent
+    y = to_local(rot, trans, positions[:, groups[k]])  # child markers in the parent
+    x = to_local(rot, trans, positions[:, groups[p]])  # parent markers in the parent
+    middle = 0.5 * (np.nanmedian(x.reshape(-1, 3), axis=0) + np.nanmedian(y.reshape(-1, 3), axis=0))
+    if not (np.isfinite(seen_from).all() and np.isfinite(middle).all()):
+        return False
+    need = PERPENDICULAR_MIN_FACTOR * jc.MIN_SPREAD_DEG
+    try:
+        axis: np.ndarray | None
+        if k in tree.frames:
+            axis, _, cp, _ = jc.sara_axis(rot, trans, *tree.frames[k])
+            turns = float(tree.spread_deg[k][0]) >= need
+        else:
+            cp, axis = jc.sphere_centre(y, hinge=True)
+            turns = float(jc.direction_spread(y, seen_from)[0]) >= need
+    except ValidationError:
+        return False
+    if axis is None:  # hinge=True always returns one
+        return False
+    bone = middle - seen_from
+    cos = abs(float(bone @ axis)) / max(float(np.linalg.norm(bone) * np.linalg.norm(axis)), 1e-12)
+    return turns and cos <= np.cos(np.radians(PERPENDICULAR_MIN_ANGLE_DEG))
+
+
+#: See :func:`_perpendicular_ok`.
+PERPENDICULAR_MIN_ANGLE_DEG = 60.0
+PERPENDICULAR_MIN_FACTOR = 1.5
 
 
 def _as_template(
-    names: list[list[str]], parents: np.ndarray, order: list[int], framed: dict
+    names: list[list[str]],
+    parents: np.ndarray,
+    spreads: list[np.ndarray | None],
+    perpendicular: list[bool],
 ) -> Template:
     segs: list[SegmentSpec] = []
     children = {i: [c for c in range(len(parents)) if parents[c] == i] for i in range(len(parents))}
@@ -235,7 +298,7 @@ def _as_template(
             origin = list(group)
             primary = ["y", list(group), [f"@segment_{kids[0]}"] if kids else [group[0]]]
             secondary = ["x", [group[0]], [group[-1]]] if len(group) > 1 else ["x", "parent"]
-            centre = None
+            centre: dict[str, Any] | None = None
         else:
             origin = None
             end = [f"@segment_{kids[0]}"] if kids else list(group)
@@ -246,6 +309,15 @@ def _as_template(
                 "kind": "ball",
                 "prior": {"from": list(parent_markers), "towards": list(group), "fraction": 0.5},
             }
+            spread = spreads[i]
+            if spread is not None and _is_hinge(spread) and centre is not None:
+                # SARA's axis; the centre is the point of it nearest the prior
+                centre["kind"] = "hinge"
+                centre["flexion"] = [list(parent_markers), f"@segment_{i}", list(group)]
+                if perpendicular[i]:
+                    # a bone runs square to its hinge: the centre is the point of the
+                    # axis nearest the parent's own joint
+                    centre["prior"] = {"from": [f"@segment_{p}"]}
         segs.append(
             SegmentSpec(
                 name=f"segment_{i}",
@@ -267,3 +339,26 @@ def _as_template(
     return Template(
         name="auto", description="found from the markers' motion (Kirk et al. 2005)", segments=segs
     )
+
+
+def calibrate_auto(markers: MarkerSet, found: AutoResult | None = None) -> BodyModel:
+    """The body model ``--template auto`` solves: found, calibrated, hinges centred.
+
+    Parameters
+    ----------
+    markers : MarkerSet
+        Labelled markers, metres (NaN where missing).
+    found : AutoResult, optional
+        :func:`auto_template`'s result on ``markers`` (found again when omitted).
+
+    Returns
+    -------
+    BodyModel
+        :func:`~skincap.solve.calibrate.calibrate` on the found template, each hinge
+        then moved along its axis between its neighbours' joints
+        (:func:`~skincap.solve.auto_hinges.centre_hinges_between_neighbours`); pass it
+        to :func:`~skincap.solve.solve_markers` as the template.
+    """
+    if found is None:
+        found = auto_template(markers)
+    return centre_hinges_between_neighbours(calibrate(markers, found.template))

@@ -66,7 +66,7 @@ class SolveResult:
 
 def solve_markers(
     markers: MarkerSet,
-    template: Template | str = "cmu41",
+    template: Template | str | BodyModel = "cmu41",
     *,
     iterations: int = 12,
     smooth_hz: float | None = None,
@@ -83,9 +83,11 @@ def solve_markers(
     ----------
     markers : MarkerSet
         Labelled capture in metres, Y up; NaN where a marker is missing.
-    template : Template or str
+    template : Template, str or BodyModel
         A template, a built-in name (``pig``, ``cmu41``, ``synth-sparse``, ``aml62``)
-        or a JSON file.
+        or a JSON file; or a body model already calibrated on this take (its
+        ``marker_columns`` index ``markers``), solved as it is -- e.g.
+        :func:`skincap.solve.auto.calibrate_auto`'s.
     iterations : int
         Most Levenberg-Marquardt steps per frame.
     smooth_hz : float, optional
@@ -127,10 +129,19 @@ def solve_markers(
     ValidationError
         The capture does not fit the template (see :func:`~skincap.solve.calibrate.calibrate`).
     """
-    tpl = template if isinstance(template, Template) else load_template(template)
     if progress is not None:
         progress(0.0, "calibration")
-    model = calibrate(markers, tpl)
+    if isinstance(template, BodyModel):
+        model = template
+        cols = model.marker_columns
+        if cols.size and (
+            cols.max() >= markers.n_markers
+            or [markers.labels[c] for c in cols] != list(model.marker_labels)
+        ):
+            raise ValidationError("the body model was calibrated on a take with other labels")
+    else:
+        tpl = template if isinstance(template, Template) else load_template(template)
+        model = calibrate(markers, tpl)
     if model.marker_columns.size == 0:
         raise ValidationError("no template marker was seen with its segment")
 

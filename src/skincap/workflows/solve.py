@@ -1,7 +1,7 @@
 """``skincap solve``'s file-in/file-out glue: a labelled capture to a solved BVH.
 
 Reads the capture (C3D, TRC or CSV), solves it with :func:`skincap.solve.solve_markers`
-(or the template found by :func:`skincap.solve.auto.auto_template` for ``"auto"``), and
+(or the model found by :func:`skincap.solve.auto.calibrate_auto` for ``"auto"``), and
 writes the BVH, optionally the model's markers (``--markers-out``) and the residual
 report (``--report``). Everything is computed before the first file is written, and
 each file is written to a temporary name and renamed, so a failure leaves no output.
@@ -105,16 +105,16 @@ def _check_smooth_hz(smooth_hz: float | None, rate: float) -> None:
 
 def _resolve_template(template: str, input_path: str | os.PathLike[str], markers: MarkerSet) -> Any:
     """The template :func:`~skincap.solve.solve_markers` takes for ``template``: the
-    name or JSON path as given, or for ``"auto"`` the template fitted to ``markers``
-    (:func:`~skincap.solve.auto.auto_template`). ``"synth-dense"`` first checks that
+    name or JSON path as given, or for ``"auto"`` the body model found and calibrated
+    on ``markers`` (:func:`~skincap.solve.auto.calibrate_auto`). ``"synth-dense"`` first checks that
     ``input_path`` is a dense synthetic take (:func:`check_synth_dense_body`).
     """
     if template == "synth-dense":
         check_synth_dense_body(input_path)
     if template == "auto":
-        from skincap.solve.auto import auto_template
+        from skincap.solve.auto import calibrate_auto
 
-        tpl: Any = auto_template(markers).template
+        tpl: Any = calibrate_auto(markers)
     else:
         tpl = template
     return tpl
