@@ -11,8 +11,6 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skincap.deform.dense._kernel_numba import MEMBER_LANES
-
 __all__ = ["dense_kernel"]
 
 _FASTMATH = {"contract", "reassoc"}
@@ -56,15 +54,15 @@ def _quadratic_field(quadratic, t, p, x, y, z):  # pragma: no cover - runs compi
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
 def _rbf_sum(rbf_table, t, p, n_k, gx, gy, gz):  # pragma: no cover - runs compiled
     """The RBF sum (eq. 8) of part ``p`` in frame ``t`` at the position (gx, gy, gz)
-    scaled by 2/σ (unitless); rbf_table (T, P, 6, K), its first ``n_k`` members summed
-    (a multiple of :data:`MEMBER_LANES`: the slots past the part's members weigh 0).
+    scaled by 2/σ (unitless); rbf_table (T, P, 6, K), its first ``n_k`` members summed.
     Returns (rx, ry, rz), metres."""
     rx = 0.0
     ry = 0.0
     rz = 0.0
     # branch-free over the members (the support test would mispredict):
-    # s = 2 d / σ clipped to 2, where both cubes of φ vanish. LLVM runs this loop
-    # MEMBER_LANES members a step with a scalar remainder loop that whole steps skip
+    # s = 2 d / σ clipped to 2, where both cubes of φ vanish. LLVM runs this loop 8
+    # members a step plus a scalar remainder, which the caller's padding of the table
+    # to whole steps (zero weights) skips: _kernel_numba.MEMBER_LANES
     for i in range(n_k):
         dx = gx - rbf_table[t, p, 0, i]
         dy = gy - rbf_table[t, p, 1, i]
@@ -113,10 +111,9 @@ def dense_kernel(
     vertex_start (V + 1,) CSR rows; quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3)
     R̃, translation (T, P, 3) d̃; rbf_table (T, P, 6, K): rows x, y, z of the centres
     p̃ scaled by 2/σ, then the weights w / 6 (members along the last axis, so the
-    member loop runs over contiguous rows; K a multiple of :data:`MEMBER_LANES`, the
-    weights 0 past each part's members); rbf_scale (P,) 2/σ; rbf_members (P,)
-    members of each part (0: no RBF; summed rounded up to :data:`MEMBER_LANES`); out
-    (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
+    member loop runs over contiguous rows); rbf_scale (P,) 2/σ; rbf_members (P,)
+    members summed (0: no RBF); out (T, V, 3), metres (NaN for a vertex none of whose
+    pairs is finite).
     """
     n_v = vertex_start.shape[0] - 1
     for t in range(quadratic.shape[0]):
@@ -133,8 +130,7 @@ def dense_kernel(
                 n_k = rbf_members[p]
                 if n_k > 0:
                     g = rbf_scale[p]
-                    n_run = min(rbf_table.shape[3], -(-n_k // MEMBER_LANES) * MEMBER_LANES)
-                    rx, ry, rz = _rbf_sum(rbf_table, t, p, n_run, lx * g, ly * g, lz * g)
+                    rx, ry, rz = _rbf_sum(rbf_table, t, p, n_k, lx * g, ly * g, lz * g)
                     lx += rx
                     ly += ry
                     lz += rz
