@@ -46,6 +46,9 @@ def test_bench_reports_every_variant_on_both_backends_and_the_lbs_ratio() -> Non
             assert res["ratios"][f"{method}_{backend} / lbs_{backend}"] > 0
         # the benchmark's own agreement check between the kernels
         assert res["max_abs_diff"][f"{method}_numba vs {method}_numpy"] < 1e-9
+    # the fits alone are part of every dense frame
+    assert 0 < res["cpu_ms_per_frame"]["fits_quadratic_rbf"]
+    assert res["ratios"]["fits_quadratic_rbf / quadratic_rbf_numpy"] > 0
     assert res["first_call"] is None and res["seconds"]["registration"] is None
     assert res["seconds"]["segmentation"] > 0
     assert res["config"]["default_backend"] in ("numba", "numpy")

@@ -166,3 +166,24 @@ def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     for method in METHODS:
         list(deformer.deform(take["markers"], method, chunk=4))
     assert len(dense_dispatcher().signatures) == 1
+
+
+def test_the_member_table_pads_whole_steps_with_zero_weights() -> None:
+    """The numba kernel sums whole vector steps of members: the table is padded to a
+    multiple of the step, every slot past a part's members weighs exactly 0 (also a
+    stale weight beyond them), and the counts round up (0, no RBF, stays 0)."""
+    from skincap.deform.dense._kernel_numba import MEMBER_LANES, _rbf_table
+
+    rng = np.random.default_rng(0)
+    k = 2 * MEMBER_LANES + 3
+    centres = rng.normal(size=(2, 3, k, 3))
+    weights = rng.normal(size=(2, 3, k, 3))  # nonzero everywhere, padding included
+    members = np.array([k, 5, 0])
+    scale = np.array([10.0, 20.0, 0.0])
+    table, summed = _rbf_table(centres, weights, scale, members)
+    assert table.shape == (2, 3, 6, 3 * MEMBER_LANES) and table.flags.c_contiguous
+    np.testing.assert_array_equal(summed, [3 * MEMBER_LANES, MEMBER_LANES, 0])
+    np.testing.assert_allclose(table[:, 0, :3, :k], np.swapaxes(centres[:, 0] * 10.0, -1, -2))
+    np.testing.assert_allclose(table[:, 1, 3:, :5], np.swapaxes(weights[:, 1, :5] / 6.0, -1, -2))
+    assert not table[:, 1, 3:, 5:].any() and not table[:, 2, 3:].any()
+    assert not table[..., k:].any()

@@ -59,6 +59,44 @@ def test_a_hinged_strip_splits_at_the_hinge_into_two_connected_parts() -> None:
     assert (seg.marker_parts[away & outer] != inner_part).all()
 
 
+def _arm_with_hand(ref: np.ndarray, n_frames: int = 60) -> tuple[np.ndarray, np.ndarray]:
+    """An elbow at x = 0.22 bends 80° about y in the first half of the take, a wrist at
+    x = 0.42 turns 50° about z in the second; returns positions and the true segment
+    of every marker (0 upper arm, 1 forearm, 2 hand: the strip's last column)."""
+    t = np.linspace(0.0, 1.0, n_frames)
+    bump = np.sin(2 * np.pi * t) ** 2
+    elbow = Rotation.from_rotvec(
+        (np.radians(80.0) * np.where(t < 0.5, bump, 0.0))[:, None] * [0, -1.0, 0]
+    ).as_matrix()
+    wrist = Rotation.from_rotvec(
+        (np.radians(50.0) * np.where(t >= 0.5, bump, 0.0))[:, None] * [0, 0, 1.0]
+    ).as_matrix()
+    p1, p2 = np.array([0.22, 0, 0]), np.array([0.42, 0, 0])
+    fore = np.einsum("tab,nb->tna", elbow, ref - p1) + p1
+    hand = np.einsum("tab,nb->tna", wrist, ref - p2) + p2
+    hand = np.einsum("tab,tnb->tna", elbow, hand - p1) + p1
+    segment = np.digitize(ref[:, 0], [0.22, 0.42])
+    pos = np.where(
+        (segment == 0)[None, :, None],
+        ref[None],
+        np.where((segment == 1)[None, :, None], fore, hand),
+    )
+    return pos, segment
+
+
+@pytest.mark.parametrize("seed", [1, 3, 4])
+def test_a_three_marker_hand_is_its_own_part(seed: int) -> None:
+    """The hand's few markers are judged by the rigid merge, not absorbed into the
+    forearm beforehand by their triangles' rotations (which put one hand marker on
+    the forearm for these seeds)."""
+    ref, faces = _strip(12, 3)
+    pos, segment = _arm_with_hand(ref)
+    pos = pos + np.random.default_rng(seed).normal(scale=0.003, size=pos.shape)
+    seg = segment_marker_surface(pos, ref, faces, n_parts=3)
+    assert seg.n_parts == 3
+    assert len(set(zip(segment, seg.marker_parts, strict=True))) == 3  # the true partition
+
+
 def test_boundary_markers_follow_the_part_they_move_with() -> None:
     ref, faces = _strip()
     pos = _hinge(ref)

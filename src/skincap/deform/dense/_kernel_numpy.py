@@ -3,10 +3,11 @@
 The (vertex, part) pairs are sorted by part. For every part, one matrix product moves
 all its pairs through every frame's quadratic field at once (the pairs' quadratic
 basis ``q̂⁰`` is frame-independent and computed once, at binding); the RBF sum of
-eq. 8 at the deformed positions is, per frame, a squared-distance matrix from one
-augmented product, the cubic B-spline written so that its two cubes share one
-buffer, and one product with the weights; one sparse product blends the pairs
-(eq. 9). :mod:`skincap.deform.dense._kernel_numba` computes the same, compiled.
+eq. 8 at the deformed positions is, for slabs of pairs over all the frames at once,
+a stack of squared-distance matrices from one augmented product per frame, the cubic
+B-spline written so that its two cubes share one buffer, and one product per frame
+with the weights (one NumPy call covers every frame: per frame and slab, the calls'
+own overhead was a third of the time); one sparse product blends the pairs (eq. 9). :mod:`skincap.deform.dense._kernel_numba` computes the same, compiled.
 """
 
 from __future__ import annotations
@@ -16,12 +17,13 @@ from scipy import sparse
 
 __all__ = ["blend_pairs", "move_pairs_numpy"]
 
-#: Pairs per RBF slab: the (2K, pairs) kernel buffers of a 30-member part stay
-#: ~0.5 MB, in cache, instead of streaming a whole part's matrix through memory.
-_RBF_COLUMNS = 512
+#: Kernel values per RBF slab (frames x members x pairs): the (2, T, K, pairs) cube
+#: buffers stay ~1 MB, near the cache, while each NumPy call still covers enough
+#: values that the calls' own overhead (a few µs each) stays small.
+_RBF_SLAB_VALUES = 1 << 16
 
 
-def _add_rbf_sum(
+def _add_rbf_sums(
     world: np.ndarray,
     local: np.ndarray,
     centres: np.ndarray,
@@ -29,49 +31,52 @@ def _add_rbf_sum(
     scale: float,
     rotation: np.ndarray,
 ) -> None:
-    """``world += (Σ_i w_i φ(||local - p̃_i|| / σ)) R`` in place (the sum of eq. 8).
+    """``world += (Σ_i w_i φ(||local - p̃_i|| / σ)) R`` in place (the sum of eq. 8), every
+    frame of one part at once.
 
     Parameters
     ----------
-    world : (n, 3) float64, metres (a view; may be strided)
-    local : (n, 3) float64, metres: the deformed positions ``Ã q̂⁰``
-    centres, weights : (K, 3) float64, metres
+    world : (n, T, 3) float64, metres
+    local : (n, T, 3) float64, metres: the deformed positions ``Ã q̂⁰``
+    centres, weights : (T, K, 3) float64, metres
     scale : float, 2/σ (1/metres)
-    rotation : (3, 3) float64: R̃, taking the sum to the world's axes
+    rotation : (T, 3, 3) float64: R̃, taking the sum to the world's axes
     """
-    k = centres.shape[0]
+    n_t, k = centres.shape[:2]
     c = centres * scale  # scaled so that s = 2 d / σ is a plain distance
-    # s² = |x|² - 2 x·c + |c|²  as one product: [-2c, 1, |c|²] @ [x; |x|²; 1]
-    left = np.empty((k, 5))
-    left[:, :3] = -2.0 * c
-    left[:, 3] = 1.0
-    left[:, 4] = (c * c).sum(1)
-    # the two cubes of φ = ((2 - s)³ - 4 max(1 - s, 0)³) / 6 share one (2K, n) buffer,
-    # reduced (and turned to the world) by one product with ([w/6; -2w/3] R)ᵀ.
-    # Members run down the rows and points along them: every pass is over long rows.
-    reduce = (np.concatenate([weights * (1.0 / 6.0), weights * (-4.0 / 6.0)]) @ rotation).T
+    # s² = |x|² - 2 x·c + |c|²  as one product per frame: [-2c, 1, |c|²] @ [x; |x|²; 1]
+    left = np.empty((n_t, k, 5))
+    left[..., :3] = -2.0 * c
+    left[..., 3] = 1.0
+    left[..., 4] = (c * c).sum(-1)
+    # 6 φ = (2 - s)³ - 4 max(1 - s, 0)³: the two cubes share one buffer, are combined,
+    # and one product per frame with ((w / 6) R)ᵀ takes the sum to the world.
+    # Frames lead, members run down the rows and points along them.
+    reduce = np.swapaxes((weights * (1.0 / 6.0)) @ rotation, -1, -2)  # (T, 3, K)
     n = local.shape[0]
-    cols = min(n, _RBF_COLUMNS)
-    right = np.empty((5, cols))
-    s = np.empty((k, cols))
-    cubes = np.empty((2 * k, cols))
-    square = np.empty((2 * k, cols))
+    cols = max(1, min(n, _RBF_SLAB_VALUES // (n_t * k)))
+    right = np.empty((n_t, 5, cols))
+    s = np.empty((n_t, k, cols))
+    cubes = np.empty((2, n_t, k, cols))
+    square = np.empty((2, n_t, k, cols))
     for c0 in range(0, n, cols):
         c1 = min(n, c0 + cols)
         m = c1 - c0
-        rg, sm, cb, sq = right[:, :m], s[:, :m], cubes[:, :m], square[:, :m]
-        np.multiply(local[c0:c1].T, scale, out=rg[:3])
-        np.einsum("xn,xn->n", rg[:3], rg[:3], out=rg[3])
-        rg[4] = 1.0
+        rg, sm, cb, sq = right[..., :m], s[..., :m], cubes[..., :m], square[..., :m]
+        np.multiply(local[c0:c1].transpose(1, 2, 0), scale, out=rg[:, :3])
+        np.einsum("txn,txn->tn", rg[:, :3], rg[:, :3], out=rg[:, 3])
+        rg[:, 4] = 1.0
         np.matmul(left, rg, out=sm)  # s², up to rounding
         np.clip(sm, 0.0, 4.0, out=sm)  # beyond s = 2 (d = σ) both cubes are 0
         np.sqrt(sm, out=sm)
-        np.subtract(2.0, sm, out=cb[:k])
-        np.subtract(1.0, sm, out=cb[k:])
-        np.maximum(cb[k:], 0.0, out=cb[k:])
+        np.subtract(2.0, sm, out=cb[0])
+        np.subtract(1.0, sm, out=cb[1])
+        np.maximum(cb[1], 0.0, out=cb[1])
         np.multiply(cb, cb, out=sq)
         cb *= sq
-        world[c0:c1] += (reduce @ cb).T
+        cb[1] *= 4.0
+        np.subtract(cb[0], cb[1], out=sm)  # 6 φ
+        world[c0:c1] += (reduce @ sm).transpose(2, 0, 1)
 
 
 def move_pairs_numpy(
@@ -125,15 +130,14 @@ def move_pairs_numpy(
         k = int(rbf_members[p])
         if k > 0:
             local = (basis @ quadratic[:, p].reshape(3 * n_t, -1).T).reshape(-1, n_t, 3)
-            for t in range(n_t):
-                _add_rbf_sum(
-                    part[:, t],
-                    local[:, t],
-                    centres[t, p, :k],
-                    rbf_weights[t, p, :k],
-                    float(rbf_scale[p]),
-                    rotation[t, p],
-                )
+            _add_rbf_sums(
+                part,
+                local,
+                centres[:, p, :k],
+                rbf_weights[:, p, :k],
+                float(rbf_scale[p]),
+                rotation[:, p],
+            )
     return moved
 
 

@@ -13,8 +13,13 @@ backend, timed in the same process. Also timed: the first call in a fresh proces
 cache, the automatic segmentation of a ``rom_frames``-frame take of the same markers,
 and the registration of §5.1.
 
+Also timed alone: the per-frame fits of ``quadratic_rbf`` (rigid, quadratic, RBF: NumPy
+on both backends), so the fits' share of a frame and the vertex pass's can be told
+apart.
+
 Ratios are ``dense / LBS`` of CPU times (how many times LBS's cost a frame of each
-variant is) and NumPy / numba; the ms figures are for the record of this machine only.
+variant is), NumPy / numba and fits / frame; the ms figures are for the record of this
+machine only.
 Nothing is printed: ``lines`` holds the text for the CLI.
 """
 
@@ -28,7 +33,7 @@ from typing import Any, Literal, cast
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from skincap.deform.dense.deformer import METHODS, DenseDeformer, Method
+from skincap.deform.dense.deformer import METHODS, DenseDeformer, Method, fit_part_motion
 from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.skeletal.deformers import LinearBlendSkinning
@@ -203,10 +208,12 @@ def run_animate_benchmark(
     -------
     dict
         ``ms_per_frame`` and ``cpu_ms_per_frame`` (``<method>_numpy``,
-        ``<method>_numba``, ``lbs_numpy``, ``lbs_numba``; None when not measured:
-        CPU counts every thread, the figure a loaded machine distorts least),
-        ``ratios`` (``<method>_<backend> / lbs_<backend>`` of CPU times, and numba's
-        speed-up over NumPy), ``max_abs_diff`` (numba against NumPy, metres),
+        ``<method>_numba``, ``lbs_numpy``, ``lbs_numba``, and ``fits_quadratic_rbf``:
+        the per-frame rigid, quadratic and RBF fits alone, part of every dense figure;
+        None when not measured: CPU counts every thread, the figure a loaded machine
+        distorts least), ``ratios`` (``<method>_<backend> / lbs_<backend>`` of CPU
+        times, numba's speed-up over NumPy, and the fits' share of a
+        ``quadratic_rbf`` frame on each backend), ``max_abs_diff`` (numba against NumPy, metres),
         ``first_call`` (``cold_s``, ``warm_s``, ``cold_cpu_s``, ``warm_cpu_s`` or
         None), ``seconds`` (``segmentation``, ``registration`` or None), ``goals``,
         ``config``, ``notes``, ``lines``.
@@ -220,6 +227,8 @@ def run_animate_benchmark(
     cpu_ms: dict[str, float | None] = {}
     outputs = _time_dense_variants(scene, parts, n_frames, repeat, ms, cpu_ms, notes)
     _time_lbs(scene, n_parts, n_vertices, n_frames, repeat, ms, cpu_ms, notes)
+    fits = partial(fit_part_motion, scene["markers"], parts, "quadratic_rbf")
+    _time_per_frame("fits_quadratic_rbf", fits, repeat, n_frames, ms, cpu_ms)
     ratios = _cpu_ratios(cpu_ms)
     max_abs_diff = _numba_vs_numpy_diff(outputs)
     first = _first_call(n_vertices, n_parts, n_markers, n_frames, seed) if first_call else None
@@ -348,6 +357,15 @@ def _cpu_ratios(cpu_ms: dict[str, float | None]) -> dict[str, float | None]:
         for m in METHODS
     }
     ratios.update({f"{m}_numpy / {m}_numba": ratio(f"{m}_numpy", f"{m}_numba") for m in METHODS})
+    # the share of the per-frame fits (NumPy on both backends) in a deformed frame
+    ratios.update(
+        {
+            f"fits_quadratic_rbf / quadratic_rbf_{b}": ratio(
+                "fits_quadratic_rbf", f"quadratic_rbf_{b}"
+            )
+            for b in ("numpy", "numba")
+        }
+    )
     return ratios
 
 
