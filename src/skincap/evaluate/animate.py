@@ -225,7 +225,7 @@ def held_out_marker_errors(
     alpha = marker_weights_of(rom, ref, cand, kept_faces)
     held_ref = x[reference_frame, out]
     beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
-    deformer = DenseDeformer(part_frames(ref, alpha), held_ref, beta)
+    deformer = DenseDeformer(part_frames(ref, alpha, surface_faces=kept_faces), held_ref, beta)
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
     d = np.linalg.norm(predicted - x[:, out], axis=-1)
     dd = d[np.isfinite(d)]

@@ -189,8 +189,10 @@ def fit_part_motion(
             f"positions has {x.shape[1]} markers; the parts use marker {int(parts.members.max())}"
         )
     gathered = x[:, parts.members]  # (T, P, K, 3)
-    present = np.isfinite(gathered).all(-1) & parts.valid  # (T, P, K)
-    src = held_frames(present) if source_frames is None else np.asarray(source_frames)
+    present = np.isfinite(gathered).all(-1) & parts.valid  # (T, P, K), seam centres too
+    src = (
+        held_frames(present & parts.fitted) if source_frames is None else np.asarray(source_frames)
+    )
     if src.ndim != 2 or src.shape[1] != n_p or (src >= n_t).any():
         raise ValidationError(
             f"source_frames must have shape (T', {n_p}) with rows of positions ({n_t}); got {src.shape}"
@@ -372,7 +374,7 @@ class DenseDeformer:
         x = np.asarray(positions, dtype=np.float64)
         if x.ndim != 3 or x.shape[2] != 3:
             raise ValidationError(f"positions must have shape (T, N, 3); got {x.shape}")
-        present = np.isfinite(x[:, self.parts.members]).all(-1) & self.parts.valid
+        present = np.isfinite(x[:, self.parts.members]).all(-1) & self.parts.fitted
         source = held_frames(present)  # over the whole take, so holds cross chunks
         n_t = x.shape[0]
         for s0 in range(0, n_t, int(chunk)):

@@ -129,9 +129,8 @@ class DenseRig:
 
     def deformer(self) -> DenseDeformer:
         """The deformer of this rig (any of the four variants)."""
-        return DenseDeformer(
-            part_frames(self.reference, self.marker_weights), self.vertices, self.vertex_weights
-        )
+        parts = part_frames(self.reference, self.marker_weights, surface_faces=self.surface_faces)
+        return DenseDeformer(parts, self.vertices, self.vertex_weights)
 
     def columns_of(self, labels: Sequence[str]) -> np.ndarray:
         """Column of each of the rig's markers in a take with these labels.
