@@ -204,7 +204,11 @@ def held_out_marker_errors(
     from skincap.deform.dense.parts import part_frames
     from skincap.deform.dense.rig import marker_weights_of
     from skincap.deform.dense.segmentation import segment_marker_surface
-    from skincap.deform.dense.weights import candidates_from_triangle_parts, vertex_part_weights
+    from skincap.deform.dense.weights import (
+        candidates_from_triangle_parts,
+        seam_vertex_weights,
+        vertex_part_weights,
+    )
 
     x = np.asarray(positions, dtype=np.float64)
     f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
@@ -225,7 +229,9 @@ def held_out_marker_errors(
     alpha = marker_weights_of(rom, ref, cand, kept_faces)
     held_ref = x[reference_frame, out]
     beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
-    deformer = DenseDeformer(part_frames(ref, alpha, surface_faces=kept_faces), held_ref, beta)
+    seam = seam_vertex_weights(held_ref, ref, kept_faces, alpha > 0)
+    parts = part_frames(ref, alpha, surface_faces=kept_faces)
+    deformer = DenseDeformer(parts, held_ref, beta, seam_weights=seam)
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
     d = np.linalg.norm(predicted - x[:, out], axis=-1)
     dd = d[np.isfinite(d)]

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from skincap.backends import numba_available
 from skincap.deform.dense.deformer import METHODS, DenseDeformer, fit_part_motion, held_frames
 from skincap.deform.dense.parts import part_frames
+from skincap.deform.dense.weights import seam_vertex_weights
 from skincap.errors import ValidationError
 from skincap.geometry.quadratic import QUADRATIC_TERMS, apply_quadratic
 
@@ -217,3 +218,54 @@ def test_a_part_field_passes_through_its_seam_centres(method: str, backend: str)
         errors[name] = np.abs(got - truth).max()
     # measured: 0.56 (quadratic_rbf) and less (rigid_rbf) of the error without them
     assert errors["seam"] < 0.75 * errors["plain"]
+
+
+def test_seam_weights_are_one_at_the_seam_and_zero_inside() -> None:
+    rng = np.random.default_rng(8)
+    ref, alpha, faces = _two_part_strip(rng)
+    # vertices at triangle centroids: the seam is between columns 3 and 4
+    centroids = ref[faces].mean(axis=1)
+    seam = seam_vertex_weights(centroids, ref, faces, alpha > 0)
+    column = np.floor(centroids[:, 0] / 0.05 + 1e-9).astype(int)  # left column of the triangle
+    np.testing.assert_allclose(seam[column == 3], 1.0)  # triangles across the seam
+    np.testing.assert_allclose(seam[column <= 1], 0.0)  # inside either part
+    np.testing.assert_allclose(seam[column >= 5], 0.0)
+    assert ((seam[column == 2] > 0) & (seam[column == 2] < 1)).any()  # continuous between
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_seam_weights_choose_between_the_two_fields(backend: str) -> None:
+    """Seam weight 0 is the members-only deformer, 1 the deformer through the seam
+    centres, and the numba kernel and its NumPy reference agree on both halves."""
+    rng = np.random.default_rng(9)
+    ref, alpha, faces = _two_part_strip(rng)
+    rot, trans = _rigid(rng, 3)
+    wobble = ref + 0.01 * np.maximum(ref[:, 0] - 0.15, 0.0)[:, None] * rng.normal(size=(3, 32, 3))
+    markers = np.einsum("tab,tnb->tna", rot, wobble) + trans[:, None]
+    vertices = ref + 0.01 * rng.normal(size=ref.shape)
+    beta = rng.random((32, 2))
+    plain = part_frames(ref, alpha)
+    seam = part_frames(ref, alpha, surface_faces=faces)
+    for method in ("rigid_rbf", "quadratic_rbf"):
+        runs = {
+            name: np.concatenate(list(DenseDeformer(parts, vertices, beta, **kw, backend=backend).deform(markers, method)))
+            for name, parts, kw in (
+                ("plain", plain, {}),
+                ("zero", seam, {"seam_weights": np.zeros((32, 2))}),
+                ("one", seam, {"seam_weights": np.ones((32, 2))}),
+                ("default", seam, {}),
+            )
+        }  # fmt: skip
+        np.testing.assert_allclose(runs["zero"], runs["plain"], atol=1e-9)
+        np.testing.assert_allclose(runs["default"], runs["one"], atol=1e-12)
+        assert np.abs(runs["one"] - runs["plain"]).max() > 1e-4
+        half = np.full((32, 2), 0.5)
+        both = [
+            np.concatenate(
+                list(DenseDeformer(seam, vertices, beta, seam_weights=half, backend=b).deform(markers, method))
+            )
+            for b in (backend, "numpy")
+        ]  # fmt: skip
+        np.testing.assert_allclose(both[0], both[1], atol=1e-9)
+    with pytest.raises(ValidationError, match="seam_weights"):
+        DenseDeformer(seam, vertices, beta, seam_weights=np.full((32, 2), 2.0))

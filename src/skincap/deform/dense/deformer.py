@@ -75,15 +75,15 @@ METHODS: tuple[str, ...] = ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf")
 #: Fewest measured members for a part's rigid fit at a frame.
 MIN_PART_MARKERS = 3
 Backend = Literal["auto", "numba", "numpy"]
-#: λ_quad of eq. 6 (:func:`skincap.geometry.quadratic.fit_quadratic`): a quadratic
-#: term costs as much as the displacement it makes across the part at every member.
-#: Vertex RMS of ``quadratic_rbf`` (synthetic takes of 240 frames, ROM 240 frames, 5000
-#: vertices, seam centres) at λ = 0.01 / 0.1 / 1 / 3: jumprope 2.61 / 2.42 / 2.38 /
-#: 2.38 mm, flex 2.02 / 2.14 / 1.93 / 1.85, punch 2.30 / 2.28 / 2.10 / 2.07. Weaker, the
-#: fit bends a part to follow its boundary members and the hands, feet and head (few
-#: markers) beyond what they do; the parts' real non-rigid motion (bulge, jiggle) is
-#: local, which the RBF residual carries.
-QUADRATIC_REGULARISATION = 1.0
+#: λ_quad of eq. 6 (:func:`skincap.geometry.quadratic.fit_quadratic`). On a synthetic
+#: range-of-motion take ``quadratic_rbf`` had 1.90 mm vertex RMS at 1e-5, 1.50 at 1e-2,
+#: 1.48 at 1e-1. A stronger pull toward the identity suits well-segmented synthetic takes
+#: (240 frames, ROM 240, 5000 vertices, seam centres; λ = 0.01 / 0.1 / 1: jumprope 2.61
+#: / 2.42 / 2.38 mm, flex 2.02 / 2.14 / 1.93, punch 2.30 / 2.28 / 2.10) but takes away
+#: the bend of a part that spans a joint, which is what a sparse real capture's few
+#: parts do: held-out markers of the two-part arm of the ``eval animate`` tests 6.2 /
+#: 8.9 / 14.1 mm. Hence 1e-2.
+QUADRATIC_REGULARISATION = 1e-2
 
 
 def warm_up_kernel() -> None:
@@ -123,7 +123,11 @@ class PartMotion:
     centres : (T, P, K, 3) float64, metres
         ``p̃``: the members' reference positions moved by the quadratic field (0 on padding).
     rbf_weights : (T, P, K, 3) float64, metres
-        ``w_p^t`` of eq. 7 (all 0 without RBF; 0 for missing members).
+        ``w_p^t`` of eq. 7 over the members and the seam centres (all 0 without RBF;
+        0 for missing members).
+    member_rbf_weights : (T, P, K, 3) float64 or None, metres
+        The same fitted to the members alone (0 on the seam centres); None when the
+        parts have no seam centre (then it is ``rbf_weights``).
     """
 
     rotation: np.ndarray
@@ -131,6 +135,7 @@ class PartMotion:
     quadratic: np.ndarray
     centres: np.ndarray
     rbf_weights: np.ndarray
+    member_rbf_weights: np.ndarray | None = None
 
 
 def held_frames(member_present: np.ndarray) -> np.ndarray:
@@ -229,12 +234,16 @@ def fit_part_motion(
     centres = np.where(
         parts.valid[None, ..., None], apply_quadratic(quad, parts.local_reference[None]), 0.0
     )
+    member_rbf_w = None
     if use_rbf:
         residual = local - centres  # NaN where missing: excluded by fit_rbf
         rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present)
+        if parts.has_seam_centres:
+            member_rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present & parts.fitted)
     else:
         rbf_w = np.zeros((n_t, n_p, k, 3))
-    return PartMotion(rot, trans, quad, np.where(np.isfinite(centres), centres, 0.0), rbf_w)
+    centres = np.where(np.isfinite(centres), centres, 0.0)
+    return PartMotion(rot, trans, quad, centres, rbf_w, member_rbf_w)
 
 
 class DenseDeformer:
@@ -247,6 +256,12 @@ class DenseDeformer:
         The (registered) mesh in the markers' reference pose.
     vertex_weights : (V, P) float
         β: part weights of every vertex (rows sum to 1; rows are renormalised).
+    seam_weights : (V, P) float in [0, 1], optional
+        Only for parts with seam centres (:func:`~skincap.deform.dense.parts.part_frames`
+        with ``surface_faces``): how much of each (vertex, part) pair follows the part's
+        field through its seam centres rather than its members' alone
+        (:func:`skincap.deform.dense.weights.seam_vertex_weights`: 1 on the marker-surface
+        triangles at a seam, 0 inside the part, continuous between). Default 1.
     backend : {"auto", "numba", "numpy"}, default "auto"
         The per-frame vertex evaluation: the compiled kernel
         (:mod:`skincap.deform.dense._kernel_numba`) or its NumPy reference
@@ -268,6 +283,7 @@ class DenseDeformer:
         rest_vertices: np.ndarray,
         vertex_weights: np.ndarray,
         *,
+        seam_weights: np.ndarray | None = None,
         backend: Backend = "auto",
     ):
         v = np.asarray(rest_vertices, dtype=np.float64)
@@ -288,20 +304,36 @@ class DenseDeformer:
         beta = beta / total[:, None]
         self.parts = parts
         self.n_vertices = int(v.shape[0])
+        n_members = parts.valid.sum(axis=1)  # members fill the first slots, seam centres next
+        sigma = parts.sigma
+        rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
+        # With seam centres, the kernel sees every part twice: field p through its
+        # members alone, field P + p through its seam centres too (the same rigid and
+        # quadratic fields), β split between them by the seam weights.
+        self._split = parts.has_seam_centres
+        if self._split:
+            seam = np.ones_like(beta) if seam_weights is None else np.asarray(seam_weights, float)
+            if seam.shape != beta.shape or not ((seam >= 0) & (seam <= 1)).all():
+                raise ValidationError(
+                    f"seam_weights must be in [0, 1] with shape {beta.shape}; got {seam.shape}"
+                )
+            beta = np.concatenate([beta * (1.0 - seam), beta * seam], axis=1)
+            n_members = np.concatenate([parts.fitted.sum(axis=1), n_members])
+            rbf_scale = np.tile(rbf_scale, 2)
+        n_fields = beta.shape[1]
         part_of, vertex_of = np.nonzero(beta.T > 1e-6)  # the (vertex, part) pairs of eq. 9, by part
         self.pair_vertex = vertex_of
         self.pair_part = part_of
         self.pair_weight = beta[vertex_of, part_of]
-        self.pair_local = parts.to_local(v[vertex_of], part_of)  # p̂⁰ of each pair
+        self.pair_local = parts.to_local(v[vertex_of], part_of % parts.n_parts)  # p̂⁰ of each pair
         self.pair_basis = quadratic_basis(self.pair_local)  # q̂⁰, (pairs, 10)
-        self._part_start = np.searchsorted(part_of, np.arange(parts.n_parts + 1))
-        self._n_members = parts.valid.sum(axis=1)  # members fill the first slots
+        self._part_start = np.searchsorted(part_of, np.arange(n_fields + 1))
+        self._n_members = n_members
         self._blend = sparse.csr_matrix(
             (self.pair_weight, (vertex_of, np.arange(vertex_of.size))),
             shape=(self.n_vertices, vertex_of.size),
         )
-        sigma = parts.sigma
-        self._rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
+        self._rbf_scale = rbf_scale
         # the kernel walks each vertex's pairs: the same pairs, sorted by vertex
         by_vertex = np.lexsort((part_of, vertex_of))
         self._vertex_local = np.ascontiguousarray(self.pair_local[by_vertex])
@@ -331,15 +363,15 @@ class DenseDeformer:
         """
         use_rbf = bool(np.any(motion.rbf_weights))
         rbf_members = np.where(use_rbf & (self._rbf_scale > 0), self._n_members, 0)
-        fields = (
-            motion.quadratic,
-            motion.rotation,
-            motion.translation,
-            motion.centres,
-            motion.rbf_weights,
-            self._rbf_scale,
-            rbf_members,
-        )
+        per_part = [motion.quadratic, motion.rotation, motion.translation, motion.centres]
+        rbf_weights = motion.rbf_weights
+        if self._split:  # fields p (members' RBF) and P + p (with the seam centres)
+            per_part = [np.concatenate([a, a], axis=1) for a in per_part]
+            members_only = motion.member_rbf_weights
+            rbf_weights = np.concatenate(
+                [rbf_weights if members_only is None else members_only, rbf_weights], axis=1
+            )
+        fields = (*per_part, rbf_weights, self._rbf_scale, rbf_members)
         if self._kernel_watch.landed():
             self.backend = "numba"
         if self.backend == "numba":

@@ -11,14 +11,18 @@ later step is one array operation over frames, parts and members.
 
 **Seam centres.** Given the marker-surface triangles, a part also carries the markers
 one surface edge away from its members, with weight 0: they take no part in its rigid
-and quadratic fits but are centres of its RBF residual (eq. 7), so the part's field
+and quadratic fits but are centres of a second RBF residual (eq. 7) of the part, which
 passes through the measured surface on the far side of its seam as well. Without them
 a vertex on a seam triangle blends parts whose fields each know only their own side's
 markers, and the blend there is no better than the rigid blend of the parts' motions
-(the β-interpolation error, up to 3 cm at the front of a shoulder). On the synthetic
-jumprope take (240 frames, ROM 240 frames, 5000 vertices) the vertex RMS of
-``rigid_rbf`` goes from 2.62 to 2.33 mm, of ``quadratic_rbf`` from 2.83 to 2.61 mm;
-σ stays the paper's, from the members alone.
+(the β-interpolation error, up to 3 cm at the front of a shoulder). Inside a part the
+members alone describe the skin, and the seam centres' pull would only disturb it (a
+rigid head wobbled by 1 mm), so the deformer blends the two fields per vertex
+(:func:`skincap.deform.dense.weights.seam_vertex_weights`: the seam field on the seam
+triangles, the members' field inside). On the synthetic jumprope take (240 frames,
+ROM 240 frames, 5000 vertices) the vertex RMS of ``rigid_rbf`` goes from 2.62 to
+2.26 mm and of ``quadratic_rbf`` from 2.83 to 2.57 mm (flex 2.24 -> 2.04, punch 2.53 ->
+2.33); σ stays the paper's, from the members alone.
 """
 
 from __future__ import annotations
@@ -69,6 +73,10 @@ class PartFrames:
     @property
     def n_parts(self) -> int:
         return int(self.members.shape[0])
+
+    @property
+    def has_seam_centres(self) -> bool:
+        return bool((self.valid & (self.member_weights <= 0)).any())
 
     @property
     def fitted(self) -> np.ndarray:
