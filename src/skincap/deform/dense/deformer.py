@@ -238,8 +238,15 @@ def fit_part_motion(
     if use_rbf:
         residual = local - centres  # NaN where missing: excluded by fit_rbf
         rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present)
-        if parts.has_seam_centres:
-            member_rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present & parts.fitted)
+        if parts.has_seam_centres:  # the members fill the first slots: a smaller system
+            k_fit = int(parts.fitted.sum(axis=1).max())
+            member_rbf_w = np.zeros_like(rbf_w)
+            member_rbf_w[:, :, :k_fit] = fit_rbf(
+                centres[:, :, :k_fit],
+                residual[:, :, :k_fit],
+                parts.sigma[None, :],
+                (present & parts.fitted)[:, :, :k_fit],
+            )
     else:
         rbf_w = np.zeros((n_t, n_p, k, 3))
     centres = np.where(np.isfinite(centres), centres, 0.0)
