@@ -15,7 +15,11 @@ For every frame and every near-rigid part ``p``:
 3. **RBF** (eq. 7): weights that interpolate the residual ``p̂ᵗ - Ã q(p̂⁰)`` at the
    deformed centres ``p̃ = Ã q(p̂⁰)`` with the cubic B-spline kernel and the part's σ.
    (The paper writes the residual as ``p̃ - p̂``; the sign that makes eq. 8 reproduce
-   the markers is ``p̂ - p̃``, used here.) Only the ``*_rbf`` variants.
+   the markers is ``p̂ - p̃``, used here.) Only the ``*_rbf`` variants. Parts built with
+   seam centres (:func:`skincap.deform.dense.parts.part_frames` given the marker-surface
+   triangles; a rig's deformer is) get a second RBF through them as well, and the
+   kernels see every part twice: its members' field and its seam field, between which
+   a vertex's β is split by ``seam_weights``.
 4. **Vertices** (eqs. 8-9): a vertex's local reference position in each of its parts is
    moved by that part's field and taken back to the world; the results are blended by
    the vertex's part weights β.
