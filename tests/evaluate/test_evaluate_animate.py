@@ -16,6 +16,7 @@ from skincap.evaluate.animate import (
     evaluate_animate,
     global_rbf_frames,
     held_out_marker_errors,
+    region_errors,
 )
 from skincap.io.mesh import write_obj, write_ply
 from skincap.io.pc2 import write_pc2
@@ -98,6 +99,7 @@ def test_rows_are_present_and_the_dense_chain_beats_global_interpolation(folder)
     assert result["held_out"]["held_out"] == 6 and result["held_out"]["mean_m"] < 5e-3
     assert result["per_vertex_rms_m"]["rigid"].shape == (31 * 16,)
     assert result["targets"]["segmentation_ari"]["met"] is True
+    assert result["regions"] is None  # no truth/body.glb: no skin weights to split by
 
 
 @pytest.mark.slow  # a registration and a second rig: ~10 s on a loaded machine
@@ -185,3 +187,15 @@ def test_the_default_marker_height_is_where_synth_puts_its_markers() -> None:
     assert inspect.signature(evaluate_animate).parameters["marker_radius"].default == synth
     cli_mm = inspect.signature(eval_animate).parameters["marker_radius"].default
     assert cli_mm == pytest.approx(synth * 1e3)
+
+
+def test_region_errors_are_the_rms_over_each_region() -> None:
+    per_vertex = {"a": np.array([3.0, 4.0, 0.0, 1.0]), "b": np.array([1.0, 1.0, 2.0, 2.0])}
+    rows = region_errors(per_vertex, ["arm", "arm", "chest", "arm"])
+    assert [r["region"] for r in rows] == ["arm", "chest", "all"]
+    assert [r["vertices"] for r in rows] == [3, 1, 4]
+    assert rows[0]["rms_m"]["a"] == pytest.approx(np.sqrt(26.0 / 3.0))
+    assert rows[1]["rms_m"] == {"a": 0.0, "b": 2.0}
+    assert rows[2]["rms_m"]["b"] == pytest.approx(np.sqrt(10.0 / 4.0))
+    with pytest.raises(Exception, match="shape"):
+        region_errors(per_vertex, ["arm", "chest"])

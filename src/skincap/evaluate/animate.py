@@ -20,6 +20,11 @@ triangle); the row is the distance between where the deformation puts it and whe
 was measured. Segmentation is scored against ``truth/marker_parts.csv`` (``label,part``)
 by the adjusted Rand index when that file exists.
 
+Where the error sits: the ``regions`` table splits every vertex row by region, the
+joint that weighs most on the vertex in the body's own skin weights
+(``truth/body.glb``: ``RightShoulder`` is the upper arm, ``Chest2`` the upper chest),
+with each method's vertex RMS there (:func:`region_errors`).
+
 With a *different template* (another body mesh), it is registered to the reference-pose
 markers (§5.1, :mod:`skincap.deform.dense.registration`), rigged and deformed like the
 capture's own body; since its vertices do not correspond to the true skin's, that row
@@ -51,6 +56,7 @@ __all__ = [
     "held_out_on_capture",
     "global_rbf_frames",
     "plot_vertex_errors",
+    "region_errors",
     "vertex_errors",
 ]
 
@@ -102,6 +108,44 @@ def vertex_errors(frames: np.ndarray, truth: np.ndarray) -> dict[str, Any]:
         "nan_fraction": float(1.0 - ok.mean()),
         "per_vertex_rms_m": per_vertex,
     }
+
+
+def region_errors(
+    per_vertex_rms: dict[str, np.ndarray], regions: Sequence[str] | np.ndarray
+) -> list[dict[str, Any]]:
+    """Every method's vertex RMS within each region of the body.
+
+    Parameters
+    ----------
+    per_vertex_rms : method -> (V,) float, metres
+        Per-vertex RMS over the frames (:func:`vertex_errors`' ``per_vertex_rms_m``).
+    regions : (V,) str
+        The region of every vertex.
+
+    Returns
+    -------
+    list of dict
+        One per region, in name order: ``region``, ``vertices`` and ``rms_m``
+        (method -> RMS over the region's vertices, metres), then an ``all`` row.
+    """
+    names = np.asarray(regions).astype(str)
+    errors = {m: np.asarray(e, dtype=np.float64) for m, e in per_vertex_rms.items()}
+    for method, e in errors.items():
+        if e.shape != names.shape:
+            raise ValidationError(
+                f"per_vertex_rms[{method!r}] has shape {e.shape} for {names.size} regions"
+            )
+    rows = []
+    for region in [*np.unique(names).tolist(), None]:
+        chosen = np.ones(names.size, bool) if region is None else names == region
+        rows.append(
+            {
+                "region": "all" if region is None else region,
+                "vertices": int(chosen.sum()),
+                "rms_m": {m: float(np.sqrt(np.mean(e[chosen] ** 2))) for m, e in errors.items()},
+            }
+        )
+    return rows
 
 
 def global_rbf_frames(
@@ -204,7 +248,11 @@ def held_out_marker_errors(
     from skincap.deform.dense.parts import part_frames
     from skincap.deform.dense.rig import marker_weights_of
     from skincap.deform.dense.segmentation import segment_marker_surface
-    from skincap.deform.dense.weights import candidates_from_triangle_parts, vertex_part_weights
+    from skincap.deform.dense.weights import (
+        candidates_from_triangle_parts,
+        seam_vertex_weights,
+        vertex_part_weights,
+    )
 
     x = np.asarray(positions, dtype=np.float64)
     f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
@@ -225,7 +273,9 @@ def held_out_marker_errors(
     alpha = marker_weights_of(rom, ref, cand, kept_faces)
     held_ref = x[reference_frame, out]
     beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
-    deformer = DenseDeformer(part_frames(ref, alpha), held_ref, beta)
+    seam = seam_vertex_weights(held_ref, ref, kept_faces, alpha > 0)
+    parts = part_frames(ref, alpha, surface_faces=kept_faces)
+    deformer = DenseDeformer(parts, held_ref, beta, seam_weights=seam)
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
     d = np.linalg.norm(predicted - x[:, out], axis=-1)
     dd = d[np.isfinite(d)]
@@ -331,7 +381,9 @@ def evaluate_animate(
     -------
     dict
         ``rows`` (one per case and method: ``case``, ``method``, ``rms_m``, ``mean_m``,
-        ``p95_m``, ``max_m``…), ``held_out``, ``segmentation``, ``targets`` (value,
+        ``p95_m``, ``max_m``…), ``held_out``, ``segmentation``, ``regions``
+        (:func:`region_errors` by the body's dominant skin joint; None without
+        ``truth/body.glb``), ``targets`` (value,
         target, met), ``per_vertex_rms_m`` (method -> (V,) array, for the colour maps;
         not JSON), ``vertices`` (V, 3) reference-pose vertices and ``faces``.
     """
@@ -378,6 +430,7 @@ def evaluate_animate(
         n_parts=n_parts, seed=seed,
     )  # fmt: skip
     segmentation = _segmentation_figures(rig, root / "truth" / "marker_parts.csv", labels)
+    regions = _vertex_regions(root / "truth" / "body.glb", vertices.shape[0])
     step(1.0, "done")
     return {
         "folder": str(root),
@@ -389,6 +442,7 @@ def evaluate_animate(
         "held_out": held,
         "segmentation": segmentation,
         "registration": registration,
+        "regions": None if regions is None else region_errors(per_vertex, regions),
         "targets": _targets(rows, held, segmentation),
         "per_vertex_rms_m": per_vertex,
         "vertices": vertices,
@@ -428,6 +482,21 @@ def _read_synthetic_take(root: Path) -> dict[str, Any]:
         "faces": io.read(truth_dir / "mesh.obj").faces,
         "surface_faces": surface.faces,
     }
+
+
+def _vertex_regions(body_path: Path, n_vertices: int) -> np.ndarray | None:
+    """(V,) str: the joint weighing most on every vertex in the body's skin weights, or
+    None without ``truth/body.glb``, a skin, or one vertex per skin vertex."""
+    from skincap import io
+
+    if not body_path.is_file():
+        return None
+    skin = io.read_mesh(body_path).skin
+    if skin is None or skin.joint_weights.shape[0] != n_vertices:
+        return None
+    rows = np.arange(n_vertices)
+    dominant = skin.joint_indices[rows, np.argmax(skin.joint_weights, axis=1)]
+    return np.asarray(skin.skeleton.names, dtype=str)[dominant]
 
 
 def _read_rom_positions(rom: Path, labels: Sequence[str]) -> np.ndarray:

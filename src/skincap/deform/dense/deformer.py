@@ -15,7 +15,11 @@ For every frame and every near-rigid part ``p``:
 3. **RBF** (eq. 7): weights that interpolate the residual ``p̂ᵗ - Ã q(p̂⁰)`` at the
    deformed centres ``p̃ = Ã q(p̂⁰)`` with the cubic B-spline kernel and the part's σ.
    (The paper writes the residual as ``p̃ - p̂``; the sign that makes eq. 8 reproduce
-   the markers is ``p̂ - p̃``, used here.) Only the ``*_rbf`` variants.
+   the markers is ``p̂ - p̃``, used here.) Only the ``*_rbf`` variants. Parts built with
+   seam centres (:func:`skincap.deform.dense.parts.part_frames` given the marker-surface
+   triangles; a rig's deformer is) get a second RBF through them as well, and the
+   kernels see every part twice: its members' field and its seam field, between which
+   a vertex's β is split by ``seam_weights``.
 4. **Vertices** (eqs. 8-9): a vertex's local reference position in each of its parts is
    moved by that part's field and taken back to the world; the results are blended by
    the vertex's part weights β.
@@ -75,6 +79,15 @@ METHODS: tuple[str, ...] = ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf")
 #: Fewest measured members for a part's rigid fit at a frame.
 MIN_PART_MARKERS = 3
 Backend = Literal["auto", "numba", "numpy"]
+#: λ_quad of eq. 6 (:func:`skincap.geometry.quadratic.fit_quadratic`). On a synthetic
+#: range-of-motion take ``quadratic_rbf`` had 1.90 mm vertex RMS at 1e-5, 1.50 at 1e-2,
+#: 1.48 at 1e-1. A stronger pull toward the identity suits well-segmented synthetic takes
+#: (240 frames, ROM 240, 5000 vertices, seam centres; λ = 0.01 / 0.1 / 1: jumprope 2.61
+#: / 2.42 / 2.38 mm, flex 2.02 / 2.14 / 1.93, punch 2.30 / 2.28 / 2.10) but takes away
+#: the bend of a part that spans a joint, which is what a sparse real capture's few
+#: parts do: held-out markers of the two-part arm of the ``eval animate`` tests 6.2 /
+#: 8.9 / 14.1 mm. Hence 1e-2.
+QUADRATIC_REGULARISATION = 1e-2
 
 
 def warm_up_kernel() -> None:
@@ -114,7 +127,11 @@ class PartMotion:
     centres : (T, P, K, 3) float64, metres
         ``p̃``: the members' reference positions moved by the quadratic field (0 on padding).
     rbf_weights : (T, P, K, 3) float64, metres
-        ``w_p^t`` of eq. 7 (all 0 without RBF; 0 for missing members).
+        ``w_p^t`` of eq. 7 over the members and the seam centres (all 0 without RBF;
+        0 for missing members).
+    member_rbf_weights : (T, P, K, 3) float64 or None, metres
+        The same fitted to the members alone (0 on the seam centres); None when the
+        parts have no seam centre (then it is ``rbf_weights``).
     """
 
     rotation: np.ndarray
@@ -122,6 +139,7 @@ class PartMotion:
     quadratic: np.ndarray
     centres: np.ndarray
     rbf_weights: np.ndarray
+    member_rbf_weights: np.ndarray | None = None
 
 
 def held_frames(member_present: np.ndarray) -> np.ndarray:
@@ -154,7 +172,7 @@ def fit_part_motion(
     method: Method = "quadratic_rbf",
     *,
     source_frames: np.ndarray | None = None,
-    quadratic_regularisation: float = 1e-2,
+    quadratic_regularisation: float = QUADRATIC_REGULARISATION,
 ) -> PartMotion:
     """Fit the rigid, quadratic and RBF fields of every part at every frame (eqs. 6-7).
 
@@ -169,9 +187,8 @@ def fit_part_motion(
         :func:`held_frames`; default: computed from ``positions``, T' = T), -1 for none.
     quadratic_regularisation : float
         λ_quad of :func:`skincap.geometry.quadratic.fit_quadratic` (0 = the plain
-        pseudo-inverse). The default 1e-2 keeps parts with few markers from inventing
-        quadratic terms; chosen on a synthetic range-of-motion take (vertex RMS of
-        ``quadratic_rbf`` 1.90 mm at 1e-5, 1.50 mm at 1e-2, 1.48 mm at 1e-1).
+        pseudo-inverse). The default (:data:`QUADRATIC_REGULARISATION`) keeps parts
+        with few or poorly spread markers from inventing quadratic terms.
 
     Returns
     -------
@@ -189,8 +206,10 @@ def fit_part_motion(
             f"positions has {x.shape[1]} markers; the parts use marker {int(parts.members.max())}"
         )
     gathered = x[:, parts.members]  # (T, P, K, 3)
-    present = np.isfinite(gathered).all(-1) & parts.valid  # (T, P, K)
-    src = held_frames(present) if source_frames is None else np.asarray(source_frames)
+    present = np.isfinite(gathered).all(-1) & parts.valid  # (T, P, K), seam centres too
+    src = (
+        held_frames(present & parts.fitted) if source_frames is None else np.asarray(source_frames)
+    )
     if src.ndim != 2 or src.shape[1] != n_p or (src >= n_t).any():
         raise ValidationError(
             f"source_frames must have shape (T', {n_p}) with rows of positions ({n_t}); got {src.shape}"
@@ -219,12 +238,23 @@ def fit_part_motion(
     centres = np.where(
         parts.valid[None, ..., None], apply_quadratic(quad, parts.local_reference[None]), 0.0
     )
+    member_rbf_w = None
     if use_rbf:
         residual = local - centres  # NaN where missing: excluded by fit_rbf
         rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present)
+        if parts.has_seam_centres:  # the members fill the first slots: a smaller system
+            k_fit = int(parts.fitted.sum(axis=1).max())
+            member_rbf_w = np.zeros_like(rbf_w)
+            member_rbf_w[:, :, :k_fit] = fit_rbf(
+                centres[:, :, :k_fit],
+                residual[:, :, :k_fit],
+                parts.sigma[None, :],
+                (present & parts.fitted)[:, :, :k_fit],
+            )
     else:
         rbf_w = np.zeros((n_t, n_p, k, 3))
-    return PartMotion(rot, trans, quad, np.where(np.isfinite(centres), centres, 0.0), rbf_w)
+    centres = np.where(np.isfinite(centres), centres, 0.0)
+    return PartMotion(rot, trans, quad, centres, rbf_w, member_rbf_w)
 
 
 class DenseDeformer:
@@ -237,6 +267,12 @@ class DenseDeformer:
         The (registered) mesh in the markers' reference pose.
     vertex_weights : (V, P) float
         β: part weights of every vertex (rows sum to 1; rows are renormalised).
+    seam_weights : (V, P) float in [0, 1], optional
+        Only for parts with seam centres (:func:`~skincap.deform.dense.parts.part_frames`
+        with ``surface_faces``): how much of each (vertex, part) pair follows the part's
+        field through its seam centres rather than its members' alone
+        (:func:`skincap.deform.dense.weights.seam_vertex_weights`: 1 on the marker-surface
+        triangles at a seam, 0 inside the part, continuous between). Default 1.
     backend : {"auto", "numba", "numpy"}, default "auto"
         The per-frame vertex evaluation: the compiled kernel
         (:mod:`skincap.deform.dense._kernel_numba`) or its NumPy reference
@@ -258,6 +294,7 @@ class DenseDeformer:
         rest_vertices: np.ndarray,
         vertex_weights: np.ndarray,
         *,
+        seam_weights: np.ndarray | None = None,
         backend: Backend = "auto",
     ):
         v = np.asarray(rest_vertices, dtype=np.float64)
@@ -278,20 +315,36 @@ class DenseDeformer:
         beta = beta / total[:, None]
         self.parts = parts
         self.n_vertices = int(v.shape[0])
+        n_members = parts.valid.sum(axis=1)  # members fill the first slots, seam centres next
+        sigma = parts.sigma
+        rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
+        # With seam centres, the kernel sees every part twice: field p through its
+        # members alone, field P + p through its seam centres too (the same rigid and
+        # quadratic fields), β split between them by the seam weights.
+        self._split = parts.has_seam_centres
+        if self._split:
+            seam = np.ones_like(beta) if seam_weights is None else np.asarray(seam_weights, float)
+            if seam.shape != beta.shape or not ((seam >= 0) & (seam <= 1)).all():
+                raise ValidationError(
+                    f"seam_weights must be in [0, 1] with shape {beta.shape}; got {seam.shape}"
+                )
+            beta = np.concatenate([beta * (1.0 - seam), beta * seam], axis=1)
+            n_members = np.concatenate([parts.fitted.sum(axis=1), n_members])
+            rbf_scale = np.tile(rbf_scale, 2)
+        n_fields = beta.shape[1]
         part_of, vertex_of = np.nonzero(beta.T > 1e-6)  # the (vertex, part) pairs of eq. 9, by part
         self.pair_vertex = vertex_of
         self.pair_part = part_of
         self.pair_weight = beta[vertex_of, part_of]
-        self.pair_local = parts.to_local(v[vertex_of], part_of)  # p̂⁰ of each pair
+        self.pair_local = parts.to_local(v[vertex_of], part_of % parts.n_parts)  # p̂⁰ of each pair
         self.pair_basis = quadratic_basis(self.pair_local)  # q̂⁰, (pairs, 10)
-        self._part_start = np.searchsorted(part_of, np.arange(parts.n_parts + 1))
-        self._n_members = parts.valid.sum(axis=1)  # members fill the first slots
+        self._part_start = np.searchsorted(part_of, np.arange(n_fields + 1))
+        self._n_members = n_members
         self._blend = sparse.csr_matrix(
             (self.pair_weight, (vertex_of, np.arange(vertex_of.size))),
             shape=(self.n_vertices, vertex_of.size),
         )
-        sigma = parts.sigma
-        self._rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
+        self._rbf_scale = rbf_scale
         # the kernel walks each vertex's pairs: the same pairs, sorted by vertex
         by_vertex = np.lexsort((part_of, vertex_of))
         self._vertex_local = np.ascontiguousarray(self.pair_local[by_vertex])
@@ -321,15 +374,15 @@ class DenseDeformer:
         """
         use_rbf = bool(np.any(motion.rbf_weights))
         rbf_members = np.where(use_rbf & (self._rbf_scale > 0), self._n_members, 0)
-        fields = (
-            motion.quadratic,
-            motion.rotation,
-            motion.translation,
-            motion.centres,
-            motion.rbf_weights,
-            self._rbf_scale,
-            rbf_members,
-        )
+        per_part = [motion.quadratic, motion.rotation, motion.translation, motion.centres]
+        rbf_weights = motion.rbf_weights
+        if self._split:  # fields p (members' RBF) and P + p (with the seam centres)
+            per_part = [np.concatenate([a, a], axis=1) for a in per_part]
+            members_only = motion.member_rbf_weights
+            rbf_weights = np.concatenate(
+                [rbf_weights if members_only is None else members_only, rbf_weights], axis=1
+            )
+        fields = (*per_part, rbf_weights, self._rbf_scale, rbf_members)
         if self._kernel_watch.landed():
             self.backend = "numba"
         if self.backend == "numba":
@@ -349,7 +402,7 @@ class DenseDeformer:
         method: Method = "quadratic_rbf",
         *,
         chunk: int = 32,
-        quadratic_regularisation: float = 1e-2,
+        quadratic_regularisation: float = QUADRATIC_REGULARISATION,
         progress: Callable[[float], None] | None = None,
     ) -> Iterator[np.ndarray]:
         """Stream the deformed vertices of a take, ``chunk`` frames at a time.
@@ -372,7 +425,7 @@ class DenseDeformer:
         x = np.asarray(positions, dtype=np.float64)
         if x.ndim != 3 or x.shape[2] != 3:
             raise ValidationError(f"positions must have shape (T, N, 3); got {x.shape}")
-        present = np.isfinite(x[:, self.parts.members]).all(-1) & self.parts.valid
+        present = np.isfinite(x[:, self.parts.members]).all(-1) & self.parts.fitted
         source = held_frames(present)  # over the whole take, so holds cross chunks
         n_t = x.shape[0]
         for s0 in range(0, n_t, int(chunk)):

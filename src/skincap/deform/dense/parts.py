@@ -8,6 +8,21 @@ part's RBF is twice the largest nearest-member distance (eq. 7).
 The members of part ``p`` are the markers with ``α[i, p] > 0`` (inside markers and the
 boundary markers assigned to it); they are stored padded to the largest part, so every
 later step is one array operation over frames, parts and members.
+
+**Seam centres.** Given the marker-surface triangles, a part also carries the markers
+one surface edge away from its members, with weight 0: they take no part in its rigid
+and quadratic fits but are centres of a second RBF residual (eq. 7) of the part, which
+passes through the measured surface on the far side of its seam as well. Without them
+a vertex on a seam triangle blends parts whose fields each know only their own side's
+markers, and the blend there is no better than the rigid blend of the parts' motions
+(the β-interpolation error, up to 3 cm at the front of a shoulder). Inside a part the
+members alone describe the skin, and the seam centres' pull would only disturb it (a
+rigid head wobbled by 1 mm), so the deformer blends the two fields per vertex
+(:func:`skincap.deform.dense.weights.seam_vertex_weights`: the seam field on the seam
+triangles, the members' field inside). On the synthetic jumprope take (240 frames,
+ROM 240 frames, 5000 vertices) the vertex RMS of ``rigid_rbf`` goes from 2.62 to
+2.26 mm and of ``quadratic_rbf`` from 2.83 to 2.57 mm (flex 2.24 -> 2.04, punch 2.53 ->
+2.33); σ stays the paper's, from the members alone.
 """
 
 from __future__ import annotations
@@ -29,11 +44,13 @@ class PartFrames:
     Attributes
     ----------
     members : (P, K) int64
-        Marker columns of each part's members, padded with 0 (see ``valid``).
+        Marker columns of each part's members, padded with 0 (see ``valid``): the
+        fitted members (α > 0) first, then the part's seam centres (α = 0).
     valid : (P, K) bool
-        False on padding.
+        False on padding; True slots are the first ones of each row.
     member_weights : (P, K) float64
-        α of each member for its part (0 on padding).
+        α of each member for its part (0 on padding and on seam centres, which the
+        rigid and quadratic fits leave out).
     origin : (P, 3) float64, metres
         Mean reference position of the members (``-d̃⁰``).
     axes : (P, 3, 3) float64
@@ -42,7 +59,7 @@ class PartFrames:
     local_reference : (P, K, 3) float64, metres
         ``p̂⁰``: members' reference positions in their part's frame (0 on padding).
     sigma : (P,) float64, metres
-        RBF dilation σ_p (NaN for a part with fewer than two members).
+        RBF dilation σ_p from the fitted members (NaN for a part with fewer than two).
     """
 
     members: np.ndarray
@@ -56,6 +73,15 @@ class PartFrames:
     @property
     def n_parts(self) -> int:
         return int(self.members.shape[0])
+
+    @property
+    def has_seam_centres(self) -> bool:
+        return bool((self.valid & (self.member_weights <= 0)).any())
+
+    @property
+    def fitted(self) -> np.ndarray:
+        """(P, K) bool: the members the rigid and quadratic fits use (α > 0)."""
+        return self.valid & (self.member_weights > 0)
 
     def to_local(self, points: np.ndarray, part: np.ndarray) -> np.ndarray:
         """Reference-pose positions in the frame of a part.
@@ -73,7 +99,12 @@ class PartFrames:
         return np.einsum("mab,mb->ma", self.axes[p], np.asarray(points, float) - self.origin[p])
 
 
-def part_frames(reference: np.ndarray, marker_weights: np.ndarray) -> PartFrames:
+def part_frames(
+    reference: np.ndarray,
+    marker_weights: np.ndarray,
+    *,
+    surface_faces: np.ndarray | None = None,
+) -> PartFrames:
     """Build the local part reference frames from the reference pose and the weights α.
 
     Parameters
@@ -82,6 +113,10 @@ def part_frames(reference: np.ndarray, marker_weights: np.ndarray) -> PartFrames
         Marker positions in the reference pose; a member must be finite.
     marker_weights : (N, P) float
         α: weight of every marker for every part (rows sum to 1; 0 = not a member).
+    surface_faces : (F, 3) int, optional
+        Marker-surface triangles (marker columns). With them every part also gets its
+        seam centres: the markers (with a finite reference position) one edge away
+        from its members, RBF centres only (see the module notes). Without, none.
 
     Returns
     -------
@@ -112,15 +147,21 @@ def part_frames(reference: np.ndarray, marker_weights: np.ndarray) -> PartFrames
         raise ValidationError(
             f"reference: member markers {np.flatnonzero(bad)[:10].tolist()} have no reference position"
         )
-    n_parts, k = alpha.shape[1], int(counts.max())
-    # padded member table: for part p the markers i with alpha[i, p] > 0, in column order
-    part_of, marker_of = np.nonzero(member.T)  # sorted by part, then marker
+    n_parts = alpha.shape[1]
+    seam = _seam_centres(member, np.isfinite(ref).all(axis=1), surface_faces)
+    k = int((counts + seam.sum(axis=0)).max())
+    # padded member table: for part p the markers i with alpha[i, p] > 0, in column
+    # order, then its seam centres
+    part_of, marker_of = np.nonzero((member | seam).T)  # sorted by part, then marker
+    order = np.lexsort((marker_of, ~member[marker_of, part_of], part_of))  # members first
+    part_of, marker_of = part_of[order], marker_of[order]
     slot = np.arange(part_of.size) - np.searchsorted(part_of, part_of)
     members = np.zeros((n_parts, k), dtype=np.int64)
     valid = np.zeros((n_parts, k), dtype=bool)
     members[part_of, slot] = marker_of
     valid[part_of, slot] = True
     weights = np.where(valid, alpha[members, np.arange(n_parts)[:, None]], 0.0)
+    fitted = weights > 0
 
     pos = np.where(valid[..., None], ref[members], 0.0)  # (P, K, 3)
     total = weights.sum(axis=1)  # (P,)
@@ -133,6 +174,26 @@ def part_frames(reference: np.ndarray, marker_weights: np.ndarray) -> PartFrames
     axes[flip, 2] *= -1.0
     local = np.where(valid[..., None], np.einsum("pab,pkb->pka", axes, centred), 0.0)
     sigma = np.array(
-        [dilation_from_spacing(local[p, valid[p]]) for p in range(n_parts)]
+        [dilation_from_spacing(local[p, fitted[p]]) for p in range(n_parts)]
     )  # one KD-tree per part: P is small (17)
     return PartFrames(members, valid, weights, origin, axes, local, sigma)
+
+
+def _seam_centres(
+    member: np.ndarray, usable: np.ndarray, surface_faces: np.ndarray | None
+) -> np.ndarray:
+    """(N, P) bool: markers one marker-surface edge from a member of a part, not members.
+
+    ``member`` (N, P) bool; ``usable`` (N,) bool, markers with a reference position;
+    ``surface_faces`` (F, 3) int or None (then no seam centre).
+    """
+    if surface_faces is None:
+        return np.zeros_like(member)
+    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
+    n = member.shape[0]
+    if f.size and (f.min() < 0 or f.max() >= n):
+        raise ValidationError(f"surface_faces: indices must be in 0..{n - 1}")
+    near = np.zeros_like(member)
+    for a, b in ((0, 1), (1, 2), (2, 0), (1, 0), (2, 1), (0, 2)):  # both ways of each edge
+        np.logical_or.at(near, f[:, a], member[f[:, b]])
+    return near & ~member & usable[:, None]

@@ -29,6 +29,7 @@ from skincap.deform.dense.weights import (
     candidates_from_triangle_parts,
     marker_blend_weights,
     marker_part_weights,
+    seam_vertex_weights,
     spread_candidates,
     vertex_part_weights,
 )
@@ -129,9 +130,11 @@ class DenseRig:
 
     def deformer(self) -> DenseDeformer:
         """The deformer of this rig (any of the four variants)."""
-        return DenseDeformer(
-            part_frames(self.reference, self.marker_weights), self.vertices, self.vertex_weights
+        parts = part_frames(self.reference, self.marker_weights, surface_faces=self.surface_faces)
+        seam = seam_vertex_weights(
+            self.vertices, self.reference, self.surface_faces, self.marker_weights > 0
         )
+        return DenseDeformer(parts, self.vertices, self.vertex_weights, seam_weights=seam)
 
     def columns_of(self, labels: Sequence[str]) -> np.ndarray:
         """Column of each of the rig's markers in a take with these labels.

@@ -46,6 +46,7 @@ __all__ = [
     "marker_blend_weights",
     "marker_part_weights",
     "part_motion_errors",
+    "seam_vertex_weights",
     "spread_candidates",
     "vertex_part_weights",
 ]
@@ -424,3 +425,54 @@ def vertex_part_weights(
         beta = np.einsum("vk,vkp->vp", w, alpha[idx[nn]])
     beta = np.clip(beta, 0.0, None)
     return beta / beta.sum(axis=1, keepdims=True)
+
+
+def seam_vertex_weights(
+    vertices: np.ndarray,
+    surface_vertices: np.ndarray,
+    surface_faces: np.ndarray,
+    members: np.ndarray,
+) -> np.ndarray:
+    """How much each vertex follows each part's field through its seam centres.
+
+    A part's seam centres (the markers one marker-surface edge beyond its members,
+    :func:`skincap.deform.dense.parts.part_frames`) carry its field across its seam,
+    but they also pull on it inside the part, where the members alone describe the
+    skin exactly. So a marker at a seam of part ``p`` (a seam centre of ``p``, or a
+    member of ``p`` with one as a neighbour) weighs 1, any other 0, and every vertex
+    takes these values interpolated at the barycentric coordinates of its projection
+    on the nearest marker-surface triangle, as β is (:func:`vertex_part_weights`):
+    1 on the triangles of a seam, 0 inside a part, continuous across every edge.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres
+    surface_vertices : (N, 3) float, metres, the markers in the reference pose
+    surface_faces : (F, 3) int
+    members : (N, P) bool
+        The members of every part (α > 0).
+
+    Returns
+    -------
+    (V, P) float64 in [0, 1]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    sv = np.asarray(surface_vertices, dtype=np.float64)
+    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
+    mem = np.asarray(members, dtype=bool)
+    if mem.ndim != 2 or mem.shape[0] != sv.shape[0]:
+        raise ValidationError(f"members must have shape ({sv.shape[0]}, P); got {mem.shape}")
+    usable = np.isfinite(sv).all(axis=1)
+    f = f[usable[f].all(axis=1)]
+    if f.shape[0] == 0:
+        return np.zeros((v.shape[0], mem.shape[1]))
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])  # both ways
+    beyond = np.zeros_like(mem)  # seam centres: a neighbour is a member, it is not
+    np.logical_or.at(beyond, edges[:, 0], mem[edges[:, 1]])
+    beyond &= ~mem
+    at_seam = beyond.copy()  # and the members next to one
+    np.logical_or.at(at_seam, edges[:, 0], beyond[edges[:, 1]] & mem[edges[:, 0]])
+    _, face, bary = closest_points_on_mesh(np.where(usable[:, None], sv, 0.0), f, v)
+    weights = np.einsum("vk,vkp->vp", bary, at_seam[f[face]].astype(np.float64))
+    return np.clip(weights, 0.0, 1.0)
