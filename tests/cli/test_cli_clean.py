@@ -126,6 +126,12 @@ def test_clean_errors(synth_c3d, tmp_path: Path) -> None:  # noqa: ANN001
         assert (
             result.exit_code == 2 and "--rigid-blend: expected a weight in [0, 1]" in result.output
         )
+    # a billion smoothing iterations ran until killed; none is no smoothing (--no-smooth)
+    for count in ("1000000000", "0"):
+        result = run("clean", src, "-o", tmp_path / "x.c3d", "--iterations", count)
+        assert result.exit_code == 2 and f"--iterations: expected 1..1000, got {count}" in (
+            result.output
+        )
     assert not (tmp_path / "x.c3d").exists()
     result = run("clean", src, "-o", tmp_path / "x.trc")
     assert result.exit_code == 2 and ".c3d" in result.output

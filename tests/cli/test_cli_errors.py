@@ -205,6 +205,38 @@ def test_render_refuses_times_outside_the_take(tmp_path: Path, option, fragment)
     assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    ("option", "fragment"),
+    [  # NaN/inf angles drew an empty picture (exit 0)
+        (["--azimuth", "nan"], "--azimuth: expected a finite angle in degrees, got nan"),
+        (["--elevation", "inf"], "--elevation: expected a finite angle in degrees, got inf"),
+    ],
+)
+def test_render_refuses_camera_angles_that_are_not_numbers(
+    tmp_path: Path, option, fragment
+) -> None:  # type: ignore[no-untyped-def]
+    out = tmp_path / "r.png"
+    line = one_error_line(skincap("render", BVH, "--units", "cmu", "-o", out, *option), BVH)
+    assert fragment in line
+    assert not out.exists()
+
+
+def test_render_refuses_a_pc2_rate_that_is_not_positive(tmp_path: Path) -> None:
+    # was ZeroDivisionError (0) and "cannot convert float NaN to integer" tracebacks
+    from skincap.io.pc2 import write_pc2
+    from skincap.types import Mesh, MeshAnimation
+
+    mesh = Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]]))
+    write_pc2(MeshAnimation(mesh, np.stack([np.eye(3)] * 4), rate=30.0), tmp_path / "t.pc2")
+    (tmp_path / "t.obj").write_text("v 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n")
+    for rate in ("0", "nan", "-30"):
+        out = tmp_path / "r.png"
+        result = skincap("render", tmp_path / "t.obj", "-o", out, "--rate", rate)
+        line = one_error_line(result, tmp_path / "t.obj")
+        assert "--rate: expected a positive frame rate in Hz" in line
+        assert not out.exists()
+
+
 def test_render_refuses_clip_options_that_cannot_hold(tmp_path: Path) -> None:
     for option, fragment in [
         (["-o", tmp_path / "c.gif", "--time", "1"], "pick a PNG's frame"),

@@ -159,6 +159,10 @@ def test_skin_bare_mesh_gets_automatic_weights(tmp_path):
 def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
     mesh = makehuman_dir / "makehuman_base.obj"
     bvh = DATA / "bvhtoolbox_test_mocapbank.bvh"
+    maps = makehuman_dir.parent / "maps"  # beside, not in tmp_path: nothing written there
+    maps.mkdir(exist_ok=True)
+    (maps / "unknown.json").write_text('{"NoSuchJoint": "root"}')
+    (maps / "target.json").write_text('{"Hips": "NoSuchBone"}')
     for extra, message in [
         (["--method", "dqs", "-o", tmp_path / "x.glb"], "linear blend"),
         (["--method", "cubic", "-o", tmp_path / "x.pc2"], "lbs or dqs"),
@@ -166,6 +170,15 @@ def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
         (
             ["--weights", "file", "-o", tmp_path / "x.glb", "--map", tmp_path / "missing.json"],
             "missing.json",
+        ),
+        # a joint neither skeleton has: the map is named (was the mesh and the BVH)
+        (
+            ["-o", tmp_path / "x.glb", "--map", maps / "unknown.json"],
+            f"{maps / 'unknown.json'}: source joint 'NoSuchJoint' is not in the source",
+        ),
+        (
+            ["-o", tmp_path / "x.glb", "--map", maps / "target.json"],
+            f"{maps / 'target.json'}: target joint 'NoSuchBone' is not in the target",
         ),
     ]:
         result = run("skin", mesh, bvh, "--units", "cm", *extra)

@@ -111,7 +111,9 @@ def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
         (["--smooth-hz", "70"], "--smooth-hz: expected between 0 and 60 Hz"),
         (["--loss", "l1"], "--loss: expected one of squared, huber, cauchy, got 'l1'"),
         (["--loss", "huber", "--loss-scale-cm", "0"], "--loss-scale-cm: expected a positive"),
-        (["--refine-offsets", "-1"], "--refine-offsets: expected a count >= 0"),
+        (["--refine-offsets", "-1"], "--refine-offsets: expected a count 0..20, got -1"),
+        # each round a full IK: 1e9 rounds ran until killed
+        (["--refine-offsets", "1000000000"], "--refine-offsets: expected a count 0..20"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, args, message):

@@ -310,6 +310,20 @@ def test_points_bad_rows(tmp_path, body, line, match):
     assert e.value.line == line and "pts.csv" in str(e.value)
 
 
+def test_points_ids_beyond_exact_floats_are_refused_not_wrapped(tmp_path):
+    """1e20 became -9223372036854775808 (with a cast warning); 2**53 + 1 read as 2**53."""
+    f = tmp_path / "pts.csv"
+    for big in ("99999999999999999999", "9007199254740993", "-1e19"):
+        f.write_text(f"frame,time,x,y,z,id\n0,0,0,0,0,1\n1,0.01,1,1,1,{big}\n")
+        with pytest.raises(
+            FormatError, match=r"ids must be integers of magnitude below 2\*\*53"
+        ) as e:
+            read_points_csv(f)
+        assert e.value.line == 3
+    f.write_text(f"frame,time,x,y,z,id\n0,0,0,0,0,{2**53 - 1}\n1,0.01,1,1,1,-{2**53 - 1}\n")
+    assert read_points_csv(f).ids.tolist() == [2**53 - 1, -(2**53 - 1)]
+
+
 def test_points_declared_frame_count_is_bounded(tmp_path):
     # '# frames=' past the bound would size the offsets (T + 1,) from the header alone
     f = tmp_path / "pts.csv"

@@ -93,3 +93,28 @@ def test_hostile_sidecar_bytes_are_one_format_error(tmp_path, content, message) 
     path.with_suffix(".json").write_bytes(content)
     with pytest.raises(FormatError, match=message):
         read_dense_rig(path)
+
+
+def test_marker_parts_out_of_range_and_a_rig_without_parts_are_refused(tmp_path) -> None:
+    rig = _rig()
+    path = tmp_path / "r.npz"
+    write_dense_rig(path, rig.to_arrays(), list(rig.labels), rig.settings)
+    good = rig.to_arrays()
+    for change, message in [
+        (
+            {"marker_parts": np.array([0, 0, 0, 1, 1, 2])},
+            r"marker_parts: expected -1 \(none\) or a part 0\.\.1",
+        ),
+        ({"marker_parts": np.array([0, 0, -2, 1, 1, 1])}, "marker_parts: expected -1"),
+        (
+            {"marker_weights": np.zeros((6, 0)), "vertex_weights": np.zeros((10, 0))},
+            "marker_weights: the rig has no parts",
+        ),
+    ]:
+        with open(path, "wb") as fh:
+            np.savez(fh, **{**good, **change})
+        with pytest.raises(FormatError, match=r"r\.npz: " + message):
+            read_dense_rig(path)
+    with open(path, "wb") as fh:  # -1: a marker in no part, as the builder writes it
+        np.savez(fh, **{**good, "marker_parts": np.array([0, -1, 0, 1, 1, 1])})
+    assert read_dense_rig(path)[0]["marker_parts"][1] == -1

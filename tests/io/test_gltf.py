@@ -412,6 +412,19 @@ def _doc_and_bin(tmp_path: Path) -> Path:
         (lambda d: d["asset"].update(version="1.0"), "only glTF 2"),
         (lambda d: d["meshes"][0]["primitives"][0]["attributes"].pop("POSITION"), "no POSITION"),
         (lambda d: d["accessors"][0].update(type="VEC2"), "POSITION must be float VEC3"),
+        # read as if uncompressed before: silent garbage (zeros where a view is absent)
+        (
+            lambda d: d.update(
+                extensionsRequired=["KHR_materials_unlit", "EXT_meshopt_compression"]
+            ),
+            r"requires the glTF extension\(s\) EXT_meshopt_compression, which",
+        ),
+        (lambda d: d.update(extensionsRequired="KHR_draco"), "extensionsRequired must be a list"),
+        # was SciPy's 'Non-positive determinant ... [[ 0. 0. 0.] ...' with the matrix
+        (
+            lambda d: d["nodes"][d["skins"][0]["joints"][0]].update(scale=[0, 0, 0]),
+            r"joint node \d+ \('\w+'\) has a zero or negative scale",
+        ),
     ],
 )
 def test_bad_documents(tmp_path: Path, edit, fragment: str) -> None:
@@ -422,6 +435,15 @@ def test_bad_documents(tmp_path: Path, edit, fragment: str) -> None:
     with pytest.raises(FormatError, match=fragment) as err:
         read_gltf(path)
     assert str(path) in str(err.value)
+
+
+def test_required_extensions_about_looks_alone_are_read(tmp_path: Path) -> None:
+    path = _doc_and_bin(tmp_path)
+    plain = read_gltf(path)
+    doc = json.loads(path.read_text())
+    doc["extensionsRequired"] = ["KHR_materials_unlit", "KHR_texture_transform"]
+    path.write_text(json.dumps(doc))
+    np.testing.assert_array_equal(read_gltf(path).vertices, plain.vertices)
 
 
 def test_index_out_of_range_and_bad_json(tmp_path: Path) -> None:

@@ -384,6 +384,22 @@ def test_ply_bad_binary(tmp_path: Path, mutate, fragment: str) -> None:
         read_ply(p)
 
 
+def test_ply_list_count_past_the_end_names_its_byte(tmp_path: Path) -> None:
+    """A uint list count of 4e9 was NumPy's 'dimension does not fit into a C int'."""
+    head = (
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+        b"property float y\nproperty float z\nelement face 1\n"
+        b"property list uint int vertex_indices\nend_header\n"
+    )
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
+    for count in (4_000_000_000, 4):  # past any buffer; one past this file's end
+        p = _write(tmp_path, "lie.ply", head + verts + np.array([count, 0, 1, 2], "<u4").tobytes())
+        with pytest.raises(
+            FormatError, match=rf"lie\.ply: byte {len(head) + 36}: .*list of {count}"
+        ):
+            read_ply(p)
+
+
 def test_ply_bad_ascii(tmp_path: Path) -> None:
     good = _valid_ply_bytes(False)
     with pytest.raises(FormatError, match="non-numeric"):

@@ -172,6 +172,32 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(arm, tmp_path):
         assert _nothing_written(tmp_path, before), args
 
 
+def test_a_saved_rig_with_bad_weights_is_blamed_not_the_take(arm, tmp_path):
+    """NaN, negative or all-zero weights in R.npz: the rig file is named (was the take)."""
+    mesh_path, take_path, _, _ = arm
+    rig = tmp_path / "r.npz"
+    assert run("animate", mesh_path, take_path, "-o", tmp_path / "ok.pc2", "--parts", "2", "--surface", take_path.with_name("arm_surface.ply"),
+               "--reference-frame", "0", "--save-rig", rig).exit_code == 0  # fmt: skip
+    good = dict(np.load(rig))
+    sidecar = rig.with_suffix(".json").read_text()
+    nan_alpha = good["marker_weights"].copy()
+    nan_alpha[0, 0] = np.nan
+    for name, change, what in [
+        ("nan.npz", {"marker_weights": nan_alpha}, "marker_weights must be finite"),
+        ("neg.npz", {"vertex_weights": -good["vertex_weights"]}, "vertex_weights must be finite"),
+        ("nobody.npz", {"vertex_weights": 0 * good["vertex_weights"]}, "vertex_weights: 496"),
+    ]:
+        bad = tmp_path / name
+        np.savez(bad, **{**good, **change})
+        bad.with_suffix(".json").write_text(sidecar)
+        before = set(tmp_path.iterdir())
+        res = run("animate", "--rig", bad, take_path, "-o", tmp_path / "o.pc2")
+        assert res.exit_code == 2, res.output
+        lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+        assert len(lines) == 1 and f"{bad}: {what}" in lines[0], res.output
+        assert _nothing_written(tmp_path, before)
+
+
 def test_an_existing_output_needs_force(arm, tmp_path):
     mesh_path, take_path, _, _ = arm
     out = tmp_path / "a.pc2"

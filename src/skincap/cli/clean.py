@@ -49,7 +49,7 @@ def clean(
         bool, typer.Option("--no-smooth", help="Skip the local-frame smoothing.")
     ] = False,
     lam: Annotated[float, typer.Option("--lambda", help="Smoothing damping λ.")] = 0.02,
-    iterations: Annotated[int, typer.Option(help="Smoothing iterations.")] = 10,
+    iterations: Annotated[int, typer.Option(help="Smoothing iterations, 1-1000.")] = 10,
     report: Annotated[
         Path | None,
         typer.Option(

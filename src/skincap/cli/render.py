@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated
 
@@ -24,6 +25,16 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 #: Most pictures one clip may hold (an hour at 30 fps), so --fps cannot ask for millions.
 MAX_CLIP_FRAMES = 108_000
+
+
+def _check_view_and_rate(*, azimuth: float, elevation: float, rate: float | None) -> None:
+    """ValidationError for a camera angle that is not a number or a PC2 rate that is not
+    a positive one (a NaN angle drew an empty picture, a 0 Hz rate divided by zero)."""
+    for name, degrees in (("--azimuth", azimuth), ("--elevation", elevation)):
+        if not math.isfinite(degrees):
+            raise ValidationError(f"{name}: expected a finite angle in degrees, got {degrees:g}")
+    if rate is not None and not (math.isfinite(rate) and rate > 0):
+        raise ValidationError(f"--rate: expected a positive frame rate in Hz, got {rate:g}")
 
 
 def _check_times(
@@ -115,6 +126,7 @@ def render(
         if time is not None and frame is not None:
             raise ValidationError("give --time or --frame, not both")
         width_height = _parse_size(size)
+        _check_view_and_rate(azimuth=azimuth, elevation=elevation, rate=rate)
         scene = load_scene(paths, units=units, rate=rate)
         _check_times(scene, output, time=time, frame=frame, start=start, end=end, fps=fps)
         at = scene.time_of(frame) if frame is not None else time

@@ -80,7 +80,7 @@ def solve(
         typer.Option(
             "--refine-offsets",
             help="Rounds of re-fitting the markers' offsets to the solved poses, each "
-            "followed by another IK (0: keep the calibration's).",
+            "followed by another IK (0: keep the calibration's; at most 20).",
         ),
     ] = 1,
     joint_limits: Annotated[

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import socket
 import time
 from pathlib import Path
 from typing import Annotated
@@ -52,6 +53,7 @@ def view(
     with _user_errors():
         if not 0 <= port <= 65535:
             raise ValidationError(f"--port: expected 0..65535, got {port}")
+        _check_host(host)
         from skincap.viz.scene import load_scene
         from skincap.viz.viewer import serve_scene
 
@@ -81,3 +83,17 @@ def view(
         pass
     finally:
         handle.stop()
+
+
+def _check_host(host: str) -> None:
+    """Refuse a --host this machine cannot listen on, before the scene loads: the
+    server's thread would die on it and leave the command waiting forever."""
+    try:
+        family, kind, _, _, address = socket.getaddrinfo(
+            host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE
+        )[0]
+        with socket.socket(family, kind) as probe:
+            probe.bind(address)
+    except (OSError, UnicodeError) as exc:
+        reason = getattr(exc, "strerror", None) or str(exc)
+        raise ValidationError(f"--host: cannot listen on {host!r} ({reason})") from None

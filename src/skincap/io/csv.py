@@ -476,6 +476,10 @@ MAX_POINT_FRAMES = 10_000_000  # ~28 h at 100 Hz; offsets (T + 1,) int64 = 80 MB
 _POINTS_HEADERS = (["frame", "time", "x", "y", "z"], ["frame", "time", "x", "y", "z", "id"])
 
 
+#: Point ids must stay below this: every integer under it is exact in float64 (53 bits).
+_MAX_EXACT_ID = 2.0**53
+
+
 def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
     """Read an un-indexed point cloud in skincap's long CSV format.
 
@@ -523,6 +527,16 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         if (idf != np.round(idf)).any():
             r = int(np.argmax(idf != np.round(idf)))
             raise FormatError(p, f"id {idf[r]!r} is not an integer", line=numbers[r])
+        # past 2**53 the parsed float no longer holds the written integer (two ids would
+        # merge) and past 2**63 it wraps in int64: refused rather than renumbered
+        too_big = np.abs(idf) >= _MAX_EXACT_ID
+        if too_big.any():
+            r = int(np.argmax(too_big))
+            raise FormatError(
+                p,
+                f"id {idf[r]:.17g}: ids must be integers of magnitude below 2**53",
+                line=numbers[r],
+            )
         ids = idf.astype(np.int64)
     meta = {
         "source_format": "points_csv",

@@ -168,3 +168,8 @@ def _check_arrays(path: Path, arrays: Mapping[str, np.ndarray], n_labels: int) -
                 )
     if arrays["faces"].shape[0] == 0:
         raise FormatError(path, "faces: the rig's mesh has no triangles")
+    if sizes["P"] == 0:
+        raise FormatError(path, "marker_weights: the rig has no parts")
+    parts = arrays["marker_parts"]
+    if parts.size and (parts.min() < -1 or parts.max() >= sizes["P"]):
+        raise FormatError(path, f"marker_parts: expected -1 (none) or a part 0..{sizes['P'] - 1}")

@@ -61,6 +61,7 @@ a user writes one for their own set in the same form)::
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -166,12 +167,50 @@ def strip_prefix(label: str) -> str:
     return label.rsplit(":", 1)[-1].strip()
 
 
-def _points(where: str, value: Any) -> list[str]:
+def _points(where: str, value: Any, bad: Any = ValidationError) -> list[str]:
+    """POINTS (one label or a non-empty list of labels and ``@segment`` names) as a list;
+    ``bad`` builds the error (the parser's names the template file)."""
     if isinstance(value, str):
         value = [value]
     if not isinstance(value, list) or not value or not all(isinstance(v, str) for v in value):
-        raise ValidationError(f"{where}: expected a list of marker labels or '@segment' names")
+        raise bad(f"{where}: expected a list of marker labels or '@segment' names")
     return list(value)
+
+
+def _is_number(value: Any) -> bool:
+    """A finite JSON number (not a bool)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_prior(bad: Any, name: str, centre: dict[str, Any]) -> None:
+    """Validate a centre's ``prior`` and a hinge's ``flexion`` (module docstring)."""
+    prior = centre["prior"]
+    where = f"segment {name!r} prior"
+    if "harrington" in prior:
+        if prior["harrington"] not in ("left", "right"):
+            raise bad(f"{where}: 'harrington' must be 'left' or 'right'")
+        for key in ("asis", "psis"):
+            pair = prior.get(key)
+            if not (
+                isinstance(pair, list) and len(pair) == 2 and all(isinstance(m, str) for m in pair)
+            ):
+                raise bad(f"{where}: 'harrington' needs {key!r}: [LEFT, RIGHT] marker labels")
+    else:
+        _points(f"{where} 'from'", prior["from"], bad)
+        if "towards" in prior:
+            _points(f"{where} 'towards'", prior["towards"], bad)
+        if "towards_line" in prior:
+            line = prior["towards_line"]
+            if not (isinstance(line, list) and len(line) == 2):
+                raise bad(f"{where}: 'towards_line' must be [POINTS, POINTS]")
+            for end in line:
+                _points(f"{where} 'towards_line'", end, bad)
+        for key in ("distance", "fraction"):
+            if key in prior and not _is_number(prior[key]):
+                raise bad(f"{where}: {key!r} must be a finite number")
+    if centre["kind"] == "hinge":
+        for point in centre["flexion"]:
+            _points(f"segment {name!r} flexion", point, bad)
 
 
 def _check_axes(bad: Any, name: str, parent: str | None, axes: Any) -> None:
@@ -181,8 +220,8 @@ def _check_axes(bad: Any, name: str, parent: str | None, axes: Any) -> None:
     first, second = axes
     if not (isinstance(first, list) and len(first) == 3 and first[0] in _AXES):
         raise bad(f"segment {name!r}: first axis must be [axis, FROM, TO]")
-    _points(f"segment {name!r} axis", first[1])
-    _points(f"segment {name!r} axis", first[2])
+    _points(f"segment {name!r} axis", first[1], bad)
+    _points(f"segment {name!r} axis", first[2], bad)
     if not (isinstance(second, list) and second and second[0] in _AXES and second[0] != first[0]):
         raise bad(f"segment {name!r}: second axis must name another of x, y, z")
     if len(second) == 2:
@@ -203,6 +242,8 @@ def _parse(data: Any, source: str) -> Template:
 
     if not isinstance(data, dict) or not isinstance(data.get("segments"), list):
         raise bad("expected an object with a 'segments' list")
+    if not data["segments"]:
+        raise bad("'segments' is empty")
     segments: list[SegmentSpec] = []
     names: set[str] = set()
     joints: set[str] = set()
@@ -213,18 +254,32 @@ def _parse(data: Any, source: str) -> Template:
         try:
             name = str(raw["name"])
             joint = str(raw["joint"])
-            markers = [str(m) for m in raw.get("markers", [])]
+            markers = raw.get("markers", [])
             link = raw.get("link", False)
             axes = raw.get("axes", []) if link else raw["axes"]
         except KeyError as exc:
             raise bad(f"segment {k}: missing field {exc.args[0]!r}") from None
         parent = raw.get("parent")
+        if not (isinstance(markers, list) and all(isinstance(m, str) for m in markers)):
+            raise bad(f"segment {name!r}: 'markers' must be a list of marker labels")
+        via = raw.get("via", [])
+        if not (isinstance(via, list) and all(isinstance(v, str) for v in via)):
+            raise bad(f"segment {name!r}: 'via' must be a list of joint names")
+        fixed_joints = raw.get("fixed_joints", [])
+        if not (
+            isinstance(fixed_joints, list)
+            and all(
+                isinstance(f, dict) and isinstance(f.get("name"), str) and _is_number(f.get("at"))
+                for f in fixed_joints
+            )
+        ):
+            raise bad(f'segment {name!r}: \'fixed_joints\' must be a list of {{"name", "at"}}')
         if not isinstance(link, bool):
             raise bad(f"segment {name!r}: 'link' must be true or false")
         stiffness = raw.get("stiffness", LINK_STIFFNESS_M_PER_RAD)
         if link and parent is None:
             raise bad(f"segment {name!r}: the root cannot be a link")
-        if not isinstance(stiffness, (int, float)) or not stiffness > 0:
+        if not _is_number(stiffness) or not stiffness > 0:
             raise bad(
                 f"segment {name!r}: 'stiffness' must be a positive number (metres per radian)"
             )
@@ -265,8 +320,10 @@ def _parse(data: Any, source: str) -> Template:
                 ("towards" in prior or "towards_line" in prior) and "distance" in prior
             ):
                 raise bad(f"segment {name!r}: prior 'along' needs 'towards' and a 'distance'")
-            if centre["kind"] == "hinge" and len(centre.get("flexion", [])) != 3:
+            flexion = centre.get("flexion", [])
+            if centre["kind"] == "hinge" and not (isinstance(flexion, list) and len(flexion) == 3):
                 raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
+            _check_prior(bad, name, centre)
         limits = _parse_limits(bad, name, raw.get("limits"))
         if limits and parent is None:
             raise bad(f"segment {name!r}: the root has no joint to limit")
@@ -281,13 +338,13 @@ def _parse(data: Any, source: str) -> Template:
                 markers=markers,
                 axes=axes,
                 centre=centre,
-                origin=None if origin is None else _points(f"segment {name!r} origin", origin),
+                origin=None if origin is None else _points(f"segment {name!r} origin", origin, bad),
                 parent_joint=raw.get("parent_joint"),
-                via=[str(v) for v in raw.get("via", [])],
-                fixed_joints=list(raw.get("fixed_joints", [])),
+                via=list(via),
+                fixed_joints=list(fixed_joints),
                 end=None
                 if raw.get("end") is None
-                else _points(f"segment {name!r} end", raw["end"]),
+                else _points(f"segment {name!r} end", raw["end"], bad),
                 link=link,
                 stiffness=float(stiffness),
                 limits_deg=limits,

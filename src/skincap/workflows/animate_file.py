@@ -267,6 +267,7 @@ def _animate(
         arrays, rig_labels, settings = read_dense_rig(paths["rig"])
         try:
             subject = DenseRig.from_arrays(arrays, rig_labels, settings)
+            subject.deformer()  # the weights' checks: a bad one is the rig's fault, not the take's
             columns = subject.columns_of(labels)
         except ValidationError as exc:
             raise FormatError(paths["rig"], str(exc)) from None

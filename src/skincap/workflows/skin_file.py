@@ -22,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from skincap.errors import FormatError, OutputExistsError
+from skincap.errors import FormatError, OutputExistsError, ValidationError
 from skincap.io.mesh_animation_files import animation_output_files, write_mesh_animation
 from skincap.workflows.progress import FrameProgress, frame_fractions
 
@@ -128,13 +128,21 @@ def skin_file(
             raise FormatError(motion_path, "no motion frames ('Frames: 0'); nothing to skin")
         if not output.suffix:  # before binding, which can take minutes for a bare mesh
             _check_obj_sequence(mesh, motion.n_frames, output, notify)
-        setup = prepare_skinning(
-            mesh,
-            motion,
-            weights=weights,
-            name_map=map_path,
-            max_influences=max_influences,  # type: ignore[arg-type]
-        )
+        try:
+            setup = prepare_skinning(
+                mesh,
+                motion,
+                weights=weights,
+                name_map=map_path,
+                max_influences=max_influences,  # type: ignore[arg-type]
+            )
+        except ValidationError as exc:
+            # a joint the map names that neither skeleton has, or a pairing that breaks
+            # the hierarchy: the --map file is at fault, not the mesh or the motion
+            text = str(exc)
+            if map_path is None or not text.startswith("name_map: "):
+                raise
+            raise FormatError(map_path, text.removeprefix("name_map: ")) from None
         frames = setup.motion.n_frames
         written = write_skinned(
             setup, output, method=method, force=force, progress=frame_fractions(progress, frames)

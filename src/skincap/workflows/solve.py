@@ -23,6 +23,8 @@ from skincap.types import MarkerSet
 
 #: Extensions ``--markers-out`` writes.
 MARKER_OUTPUTS = (".c3d", ".trc", ".csv")
+#: Most rounds of --refine-offsets taken (each one a full IK over the take).
+MAX_REFINE_ROUNDS = 20
 
 __all__ = [
     "solve_file",
@@ -83,8 +85,11 @@ def _check_solve_options(
         raise ValidationError(
             f"--loss-scale-cm: expected a positive length, got {loss_scale_m * 100:g}"
         )
-    if refine_offsets < 0:
-        raise ValidationError(f"--refine-offsets: expected a count >= 0, got {refine_offsets}")
+    if not 0 <= refine_offsets <= MAX_REFINE_ROUNDS:
+        # each round is another full IK: a billion of them never ends
+        raise ValidationError(
+            f"--refine-offsets: expected a count 0..{MAX_REFINE_ROUNDS}, got {refine_offsets}"
+        )
 
 
 def _check_smooth_hz(smooth_hz: float | None, rate: float) -> None:

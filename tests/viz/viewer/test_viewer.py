@@ -357,6 +357,17 @@ def test_cli_view_bad_inputs_exit_2_with_one_line(tmp_path: Path) -> None:
     assert result.exit_code == 0 and "Example: skincap view" in result.output
 
 
+@pytest.mark.parametrize("host", ["999.1.1.1", "192.0.2.1", "a" * 300])
+def test_cli_view_refuses_a_host_it_cannot_listen_on(tmp_path: Path, host: str) -> None:
+    # an unknown name, an address not on this machine, a name IDNA refuses: the server
+    # thread died on them with a traceback and the command waited forever; checked
+    # before the files are read (here a missing one, so the old code fails, not hangs)
+    result = _cli("view", tmp_path / "missing.c3d", "--no-browser", "--host", host)
+    assert result.exit_code == 2, result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    assert len(lines) == 1 and "--host: cannot listen on" in lines[0], result.output
+
+
 @pytest.mark.slow  # a fresh Python importing the viewer: 21 s on CI
 def test_cli_view_serves_until_interrupted() -> None:
     # a shell's background job (CI run with ``&``) inherits SIGINT ignored: give the child

@@ -338,7 +338,30 @@ def load_document(path: Path) -> GltfDocument:
     version = asset.get("version") if isinstance(asset, dict) else None
     if not isinstance(version, str) or not version.startswith("2"):
         raise FormatError(path, f"asset.version {version!r}: only glTF 2.x is supported")
+    required = doc.get("extensionsRequired", [])
+    if not isinstance(required, list) or not all(isinstance(e, str) for e in required):
+        raise FormatError(path, "extensionsRequired must be a list of extension names")
+    # the spec: a loader refuses a file that requires an extension it does not know;
+    # those about looks alone (materials, textures, lights) leave the geometry readable
+    unknown = [e for e in required if not e.startswith(_EXTENSIONS_BESIDE_GEOMETRY)]
+    if unknown:
+        raise FormatError(
+            path,
+            f"requires the glTF extension(s) {', '.join(unknown)}, which skincap does not "
+            "read (compressed or quantised geometry: export it without them)",
+        )
     return GltfDocument(path, doc, glb_bin)
+
+
+#: Prefixes of glTF extensions a file may require and still be read: none changes
+#: where the vertices, faces, skin or animation come from.
+_EXTENSIONS_BESIDE_GEOMETRY = (
+    "KHR_materials_",
+    "KHR_texture_",
+    "EXT_texture_",
+    "KHR_lights_punctual",
+    "KHR_xmp",
+)
 
 
 def node_trs(

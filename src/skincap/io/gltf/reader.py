@@ -327,6 +327,14 @@ def _build_skin(
     offsets = heads.copy()
     has = parents >= 0
     offsets[has] = heads[has] - heads[parents[has]]
+    det = np.linalg.det(jw[:, :3, :3])  # (J,)
+    if not (det > 0).all():  # a zero or mirroring scale: no rest rotation to take
+        k = int(np.flatnonzero(~(det > 0))[0])
+        raise g.fail(
+            f"{where}: joint node {nodes_sorted[k]} ({names[k]!r}) has a zero or negative "
+            f"scale in its world transform (determinant {det[k]:.3g}); its rest rotation "
+            "is undefined"
+        )
     rot_world = Rotation.from_matrix(jw[:, :3, :3])  # scale removed by projection
     rel = rot_world
     if has.any():

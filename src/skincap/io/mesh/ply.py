@@ -139,6 +139,11 @@ def _ply_binary(
             n = int(np.frombuffer(data, dtype=endian + t, count=1, offset=q)[0])
             if n < 0:
                 raise FormatError(path, f"element '{el.name}': negative list length", offset=q)
+            if q + np.dtype(t).itemsize + n * np.dtype(item).itemsize > len(data):
+                # before a dtype of n items is built: a lying 4e9 would not fit a C int
+                raise FormatError(
+                    path, f"element '{el.name}': bad or truncated list of {n}", offset=q
+                )
             first_counts.append(n)
             fields.append((f"c{i}", endian + t))
             fields.append((f"p{i}", (endian + item, (n,))))
