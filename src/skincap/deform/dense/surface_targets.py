@@ -42,6 +42,9 @@ PHONG_SHAPE = 0.5
 #: Least cosine between a vertex normal and the marker surface's normal at its target.
 MIN_NORMAL_COSINE = 0.5
 
+#: Template vertices nearest a marker triangle whose normals vote on its orientation.
+ORIENTATION_VOTES = 8
+
 #: Nearest markers whose triangles are a point's candidates for its closest point.
 CANDIDATE_MARKERS = 4
 
@@ -64,8 +67,9 @@ def marker_surface_normals(
     """(M, 3) unit outward normals at the markers, from a possibly unoriented triangulation.
 
     A marker surface built from a cloud need not be consistently oriented, so each
-    triangle is turned to agree with the outward normal of the nearest of
-    ``reference_points`` (the template placed over the markers) before the area-weighted
+    triangle is turned to agree with the summed outward normals of the
+    :data:`ORIENTATION_VOTES` nearest of ``reference_points`` (the template placed over
+    the markers; a vote, so a stray normal does not turn it) before the area-weighted
     average at each marker.
 
     Parameters
@@ -80,8 +84,10 @@ def marker_surface_normals(
     """
     fn = _face_normals(markers, faces)
     centre = markers[faces].mean(axis=1)
-    _, nearest = cKDTree(reference_points).query(centre)
-    flip = np.einsum("fx,fx->f", fn, reference_normals[nearest]) < 0
+    k = min(ORIENTATION_VOTES, reference_points.shape[0])
+    _, nearest = cKDTree(reference_points).query(centre, k=k)
+    vote = reference_normals[np.asarray(nearest).reshape(centre.shape[0], k)].sum(axis=1)
+    flip = np.einsum("fx,fx->f", fn, vote) < 0
     fn[flip] *= -1.0
     normals = np.zeros_like(markers)
     for corner in range(3):
