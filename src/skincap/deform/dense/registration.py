@@ -106,6 +106,10 @@ class RegistrationSettings:
     surface_weight: float = 1.0
     #: Vertices farther than this from the marker surface are not pulled to it, metres.
     surface_max_distance: float = 0.03
+    #: First stage of ``smoothness_schedule`` (0-based) with the reverse term: the stiff
+    #: stages place the template first, so that its closest points on the marker
+    #: surface are the right ones before they pull.
+    surface_first_stage: int = 2
 
     def __post_init__(self) -> None:
         for name in ("data_weight", "landmark_weight", "damping", "surface_weight"):
@@ -123,6 +127,10 @@ class RegistrationSettings:
             )
         if int(self.nodes) < 1:
             raise ValidationError(f"nodes: expected >= 1, got {self.nodes!r}")
+        if int(self.surface_first_stage) < 0:
+            raise ValidationError(
+                f"surface_first_stage: expected >= 0, got {self.surface_first_stage!r}"
+            )
         if int(self.fit_iterations) < 0:
             raise ValidationError(f"fit_iterations: expected >= 0, got {self.fit_iterations!r}")
         for name in ("tolerance", "marker_radius", "surface_max_distance"):
@@ -642,7 +650,7 @@ def register_mesh(
             system, x, m[seen], lm_rows, lm_targets,
             smoothness=smoothness,
             landmark=settings.landmark_weight * smoothness / schedule[0],
-            settings=settings, surface=surface,
+            settings=settings, surface=surface if k >= settings.surface_first_stage else None,
         )  # fmt: skip
         iterations += ran
 

@@ -15,7 +15,9 @@ tessellation (Boubekeur & Alexa 2008) over the flat closest point, with shape fa
 circle of radius r through the corners this lands on the circle to second order in
 the chord's angle (a flat chord misses it by ``r θ² / 2``; α = 1/2 adds that back).
 
-A vertex gets no target (weight 0) where the marker surface does not speak for it: its
+Triangles with an edge over :data:`LONG_EDGE_RATIO` times the median edge bridge a gap
+(arm to torso, leg to leg) and are dropped. A vertex gets no target (weight 0) where
+the marker surface does not speak for it: its
 closest point lies on the surface's border (hands, feet and the top of the head
 beyond the last markers), it is farther than ``max_distance`` from it, or its normal
 disagrees with the marker surface's there (the inside of an arm facing the torso).
@@ -44,6 +46,13 @@ MIN_NORMAL_COSINE = 0.5
 
 #: Template vertices nearest a marker triangle whose normals vote on its orientation.
 ORIENTATION_VOTES = 8
+
+#: Least cosine between two corner normals of the marker triangle under a vertex.
+MIN_CORNER_COSINE = 0.5
+
+#: Marker triangles with an edge longer than this many times the median edge are
+#: dropped (gap-bridging triangles).
+LONG_EDGE_RATIO = 2.0
 
 #: Nearest markers whose triangles are a point's candidates for its closest point.
 CANDIDATE_MARKERS = 4
@@ -101,7 +110,9 @@ def _on_border(faces: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndar
     e = np.sort(np.concatenate([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]]), axis=1)
     key = e[:, 0] * (faces.max() + 1) + e[:, 1]
     uniq, count = np.unique(key, return_counts=True)
-    border_edge = (count == 1)[np.searchsorted(uniq, key)].reshape(3, -1).T  # (F, 3) opposite corner c
+    border_edge = (
+        (count == 1)[np.searchsorted(uniq, key)].reshape(3, -1).T
+    )  # (F, 3) opposite corner c
     border_vertex = np.zeros(int(faces.max()) + 1, dtype=bool)
     border_vertex[e[(count == 1)[np.searchsorted(uniq, key)]].ravel()] = True
     zero = bary <= 1e-9  # (K, 3): on the edge opposite each zero corner
@@ -196,6 +207,10 @@ def marker_surface_targets(
     f = f[np.isfinite(m[f]).all(axis=(1, 2))]
     if f.shape[0] == 0 or p.shape[0] == 0:
         return targets, valid
+    # a triangle much longer than its neighbours bridges a gap (arm to torso, leg to
+    # leg) rather than covering skin: it is dropped, leaving a hole (a border)
+    edge = np.linalg.norm(m[f] - m[np.roll(f, 1, axis=1)], axis=2)  # (G, 3)
+    f = f[edge.max(axis=1) <= LONG_EDGE_RATIO * np.median(edge)]
     normals = marker_surface_normals(m, f, p, point_normals)
     dist, face, bary = _closest_on_surface_near(np.where(np.isfinite(m), m, 0.0), f, p)
     corners, corner_normals = m[f[face]], normals[f[face]]  # (V, 3, 3)
@@ -207,6 +222,10 @@ def marker_surface_targets(
     normal = np.einsum("vc,vcx->vx", bary, corner_normals)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     agree = np.einsum("vx,vx->v", normal, point_normals) >= MIN_NORMAL_COSINE
-    valid = (dist <= max_distance) & agree & ~_on_border(f, face, bary)
+    # corners whose normals differ much: markers too sparse for the curvature, where
+    # even the smoothed triangle passes under the skin (a thin limb's few markers)
+    spread = np.einsum("vcx,vcx->vc", corner_normals, np.roll(corner_normals, 1, axis=1))
+    gentle = spread.min(axis=1) >= MIN_CORNER_COSINE
+    valid = (dist <= max_distance) & agree & gentle & ~_on_border(f, face, bary)
     targets[valid] = (smooth - marker_radius * normal)[valid]
     return targets, valid
