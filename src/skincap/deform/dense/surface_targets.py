@@ -29,7 +29,6 @@ triangles that use them.
 from __future__ import annotations
 
 import numpy as np
-
 from scipy.spatial import cKDTree
 
 # the exact, vectorised point-triangle closest point (Ericson 5.1.5)
