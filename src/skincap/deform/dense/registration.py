@@ -12,6 +12,11 @@ vertex is ``T_i [v_i; 1]``. The transforms minimise
 - smoothness (``E_s``): the difference of the transforms of the two ends of every mesh
   edge, so that the template keeps its shape where no marker pulls;
 - landmarks (``E_l``): a marker's chosen vertex goes to the marker.
+- with the marker surface (``marker_faces``), from
+  :attr:`RegistrationSettings.surface_first_stage` on: every vertex to its closest point
+  on the Phong-smoothed marker surface (:mod:`skincap.deform.dense.surface_targets`),
+  where that surface covers it -- the reverse of ``E_d``, so that the template does not
+  bulge or sag between sparse markers.
 
 The schedule is the paper's first phase, then Allen et al.'s annealing: first
 smoothness and landmarks only (the model is placed and posed globally: one linear
