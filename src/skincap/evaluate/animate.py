@@ -596,7 +596,7 @@ def _registered_template_row(
     t0, cpu0 = time.perf_counter(), time.process_time()
     reg = register_mesh(
         template.vertices, template.faces, x[0], labels, landmarks=landmarks,
-        settings=RegistrationSettings(marker_radius=marker_radius),
+        marker_faces=surface_faces, settings=RegistrationSettings(marker_radius=marker_radius),
     )  # fmt: skip
     registration = {
         "template_vertices": int(template.vertices.shape[0]),

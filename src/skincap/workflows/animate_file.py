@@ -397,7 +397,7 @@ def _build_rig(
     vertices = mesh.vertices
     if register:
         vertices, build["registration"] = _register(
-            mesh, reference, labels, paths, marker_radius_mm, progress
+            mesh, reference, labels, paths, marker_radius_mm, progress, surf.faces
         )
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
     if build["marker_to_mesh_m"]["mean"] > 0.05 and not register:
@@ -447,8 +447,10 @@ def _register(
     paths: dict[str, Path | None],
     marker_radius_mm: float,
     progress: Progress | None,
+    marker_faces: np.ndarray,
 ) -> tuple[np.ndarray, dict[str, Any]]:
-    """Fit the mesh to the reference pose (§5.1): registered vertices and the figures."""
+    """Fit the mesh to the reference pose (§5.1) and the marker surface ``marker_faces``
+    (G, 3): registered vertices and the figures."""
     from skincap.deform.dense.registration import RegistrationSettings, register_mesh
 
     marks = None
@@ -457,6 +459,7 @@ def _register(
     try:
         result = register_mesh(
             mesh.vertices, mesh.faces, reference, labels, landmarks=marks,
+            marker_faces=marker_faces,
             settings=RegistrationSettings(marker_radius=marker_radius_mm / 1000.0),
             progress=_stage(progress, "registration"),
         )  # fmt: skip

@@ -327,3 +327,46 @@ def test_a_procedural_body_registered_to_another_ones_dense_markers() -> None:
     assert errors["surface_to_true_skin_mean_m"] < 6.5e-3
     assert errors["true_skin_to_surface_p95_m"] < 0.3 * before["true_skin_to_surface_p95_m"]
     assert errors["targets"]["markers_to_surface_mean_m"]["met"] is True
+
+
+@pytest.mark.slow
+def test_the_marker_surface_flattens_a_bulge_between_sparse_markers() -> None:
+    """A template with a 15 mm bump where no marker lies, markers on the plain sphere:
+    the markers alone leave the bump (the stiffness keeps the template's shape between
+    them); pulled to the marker surface too (``marker_faces``), it is flattened."""
+    from scipy.spatial import ConvexHull
+
+    v, f = _sphere(20, 36, radius=0.1)
+    k = np.arange(60) + 0.5  # 60 markers evenly on the sphere, ~4.5 cm apart
+    polar, azimuth = np.arccos(1 - 2 * k / 60), np.pi * (1 + 5**0.5) * k
+    markers = 0.1 * np.stack(
+        [np.sin(polar) * np.cos(azimuth), np.cos(polar), np.sin(polar) * np.sin(azimuth)], 1
+    )
+    hull = ConvexHull(markers).simplices.astype(np.int64)
+    centre = markers[hull[7]].mean(axis=0)
+    centre /= np.linalg.norm(centre)  # the bump sits mid-triangle, away from its markers
+    angle = np.arccos(np.clip(v @ centre / 0.1, -1, 1))
+    bump = 0.015 * np.exp(-((angle / 0.2) ** 2))
+    template = v * (1 + bump / 0.1)[:, None]
+    labels = _labels(60)
+    radial = {}
+    for name, faces in (("markers", None), ("surface", hull)):
+        reg = register_mesh(
+            template, f, markers, labels, landmarks={}, marker_faces=faces,
+            settings=RegistrationSettings(nodes=300),
+        )  # fmt: skip
+        radial[name] = np.linalg.norm(reg.vertices, axis=1) - 0.1
+        assert np.nanmean(reg.marker_distance) < 5e-4
+    top = angle < 0.1
+    assert radial["markers"][top].mean() > 5e-3  # the bump stays
+    assert np.abs(radial["surface"][top]).mean() < 0.3 * radial["markers"][top].mean()
+    assert np.abs(radial["surface"][~top]).mean() < 1e-3  # and the rest stays on the sphere
+
+
+def test_bad_marker_faces_are_refused() -> None:
+    v, f = _sphere()
+    markers = _surface_points(v, f, 40)
+    with pytest.raises(ValidationError, match="marker_faces"):
+        register_mesh(v, f, markers, _labels(40), landmarks={}, marker_faces=[[0, 1, 40]])
+    with pytest.raises(ValidationError, match="marker_faces"):
+        register_mesh(v, f, markers, _labels(40), landmarks={}, marker_faces=[[0.0, 1.0, 2.0]])

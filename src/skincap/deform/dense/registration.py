@@ -12,6 +12,11 @@ vertex is ``T_i [v_i; 1]``. The transforms minimise
 - smoothness (``E_s``): the difference of the transforms of the two ends of every mesh
   edge, so that the template keeps its shape where no marker pulls;
 - landmarks (``E_l``): a marker's chosen vertex goes to the marker.
+- with the marker surface (``marker_faces``), from
+  :attr:`RegistrationSettings.surface_first_stage` on: every vertex to its closest point
+  on the Phong-smoothed marker surface (:mod:`skincap.deform.dense.surface_targets`),
+  where that surface covers it -- the reverse of ``E_d``, so that the template does not
+  bulge or sag between sparse markers.
 
 The schedule is the paper's first phase, then Allen et al.'s annealing: first
 smoothness and landmarks only (the model is placed and posed globally: one linear
@@ -50,6 +55,7 @@ from scipy.spatial import cKDTree
 
 from skincap._arrays import Progress
 from skincap.deform.dense.landmarks import automatic_landmarks
+from skincap.deform.dense.surface_targets import marker_surface_targets
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.geometry.raycast import closest_points_on_mesh
 
@@ -99,9 +105,19 @@ class RegistrationSettings:
     #: Radius of the markers, metres: the surface is fitted this far inside each marker
     #: (along the surface normal at its closest point); 0 fits the marker centres.
     marker_radius: float = 0.0
+    #: Weight of the reverse data term, every template vertex to the smoothed marker
+    #: surface (when ``marker_faces`` are given): summed over the vertices it weighs as
+    #: much as the markers' term (each vertex ``surface_weight * M / V``).
+    surface_weight: float = 1.0
+    #: Vertices farther than this from the marker surface are not pulled to it, metres.
+    surface_max_distance: float = 0.03
+    #: First stage of ``smoothness_schedule`` (0-based) with the reverse term: the stiff
+    #: stages place the template first, so that its closest points on the marker
+    #: surface are the right ones before they pull.
+    surface_first_stage: int = 2
 
     def __post_init__(self) -> None:
-        for name in ("data_weight", "landmark_weight", "damping"):
+        for name in ("data_weight", "landmark_weight", "damping", "surface_weight"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValidationError(f"{name}: expected a finite weight >= 0, got {value!r}")
@@ -116,9 +132,13 @@ class RegistrationSettings:
             )
         if int(self.nodes) < 1:
             raise ValidationError(f"nodes: expected >= 1, got {self.nodes!r}")
+        if int(self.surface_first_stage) < 0:
+            raise ValidationError(
+                f"surface_first_stage: expected >= 0, got {self.surface_first_stage!r}"
+            )
         if int(self.fit_iterations) < 0:
             raise ValidationError(f"fit_iterations: expected >= 0, got {self.fit_iterations!r}")
-        for name in ("tolerance", "marker_radius"):
+        for name in ("tolerance", "marker_radius", "surface_max_distance"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValidationError(
@@ -224,6 +244,22 @@ def check_landmarks(landmarks: object, labels: list[str], n_vertices: int) -> di
             )
         out[str(label)] = int(vertex)
     return out
+
+
+def _check_marker_faces(faces: object, markers: np.ndarray) -> _MarkerSurface | None:
+    """The marker surface for the reverse term, or None; :class:`ValidationError` if malformed."""
+    if faces is None:
+        return None
+    f = np.asarray(faces)
+    if f.size == 0:
+        return None
+    if f.ndim != 2 or f.shape[1] != 3 or not np.issubdtype(f.dtype, np.integer):
+        raise ValidationError(
+            f"marker_faces: expected an integer array of shape (G, 3), got {f.shape} {f.dtype}"
+        )
+    if f.min() < 0 or f.max() >= markers.shape[0]:
+        raise ValidationError(f"marker_faces: marker indices must be in 0..{markers.shape[0] - 1}")
+    return _MarkerSurface(markers=markers, faces=f.astype(np.int64))
 
 
 # ---------------------------------------------------------------- linear system
@@ -442,6 +478,42 @@ def _data_targets(
     return face, bary, markers - marker_radius * n_at
 
 
+@dataclass(frozen=True)
+class _MarkerSurface:
+    """The markers' triangles for the reverse data term: all marker rows (M, 3), faces (G, 3)."""
+
+    markers: np.ndarray
+    faces: np.ndarray
+
+
+def _surface_rows(
+    system: _AffineSystem,
+    current: np.ndarray,
+    surface: _MarkerSurface | None,
+    n_markers: int,
+    settings: RegistrationSettings,
+) -> tuple[sp.csr_matrix, np.ndarray]:
+    """Weighted rows (K, 4n) and targets (K, 3) pulling vertices to the marker surface.
+
+    The rows carry ``sqrt(surface_weight * M / V)`` so that the term, summed over all V
+    vertices, weighs like the M markers' term whatever the template's resolution.
+    """
+    if surface is None or settings.surface_weight <= 0:
+        return sp.csr_matrix((0, 4 * system.n_nodes)), np.zeros((0, 3))
+    targets, valid = marker_surface_targets(
+        current,
+        _vertex_normals(current, system.faces),
+        surface.markers,
+        surface.faces,
+        marker_radius=settings.marker_radius,
+        max_distance=settings.surface_max_distance,
+    )
+    idx = np.nonzero(valid)[0]
+    scale = np.sqrt(settings.surface_weight * n_markers / system.n_vertices)
+    rows = system.point_rows(idx[:, None], np.full((idx.size, 1), scale))
+    return rows, scale * targets[idx]
+
+
 def _fit_stage(
     system: _AffineSystem,
     x: np.ndarray,
@@ -452,12 +524,14 @@ def _fit_stage(
     smoothness: float,
     landmark: float,
     settings: RegistrationSettings,
+    surface: _MarkerSurface | None = None,
 ) -> tuple[np.ndarray, int]:
     """One stage of the schedule: closest-point iterations at fixed weights.
 
-    Each iteration re-finds the markers' closest points on the current surface and
-    solves the normal equations of all three terms (plus damping toward the current
-    transforms). Returns X and the iterations run.
+    Each iteration re-finds the markers' closest points on the current surface (and,
+    with a marker surface, the vertices' targets on it) and solves the normal
+    equations of all the terms (plus damping toward the current transforms). Returns X
+    and the iterations run.
     """
     s = settings
     f = system.faces
@@ -469,10 +543,19 @@ def _fit_stage(
         current = system.deformed(x)
         face, bary, target = _data_targets(current, f, markers, s.marker_radius)
         data_rows = system.point_rows(f[face], bary)
+        pull_rows, pull_targets = _surface_rows(system, current, surface, markers.shape[0], s)
         normal = (
-            base + s.data_weight * (data_rows.T @ data_rows) + damping * system.identity
+            base
+            + s.data_weight * (data_rows.T @ data_rows)
+            + pull_rows.T @ pull_rows
+            + damping * system.identity
         ).tocsr()
-        rhs = base_rhs + s.data_weight * (data_rows.T @ target) + damping * x
+        rhs = (
+            base_rhs
+            + s.data_weight * (data_rows.T @ target)
+            + pull_rows.T @ pull_targets
+            + damping * x
+        )
         x_new = _solve_normal_equations(normal, rhs)
         moved = float(np.abs(system.deformed(x_new) - current).max())
         x = x_new
@@ -490,6 +573,7 @@ def register_mesh(
     labels: list[str],
     *,
     landmarks: dict[str, int] | None = None,
+    marker_faces: np.ndarray | None = None,
     settings: RegistrationSettings = RegistrationSettings(),
     progress: Progress | None = None,
 ) -> Registration:
@@ -509,6 +593,12 @@ def register_mesh(
     landmarks : dict of str to int, optional
         Marker label -> template vertex that the marker sits on. Default: found by
         :func:`automatic_landmarks`. Landmarks on unseen markers are dropped.
+    marker_faces : (G, 3) int, optional
+        Triangles over the marker rows (the marker surface,
+        :func:`skincap.cleanup.surface.build_marker_surface`). Given, every template
+        vertex is also pulled to the smoothed marker surface where it covers the body
+        (:mod:`skincap.deform.dense.surface_targets`), so the template does not bulge
+        or sag between sparse markers. Triangles using unseen markers are dropped.
     settings : RegistrationSettings
         Weights, smoothness schedule and iterations.
     progress : callable(fraction, message), optional
@@ -532,6 +622,7 @@ def register_mesh(
             f"settings: expected RegistrationSettings, got {type(settings).__name__}"
         )
     seen = np.isfinite(m).all(axis=1)
+    surface = _check_marker_faces(marker_faces, m)
 
     def report(fraction: float, message: str) -> None:
         if progress is not None:
@@ -564,7 +655,7 @@ def register_mesh(
             system, x, m[seen], lm_rows, lm_targets,
             smoothness=smoothness,
             landmark=settings.landmark_weight * smoothness / schedule[0],
-            settings=settings,
+            settings=settings, surface=surface if k >= settings.surface_first_stage else None,
         )  # fmt: skip
         iterations += ran
 

@@ -1,0 +1,230 @@
+"""Where the marker surface says each template vertex should be (registration's second data term).
+
+Allen et al.'s data term pulls each *marker* to the template surface. Where markers
+are sparse (about 5 cm apart on the limbs and the head of the dense layout) the
+template is free between them, and a template fatter than the subject bulges out
+between the markers it was pulled onto. This module gives the reverse term its
+targets: each template vertex's closest point on the marker surface (the triangles
+over the markers, :mod:`skincap.cleanup.surface` builds them), made smooth and moved
+one marker radius inward.
+
+The marker surface's flat triangles cut under a curved body by the sagitta (about 8 mm
+across a 5 cm chord on a 4 cm forearm), so the target is the point of Phong
+tessellation (Boubekeur & Alexa 2008) over the flat closest point, with shape factor
+1/2: each corner's tangent-plane projection, blended by the barycentric weights. On a
+circle of radius r through the corners this lands on the circle to second order in
+the chord's angle (a flat chord misses it by ``r θ² / 2``; α = 1/2 adds that back).
+
+Triangles with an edge over :data:`LONG_EDGE_RATIO` times the median edge bridge a gap
+(arm to torso, leg to leg) and are dropped. A vertex gets no target (weight 0) where
+the marker surface does not speak for it: its
+closest point lies on the surface's border (hands, feet and the top of the head
+beyond the last markers), it is farther than ``max_distance`` from it, or its normal
+disagrees with the marker surface's there (the inside of an arm facing the torso).
+
+Conventions: metres; ``marker_faces`` index the marker rows; NaN markers drop the
+triangles that use them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+# the exact, vectorised point-triangle closest point (Ericson 5.1.5)
+from skincap.geometry.raycast import _closest_on_triangles
+
+__all__ = ["PHONG_SHAPE", "marker_surface_normals", "marker_surface_targets"]
+
+#: Phong tessellation shape factor α: 1/2 puts a triangle's midpoints back on a circle
+#: through its corners (second order), 0 is the flat triangle.
+PHONG_SHAPE = 0.5
+
+#: Least cosine between a vertex normal and the marker surface's normal at its target.
+MIN_NORMAL_COSINE = 0.5
+
+#: Template vertices nearest a marker triangle whose normals vote on its orientation.
+ORIENTATION_VOTES = 8
+
+#: Least cosine between two corner normals of the marker triangle under a vertex.
+MIN_CORNER_COSINE = 0.5
+
+#: Marker triangles with an edge longer than this many times the median edge are
+#: dropped (gap-bridging triangles).
+LONG_EDGE_RATIO = 2.0
+
+#: Nearest markers whose triangles are a point's candidates for its closest point.
+CANDIDATE_MARKERS = 4
+
+#: Query points per block (bounds the candidate pairs' memory: ~25 per point).
+_QUERY_BLOCK = 20000
+
+
+def _face_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F, 3) area-weighted (unnormalised) triangle normals."""
+    p = points[faces]
+    return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+
+
+def marker_surface_normals(
+    markers: np.ndarray,
+    faces: np.ndarray,
+    reference_points: np.ndarray,
+    reference_normals: np.ndarray,
+) -> np.ndarray:
+    """(M, 3) unit outward normals at the markers, from a possibly unoriented triangulation.
+
+    A marker surface built from a cloud need not be consistently oriented, so each
+    triangle is turned to agree with the summed outward normals of the
+    :data:`ORIENTATION_VOTES` nearest of ``reference_points`` (the template placed over
+    the markers; a vote, so a stray normal does not turn it) before the area-weighted
+    average at each marker.
+
+    Parameters
+    ----------
+    markers : (M, 3) float, metres (rows unused by ``faces`` may be NaN)
+    faces : (F, 3) int, triangles over the marker rows, all finite
+    reference_points : (V, 3) float, metres; reference_normals : (V, 3) unit outward normals
+
+    Returns
+    -------
+    (M, 3) float64; zero for a marker in no triangle.
+    """
+    fn = _face_normals(markers, faces)
+    centre = markers[faces].mean(axis=1)
+    k = min(ORIENTATION_VOTES, reference_points.shape[0])
+    _, nearest = cKDTree(reference_points).query(centre, k=k)
+    vote = reference_normals[np.asarray(nearest).reshape(centre.shape[0], k)].sum(axis=1)
+    flip = np.einsum("fx,fx->f", fn, vote) < 0
+    fn[flip] *= -1.0
+    normals = np.zeros_like(markers)
+    for corner in range(3):
+        np.add.at(normals, faces[:, corner], fn)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
+
+
+def _on_border(faces: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
+    """(K,) bool: the closest point lies on a border edge or border corner of the surface."""
+    e = np.sort(np.concatenate([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]]), axis=1)
+    key = e[:, 0] * (faces.max() + 1) + e[:, 1]
+    uniq, count = np.unique(key, return_counts=True)
+    border_edge = (
+        (count == 1)[np.searchsorted(uniq, key)].reshape(3, -1).T
+    )  # (F, 3) opposite corner c
+    border_vertex = np.zeros(int(faces.max()) + 1, dtype=bool)
+    border_vertex[e[(count == 1)[np.searchsorted(uniq, key)]].ravel()] = True
+    zero = bary <= 1e-9  # (K, 3): on the edge opposite each zero corner
+    on_edge = (zero & border_edge[face]).any(axis=1)
+    at_corner = (zero.sum(axis=1) == 2) & border_vertex[faces[face, np.argmax(bary, axis=1)]]
+    return on_edge | at_corner
+
+
+def _closest_on_surface_near(
+    markers: np.ndarray, faces: np.ndarray, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point of each point among the triangles of its nearest markers.
+
+    Not :func:`skincap.geometry.raycast.closest_points_on_mesh`: its exact candidate
+    radius (nearest vertex + longest edge) holds hundreds of the marker surface's
+    long triangles per point (4 CPU s per call on a 20k-vertex template, every
+    iteration). The point nearest a surface lies, but for a surface folded back on
+    itself, on a triangle of one of its few nearest vertices.
+
+    Returns distance (K,), face (K,), barycentric weights (K, 3).
+    """
+    used = np.unique(faces)
+    k = min(CANDIDATE_MARKERS, used.size)
+    # marker -> incident faces as a padded table (pad: -1)
+    order = np.argsort(faces.ravel(), kind="stable")
+    owner = faces.ravel()[order]
+    start = np.searchsorted(owner, np.arange(markers.shape[0]))
+    count = np.bincount(owner, minlength=markers.shape[0])
+    slot = np.arange(order.size) - start[owner]
+    table = np.full((markers.shape[0], int(count.max())), -1, dtype=np.int64)
+    table[owner, slot] = order // 3
+    dist = np.empty(points.shape[0])
+    face = np.empty(points.shape[0], dtype=np.int64)
+    bary = np.empty((points.shape[0], 3))
+    tree = cKDTree(markers[used])
+    for s0 in range(0, points.shape[0], _QUERY_BLOCK):
+        q = points[s0 : s0 + _QUERY_BLOCK]
+        _, near = tree.query(q, k=k)
+        cand = table[used[np.asarray(near).reshape(q.shape[0], k)]].reshape(q.shape[0], -1)
+        row, col = np.nonzero(cand >= 0)
+        fi = cand[row, col]
+        corners = markers[faces[fi]]  # (P, 3, 3)
+        bc = _closest_on_triangles(q[row], corners[:, 0], corners[:, 1], corners[:, 2])
+        d = np.linalg.norm(np.einsum("pc,pcx->px", bc, corners) - q[row], axis=1)
+        o = np.lexsort((d, row))  # best candidate of each point first
+        first = o[np.r_[True, row[o][1:] != row[o][:-1]]]
+        dist[s0 + row[first]] = d[first]
+        face[s0 + row[first]] = fi[first]
+        bary[s0 + row[first]] = bc[first]
+    return dist, face, bary
+
+
+def marker_surface_targets(
+    points: np.ndarray,
+    point_normals: np.ndarray,
+    markers: np.ndarray,
+    faces: np.ndarray,
+    *,
+    marker_radius: float,
+    max_distance: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's target on the smoothed marker surface, and whether it has one.
+
+    Parameters
+    ----------
+    points : (V, 3) float, metres
+        The template's vertices where they are now.
+    point_normals : (V, 3) float
+        Their unit outward normals.
+    markers : (M, 3) float, metres
+        Marker centres; NaN rows drop every triangle using them.
+    faces : (F, 3) int
+        Marker-surface triangles over the marker rows.
+    marker_radius : float, metres
+        The skin lies this far inside the marker centres (along the surface normal).
+    max_distance : float, metres
+        Points farther than this from the marker surface get no target.
+
+    Returns
+    -------
+    targets : (V, 3) float64, metres
+        The Phong-smoothed closest point less ``marker_radius`` along the normal there
+        (the point itself where it has no target).
+    valid : (V,) bool
+        False where the marker surface does not speak for the point (see module doc).
+    """
+    p = np.asarray(points, dtype=np.float64)
+    targets = p.copy()
+    valid = np.zeros(p.shape[0], dtype=bool)
+    m = np.asarray(markers, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    f = f[np.isfinite(m[f]).all(axis=(1, 2))]
+    if f.shape[0] == 0 or p.shape[0] == 0:
+        return targets, valid
+    # a triangle much longer than its neighbours bridges a gap (arm to torso, leg to
+    # leg) rather than covering skin: it is dropped, leaving a hole (a border)
+    edge = np.linalg.norm(m[f] - m[np.roll(f, 1, axis=1)], axis=2)  # (G, 3)
+    f = f[edge.max(axis=1) <= LONG_EDGE_RATIO * np.median(edge)]
+    normals = marker_surface_normals(m, f, p, point_normals)
+    dist, face, bary = _closest_on_surface_near(np.where(np.isfinite(m), m, 0.0), f, p)
+    corners, corner_normals = m[f[face]], normals[f[face]]  # (V, 3, 3)
+    flat = np.einsum("vc,vcx->vx", bary, corners)
+    # Phong tessellation: the flat point projected on each corner's tangent plane, blended
+    height = np.einsum("vcx,vcx->vc", flat[:, None, :] - corners, corner_normals)  # (V, 3)
+    projected = flat[:, None, :] - height[:, :, None] * corner_normals
+    smooth = (1.0 - PHONG_SHAPE) * flat + PHONG_SHAPE * np.einsum("vc,vcx->vx", bary, projected)
+    normal = np.einsum("vc,vcx->vx", bary, corner_normals)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    agree = np.einsum("vx,vx->v", normal, point_normals) >= MIN_NORMAL_COSINE
+    # corners whose normals differ much: markers too sparse for the curvature, where
+    # even the smoothed triangle passes under the skin (a thin limb's few markers)
+    spread = np.einsum("vcx,vcx->vc", corner_normals, np.roll(corner_normals, 1, axis=1))
+    gentle = spread.min(axis=1) >= MIN_CORNER_COSINE
+    valid = (dist <= max_distance) & agree & gentle & ~_on_border(f, face, bary)
+    targets[valid] = (smooth - marker_radius * normal)[valid]
+    return targets, valid
