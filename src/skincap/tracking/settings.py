@@ -75,6 +75,12 @@ class TrackSettings:
     """Rounds of the zipper: a run of invented inner markers is searched from its
     measured ends inward, one marker per side and round."""
 
+    swing_gate: float = 0.25
+    """The steady traces are matched a second time at their accelerated prediction
+    (V plus the last change of velocity) when some trace's acceleration moves V by
+    more than this many γ; the matching that finds more traces is kept. A swinging
+    rope's markers move on curves: constant velocity misses them by several γ."""
+
     settle: float = 0.5
     """Share of the way a lone invented inner marker moves from the curve to its rest
     spacings from both neighbours (0: stays on the curve, which cuts a sharp bend)."""

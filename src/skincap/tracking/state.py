@@ -120,6 +120,7 @@ class StepParams(NamedTuple):
     rigid_range: float
     rigid_partners: int
     zipper_rounds: int
+    swing_gate: float
     settle: float
     median_spacing: float
 
