@@ -513,3 +513,33 @@ def test_a_bent_link_is_taken_near_its_prediction_and_refused_beyond(steps) -> N
     # a chord more than γ beyond the rest spacing is refused even at the prediction
     far = [0.06, 0.0, 0.15]  # chords 16.2 cm
     assert not taken(far, far)
+
+
+def test_a_long_missing_inner_trace_takes_the_only_point_on_its_shell(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing = 0.1
+    rope = np.zeros((6, 3))
+    rope[:, 0] = spacing * np.arange(6)
+    # markers 4 and 5 hidden while the rope folded back at marker 3 by 130° (a rope end
+    # dragged along the floor); marker 4 is back, 18 cm from where the link put it
+    turn = np.radians(130.0)
+    folded = rope[3] + spacing * np.array([np.cos(turn), np.sin(turn), 0.0])
+    other = rope[3] + [0.0, -spacing, 0.0]  # a second free point on the shell
+
+    def reacquired(m: int, missing: int, *extra: np.ndarray) -> bool:
+        frame1 = np.concatenate([rope[:4], [folded], *[[e] for e in extra]])
+        state, p = blank_state(_cloud(rope, frame1), [spacing] * (m - 1), gamma=0.03)
+        state.positions[0] = rope[:m]
+        state.temp_count[4:] = missing
+        state.known[:4] = True
+        state.taken[:4] = 6 + np.arange(4)
+        state.cur[:4] = rope[:4]
+        found = bool(steps.reacquire_on_shell(state, 1, p))
+        assert found == bool(state.known[4])
+        if found:
+            np.testing.assert_allclose(state.cur[4], folded)
+        return found
+
+    assert reacquired(6, 10)  # missing lone_after frames: the only point on the shell
+    assert not reacquired(6, 9)  # missing fewer: only within 60° of the previous link
+    assert not reacquired(6, 10, other)  # two points on the shell: neither
+    assert not reacquired(5, 10)  # marker 4 is the rope's end (held among hand markers)

@@ -81,6 +81,13 @@ class TrackSettings:
     more than this many γ; the matching that finds more traces is kept. A swinging
     rope's markers move on curves: constant velocity misses them by several γ."""
 
+    lone_after: int = 10
+    """An inner trace missing this many frames takes the only free point on the shell
+    around a measured neighbour, whatever its direction (a rope end dragged along the
+    floor while hidden folds its links far from the previous frame's): the
+    re-acquisition otherwise looks only within 60° of the previous link. Not the
+    end traces, held among hand markers."""
+
     settle: float = 0.5
     """Share of the way a lone invented inner marker moves from the curve to its rest
     spacings from both neighbours (0: stays on the curve, which cuts a sharp bend)."""

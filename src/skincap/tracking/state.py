@@ -121,6 +121,7 @@ class StepParams(NamedTuple):
     rigid_partners: int
     zipper_rounds: int
     swing_gate: float
+    lone_after: int
     settle: float
     median_spacing: float
 
