@@ -618,8 +618,22 @@ def _match_score(state, pred):  # pragma: no cover - runs compiled
 @numba.njit(inline="always", **JIT)
 def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured_best`."""
-    v_acc = accelerated_prediction(state, t, v_pred, p)
+    known, taken, cur = state.known, state.taken, state.cur
+    start_known, start_taken, start_cur = known.copy(), taken.copy(), cur.copy()
+    match_measured(state, t, v_pred, p)
     gate2 = (p.swing_gate * p.gamma) ** 2
+    explained = True  # V found every steady trace near it
+    for j in range(v_pred.shape[0]):
+        if state.temp_count[j] != 0:
+            continue
+        ex = cur[j, 0] - v_pred[j, 0]
+        ey = cur[j, 1] - v_pred[j, 1]
+        ez = cur[j, 2] - v_pred[j, 2]
+        if not known[j] or ex * ex + ey * ey + ez * ez > gate2:
+            explained = False
+    if explained:
+        return
+    v_acc = accelerated_prediction(state, t, v_pred, p)
     swings = False
     for j in range(v_acc.shape[0]):
         ex = v_acc[j, 0] - v_pred[j, 0]
@@ -628,11 +642,7 @@ def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compile
         if ex * ex + ey * ey + ez * ez > gate2:
             swings = True
     if not swings:
-        match_measured(state, t, v_pred, p)
         return
-    known, taken, cur = state.known, state.taken, state.cur
-    start_known, start_taken, start_cur = known.copy(), taken.copy(), cur.copy()
-    match_measured(state, t, v_pred, p)
     v_known, v_taken, v_cur = known.copy(), taken.copy(), cur.copy()
     n_v, d_v = _match_score(state, v_pred)
     known[:] = start_known

@@ -644,20 +644,27 @@ def match_measured_best(state: TrackState, t: int, v_pred: np.ndarray, p: StepPa
     """Pass 1 at V (``v_pred`` (M, 3)) or at the accelerated prediction, whichever
     explains the frame better (beyond the thesis).
 
-    When some trace's :func:`accelerated_prediction` lies more than ``swing_gate γ``
-    from V, :func:`match_measured` runs at both and the one that finds more traces is
-    kept (on a tie the one nearer its predictions, V on an exact tie): a swinging rope
-    is followed by its acceleration, a jerking hand (a foot stamping at 50 Hz, whose
-    last change of velocity is not the next) by its velocity.
+    :func:`match_measured` runs at V; when that leaves a steady trace unfound or
+    farther than ``swing_gate γ`` from V, and some trace's
+    :func:`accelerated_prediction` lies more than ``swing_gate γ`` from V, it runs
+    again at the accelerated prediction and the one that finds more traces is kept
+    (on a tie the one nearer its predictions, V on an exact tie): a swinging rope is
+    followed by its acceleration, a jerking hand (a foot stamping at 50 Hz, whose last
+    change of velocity is not the next) by its velocity.
     """
-    v_acc = accelerated_prediction(state, t, v_pred, p)
-    e = v_acc - v_pred
-    if not (np.einsum("ij,ij->i", e, e) > (p.swing_gate * p.gamma) ** 2).any():
-        match_measured(state, t, v_pred, p)
-        return
     known, taken, cur = state.known, state.taken, state.cur
     start = (known.copy(), taken.copy(), cur.copy())
     match_measured(state, t, v_pred, p)
+    gate = p.swing_gate * p.gamma
+    steady = state.temp_count == 0
+    miss = cur - v_pred
+    far = np.einsum("ij,ij->i", miss, miss) > gate * gate
+    if not (steady & (~known | far)).any():  # V found every steady trace near it
+        return
+    v_acc = accelerated_prediction(state, t, v_pred, p)
+    e = v_acc - v_pred
+    if not (np.einsum("ij,ij->i", e, e) > gate * gate).any():
+        return
     at_v = (known.copy(), taken.copy(), cur.copy())
     n_v, d_v = _match_score(state, v_pred)
     known[:], taken[:], cur[:] = start

@@ -75,10 +75,11 @@ class TrackSettings:
     """Rounds of the zipper: a run of invented inner markers is searched from its
     measured ends inward, one marker per side and round."""
 
-    swing_gate: float = 0.25
-    """The steady traces are matched a second time at their accelerated prediction
-    (V plus the last change of velocity) when some trace's acceleration moves V by
-    more than this many γ; the matching that finds more traces is kept. A swinging
+    swing_gate: float = 0.5
+    """When the matching at V leaves a steady trace unfound or farther than this many
+    γ from V, and some trace's acceleration moves V by more than this many γ, the
+    steady traces are matched again at their accelerated prediction (V plus the last
+    change of velocity) and the matching that finds more traces is kept. A swinging
     rope's markers move on curves: constant velocity misses them by several γ."""
 
     lone_after: int = 10
