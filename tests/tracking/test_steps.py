@@ -470,6 +470,8 @@ def test_accelerated_prediction_follows_a_turning_rope(steps) -> None:  # type: 
     np.testing.assert_array_equal(steps.accelerated_prediction(state, 2, v, p), v)
 
 
+# slow with an empty numba cache: match_measured_best compiles as an entry point of its own
+@pytest.mark.slow
 def test_the_matching_at_the_prediction_that_finds_more_is_kept(steps) -> None:  # type: ignore[no-untyped-def]
     # a swinging rope: V misses every marker by 2 γ, the accelerated prediction finds all
     state, p = _swing_state(_swinging_rope(0.25 * np.arange(4)))
