@@ -541,7 +541,7 @@ def test_a_long_missing_inner_trace_takes_the_only_point_on_its_shell(steps) -> 
             np.testing.assert_allclose(state.cur[4], folded)
         return found
 
-    assert reacquired(6, 10)  # missing lone_after frames: the only point on the shell
-    assert not reacquired(6, 9)  # missing fewer: only within 60° of the previous link
-    assert not reacquired(6, 10, other)  # two points on the shell: neither
-    assert not reacquired(5, 10)  # marker 4 is the rope's end (held among hand markers)
+    assert reacquired(6, 20)  # missing lone_after frames: the only point on the shell
+    assert not reacquired(6, 19)  # missing fewer: only within 60° of the previous link
+    assert not reacquired(6, 20, other)  # two points on the shell: neither
+    assert not reacquired(5, 20)  # marker 4 is the rope's end (held among hand markers)

@@ -82,7 +82,7 @@ class TrackSettings:
     change of velocity) and the matching that finds more traces is kept. A swinging
     rope's markers move on curves: constant velocity misses them by several γ."""
 
-    lone_after: int = 10
+    lone_after: int = 20
     """An inner trace missing this many frames takes the only free point on the shell
     around a measured neighbour, whatever its direction (a rope end dragged along the
     floor while hidden folds its links far from the previous frame's): the
