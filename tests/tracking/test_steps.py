@@ -428,3 +428,120 @@ def test_reacquire_takes_nothing_when_every_point_is_taken_or_body(steps) -> Non
     state.body[m + m - 1] = False
     assert steps.reacquire_on_shell(state, 1, p)
     assert state.taken[2] == m + m - 1
+
+
+def _swinging_rope(angles: np.ndarray) -> np.ndarray:
+    """(F, 5, 3) metres: a rope of 5 markers 12 cm apart along x, hanging 0.8-1.0 m
+    below the x axis and turned about it by ``angles`` (F,) radians (a jump rope's
+    bottom swinging)."""
+    radius = np.array([0.8, 0.9, 1.0, 0.9, 0.8])
+    x = 0.12 * np.arange(5)
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    return np.stack([np.broadcast_to(x, c.shape * np.array([1, 5])), -radius * c, radius * s], -1)
+
+
+def _swing_state(frames: np.ndarray, gamma: float = 0.03):  # type: ignore[no-untyped-def]
+    """State after frames[:-1] (all measured), frame -1 in the cloud to be matched."""
+    n, m = frames.shape[:2]
+    cloud = _cloud(*frames)
+    spacing = np.linalg.norm(np.diff(frames[0], axis=0), axis=1)
+    state, p = blank_state(cloud, spacing, gamma=gamma)
+    state.positions[: n - 1] = frames[: n - 1]
+    state.point_index[: n - 1] = np.arange(n - 1)[:, None] * m + np.arange(m)
+    state.velocity[:] = frames[n - 2] - frames[n - 3]
+    return state, p
+
+
+def test_accelerated_prediction_follows_a_turning_rope(steps) -> None:  # type: ignore[no-untyped-def]
+    # turning 0.25 rad a frame about the x axis (the bottom moves 25 cm a frame)
+    frames = _swinging_rope(0.25 * np.arange(4))
+    state, p = _swing_state(frames)
+    v = state.positions[2] + state.velocity
+    acc = steps.accelerated_prediction(state, 3, v, p)
+    # constant velocity misses by about r ω² (5-6 cm, 2 γ); the second order by r ω³
+    miss_v = np.linalg.norm(v - frames[3], axis=1)
+    miss_acc = np.linalg.norm(acc - frames[3], axis=1)
+    assert miss_v.min() > 1.5 * p.gamma and miss_acc.max() < 0.6 * p.gamma
+    np.testing.assert_allclose(acc - v, frames[2] - 2 * frames[1] + frames[0], atol=1e-12)
+    # a trace invented in any of the last three frames, and frames before 3, keep V
+    state.invented[1, 2] = True
+    acc = steps.accelerated_prediction(state, 3, v, p)
+    np.testing.assert_array_equal(acc[2], v[2])
+    np.testing.assert_array_equal(steps.accelerated_prediction(state, 2, v, p), v)
+
+
+# slow with an empty numba cache: match_measured_best compiles as an entry point of its own
+@pytest.mark.slow
+def test_the_matching_at_the_prediction_that_finds_more_is_kept(steps) -> None:  # type: ignore[no-untyped-def]
+    # a swinging rope: V misses every marker by 2 γ, the accelerated prediction finds all
+    state, p = _swing_state(_swinging_rope(0.25 * np.arange(4)))
+    steps.match_measured_best(state, 3, state.positions[2] + state.velocity, p)
+    np.testing.assert_array_equal(state.taken, 15 + np.arange(5))
+    # a jerk: still, then a 5 cm step, then on at that velocity: the last change of
+    # velocity overshoots by 5 cm, V finds every marker
+    frames = _swinging_rope(np.array([0.0, 0.0, 0.05, 0.10]))
+    state, p = _swing_state(frames)
+    steps.match_measured_best(state, 3, state.positions[2] + state.velocity, p)
+    np.testing.assert_array_equal(state.taken, 15 + np.arange(5))
+    # with swing_gate beyond every acceleration only V is tried: the swinging rope is missed
+    state, p = _swing_state(_swinging_rope(0.25 * np.arange(4)))
+    p = p._replace(swing_gate=100.0)
+    steps.match_measured_best(state, 3, state.positions[2] + state.velocity, p)
+    assert not state.known.any()
+
+
+def test_a_bent_link_is_taken_near_its_prediction_and_refused_beyond(steps) -> None:  # type: ignore[no-untyped-def]
+    gamma, rest = 0.03, 0.12
+    # a rope folded at marker 1 (on the floor): 12 cm of rope per link, 8.5 cm chords
+    # (more than γ short of the spacing); marker 1 hidden in frame 1
+    bent = [0.06, 0.0, -np.sqrt(0.085**2 - 0.06**2)]
+    prev = np.array([[0.0, 0, 0], bent, [0.12, 0, 0]])
+
+    def taken(candidate: list[float], pred: list[float]) -> bool:
+        cloud = _cloud(prev, np.array([prev[0], prev[2], candidate]))
+        state, p = blank_state(cloud, [rest, rest], gamma=gamma)
+        state.positions[0] = prev
+        state.point_index[0] = [0, 1, 2]
+        state.temp_count[1] = 3  # back from a gap: the wide gate's spacing rules apply
+        state.cur[[0, 2]] = prev[[0, 2]]
+        state.known[:] = [True, False, True]
+        state.taken[:] = [3, -1, 4]
+        guess = prev.copy()
+        guess[1] = pred
+        return bool(steps.match_traces(state, 1, np.array([1]), guess, True, p))
+
+    assert taken(bent, np.add(bent, [0.0, 0.0, 0.02]))  # within γ of its prediction: taken
+    assert not taken(bent, np.add(bent, [0.0, 0.0, 1.5 * gamma]))  # beyond γ: refused
+    # a chord more than γ beyond the rest spacing is refused even at the prediction
+    far = [0.06, 0.0, 0.15]  # chords 16.2 cm
+    assert not taken(far, far)
+
+
+def test_a_long_missing_inner_trace_takes_the_only_point_on_its_shell(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing = 0.1
+    rope = np.zeros((6, 3))
+    rope[:, 0] = spacing * np.arange(6)
+    # markers 4 and 5 hidden while the rope folded back at marker 3 by 130° (a rope end
+    # dragged along the floor); marker 4 is back, 18 cm from where the link put it
+    turn = np.radians(130.0)
+    folded = rope[3] + spacing * np.array([np.cos(turn), np.sin(turn), 0.0])
+    other = rope[3] + [0.0, -spacing, 0.0]  # a second free point on the shell
+
+    def reacquired(m: int, missing: int, *extra: np.ndarray) -> bool:
+        frame1 = np.concatenate([rope[:4], [folded], *[[e] for e in extra]])
+        state, p = blank_state(_cloud(rope, frame1), [spacing] * (m - 1), gamma=0.03)
+        state.positions[0] = rope[:m]
+        state.temp_count[4:] = missing
+        state.known[:4] = True
+        state.taken[:4] = 6 + np.arange(4)
+        state.cur[:4] = rope[:4]
+        found = bool(steps.reacquire_on_shell(state, 1, p))
+        assert found == bool(state.known[4])
+        if found:
+            np.testing.assert_allclose(state.cur[4], folded)
+        return found
+
+    assert reacquired(6, 20)  # missing lone_after frames: the only point on the shell
+    assert not reacquired(6, 19)  # missing fewer: only within 60° of the previous link
+    assert not reacquired(6, 20, other)  # two points on the shell: neither
+    assert not reacquired(5, 20)  # marker 4 is the rope's end (held among hand markers)

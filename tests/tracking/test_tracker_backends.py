@@ -103,6 +103,8 @@ _STEPS = (
     "track_frame",
     "begin_frame",
     "continue_body_chains",
+    "match_measured_best",
+    "accelerated_prediction",
     "match_measured",
     "match_traces",
     "rigid_with_body",

@@ -55,6 +55,9 @@ def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
                     state, t, j, want, rest, _SHELL, inner, outer, cur[k].copy(), free, p
                 ):
                     grew = True
+                elif 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
+                    if _seat_lone(state, t, j, inner, outer, cur[k].copy(), free, p):
+                        grew = True
         if not grew:
             break
         found = True
@@ -107,6 +110,35 @@ def _seat_nearest(
             state.cur[j, c] = points[a + best, c]
         free[best] = False
         return True
+
+
+@numba.njit(**JIT)
+def _seat_lone(state, t, j, inner, outer, centre, free, p):  # pragma: no cover
+    """Twin of the reference's ``_seat_lone``: the shell is (``inner``, ``outer``,
+    ``centre``)."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    points = state.points
+    only = -1
+    for c in range(b - a):
+        if not free[c]:
+            continue
+        q = a + c
+        r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
+        if not (r >= inner and r <= outer):
+            continue
+        if _beside_trace(state, t, j, q, p) or rigid_with_body(state, t, np.int64(-1), q, p):
+            continue
+        if only >= 0:  # two candidates: nothing says which is the rope
+            return False
+        only = c
+    if only < 0:
+        return False
+    state.known[j] = True
+    state.taken[j] = a + only
+    for c in range(3):
+        state.cur[j, c] = points[a + only, c]
+    free[only] = False
+    return True
 
 
 @numba.njit(**JIT)

@@ -33,7 +33,10 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
     takes the free point of frame t on the shell around ``k`` at its learnt rest
     length (``link_rest``, from ``-γ`` to ``+adjacent_stretch γ``) nearest to where the
     previous frame's link puts it, ``m_k + (x_j^{t-1} - x_k^{t-1})``, within one rest
-    length of that (the link turned by at most 60° in a frame). With nothing measured,
+    length of that (the link turned by at most 60° in a frame); an inner trace missing
+    for ``lone_after`` frames or more, whose previous link says little, takes the only
+    free point on that shell whatever its direction (:func:`_seat_lone`). With nothing
+    measured,
     the two end traces are seeded first: the free point nearest to ``V`` within one
     rest length. Free points are those the rope did not take, not body points and
     not moving rigidly with body points (:func:`rigid_with_body`). Markers are
@@ -64,7 +67,10 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
                 rest = link_rest[min(j, k)]
                 want = cur[k] + (prev[j] - prev[k])
                 shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
-                grew |= _seat_nearest(state, t, j, want, rest, shell, free, p)
+                if _seat_nearest(state, t, j, want, rest, shell, free, p):
+                    grew = True
+                elif 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
+                    grew |= _seat_lone(state, t, j, shell, free, p)
         if not grew:
             break
         found = True
@@ -108,6 +114,38 @@ def _seat_nearest(
         free[c] = False
         return True
     return False
+
+
+def _seat_lone(
+    state: TrackState,
+    t: int,
+    j: int,
+    shell: tuple[float, float, np.ndarray],
+    free: np.ndarray,
+    p: StepParams,
+) -> bool:
+    """Trace ``j`` takes the free point of frame t on ``shell`` = (inner, outer radius,
+    centre) when it is the only one there not refused (seen beside the trace's own
+    marker, moving rigidly with body points); ``free`` is updated. True if it took it."""
+    a, b = _frame_bounds(state, t)
+    frame = state.points[a:b]
+    r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
+    only = -1
+    for c in np.nonzero(free & (r >= shell[0]) & (r <= shell[1]))[0]:
+        if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
+            state, t, -1, a + int(c), p
+        ):
+            continue
+        if only >= 0:  # two candidates: nothing says which is the rope
+            return False
+        only = int(c)
+    if only < 0:
+        return False
+    state.known[j] = True
+    state.taken[j] = a + only
+    state.cur[j] = frame[only]
+    free[only] = False
+    return True
 
 
 def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:

@@ -52,12 +52,14 @@ from skincap.tracking._refusals_numba import (
 )
 
 __all__ = [
+    "accelerated_prediction",
     "begin_frame",
     "commit_frame",
     "continue_body_chains",
     "gap_predictions",
     "learn_link_rest",
     "match_measured",
+    "match_measured_best",
     "match_missing",
     "match_traces",
     "place_invented",
@@ -278,8 +280,9 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
 
 @numba.njit(**JIT)
 def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs compiled
-    """Refuse (inf) candidates not within γ of their rest spacing from a measured
-    neighbour, or beyond γ with no measured neighbour."""
+    """Refuse (inf) candidates more than γ beyond their rest spacing from a measured
+    neighbour, or beyond γ of the prediction and more than γ short of it, or beyond
+    γ with no measured neighbour."""
     known, cur, spacing, points = state.known, state.cur, state.spacing, state.points
     m = known.size
     for r in range(rows.size):
@@ -301,7 +304,7 @@ def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs c
                 chord = norm3(
                     points[i, 0] - cur[nb, 0], points[i, 1] - cur[nb, 1], points[i, 2] - cur[nb, 2]
                 )
-                if abs(chord - rest) > gamma:
+                if chord - rest > gamma or (rest - chord > gamma and d[r, c] >= gamma):
                     d[r, c] = _INF
 
 
@@ -361,6 +364,21 @@ def residual_predictions(state, t, v_pred, p):  # pragma: no cover - runs compil
         if found[j]:
             resid[j] = state.cur[j] - v_pred[j]
     return v_pred + interp_along(found, resid, state.arclength)
+
+
+@numba.njit(**JIT)
+def accelerated_prediction(state, t, v_pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.accelerated_prediction`."""
+    out = v_pred.copy()
+    if t < 3:
+        return out
+    x, invented = state.positions, state.invented
+    for j in range(out.shape[0]):
+        if invented[t - 1, j] or invented[t - 2, j] or invented[t - 3, j]:
+            continue
+        for c in range(3):
+            out[j, c] = v_pred[j, c] + ((x[t - 1, j, c] - 2.0 * x[t - 2, j, c]) + x[t - 3, j, c])
+    return out
 
 
 @numba.njit(**JIT)
@@ -582,6 +600,62 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
                 tried[j] = pred[j]
 
 
+@numba.njit(**JIT)
+def _match_score(state, pred):  # pragma: no cover - runs compiled
+    """Traces found this frame and their summed distance (metres) to ``pred``."""
+    n, total = 0, 0.0
+    for j in range(state.known.size):
+        if state.known[j]:
+            n += 1
+            total += norm3(
+                state.cur[j, 0] - pred[j, 0],
+                state.cur[j, 1] - pred[j, 1],
+                state.cur[j, 2] - pred[j, 2],
+            )
+    return n, total
+
+
+@numba.njit(inline="always", **JIT)
+def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy.match_measured_best`."""
+    known, taken, cur = state.known, state.taken, state.cur
+    start_known, start_taken, start_cur = known.copy(), taken.copy(), cur.copy()
+    match_measured(state, t, v_pred, p)
+    gate2 = (p.swing_gate * p.gamma) ** 2
+    explained = True  # V found every steady trace near it
+    for j in range(v_pred.shape[0]):
+        if state.temp_count[j] != 0:
+            continue
+        ex = cur[j, 0] - v_pred[j, 0]
+        ey = cur[j, 1] - v_pred[j, 1]
+        ez = cur[j, 2] - v_pred[j, 2]
+        if not known[j] or ex * ex + ey * ey + ez * ez > gate2:
+            explained = False
+    if explained:
+        return
+    v_acc = accelerated_prediction(state, t, v_pred, p)
+    swings = False
+    for j in range(v_acc.shape[0]):
+        ex = v_acc[j, 0] - v_pred[j, 0]
+        ey = v_acc[j, 1] - v_pred[j, 1]
+        ez = v_acc[j, 2] - v_pred[j, 2]
+        if ex * ex + ey * ey + ez * ez > gate2:
+            swings = True
+    if not swings:
+        return
+    v_known, v_taken, v_cur = known.copy(), taken.copy(), cur.copy()
+    n_v, d_v = _match_score(state, v_pred)
+    known[:] = start_known
+    taken[:] = start_taken
+    cur[:] = start_cur
+    match_measured(state, t, v_acc, p)
+    n_a, d_a = _match_score(state, v_acc)
+    if n_v > n_a or (n_v == n_a and d_v <= d_a):
+        known[:] = v_known
+        taken[:] = v_taken
+        cur[:] = v_cur
+
+
 @numba.njit(inline="always", **JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
@@ -605,7 +679,7 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
     v_pred = begin_frame(state, t, p)
     continue_body_chains(state, t, v_pred, p)
     if has_points:
-        match_measured(state, t, v_pred, p)
+        match_measured_best(state, t, v_pred, p)
     pred = state.positions[t - 1] + state.velocity
     found_more = False
     if not state.known.all():

@@ -10,8 +10,10 @@ A frame (:func:`track_frame`) runs::
 
     V = begin_frame                       prediction by the trace's own velocity (eqs. 3.1-3.2)
     continue_body_chains                  body points of this frame
-    match_measured                        steady traces at V, then at V + residuals
-        match_traces / reject_overstretched / reject_odd_motion / residual_predictions
+    match_measured_best                   steady traces at V or at V + acceleration
+        accelerated_prediction            V plus the trace's last change of velocity
+        match_measured                    steady traces at V, then at V + residuals
+            match_traces / reject_overstretched / reject_odd_motion / residual_predictions
     pred = gap_predictions                the curve inside the rope, F at its ends
     match_missing                         the rest at pred, then the zipper
         match_traces / reject_* / zipper_predictions
@@ -48,12 +50,14 @@ from skincap.tracking.init import gated_assignment
 from skincap.tracking.state import StepParams, TrackState
 
 __all__ = [
+    "accelerated_prediction",
     "begin_frame",
     "commit_frame",
     "continue_body_chains",
     "gap_predictions",
     "learn_link_rest",
     "match_measured",
+    "match_measured_best",
     "match_missing",
     "match_traces",
     "place_invented",
@@ -205,8 +209,8 @@ def match_traces(
     also: for a steady trace predicted to move at most γ, points beyond γ; for a
     trace that is not steady, points moving rigidly with body points
     (:func:`rigid_with_body`); points beyond γ of the prediction unless at their rest
-    spacing (± γ) from a measured neighbour, and any point off that spacing from a
-    measured neighbour. Conflicts are resolved one-to-one, minimising the summed
+    spacing (± γ) from a measured neighbour, and any point more than γ beyond that
+    spacing from a measured neighbour (a bent rope's chord is shorter, never longer). Conflicts are resolved one-to-one, minimising the summed
     distance (:func:`~skincap.tracking.init.gated_assignment`). Writes ``cur``,
     ``known``, ``taken``; True if any trace matched.
     """
@@ -249,8 +253,14 @@ def match_traces(
 def _refuse_off_spacing(
     state: TrackState, rows: np.ndarray, i: np.ndarray, d: np.ndarray, gamma: float
 ) -> np.ndarray:
-    """``d`` (R, K) with inf where the candidate is not within γ of its rest spacing
-    from a measured neighbour, or lies beyond γ with no measured neighbour."""
+    """``d`` (R, K) with inf where the candidate lies more than γ beyond its rest
+    spacing from a measured neighbour, or beyond γ of its prediction and more than γ
+    short of that spacing, or beyond γ with no measured neighbour.
+
+    A rope bends: a link's chord may be shorter than its rest spacing (a slack rope
+    lying folded on the floor: 8.4 cm chords for 12.1 cm), never longer; a short
+    chord refuses only the candidates the wide gate reaches beyond γ.
+    """
     known, spacing = state.known, state.spacing
     m = known.size
     q = state.points[np.minimum(i, state.points.shape[0] - 1)]  # (R, K, 3)
@@ -265,7 +275,8 @@ def _refuse_off_spacing(
             continue
         rest = spacing[np.minimum(np.minimum(rows, nbc), m - 2)]
         chord = np.linalg.norm(q - state.cur[nbc][:, None, :], axis=2)
-        d = np.where(has[:, None] & (np.abs(chord - rest[:, None]) > gamma), np.inf, d)
+        off = (chord - rest[:, None] > gamma) | ((rest[:, None] - chord > gamma) & (d >= gamma))
+        d = np.where(has[:, None] & off, np.inf, d)
     return d
 
 
@@ -332,6 +343,25 @@ def residual_predictions(
     w = np.where(both, (s - s[b]) / span, np.where(has_b, 0.0, 1.0))
     out = (1.0 - w)[:, None] * values[b] + w[:, None] * values[a]
     return v_pred + np.where(found[:, None], values, out)
+
+
+def accelerated_prediction(
+    state: TrackState, t: int, v_pred: np.ndarray, p: StepParams
+) -> np.ndarray:
+    """(M, 3) V (``v_pred``) plus each trace's last change of velocity, metres
+    (beyond the thesis).
+
+    ``V + (m^{t-1} - 2 m^{t-2} + m^{t-3})``: a second-order prediction, for traces
+    measured in frames t - 1, t - 2 and t - 3 (V elsewhere, and before frame 3). A
+    swinging rope's markers move on curves: its bottom turning at 20-45 cm a frame is
+    missed by V by 5-13 cm (2-4 γ), and by this by 1-5 cm.
+    """
+    if t < 3:
+        return v_pred.copy()
+    x, invented = state.positions, state.invented
+    seen = ~(invented[t - 1] | invented[t - 2] | invented[t - 3])
+    acc = x[t - 1] - 2.0 * x[t - 2] + x[t - 3]
+    return v_pred + np.where(seen[:, None], acc, 0.0)
 
 
 def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
@@ -602,6 +632,48 @@ def match_measured(state: TrackState, t: int, v_pred: np.ndarray, p: StepParams)
         tried = np.where(want[:, None], pred, tried)
 
 
+def _match_score(state: TrackState, pred: np.ndarray) -> tuple[int, float]:
+    """Traces found this frame and their summed distance (metres) to ``pred`` (M, 3)."""
+    known = state.known
+    e = state.cur - pred
+    dist = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
+    return int(known.sum()), float(np.sum(dist[known]))
+
+
+def match_measured_best(state: TrackState, t: int, v_pred: np.ndarray, p: StepParams) -> None:
+    """Pass 1 at V (``v_pred`` (M, 3)) or at the accelerated prediction, whichever
+    explains the frame better (beyond the thesis).
+
+    :func:`match_measured` runs at V; when that leaves a steady trace unfound or
+    farther than ``swing_gate γ`` from V, and some trace's
+    :func:`accelerated_prediction` lies more than ``swing_gate γ`` from V, it runs
+    again at the accelerated prediction and the one that finds more traces is kept
+    (on a tie the one nearer its predictions, V on an exact tie): a swinging rope is
+    followed by its acceleration, a jerking hand (a foot stamping at 50 Hz, whose last
+    change of velocity is not the next) by its velocity.
+    """
+    known, taken, cur = state.known, state.taken, state.cur
+    start = (known.copy(), taken.copy(), cur.copy())
+    match_measured(state, t, v_pred, p)
+    gate = p.swing_gate * p.gamma
+    steady = state.temp_count == 0
+    miss = cur - v_pred
+    far = np.einsum("ij,ij->i", miss, miss) > gate * gate
+    if not (steady & (~known | far)).any():  # V found every steady trace near it
+        return
+    v_acc = accelerated_prediction(state, t, v_pred, p)
+    e = v_acc - v_pred
+    if not (np.einsum("ij,ij->i", e, e) > gate * gate).any():
+        return
+    at_v = (known.copy(), taken.copy(), cur.copy())
+    n_v, d_v = _match_score(state, v_pred)
+    known[:], taken[:], cur[:] = start
+    match_measured(state, t, v_acc, p)
+    n_a, d_a = _match_score(state, v_acc)
+    if n_v > n_a or (n_v == n_a and d_v <= d_a):
+        known[:], taken[:], cur[:] = at_v
+
+
 def match_missing(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> bool:
     """Pass 2: the traces still unknown at ``pred`` (M, 3) in the wide gate, then the
     zipper (up to ``zipper_rounds``); each match followed by the two refusals.
@@ -625,7 +697,7 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     v_pred = begin_frame(state, t, p)
     continue_body_chains(state, t, v_pred, p)
     if has_points:
-        match_measured(state, t, v_pred, p)
+        match_measured_best(state, t, v_pred, p)
     pred = state.positions[t - 1] + state.velocity
     found_more = False
     if not state.known.all():

@@ -75,6 +75,20 @@ class TrackSettings:
     """Rounds of the zipper: a run of invented inner markers is searched from its
     measured ends inward, one marker per side and round."""
 
+    swing_gate: float = 0.5
+    """When the matching at V leaves a steady trace unfound or farther than this many
+    γ from V, and some trace's acceleration moves V by more than this many γ, the
+    steady traces are matched again at their accelerated prediction (V plus the last
+    change of velocity) and the matching that finds more traces is kept. A swinging
+    rope's markers move on curves: constant velocity misses them by several γ."""
+
+    lone_after: int = 20
+    """An inner trace missing this many frames takes the only free point on the shell
+    around a measured neighbour, whatever its direction (a rope end dragged along the
+    floor while hidden folds its links far from the previous frame's): the
+    re-acquisition otherwise looks only within 60° of the previous link. Not the
+    end traces, held among hand markers."""
+
     settle: float = 0.5
     """Share of the way a lone invented inner marker moves from the curve to its rest
     spacings from both neighbours (0: stays on the curve, which cuts a sharp bend)."""

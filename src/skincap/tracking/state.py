@@ -120,6 +120,8 @@ class StepParams(NamedTuple):
     rigid_range: float
     rigid_partners: int
     zipper_rounds: int
+    swing_gate: float
+    lone_after: int
     settle: float
     median_spacing: float
 

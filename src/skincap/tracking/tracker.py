@@ -76,6 +76,19 @@ Beyond the thesis:
   takes its neighbour's marker) moves back one marker when its end trace lies more
   than 2 γ from its own prediction and a free point lies within γ of that prediction
   at the end link's rest length.
+* A swinging rope (``match_measured_best``): when some steady trace's last change of
+  velocity moves its prediction by more than ``swing_gate γ``, the steady traces are
+  matched both at V and at the accelerated prediction ``V + (m^{t-1} - 2 m^{t-2} +
+  m^{t-3})`` (``accelerated_prediction``) and the match that finds more traces is kept
+  (nearer its predictions on a tie, V on an exact tie). A jump rope's bottom turning
+  20-45 cm a frame is missed by V by 2-4 γ, and the traces slip a marker a frame; a
+  hand jerking at 50 Hz is missed by the acceleration instead.
+* A link's chord may be shorter than its spacing (a slack rope lying folded), never
+  longer: a short chord refuses only candidates the wide gate reaches beyond γ.
+* An inner trace missing for ``lone_after`` frames or more takes, in the
+  re-acquisition, the only free point on its measured neighbour's shell whatever its
+  direction (a rope end dragged along the floor while hidden folds its links far
+  from the previous frame's).
 * Each link's rest length (``link_rest``) is the longest chord accepted between its
   two measured markers, at most ``stretch`` times the spacing of the still window,
   whose hanging rope is slack (8.2 cm chords for 9.2 cm of rope): the neighbour limit
