@@ -33,6 +33,7 @@ import numba
 import numpy as np
 
 from skincap.tracking._numba_curve import (
+    carry_last_seen,
     curve_at,
     fill_interior,
     interp_along,
@@ -384,7 +385,35 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     fill_interior(x, known, state.arclength, pred)
     settle(pred, known, state.spacing, p.settle)
     predict_ends(pred, known, prev, v_tilde, count, state.spacing)
-    return pred
+    return _carry_hidden(state, t, pred, ~known, p)
+
+
+@numba.njit(**JIT)
+def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._carry_hidden`."""
+    if p.carry_tolerance <= 0.0:
+        return pred
+    m = state.known.size
+    n = 0
+    for j in range(m):
+        if rows_mask[j] and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
+            n += 1
+    if n == 0:
+        return pred
+    rows = np.empty(n, np.int64)
+    then = np.empty((n, m, 3))
+    then_measured = np.empty((n, m), np.bool_)
+    u = 0
+    for j in range(m):
+        last = t - 1 - state.temp_count[j]
+        if rows_mask[j] and not state.known[j] and last >= 0:
+            rows[u] = j
+            then[u] = state.positions[last]
+            for k in range(m):
+                then_measured[u, k] = not state.invented[last, k]
+            u += 1
+    tolerance = p.carry_tolerance * p.median_spacing
+    return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
 
 
 @numba.njit(**JIT)
@@ -541,6 +570,7 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
         curve = np.empty((m, 3))
         interior = fill_interior(x, known, state.arclength, curve)
         settle(curve, known, state.spacing, p.settle)
+        curve = _carry_hidden(state, t, curve, interior, p)
         for j in range(m):
             if not known[j]:
                 cur[j] = curve[j] if interior[j] else pred[j]

@@ -43,7 +43,7 @@ from skincap.tracking._refusals_numpy import (
     reject_overstretched,
     rigid_with_body,
 )
-from skincap.tracking.curve import fill_interior_on_curve, settle_single_gaps
+from skincap.tracking.curve import carry_last_seen, fill_interior_on_curve, settle_single_gaps
 from skincap.tracking.init import gated_assignment
 from skincap.tracking.state import StepParams, TrackState
 
@@ -354,7 +354,25 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     )
     pred = settle_single_gaps(pred, known, state.spacing, p.settle)
     count = np.where(known, 0, state.temp_count + 1)
-    return _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    pred = _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    return _carry_hidden(state, t, pred, ~known, p)
+
+
+def _carry_hidden(
+    state: TrackState, t: int, pred: np.ndarray, rows_mask: np.ndarray, p: StepParams
+) -> np.ndarray:
+    """``pred`` (M, 3) with the hidden markers of ``rows_mask`` (M,) bool carried from
+    where they were last seen (:func:`~skincap.tracking.curve.carry_last_seen`)."""
+    if p.carry_tolerance <= 0.0:
+        return pred
+    last = t - 1 - state.temp_count  # (M,) the frame each trace was last measured
+    rows = np.nonzero(rows_mask & ~state.known & (last >= 0))[0]
+    if rows.size == 0:
+        return pred
+    tolerance = p.carry_tolerance * p.median_spacing
+    then = state.positions[last[rows]]
+    then_measured = ~state.invented[last[rows]]
+    return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
 
 
 def _neighbour_velocity(
@@ -571,6 +589,7 @@ def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: 
         x = np.where(known[:, None], cur, 0.0)
         curve, interior = fill_interior_on_curve(x, known, state.arclength)
         curve = settle_single_gaps(curve, known, state.spacing, p.settle)
+        curve = _carry_hidden(state, t, curve, interior, p)
         cur[still] = np.where(interior[still, None], curve[still], pred[still])
     else:
         cur[still] = pred[still]

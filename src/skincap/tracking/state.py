@@ -121,6 +121,7 @@ class StepParams(NamedTuple):
     rigid_partners: int
     zipper_rounds: int
     settle: float
+    carry_tolerance: float
     median_spacing: float
 
 
