@@ -75,6 +75,7 @@ __all__ = [
 ]
 
 _INF = np.inf
+_PINNING_REACH = 2  # skincap.tracking._steps_numpy.PINNING_REACH
 # the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
 _WIDE = np.bool_(True)
 _NARROW = np.bool_(False)
@@ -107,7 +108,10 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
         known = state.known[j]
         state.temp_count[j] = 0 if known else state.temp_count[j] + 1
         state.invented[t, j] = not known
-        state.lost_frames[t, j] = state.temp_count[j] > p.max_temp_markers
+        pinned = False
+        for k in range(max(0, j - _PINNING_REACH), min(state.known.size, j + _PINNING_REACH + 1)):
+            pinned |= state.known[k]
+        state.lost_frames[t, j] = state.temp_count[j] > p.max_temp_markers and not pinned
         state.point_index[t, j] = state.taken[j]
         for c in range(3):
             state.positions[t, j, c] = state.cur[j, c]

@@ -130,15 +130,31 @@ def begin_frame(state: TrackState, t: int, p: StepParams) -> np.ndarray:
 
 def commit_frame(state: TrackState, t: int, p: StepParams) -> None:
     """Write row t of the results from ``cur``/``known``/``taken`` and advance the
-    carried state: temporary-marker counts, losses, velocities (metres per frame)."""
+    carried state: temporary-marker counts, losses, velocities (metres per frame).
+
+    A trace is lost after more than ``max_temp_markers`` temporary markers unless a
+    marker measured this frame within :data:`PINNING_REACH` markers along the rope
+    pins it (its curve, carry and the rope's length hold it within a few spacings)."""
     known = state.known
     state.temp_count[:] = np.where(known, 0, state.temp_count + 1)
     state.invented[t] = ~known
-    state.lost_frames[t] = state.temp_count > p.max_temp_markers
+    state.lost_frames[t] = (state.temp_count > p.max_temp_markers) & ~_pinned(known)
     state.point_index[t] = state.taken
     state.positions[t] = state.cur
     state.velocity[:] = state.cur - state.positions[t - 1]
     learn_link_rest(state, p)
+
+
+#: A hidden marker with a measured marker at most this many markers away along the
+#: rope is pinned by it: never reported lost, however long its gap.
+PINNING_REACH = 2
+
+
+def _pinned(known: np.ndarray) -> np.ndarray:
+    """(M,) bool: a marker measured within :data:`PINNING_REACH` markers of each."""
+    m = known.size
+    pad = np.concatenate([np.zeros(PINNING_REACH, bool), known, np.zeros(PINNING_REACH, bool)])
+    return np.stack([pad[k : k + m] for k in range(2 * PINNING_REACH + 1)]).any(axis=0)
 
 
 def learn_link_rest(state: TrackState, p: StepParams) -> None:
