@@ -267,8 +267,17 @@ def carry_last_seen(pred, cur, known, rows, then, then_measured, tolerance):  # 
             d = rot @ (then[u, idx[i]] - pc) + qc - cur[idx[i]]
             sq += d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
         rms = np.sqrt(sq / count)
-        carried = rot @ (then[u, j] - pc) + qc
-        w = 1.0 / (1.0 + (rms / tolerance) ** 2)
+        last = then[u, j] - pc
+        carried = rot @ last + qc
+        spread = 0.0
+        for i in range(count):
+            a = then[u, idx[i]] - pc
+            spread += a[0] * a[0] + a[1] * a[1] + a[2] * a[2]
+        spread = max(spread / count, 1e-300)
+        error = rms * np.sqrt(
+            1.0 + (last[0] * last[0] + last[1] * last[1] + last[2] * last[2]) / spread
+        )
+        w = 1.0 / (1.0 + (error / tolerance) ** 2)
         for c in range(3):
             out[j, c] = w * carried[c] + (1.0 - w) * out[j, c]
     return out

@@ -398,9 +398,13 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
     if p.carry_tolerance <= 0.0:
         return pred
     m = state.known.size
+    before, after = side_neighbours(state.known)
+    want = np.zeros(m, np.bool_)
     n = 0
     for j in range(m):
-        if rows_mask[j] and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
+        inside = before[j] >= 0 and after[j] < m
+        if rows_mask[j] and inside and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
+            want[j] = True
             n += 1
     if n == 0:
         return pred
@@ -410,7 +414,7 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
     u = 0
     for j in range(m):
         last = t - 1 - state.temp_count[j]
-        if rows_mask[j] and not state.known[j] and last >= 0:
+        if want[j]:
             rows[u] = j
             then[u] = state.positions[last]
             for k in range(m):

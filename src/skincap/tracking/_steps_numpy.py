@@ -377,12 +377,19 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
 def _carry_hidden(
     state: TrackState, t: int, pred: np.ndarray, rows_mask: np.ndarray, p: StepParams
 ) -> np.ndarray:
-    """``pred`` (M, 3) with the hidden markers of ``rows_mask`` (M,) bool carried from
-    where they were last seen (:func:`~skincap.tracking.curve.carry_last_seen`)."""
+    """``pred`` (M, 3) with the hidden markers of ``rows_mask`` (M,) bool that lie
+    between measured markers carried from where they were last seen
+    (:func:`~skincap.tracking.curve.carry_last_seen`).
+
+    Not the runs at the rope's ends: carried beyond its neighbours, a held end turning
+    with the hand strays (the synthetic jump rope's handle end: 4 -> 10 cm), and a
+    trace that took a wrong point there would carry it on; F follows the hand."""
     if p.carry_tolerance <= 0.0:
         return pred
     last = t - 1 - state.temp_count  # (M,) the frame each trace was last measured
-    rows = np.nonzero(rows_mask & ~state.known & (last >= 0))[0]
+    before, after = _side_neighbours(state.known)
+    inside = (before >= 0) & (after < state.known.size)
+    rows = np.nonzero(rows_mask & inside & ~state.known & (last >= 0))[0]
     if rows.size == 0:
         return pred
     tolerance = p.carry_tolerance * p.median_spacing

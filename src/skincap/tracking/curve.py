@@ -236,10 +236,13 @@ def carry_last_seen(
     lying still, a bend travelling with the hand) this is near exact, where the
     shape changes the fit's residual grows. The prediction becomes::
 
-        x_j = w r_j + (1 - w) pred_j,   w = 1 / (1 + (rms / tolerance)^2)
+        x_j = w r_j + (1 - w) pred_j,   w = 1 / (1 + (e / tolerance)^2),
+        e = rms sqrt(1 + |x_j(t') - c|^2 / g^2)
 
-    with ``rms`` the fit's root-mean-square residual: the spatial prediction (the
-    curve, F) takes over as the neighbourhood deforms. Fewer than three such
+    with ``rms`` the fit's root-mean-square residual, ``c`` the neighbours' centroid
+    in ``t'`` and ``g`` their radius of gyration about it (a marker carried beyond
+    its neighbours, at an end, is moved by the fit's rotation error times its lever):
+    the spatial prediction (the curve, F) takes over as the neighbourhood deforms. Fewer than three such
     neighbours leave ``pred_j`` as it is.
 
     Parameters
@@ -290,8 +293,13 @@ def carry_last_seen(
     rot = np.einsum("uba,ucb->uac", vt, u_svd)  # R = V D U^T, q ≈ R (p - pc) + qc
     moved = np.einsum("uab,ukb->uka", rot, p_then - pc[:, None]) + qc[:, None]
     rms = np.sqrt(np.einsum("uk,uk->u", w, np.sum((moved - q_now) ** 2, axis=2)) / denom[:, 0])
-    carried = np.einsum("uab,ub->ua", rot, then[np.arange(rows.size), rows] - pc) + qc
-    weight = np.where(count >= 3, 1.0 / (1.0 + (rms / tolerance) ** 2), 0.0)[:, None]
+    last = then[np.arange(rows.size), rows] - pc  # (U, 3) the marker from the centroid
+    carried = np.einsum("uab,ub->ua", rot, last) + qc
+    # an end is carried beyond its neighbours: a rotation error grows with the lever
+    spread = np.einsum("uk,uk->u", w, np.sum((p_then - pc[:, None]) ** 2, axis=2)) / denom[:, 0]
+    lever = np.einsum("uc,uc->u", last, last) / np.maximum(spread, 1e-300)
+    error = rms * np.sqrt(1.0 + lever)
+    weight = np.where(count >= 3, 1.0 / (1.0 + (error / tolerance) ** 2), 0.0)[:, None]
     out[rows] = weight * carried + (1.0 - weight) * out[rows]
     return out
 
