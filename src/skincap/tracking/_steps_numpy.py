@@ -154,7 +154,8 @@ def _pinned(known: np.ndarray) -> np.ndarray:
     """(M,) bool: a marker measured within :data:`PINNING_REACH` markers of each."""
     m = known.size
     pad = np.concatenate([np.zeros(PINNING_REACH, bool), known, np.zeros(PINNING_REACH, bool)])
-    return np.stack([pad[k : k + m] for k in range(2 * PINNING_REACH + 1)]).any(axis=0)
+    window = np.stack([pad[k : k + m] for k in range(2 * PINNING_REACH + 1)])  # (5, M)
+    return np.asarray(window.any(axis=0), dtype=bool)
 
 
 def learn_link_rest(state: TrackState, p: StepParams) -> None:

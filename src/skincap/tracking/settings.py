@@ -80,10 +80,10 @@ class TrackSettings:
     spacings from both neighbours (0: stays on the curve, which cuts a sharp bend)."""
 
     carry_tolerance: float = 0.05
-    """A hidden marker is also carried from where it was last seen by the rigid motion
-    of its nearest measured neighbours (:func:`~skincap.tracking.curve.carry_last_seen`);
-    the fit residual, in median rest spacings, at which that and the curve (or F)
-    weigh the same. 0 turns the carry off."""
+    """A hidden marker between measured markers is also carried from where it was last
+    seen by the rigid motion of its nearest measured neighbours
+    (:func:`~skincap.tracking.curve.carry_last_seen`); the fit residual, in median
+    rest spacings, at which that and the curve weigh the same. 0 turns the carry off."""
 
     def __post_init__(self) -> None:
         for f in fields(self):

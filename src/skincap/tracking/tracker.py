@@ -21,10 +21,12 @@ Beyond the thesis:
   arc length (:mod:`skincap.tracking.curve`); the thesis' ``F`` is kept for runs of
   missing markers at the ends of the rope, and it is projected to the rest spacing
   ``l_j`` from its measured side, so invented markers keep the rope's length.
-* A hidden marker is also carried from where it was last seen by the rigid motion of
-  its nearest measured neighbours, blended with the curve or F by how rigidly they
-  moved (:func:`~skincap.tracking.curve.carry_last_seen`): a bend that lies still or
-  travels with the hand keeps its shape, which the curve alone cuts.
+* A hidden marker between measured markers is also carried from where it was last
+  seen by the rigid motion of its nearest measured neighbours, blended with the curve
+  by how rigidly they moved (:func:`~skincap.tracking.curve.carry_last_seen`): a bend
+  that lies still or travels with the hand keeps its shape, which the curve alone
+  cuts. The rope's end runs keep F (carried beyond its neighbours, a held end turning
+  with the hand strays).
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
