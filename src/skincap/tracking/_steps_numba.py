@@ -389,7 +389,7 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     fill_interior(x, known, state.arclength, pred)
     settle(pred, known, state.spacing, p.settle)
     predict_ends(pred, known, prev, v_tilde, count, state.spacing)
-    return _carry_hidden(state, t, pred, ~known, p)
+    return pred
 
 
 @numba.njit(**JIT)
@@ -578,7 +578,6 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
         curve = np.empty((m, 3))
         interior = fill_interior(x, known, state.arclength, curve)
         settle(curve, known, state.spacing, p.settle)
-        curve = _carry_hidden(state, t, curve, interior, p)
         for j in range(m):
             if not known[j]:
                 cur[j] = curve[j] if interior[j] else pred[j]
@@ -586,6 +585,10 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
         for j in range(m):
             if not known[j]:
                 cur[j] = pred[j]
+    carried = _carry_hidden(state, t, cur, ~known, p)
+    for j in range(m):
+        if not known[j]:
+            cur[j] = carried[j]
 
 
 # ------------------------------------------------------------------ a frame

@@ -371,8 +371,7 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     )
     pred = settle_single_gaps(pred, known, state.spacing, p.settle)
     count = np.where(known, 0, state.temp_count + 1)
-    pred = _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
-    return _carry_hidden(state, t, pred, ~known, p)
+    return _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
 
 
 def _carry_hidden(
@@ -603,7 +602,10 @@ def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: 
 
     With ``refit`` (more was measured after ``pred`` (M, 3) was made) the unknown
     interior markers go on the curve through every marker measured now (a lone one
-    settled); otherwise, and at the ends, they take ``pred``.
+    settled); otherwise, and at the ends, they take ``pred``. Those between measured
+    markers are then carried from where they were last seen (:func:`_carry_hidden`;
+    only the placement: the searches keep the curve, as the synthetic whip's F1 did
+    not: 0.9926 -> 0.9913 with the carried prediction searched).
     """
     known, cur = state.known, state.cur
     still = ~known
@@ -613,10 +615,10 @@ def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: 
         x = np.where(known[:, None], cur, 0.0)
         curve, interior = fill_interior_on_curve(x, known, state.arclength)
         curve = settle_single_gaps(curve, known, state.spacing, p.settle)
-        curve = _carry_hidden(state, t, curve, interior, p)
         cur[still] = np.where(interior[still, None], curve[still], pred[still])
     else:
         cur[still] = pred[still]
+    cur[still] = _carry_hidden(state, t, cur, still, p)[still]
 
 
 # ------------------------------------------------------------------ a frame
