@@ -8,7 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from skincap.errors import ValidationError
+from skincap.tracking._numba_curve import carry_last_seen as carry_last_seen_numba
 from skincap.tracking.curve import (
+    carry_last_seen,
     fill_interior_on_curve,
     polyline_length,
     resample_by_arclength,
@@ -158,3 +160,67 @@ def test_kernel_settle_matches_the_reference() -> None:
         out = pos.copy()
         _settle(out, known, spacing, 0.5)
         np.testing.assert_allclose(out, ref, rtol=0, atol=1e-12)
+
+
+# ---------------------------------------------------------------- carry_last_seen
+def _bent_rope(m: int = 10) -> np.ndarray:
+    """(M, 3) metres: a rope bent into a quarter circle and a kink, 10 cm apart."""
+    angle = np.linspace(0.0, np.pi / 2, m)
+    rope = np.stack([0.6 * np.cos(angle), 0.6 * np.sin(angle), 0.05 * (np.arange(m) % 3)], axis=1)
+    return rope
+
+
+@pytest.mark.parametrize("carry", [carry_last_seen, carry_last_seen_numba])
+def test_carry_last_seen_is_exact_for_a_rope_moving_rigidly(carry) -> None:  # type: ignore[no-untyped-def]
+    from scipy.spatial.transform import Rotation
+
+    then = _bent_rope()
+    rot = Rotation.from_rotvec([0.3, -1.1, 0.4]).as_matrix()
+    now = then @ rot.T + np.array([0.2, -0.5, 1.0])
+    known = np.ones(10, dtype=bool)
+    known[[0, 4, 5, 9]] = False  # an end, a run of two inside, the other end
+    rows = np.array([0, 4, 5, 9])
+    pred = np.zeros((10, 3))  # a spatial prediction far off
+    out = carry(
+        pred, now, known, rows, np.repeat(then[None], 4, axis=0), np.ones((4, 10), bool), 0.005
+    )
+    np.testing.assert_allclose(out[rows], now[rows], atol=1e-9)
+    np.testing.assert_array_equal(out[known], pred[known])  # other rows untouched
+
+
+@pytest.mark.parametrize("carry", [carry_last_seen, carry_last_seen_numba])
+def test_carry_last_seen_gives_way_to_the_prediction_as_the_rope_deforms(carry) -> None:  # type: ignore[no-untyped-def]
+    then = _bent_rope()
+    known = np.ones(10, dtype=bool)
+    known[5] = False
+    rows = np.array([5])
+    pred = then + np.array([0.0, 0.0, 0.01])  # spatial prediction 1 cm off
+    measured = np.ones((1, 10), bool)
+    errors = []
+    for bend in (0.0, 0.006, 0.1):  # the neighbours deform more and more
+        now = then + bend * np.sin(np.arange(10))[:, None] * np.array([1.0, 0.0, 0.0])
+        now[5] = then[5]
+        out = carry(pred, now, known, rows, then[None], measured, 0.005)
+        errors.append(float(np.linalg.norm(out[5] - pred[5])))
+    # undeformed: fully carried (1 cm from pred); then ever closer to pred
+    assert errors[0] == pytest.approx(0.01, abs=1e-9)
+    assert 0.002 < errors[1] < 0.009 and errors[2] < 0.0005
+
+
+@pytest.mark.parametrize("carry", [carry_last_seen, carry_last_seen_numba])
+def test_carry_last_seen_needs_three_neighbours_seen_in_both_frames(carry) -> None:  # type: ignore[no-untyped-def]
+    then = _bent_rope()
+    now = then + 0.3
+    known = np.zeros(10, dtype=bool)
+    known[[3, 5]] = True  # two measured neighbours now
+    measured = np.ones((1, 10), bool)
+    pred = np.full((10, 3), 7.0)
+    out = carry(pred, now, known, np.array([4]), then[None], measured, 0.005)
+    np.testing.assert_array_equal(out, pred)
+    known[[2, 6]] = True  # four now, but only two of them measured in the frame it was seen
+    measured[0, [2, 6]] = False
+    out = carry(pred, now, known, np.array([4]), then[None], measured, 0.005)
+    np.testing.assert_array_equal(out, pred)
+    measured[0, 6] = True  # three: carried (a translation by 0.3)
+    out = carry(pred, now, known, np.array([4]), then[None], measured, 0.005)
+    np.testing.assert_allclose(out[4], then[4] + 0.3, atol=1e-9)

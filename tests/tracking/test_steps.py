@@ -316,10 +316,14 @@ def test_commit_frame_writes_the_row_and_advances_the_state(steps) -> None:  # t
     steps.commit_frame(state, 1, p)
     np.testing.assert_array_equal(state.temp_count, [0, 11, 11])
     np.testing.assert_array_equal(state.invented[1], [False, True, True])
-    np.testing.assert_array_equal(state.lost_frames[1], [False, True, True])
+    # over maxTempMarkers, but pinned by marker 0, measured within two markers
+    np.testing.assert_array_equal(state.lost_frames[1], [False, False, False])
     np.testing.assert_array_equal(state.point_index[1], [3, -1, -1])
     np.testing.assert_array_equal(state.positions[1], state.cur)
     np.testing.assert_allclose(state.velocity, [[0.0, 0.01, 0], [0.0, 0.02, 0], [0.0, 0.03, 0]])
+    state.known[:] = False  # nothing measured (the frame again): those over the limit are lost
+    steps.commit_frame(state, 1, p)
+    np.testing.assert_array_equal(state.lost_frames[1], [False, True, True])
 
 
 def test_link_rest_learns_the_longest_accepted_chord_up_to_the_stretch(steps) -> None:  # type: ignore[no-untyped-def]

@@ -3,7 +3,8 @@
 One frame at a time, the numba twins of :func:`skincap.tracking.curve.fill_interior_on_curve`
 (the Hermite curve through the measured markers in rest arc length),
 :func:`skincap.tracking.curve.settle_single_gaps`, and the thesis' ṽ (eq. 3.3) and F
-(eq. 3.6) of :mod:`skincap.tracking._steps_numpy`.
+(eq. 3.6) of :mod:`skincap.tracking._steps_numpy`, and the twin of
+:func:`skincap.tracking.curve.carry_last_seen`.
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ import numpy as np
 from skincap.tracking._numba_search import JIT, norm3
 
 __all__ = [
+    "carry_last_seen",
     "curve_at",
     "fill_interior",
     "interp_along",
@@ -217,3 +219,65 @@ def predict_ends(cur, known, prev, v_tilde, temp_count, spacing):  # pragma: no 
         _predict_end(cur, prev, v_tilde, temp_count, spacing, j, np.int64(1))
     for j in range(last + 1, m):
         _predict_end(cur, prev, v_tilde, temp_count, spacing, j, np.int64(-1))
+
+
+_CARRY_OFFSETS = np.array([-1, 1, -2, 2, -3, 3, -4, 4], dtype=np.int64)
+_CARRY_NEIGHBOURS = 4
+
+
+@numba.njit(**JIT)
+def carry_last_seen(pred, cur, known, rows, then, then_measured, tolerance):  # pragma: no cover
+    """Twin of :func:`skincap.tracking.curve.carry_last_seen` (returns a new array)."""
+    out = pred.copy()
+    m = known.size
+    if rows.size == 0 or m < 4:
+        return out
+    idx = np.empty(_CARRY_NEIGHBOURS, np.int64)
+    for u in range(rows.size):
+        j = rows[u]
+        count = 0
+        for o in _CARRY_OFFSETS:
+            k = j + o
+            if count < _CARRY_NEIGHBOURS and 0 <= k < m and known[k] and then_measured[u, k]:
+                idx[count] = k
+                count += 1
+        if count < 3:
+            continue
+        pc = np.zeros(3)
+        qc = np.zeros(3)
+        for i in range(count):
+            pc += then[u, idx[i]]
+            qc += cur[idx[i]]
+        pc /= count
+        qc /= count
+        h = np.zeros((3, 3))
+        for i in range(count):
+            a = then[u, idx[i]] - pc
+            b = cur[idx[i]] - qc
+            for r in range(3):
+                for c in range(3):
+                    h[r, c] += a[r] * b[c]
+        u_svd, _, vt = np.linalg.svd(h)
+        det = np.sign(np.linalg.det(u_svd @ vt))
+        for c in range(3):
+            vt[2, c] *= det
+        rot = vt.T @ u_svd.T  # R = V D U^T
+        sq = 0.0
+        for i in range(count):
+            d = rot @ (then[u, idx[i]] - pc) + qc - cur[idx[i]]
+            sq += d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+        rms = np.sqrt(sq / count)
+        last = then[u, j] - pc
+        carried = rot @ last + qc
+        spread = 0.0
+        for i in range(count):
+            a = then[u, idx[i]] - pc
+            spread += a[0] * a[0] + a[1] * a[1] + a[2] * a[2]
+        spread = max(spread / count, 1e-300)
+        error = rms * np.sqrt(
+            1.0 + (last[0] * last[0] + last[1] * last[1] + last[2] * last[2]) / spread
+        )
+        w = 1.0 / (1.0 + (error / tolerance) ** 2)
+        for c in range(3):
+            out[j, c] = w * carried[c] + (1.0 - w) * out[j, c]
+    return out

@@ -33,6 +33,7 @@ import numba
 import numpy as np
 
 from skincap.tracking._numba_curve import (
+    carry_last_seen,
     curve_at,
     fill_interior,
     interp_along,
@@ -76,6 +77,7 @@ __all__ = [
 ]
 
 _INF = np.inf
+_PINNING_REACH = 2  # skincap.tracking._steps_numpy.PINNING_REACH
 # the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
 _WIDE = np.bool_(True)
 _NARROW = np.bool_(False)
@@ -108,7 +110,10 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
         known = state.known[j]
         state.temp_count[j] = 0 if known else state.temp_count[j] + 1
         state.invented[t, j] = not known
-        state.lost_frames[t, j] = state.temp_count[j] > p.max_temp_markers
+        pinned = False
+        for k in range(max(0, j - _PINNING_REACH), min(state.known.size, j + _PINNING_REACH + 1)):
+            pinned |= state.known[k]
+        state.lost_frames[t, j] = state.temp_count[j] > p.max_temp_markers and not pinned
         state.point_index[t, j] = state.taken[j]
         for c in range(3):
             state.positions[t, j, c] = state.cur[j, c]
@@ -406,6 +411,38 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
 
 
 @numba.njit(**JIT)
+def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._carry_hidden`."""
+    if p.carry_tolerance <= 0.0:
+        return pred
+    m = state.known.size
+    before, after = side_neighbours(state.known)
+    want = np.zeros(m, np.bool_)
+    n = 0
+    for j in range(m):
+        inside = before[j] >= 0 and after[j] < m
+        if rows_mask[j] and inside and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
+            want[j] = True
+            n += 1
+    if n == 0:
+        return pred
+    rows = np.empty(n, np.int64)
+    then = np.empty((n, m, 3))
+    then_measured = np.empty((n, m), np.bool_)
+    u = 0
+    for j in range(m):
+        last = t - 1 - state.temp_count[j]
+        if want[j]:
+            rows[u] = j
+            then[u] = state.positions[last]
+            for k in range(m):
+                then_measured[u, k] = not state.invented[last, k]
+            u += 1
+    tolerance = p.carry_tolerance * p.median_spacing
+    return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
+
+
+@numba.njit(**JIT)
 def zipper_predictions(state, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.zipper_predictions`."""
     cur, known, spacing = state.cur, state.known, state.spacing
@@ -566,6 +603,10 @@ def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compile
         for j in range(m):
             if not known[j]:
                 cur[j] = pred[j]
+    carried = _carry_hidden(state, t, cur, ~known, p)
+    for j in range(m):
+        if not known[j]:
+            cur[j] = carried[j]
 
 
 # ------------------------------------------------------------------ a frame

@@ -21,6 +21,7 @@ __all__ = [
     "rest_arclength",
     "fill_interior_on_curve",
     "settle_single_gaps",
+    "carry_last_seen",
     "polyline_length",
     "resample_by_arclength",
 ]
@@ -206,6 +207,100 @@ def settle_single_gaps(
     scale = ((1.0 - weight) * on + weight * radius) / on_safe
     moved = centre + scale[:, None] * off
     out[(*batch, j)] = np.where(ok[:, None], moved, xj)
+    return out
+
+
+#: Offsets along the rope of the markers a hidden marker is carried with, nearest first.
+CARRY_OFFSETS = np.array([-1, 1, -2, 2, -3, 3, -4, 4], dtype=np.int64)
+#: How many of them (the nearest measured in both frames) the rigid fit uses.
+CARRY_NEIGHBOURS = 4
+
+
+def carry_last_seen(
+    pred: np.ndarray,
+    cur: np.ndarray,
+    known: np.ndarray,
+    rows: np.ndarray,
+    then: np.ndarray,
+    then_measured: np.ndarray,
+    tolerance: float,
+) -> np.ndarray:
+    """Blend the predictions of hidden markers with where their neighbours carry them.
+
+    Beyond Porter (2012), whose F forgets the marker's own last position after one
+    frame: a hidden marker ``j`` was last seen in some frame ``t'``, together with
+    its neighbours. The rigid motion (least squares, Kabsch) that takes the
+    :data:`CARRY_NEIGHBOURS` nearest markers along the rope (at most four markers
+    away) measured both in ``t'`` and now from where they were to where they are
+    carries ``x_j(t')`` to ``r_j``; where the rope keeps its local shape (a segment
+    lying still, a bend travelling with the hand) this is near exact, where the
+    shape changes the fit's residual grows. The prediction becomes::
+
+        x_j = w r_j + (1 - w) pred_j,   w = 1 / (1 + (e / tolerance)^2),
+        e = rms sqrt(1 + |x_j(t') - c|^2 / g^2)
+
+    with ``rms`` the fit's root-mean-square residual, ``c`` the neighbours' centroid
+    in ``t'`` and ``g`` their radius of gyration about it (a marker carried beyond
+    its neighbours, at an end, is moved by the fit's rotation error times its lever):
+    the spatial prediction (the curve, F) takes over as the neighbourhood deforms. Fewer than three such
+    neighbours leave ``pred_j`` as it is.
+
+    Parameters
+    ----------
+    pred : (M, 3) float, metres
+        The spatial predictions of every marker (curve inside, F at the ends).
+    cur : (M, 3) float, metres
+        This frame's measured markers (where ``known``).
+    known : (M,) bool
+        Measured this frame.
+    rows : (U,) int
+        The hidden markers to carry.
+    then : (U, M, 3) float, metres
+        The rope in the frame each of them was last seen (``then[u, rows[u]]`` is
+        that marker's last measured position).
+    then_measured : (U, M) bool
+        Which markers were measured in that frame.
+    tolerance : float, metres
+        Fit residual at which the carried and the spatial prediction weigh the same.
+
+    Returns
+    -------
+    (M, 3) float64, metres
+        ``pred`` with the rows blended; the other rows untouched.
+    """
+    out = np.array(pred, dtype=np.float64)
+    rows = np.asarray(rows, dtype=np.int64)
+    m = known.size
+    if rows.size == 0 or m < 4:
+        return out
+    nb = rows[:, None] + CARRY_OFFSETS[None, :]  # (U, 8)
+    inside = (nb >= 0) & (nb < m)
+    nbc = np.clip(nb, 0, m - 1)
+    u_idx = np.arange(rows.size)[:, None]
+    usable = inside & known[nbc] & then_measured[u_idx, nbc]
+    usable &= np.cumsum(usable, axis=1) <= CARRY_NEIGHBOURS  # the nearest four
+    count = usable.sum(axis=1)  # (U,)
+    w = usable.astype(np.float64)
+    p_then = then[u_idx, nbc]  # (U, 8, 3)
+    q_now = cur[nbc]
+    denom = np.maximum(count, 1)[:, None]
+    pc = np.einsum("uk,ukc->uc", w, p_then) / denom
+    qc = np.einsum("uk,ukc->uc", w, q_now) / denom
+    h = np.einsum("uk,uka,ukb->uab", w, p_then - pc[:, None], q_now - qc[:, None])  # (U, 3, 3)
+    u_svd, _, vt = np.linalg.svd(h)
+    det = np.sign(np.linalg.det(np.einsum("uab,ubc->uac", u_svd, vt)))
+    vt = vt * np.where(np.arange(3)[None, :, None] == 2, det[:, None, None], 1.0)
+    rot = np.einsum("uba,ucb->uac", vt, u_svd)  # R = V D U^T, q ≈ R (p - pc) + qc
+    moved = np.einsum("uab,ukb->uka", rot, p_then - pc[:, None]) + qc[:, None]
+    rms = np.sqrt(np.einsum("uk,uk->u", w, np.sum((moved - q_now) ** 2, axis=2)) / denom[:, 0])
+    last = then[np.arange(rows.size), rows] - pc  # (U, 3) the marker from the centroid
+    carried = np.einsum("uab,ub->ua", rot, last) + qc
+    # an end is carried beyond its neighbours: a rotation error grows with the lever
+    spread = np.einsum("uk,uk->u", w, np.sum((p_then - pc[:, None]) ** 2, axis=2)) / denom[:, 0]
+    lever = np.einsum("uc,uc->u", last, last) / np.maximum(spread, 1e-300)
+    error = rms * np.sqrt(1.0 + lever)
+    weight = np.where(count >= 3, 1.0 / (1.0 + (error / tolerance) ** 2), 0.0)[:, None]
+    out[rows] = weight * carried + (1.0 - weight) * out[rows]
     return out
 
 

@@ -93,6 +93,12 @@ class TrackSettings:
     """Share of the way a lone invented inner marker moves from the curve to its rest
     spacings from both neighbours (0: stays on the curve, which cuts a sharp bend)."""
 
+    carry_tolerance: float = 0.05
+    """A hidden marker between measured markers is also carried from where it was last
+    seen by the rigid motion of its nearest measured neighbours
+    (:func:`~skincap.tracking.curve.carry_last_seen`); the fit residual, in median
+    rest spacings, at which that and the curve weigh the same. 0 turns the carry off."""
+
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)

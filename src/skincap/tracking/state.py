@@ -41,7 +41,7 @@ class TrackState(NamedTuple):
         positions    (T, M, 3) float64, metres  never NaN (invented where unseen)
         invented     (T, M) bool
         point_index  (T, M) int64             global index of the point taken, -1 if none
-        lost_frames  (T, M) bool              more than maxTempMarkers temporary markers
+        lost_frames  (T, M) bool              more than maxTempMarkers temporary markers, unpinned
 
     Carried from frame to frame::
 
@@ -123,6 +123,7 @@ class StepParams(NamedTuple):
     swing_gate: float
     lone_after: int
     settle: float
+    carry_tolerance: float
     median_spacing: float
 
 

@@ -21,8 +21,17 @@ Beyond the thesis:
   arc length (:mod:`skincap.tracking.curve`); the thesis' ``F`` is kept for runs of
   missing markers at the ends of the rope, and it is projected to the rest spacing
   ``l_j`` from its measured side, so invented markers keep the rope's length.
-* After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*:
-  it goes on being predicted the same way internally and flagged in
+* A hidden marker between measured markers is also carried from where it was last
+  seen by the rigid motion of its nearest measured neighbours, blended with the curve
+  by how rigidly they moved (:func:`~skincap.tracking.curve.carry_last_seen`): a bend
+  that lies still or travels with the hand keeps its shape, which the curve alone
+  cuts. The rope's end runs keep F (carried beyond its neighbours, a held end turning
+  with the hand strays).
+* After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
+  unless a marker measured within two markers along the rope pins it (a marker hidden
+  between seen neighbours is repaired however long its gap: a limit in time would
+  drop a well-constrained marker of a 50 Hz take after 50 frames): it goes on being
+  predicted the same way internally and flagged in
   :attr:`RopeTrack.lost_frames`, and it keeps looking for a point within γ of that
   prediction; taking one ends the loss. What is reported for a lost trace is NaN, and
   every invented sample reported is bounded by the rope's length
@@ -140,7 +149,8 @@ class RopeTrack(MarkerTrajectories):
         No point appears twice.
     lost_frames : (T, M) bool
         True where the trace had more than ``max_temp_markers`` consecutive
-        temporary markers, or no place the rope's length allows: ``positions`` is NaN
+        temporary markers and no measured marker within two markers along the rope
+        pinned it, or no place the rope's length allows: ``positions`` is NaN
         there (the tracker goes on predicting it internally, so it can be found again).
     labels : list of M str
         ``rope_00``, ``rope_01``….
