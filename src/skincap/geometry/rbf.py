@@ -295,7 +295,7 @@ def fit_rbf_fixed_centres(
     r = np.broadcast_to(r, (n_t, *lead, k, d)).reshape(n_t, -1, k, d)
     s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), lead).reshape(-1)
     n_sys = c.shape[0]
-    finite_c: np.ndarray = np.isfinite(c).all(-1)  # (P, K)
+    finite_c = np.asarray(np.isfinite(c).all(axis=-1))  # (P, K)
     valid = finite_c[None] & np.isfinite(r).all(-1)  # (T, P, K)
     if mask is not None:
         valid = valid & np.broadcast_to(np.asarray(mask, dtype=bool), (n_t, *lead, k)).reshape(
