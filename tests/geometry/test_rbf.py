@@ -6,7 +6,13 @@ import numpy as np
 import pytest
 
 from skincap.errors import ValidationError
-from skincap.geometry.rbf import cubic_bspline, dilation_from_spacing, evaluate_rbf, fit_rbf
+from skincap.geometry.rbf import (
+    cubic_bspline,
+    dilation_from_spacing,
+    evaluate_rbf,
+    fit_rbf,
+    fit_rbf_fixed_centres,
+)
 
 
 def _grid_points(rng: np.random.Generator, n: int = 30) -> np.ndarray:
@@ -98,3 +104,65 @@ def test_inverse_and_eigen_paths_agree_and_a_batch_may_mix_them() -> None:
     np.testing.assert_allclose(w[1], fit_rbf(bad, values[1], 0.1), rtol=0, atol=1e-15)
     np.testing.assert_allclose(w[0], fit_rbf(good, values[0], 0.1, cutoff=0.0), atol=1e-12)
     assert np.abs(w[1]).max() < 1.0  # the near-coincident pair is not inverted
+
+
+def _fixed_centre_case(
+    rng: np.random.Generator, n_frames: int, missing_rate: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Three systems of 32 lattice centres, values and random masks over the frames."""
+    c = np.stack([_grid_points(rng, 32) for _ in range(3)])  # (P, K, 3)
+    sigma = np.array([dilation_from_spacing(x) for x in c])
+    values = 0.003 * rng.normal(size=(n_frames, 3, 32, 3))
+    mask = rng.random((n_frames, 3, 32)) >= missing_rate
+    return c, values, sigma, mask
+
+
+def test_fixed_centres_equal_fit_rbf_on_every_frame_of_random_masks() -> None:
+    """The downdated inverse gives fit_rbf's weights frame by frame (~1e-9 relative)."""
+    rng = np.random.default_rng(11)
+    c, values, sigma, mask = _fixed_centre_case(rng, 40, 0.08)
+    mask[0] = True  # nothing missing
+    values[5, 1, 7] = np.nan  # a non-finite value: excluded like a masked centre
+    got = fit_rbf_fixed_centres(c, values, sigma, mask)
+    want = fit_rbf(c[None], values, sigma[None], mask)
+    assert got.shape == want.shape == values.shape
+    scale = np.abs(want).max(axis=(-1, -2), keepdims=True)
+    assert (np.abs(got - want) <= 1e-9 * scale).all()
+    assert (got[~mask] == 0).all() and (got[5, 1, 7] == 0).all()
+    # the weights interpolate the present values at the present centres
+    fitted = evaluate_rbf(c[None], got, sigma[None], c[None])
+    used = mask & np.isfinite(values).all(-1)
+    np.testing.assert_allclose(fitted[used], values[used], atol=1e-10)
+
+
+def test_fixed_centres_hand_what_they_cannot_downdate_to_fit_rbf() -> None:
+    """Too many missing, a near-singular full matrix, a bad σ, a padding (NaN) centre:
+    each gets what fit_rbf gives it."""
+    rng = np.random.default_rng(12)
+    c, values, sigma, mask = _fixed_centre_case(rng, 6, 0.0)
+    mask[1, 0, :20] = False  # over a quarter missing: refitted
+    c[1, 3] = c[1, 4] + 1e-10  # near-coincident pair: the full matrix fails the test
+    sigma[2] = np.nan  # no field
+    c[0, 31] = np.nan  # a padding slot
+    got = fit_rbf_fixed_centres(c, values, sigma, mask)
+    want = fit_rbf(c[None], values, sigma[None], mask)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+    assert np.abs(got[:, 1]).max() < 1.0  # the near-coincident pair is not inverted
+    assert (got[:, 2] == 0).all() and (got[:, 0, 31] == 0).all()
+    # a downdate limit of 0 refits every frame with a missing centre: the same weights
+    mask[2:, :, 5] = False
+    np.testing.assert_allclose(
+        fit_rbf_fixed_centres(c, values, sigma, mask, max_missing_share=0.0),
+        fit_rbf_fixed_centres(c, values, sigma, mask),
+        rtol=0,
+        atol=1e-9 * np.abs(want).max(),
+    )
+
+
+def test_fixed_centres_refuse_bad_arguments() -> None:
+    with pytest.raises(ValidationError, match="same K"):
+        fit_rbf_fixed_centres(np.zeros((4, 3)), np.zeros((2, 5, 3)), 0.1)
+    with pytest.raises(ValidationError, match="same K"):
+        fit_rbf_fixed_centres(np.zeros((4, 3)), np.zeros((4, 3)), 0.1)  # no frame axis
+    with pytest.raises(ValidationError, match="max_missing_share"):
+        fit_rbf_fixed_centres(np.zeros((4, 3)), np.zeros((2, 4, 3)), 0.1, max_missing_share=2)

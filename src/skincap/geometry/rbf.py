@@ -33,7 +33,13 @@ from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
 
-__all__ = ["cubic_bspline", "dilation_from_spacing", "evaluate_rbf", "fit_rbf"]
+__all__ = [
+    "cubic_bspline",
+    "dilation_from_spacing",
+    "evaluate_rbf",
+    "fit_rbf",
+    "fit_rbf_fixed_centres",
+]
 
 
 def cubic_bspline(u: np.ndarray) -> np.ndarray:
@@ -221,6 +227,138 @@ def _solve_dropping_small_modes(phi: np.ndarray, values: np.ndarray, cut: float)
         coeff = (np.swapaxes(vec, -1, -2) @ values[decompose]) * inv_lam[..., None]
         w[decompose] = vec @ coeff
     return w
+
+
+#: Default largest share of a system's centres that may be missing in a frame for
+#: :func:`fit_rbf_fixed_centres` to downdate the full inverse (O(K² m + m³)) rather than
+#: refit the frame (O(K³)).
+MAX_MISSING_SHARE = 0.25
+
+
+def fit_rbf_fixed_centres(
+    centres: np.ndarray,
+    values: np.ndarray,
+    sigma: np.ndarray | float,
+    mask: np.ndarray | None = None,
+    *,
+    cutoff: float = 1e-6,
+    max_missing_share: float = MAX_MISSING_SHARE,
+) -> np.ndarray:
+    """:func:`fit_rbf` for centres fixed over many frames, only the mask changing.
+
+    Each system's full kernel matrix ``A`` (every finite centre) is inverted once,
+    ``B = A⁻¹``; a frame with the present set ``S`` and missing set ``M`` gets the
+    inverse of its reduced matrix from the block-inverse downdate
+    ``(A_SS)⁻¹ = B_SS - B_SM (B_MM)⁻¹ B_MS``: O(K² m + m³) per frame for ``m`` missing
+    instead of O(K³), vectorised over the frames with the same ``m``. The downdated
+    inverse also gives ``||Φ||_F ||Φ⁻¹||_F`` exactly as :func:`fit_rbf` tests it, so a
+    frame :func:`fit_rbf` would solve by its eigen-decomposition (modes possibly left
+    out) is handed to :func:`fit_rbf`, as are systems whose full matrix fails that test,
+    frames with more than ``max_missing_share`` of the centres missing and systems
+    with a non-positive or NaN σ. The weights equal :func:`fit_rbf`'s to rounding.
+
+    Parameters
+    ----------
+    centres : (..., K, 3) float, metres
+        The same centres for every frame (non-finite: never a centre).
+    values : (T, ..., K, D) float
+        Values to interpolate at each frame (non-finite: excluded at that frame).
+    sigma : float or (...) float, metres
+    mask : (T, ..., K) bool, optional
+        False excludes a centre at a frame.
+    cutoff : float
+        As :func:`fit_rbf`.
+    max_missing_share : float
+        Largest share of a system's finite centres missing in a frame that is
+        downdated (in [0, 1]).
+
+    Returns
+    -------
+    weights : (T, ..., K, D) float64
+        As :func:`fit_rbf` with ``centres`` broadcast over the frames.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    r = np.asarray(values, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-1] != 3 or r.ndim != c.ndim + 1 or r.shape[-2] != c.shape[-2]:
+        raise ValidationError(
+            f"centres must be (..., K, 3) and values (T, ..., K, D) with the same K; "
+            f"got {c.shape} and {r.shape}"
+        )
+    cut = float(cutoff)
+    if not (0 <= cut < 1):
+        raise ValidationError(f"cutoff must be in [0, 1); got {cutoff!r}")
+    if not (0 <= max_missing_share <= 1):
+        raise ValidationError(f"max_missing_share must be in [0, 1]; got {max_missing_share!r}")
+    lead = np.broadcast_shapes(c.shape[:-2], r.shape[1:-2])
+    n_t, k, d = r.shape[0], c.shape[-2], r.shape[-1]
+    c = np.broadcast_to(c, (*lead, k, 3)).reshape(-1, k, 3)  # (P, K, 3): the systems
+    r = np.broadcast_to(r, (n_t, *lead, k, d)).reshape(n_t, -1, k, d)
+    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), lead).reshape(-1)
+    n_sys = c.shape[0]
+    finite_c = np.asarray(np.isfinite(c).all(axis=-1))  # (P, K)
+    valid = finite_c[None] & np.isfinite(r).all(-1)  # (T, P, K)
+    if mask is not None:
+        valid = valid & np.broadcast_to(np.asarray(mask, dtype=bool), (n_t, *lead, k)).reshape(
+            n_t, n_sys, k
+        )
+    r0 = np.where(valid[..., None], r, 0.0)
+    good_sigma = np.isfinite(s) & (s > 0)
+    # the full matrices, shaped as fit_rbf shapes them (a non-finite centre decoupled)
+    c0 = np.where(finite_c[..., None], c, 0.0)
+    full = _kernel_matrix(c0, c0, np.where(good_sigma, s, 1.0))  # (P, K, K)
+    pair = finite_c[:, :, None] & finite_c[:, None, :]
+    eye = np.eye(k, dtype=bool)
+    full = np.where(pair, full, 0.0) + np.where(eye & ~finite_c[:, :, None], 2.0 / 3.0, 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            inverse = np.linalg.inv(full)
+            fine = np.isfinite(inverse).all(axis=(-1, -2))
+        except np.linalg.LinAlgError:  # an exactly singular one: every system refitted
+            inverse, fine = np.zeros_like(full), np.zeros(n_sys, dtype=bool)
+    fine &= good_sigma
+    # the matrix of a frame: present pairs of `full`, 2/3 on every other diagonal slot
+    n_out = k - valid.sum(-1)  # (T, P) slots decoupled at that frame
+    missing = finite_c[None] & ~valid  # (T, P, K): downdated
+    n_missing = missing.sum(-1)
+    phi_sq = np.einsum("tpk,pkl,tpl->tp", valid * 1.0, full * full, valid * 1.0)
+    phi_sq += n_out * (4.0 / 9.0)
+    limit = np.floor(max_missing_share * finite_c.sum(-1))[None, :]  # (1, P)
+    todo = fine[None, :] & (n_missing <= limit)  # (T, P)
+    w = np.zeros((n_t, n_sys, k, d))
+    refit = ~todo
+    for m in np.unique(n_missing[todo]):
+        t_idx, p_idx = np.nonzero(todo & (n_missing == m))
+        b = inverse[p_idx]  # (n, K, K)
+        if m == 0:
+            inv_s = b
+        else:
+            # the m missing slots of each frame, in order (a stable sort puts them first)
+            slots = np.argsort(~missing[t_idx, p_idx], axis=-1, kind="stable")[:, :m]
+            b_km = np.take_along_axis(b, slots[:, None, :], axis=2)  # (n, K, m)
+            b_mm = np.take_along_axis(b_km, slots[:, :, None], axis=1)  # (n, m, m)
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                try:
+                    c_mm = np.linalg.inv(b_mm)
+                except np.linalg.LinAlgError:  # refit the whole group: rare
+                    refit[t_idx, p_idx] = True
+                    continue
+                inv_s = b - b_km @ c_mm @ np.swapaxes(b_km, -1, -2)  # B_MS = B_SMᵀ
+        keep = valid[t_idx, p_idx]  # (n, K)
+        inv_s = np.where(keep[:, :, None] & keep[:, None, :], inv_s, 0.0)
+        with np.errstate(over="ignore", invalid="ignore"):
+            inv_sq = (inv_s * inv_s).sum(axis=(-1, -2)) + n_out[t_idx, p_idx] * (9.0 / 4.0)
+            size = np.sqrt(phi_sq[t_idx, p_idx] * inv_sq)
+        # the test of _solve_dropping_small_modes: other frames are fit_rbf's to decide
+        ok = size * cut < 1.0 if cut > 0 else np.isfinite(size)
+        w[t_idx[ok], p_idx[ok]] = inv_s[ok] @ r0[t_idx[ok], p_idx[ok]]
+        refit[t_idx[~ok], p_idx[~ok]] = True
+    if refit.any():
+        t_idx, p_idx = np.nonzero(refit)
+        w[t_idx, p_idx] = fit_rbf(
+            c[p_idx], r[t_idx, p_idx], s[p_idx], valid[t_idx, p_idx], cutoff=cut
+        )
+    w = np.where(valid[..., None], w, 0.0)
+    return w.reshape(n_t, *lead, k, d)
 
 
 def evaluate_rbf(

@@ -269,3 +269,35 @@ def test_seam_weights_choose_between_the_two_fields(backend: str) -> None:
         np.testing.assert_allclose(both[0], both[1], atol=1e-9)
     with pytest.raises(ValidationError, match="seam_weights"):
         DenseDeformer(seam, vertices, beta, seam_weights=np.full((32, 2), 2.0))
+
+
+def test_rigid_rbf_fits_with_fixed_centres_equal_the_plain_fit(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """rigid_rbf's RBF centres are the rest positions at every frame, so both of its
+    fits (members, seam centres) downdate one inverse per part: the weights equal
+    fit_rbf's, with markers missing at random frames."""
+    import skincap.deform.dense.deformer as deformer_module
+    from skincap.geometry.rbf import fit_rbf
+
+    rng = np.random.default_rng(21)
+    ref, alpha, faces = _two_part_strip(rng)
+    parts = part_frames(ref, alpha, surface_faces=faces)
+    rot, trans = _rigid(rng, 12)
+    bent = ref + 0.004 * rng.normal(size=(12, 32, 3))
+    markers = np.einsum("tab,tnb->tna", rot, bent) + trans[:, None]
+    markers[rng.random((12, 32)) < 0.06] = np.nan
+    got = fit_part_motion(markers, parts, "rigid_rbf")
+
+    def plain(centres, values, sigma, mask):  # type: ignore[no-untyped-def]
+        return fit_rbf(centres[None], values, sigma[None], mask)
+
+    monkeypatch.setattr(deformer_module, "fit_rbf_fixed_centres", plain)
+    want = fit_part_motion(markers, parts, "rigid_rbf")
+    assert got.member_rbf_weights is not None and want.member_rbf_weights is not None
+    assert np.abs(want.rbf_weights).max() > 1e-4  # the fields are not trivial
+    scale = np.abs(want.rbf_weights).max()
+    np.testing.assert_allclose(got.rbf_weights, want.rbf_weights, rtol=0, atol=1e-9 * scale)
+    np.testing.assert_allclose(
+        got.member_rbf_weights, want.member_rbf_weights, rtol=0, atol=1e-9 * scale
+    )

@@ -61,7 +61,7 @@ from skincap.geometry.quadratic import (
     fit_quadratic,
     quadratic_basis,
 )
-from skincap.geometry.rbf import fit_rbf
+from skincap.geometry.rbf import fit_rbf, fit_rbf_fixed_centres
 from skincap.geometry.rigid import fit_rigid
 
 __all__ = [
@@ -241,16 +241,29 @@ def fit_part_motion(
     member_rbf_w = None
     if use_rbf:
         residual = local - centres  # NaN where missing: excluded by fit_rbf
-        rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present)
-        if parts.has_seam_centres:  # the members fill the first slots: a smaller system
-            k_fit = int(parts.fitted.sum(axis=1).max())
-            member_rbf_w = np.zeros_like(rbf_w)
-            member_rbf_w[:, :, :k_fit] = fit_rbf(
-                centres[:, :, :k_fit],
-                residual[:, :, :k_fit],
-                parts.sigma[None, :],
-                (present & parts.fitted)[:, :, :k_fit],
-            )
+        member_present = present & parts.fitted
+        k_fit = int(parts.fitted.sum(axis=1).max())  # the members fill the first slots
+        if use_quadratic:  # the centres move with each frame's quadratic field
+            rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present)
+            if parts.has_seam_centres:
+                member_rbf_w = np.zeros_like(rbf_w)
+                member_rbf_w[:, :, :k_fit] = fit_rbf(
+                    centres[:, :, :k_fit],
+                    residual[:, :, :k_fit],
+                    parts.sigma[None, :],
+                    member_present[:, :, :k_fit],
+                )
+        else:  # the rest positions at every frame: one inverse per part, downdated
+            rest = np.where(parts.valid[..., None], parts.local_reference, np.nan)  # padding: none
+            rbf_w = fit_rbf_fixed_centres(rest, residual, parts.sigma, present)
+            if parts.has_seam_centres:
+                member_rbf_w = np.zeros_like(rbf_w)
+                member_rbf_w[:, :, :k_fit] = fit_rbf_fixed_centres(
+                    rest[:, :k_fit],
+                    residual[:, :, :k_fit],
+                    parts.sigma,
+                    member_present[:, :, :k_fit],
+                )
     else:
         rbf_w = np.zeros((n_t, n_p, k, 3))
     centres = np.where(np.isfinite(centres), centres, 0.0)

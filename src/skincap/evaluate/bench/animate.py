@@ -6,7 +6,10 @@ about the end of the previous one (a kinematic chain of sinusoidal joint angles)
 every part moves rigidly and the markers near a joint are shared. The dense deformer
 (:class:`skincap.deform.dense.deformer.DenseDeformer`) deforms ``n_frames`` frames per
 run (the per-frame fits and the vertices), once with each backend: the numba kernel
-and its NumPy reference. The baseline is our linear blend skinning of the same
+and its NumPy reference. The parts and vertices are set up as a subject rig's deformer
+sets them up (:func:`default_parts`): each part with its seam centres (the markers one
+tube-surface edge beyond it, centres of its second RBF field) and each vertex with its
+seam weights, so the figures are those of the default ``animate``. The baseline is our linear blend skinning of the same
 vertices with the same part weights as joint weights (two influences), on the same
 backend, timed in the same process. Also timed: the first call in a fresh process
 (import, binding and one deform with the default backend) with a cold and a warm numba
@@ -34,12 +37,13 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap.deform.dense.deformer import METHODS, DenseDeformer, Method, fit_part_motion
-from skincap.deform.dense.parts import part_frames
+from skincap.deform.dense.parts import PartFrames, part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
+from skincap.deform.dense.weights import seam_vertex_weights
 from skincap.deform.skeletal.deformers import LinearBlendSkinning
 from skincap.errors import MissingDependencyError, ValidationError
 
-__all__ = ["GOALS_MS", "chain_scene", "run_animate_benchmark"]
+__all__ = ["GOALS_MS", "chain_scene", "default_parts", "run_animate_benchmark"]
 
 #: Goals of issue #16 (2 cores): ms/frame at 50k vertices, seconds for the fits.
 GOALS_MS = {"quadratic_rbf_numpy": 20.0, "quadratic_rbf_numba": 5.0}
@@ -143,6 +147,25 @@ def chain_scene(
     }
 
 
+def default_parts(scene: dict[str, np.ndarray]) -> tuple[PartFrames, np.ndarray]:
+    """The parts and seam weights of ``scene`` as a rig's deformer builds them.
+
+    Like :meth:`skincap.deform.dense.rig.DenseRig.deformer`: the parts carry their seam
+    centres (the marker-surface triangles given), and every vertex its seam weights,
+    so the fits solve both RBF fields of every part and the kernels blend them.
+
+    Returns
+    -------
+    parts : PartFrames
+    seam_weights : (V, P) float64 in [0, 1]
+    """
+    parts = part_frames(scene["reference"], scene["alpha"], surface_faces=scene["faces"])
+    seam = seam_vertex_weights(
+        scene["vertices"], scene["reference"], scene["faces"], scene["alpha"] > 0
+    )
+    return parts, seam
+
+
 def _best_wall_and_cpu(run: Callable[[], object], repeat: int) -> tuple[float, float]:
     """One warm-up call, then the smallest wall-clock and the smallest CPU seconds
     (every thread of this process) of ``repeat`` calls."""
@@ -162,12 +185,11 @@ def _first_call(n_vertices: int, n_parts: int, n_markers: int, n_frames: int, se
 
     return first_call_in_fresh_process(
         "from skincap.deform.dense.deformer import DenseDeformer",
-        "from skincap.deform.dense.parts import part_frames\n"
-        "from skincap.evaluate.bench.animate import chain_scene\n"
+        "from skincap.evaluate.bench.animate import chain_scene, default_parts\n"
         f"s = chain_scene({n_vertices}, {n_parts}, {n_markers}, {n_frames}, seed={seed})\n"
-        "parts = part_frames(s['reference'], s['alpha'])",
-        "list(DenseDeformer(parts, s['vertices'], s['beta']).deform(s['markers'], "
-        f"chunk={n_frames}))",
+        "parts, seam = default_parts(s)",
+        "list(DenseDeformer(parts, s['vertices'], s['beta'], seam_weights=seam)"
+        f".deform(s['markers'], chunk={n_frames}))",
     )
 
 
@@ -222,17 +244,19 @@ def run_animate_benchmark(
         raise ValidationError(f"repeat must be >= 1; got {repeat}")
     scene = chain_scene(n_vertices, n_parts, n_markers, n_frames, seed=seed)
     notes: list[str] = []
-    parts = part_frames(scene["reference"], scene["alpha"])
+    parts, seam = default_parts(scene)
     ms: dict[str, float | None] = {}
     cpu_ms: dict[str, float | None] = {}
-    outputs = _time_dense_variants(scene, parts, n_frames, repeat, ms, cpu_ms, notes)
+    outputs = _time_dense_variants(scene, parts, seam, n_frames, repeat, ms, cpu_ms, notes)
     _time_lbs(scene, n_parts, n_vertices, n_frames, repeat, ms, cpu_ms, notes)
     fits = partial(fit_part_motion, scene["markers"], parts, "quadratic_rbf")
     _time_per_frame("fits_quadratic_rbf", fits, repeat, n_frames, ms, cpu_ms)
     ratios = _cpu_ratios(cpu_ms)
     max_abs_diff = _numba_vs_numpy_diff(outputs)
     first = _first_call(n_vertices, n_parts, n_markers, n_frames, seed) if first_call else None
-    default_backend = DenseDeformer(parts, scene["vertices"][:1], scene["beta"][:1]).backend
+    default_backend = DenseDeformer(
+        parts, scene["vertices"][:1], scene["beta"][:1], seam_weights=seam[:1]
+    ).backend
     seconds: dict[str, float | None] = {"segmentation": None, "registration": None}
     if rom_frames > 0:
         seconds["segmentation"] = _segmentation_seconds(n_parts, n_markers, rom_frames, seed)
@@ -278,14 +302,16 @@ def _time_per_frame(
 
 def _time_dense_variants(
     scene: dict[str, np.ndarray],
-    parts: Any,
+    parts: PartFrames,
+    seam: np.ndarray,
     n_frames: int,
     repeat: int,
     ms: dict[str, float | None],
     cpu_ms: dict[str, float | None],
     notes: list[str],
 ) -> dict[str, np.ndarray]:
-    """Time every dense method on each backend into ``ms`` / ``cpu_ms`` (ms/frame,
+    """Time every dense method on each backend (the parts with seam centres and the
+    vertices' seam weights ``seam``, as a rig deforms) into ``ms`` / ``cpu_ms`` (ms/frame,
     ``<method>_<backend>``; None and a note when the backend is missing).
 
     Returns
@@ -296,7 +322,9 @@ def _time_dense_variants(
     outputs: dict[str, np.ndarray] = {}
     for backend in _BACKENDS:
         try:
-            deformer = DenseDeformer(parts, scene["vertices"], scene["beta"], backend=backend)
+            deformer = DenseDeformer(
+                parts, scene["vertices"], scene["beta"], seam_weights=seam, backend=backend
+            )
         except MissingDependencyError as exc:  # numba missing: reported, not fatal
             notes.append(f"dense {backend} not measured: {exc}")
             for method in METHODS:
