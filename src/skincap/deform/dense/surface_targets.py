@@ -46,12 +46,13 @@ MIN_NORMAL_COSINE = 0.5
 #: Template vertices nearest a marker triangle whose normals vote on its orientation.
 ORIENTATION_VOTES = 8
 
-#: Least cosine between two corner normals of the marker triangle under a vertex.
-MIN_CORNER_COSINE = 0.5
+#: Least cosine between two corner normals of the marker triangle under a vertex
+#: (-1: no triangle dropped for its curvature; 0.5 costs the measured body pairs).
+MIN_CORNER_COSINE = -1.0
 
 #: Marker triangles with an edge longer than this many times the median edge are
-#: dropped (gap-bridging triangles).
-LONG_EDGE_RATIO = 2.0
+#: dropped (gap-bridging triangles; inf: none dropped, as measured best on body pairs).
+LONG_EDGE_RATIO = float("inf")
 
 #: Nearest markers whose triangles are a point's candidates for its closest point.
 CANDIDATE_MARKERS = 4
