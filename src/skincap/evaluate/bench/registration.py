@@ -43,7 +43,9 @@ def registration_seconds(
     face = rng.integers(0, f.shape[0], 30 * int(n_markers))
     bary = rng.dirichlet(np.ones(3), face.size)
     candidates = np.einsum("nk,nkx->nx", bary, v[f[face]])
-    markers = candidates[_farthest_point_nodes(candidates, min(int(n_markers), len(candidates)))] * 1.04 + [0.0, 0.0, 0.03]
+    markers = candidates[
+        _farthest_point_nodes(candidates, min(int(n_markers), len(candidates)))
+    ] * 1.04 + [0.0, 0.0, 0.03]
     labels = [f"D{i:03d}" for i in range(markers.shape[0])]
 
     edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
