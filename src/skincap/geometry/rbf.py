@@ -249,7 +249,7 @@ def _invert_full_kernels(
     with np.errstate(over="ignore", invalid="ignore"):
         try:
             inverse = np.linalg.inv(full)
-            fine = np.isfinite(inverse).all(axis=(-1, -2))
+            fine = np.asarray(np.isfinite(inverse).all(axis=(-1, -2)))  # (P,)
         except np.linalg.LinAlgError:  # an exactly singular one: every system refitted
             inverse, fine = np.zeros_like(full), np.zeros(n_sys, dtype=bool)
     return full, inverse, fine
