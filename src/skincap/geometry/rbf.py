@@ -235,6 +235,26 @@ def _solve_dropping_small_modes(phi: np.ndarray, values: np.ndarray, cut: float)
 MAX_MISSING_SHARE = 0.25
 
 
+def _invert_full_kernels(
+    c: np.ndarray, finite_c: np.ndarray, s: np.ndarray, good_sigma: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The full kernel matrices (P, K, K), their inverses (P, K, K), which inverses are finite (P,)."""
+    n_sys, k = c.shape[0], c.shape[1]
+    # the full matrices, shaped as fit_rbf shapes them (a non-finite centre decoupled)
+    c0 = np.where(finite_c[..., None], c, 0.0)
+    full = _kernel_matrix(c0, c0, np.where(good_sigma, s, 1.0))  # (P, K, K)
+    pair = finite_c[:, :, None] & finite_c[:, None, :]
+    eye = np.eye(k, dtype=bool)
+    full = np.where(pair, full, 0.0) + np.where(eye & ~finite_c[:, :, None], 2.0 / 3.0, 0.0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        try:
+            inverse = np.linalg.inv(full)
+            fine = np.asarray(np.isfinite(inverse).all(axis=(-1, -2)))  # (P,)
+        except np.linalg.LinAlgError:  # an exactly singular one: every system refitted
+            inverse, fine = np.zeros_like(full), np.zeros(n_sys, dtype=bool)
+    return full, inverse, fine
+
+
 def fit_rbf_fixed_centres(
     centres: np.ndarray,
     values: np.ndarray,
@@ -303,18 +323,7 @@ def fit_rbf_fixed_centres(
         )
     r0 = np.where(valid[..., None], r, 0.0)
     good_sigma = np.isfinite(s) & (s > 0)
-    # the full matrices, shaped as fit_rbf shapes them (a non-finite centre decoupled)
-    c0 = np.where(finite_c[..., None], c, 0.0)
-    full = _kernel_matrix(c0, c0, np.where(good_sigma, s, 1.0))  # (P, K, K)
-    pair = finite_c[:, :, None] & finite_c[:, None, :]
-    eye = np.eye(k, dtype=bool)
-    full = np.where(pair, full, 0.0) + np.where(eye & ~finite_c[:, :, None], 2.0 / 3.0, 0.0)
-    with np.errstate(over="ignore", invalid="ignore"):
-        try:
-            inverse = np.linalg.inv(full)
-            fine = np.isfinite(inverse).all(axis=(-1, -2))
-        except np.linalg.LinAlgError:  # an exactly singular one: every system refitted
-            inverse, fine = np.zeros_like(full), np.zeros(n_sys, dtype=bool)
+    full, inverse, fine = _invert_full_kernels(c, finite_c, s, good_sigma)
     fine &= good_sigma
     # the matrix of a frame: present pairs of `full`, 2/3 on every other diagonal slot
     n_out = k - valid.sum(-1)  # (T, P) slots decoupled at that frame

@@ -172,6 +172,56 @@ def _frame_from_joint(
     return rot, trans
 
 
+def _own_group_frames(
+    positions: np.ndarray, groups: list[np.ndarray]
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Each group's own frame (rotations (T, 3, 3), translations (T, 3)) where it has one."""
+    frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for k, g in enumerate(groups):
+        if g.size >= 3:
+            try:
+                _, rot, trans = cluster_frames(positions[:, g])
+            except ValidationError:
+                continue
+            if np.isfinite(rot).all(axis=(1, 2)).sum() >= MIN_FRAMES:
+                frames[k] = (rot, trans)
+    return frames
+
+
+def _regroup(
+    groups: list[np.ndarray],
+    b: int,
+    better: tuple[np.ndarray, np.ndarray, int | None],
+    singles: list[int],
+) -> int:
+    """Apply :func:`_better_members`' change to group ``b`` in place; the moved group's index."""
+    members, out, taken = better
+    groups[b] = members
+    if taken is None:
+        groups.append(out)
+        return len(groups) - 1
+    moved = singles[taken]
+    groups[moved] = out
+    return moved
+
+
+def _frame_pair_at_joint(
+    pair: np.ndarray,
+    parent_frame: tuple[np.ndarray, np.ndarray],
+    centre: np.ndarray,
+    axis: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """Frame of a two-marker group ``(T, 2, 3)`` from its joint with the parent, or None."""
+    rot, trans = parent_frame
+    framed = _frame_from_joint(pair, to_world(rot, trans, centre[None]))
+    if framed is None and axis is not None:
+        # a hinge whose fitted centre fell in line with the markers: any
+        # point of its axis is fixed in both segments, so take a second one
+        fixed = np.stack([centre, centre + AXIS_POINT_M * axis])
+        framed = _frame_from_joint(pair, to_world(rot, trans, fixed))
+    return framed
+
+
 def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> AutoTree:
     """Grow the skeleton's tree from ``root`` over the marker groups.
 
@@ -194,15 +244,7 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
         The root group cannot be framed (fewer than three markers seen together).
     """
     groups = [np.asarray(g) for g in groups]  # a loose marker may leave its group
-    frames: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    for k, g in enumerate(groups):
-        if g.size >= 3:
-            try:
-                _, rot, trans = cluster_frames(positions[:, g])
-            except ValidationError:
-                continue
-            if np.isfinite(rot).all(axis=(1, 2)).sum() >= MIN_FRAMES:
-                frames[k] = (rot, trans)
+    frames = _own_group_frames(positions, groups)
     if root not in frames:
         raise ValidationError("auto template: the root group has no frame (three markers seen)")
     own = set(frames)
@@ -257,14 +299,8 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
                 # the group's frame turns with a marker that does not ride it (a hand
                 # marker near the wrist): it leaves as a group of its own, or changes
                 # places with a single marker that rides the segment
-                members, out, taken = better
-                groups[b] = members
-                if taken is None:
-                    groups.append(out)
-                    moved = len(groups) - 1
-                else:
-                    moved = singles[taken]
-                    groups[moved] = out
+                members = better[0]
+                moved = _regroup(groups, b, better, singles)
                 _, rot_b, trans_b = cluster_frames(positions[:, members])
                 frames[b] = own_frames[b] = (rot_b, trans_b)
                 for t in order:
@@ -279,14 +315,7 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
             if b in own:
                 how[b] = "own frame"
             elif groups[b].size == 2:
-                rot, trans = frames[a]
-                pair = positions[:, groups[b]]
-                framed = _frame_from_joint(pair, to_world(rot, trans, centre[None]))
-                if framed is None and axis is not None:
-                    # a hinge whose fitted centre fell in line with the markers: any
-                    # point of its axis is fixed in both segments, so take a second one
-                    fixed = np.stack([centre, centre + AXIS_POINT_M * axis])
-                    framed = _frame_from_joint(pair, to_world(rot, trans, fixed))
+                framed = _frame_pair_at_joint(positions[:, groups[b]], frames[a], centre, axis)
                 if framed is not None:
                     frames[b] = framed
                     how[b] = "frame from its joint"

@@ -398,6 +398,49 @@ class _Calibrator:
         _, rot, trans = cluster_frames(stack)
         self.tech[spec.name] = (rot, trans)
 
+    def centre_from_child_markers(
+        self,
+        spec: SegmentSpec,
+        parent: tuple[np.ndarray, np.ndarray],
+        prior_w: np.ndarray,
+        child_markers: list[str],
+    ) -> tuple[str, list[float], np.ndarray]:
+        """Method, spread (deg), centre (T, 3) m: from the child's markers in the parent's frame."""
+        assert spec.centre is not None
+        kind = spec.centre["kind"]
+        along = spec.centre["prior"].get("along")
+        method = "regression"
+        spread: list[float] = []
+        centre_w = prior_w
+        rp, tp = parent
+        y = to_local(rp, tp, np.stack([self.marker(m) for m in child_markers], axis=1))
+        pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+        c = None
+        if (np.isfinite(y).all(axis=2).any(axis=1)).sum() >= MIN_CALIBRATION_FRAMES and np.isfinite(
+            pp
+        ).all():
+            # the range of motion seen from the prior centre: a fitted centre is
+            # meaningless when the markers hardly move
+            s2 = jc.direction_spread(y, pp)
+            c0, _ = jc.sphere_centre(y)
+            spread = [round(float(v), 2) for v in s2]
+            if kind == "ball" and s2[1] >= self.min_spread:
+                c, method = c0, "sphere fit"
+            elif s2[0] >= self.min_spread and np.isfinite(pp).all():
+                c, axis = jc.sphere_centre(y, pp, hinge=True)
+                assert axis is not None  # hinge=True always returns the axis
+                if along == "axis":
+                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, axis))
+                    pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+                    if np.isfinite(pp).all():
+                        c = jc.closest_on_line(c, axis, pp)
+                self.axes_local[spec.name] = (axis, np.full(3, np.nan))
+                method = "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"
+        if c is not None:
+            centre_w = to_world(rp, tp, c[None])[:, 0]
+            centre_w = np.where(np.isfinite(centre_w), centre_w, prior_w)
+        return method, spread, centre_w
+
     def centre(self, spec: SegmentSpec) -> None:
         assert spec.parent is not None and spec.centre is not None
         kind = spec.centre["kind"]
@@ -484,35 +527,9 @@ class _Calibrator:
                     np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc
                 )
         elif parent is not None and child_markers:
-            rp, tp = parent
-            y = to_local(rp, tp, np.stack([self.marker(m) for m in child_markers], axis=1))
-            pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
-            c = None
-            if (
-                np.isfinite(y).all(axis=2).any(axis=1)
-            ).sum() >= MIN_CALIBRATION_FRAMES and np.isfinite(pp).all():
-                # the range of motion seen from the prior centre: a fitted centre is
-                # meaningless when the markers hardly move
-                s2 = jc.direction_spread(y, pp)
-                c0, _ = jc.sphere_centre(y)
-                spread = [round(float(v), 2) for v in s2]
-                if kind == "ball" and s2[1] >= self.min_spread:
-                    c, method = c0, "sphere fit"
-                elif s2[0] >= self.min_spread and np.isfinite(pp).all():
-                    c, axis = jc.sphere_centre(y, pp, hinge=True)
-                    assert axis is not None  # hinge=True always returns the axis
-                    if along == "axis":
-                        prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, axis))
-                        pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
-                        if np.isfinite(pp).all():
-                            c = jc.closest_on_line(c, axis, pp)
-                    self.axes_local[spec.name] = (axis, np.full(3, np.nan))
-                    method = (
-                        "sphere-fit axis" if kind == "hinge" else "sphere-fit axis + regression"
-                    )
-            if c is not None:
-                centre_w = to_world(rp, tp, c[None])[:, 0]
-                centre_w = np.where(np.isfinite(centre_w), centre_w, prior_w)
+            method, spread, centre_w = self.centre_from_child_markers(
+                spec, parent, prior_w, child_markers
+            )
         if method == "regression":
             why = (
                 "its parent segment has no frame"

@@ -236,6 +236,33 @@ def _check_axes(bad: Any, name: str, parent: str | None, axes: Any) -> None:
         raise bad(f"segment {name!r}: second axis must be [axis, FROM, TO] or [axis, REFERENCE]")
 
 
+def _check_centre(bad: Any, name: str, names: set[str], centre: Any) -> None:
+    """Validate a non-root segment's ``centre`` against the earlier segment ``names``."""
+    if not isinstance(centre, dict) or centre.get("kind") not in ("ball", "hinge"):
+        raise bad(f"segment {name!r}: 'centre' needs kind 'ball' or 'hinge'")
+    prior = centre.get("prior")
+    if not isinstance(prior, dict) or not ("harrington" in prior or "from" in prior):
+        raise bad(f"segment {name!r}: centre 'prior' needs 'harrington' or 'from'")
+    along = prior.get("along")
+    if along is not None and not (
+        along == "axis"
+        or (isinstance(along, str) and along.removeprefix("hinge:") in names)
+        and along.startswith("hinge:")
+    ):
+        raise bad(
+            f"segment {name!r}: prior 'along' must be 'axis' or 'hinge:SEGMENT' "
+            f"(an earlier segment), got {along!r}"
+        )
+    if along is not None and not (
+        ("towards" in prior or "towards_line" in prior) and "distance" in prior
+    ):
+        raise bad(f"segment {name!r}: prior 'along' needs 'towards' and a 'distance'")
+    flexion = centre.get("flexion", [])
+    if centre["kind"] == "hinge" and not (isinstance(flexion, list) and len(flexion) == 3):
+        raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
+    _check_prior(bad, name, centre)
+
+
 def _parse(data: Any, source: str) -> Template:
     def bad(what: str) -> FormatError:
         return FormatError(source, f"template: {what}")
@@ -301,29 +328,7 @@ def _parse(data: Any, source: str) -> Template:
             _check_axes(bad, name, parent, axes)
         centre = raw.get("centre")
         if parent is not None:
-            if not isinstance(centre, dict) or centre.get("kind") not in ("ball", "hinge"):
-                raise bad(f"segment {name!r}: 'centre' needs kind 'ball' or 'hinge'")
-            prior = centre.get("prior")
-            if not isinstance(prior, dict) or not ("harrington" in prior or "from" in prior):
-                raise bad(f"segment {name!r}: centre 'prior' needs 'harrington' or 'from'")
-            along = prior.get("along")
-            if along is not None and not (
-                along == "axis"
-                or (isinstance(along, str) and along.removeprefix("hinge:") in names)
-                and along.startswith("hinge:")
-            ):
-                raise bad(
-                    f"segment {name!r}: prior 'along' must be 'axis' or 'hinge:SEGMENT' "
-                    f"(an earlier segment), got {along!r}"
-                )
-            if along is not None and not (
-                ("towards" in prior or "towards_line" in prior) and "distance" in prior
-            ):
-                raise bad(f"segment {name!r}: prior 'along' needs 'towards' and a 'distance'")
-            flexion = centre.get("flexion", [])
-            if centre["kind"] == "hinge" and not (isinstance(flexion, list) and len(flexion) == 3):
-                raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
-            _check_prior(bad, name, centre)
+            _check_centre(bad, name, names, centre)
         limits = _parse_limits(bad, name, raw.get("limits"))
         if limits and parent is None:
             raise bad(f"segment {name!r}: the root has no joint to limit")
