@@ -104,11 +104,7 @@ def _seat_nearest(
             state, t, np.int64(-1), a + best, p
         ):
             continue
-        state.known[j] = True
-        state.taken[j] = a + best
-        for c in range(3):
-            state.cur[j, c] = points[a + best, c]
-        free[best] = False
+        _seat(state, j, a, best, free)
         return True
 
 
@@ -133,12 +129,18 @@ def _seat_lone(state, t, j, inner, outer, centre, free, p):  # pragma: no cover
         only = c
     if only < 0:
         return False
-    state.known[j] = True
-    state.taken[j] = a + only
-    for c in range(3):
-        state.cur[j, c] = points[a + only, c]
-    free[only] = False
+    _seat(state, j, a, only, free)
     return True
+
+
+@numba.njit(**JIT)
+def _seat(state, j, a, c, free):  # pragma: no cover - runs compiled
+    """Twin of the reference's ``_seat``."""
+    state.known[j] = True
+    state.taken[j] = a + c
+    for k in range(3):
+        state.cur[j, k] = state.points[a + c, k]
+    free[c] = False
 
 
 @numba.njit(**JIT)

@@ -108,10 +108,7 @@ def _seat_nearest(
             state, t, -1, a + int(c), p
         ):
             continue
-        state.known[j] = True
-        state.taken[j] = a + int(c)
-        state.cur[j] = frame[c]
-        free[c] = False
+        _seat(state, j, a, int(c), free)
         return True
     return False
 
@@ -141,11 +138,17 @@ def _seat_lone(
         only = int(c)
     if only < 0:
         return False
-    state.known[j] = True
-    state.taken[j] = a + only
-    state.cur[j] = frame[only]
-    free[only] = False
+    _seat(state, j, a, only, free)
     return True
+
+
+def _seat(state: TrackState, j: int, a: int, c: int, free: np.ndarray) -> None:
+    """Trace ``j`` takes point ``c`` of the frame starting at point ``a``; ``c`` is no
+    longer free."""
+    state.known[j] = True
+    state.taken[j] = a + c
+    state.cur[j] = state.points[a + c]
+    free[c] = False
 
 
 def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
