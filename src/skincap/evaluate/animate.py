@@ -244,7 +244,7 @@ def held_out_marker_errors(
         ``held_out`` count, ``mean_m``, ``p95_m``, ``max_m`` over the measured samples
         of the held-out markers, ``n_parts``.
     """
-    from skincap.deform.dense.deformer import DenseDeformer
+    from skincap.deform.dense.deformer import DenseDeformer, choose_quadratic_parts
     from skincap.deform.dense.parts import part_frames
     from skincap.deform.dense.rig import marker_weights_of
     from skincap.deform.dense.segmentation import segment_marker_surface
@@ -275,7 +275,10 @@ def held_out_marker_errors(
     beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
     seam = seam_vertex_weights(held_ref, ref, kept_faces, alpha > 0)
     parts = part_frames(ref, alpha, surface_faces=kept_faces)
-    deformer = DenseDeformer(parts, held_ref, beta, seam_weights=seam)
+    deformer = DenseDeformer(
+        parts, held_ref, beta, seam_weights=seam,
+        quadratic_parts=choose_quadratic_parts(rom, parts),
+    )  # fmt: skip
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
     d = np.linalg.norm(predicted - x[:, out], axis=-1)
     dd = d[np.isfinite(d)]

@@ -7,7 +7,13 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap.backends import numba_available
-from skincap.deform.dense.deformer import METHODS, DenseDeformer, fit_part_motion, held_frames
+from skincap.deform.dense.deformer import (
+    METHODS,
+    DenseDeformer,
+    choose_quadratic_parts,
+    fit_part_motion,
+    held_frames,
+)
 from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.weights import seam_vertex_weights
 from skincap.errors import ValidationError
@@ -301,3 +307,62 @@ def test_rigid_rbf_fits_with_fixed_centres_equal_the_plain_fit(
     np.testing.assert_allclose(
         got.member_rbf_weights, want.member_rbf_weights, rtol=0, atol=1e-9 * scale
     )
+
+
+def _bent_and_noisy_parts(rng: np.random.Generator, n_frames: int) -> tuple[np.ndarray, ...]:
+    """Part 0: 40 markers on a 0.4 m bar bent by a growing quadratic field; part 1: 10
+    markers of a small rigid block measured with 1 mm noise. Returns ref, alpha, markers."""
+    bar = np.column_stack(
+        [rng.uniform(-0.2, 0.2, 40), rng.uniform(-0.04, 0.04, 40), rng.uniform(-0.04, 0.04, 40)]
+    )
+    block = np.array([0.6, 0.0, 0.0]) + rng.uniform(-0.03, 0.03, (10, 3)) * [2.0, 1.0, 1.0]
+    ref = np.concatenate([bar, block])
+    alpha = np.zeros((50, 2))
+    alpha[:40, 0] = alpha[40:, 1] = 1.0
+    bend = np.linspace(0.0, 2.0, n_frames)[:, None, None]  # curvature 1/m, growing
+    bent = np.repeat(ref[None], n_frames, axis=0)
+    bent[:, :40, 1] += (bend[..., 0] * ref[None, :40, 0] ** 2) / 2.0
+    noisy = bent + np.concatenate([np.zeros((40, 3)), 0.001 * rng.normal(size=(10, 3))])
+    noisy[:, 40:] += 0.001 * rng.normal(size=(n_frames, 10, 3))
+    rot, trans = _rigid(rng, n_frames)
+    return ref, alpha, np.einsum("tab,tnb->tna", rot, noisy) + trans[:, None]
+
+
+def test_the_model_choice_keeps_a_bend_quadratic_and_a_small_noisy_part_rigid() -> None:
+    rng = np.random.default_rng(11)
+    ref, alpha, markers = _bent_and_noisy_parts(rng, 12)
+    markers[3, [2, 45]] = np.nan  # missing members are left out of the test
+    parts = part_frames(ref, alpha)
+    np.testing.assert_array_equal(choose_quadratic_parts(markers, parts), [True, False])
+    # a part with fewer than five fitted members is never tested: rigid
+    few = part_frames(ref[:4], np.ones((4, 1)))
+    np.testing.assert_array_equal(choose_quadratic_parts(markers[:, :4], few), [False])
+    with pytest.raises(ValidationError):
+        choose_quadratic_parts(markers[:, :30], parts)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_quadratic_rbf_with_no_quadratic_part_is_rigid_rbf(backend: str) -> None:
+    rng = np.random.default_rng(12)
+    ref, alpha, markers = _bent_and_noisy_parts(rng, 5)
+    parts = part_frames(ref, alpha)
+    vertices = ref + 0.01 * rng.normal(size=ref.shape)
+    beta = rng.random((50, 2))
+    chosen = DenseDeformer(parts, vertices, beta, quadratic_parts=[False, False], backend=backend)
+    plain = DenseDeformer(parts, vertices, beta, backend=backend)
+    got = np.concatenate(list(chosen.deform(markers, "quadratic_rbf")))
+    np.testing.assert_allclose(
+        got, np.concatenate(list(plain.deform(markers, "rigid_rbf"))), atol=1e-9
+    )
+    # the markers are still interpolated exactly, and "quadratic" keeps every part quadratic
+    at_markers = DenseDeformer(parts, ref, alpha, quadratic_parts=[True, False], backend=backend)
+    np.testing.assert_allclose(
+        np.concatenate(list(at_markers.deform(markers, "quadratic_rbf"))), markers, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        np.concatenate(list(chosen.deform(markers, "quadratic"))),
+        np.concatenate(list(plain.deform(markers, "quadratic"))),
+        atol=1e-12,
+    )
+    with pytest.raises(ValidationError):
+        DenseDeformer(parts, vertices, beta, quadratic_parts=[True])

@@ -61,7 +61,7 @@ from skincap.geometry.quadratic import (
     fit_quadratic,
     quadratic_basis,
 )
-from skincap.geometry.rbf import fit_rbf, fit_rbf_fixed_centres
+from skincap.geometry.rbf import evaluate_rbf, fit_rbf, fit_rbf_fixed_centres
 from skincap.geometry.rigid import fit_rigid
 
 __all__ = [
@@ -69,6 +69,7 @@ __all__ = [
     "DenseDeformer",
     "Method",
     "PartMotion",
+    "choose_quadratic_parts",
     "fit_part_motion",
     "held_frames",
 ]
@@ -88,6 +89,11 @@ Backend = Literal["auto", "numba", "numpy"]
 #: parts do: held-out markers of the two-part arm of the ``eval animate`` tests 6.2 /
 #: 8.9 / 14.1 mm. Hence 1e-2.
 QUADRATIC_REGULARISATION = 1e-2
+#: Frames of a range-of-motion take :func:`choose_quadratic_parts` tests the parts on.
+MODEL_CHOICE_FRAMES = 24
+#: Share of a part's members at each end of its main axis :func:`choose_quadratic_parts`
+#: also leaves out together.
+MODEL_CHOICE_END_SHARE = 0.2
 
 
 def warm_up_kernel() -> None:
@@ -142,6 +148,13 @@ class PartMotion:
     member_rbf_weights: np.ndarray | None = None
 
 
+def _identity_field() -> np.ndarray:
+    """``[I 0 0 0]``, (3, 10): the quadratic field of a rigid base."""
+    field = np.zeros((3, QUADRATIC_TERMS))
+    field[:, :3] = np.eye(3)
+    return field
+
+
 def held_frames(member_present: np.ndarray) -> np.ndarray:
     """For every frame and part, the frame whose markers its fit uses.
 
@@ -173,6 +186,7 @@ def fit_part_motion(
     *,
     source_frames: np.ndarray | None = None,
     quadratic_regularisation: float = QUADRATIC_REGULARISATION,
+    quadratic_parts: np.ndarray | None = None,
 ) -> PartMotion:
     """Fit the rigid, quadratic and RBF fields of every part at every frame (eqs. 6-7).
 
@@ -189,6 +203,11 @@ def fit_part_motion(
         λ_quad of :func:`skincap.geometry.quadratic.fit_quadratic` (0 = the plain
         pseudo-inverse). The default (:data:`QUADRATIC_REGULARISATION`) keeps parts
         with few or poorly spread markers from inventing quadratic terms.
+    quadratic_parts : (P,) bool, optional
+        For ``quadratic_rbf`` only: the parts whose base field is quadratic; the others
+        get the rigid base ``[I 0 0 0]`` under their RBF (:func:`choose_quadratic_parts`
+        picks them; default every part, the paper's method). ``quadratic`` stays the
+        paper's variant on every part.
 
     Returns
     -------
@@ -231,9 +250,15 @@ def fit_part_motion(
             weights,
             quadratic_regularisation=quadratic_regularisation,
         )
+        if use_rbf and quadratic_parts is not None:
+            chosen = np.asarray(quadratic_parts, dtype=bool)
+            if chosen.shape != (n_p,):
+                raise ValidationError(
+                    f"quadratic_parts must have shape ({n_p},); got {chosen.shape}"
+                )
+            quad = np.where(chosen[None, :, None, None], quad, _identity_field())
     else:
-        quad = np.zeros((n_t, n_p, 3, QUADRATIC_TERMS))
-        quad[..., :3] = np.eye(3)
+        quad = np.broadcast_to(_identity_field(), (n_t, n_p, 3, QUADRATIC_TERMS)).copy()
     quad = np.where(seen[..., None, None], quad, np.nan)
     centres = np.where(
         parts.valid[None, ..., None], apply_quadratic(quad, parts.local_reference[None]), 0.0
@@ -270,6 +295,121 @@ def fit_part_motion(
     return PartMotion(rot, trans, quad, centres, rbf_w, member_rbf_w)
 
 
+def choose_quadratic_parts(
+    positions: np.ndarray,
+    parts: PartFrames,
+    *,
+    n_frames: int = MODEL_CHOICE_FRAMES,
+    quadratic_regularisation: float = QUADRATIC_REGULARISATION,
+) -> np.ndarray:
+    """Which parts' quadratic base predicts their own held-out markers better than rigid.
+
+    Park & Hodgins fit the quadratic field of eq. 6 on every part; a part with few or
+    poorly spread markers (a hand, a foot) or one whose vertices reach far beyond its
+    markers (the fingers beyond the hand's) extrapolates it badly, which the paper
+    would have tuned by hand. Here each part is tested on ``n_frames`` frames spread
+    over ``positions`` (the rig's range of motion) by leaving each of its fitted
+    members out in turn: the rest give the rigid fit, the base field (rigid
+    ``[I 0 0 0]`` or quadratic, eq. 6) and the members' RBF residual (eq. 7), which
+    then predicts the left-out member. The quadratic base is kept where its summed
+    squared prediction error is the smaller one.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    parts : PartFrames
+    n_frames : int
+        Frames tested (evenly spaced; all when the take is shorter).
+    quadratic_regularisation : float
+        λ_quad of the quadratic fits (:func:`fit_part_motion`).
+
+    Returns
+    -------
+    (P,) bool
+        True where the quadratic base predicted better; False for a part with fewer
+        than five fitted members (one left out leaves too few to test the fit).
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    if x.ndim != 3 or x.shape[2] != 3:
+        raise ValidationError(f"positions must have shape (T, N, 3); got {x.shape}")
+    if parts.members.size and parts.members.max() >= x.shape[1]:
+        raise ValidationError(
+            f"positions has {x.shape[1]} markers; the parts use marker {int(parts.members.max())}"
+        )
+    picks = np.unique(np.linspace(0, x.shape[0] - 1, max(1, int(n_frames))).round().astype(int))
+    chosen = np.zeros(parts.n_parts, dtype=bool)
+    for p in range(parts.n_parts):  # P (~17) steps, each batched over frames and left-out members
+        fitted = np.flatnonzero(parts.fitted[p])
+        k = fitted.size
+        if k < MIN_PART_MARKERS + 2 or not np.isfinite(parts.sigma[p]):
+            continue
+        errors = _held_out_member_errors(
+            x[picks][:, parts.members[p, fitted]],
+            parts.local_reference[p, fitted],
+            parts.member_weights[p, fitted],
+            float(parts.sigma[p]),
+            quadratic_regularisation,
+        )
+        chosen[p] = bool(errors[1] < errors[0])
+    return chosen
+
+
+def _held_out_folds(reference: np.ndarray, end_share: float) -> np.ndarray:
+    """(L, K) bool: the member sets left out in turn, each member alone, then both ends.
+
+    The ends are the ``end_share`` of the members lowest and highest along the part's
+    main axis (``reference`` is in the part frame, axis 0 the longest): a part's
+    vertices reach beyond its markers (fingers beyond the hand's), and predicting an
+    end from the rest tests that extrapolation, which single members inside do not.
+    """
+    k = reference.shape[0]
+    order = np.argsort(reference[:, 0], kind="stable")
+    n_end = max(1, int(round(end_share * k)))
+    ends = np.zeros((2, k), dtype=bool)
+    ends[0, order[:n_end]] = True
+    ends[1, order[k - n_end :]] = True
+    return np.concatenate([np.eye(k, dtype=bool), ends])
+
+
+def _held_out_member_errors(
+    markers: np.ndarray,
+    reference: np.ndarray,
+    weights: np.ndarray,
+    sigma: float,
+    quadratic_regularisation: float,
+) -> tuple[float, float]:
+    """Summed squared held-out errors (m²) of one part: rigid base, quadratic base.
+
+    ``markers`` (S, K, 3) world positions of the part's fitted members at the tested
+    frames (NaN where missing), ``reference`` (K, 3) their local reference positions,
+    ``weights`` (K,) α. Batch axes: frame s, fold l (:func:`_held_out_folds`), member k.
+    """
+    folds = _held_out_folds(reference, MODEL_CHOICE_END_SHARE)  # (L, K)
+    present = np.isfinite(markers).all(-1)  # (S, K)
+    keep = present[:, None, :] & ~folds[None]  # (S, L, K)
+    w = np.where(keep, weights[None, None, :], 0.0)
+    rot, trans = fit_rigid(markers[:, None], reference, w)  # (S, L, 3, 3), (S, L, 3)
+    local = markers[:, None] @ np.swapaxes(rot, -1, -2) + trans[..., None, :]  # (S, L, K, 3)
+    scored = present[:, None, :] & folds[None] & np.isfinite(local).all(-1)  # (S, L, K)
+    totals = []
+    for quadratic in (False, True):
+        if quadratic:
+            field = fit_quadratic(
+                reference, np.where(keep[..., None], local, np.nan), w,
+                quadratic_regularisation=quadratic_regularisation,
+            )  # fmt: skip
+        else:
+            field = np.broadcast_to(_identity_field(), (*keep.shape[:2], 3, QUADRATIC_TERMS))
+        centres = apply_quadratic(field, reference)  # (S, L, K, 3)
+        centres = np.where(np.isfinite(centres), centres, 0.0)
+        residual = np.where(keep[..., None], local - centres, 0.0)
+        rbf_w = fit_rbf(centres, residual, sigma, keep)
+        predicted = centres + evaluate_rbf(centres, rbf_w, sigma, centres)
+        sq = ((predicted - local) ** 2).sum(-1)
+        totals.append(float(np.where(scored & np.isfinite(sq), sq, 0.0).sum()))
+    return totals[0], totals[1]
+
+
 class DenseDeformer:
     """A body mesh bound to the parts of a marker set: vertices by eqs. 8-9.
 
@@ -286,6 +426,9 @@ class DenseDeformer:
         field through its seam centres rather than its members' alone
         (:func:`skincap.deform.dense.weights.seam_vertex_weights`: 1 on the marker-surface
         triangles at a seam, 0 inside the part, continuous between). Default 1.
+    quadratic_parts : (P,) bool, optional
+        The parts ``quadratic_rbf`` gives a quadratic base (:func:`choose_quadratic_parts`,
+        which a rig runs on its range of motion); default every part.
     backend : {"auto", "numba", "numpy"}, default "auto"
         The per-frame vertex evaluation: the compiled kernel
         (:mod:`skincap.deform.dense._kernel_numba`) or its NumPy reference
@@ -308,6 +451,7 @@ class DenseDeformer:
         vertex_weights: np.ndarray,
         *,
         seam_weights: np.ndarray | None = None,
+        quadratic_parts: np.ndarray | None = None,
         backend: Backend = "auto",
     ):
         v = np.asarray(rest_vertices, dtype=np.float64)
@@ -326,6 +470,14 @@ class DenseDeformer:
                 f"vertex_weights: {int((total <= 0).sum())} vertices belong to no part"
             )
         beta = beta / total[:, None]
+        if quadratic_parts is not None:
+            quadratic_parts = np.asarray(quadratic_parts, dtype=bool)
+            if quadratic_parts.shape != (parts.n_parts,):
+                raise ValidationError(
+                    f"quadratic_parts must have shape ({parts.n_parts},); "
+                    f"got {quadratic_parts.shape}"
+                )
+        self.quadratic_parts = quadratic_parts
         self.parts = parts
         self.n_vertices = int(v.shape[0])
         n_members = parts.valid.sum(axis=1)  # members fill the first slots, seam centres next
@@ -455,6 +607,7 @@ class DenseDeformer:
                     method,
                     source_frames=local_src,
                     quadratic_regularisation=quadratic_regularisation,
+                    quadratic_parts=self.quadratic_parts,
                 )
                 yield self.deform_block(motion)
             if progress is not None:

@@ -22,7 +22,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from skincap.deform.dense.deformer import DenseDeformer
+from skincap.deform.dense.deformer import DenseDeformer, choose_quadratic_parts
 from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.dense.weights import (
@@ -134,7 +134,29 @@ class DenseRig:
         seam = seam_vertex_weights(
             self.vertices, self.reference, self.surface_faces, self.marker_weights > 0
         )
-        return DenseDeformer(parts, self.vertices, self.vertex_weights, seam_weights=seam)
+        return DenseDeformer(
+            parts,
+            self.vertices,
+            self.vertex_weights,
+            seam_weights=seam,
+            quadratic_parts=self.quadratic_parts,
+        )
+
+    @property
+    def quadratic_parts(self) -> np.ndarray | None:
+        """(P,) bool: the parts ``quadratic_rbf`` gives a quadratic base, as
+        :func:`~skincap.deform.dense.deformer.choose_quadratic_parts` chose them on the
+        range of motion (``settings["quadratic_parts"]``); None (every part) for a rig
+        saved without the choice."""
+        chosen = self.settings.get("quadratic_parts")
+        if chosen is None:
+            return None
+        flags = np.asarray(chosen, dtype=bool)
+        if flags.shape != (self.n_parts,):
+            raise ValidationError(
+                f"settings quadratic_parts: expected {self.n_parts} flags; got {flags.shape}"
+            )
+        return flags
 
     def columns_of(self, labels: Sequence[str]) -> np.ndarray:
         """Column of each of the rig's markers in a take with these labels.
@@ -255,6 +277,8 @@ def build_dense_rig(
     )
     alpha = marker_weights_of(rom, ref, candidates, surface_faces, marker_weights)
     beta = vertex_part_weights(vertices, ref, surface_faces, alpha)
+    parts = part_frames(ref, alpha, surface_faces=surface_faces)
+    quadratic_parts = choose_quadratic_parts(rom, parts)
     info = dict(settings or {})
     info.update(
         n_parts_requested=int(n_parts),
@@ -263,6 +287,7 @@ def build_dense_rig(
         bandwidth=float(seg.bandwidth),
         range_of_motion_frames=int(rom.shape[0]),
         marker_weights=str(marker_weights),
+        quadratic_parts=[bool(q) for q in quadratic_parts],
     )
     return DenseRig(
         vertices=vertices,
