@@ -27,6 +27,16 @@ For every frame and every near-rigid part ``p``:
 The four variants of the paper's Fig. 7 are ``rigid``, ``quadratic``, ``rigid_rbf`` and
 ``quadratic_rbf`` (the paper's method, the default).
 
+**Which parts get the quadratic base.** The paper fits eq. 6 on every part. A part
+whose quadratic field is poorly determined (few markers, a part that spans a wrist)
+extrapolates it to the vertices beyond its markers (the fingers) by centimetres, which
+the paper would have fixed by hand. :func:`choose_quadratic_parts` decides per part,
+on the rig's range of motion, whether the rigid or the quadratic base under the RBF
+predicts the part's own held-out markers better (each member alone, and the 20 % at
+each end of the part's main axis together); ``quadratic_rbf`` then uses the quadratic
+base on the parts that earned it (``quadratic_parts``; default every part, as the
+paper). ``quadratic`` stays the paper's variant on every part.
+
 Missing markers: a member missing at a frame is left out of that frame's fits. A part
 with fewer than three measured members at a frame is held in the pose of the nearest
 earlier frame where it had three (the nearest later one at the start of the take), so
@@ -442,6 +452,8 @@ class DenseDeformer:
     ----------
     backend : str
         The evaluation in use, ``"numba"`` or ``"numpy"``.
+    quadratic_parts : (P,) bool or None
+        The parts ``quadratic_rbf`` gives a quadratic base (None: every part).
     """
 
     def __init__(
