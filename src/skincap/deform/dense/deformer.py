@@ -33,7 +33,7 @@ extrapolates it to the vertices beyond its markers (the fingers) by centimetres,
 the paper would have fixed by hand. :func:`choose_quadratic_parts` decides per part,
 on the rig's range of motion, whether the rigid or the quadratic base under the RBF
 predicts the part's own held-out markers better (each member alone, and the 20 % at
-each end of the part's main axis together); ``quadratic_rbf`` then uses the quadratic
+either end of each axis of the part frame together); ``quadratic_rbf`` then uses the quadratic
 base on the parts that earned it (``quadratic_parts``; default every part, as the
 paper). ``quadratic`` stays the paper's variant on every part.
 
@@ -101,8 +101,8 @@ Backend = Literal["auto", "numba", "numpy"]
 QUADRATIC_REGULARISATION = 1e-2
 #: Frames of a range-of-motion take :func:`choose_quadratic_parts` tests the parts on.
 MODEL_CHOICE_FRAMES = 24
-#: Share of a part's members at each end of its main axis :func:`choose_quadratic_parts`
-#: also leaves out together.
+#: Share of a part's members at either end of each part axis that
+#: :func:`choose_quadratic_parts` also leaves out together.
 MODEL_CHOICE_END_SHARE = 0.2
 
 
@@ -322,7 +322,9 @@ def choose_quadratic_parts(
     members out in turn: the rest give the rigid fit, the base field (rigid
     ``[I 0 0 0]`` or quadratic, eq. 6) and the members' RBF residual (eq. 7), which
     then predicts the left-out member. The quadratic base is kept where its summed
-    squared prediction error is the smaller one.
+    squared prediction error is smaller by more than one standard error of the mean
+    difference over the held-out samples (the one-standard-error rule of
+    cross-validation: the simpler model unless the data clearly prefer the other).
 
     Parameters
     ----------
@@ -336,8 +338,8 @@ def choose_quadratic_parts(
     Returns
     -------
     (P,) bool
-        True where the quadratic base predicted better; False for a part with fewer
-        than five fitted members (one left out leaves too few to test the fit).
+        True where the quadratic base predicted clearly better; False for a part with
+        fewer than five fitted members (one left out leaves too few to test the fit).
     """
     x = np.asarray(positions, dtype=np.float64)
     if x.ndim != 3 or x.shape[2] != 3:
@@ -353,31 +355,34 @@ def choose_quadratic_parts(
         k = fitted.size
         if k < MIN_PART_MARKERS + 2 or not np.isfinite(parts.sigma[p]):
             continue
-        errors = _held_out_member_errors(
+        rigid, quadratic = _held_out_member_errors(
             x[picks][:, parts.members[p, fitted]],
             parts.local_reference[p, fitted],
             parts.member_weights[p, fitted],
             float(parts.sigma[p]),
             quadratic_regularisation,
         )
-        chosen[p] = bool(errors[1] < errors[0])
+        gain = rigid - quadratic  # (samples,) m², > 0 where the quadratic base did better
+        if gain.size > 1:  # the one-standard-error rule: the simpler base unless clearly beaten
+            chosen[p] = bool(gain.mean() > gain.std(ddof=1) / np.sqrt(gain.size))
     return chosen
 
 
 def _held_out_folds(reference: np.ndarray, end_share: float) -> np.ndarray:
-    """(L, K) bool: the member sets left out in turn, each member alone, then both ends.
+    """(L, K) bool: the member sets left out in turn, each member alone, then the ends.
 
-    The ends are the ``end_share`` of the members lowest and highest along the part's
-    main axis (``reference`` is in the part frame, axis 0 the longest): a part's
-    vertices reach beyond its markers (fingers beyond the hand's), and predicting an
-    end from the rest tests that extrapolation, which single members inside do not.
+    The ends are the ``end_share`` of the members lowest and highest along each axis of
+    the part frame (``reference`` is in it): a part's vertices reach beyond its markers
+    (fingers beyond the hand's, toes beyond the foot's), and predicting an end from the
+    rest tests that extrapolation, which single members inside do not.
     """
     k = reference.shape[0]
-    order = np.argsort(reference[:, 0], kind="stable")
     n_end = max(1, int(round(end_share * k)))
-    ends = np.zeros((2, k), dtype=bool)
-    ends[0, order[:n_end]] = True
-    ends[1, order[k - n_end :]] = True
+    order = np.argsort(reference, axis=0, kind="stable")  # (K, 3)
+    ends = np.zeros((6, k), dtype=bool)
+    for axis in range(3):
+        ends[2 * axis, order[:n_end, axis]] = True
+        ends[2 * axis + 1, order[k - n_end :, axis]] = True
     return np.concatenate([np.eye(k, dtype=bool), ends])
 
 
@@ -387,8 +392,9 @@ def _held_out_member_errors(
     weights: np.ndarray,
     sigma: float,
     quadratic_regularisation: float,
-) -> tuple[float, float]:
-    """Summed squared held-out errors (m²) of one part: rigid base, quadratic base.
+) -> tuple[np.ndarray, np.ndarray]:
+    """Squared held-out errors (m²) of one part, rigid base and quadratic base: one per
+    held-out sample (frame, fold, left-out member) where both are finite.
 
     ``markers`` (S, K, 3) world positions of the part's fitted members at the tested
     frames (NaN where missing), ``reference`` (K, 3) their local reference positions,
@@ -401,7 +407,7 @@ def _held_out_member_errors(
     rot, trans = fit_rigid(markers[:, None], reference, w)  # (S, L, 3, 3), (S, L, 3)
     local = markers[:, None] @ np.swapaxes(rot, -1, -2) + trans[..., None, :]  # (S, L, K, 3)
     scored = present[:, None, :] & folds[None] & np.isfinite(local).all(-1)  # (S, L, K)
-    totals = []
+    errors = []
     for quadratic in (False, True):
         if quadratic:
             field = fit_quadratic(
@@ -415,9 +421,9 @@ def _held_out_member_errors(
         residual = np.where(keep[..., None], local - centres, 0.0)
         rbf_w = fit_rbf(centres, residual, sigma, keep)
         predicted = centres + evaluate_rbf(centres, rbf_w, sigma, centres)
-        sq = ((predicted - local) ** 2).sum(-1)
-        totals.append(float(np.where(scored & np.isfinite(sq), sq, 0.0).sum()))
-    return totals[0], totals[1]
+        errors.append(((predicted - local) ** 2).sum(-1))  # (S, L, K)
+    both = scored & np.isfinite(errors[0]) & np.isfinite(errors[1])
+    return errors[0][both], errors[1][both]
 
 
 class DenseDeformer:
