@@ -274,10 +274,10 @@ def held_out_marker_errors(
     held_ref = x[reference_frame, out]
     beta = vertex_part_weights(held_ref, ref, kept_faces, alpha)
     seam = seam_vertex_weights(held_ref, ref, kept_faces, alpha > 0)
-    parts = part_frames(ref, alpha, surface_faces=kept_faces)
+    frames = part_frames(ref, alpha, surface_faces=kept_faces)
     deformer = DenseDeformer(
-        parts, held_ref, beta, seam_weights=seam,
-        quadratic_parts=choose_quadratic_parts(rom, parts),
+        frames, held_ref, beta, seam_weights=seam,
+        quadratic_parts=choose_quadratic_parts(rom, frames),
     )  # fmt: skip
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
     d = np.linalg.norm(predicted - x[:, out], axis=-1)
