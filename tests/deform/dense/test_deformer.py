@@ -366,3 +366,25 @@ def test_quadratic_rbf_with_no_quadratic_part_is_rigid_rbf(backend: str) -> None
     )
     with pytest.raises(ValidationError):
         DenseDeformer(parts, vertices, beta, quadratic_parts=[True])
+
+
+def test_a_rig_carries_its_model_choice_to_its_deformer() -> None:
+    from skincap.deform.dense.rig import DenseRig
+
+    rng = np.random.default_rng(13)
+    ref, alpha, _ = _bent_and_noisy_parts(rng, 2)
+    arrays = {
+        "vertices": ref[:10],
+        "faces": np.array([[0, 1, 2]]),
+        "reference": ref,
+        "surface_faces": np.array([[0, 1, 2], [40, 41, 42]]),
+        "marker_parts": alpha.argmax(axis=1),
+        "marker_weights": alpha,
+        "vertex_weights": alpha[:10],
+    }
+    labels = [f"M{i}" for i in range(50)]
+    assert DenseRig.from_arrays(arrays, labels, {}).deformer().quadratic_parts is None  # old rigs
+    rig = DenseRig.from_arrays(arrays, labels, {"quadratic_parts": [True, False]})
+    np.testing.assert_array_equal(rig.deformer().quadratic_parts, [True, False])
+    with pytest.raises(ValidationError):
+        DenseRig.from_arrays(arrays, labels, {"quadratic_parts": [True]}).deformer()
