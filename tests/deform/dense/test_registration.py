@@ -47,10 +47,13 @@ def _labels(n: int) -> list[str]:
     return [f"M{i:03d}" for i in range(n)]
 
 
-@pytest.mark.parametrize("nodes", [1500, 60])
-def test_a_mesh_under_a_global_affine_is_recovered(nodes: int) -> None:
+@pytest.mark.parametrize(
+    "nodes, coarse", [(1500, {}), (60, {}), (60, {"coarse_nodes": 12, "coarse_stages": 2})]
+)
+def test_a_mesh_under_a_global_affine_is_recovered(nodes: int, coarse: dict) -> None:
     """Markers on an affinely moved copy: recovered to < 1e-3 of the scale (0.2 m here),
-    with one node per vertex (1500 >= V) and with 60 blended nodes."""
+    with one node per vertex (1500 >= V), with 60 blended nodes, and coarse to fine
+    (12 nodes for the first stages, then 60)."""
     v, f = _sphere()
     a = np.array([[1.1, 0.1, 0.0], [0.05, 0.9, 0.1], [0.0, -0.1, 1.2]])
     b = np.array([0.3, 1.0, -0.2])
@@ -61,8 +64,9 @@ def test_a_mesh_under_a_global_affine_is_recovered(nodes: int) -> None:
     labels = _labels(markers.shape[0])
     landmarks = {labels[k]: int(i) for k, i in enumerate(lm_vertices)}
     reg = register_mesh(
-        v, f, markers, labels, landmarks=landmarks, settings=RegistrationSettings(nodes=nodes)
-    )
+        v, f, markers, labels, landmarks=landmarks,
+        settings=RegistrationSettings(nodes=nodes, **coarse),
+    )  # fmt: skip
     assert isinstance(reg, Registration)
     np.testing.assert_allclose(reg.vertices, moved, atol=1e-4)
     np.testing.assert_allclose(
@@ -218,6 +222,7 @@ def test_too_few_seen_markers_is_an_error_even_with_enough_rows() -> None:
         {"data_weight": -1.0},
         {"fit_iterations": -1},
         {"marker_radius": np.nan},
+        {"coarse_nodes": -1},
     ],
 )
 def test_bad_settings_are_refused(kwargs: dict) -> None:
@@ -264,6 +269,26 @@ def test_the_node_basis_is_a_partition_of_unity_and_loose_pieces_follow_the_body
     assert (np.asarray(basis[: v.shape[0]].sum(axis=0)).ravel() > 0).all()
     # a vertex blends nearby nodes only (a local basis, not a global average)
     assert np.diff(basis.indptr).max() < 20
+
+
+def test_every_vertex_blends_a_fixed_few_nodes_even_on_an_uneven_mesh() -> None:
+    """A fine UV sphere (edges near the poles ~20x shorter than at the equator, as
+    MakeHuman's hands and face beside its limbs): every row holds at most
+    NODES_PER_VERTEX nodes, all about one node spacing away."""
+    from skincap.deform.dense.registration import NODES_PER_VERTEX, _nodes_and_basis
+
+    v, f = _sphere(n_lat=40, n_lon=60)
+    nodes, basis = _nodes_and_basis(v, f, 80)
+    assert nodes.size == 80 and basis.shape == (v.shape[0], 80)
+    counts = np.diff(basis.indptr)
+    assert counts.max() <= NODES_PER_VERTEX and counts.min() >= 1
+    np.testing.assert_allclose(np.asarray(basis.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+    # a node's own vertex weighs most on it
+    assert (np.asarray(basis[nodes].argmax(axis=1)).ravel() == np.arange(80)).all()
+    coo = basis.tocoo()
+    dist = np.linalg.norm(v[coo.row] - v[nodes[coo.col]], axis=1)
+    spacing = np.sqrt(4 * np.pi * 0.2**2 / 80)
+    assert dist.max() < 3.0 * spacing  # local: about the node spacing
 
 
 # --------------------------------------------------------------- on a body mesh

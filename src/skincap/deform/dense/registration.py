@@ -26,8 +26,13 @@ each stage a few closest-point iterations.
 
 The unknowns are reduced (as embedded deformation, Sumner et al. 2007): every vertex's
 transform is a fixed smooth blend of the transforms of ``n`` deformation nodes
-(:attr:`RegistrationSettings.nodes`, 1500: farthest-point samples, geodesic cells
-blended over about one node spacing), ``X = (B ⊗ I4) Y``; the smoothness term is still
+(:attr:`RegistrationSettings.nodes`, 1500: farthest-point samples; each vertex blends
+its :data:`NODES_PER_VERTEX` nearest among the nodes of its own and the adjacent
+geodesic cells, Sumner's ``(1 - d / d_max)²`` weights), ``X = (B ⊗ I4) Y``; a fixed
+number of nodes per vertex keeps the system equally sparse on an uneven mesh. With
+:attr:`RegistrationSettings.coarse_nodes` the first stages run on fewer nodes (coarse
+to fine: whole limbs first), each fine node then starting from the coarse transform
+at its vertex. The smoothness term is still
 summed over the template's edges. A 20k-vertex body then solves ``4n x 4n`` normal
 equations (one sparse LU per closest-point iteration, SuperLU, COLAMD, shared by the
 three coordinates) instead of ``4V x 4V``: ~25 s CPU and ~0.2 GB instead of ~140 s and
@@ -71,6 +76,9 @@ __all__ = [
 #: Fewest seen markers a registration accepts: below this the surface is not covered.
 MIN_MARKERS = 30
 
+#: Deformation nodes blended into each vertex's transform (Sumner et al. use 4).
+NODES_PER_VERTEX = 4
+
 
 @dataclass(frozen=True)
 class RegistrationSettings:
@@ -102,6 +110,13 @@ class RegistrationSettings:
     #: Deformation nodes whose transforms every vertex's transform blends (the unknowns:
     #: 4 x 3 per node); a template with fewer vertices gets one node per vertex.
     nodes: int = 1500
+    #: Nodes of the coarse stages (0: none): the first ``coarse_stages`` stages of the
+    #: schedule move the template through this few nodes (whole limbs and the torso,
+    #: stiff), the rest through ``nodes`` (coarse to fine).
+    coarse_nodes: int = 0
+    #: Stages of ``smoothness_schedule`` (from the first, the landmark-only placement
+    #: included) solved on the ``coarse_nodes`` nodes.
+    coarse_stages: int = 0
     #: Radius of the markers, metres: the surface is fitted this far inside each marker
     #: (along the surface normal at its closest point); 0 fits the marker centres.
     marker_radius: float = 0.0
@@ -132,6 +147,9 @@ class RegistrationSettings:
             )
         if int(self.nodes) < 1:
             raise ValidationError(f"nodes: expected >= 1, got {self.nodes!r}")
+        for name in ("coarse_nodes", "coarse_stages"):
+            if int(getattr(self, name)) < 0:
+                raise ValidationError(f"{name}: expected >= 0, got {getattr(self, name)!r}")
         if int(self.surface_first_stage) < 0:
             raise ValidationError(
                 f"surface_first_stage: expected >= 0, got {self.surface_first_stage!r}"
@@ -350,51 +368,91 @@ def _farthest_point_nodes(v: np.ndarray, count: int) -> np.ndarray:
     return chosen
 
 
-def _node_basis(v: np.ndarray, f: np.ndarray, count: int) -> sp.csr_matrix:
-    """(V, n) smooth partition of unity: each vertex's weights over ``n`` deformation nodes.
+def _node_cells(
+    v: np.ndarray, f: np.ndarray, count: int
+) -> tuple[np.ndarray, np.ndarray, sp.csr_matrix]:
+    """Deformation nodes, each vertex's geodesic cell, and the cells' adjacency.
 
-    The nodes are ``count`` farthest-point samples of the vertices (all vertices, the
-    identity, when ``count >= V``). A vertex starts on the node nearest along the mesh
-    (geodesic Voronoi cells, so an arm near the torso does not follow it; the nodes lie
-    on the largest connected piece, and a vertex of another piece, e.g. an eye, takes
-    the node nearest in space, so it moves with the body), then the
-    weights are averaged over mesh neighbours for about one node spacing, blending the
-    cells' transforms across their borders. Rows sum to 1.
+    The nodes are ``count`` farthest-point samples of the largest connected piece
+    (a loose piece -- eye, teeth -- has no edge to the body, so nodes of its own would
+    be held by nothing and could fly off); a vertex's cell is the node nearest along
+    the mesh (Dijkstra from all nodes at once), or nearest in space for a vertex of
+    another piece. Two cells are adjacent when a mesh edge joins them.
+
+    Returns nodes (n,) vertex indices, cell (V,) node index of each vertex, and the
+    (n, n) boolean adjacency of the cells, with the diagonal.
     """
     n_v = v.shape[0]
-    if count >= n_v:
-        return sp.identity(n_v, format="csr")
     e = _edges(f)
     length = np.maximum(np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1), 1e-12)
     graph = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(n_v, n_v)).tocsr()
-    # nodes on the main piece only: a loose piece (eye, teeth) has no edge to the body,
-    # so nodes of its own would be held by nothing and could fly off
     _, piece = connected_components(graph, directed=False)
     main = np.nonzero(piece == np.bincount(piece).argmax())[0]
     nodes = main[_farthest_point_nodes(v[main], min(count, main.size))]
-    count = nodes.size
     dist, _, source = dijkstra(
         graph, directed=False, indices=nodes, min_only=True, return_predecessors=True
     )
     node_of = np.full(n_v, -1, dtype=np.int64)
-    node_of[nodes] = np.arange(count)
+    node_of[nodes] = np.arange(nodes.size)
     cell = np.where(np.isfinite(dist), node_of[np.maximum(source, 0)], -1)
     stray = cell < 0
     if stray.any():
         cell[stray] = cKDTree(v[nodes]).query(v[stray])[1]
-    basis = sp.csr_matrix((np.ones(n_v), (np.arange(n_v), cell)), shape=(n_v, count))
-    # the blend: a few steps of neighbour averaging, about one node spacing wide
-    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    spacing = float(np.sqrt(area.sum() / count))
-    steps = int(np.clip(round(spacing / float(np.median(length))), 1, 12))
-    adjacency = (graph + graph.T + sp.identity(n_v)).astype(bool).astype(np.float64)
-    average = sp.diags(1.0 / np.asarray(adjacency.sum(axis=1)).ravel()) @ adjacency
-    for _ in range(steps):
-        basis = (average @ basis).tocsr()
-        basis.data[basis.data < 1e-3] = 0.0
-        basis.eliminate_zeros()
-        basis = (sp.diags(1.0 / np.asarray(basis.sum(axis=1)).ravel()) @ basis).tocsr()
-    return basis
+    a, b = cell[e[:, 0]], cell[e[:, 1]]
+    ends = np.concatenate([a, b, np.arange(nodes.size)])
+    other = np.concatenate([b, a, np.arange(nodes.size)])
+    adjacency = sp.csr_matrix(
+        (np.ones(ends.size, dtype=bool), (ends, other)), shape=(nodes.size, nodes.size)
+    )
+    return nodes, cell, adjacency
+
+
+def _node_basis(v: np.ndarray, f: np.ndarray, count: int) -> sp.csr_matrix:
+    """(V, n) smooth partition of unity over ``count`` nodes (:func:`_nodes_and_basis`)."""
+    return _nodes_and_basis(v, f, count)[1]
+
+
+def _nodes_and_basis(v: np.ndarray, f: np.ndarray, count: int) -> tuple[np.ndarray, sp.csr_matrix]:
+    """Node vertex indices (n,) and the (V, n) smooth partition of unity: each vertex's weights over ``n`` deformation nodes.
+
+    Embedded deformation's blend (Sumner, Schmid & Pauly 2007): each vertex takes its
+    :data:`NODES_PER_VERTEX` nearest nodes among those of its own geodesic cell and
+    the cells next to it (:func:`_node_cells`; so an arm near the torso does not follow
+    it), weighted ``(1 - d / d_max)²`` with ``d_max`` the distance of the next nearest
+    candidate, then normalised. A fixed number of nodes per vertex keeps the normal
+    equations equally sparse on an uneven mesh (MakeHuman's fine hands and face beside
+    its coarse limbs), where neighbour averaging over a fixed number of edges spread
+    the blend over up to 54 nodes. All vertices, the identity, when ``count >= V``.
+    Rows sum to 1.
+    """
+    n_v = v.shape[0]
+    if count >= n_v:
+        return np.arange(n_v), sp.identity(n_v, format="csr")
+    nodes, cell, adjacency = _node_cells(v, f, int(count))
+    # candidates of each vertex: the nodes of its cell's neighbourhood, a padded table
+    adjacency = adjacency.tocsr()
+    degree = np.diff(adjacency.indptr)
+    table = np.full((nodes.size, int(degree.max())), -1, dtype=np.int64)
+    slot = np.arange(adjacency.indices.size) - np.repeat(adjacency.indptr[:-1], degree)
+    table[np.repeat(np.arange(nodes.size), degree), slot] = adjacency.indices
+    candidate = table[cell]  # (V, D)
+    d = np.linalg.norm(v[:, None, :] - v[nodes[np.maximum(candidate, 0)]], axis=2)
+    d[candidate < 0] = np.inf
+    k = min(NODES_PER_VERTEX, candidate.shape[1])
+    order = np.argsort(d, axis=1)[:, : k + 1]
+    near = np.take_along_axis(d, order, axis=1)
+    chosen = np.take_along_axis(candidate, order[:, :k], axis=1)
+    # d_max: the next candidate, or (fewer candidates than k + 1) past the farthest one
+    d_max = near[:, k] if near.shape[1] > k else np.full(n_v, np.inf)
+    farthest = np.where(np.isfinite(near[:, :k]), near[:, :k], 0.0).max(axis=1)
+    d_max = np.where(np.isfinite(d_max), d_max, 1.5 * farthest + 1e-12)
+    weight = np.clip(1.0 - near[:, :k] / np.maximum(d_max, 1e-12)[:, None], 0.0, None) ** 2
+    weight[chosen < 0] = 0.0
+    weight[:, 0] = np.where(weight.sum(axis=1) > 0, weight[:, 0], 1.0)  # vertex on a tie
+    weight /= weight.sum(axis=1, keepdims=True)
+    keep = weight > 0
+    rows = np.repeat(np.arange(n_v), keep.sum(axis=1))
+    return nodes, sp.csr_matrix((weight[keep], (rows, chosen[keep])), shape=(n_v, nodes.size))
 
 
 class _AffineSystem:
@@ -416,7 +474,7 @@ class _AffineSystem:
         self.centre = v.mean(axis=0)
         self.scale = float(np.sqrt(((v - self.centre) ** 2).sum(axis=1).mean())) or 1.0
         self.homog = np.concatenate([(v - self.centre) / self.scale, np.ones((n_v, 1))], axis=1)
-        self.basis = _node_basis(v, f, int(nodes))
+        self.nodes, self.basis = _nodes_and_basis(v, f, int(nodes))
         self.n_nodes = self.basis.shape[1]
         self.expand = sp.kron(self.basis, sp.identity(4), format="csr")  # (4V, 4n)
         edges = _edges(f)
@@ -438,6 +496,13 @@ class _AffineSystem:
         y.reshape(self.n_nodes, 4, 3)[:, :3, :] = np.eye(3) * self.scale
         y.reshape(self.n_nodes, 4, 3)[:, 3, :] = self.centre
         return y
+
+    def from_vertex_transforms(self, x: np.ndarray) -> np.ndarray:
+        """Y (4n, 3) taking each node's transform from per-vertex transforms X (4V, 3).
+
+        Carries a coarser system's fit over to this one: a node sits on a vertex.
+        """
+        return np.asarray(x).reshape(-1, 4, 3)[self.nodes].reshape(-1, 3).copy()
 
     def vertex_transforms(self, y: np.ndarray) -> np.ndarray:
         """X (4V, 3): every vertex's transform, blended from the nodes' Y (4n, 3)."""
@@ -630,7 +695,10 @@ def register_mesh(
 
     report(0.0, "landmarks")
     chosen, lm_marker, lm_vertex = _seen_landmarks(landmarks, v, f, m, names)
-    system = _AffineSystem(v, f, settings.nodes)
+    coarse = int(settings.coarse_stages) > 0 and 0 < int(settings.coarse_nodes) < int(
+        settings.nodes
+    )
+    system = _AffineSystem(v, f, settings.coarse_nodes if coarse else settings.nodes)
     lm_rows = system.point_rows(lm_vertex[:, None], np.ones((lm_vertex.size, 1)))
     lm_targets = m[lm_marker]
     x = system.template_transforms()
@@ -650,6 +718,11 @@ def register_mesh(
     # Then every stage with the data term, the smoothness and landmarks falling.
     iterations = 0
     for k, smoothness in enumerate(schedule):
+        if coarse and k == int(settings.coarse_stages):  # coarse to fine
+            fine = _AffineSystem(v, f, settings.nodes)
+            x = fine.from_vertex_transforms(system.vertex_transforms(x))
+            system = fine
+            lm_rows = system.point_rows(lm_vertex[:, None], np.ones((lm_vertex.size, 1)))
         report(0.1 + 0.85 * k / len(schedule), f"fit, stiffness {smoothness:g}")
         x, ran = _fit_stage(
             system, x, m[seen], lm_rows, lm_targets,
