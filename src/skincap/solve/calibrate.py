@@ -56,6 +56,10 @@ ALONG_PRIOR_SPREAD_DEG = 10.0
 #: ... while at least this many markers stay: three markers of a trunk (C7, CLAV, STRN)
 #: may lie near one line, a frame badly determined about it.
 LOOSE_KEEP = 4
+#: Rounds of solving sibling joints with ``parent_points`` together (each in a frame
+#: holding the others' centres, :meth:`_Calibrator.centres_in_parent_points`): the
+#: synthetic walk's shoulders settle by the third (21 / 5 -> 7.4 / 6.6 mm).
+PARENT_POINTS_ROUNDS = 4
 
 _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
@@ -220,6 +224,9 @@ class _Calibrator:
         self.conditions: dict[str, list[float]] = {}  # segment -> fit_singular_values
         self.anat: dict[str, np.ndarray] = {}
         self.origin: dict[str, np.ndarray] = {}
+        # segment -> parent_points frame (T, 3, 3), (T, 3) and the centre in it and in
+        # the segment's technical frame (centres_in_parent_points)
+        self.point_frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # points -------------------------------------------------------------------
     def present(self, spec: SegmentSpec) -> list[str]:
@@ -384,6 +391,85 @@ class _Calibrator:
         sign = -1.0 if np.nansum(dots) < 0 else 1.0
         return start + float(pr["distance"]) * sign * axis_world
 
+    def axis_point(self, spec: SegmentSpec) -> np.ndarray | None:
+        """(T, 3) midpoint of a hinge's two ``axis_point`` POINTS (world, metres), or
+        None for a hinge without them: its along-axis component is the mean of the
+        two points' feet on the axis."""
+        ends = (spec.centre or {}).get("axis_point")
+        if not ends:
+            return None
+        where = f"joint {spec.joint} (segment {spec.name}) axis_point"
+        a, b = (self.point(_as_list(e), where) for e in ends)
+        return 0.5 * (a + b)
+
+    def parent_points_frame(
+        self, spec: SegmentSpec, child_centres: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The technical frame ``(T, 3, 3)``, ``(T, 3)`` of a joint's ``parent_points``:
+        marker centroids (those the capture has) and siblings' centres
+        (``child_centres``: each sibling's centre in its own technical frame); None
+        with fewer than three points or frames."""
+        assert spec.centre is not None
+        pts = []
+        for entry in spec.centre["parent_points"]:
+            names = _as_list(entry)
+            if names[0].startswith("@"):
+                sib = names[0][1:]
+                if sib in child_centres and sib in self.tech:
+                    rs, ts = self.tech[sib]
+                    pts.append(to_world(rs, ts, child_centres[sib][None])[:, 0])
+                continue
+            have = [n for n in names if n in self.columns]
+            if have:
+                pts.append(self.point(have, f"joint {spec.joint} parent_points"))
+        if len(pts) < 3:
+            return None
+        stack = np.stack(pts, axis=1)  # (T, K, 3)
+        if (np.isfinite(stack).all(axis=2).sum(axis=1) >= 3).sum() < MIN_CALIBRATION_FRAMES:
+            return None
+        _, rot, trans = cluster_frames(stack)
+        return rot, trans
+
+    def centres_in_parent_points(self) -> None:
+        """SCoRE of the joints with ``parent_points``, each in the frame of those points.
+
+        A parent that bends (a thorax) carries a joint on one part of it; its markers
+        on another part turn with the bend, and SCoRE in their frame absorbs it (the
+        synthetic walk's shoulders: 22 / 20 mm off). The template names the points
+        that ride the joint's part -- markers, a centroid, and the sibling joints'
+        centres, which no marker of the parent gives. The siblings start from plain
+        SCoRE in the parent's technical frame, then each is fitted in a frame holding
+        the others' current centres, :data:`PARENT_POINTS_ROUNDS` times: every round
+        the siblings' points are rigid with the part carrying them once their centres
+        are right, so the estimates settle where they are. Results in
+        ``self.point_frames``; a joint whose points give no frame, or whose range of
+        motion in it is under ``min_spread``, is left to :meth:`centre`.
+        """
+        specs = [
+            s for s in self.template.segments[1:]
+            if s.centre is not None and "parent_points" in s.centre
+            and s.name in self.tech and s.parent in self.tech
+        ]  # fmt: skip
+        child_centres: dict[str, np.ndarray] = {}
+        for spec in specs:
+            assert spec.parent is not None
+            (rp, tp), (rc, tc) = self.tech[spec.parent], self.tech[spec.name]
+            if jc.motion_spread(rp, rc)[1] >= self.min_spread:
+                child_centres[spec.name] = jc.score_centre(rp, tp, rc, tc)[1]
+        for _ in range(PARENT_POINTS_ROUNDS):
+            for spec in specs:
+                if spec.name not in child_centres:
+                    continue
+                frame = self.parent_points_frame(spec, child_centres)
+                rc, tc = self.tech[spec.name]
+                if frame is None or jc.motion_spread(frame[0], rc)[1] < self.min_spread:
+                    del child_centres[spec.name]
+                    self.point_frames.pop(spec.name, None)
+                    continue
+                cp, cc, _ = jc.score_centre(frame[0], frame[1], rc, tc)
+                child_centres[spec.name] = cc
+                self.point_frames[spec.name] = (frame[0], frame[1], cp, cc)
+
     # steps --------------------------------------------------------------------
     def technical(self, spec: SegmentSpec, extra: np.ndarray | None = None) -> None:
         names = self.present(spec)
@@ -469,7 +555,13 @@ class _Calibrator:
             pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
             fitted: tuple[np.ndarray, np.ndarray] | None = None
             sv = jc.fit_singular_values(rp, tp, rc, tc)
-            if kind == "ball" and s[1] >= self.min_spread:
+            if spec.name in self.point_frames:
+                rp, tp, cp, cc = self.point_frames[spec.name]
+                spread = [round(float(v), 2) for v in jc.motion_spread(rp, rc)]
+                sv = jc.fit_singular_values(rp, tp, rc, tc)
+                fitted = (cp, cc)
+                method = "SCoRE in its parent_points frame"
+            elif kind == "ball" and s[1] >= self.min_spread:
                 usable = np.isfinite(pp).all() and np.isfinite(pc).all()
                 cp, cc, _ = jc.score_centre(
                     rp, tp, rc, tc,
@@ -507,7 +599,18 @@ class _Calibrator:
                         method = "SCoRE + regression along the axis"
             elif s[0] >= self.min_spread and np.isfinite(pp).all():
                 ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
-                if along == "axis":
+                crossing = self.axis_point(spec)
+                placed = False
+                if crossing is not None:
+                    # along the axis: where the two bones cross it (templates: axis_point)
+                    mp, mc = (
+                        _nanmedian0(to_local(r, t, crossing[:, None])[:, 0])
+                        for r, t in ((rp, tp), (rc, tc))
+                    )
+                    if np.isfinite(mp).all() and np.isfinite(mc).all():
+                        cp, cc = jc.slide_along_axis(cp, cc, ap, ac, mp, mc)
+                        placed = True
+                elif along == "axis":
                     prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
                     pp, pc = (
                         _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
@@ -518,6 +621,8 @@ class _Calibrator:
                 fitted = (cp, cc)
                 self.axes_local[spec.name] = (ap, ac)
                 method = "SARA" if kind == "hinge" else "SARA axis + regression"
+                if placed:
+                    method += ", centre where the bones cross the axis"
             self.conditions[spec.name] = [round(float(v), 4) for v in sv]
             if fitted is not None:
                 cp, cc = fitted
@@ -695,6 +800,7 @@ def calibrate(
             f"frames; the capture has {', '.join(cal.present(root))}"
         )
     with np.errstate(invalid="ignore"):
+        cal.centres_in_parent_points()
         for spec in segs[1:]:
             cal.centre(spec)
     cal.orient_hinges()
