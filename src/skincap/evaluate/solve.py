@@ -334,7 +334,8 @@ def matched_joint_errors(
     A found group stands for the true segment most of its markers ride
     (:func:`group_accuracy`'s majority); the true joint between segments ``P`` and
     ``C`` (``C``'s ``joint`` in ``template``) is matched to the found joint whose child
-    group stands for ``C`` and whose parent group stands for ``P``. Stricter than the
+    group stands for ``C`` and whose parent group stands for ``P`` (past a ``link``
+    parent, which no group stands for: its own parent). Stricter than the
     nearest joint: a joint the tree put between the wrong segments is not found.
 
     Parameters
@@ -367,9 +368,14 @@ def matched_joint_errors(
     for spec in template.segments[1:]:
         if spec.joint not in EVAL_JOINTS or spec.joint not in truth.skeleton.names:
             continue
+        # a link (a bend of its parent with no markers of its own, e.g. an upper
+        # thorax) is no group: the joint hangs from the segment the link hangs from
+        true_parent = spec.parent
+        while true_parent is not None and template.segment(true_parent).link:
+            true_parent = template.segment(true_parent).parent
         hits = [
             c for c, p in enumerate(parents)
-            if p >= 0 and stands_for[c] == spec.name and stands_for[p] == spec.parent
+            if p >= 0 and stands_for[c] == spec.name and stands_for[p] == true_parent
         ]  # fmt: skip
         name = f"joint_{hits[0]}" if hits else None
         if name is None or name not in solved.skeleton.names:
@@ -406,7 +412,8 @@ def evaluate_auto(markers: MarkerSet, truth: Motion, template: str | None = None
         "groups": found.groups,
         "unjoined": found.unjoined,
         "template": tpl.name,
-        "true_segments": len(tpl.segments),
+        # a link (no markers of its own: a bend of its parent) is no segment to find
+        "true_segments": sum(not s.link for s in tpl.segments),
         "share_in_true_segment": share,
         "per_segment": per_segment,
         "misplaced": misplaced,

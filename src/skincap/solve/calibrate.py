@@ -56,10 +56,12 @@ ALONG_PRIOR_SPREAD_DEG = 10.0
 #: ... while at least this many markers stay: three markers of a trunk (C7, CLAV, STRN)
 #: may lie near one line, a frame badly determined about it.
 LOOSE_KEEP = 4
-#: Rounds of solving sibling joints with ``parent_points`` together (each in a frame
-#: holding the others' centres, :meth:`_Calibrator.centres_in_parent_points`): the
-#: synthetic walk's shoulders settle by the third (21 / 5 -> 7.4 / 6.6 mm).
-PARENT_POINTS_ROUNDS = 4
+#: Most rounds of solving sibling joints with ``parent_points`` together (each in a
+#: frame holding the others' centres, :meth:`_Calibrator.centres_in_parent_points`),
+#: which stop once no centre moves by more than PARENT_POINTS_TOLERANCE_M: the
+#: synthetic walk's shoulders settle within 3 (SCoRE in them 21 / 5 -> 7.4 / 6.6 mm).
+PARENT_POINTS_ROUNDS = 30
+PARENT_POINTS_TOLERANCE_M = 1e-8
 
 _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
@@ -146,6 +148,14 @@ def _nanmedian0(x: np.ndarray) -> np.ndarray:
     if not ok.any():
         return np.full(x.shape[1:], np.nan)
     return np.median(x[ok], axis=0)
+
+
+def _nanmean0(x: np.ndarray) -> np.ndarray:
+    """Mean over axis 0 of the rows without NaN; NaN where there is none (no warning)."""
+    ok = np.isfinite(x).all(axis=tuple(range(1, x.ndim)))
+    if not ok.any():
+        return np.full(x.shape[1:], np.nan)
+    return np.mean(x[ok], axis=0)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -430,6 +440,15 @@ class _Calibrator:
         _, rot, trans = cluster_frames(stack)
         return rot, trans
 
+    def framed_ancestor(self, spec: SegmentSpec) -> str:
+        """The segment's parent, or past ``link`` parents (their frame starts as their
+        parent's) the first ancestor that is not a link."""
+        assert spec.parent is not None
+        name = spec.parent
+        while self.template.segment(name).link and self.template.segment(name).parent:
+            name = str(self.template.segment(name).parent)
+        return name
+
     def centres_in_parent_points(self) -> None:
         """SCoRE of the joints with ``parent_points``, each in the frame of those points.
 
@@ -439,24 +458,25 @@ class _Calibrator:
         that ride the joint's part -- markers, a centroid, and the sibling joints'
         centres, which no marker of the parent gives. The siblings start from plain
         SCoRE in the parent's technical frame, then each is fitted in a frame holding
-        the others' current centres, :data:`PARENT_POINTS_ROUNDS` times: every round
-        the siblings' points are rigid with the part carrying them once their centres
-        are right, so the estimates settle where they are. Results in
+        the others' current centres, round after round until none moves by more than
+        :data:`PARENT_POINTS_TOLERANCE_M` (at most :data:`PARENT_POINTS_ROUNDS`): the
+        siblings' points are rigid with the part carrying them once their centres are
+        right, so the true centres are where the rounds settle. Results in
         ``self.point_frames``; a joint whose points give no frame, or whose range of
         motion in it is under ``min_spread``, is left to :meth:`centre`.
         """
         specs = [
             s for s in self.template.segments[1:]
             if s.centre is not None and "parent_points" in s.centre
-            and s.name in self.tech and s.parent in self.tech
+            and s.name in self.tech and self.framed_ancestor(s) in self.tech
         ]  # fmt: skip
         child_centres: dict[str, np.ndarray] = {}
         for spec in specs:
-            assert spec.parent is not None
-            (rp, tp), (rc, tc) = self.tech[spec.parent], self.tech[spec.name]
+            (rp, tp), (rc, tc) = self.tech[self.framed_ancestor(spec)], self.tech[spec.name]
             if jc.motion_spread(rp, rc)[1] >= self.min_spread:
                 child_centres[spec.name] = jc.score_centre(rp, tp, rc, tc)[1]
         for _ in range(PARENT_POINTS_ROUNDS):
+            moved = 0.0
             for spec in specs:
                 if spec.name not in child_centres:
                     continue
@@ -467,8 +487,11 @@ class _Calibrator:
                     self.point_frames.pop(spec.name, None)
                     continue
                 cp, cc, _ = jc.score_centre(frame[0], frame[1], rc, tc)
+                moved = max(moved, float(np.linalg.norm(cc - child_centres[spec.name])))
                 child_centres[spec.name] = cc
                 self.point_frames[spec.name] = (frame[0], frame[1], cp, cc)
+            if moved <= PARENT_POINTS_TOLERANCE_M:
+                break
 
     # steps --------------------------------------------------------------------
     def technical(self, spec: SegmentSpec, extra: np.ndarray | None = None) -> None:
@@ -602,9 +625,11 @@ class _Calibrator:
                 crossing = self.axis_point(spec)
                 placed = False
                 if crossing is not None:
-                    # along the axis: where the two bones cross it (templates: axis_point)
+                    # along the axis: where the two bones cross it (templates: axis_point);
+                    # the mean, not the median: its along-axis part is the mean of the
+                    # points' (the median of coordinates is not rotation-equivariant)
                     mp, mc = (
-                        _nanmedian0(to_local(r, t, crossing[:, None])[:, 0])
+                        _nanmean0(to_local(r, t, crossing[:, None])[:, 0])
                         for r, t in ((rp, tp), (rc, tc))
                     )
                     if np.isfinite(mp).all() and np.isfinite(mc).all():
