@@ -214,15 +214,18 @@ def test_a_hinge_centre_where_the_bones_cross_the_axis(tmp_path):
     the perpendiculars from a proximal and a distal point; bones tilted either way off
     the flexion axis (a carrying angle) cancel in the mean."""
     points, centre, shank_rot = _hinge_take(np.random.default_rng(34))
-    # the thigh's point 3 cm lateral along the axis, the shank's 3 cm medial
-    points |= _place(shank_rot, centre, {"DIST": [-0.03, -0.42, 0.0]})
+    # the thigh's point 1.2 cm lateral along the axis, the shank's 1.2 cm medial
+    points |= _place(shank_rot, centre, {"DIST": [-0.012, -0.42, 0.0]})
     rot, _ = _root_motion(np.random.default_rng(34))  # the thigh's frames (same seed)
-    points |= _place(rot, centre, {"PROX": [0.03, 0.42, 0.0]})
+    points |= _place(rot, centre, {"PROX": [0.012, 0.42, 0.0]})
+    # and two whose feet lie 8 cm apart along the axis (over AXIS_POINT_AGREEMENT_M)
+    points |= _place(shank_rot, centre, {"DIST2": [-0.04, -0.42, 0.0]})
+    points |= _place(rot, centre, {"PROX2": [0.04, 0.42, 0.0]})
     prior = {"from": ["KNE"], "towards": ["OTHER"], "distance": 0.05}
     tpl = _hinge_template(tmp_path, prior)
     raw = json.loads((tmp_path / "t.json").read_text())
-    raw["segments"][0]["markers"].append("PROX")
-    raw["segments"][1]["markers"].append("DIST")
+    raw["segments"][0]["markers"] += ["PROX", "PROX2"]
+    raw["segments"][1]["markers"] += ["DIST", "DIST2"]
     raw["segments"][1]["centre"]["axis_point"] = [["PROX"], ["DIST"]]
     (tmp_path / "t.json").write_text(json.dumps(raw))
     tpl = load_template(tmp_path / "t.json")
@@ -232,8 +235,13 @@ def test_a_hinge_centre_where_the_bones_cross_the_axis(tmp_path):
     assert result.model.methods["shank"] == "SARA, centre where the bones cross the axis"
     knee = joint_positions(result.motion)[:, result.motion.skeleton.index("Knee")]
     assert np.abs(knee - centre).max() < 1e-6
-    # the prior alone (towards OTHER, 53 deg off the axis) is 2 cm off along it
-    alone = solve_markers(_markers(points), _hinge_template(tmp_path, prior))
+    # feet too far apart: the prior (towards OTHER, 53 deg off the axis) places it, 2 cm off
+    raw["segments"][1]["centre"]["axis_point"] = [["PROX2"], ["DIST2"]]
+    (tmp_path / "t.json").write_text(json.dumps(raw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        alone = solve_markers(_markers(points), load_template(tmp_path / "t.json"))
+    assert alone.model.methods["shank"] == "SARA"
     knee = joint_positions(alone.motion)[:, alone.motion.skeleton.index("Knee")]
     assert np.linalg.norm(knee - centre, axis=1).mean() > 0.015
 

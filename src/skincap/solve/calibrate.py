@@ -56,6 +56,11 @@ ALONG_PRIOR_SPREAD_DEG = 10.0
 #: ... while at least this many markers stay: three markers of a trunk (C7, CLAV, STRN)
 #: may lie near one line, a frame badly determined about it.
 LOOSE_KEEP = 4
+#: A hinge's ``axis_point`` feet further apart along SARA's axis than this (metres)
+#: do not place its centre (:meth:`_Calibrator.axis_point`): the synthetic walk's
+#: elbows 10 mm, a forearm-twisting clip's 144-187 mm, a range-of-motion clip's
+#: 395-475 mm (its centre then 35-40 mm off instead of 16-19).
+AXIS_POINT_AGREEMENT_M = 0.03
 #: Most rounds of solving sibling joints with ``parent_points`` together (each in a
 #: frame holding the others' centres, :meth:`_Calibrator.centres_in_parent_points`),
 #: which stop once no centre moves by more than PARENT_POINTS_TOLERANCE_M: the
@@ -334,7 +339,8 @@ class _Calibrator:
         centre in both frames and the markers dropped (empty: unchanged).
         """
         assert spec.parent is not None
-        names = self.present(self.template.segment(spec.parent))
+        # the markers that made the parent's frame: past a link, its framed ancestor's
+        names = self.present(self.template.segment(self.framed_ancestor(spec)))
         loose: list[str] = []
         while len(names) - len(loose) > LOOSE_KEEP:
             kept = [n for n in names if n not in loose]
@@ -401,16 +407,40 @@ class _Calibrator:
         sign = -1.0 if np.nansum(dots) < 0 else 1.0
         return start + float(pr["distance"]) * sign * axis_world
 
-    def axis_point(self, spec: SegmentSpec) -> np.ndarray | None:
-        """(T, 3) midpoint of a hinge's two ``axis_point`` POINTS (world, metres), or
-        None for a hinge without them: its along-axis component is the mean of the
-        two points' feet on the axis."""
+    def axis_point(
+        self,
+        spec: SegmentSpec,
+        frames: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+        axis_parent: np.ndarray,
+        centre_parent: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The point ``(m_p, m_c)`` (3,) in the parent's and the child's technical
+        ``frames`` whose place along a hinge's axis is the mean of its two
+        ``axis_point`` POINTS' feet on it, or None: no ``axis_point``, or feet further
+        apart than :data:`AXIS_POINT_AGREEMENT_M` (along ``axis_parent`` (3,) unit from
+        ``centre_parent`` (3,), SARA's, in the parent's frame) -- an axis the bones do
+        not cross near one point, e.g. SARA's axis wandering with a forearm that
+        twists, which the points' lever (a bone's length) would magnify.
+
+        The mean over frames, not the median: its along-axis part is the mean of the
+        points' (a median of coordinates is not rotation-equivariant)."""
         ends = (spec.centre or {}).get("axis_point")
         if not ends:
             return None
         where = f"joint {spec.joint} (segment {spec.name}) axis_point"
         a, b = (self.point(_as_list(e), where) for e in ends)
-        return 0.5 * (a + b)
+        (rp, tp), (rc, tc) = frames
+        feet = [
+            float(axis_parent @ (_nanmean0(to_local(rp, tp, x[:, None])[:, 0]) - centre_parent))
+            for x in (a, b)
+        ]
+        if not np.isfinite(feet).all() or abs(feet[0] - feet[1]) > AXIS_POINT_AGREEMENT_M:
+            return None
+        mid = 0.5 * (a + b)
+        mp, mc = (_nanmean0(to_local(r, t, mid[:, None])[:, 0]) for r, t in frames)
+        if not (np.isfinite(mp).all() and np.isfinite(mc).all()):
+            return None
+        return mp, mc
 
     def parent_points_frame(
         self, spec: SegmentSpec, child_centres: dict[str, np.ndarray]
@@ -461,7 +491,11 @@ class _Calibrator:
         the others' current centres, round after round until none moves by more than
         :data:`PARENT_POINTS_TOLERANCE_M` (at most :data:`PARENT_POINTS_ROUNDS`): the
         siblings' points are rigid with the part carrying them once their centres are
-        right, so the true centres are where the rounds settle. Results in
+        right, so the true centres are where the rounds settle. A joint keeps its
+        points' frame only where SCoRE's two estimates of its centre (one per frame)
+        agree better, RMS, than in the parent's technical frame: the synthetic walk's
+        shoulders 22 -> 12-13 mm, a clip that twists the arms 15-16 -> 18-19 mm (kept
+        out; its centres 60-80 mm off in the points' frame against 35-43). Results in
         ``self.point_frames``; a joint whose points give no frame, or whose range of
         motion in it is under ``min_spread``, is left to :meth:`centre`.
         """
@@ -492,6 +526,13 @@ class _Calibrator:
                 self.point_frames[spec.name] = (frame[0], frame[1], cp, cc)
             if moved <= PARENT_POINTS_TOLERANCE_M:
                 break
+        # kept only where the joint is more of a ball joint in the points' frame than
+        # in the parent's: SCoRE's two estimates of the centre agree better
+        for name, (rp, tp, _, _) in list(self.point_frames.items()):
+            spec = self.template.segment(name)
+            (rq, tq), (rc, tc) = self.tech[self.framed_ancestor(spec)], self.tech[name]
+            if jc.score_centre(rp, tp, rc, tc)[2] >= jc.score_centre(rq, tq, rc, tc)[2]:
+                del self.point_frames[name]
 
     # steps --------------------------------------------------------------------
     def technical(self, spec: SegmentSpec, extra: np.ndarray | None = None) -> None:
@@ -622,19 +663,10 @@ class _Calibrator:
                         method = "SCoRE + regression along the axis"
             elif s[0] >= self.min_spread and np.isfinite(pp).all():
                 ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
-                crossing = self.axis_point(spec)
-                placed = False
+                # along the axis: where the two bones cross it (templates: axis_point)
+                crossing = self.axis_point(spec, ((rp, tp), (rc, tc)), ap, cp)
                 if crossing is not None:
-                    # along the axis: where the two bones cross it (templates: axis_point);
-                    # the mean, not the median: its along-axis part is the mean of the
-                    # points' (the median of coordinates is not rotation-equivariant)
-                    mp, mc = (
-                        _nanmean0(to_local(r, t, crossing[:, None])[:, 0])
-                        for r, t in ((rp, tp), (rc, tc))
-                    )
-                    if np.isfinite(mp).all() and np.isfinite(mc).all():
-                        cp, cc = jc.slide_along_axis(cp, cc, ap, ac, mp, mc)
-                        placed = True
+                    cp, cc = jc.slide_along_axis(cp, cc, ap, ac, *crossing)
                 elif along == "axis":
                     prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
                     pp, pc = (
@@ -646,7 +678,7 @@ class _Calibrator:
                 fitted = (cp, cc)
                 self.axes_local[spec.name] = (ap, ac)
                 method = "SARA" if kind == "hinge" else "SARA axis + regression"
-                if placed:
+                if crossing is not None:
                     method += ", centre where the bones cross the axis"
             self.conditions[spec.name] = [round(float(v), 4) for v in sv]
             if fitted is not None:
