@@ -664,16 +664,17 @@ def synth_dense_template(
         new["markers"] = [dense.labels[int(i)] for i in np.flatnonzero(kept & (best == s))]
         if seg.get("centre") is not None:
             # the regression: the centroid of the few markers of this segment and its
-            # parent around the joint, fitted on the bind pose (the skeleton's joint)
-            pool = np.flatnonzero(kept & np.isin(best, [s, seg_names.index(seg["parent"])]))
+            # parent around the joint, fitted on the bind pose (the skeleton's joint);
+            # past a link parent (no markers: a bend of its own parent) to that parent
+            parent = seg_names.index(seg["parent"])
+            while sparse_tpl["segments"][parent].get("link"):
+                parent = seg_names.index(sparse_tpl["segments"][parent]["parent"])
+            pool = np.flatnonzero(kept & np.isin(best, [s, parent]))
             joint = joint_at[seg["joint"]]
             group = pool[_landmark_group(dense_pos[pool], joint)]
             misses[seg["joint"]] = float(np.linalg.norm(dense_pos[group].mean(axis=0) - joint))
-            prior = {
-                "from": [dense.labels[int(g)] for g in sorted(group)],
-                "towards": new["markers"],
-                "distance": 0.0,
-            }
+            start = [dense.labels[int(g)] for g in sorted(group)]
+            prior = {"from": start, "towards": new["markers"] or start, "distance": 0.0}
             new["centre"] = {**seg["centre"], "prior": prior}
         segments.append(_relabel(new, groups))
     worst = max(misses, key=misses.__getitem__)
