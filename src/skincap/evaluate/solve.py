@@ -674,7 +674,9 @@ def synth_dense_template(
             group = pool[_landmark_group(dense_pos[pool], joint)]
             misses[seg["joint"]] = float(np.linalg.norm(dense_pos[group].mean(axis=0) - joint))
             start = [dense.labels[int(g)] for g in sorted(group)]
-            prior = {"from": start, "towards": new["markers"] or start, "distance": 0.0}
+            prior: dict[str, Any] = {"from": start}  # a link without markers: the centroid
+            if new["markers"]:
+                prior |= {"towards": new["markers"], "distance": 0.0}
             new["centre"] = {**seg["centre"], "prior": prior}
         segments.append(_relabel(new, groups))
     worst = max(misses, key=misses.__getitem__)
