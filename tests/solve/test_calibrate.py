@@ -207,3 +207,120 @@ def test_a_bad_along_is_refused(tmp_path, along, message):
 def test_along_needs_a_direction_and_a_distance(tmp_path):
     with pytest.raises(FormatError, match="'along' needs 'towards' and a 'distance'"):
         _hinge_template(tmp_path, {"from": ["KNE"], "towards": ["OTHER"], "along": "axis"})
+
+
+def test_a_hinge_centre_where_the_bones_cross_the_axis(tmp_path):
+    """``axis_point``: the centre's place along SARA's axis midway between the feet of
+    the perpendiculars from a proximal and a distal point; bones tilted either way off
+    the flexion axis (a carrying angle) cancel in the mean."""
+    points, centre, shank_rot = _hinge_take(np.random.default_rng(34))
+    # the thigh's point 1.2 cm lateral along the axis, the shank's 1.2 cm medial
+    points |= _place(shank_rot, centre, {"DIST": [-0.012, -0.42, 0.0]})
+    rot, _ = _root_motion(np.random.default_rng(34))  # the thigh's frames (same seed)
+    points |= _place(rot, centre, {"PROX": [0.012, 0.42, 0.0]})
+    # and two whose feet lie 8 cm apart along the axis (over AXIS_POINT_AGREEMENT_M)
+    points |= _place(shank_rot, centre, {"DIST2": [-0.04, -0.42, 0.0]})
+    points |= _place(rot, centre, {"PROX2": [0.04, 0.42, 0.0]})
+    prior = {"from": ["KNE"], "towards": ["OTHER"], "distance": 0.05}
+    tpl = _hinge_template(tmp_path, prior)
+    raw = json.loads((tmp_path / "t.json").read_text())
+    raw["segments"][0]["markers"] += ["PROX", "PROX2"]
+    raw["segments"][1]["markers"] += ["DIST", "DIST2"]
+    raw["segments"][1]["centre"]["axis_point"] = [["PROX"], ["DIST"]]
+    (tmp_path / "t.json").write_text(json.dumps(raw))
+    tpl = load_template(tmp_path / "t.json")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        result = solve_markers(_markers(points), tpl)
+    assert result.model.methods["shank"] == "SARA, centre where the bones cross the axis"
+    knee = joint_positions(result.motion)[:, result.motion.skeleton.index("Knee")]
+    assert np.abs(knee - centre).max() < 1e-6
+    # feet too far apart: the prior (towards OTHER, 53 deg off the axis) places it, 2 cm off
+    raw["segments"][1]["centre"]["axis_point"] = [["PROX2"], ["DIST2"]]
+    (tmp_path / "t.json").write_text(json.dumps(raw))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        alone = solve_markers(_markers(points), load_template(tmp_path / "t.json"))
+    assert alone.model.methods["shank"] == "SARA"
+    knee = joint_positions(alone.motion)[:, alone.motion.skeleton.index("Knee")]
+    assert np.linalg.norm(knee - centre, axis=1).mean() > 0.015
+
+
+def _bending_trunk_take(rng: np.random.Generator) -> tuple[dict, dict, dict]:
+    """A trunk whose lower part (L1-L3) bends up to 12 deg against the upper part, which
+    carries C7, N and both shoulders; the arms turn about the shoulders. Returns the
+    markers, the shoulder centres (T, 3) per side and the template's segments."""
+    rot, origin = _root_motion(rng)  # the upper part
+    upper = {"C7": [0.0, 0.2, -0.1], "N": [0.0, 0.22, 0.08]}
+    bend = Rotation.from_rotvec(_sines(rng, np.radians([12.0, 6.0, 8.0]))).as_matrix()
+    waist = np.einsum("tij,j->ti", rot, [0.0, -0.15, 0.0]) + origin
+    lower = {"L1": [0.1, -0.05, 0.1], "L2": [-0.1, -0.08, 0.1], "L3": [0.0, -0.1, -0.12]}
+    pts = _place(rot, origin, upper) | _place(rot @ bend, waist, lower)
+    centres = {}
+    for side, x in (("l", 0.18), ("r", -0.18)):
+        arm_rot = (
+            rot @ Rotation.from_rotvec(_sines(rng, np.radians([35.0, 25.0, 30.0]))).as_matrix()
+        )
+        centres[side] = np.einsum("tij,j->ti", rot, [x, 0.15, 0.0]) + origin
+        arm = {f"{side}A": [0.0, 0.05, 0.03], f"{side}B": [x * 0.6, -0.04, -0.04],
+               f"{side}C": [x * 1.5, 0.0, 0.04]}  # fmt: skip
+        pts |= _place(arm_rot, centres[side], arm)
+    return pts, centres, rot
+
+
+def _trunk_template(tmp_path, parent_points: bool) -> object:
+    segs = [
+        {"name": "trunk", "joint": "Chest", "parent": None,
+         "markers": ["L1", "L2", "L3", "C7", "N"], "origin": ["C7"],
+         "axes": [["y", ["L3"], ["C7"]], ["x", ["L2"], ["L1"]]]},
+    ]  # fmt: skip
+    for side, other in (("l", "r"), ("r", "l")):
+        centre: dict = {"kind": "ball", "prior": {"from": [f"{side}A"]}}
+        if parent_points:
+            centre["parent_points"] = [["C7"], ["N"], [f"@arm_{other}"]]
+        segs.append(
+            {"name": f"arm_{side}", "joint": f"Shoulder_{side}", "parent": "trunk",
+             "markers": [f"{side}A", f"{side}B", f"{side}C"], "centre": centre,
+             "axes": [["x", [f"@arm_{side}"], [f"{side}C"]], ["y", "parent"]]}
+        )  # fmt: skip
+    return _template(tmp_path, segs)
+
+
+def test_siblings_solved_together_in_a_frame_of_parent_points(tmp_path):
+    """Two shoulders on the upper part of a bending trunk that has only two markers of
+    its own: SCoRE in the trunk's frame is centimetres off, in a frame of C7, N and the
+    other shoulder's centre (solved together) it is exact."""
+    pts, centres, _ = _bending_trunk_take(np.random.default_rng(35))
+    markers = _markers(pts)
+    for with_points in (False, True):
+        cal = _Calibrator(markers, _trunk_template(tmp_path, with_points), jc.MIN_SPREAD_DEG)
+        for spec in cal.template.segments:
+            cal.technical(spec)
+        cal.centres_in_parent_points()
+        for spec in cal.template.segments[1:]:
+            cal.centre(spec)
+        err = {s: np.linalg.norm(cal.centres[f"arm_{s}"] - centres[s], axis=1).max() for s in "lr"}
+        if with_points:
+            assert cal.methods["arm_l"] == "SCoRE in its parent_points frame"
+            assert max(err.values()) < 1e-6
+        else:
+            assert min(err.values()) > 0.005
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        (lambda c: c.update(kind="hinge", flexion=["C7", "@arm_l", "lC"]), "ball joint's list"),
+        (lambda c: c.update(parent_points=[["C7"], ["@arm_r"]]), "3 or more POINTS"),
+        (lambda c: c.update(parent_points=[["C7"], ["N"], ["@trunk"]]), "must be a sibling"),
+        (lambda c: c.update(parent_points=[["C7"], ["N"], ["@arm_r", "N"]]), "stands alone"),
+        (lambda c: c.update(axis_point=[["C7"], ["lC"]]), "'axis_point' is a hinge's"),
+    ],
+)
+def test_bad_parent_points_and_axis_points_are_refused(tmp_path, change, message):
+    _trunk_template(tmp_path, True)
+    raw = json.loads((tmp_path / "t.json").read_text())
+    change(raw["segments"][1]["centre"])
+    (tmp_path / "t.json").write_text(json.dumps(raw))
+    with pytest.raises(FormatError, match=message):
+        load_template(tmp_path / "t.json")

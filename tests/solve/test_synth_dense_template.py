@@ -29,7 +29,8 @@ def test_synth_dense_has_synth_sparse_skeleton_and_only_dense_markers():
     for d, s in zip(dense.segments, sparse.segments, strict=True):
         assert d.limits_deg == s.limits_deg
         assert (d.centre or {}).get("kind") == (s.centre or {}).get("kind")
-        assert len(d.markers) >= 3 or d.end is not None, d.name  # a hand or foot may be sparse
+        # a hand or foot may be sparse; a link (the upper thorax) has no markers of its own
+        assert len(d.markers) >= 3 or d.end is not None or d.link, d.name
     labels = dense.markers
     assert all(re.fullmatch(r"D\d{3}", m) for m in labels)
     assert len(labels) == len(set(labels)) > 250  # most of the ~350 markers ride a segment

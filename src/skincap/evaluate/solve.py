@@ -334,7 +334,8 @@ def matched_joint_errors(
     A found group stands for the true segment most of its markers ride
     (:func:`group_accuracy`'s majority); the true joint between segments ``P`` and
     ``C`` (``C``'s ``joint`` in ``template``) is matched to the found joint whose child
-    group stands for ``C`` and whose parent group stands for ``P``. Stricter than the
+    group stands for ``C`` and whose parent group stands for ``P`` (past a ``link``
+    parent, which no group stands for: its own parent). Stricter than the
     nearest joint: a joint the tree put between the wrong segments is not found.
 
     Parameters
@@ -367,9 +368,14 @@ def matched_joint_errors(
     for spec in template.segments[1:]:
         if spec.joint not in EVAL_JOINTS or spec.joint not in truth.skeleton.names:
             continue
+        # a link (a bend of its parent with no markers of its own, e.g. an upper
+        # thorax) is no group: the joint hangs from the segment the link hangs from
+        true_parent = spec.parent
+        while true_parent is not None and template.segment(true_parent).link:
+            true_parent = template.segment(true_parent).parent
         hits = [
             c for c, p in enumerate(parents)
-            if p >= 0 and stands_for[c] == spec.name and stands_for[p] == spec.parent
+            if p >= 0 and stands_for[c] == spec.name and stands_for[p] == true_parent
         ]  # fmt: skip
         name = f"joint_{hits[0]}" if hits else None
         if name is None or name not in solved.skeleton.names:
@@ -406,7 +412,8 @@ def evaluate_auto(markers: MarkerSet, truth: Motion, template: str | None = None
         "groups": found.groups,
         "unjoined": found.unjoined,
         "template": tpl.name,
-        "true_segments": len(tpl.segments),
+        # a link (no markers of its own: a bend of its parent) is no segment to find
+        "true_segments": sum(not s.link for s in tpl.segments),
         "share_in_true_segment": share,
         "per_segment": per_segment,
         "misplaced": misplaced,
@@ -657,16 +664,19 @@ def synth_dense_template(
         new["markers"] = [dense.labels[int(i)] for i in np.flatnonzero(kept & (best == s))]
         if seg.get("centre") is not None:
             # the regression: the centroid of the few markers of this segment and its
-            # parent around the joint, fitted on the bind pose (the skeleton's joint)
-            pool = np.flatnonzero(kept & np.isin(best, [s, seg_names.index(seg["parent"])]))
+            # parent around the joint, fitted on the bind pose (the skeleton's joint);
+            # past a link parent (no markers: a bend of its own parent) to that parent
+            parent = seg_names.index(seg["parent"])
+            while sparse_tpl["segments"][parent].get("link"):
+                parent = seg_names.index(sparse_tpl["segments"][parent]["parent"])
+            pool = np.flatnonzero(kept & np.isin(best, [s, parent]))
             joint = joint_at[seg["joint"]]
             group = pool[_landmark_group(dense_pos[pool], joint)]
             misses[seg["joint"]] = float(np.linalg.norm(dense_pos[group].mean(axis=0) - joint))
-            prior = {
-                "from": [dense.labels[int(g)] for g in sorted(group)],
-                "towards": new["markers"],
-                "distance": 0.0,
-            }
+            start = [dense.labels[int(g)] for g in sorted(group)]
+            prior: dict[str, Any] = {"from": start}  # a link without markers: the centroid
+            if new["markers"]:
+                prior |= {"towards": new["markers"], "distance": 0.0}
             new["centre"] = {**seg["centre"], "prior": prior}
         segments.append(_relabel(new, groups))
     worst = max(misses, key=misses.__getitem__)

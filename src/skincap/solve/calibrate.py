@@ -56,6 +56,17 @@ ALONG_PRIOR_SPREAD_DEG = 10.0
 #: ... while at least this many markers stay: three markers of a trunk (C7, CLAV, STRN)
 #: may lie near one line, a frame badly determined about it.
 LOOSE_KEEP = 4
+#: A hinge's ``axis_point`` feet further apart along SARA's axis than this (metres)
+#: do not place its centre (:meth:`_Calibrator.axis_point`): the synthetic walk's
+#: elbows 10 mm, a forearm-twisting clip's 144-187 mm, a range-of-motion clip's
+#: 395-475 mm (its centre then 35-40 mm off instead of 16-19).
+AXIS_POINT_AGREEMENT_M = 0.03
+#: Most rounds of solving sibling joints with ``parent_points`` together (each in a
+#: frame holding the others' centres, :meth:`_Calibrator.centres_in_parent_points`),
+#: which stop once no centre moves by more than PARENT_POINTS_TOLERANCE_M: the
+#: synthetic walk's shoulders settle within 3 (SCoRE in them 21 / 5 -> 7.4 / 6.6 mm).
+PARENT_POINTS_ROUNDS = 30
+PARENT_POINTS_TOLERANCE_M = 1e-8
 
 _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 
@@ -144,6 +155,14 @@ def _nanmedian0(x: np.ndarray) -> np.ndarray:
     return np.median(x[ok], axis=0)
 
 
+def _nanmean0(x: np.ndarray) -> np.ndarray:
+    """Mean over axis 0 of the rows without NaN; NaN where there is none (no warning)."""
+    ok = np.isfinite(x).all(axis=tuple(range(1, x.ndim)))
+    if not ok.any():
+        return np.full(x.shape[1:], np.nan)
+    return np.mean(x[ok], axis=0)
+
+
 def _unit(v: np.ndarray) -> np.ndarray:
     n = np.linalg.norm(v, axis=-1, keepdims=True)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -220,6 +239,9 @@ class _Calibrator:
         self.conditions: dict[str, list[float]] = {}  # segment -> fit_singular_values
         self.anat: dict[str, np.ndarray] = {}
         self.origin: dict[str, np.ndarray] = {}
+        # segment -> parent_points frame (T, 3, 3), (T, 3) and the centre in it and in
+        # the segment's technical frame (centres_in_parent_points)
+        self.point_frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
 
     # points -------------------------------------------------------------------
     def present(self, spec: SegmentSpec) -> list[str]:
@@ -317,7 +339,8 @@ class _Calibrator:
         centre in both frames and the markers dropped (empty: unchanged).
         """
         assert spec.parent is not None
-        names = self.present(self.template.segment(spec.parent))
+        # the markers that made the parent's frame: past a link, its framed ancestor's
+        names = self.present(self.template.segment(self.framed_ancestor(spec)))
         loose: list[str] = []
         while len(names) - len(loose) > LOOSE_KEEP:
             kept = [n for n in names if n not in loose]
@@ -383,6 +406,133 @@ class _Calibrator:
         dots = np.einsum("ti,ti->t", axis_world, towards - start)
         sign = -1.0 if np.nansum(dots) < 0 else 1.0
         return start + float(pr["distance"]) * sign * axis_world
+
+    def axis_point(
+        self,
+        spec: SegmentSpec,
+        frames: tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]],
+        axis_parent: np.ndarray,
+        centre_parent: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The point ``(m_p, m_c)`` (3,) in the parent's and the child's technical
+        ``frames`` whose place along a hinge's axis is the mean of its two
+        ``axis_point`` POINTS' feet on it, or None: no ``axis_point``, or feet further
+        apart than :data:`AXIS_POINT_AGREEMENT_M` (along ``axis_parent`` (3,) unit from
+        ``centre_parent`` (3,), SARA's, in the parent's frame) -- an axis the bones do
+        not cross near one point, e.g. SARA's axis wandering with a forearm that
+        twists, which the points' lever (a bone's length) would magnify.
+
+        The mean over frames, not the median: its along-axis part is the mean of the
+        points' (a median of coordinates is not rotation-equivariant)."""
+        ends = (spec.centre or {}).get("axis_point")
+        if not ends:
+            return None
+        where = f"joint {spec.joint} (segment {spec.name}) axis_point"
+        a, b = (self.point(_as_list(e), where) for e in ends)
+        (rp, tp), (rc, tc) = frames
+        feet = [
+            float(axis_parent @ (_nanmean0(to_local(rp, tp, x[:, None])[:, 0]) - centre_parent))
+            for x in (a, b)
+        ]
+        if not np.isfinite(feet).all() or abs(feet[0] - feet[1]) > AXIS_POINT_AGREEMENT_M:
+            return None
+        mid = 0.5 * (a + b)
+        mp, mc = (_nanmean0(to_local(r, t, mid[:, None])[:, 0]) for r, t in frames)
+        if not (np.isfinite(mp).all() and np.isfinite(mc).all()):
+            return None
+        return mp, mc
+
+    def parent_points_frame(
+        self, spec: SegmentSpec, child_centres: dict[str, np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray] | None:
+        """The technical frame ``(T, 3, 3)``, ``(T, 3)`` of a joint's ``parent_points``:
+        marker centroids (those the capture has) and siblings' centres
+        (``child_centres``: each sibling's centre in its own technical frame); None
+        with fewer than three points or frames."""
+        assert spec.centre is not None
+        pts = []
+        for entry in spec.centre["parent_points"]:
+            names = _as_list(entry)
+            if names[0].startswith("@"):
+                sib = names[0][1:]
+                if sib in child_centres and sib in self.tech:
+                    rs, ts = self.tech[sib]
+                    pts.append(to_world(rs, ts, child_centres[sib][None])[:, 0])
+                continue
+            have = [n for n in names if n in self.columns]
+            if have:
+                pts.append(self.point(have, f"joint {spec.joint} parent_points"))
+        if len(pts) < 3:
+            return None
+        stack = np.stack(pts, axis=1)  # (T, K, 3)
+        if (np.isfinite(stack).all(axis=2).sum(axis=1) >= 3).sum() < MIN_CALIBRATION_FRAMES:
+            return None
+        _, rot, trans = cluster_frames(stack)
+        return rot, trans
+
+    def framed_ancestor(self, spec: SegmentSpec) -> str:
+        """The segment's parent, or past ``link`` parents (their frame starts as their
+        parent's) the first ancestor that is not a link."""
+        assert spec.parent is not None
+        name = spec.parent
+        while self.template.segment(name).link and self.template.segment(name).parent:
+            name = str(self.template.segment(name).parent)
+        return name
+
+    def centres_in_parent_points(self) -> None:
+        """SCoRE of the joints with ``parent_points``, each in the frame of those points.
+
+        A parent that bends (a thorax) carries a joint on one part of it; its markers
+        on another part turn with the bend, and SCoRE in their frame absorbs it (the
+        synthetic walk's shoulders: 22 / 20 mm off). The template names the points
+        that ride the joint's part -- markers, a centroid, and the sibling joints'
+        centres, which no marker of the parent gives. The siblings start from plain
+        SCoRE in the parent's technical frame, then each is fitted in a frame holding
+        the others' current centres, round after round until none moves by more than
+        :data:`PARENT_POINTS_TOLERANCE_M` (at most :data:`PARENT_POINTS_ROUNDS`): the
+        siblings' points are rigid with the part carrying them once their centres are
+        right, so the true centres are where the rounds settle. A joint keeps its
+        points' frame only where SCoRE's two estimates of its centre (one per frame)
+        agree better, RMS, than in the parent's technical frame: the synthetic walk's
+        shoulders 22 -> 12-13 mm, a clip that twists the arms 15-16 -> 18-19 mm (kept
+        out; its centres 60-80 mm off in the points' frame against 35-43). Results in
+        ``self.point_frames``; a joint whose points give no frame, or whose range of
+        motion in it is under ``min_spread``, is left to :meth:`centre`.
+        """
+        specs = [
+            s for s in self.template.segments[1:]
+            if s.centre is not None and "parent_points" in s.centre
+            and s.name in self.tech and self.framed_ancestor(s) in self.tech
+        ]  # fmt: skip
+        child_centres: dict[str, np.ndarray] = {}
+        for spec in specs:
+            (rp, tp), (rc, tc) = self.tech[self.framed_ancestor(spec)], self.tech[spec.name]
+            if jc.motion_spread(rp, rc)[1] >= self.min_spread:
+                child_centres[spec.name] = jc.score_centre(rp, tp, rc, tc)[1]
+        for _ in range(PARENT_POINTS_ROUNDS):
+            moved = 0.0
+            for spec in specs:
+                if spec.name not in child_centres:
+                    continue
+                frame = self.parent_points_frame(spec, child_centres)
+                rc, tc = self.tech[spec.name]
+                if frame is None or jc.motion_spread(frame[0], rc)[1] < self.min_spread:
+                    del child_centres[spec.name]
+                    self.point_frames.pop(spec.name, None)
+                    continue
+                cp, cc, _ = jc.score_centre(frame[0], frame[1], rc, tc)
+                moved = max(moved, float(np.linalg.norm(cc - child_centres[spec.name])))
+                child_centres[spec.name] = cc
+                self.point_frames[spec.name] = (frame[0], frame[1], cp, cc)
+            if moved <= PARENT_POINTS_TOLERANCE_M:
+                break
+        # kept only where the joint is more of a ball joint in the points' frame than
+        # in the parent's: SCoRE's two estimates of the centre agree better
+        for name, (rp, tp, _, _) in list(self.point_frames.items()):
+            spec = self.template.segment(name)
+            (rq, tq), (rc, tc) = self.tech[self.framed_ancestor(spec)], self.tech[name]
+            if jc.score_centre(rp, tp, rc, tc)[2] >= jc.score_centre(rq, tq, rc, tc)[2]:
+                del self.point_frames[name]
 
     # steps --------------------------------------------------------------------
     def technical(self, spec: SegmentSpec, extra: np.ndarray | None = None) -> None:
@@ -469,7 +619,13 @@ class _Calibrator:
             pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
             fitted: tuple[np.ndarray, np.ndarray] | None = None
             sv = jc.fit_singular_values(rp, tp, rc, tc)
-            if kind == "ball" and s[1] >= self.min_spread:
+            if spec.name in self.point_frames:
+                rp, tp, cp, cc = self.point_frames[spec.name]
+                spread = [round(float(v), 2) for v in jc.motion_spread(rp, rc)]
+                sv = jc.fit_singular_values(rp, tp, rc, tc)
+                fitted = (cp, cc)
+                method = "SCoRE in its parent_points frame"
+            elif kind == "ball" and s[1] >= self.min_spread:
                 usable = np.isfinite(pp).all() and np.isfinite(pc).all()
                 cp, cc, _ = jc.score_centre(
                     rp, tp, rc, tc,
@@ -507,7 +663,11 @@ class _Calibrator:
                         method = "SCoRE + regression along the axis"
             elif s[0] >= self.min_spread and np.isfinite(pp).all():
                 ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
-                if along == "axis":
+                # along the axis: where the two bones cross it (templates: axis_point)
+                crossing = self.axis_point(spec, ((rp, tp), (rc, tc)), ap, cp)
+                if crossing is not None:
+                    cp, cc = jc.slide_along_axis(cp, cc, ap, ac, *crossing)
+                elif along == "axis":
                     prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
                     pp, pc = (
                         _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
@@ -518,6 +678,8 @@ class _Calibrator:
                 fitted = (cp, cc)
                 self.axes_local[spec.name] = (ap, ac)
                 method = "SARA" if kind == "hinge" else "SARA axis + regression"
+                if crossing is not None:
+                    method += ", centre where the bones cross the axis"
             self.conditions[spec.name] = [round(float(v), 4) for v in sv]
             if fitted is not None:
                 cp, cc = fitted
@@ -695,6 +857,7 @@ def calibrate(
             f"frames; the capture has {', '.join(cal.present(root))}"
         )
     with np.errstate(invalid="ignore"):
+        cal.centres_in_parent_points()
         for spec in segs[1:]:
             cal.centre(spec)
     cal.orient_hinges()

@@ -37,6 +37,20 @@ a user writes one for their own set in the same form)::
   "hinge:SEGMENT"`` uses that segment's hinge axis instead (an ankle along its knee's
   axis). From a knee marker, the other knee is not straight medial in a walk (the
   legs pass each other), so ``towards`` alone misplaces the centre along the axis.
+  ``"axis_point": [POINTS, POINTS]`` (a hinge): once SARA found the axis, the
+  centre's place along it is midway between the feet of the perpendiculars from the
+  two points (the proximal and the distal joint centre, e.g. ``[["@upperarm_l"],
+  ["LWRA", "LWRB"]]``): where the two bones' long axes cross the flexion axis; their
+  carrying angles tilt the bones about equally either way, so the mean cancels them.
+  The prior still gives the centre when the joint hardly moves.
+  ``"parent_points": [POINTS, ...]`` (a ball joint, three or more entries): SCoRE in
+  a parent frame made of these points rather than of all the parent's markers -- the
+  markers that ride the part of the parent the joint sits on, a centroid of markers,
+  and ``@SIBLING`` for a sibling joint's centre (same parent, ``parent_points`` of its
+  own; the siblings' centres are solved together, each in a frame holding the
+  others'). For a parent that bends (a thorax whose upper part carries the
+  shoulders while CLAV, STRN and T10 ride the part below): the frame follows the
+  part the joint rides.
 * ``axes``: the anatomical frame. The first entry's axis is exact (``FROM`` -> ``TO``),
   the second is orthogonalised; the third follows (right-handed). A second entry may
   be ``"hinge:SEGMENT"`` (that segment's joint axis, ``"-hinge:..."`` reversed) or
@@ -260,7 +274,46 @@ def _check_centre(bad: Any, name: str, names: set[str], centre: Any) -> None:
     flexion = centre.get("flexion", [])
     if centre["kind"] == "hinge" and not (isinstance(flexion, list) and len(flexion) == 3):
         raise bad(f"segment {name!r}: a hinge needs 'flexion': [P, J, D]")
+    axis_point = centre.get("axis_point")
+    if axis_point is not None:
+        if centre["kind"] != "hinge" or not (isinstance(axis_point, list) and len(axis_point) == 2):
+            raise bad(f"segment {name!r}: 'axis_point' is a hinge's [POINTS, POINTS]")
+        for end in axis_point:
+            _points(f"segment {name!r} axis_point", end, bad)
+    parent_points = centre.get("parent_points")
+    if parent_points is not None:
+        if centre["kind"] != "ball" or not (
+            isinstance(parent_points, list) and len(parent_points) >= 3
+        ):
+            raise bad(
+                f"segment {name!r}: 'parent_points' is a ball joint's list of 3 or more POINTS"
+            )
+        for entry in parent_points:
+            entry = _points(f"segment {name!r} parent_points", entry, bad)
+            if any(n.startswith("@") for n in entry) and len(entry) > 1:
+                raise bad(f"segment {name!r}: a parent_points '@segment' entry stands alone")
     _check_prior(bad, name, centre)
+
+
+def _check_parent_points(bad: Any, segments: list[SegmentSpec]) -> None:
+    """Each ``@segment`` of a ``parent_points`` names a sibling (same parent) that has
+    ``parent_points`` too: their centres are solved together."""
+    by_name = {s.name: s for s in segments}
+    for spec in segments:
+        for entry in (spec.centre or {}).get("parent_points", []):
+            entry = [entry] if isinstance(entry, str) else entry
+            for n in entry:
+                other = by_name.get(n[1:]) if n.startswith("@") else None
+                if n.startswith("@") and (
+                    other is None
+                    or other.name == spec.name
+                    or other.parent != spec.parent
+                    or "parent_points" not in (other.centre or {})
+                ):
+                    raise bad(
+                        f"segment {spec.name!r}: parent_points {n!r} must be a sibling "
+                        "segment (same parent) with parent_points of its own"
+                    )
 
 
 def _parse(data: Any, source: str) -> Template:
@@ -357,6 +410,7 @@ def _parse(data: Any, source: str) -> Template:
         )
         names.add(name)
         joints.update([joint, *segments[-1].via, *(f["name"] for f in segments[-1].fixed_joints)])
+    _check_parent_points(bad, segments)
     return Template(
         name=str(data.get("name", Path(source).stem)),
         description=str(data.get("description", "")),
