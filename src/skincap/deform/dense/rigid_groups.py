@@ -313,6 +313,16 @@ def refine_marker_parts(
         starved = counts < int(min_markers)  # keep those parts' markers where they were
         new = np.where(starved[np.maximum(labels, 0)] & (labels >= 0), labels, new)
         new = connect_parts(new, e, err)
+        # a part the connection cut under min_markers (a stray piece of it went to a
+        # neighbour) takes its markers back, and they theirs; if that cannot be
+        # connected either, the round is not taken
+        before = np.bincount(labels[labels >= 0], minlength=n_p) >= int(min_markers)
+        cut = before & (np.bincount(new[new >= 0], minlength=n_p) < int(min_markers))
+        if cut.any():
+            back = np.isin(labels, np.flatnonzero(cut)) | np.isin(new, np.flatnonzero(cut))
+            new = connect_parts(np.where(back, labels, new), e, err)
+            if (before & (np.bincount(new[new >= 0], minlength=n_p) < int(min_markers))).any():
+                break
         if np.array_equal(new, labels):
             break
         labels = new

@@ -32,7 +32,7 @@
    0.881; rigid merge of every piece 0.765 / 0.940 / 0.944 (seed 7: 0.667 -> 0.774 at
    240 frames, 0.870 -> 0.884 at 720; MakeHuman body: 0.686 -> 0.710 / 0.857 ->
    0.854); seams judged where the parts turn apart 0.865 / 0.952 / 0.942 (seed 7:
-   0.792 / 0.867; MakeHuman 0.719 / 0.875). At 240 frames (each joint through its
+   0.792 / 0.867; MakeHuman 0.719 / 0.862). At 240 frames (each joint through its
    range in 0.17 s) the soft-tissue jiggle of the chest and upper arms costs a rigid
    fit as much as a wrist's turn, so the merge still puts each hand into its forearm
    and splits the chest; merging by the residual of a shared rotation (each group its
