@@ -155,3 +155,34 @@ def test_refinement_never_leaves_a_part_under_three_markers() -> None:
     parts, err = refine_marker_parts(start, surface_edges(faces), x, ref, min_markers=3)
     counts = np.bincount(parts[parts >= 0])
     assert counts.min() >= 3 and err.shape[1] == parts.max() + 1
+
+
+def test_seam_markers_are_judged_where_the_parts_turn_apart() -> None:
+    """The inner part's flesh wobbles 3 cm while the hinge is still (pulling the inner
+    part's rigid fit), then the hinge bends 15°: the still seam markers by the hinge
+    are the inner part's. By plain mean errors the outer part's clean fit "follows" the
+    two inner columns by the hinge (8 markers) better and they move to it; weighed by
+    how far the two parts turn apart, the truth stays."""
+    import skincap.deform.dense.rigid_groups as rigid_groups
+
+    ref, faces = _strip()
+    t = np.arange(120)
+    bend = np.where(t >= 90, np.sin(np.pi * (t - 90) / 30) ** 2, 0.0)  # the last quarter
+    rot = Rotation.from_rotvec((np.radians(15.0) * bend)[:, None] * [0, -1.0, 0]).as_matrix()
+    pivot = np.array([0.22, 0.0, 0.0])
+    outer = ref[:, 0] > 0.22
+    x = np.where(
+        outer[None, :, None], np.einsum("tab,nb->tna", rot, ref - pivot) + pivot, ref[None]
+    )
+    flesh = np.clip((0.17 - ref[:, 0]) / 0.06, 0.0, 1.0) * ~outer  # fades before the seam
+    wobble = 0.03 * np.sin(2 * np.pi * t / 12) * (t < 90)
+    x = x + (flesh[None, :, None] * wobble[:, None, None]) * np.array([0.0, 0.0, 1.0])
+    truth = outer.astype(int)
+    edges = surface_edges(faces)
+    parts, _ = refine_marker_parts(truth, edges, x, ref)
+    np.testing.assert_array_equal(parts, truth)
+    # the same with every frame weighing alike (a floor far above any turn): markers move
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(rigid_groups, "_TURN_FLOOR", 1e6)
+        plain, _ = refine_marker_parts(truth, edges, x, ref)
+    assert (plain != truth).sum() >= 4

@@ -17,10 +17,19 @@ do is move rigidly, so the groups are judged by that, on their markers:
   never joins its forearm while slivers of one limb remain, however the rotations of
   their triangles compare.
 * **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
-  markers and each marker moves to the part, its own or a neighbour's, whose motion
-  predicts its trajectory best (a k-means step with rigid motions as the centres),
-  a few rounds; a part keeps at least ``min_markers`` markers and stays connected on
-  the marker surface (:func:`connect_parts`).
+  markers and each marker moves to the neighbouring part whose motion predicts its
+  trajectory better than its own part's does (a k-means step with rigid motions as the
+  centres), a few rounds; a part keeps at least ``min_markers`` markers and stays
+  connected on the marker surface (:func:`connect_parts`). The two predictions are
+  compared only where they can differ for a reason: each frame weighs by how far the
+  two parts turn from each other, ``||R_a(t) - R_b(t)||²_F``. While the arm moves
+  as one piece, the upper arm's fit is pulled ~1 cm by its jiggling flesh and the
+  forearm's is not, so a marker at the elbow "follows the forearm better" in every
+  frame the elbow does not bend; a jiggle turns a fitted part by at most ~4° but a
+  joint by 20-80° (synthetic range of motion, 240 frames), so the weights keep the
+  frames the joint works in. From the true parts, one reassignment round at 240
+  frames kept 0.917 of the adjusted Rand index where the unweighted errors kept 0.879
+  (720 frames: 0.959 and 0.966).
 
 All residuals are mean squared distances per frame, m².
 """
@@ -261,6 +270,12 @@ def refine_marker_parts(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Move seam markers to the adjacent part whose rigid motion follows them best.
 
+    A marker's own part and a neighbour are compared over the frames where the two
+    turn apart (each frame weighs ``||R_own(t) - R_other(t)||²_F``,
+    :func:`_turn_weighted_gain`), so soft tissue that pulls one part's fit while the
+    joint between them is still does not decide; the marker moves to the neighbour
+    that gains most, if any gains.
+
     Parameters
     ----------
     parts : (N,) int, part of every marker (-1 = none: left alone)
@@ -289,16 +304,25 @@ def refine_marker_parts(
     err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
     for _ in range(int(rounds)):
         cand = candidates_from_marker_parts(labels, e, n_p) & np.isfinite(err)
-        best = np.argmin(np.where(cand, err, np.inf), axis=1)
-        on = (labels >= 0) & cand.any(axis=1)
+        gain = _turn_weighted_gain(x, r, sums, labels, cand)
+        best = np.argmax(gain, axis=1)
         rows = np.arange(labels.size)
-        own_err = err[rows, np.maximum(labels, 0)]
-        better = on & (err[rows, best] < own_err * (1.0 - 1e-6))
+        better = (labels >= 0) & (gain[rows, best] > 0.0)
         new = np.where(better, best, labels)
         counts = np.bincount(new[new >= 0], minlength=n_p)
         starved = counts < int(min_markers)  # keep those parts' markers where they were
         new = np.where(starved[np.maximum(labels, 0)] & (labels >= 0), labels, new)
         new = connect_parts(new, e, err)
+        # a part the connection cut under min_markers (a stray piece of it went to a
+        # neighbour) takes its markers back, and they theirs; if that cannot be
+        # connected either, the round is not taken
+        before = np.bincount(labels[labels >= 0], minlength=n_p) >= int(min_markers)
+        cut = before & (np.bincount(new[new >= 0], minlength=n_p) < int(min_markers))
+        if cut.any():
+            back = np.isin(labels, np.flatnonzero(cut)) | np.isin(new, np.flatnonzero(cut))
+            new = connect_parts(np.where(back, labels, new), e, err)
+            if (before & (np.bincount(new[new >= 0], minlength=n_p) < int(min_markers))).any():
+                break
         if np.array_equal(new, labels):
             break
         labels = new
@@ -308,6 +332,58 @@ def refine_marker_parts(
     n_p = int(labels.max()) + 1
     err = _marker_errors(x, r, sums, labels, candidates_from_marker_parts(labels, e, n_p))
     return labels, err
+
+
+#: Added to every frame's weight ``||R_a - R_b||²_F`` (about 0.6° of relative turn, near
+#: the noise of a fitted rotation): a take whose parts never turn apart still compares
+#: the plain mean errors instead of dividing by zero.
+_TURN_FLOOR = 1e-4
+
+
+def _turn_weighted_gain(
+    x: np.ndarray, r: np.ndarray, marker_sums: np.ndarray, parts: np.ndarray, wanted: np.ndarray
+) -> np.ndarray:
+    """(N, P) how much better each wanted part's motion predicts each marker than its own.
+
+    ``gain[i, p] = Σ_t w_t (e_own(t) - e_p(t)) / Σ_t w_t`` with ``e`` the marker's squared
+    distance from where a part's rigid motion carries it at frame t and
+    ``w_t = ||R_own(t) - R_p(t)||²_F + floor``: frames where the two parts turn alike
+    (where the fits differ only by soft tissue pulling one of them) weigh next to
+    nothing. m²; positive = the part follows the marker better; ``-inf`` off
+    ``wanted``, for the marker's own part (0 there) and where nothing was measured.
+
+    Parameters
+    ----------
+    x : (T, N, 3) float, centred positions (NaN where missing)
+    r : (N, 3) float, centred reference
+    marker_sums : (N, T, 18) from :func:`_marker_sums`
+    parts : (N,) int, part of every marker (-1 = none: all -inf)
+    wanted : (N, P) bool, the (marker, part) pairs to compare
+    """
+    n, n_p = wanted.shape
+    rot, shift = _motions_of_sums(_group_sums(marker_sums, parts, n_p))  # (P, T, 3, 3), (P, T, 3)
+    pairs = wanted & (parts >= 0)[:, None]
+    pairs[np.flatnonzero(parts >= 0), parts[parts >= 0]] = False
+    marker_of, part_of = np.nonzero(pairs)
+    own_of = parts[marker_of]
+    ref_pts = r[marker_of]  # (K, 3)
+
+    def sq_error(part: np.ndarray) -> np.ndarray:  # (T, K) m²
+        pred = np.einsum("ktab,kb->tka", rot[part], ref_pts) + shift[part].swapaxes(0, 1)
+        return ((pred - x[:, marker_of]) ** 2).sum(-1)
+
+    weight = ((rot[own_of] - rot[part_of]) ** 2).sum((-1, -2)).T + _TURN_FLOOR  # (T, K)
+    diff = sq_error(own_of) - sq_error(part_of)
+    ok = np.isfinite(diff) & np.isfinite(weight)
+    weight = np.where(ok, weight, 0.0)
+    total = weight.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        score = np.where(total > 0, (weight * np.where(ok, diff, 0.0)).sum(axis=0) / total, -np.inf)
+    gain = np.full((n, n_p), -np.inf)
+    gain[marker_of, part_of] = score
+    own = parts >= 0
+    gain[np.flatnonzero(own), parts[own]] = 0.0
+    return gain
 
 
 def _absorb_small_parts(

@@ -19,8 +19,10 @@
    rigid-fit residual first), until ``n_parts`` remain (a group with fewer than
    ``min_markers`` markers, too few for a rigid fit, merges first whatever the
    count); then every seam marker moves to the adjacent part whose rigid motion
-   predicts its trajectory best, a few rounds, every part kept connected on the
-   marker surface (through its edges) and at ``min_markers`` markers or more. Small
+   predicts its trajectory best, judged on the frames where the two parts turn apart
+   (soft tissue pulls a part's fit while its joints are still), a few rounds, every
+   part kept connected on the marker surface (through its edges) and at
+   ``min_markers`` markers or more. Small
    pieces are judged by the rigid residual too, never by their triangles' rotations:
    a hand of three or four markers was absorbed into its forearm by rotation before
    the merge could weigh it (the synthetic range of motion has 3-4 markers a hand).
@@ -29,9 +31,14 @@
    0.76 / 0.77 (720 / 1000); rigid merge after rotation absorption 0.815 / 0.891 /
    0.881; rigid merge of every piece 0.765 / 0.940 / 0.944 (seed 7: 0.667 -> 0.774 at
    240 frames, 0.870 -> 0.884 at 720; MakeHuman body: 0.686 -> 0.710 / 0.857 ->
-   0.854). At 240 frames (each joint through its range in 0.2 s) the soft-tissue
-   jiggle of the chest and upper arms is as large as a wrist's motion, and a rigid
-   residual cannot tell them apart.
+   0.854); seams judged where the parts turn apart 0.865 / 0.952 / 0.942 (seed 7:
+   0.792 / 0.867; MakeHuman 0.719 / 0.862). At 240 frames (each joint through its
+   range in 0.17 s) the soft-tissue jiggle of the chest and upper arms costs a rigid
+   fit as much as a wrist's turn, so the merge still puts each hand into its forearm
+   and splits the chest; merging by the residual of a shared rotation (each group its
+   own translation), by mean rotation distance (with or without Ward's size factor),
+   or absorbing parts that are all seam and merging again did no better on the seven
+   takes.
 
 Each triangle takes the part of most of its corners (three parts: the one whose motion
 follows its corners best); a marker on triangles of several parts is a boundary marker
