@@ -33,6 +33,12 @@ SCENES = {
     # (F1 0.960 before the accelerated prediction, match_measured_best: 0.999)
     "cmu_jump_swing": ("cmu_85_02.c3d", 480, 120, "jump", None),
     "aml_jump": ("aml_PronetoRun01_labeled.c3d", 900, 350, "jump", None),
+    # the performer lies prone: the whip's end link lies folded beside the still hand
+    # (3.7 cm chords for 9.2 cm of rope) and its markers drop out; F put them back at
+    # the rest spacing, 5-9 cm off, and the rope lying still never brought them back
+    # (F1 0.954 before the re-acquisition at the last measured link and the returning
+    # trace's neighbour velocity: 0.993)
+    "aml_whip_prone": ("aml_PronetoRun01_labeled.c3d", 400, 500, "whip", None),
     "c3dorg_jump": ("c3dorg_sample01_Eb015pr.c3d", 0, 200, "jump", [["LFT1"], ["RFT1"]]),
 }
 
@@ -106,4 +112,25 @@ def test_issue_targets_rope_body_f1_and_no_trace_lost(tracked, name: str) -> Non
     scores = classify_points(track, take.points, take.point_truth)
     assert scores["precision"] >= 0.99  # the rope never takes the body's markers
     assert scores["f1"] >= 0.99
+    assert not track.lost.any()
+
+
+@pytest.mark.slow
+def test_a_doubled_rope_keeps_its_traces_on_their_own_arm(data_dir) -> None:  # type: ignore[no-untyped-def]
+    # the whole c3d.org take, seed 0: a jump rope's bottom lies doubled on the floor,
+    # its arms 1.8 cm apart; at frame 406 the matching at V found 20 traces by handing
+    # two of them the other arm's points (2.6 cm from V), the accelerated prediction 14,
+    # all right (within 0.4 cm): more traces won, and the chain slid along the other
+    # arm for ten frames (115 samples on another rope marker's point at main)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "c3dorg_sample01_Eb015pr.c3d")
+        take = real_capture_with_rope(m, rope="jump", hands=[["LFT1"], ["RFT1"]], seed=0)
+        track = rope_tracker_from_truth(take.points, take.point_truth)(take.points)
+    truth = np.asarray(take.point_truth).astype(str)
+    own = truth[take.points.offsets[0] + track.init.indices]  # (M,) each trace's marker
+    taken = track.point_index >= 0
+    elsewhere = taken & (truth[np.maximum(track.point_index, 0)] != own[None, :])
+    assert int(elsewhere.sum()) <= 85  # 73 now (115 at main)
+    assert int(elsewhere[400:420].sum()) <= 25  # the frames after 406: 17 now (59 at main)
     assert not track.lost.any()

@@ -549,3 +549,86 @@ def test_a_long_missing_inner_trace_takes_the_only_point_on_its_shell(steps) -> 
     assert not reacquired(6, 19)  # missing fewer: only within 60° of the previous link
     assert not reacquired(6, 20, other)  # two points on the shell: neither
     assert not reacquired(5, 20)  # marker 4 is the rope's end (held among hand markers)
+
+
+def test_reacquire_takes_a_folded_end_where_its_last_seen_link_puts_it(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing, m, gamma = 0.1, 6, 0.03
+    rope = np.zeros((m, 3))
+    rope[:, 0] = spacing * np.arange(m)
+    # the end link lies folded on the floor beside the hand: a 4 cm chord for 10 cm of
+    # rope; marker 0 was hidden in frame 1 and invented straight on at the rest spacing
+    folded = rope.copy()
+    folded[0] = rope[1] + [-0.02, 0.0, 0.0346]
+    invented = rope.copy()  # F: 10 cm from marker 1, 3.5-6 cm from where the end lies
+
+    def reacquired(end: np.ndarray, *, last_seen_link: bool = True) -> bool:
+        cloud = _cloud(folded, folded[1:], np.concatenate([folded[1:], [end]]))
+        state, p = blank_state(cloud, [spacing] * (m - 1), gamma=gamma)
+        state.positions[0], state.positions[1] = folded, invented
+        state.point_index[0] = np.arange(m)
+        state.point_index[1] = [-1, *(m + np.arange(m - 1))]
+        state.invented[1, 0] = True
+        state.invented[0, 1] = not last_seen_link  # marker 1 unseen when 0 was last seen
+        state.temp_count[0] = 1
+        state.cur[1:] = folded[1:]
+        state.known[1:] = True
+        state.taken[1:] = 2 * m - 1 + np.arange(m - 1)
+        found = bool(steps.reacquire_on_shell(state, 2, p))
+        assert found == bool(state.known[0])
+        if found:
+            assert state.taken[0] == 3 * m - 2
+            np.testing.assert_allclose(state.cur[0], end)
+        return found
+
+    # off the shell (more than γ short of the spacing) and beyond the wide gate of F,
+    # taken within γ of where the link lay when last measured
+    assert np.linalg.norm(folded[0] - folded[1]) < spacing - gamma
+    assert reacquired(folded[0])
+    assert reacquired(folded[0] + [0.0, 0.02, 0.0])
+    assert not reacquired(folded[0] + [0.0, 1.2 * gamma, 0.0])  # beyond γ of that link
+    assert not reacquired(folded[0], last_seen_link=False)  # no link measured: no evidence
+
+
+def test_a_trace_back_from_a_gap_takes_its_neighbours_velocity(steps) -> None:  # type: ignore[no-untyped-def]
+    m = 5
+    rope = np.zeros((m, 3))
+    rope[:, 0] = 0.1 * np.arange(m)
+    step = np.array([0.0, 0.01, 0.0])  # the rope moves 1 cm a frame
+    cloud = _cloud(rope, rope + step, rope + 2 * step)
+    state, p = blank_state(cloud, [0.1] * (m - 1))
+    state.positions[0] = rope
+    state.positions[1] = rope + step
+    state.positions[1, 0] += [0.0, 0.0, 0.06]  # marker 0 invented 6 cm off
+    state.invented[1, 0] = True
+    state.temp_count[0] = 1
+    state.cur[:] = rope + 2 * step
+    state.known[:] = True
+    state.taken[:] = 2 * m + np.arange(m)
+    steps.commit_frame(state, 2, p)
+    # not its own jump from the invented position (6 cm): its neighbour's 1 cm a frame
+    np.testing.assert_allclose(state.velocity, np.broadcast_to(step, (m, 3)), atol=1e-12)
+    assert state.temp_count[0] == 0 and not state.invented[2].any()
+
+
+# slow with an empty numba cache: match_measured_best compiles as an entry point of its own
+@pytest.mark.slow
+def test_disputed_traces_keep_the_matching_nearer_its_predictions(steps) -> None:  # type: ignore[no-untyped-def]
+    # a rope accelerating sideways (y 0, 2, 6 cm): V at 10 cm, the accelerated
+    # prediction at 12 cm, where markers 0-2 are (3 and 4 hidden); beside V lie five
+    # other points (a second arm of the rope): 1.2 cm from V for traces 0-2, 1.8 cm for
+    # 3 and 4 (more than 1.5 γ from the accelerated prediction)
+    m, gamma = 5, 0.03
+    x = 0.12 * np.arange(m)
+    history = [np.stack([x, np.full(m, y), np.zeros(m)], axis=1) for y in (0.0, 0.02, 0.06)]
+    true = np.stack([x, np.full(m, 0.12), np.zeros(m)], axis=1)[:3]
+    arm = np.stack([x, np.r_[[0.10] * 3, [0.09] * 2], np.r_[[0.012] * 3, [0.015] * 2]], axis=1)
+    state, p = blank_state(_cloud(*history, np.concatenate([true, arm])), [0.12] * (m - 1))
+    p = p._replace(gamma=gamma, retry_rounds=0)
+    state.positions[:3] = history
+    state.point_index[:3] = np.arange(3)[:, None] * m + np.arange(m)
+    state.velocity[:] = history[2] - history[1]
+    steps.match_measured_best(state, 3, state.positions[2] + state.velocity, p)
+    # V finds five (three on the other arm), the accelerated prediction three: the three
+    # traces both found lie 1.2 cm from V and on the mark of the accelerated one
+    np.testing.assert_array_equal(state.known, [True, True, True, False, False])
+    np.testing.assert_array_equal(state.taken[:3], 3 * m + np.arange(3))

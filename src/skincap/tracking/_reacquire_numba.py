@@ -55,6 +55,8 @@ def reacquire_on_shell(state, t, p):  # pragma: no cover - runs compiled
                     state, t, j, want, rest, _SHELL, inner, outer, cur[k].copy(), free, p
                 ):
                     grew = True
+                elif _seat_as_last_seen(state, t, j, k, rest, free, p):
+                    grew = True
                 elif 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
                     if _seat_lone(state, t, j, inner, outer, cur[k].copy(), free, p):
                         grew = True
@@ -106,6 +108,21 @@ def _seat_nearest(
             continue
         _seat(state, j, a, best, free)
         return True
+
+
+@numba.njit(**JIT)
+def _seat_as_last_seen(state, t, j, k, rest, free, p):  # pragma: no cover - runs compiled
+    """Twin of the reference's ``_seat_as_last_seen``."""
+    last = t - 1 - state.temp_count[j]
+    if state.temp_count[j] == 0 or last < 0 or state.invented[last, j] or state.invented[last, k]:
+        return False
+    want = np.empty(3)
+    for c in range(3):
+        want[c] = state.cur[k, c] + (state.positions[last, j, c] - state.positions[last, k, c])
+    outer = rest + p.adjacent_stretch * p.gamma
+    return _seat_nearest(
+        state, t, j, want, p.gamma, _SHELL, 0.0, outer, state.cur[k].copy(), free, p
+    )
 
 
 @numba.njit(**JIT)

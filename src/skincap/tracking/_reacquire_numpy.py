@@ -35,9 +35,10 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
     previous frame's link puts it, ``m_k + (x_j^{t-1} - x_k^{t-1})``, within one rest
     length of that (the link turned by at most 60° in a frame); an inner trace missing
     for ``lone_after`` frames or more, whose previous link says little, takes the only
-    free point on that shell whatever its direction (:func:`_seat_lone`). With nothing
-    measured,
-    the two end traces are seeded first: the free point nearest to ``V`` within one
+    free point on that shell whatever its direction (:func:`_seat_lone`). A trace
+    found on neither takes the free point within γ of where its link was when both
+    were last measured, however short its chord (:func:`_seat_as_last_seen`: a slack
+    end folded beside the hand). With nothing measured, the two end traces are seeded first: the free point nearest to ``V`` within one
     rest length. Free points are those the rope did not take, not body points and
     not moving rigidly with body points (:func:`rigid_with_body`). Markers are
     visited in order, each growing the chain for the next, until a pass finds
@@ -68,6 +69,8 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
                 want = cur[k] + (prev[j] - prev[k])
                 shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
                 if _seat_nearest(state, t, j, want, rest, shell, free, p):
+                    grew = True
+                elif _seat_as_last_seen(state, t, j, k, rest, free, p):
                     grew = True
                 elif 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
                     grew |= _seat_lone(state, t, j, shell, free, p)
@@ -111,6 +114,29 @@ def _seat_nearest(
         _seat(state, j, a, int(c), free)
         return True
     return False
+
+
+def _seat_as_last_seen(
+    state: TrackState, t: int, j: int, k: int, rest: float, free: np.ndarray, p: StepParams
+) -> bool:
+    """Trace ``j``, back from a gap, takes the free point of frame t nearest to where
+    its link to the measured neighbour ``k`` was when both were last measured
+    (``m_k + (x_j^f - x_k^f)``, f the frame ``j`` was last measured), within γ, at
+    most ``rest`` plus ``adjacent_stretch γ`` from ``m_k`` however short the chord.
+
+    A rope lying slack beside the hand folds its end link (a 3.7 cm chord for 9.2 cm of
+    rope): F and the shell put the end at the rest spacing, 5-9 cm from where it lies,
+    and while the rope lies still nothing brings it back (AML whip: 188-246 frames). The
+    link as last seen keeps the fold. Not for a trace measured in frame t - 1 (the
+    shell's previous link is that link already). ``free`` is updated; True if it took one.
+    """
+    last = t - 1 - int(state.temp_count[j])  # the frame j was last measured in
+    if state.temp_count[j] == 0 or last < 0 or state.invented[last, j] or state.invented[last, k]:
+        return False
+    x = state.positions[last]
+    want = state.cur[k] + (x[j] - x[k])
+    shell = (0.0, rest + p.adjacent_stretch * p.gamma, state.cur[k])
+    return _seat_nearest(state, t, j, want, p.gamma, shell, free, p)
 
 
 def _seat_lone(

@@ -118,6 +118,19 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
         for c in range(3):
             state.positions[t, j, c] = state.cur[j, c]
             state.velocity[j, c] = state.cur[j, c] - prev[j, c]
+    # a trace back from temporary markers: its neighbours' velocity, not its own jump
+    m = state.known.size
+    back = np.zeros(m, np.bool_)
+    moving = np.zeros(m, np.bool_)
+    for j in range(m):
+        back[j] = state.known[j] and state.invented[t - 1, j]
+        moving[j] = state.known[j] and not state.invented[t - 1, j]
+    if back.any() and moving.any():
+        v_tilde = neighbour_velocity(moving, state.velocity, state.velocity)
+        for j in range(m):
+            if back[j]:
+                for c in range(3):
+                    state.velocity[j, c] = v_tilde[j, c]
     learn_link_rest(state, p)
 
 
@@ -691,6 +704,19 @@ def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compile
     cur[:] = start_cur
     match_measured(state, t, v_acc, p)
     n_a, d_a = _match_score(state, v_acc)
+    # traces both matchings found, on different points: the nearer ones win
+    disputed_v, disputed_a, disputes = 0.0, 0.0, False
+    for j in range(v_acc.shape[0]):
+        if known[j] and v_known[j] and taken[j] != v_taken[j]:
+            disputes = True
+            disputed_v += norm3(
+                v_cur[j, 0] - v_pred[j, 0], v_cur[j, 1] - v_pred[j, 1], v_cur[j, 2] - v_pred[j, 2]
+            )
+            disputed_a += norm3(
+                cur[j, 0] - v_acc[j, 0], cur[j, 1] - v_acc[j, 1], cur[j, 2] - v_acc[j, 2]
+            )
+    if disputes:
+        n_v, d_v, n_a, d_a = 0, disputed_v, 0, disputed_a
     if n_v > n_a or (n_v == n_a and d_v <= d_a):
         known[:] = v_known
         taken[:] = v_taken

@@ -77,9 +77,15 @@ Beyond the thesis:
   rope: followed out from the measured markers, marker by marker, each taking the free
   point on the shell at its rest length around its measured neighbour nearest to where
   the previous frame's link puts it (within one rest length: the link turned less
-  than 60°); with nothing measured the two end traces are seeded first at V. Body
+  than 60°), else (a trace back from a gap) the free point within γ of where its link
+  lay when both were last measured, however short the chord (a slack end folded on
+  the floor beside a still hand, which F puts at the rest spacing, 5-9 cm off); with
+  nothing measured the two end traces are seeded first at V. Body
   points, points moving rigidly with body points and points seen beside the trace's
   own marker in the frames before (a hand marker beside the held end) are refused.
+* A trace measured again after temporary markers takes the velocity ṽ of its
+  neighbours measured in both frames (eq. 3.3), not its jump from the invented
+  position (which would predict it that far on, and miss it, the next frame).
 * A run of traces matched one marker along the rope (``unshift_chain``: a whip jerked
   lengthwise by about a spacing in a frame keeps its shape, so every trace of the run
   takes its neighbour's marker) moves back one marker when its end trace lies more
@@ -89,7 +95,10 @@ Beyond the thesis:
   velocity moves its prediction by more than ``swing_gate γ``, the steady traces are
   matched both at V and at the accelerated prediction ``V + (m^{t-1} - 2 m^{t-2} +
   m^{t-3})`` (``accelerated_prediction``) and the match that finds more traces is kept
-  (nearer its predictions on a tie, V on an exact tie). A jump rope's bottom turning
+  (nearer its predictions on a tie, V on an exact tie); when the two give a trace
+  different points, the one whose disputed traces lie nearer their predictions is kept
+  (the assignment finds as many traces as it can, and beside a doubled rope's other
+  arm the wrong prediction finds more by handing a trace that arm's point). A jump rope's bottom turning
   20-45 cm a frame is missed by V by 2-4 γ, and the traces slip a marker a frame; a
   hand jerking at 50 Hz is missed by the acceleration instead.
 * A link's chord may be shorter than its spacing (a slack rope lying folded), never
