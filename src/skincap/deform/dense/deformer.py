@@ -17,9 +17,9 @@ For every frame and every near-rigid part ``p``:
    (The paper writes the residual as ``p̃ - p̂``; the sign that makes eq. 8 reproduce
    the markers is ``p̂ - p̃``, used here.) Only the ``*_rbf`` variants. Parts built with
    seam centres (:func:`skincap.deform.dense.parts.part_frames` given the marker-surface
-   triangles; a rig's deformer is) get a second RBF through them as well, and the
-   kernels see every part twice: its members' field and its seam field, between which
-   a vertex's β is split by ``seam_weights``.
+   triangles; a rig's deformer is) get a second RBF through them as well; a vertex's
+   RBF term in such a part is its members' field and its seam field blended by its
+   ``seam_weights`` (the kernels sum both in one pass over the centres).
 4. **Vertices** (eqs. 8-9): a vertex's local reference position in each of its parts is
    moved by that part's field and taken back to the world; the results are blended by
    the vertex's part weights β.
