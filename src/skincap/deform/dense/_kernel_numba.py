@@ -26,6 +26,7 @@ from skincap.deform.dense._pair_tiles import MEMBER_LANES, PairTiles
 
 __all__ = ["MEMBER_LANES", "dense_dispatcher", "deform_vertices_numba"]
 
+
 @functools.cache
 def dense_dispatcher() -> Any:
     """The numba dispatcher of the kernel (compiles, or loads from the cache, on first call).
