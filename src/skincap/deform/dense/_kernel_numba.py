@@ -1,6 +1,6 @@
 """Compiled per-frame vertex evaluation of the dense deformer (eqs. 8-9), numba.
 
-Per frame, one parallel loop over the tiles of (vertex, part) pairs
+One parallel loop over the tiles of (vertex, part) pairs, every frame of a tile in turn
 (:mod:`skincap.deform.dense._pair_tiles`): each tile moves its pairs' local reference
 positions by their part's quadratic field, gathers the part's RBF centres within the
 B-spline's support of the tile's bounding box (about a quarter of a body part's: the
@@ -82,7 +82,7 @@ def deform_vertices_numba(
     if n_t and n_v:
         scale = np.asarray(rbf_scale, dtype=np.float64)
         table = _rbf_table(centres, member_weights, seam_weights, scale)
-        moved = np.zeros((tiles.part.shape[0], 3))
+        moved = np.zeros((n_t, tiles.part.shape[0], 3))
         # one argument signature only (C-contiguous, writeable): a second would compile again
         dense_dispatcher()(
             *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local, tiles.seam)),

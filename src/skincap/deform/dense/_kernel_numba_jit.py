@@ -157,7 +157,7 @@ def dense_kernel(
     quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3) R̃, translation (T, P, 3) d̃;
     rbf_table (T, P, 9, K): rows x, y, z of the centres p̃ scaled by 2/σ, then the
     members' field's weights w / 6, then the seam field's (centres along the last axis);
-    rbf_scale (P,) 2/σ; rbf_members (P,) centres summed (0: no RBF); moved (Q, 3)
+    rbf_scale (P,) 2/σ; rbf_members (P,) centres summed (0: no RBF); moved (T, Q, 3)
     scratch; out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
     """
     n_v = vertex_start.shape[0] - 1
@@ -165,11 +165,13 @@ def dense_kernel(
     width = rbf_table.shape[3]
     # the tiles in _TILE_CHUNKS contiguous runs, one scratch table a run (not a tile)
     n_runs = min(n_tiles, _TILE_CHUNKS)
-    for t in range(quadratic.shape[0]):
-        # each tile: its pairs moved by the quadratic field, the centres reaching its
-        # box, the RBF sums over them alone, back to the world
-        for run in numba.prange(n_runs):
-            near = np.empty((9, width))
+    n_t = quadratic.shape[0]
+    # each tile at each frame: its pairs moved by the quadratic field, the centres
+    # reaching its box, the RBF sums over them alone, back to the world. Two parallel
+    # loops a block (not two a frame): each barrier costs the waiting thread's spin
+    for run in numba.prange(n_runs):
+        near = np.empty((9, width))
+        for t in range(n_t):
             for tile in range(run * n_tiles // n_runs, (run + 1) * n_tiles // n_runs):
                 p = tile_part[tile]
                 q0 = tile_start[tile]
@@ -182,9 +184,9 @@ def dense_kernel(
                     lx, ly, lz = _quadratic_field(
                         quadratic, t, p, pair_local[q, 0], pair_local[q, 1], pair_local[q, 2]
                     )
-                    moved[q, 0] = lx
-                    moved[q, 1] = ly
-                    moved[q, 2] = lz
+                    moved[t, q, 0] = lx
+                    moved[t, q, 1] = ly
+                    moved[t, q, 2] = lz
                     lo_x = min(lo_x, lx * g)
                     lo_y = min(lo_y, ly * g)
                     lo_z = min(lo_z, lz * g)
@@ -197,9 +199,9 @@ def dense_kernel(
                         rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near
                     )
                 for q in range(q0, q1):
-                    lx = moved[q, 0]
-                    ly = moved[q, 1]
-                    lz = moved[q, 2]
+                    lx = moved[t, q, 0]
+                    ly = moved[t, q, 1]
+                    lz = moved[t, q, 2]
                     if n_sum > 0:
                         mx, my, mz, sx, sy, sz = _rbf_sums(near, n_sum, lx * g, ly * g, lz * g)
                         s = pair_seam[q]
@@ -207,20 +209,21 @@ def dense_kernel(
                         ly += (1.0 - s) * my + s * sy
                         lz += (1.0 - s) * mz + s * sz
                     wx, wy, wz = _local_to_world(rotation, translation, t, p, lx, ly, lz)
-                    moved[q, 0] = wx
-                    moved[q, 1] = wy
-                    moved[q, 2] = wz
-        # eq. 9: each vertex's finite pairs, β-weighted
-        for v in numba.prange(n_v):
+                    moved[t, q, 0] = wx
+                    moved[t, q, 1] = wy
+                    moved[t, q, 2] = wz
+    # eq. 9: each vertex's finite pairs, β-weighted
+    for v in numba.prange(n_v):
+        for t in range(n_t):
             sx = 0.0
             sy = 0.0
             sz = 0.0
             den = 0.0
             for i in range(vertex_start[v], vertex_start[v + 1]):
                 q = by_vertex[i]
-                wx = moved[q, 0]
-                wy = moved[q, 1]
-                wz = moved[q, 2]
+                wx = moved[t, q, 0]
+                wy = moved[t, q, 1]
+                wz = moved[t, q, 2]
                 if np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):
                     beta = vertex_weight[i]
                     sx += beta * wx
