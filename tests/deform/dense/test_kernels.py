@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial import Delaunay
 from scipy.spatial.transform import Rotation
 
 from skincap.backends import numba_available
 from skincap.deform.dense import deformer as dense_deformer
-from skincap.deform.dense.deformer import METHODS, DenseDeformer, fit_part_motion
+from skincap.deform.dense.deformer import METHODS, DenseDeformer, PartMotion, fit_part_motion
 from skincap.deform.dense.parts import part_frames
 from skincap.errors import MissingDependencyError, ValidationError
 
@@ -168,22 +169,122 @@ def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     assert len(dense_dispatcher().signatures) == 1
 
 
-def test_the_member_table_pads_whole_steps_with_zero_weights() -> None:
-    """The numba kernel sums whole vector steps of members: the table is padded to a
-    multiple of the step, every slot past a part's members weighs exactly 0 (also a
-    stale weight beyond them), and the counts round up (0, no RBF, stays 0)."""
+def test_the_centre_table_has_room_for_whole_steps() -> None:
+    """The numba kernel copies each tile's centres and pads them to whole vector steps
+    with zero weights: the table is K rounded up to a step, the centres scaled by 2/σ,
+    both fields' weights / 6, and nothing past K."""
     from skincap.deform.dense._kernel_numba import MEMBER_LANES, _rbf_table
 
     rng = np.random.default_rng(0)
     k = 2 * MEMBER_LANES + 3
     centres = rng.normal(size=(2, 3, k, 3))
-    weights = rng.normal(size=(2, 3, k, 3))  # nonzero everywhere, padding included
-    members = np.array([k, 5, 0])
+    members, seam = rng.normal(size=(2, 2, 3, k, 3))
     scale = np.array([10.0, 20.0, 0.0])
-    table, summed = _rbf_table(centres, weights, scale, members)
-    assert table.shape == (2, 3, 6, 3 * MEMBER_LANES) and table.flags.c_contiguous
-    np.testing.assert_array_equal(summed, [3 * MEMBER_LANES, MEMBER_LANES, 0])
-    np.testing.assert_allclose(table[:, 0, :3, :k], np.swapaxes(centres[:, 0] * 10.0, -1, -2))
-    np.testing.assert_allclose(table[:, 1, 3:, :5], np.swapaxes(weights[:, 1, :5] / 6.0, -1, -2))
-    assert not table[:, 1, 3:, 5:].any() and not table[:, 2, 3:].any()
+    table = _rbf_table(centres, members, seam, scale)
+    assert table.shape == (2, 3, 9, 3 * MEMBER_LANES) and table.flags.c_contiguous
+    np.testing.assert_allclose(table[:, 1, :3, :k], np.swapaxes(centres[:, 1] * 20.0, -1, -2))
+    np.testing.assert_allclose(table[:, 1, 3:6, :k], np.swapaxes(members[:, 1] / 6.0, -1, -2))
+    np.testing.assert_allclose(table[:, 1, 6:, :k], np.swapaxes(seam[:, 1] / 6.0, -1, -2))
     assert not table[..., k:].any()
+
+
+def _direct_eqs_8_9(
+    deformer: DenseDeformer, rest: np.ndarray, motion: PartMotion, seam_weights: np.ndarray
+) -> np.ndarray:
+    """Eqs. 8-9 written out per part with :func:`skincap.geometry.rbf.evaluate_rbf` over
+    every centre (no tiles, no support test): each vertex's position in each part, the
+    members' and the seam field blended by its seam weight, then β."""
+    from skincap.geometry.quadratic import apply_quadratic
+    from skincap.geometry.rbf import evaluate_rbf
+
+    parts = deformer.parts
+    n_t, n_p = motion.quadratic.shape[:2]
+    beta = np.zeros((deformer.n_vertices, n_p))
+    beta[deformer.pair_vertex, deformer.pair_part] = deformer.pair_weight
+    num = np.zeros((n_t, deformer.n_vertices, 3))
+    den = np.zeros((n_t, deformer.n_vertices, 1))
+    members = motion.rbf_weights if motion.member_rbf_weights is None else motion.member_rbf_weights
+    for p in range(n_p):
+        rows = np.flatnonzero(beta[:, p] > 0)
+        local = parts.to_local(rest[rows], np.full(rows.size, p))
+        moved = apply_quadratic(motion.quadratic[:, p], local[None])  # (T, n, 3)
+        k = int(parts.valid[p].sum())
+        sums = [
+            evaluate_rbf(motion.centres[:, p, :k], w[:, p, :k], parts.sigma[p], moved)
+            for w in (members, motion.rbf_weights)
+        ]
+        s = seam_weights[rows, p][None, :, None]
+        moved = moved + (1 - s) * sums[0] + s * sums[1]
+        world = np.einsum(
+            "tnx,txy->tny", moved - motion.translation[:, p, None], motion.rotation[:, p]
+        )
+        ok = np.isfinite(world).all(-1, keepdims=True)
+        num[:, rows] += np.where(ok, beta[rows, p][None, :, None] * world, 0.0)
+        den[:, rows] += np.where(ok, beta[rows, p][None, :, None], 0.0)
+    with np.errstate(invalid="ignore"):
+        return np.where(den > 0, num / np.where(den > 0, den, 1.0), np.nan)
+
+
+@pytest.mark.parametrize("backend", ["numpy", pytest.param("numba", marks=needs_numba)])
+@pytest.mark.parametrize("method", ["rigid_rbf", "quadratic_rbf"])
+def test_the_tiled_kernels_equal_eqs_8_9_written_out(backend: str, method: str) -> None:
+    """Parts with seam centres, random seam weights, a bent take with gaps and an unseen
+    part: the kernels (pairs in tiles, only the centres reaching a tile summed, both
+    fields in one pass) give eqs. 8-9 summed over every centre."""
+    take = _random_take(6, n_frames=5)
+    ref = take["reference"]
+    faces = Delaunay(ref[:, :2]).simplices  # a marker surface over the four parts
+    parts = part_frames(ref, take["alpha"], surface_faces=faces)
+    assert parts.has_seam_centres
+    rng = np.random.default_rng(6)
+    seam = rng.random(take["beta"].shape) * (rng.random(take["beta"].shape) < 0.7)
+    deformer = DenseDeformer(
+        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend
+    )
+    motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
+    got = deformer.deform_block(motion)
+    want = _direct_eqs_8_9(deformer, take["vertices"], motion, seam)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    assert np.isnan(got[:, 0]).all() and np.isfinite(got[:, 1:]).all()
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+    # the RBF moved the vertices (a kernel that dropped the sums would differ by mm)
+    plain = DenseDeformer(parts, take["vertices"], take["beta"], backend=backend)
+    rigid = plain.deform_block(fit_part_motion(take["markers"], parts, "rigid"))
+    assert np.nanmax(np.abs(got - rigid)) > 1e-3
+
+
+def test_pair_tiles_cover_every_pair_once_in_compact_tiles_of_one_part() -> None:
+    from skincap.deform.dense._pair_tiles import pair_tiles
+
+    take = _random_take(7)
+    parts = part_frames(take["reference"], take["alpha"])
+    beta = take["beta"] / take["beta"].sum(axis=1, keepdims=True)
+    tiles = pair_tiles(parts, take["vertices"], beta, np.zeros_like(beta), tile_pairs=8)
+    want = set(zip(*np.nonzero(beta > 1e-6), strict=True))
+    assert set(zip(tiles.vertex.tolist(), tiles.part.tolist(), strict=True)) == want
+    assert len(want) == tiles.vertex.size
+    np.testing.assert_array_equal(tiles.weight, beta[tiles.vertex, tiles.part])
+    sizes = np.diff(tiles.tile_start)
+    assert (sizes >= 1).all() and (sizes <= 8).all() and tiles.tile_start[-1] == tiles.part.size
+    for i, p in enumerate(tiles.tile_part):  # one part a tile, parts in order
+        assert (tiles.part[tiles.tile_start[i] : tiles.tile_start[i + 1]] == p).all()
+    assert (np.diff(tiles.part) >= 0).all()
+    np.testing.assert_array_equal(tiles.part_start, np.searchsorted(tiles.part, np.arange(5)))
+    np.testing.assert_allclose(
+        tiles.local, parts.to_local(take["vertices"][tiles.vertex], tiles.part)
+    )
+    # the vertex rows list each vertex's pairs
+    for v in (1, 50, 300):
+        rows = tiles.by_vertex[tiles.vertex_start[v] : tiles.vertex_start[v + 1]]
+        assert (tiles.vertex[rows] == v).all() and rows.size == (beta[v] > 1e-6).sum()
+    np.testing.assert_array_equal(tiles.weight_by_vertex, tiles.weight[tiles.by_vertex])
+    # k-d leaves are compact: each tile spans less than its part does
+    for p in range(4):
+        in_part = tiles.local[tiles.part == p]
+        span = np.ptp(in_part, axis=0).max()
+        ids = np.flatnonzero(tiles.tile_part == p)
+        spans = [
+            np.ptp(tiles.local[tiles.tile_start[i] : tiles.tile_start[i + 1]], axis=0).max()
+            for i in ids
+        ]
+        assert np.median(spans) < 0.6 * span

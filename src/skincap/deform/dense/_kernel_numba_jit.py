@@ -11,9 +11,15 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.deform.dense._kernel_numpy import SUPPORT_SLACK
+from skincap.deform.dense._pair_tiles import MEMBER_LANES
+
 __all__ = ["dense_kernel"]
 
 _FASTMATH = {"contract", "reassoc"}
+#: Runs of tiles per frame in the parallel loop: enough to balance the threads, few
+#: enough that each run's scratch table costs nothing.
+_TILE_CHUNKS = 64
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
@@ -52,29 +58,63 @@ def _quadratic_field(quadratic, t, p, x, y, z):  # pragma: no cover - runs compi
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
-def _rbf_sum(rbf_table, t, p, n_k, gx, gy, gz):  # pragma: no cover - runs compiled
-    """The RBF sum (eq. 8) of part ``p`` in frame ``t`` at the position (gx, gy, gz)
-    scaled by 2/σ (unitless); rbf_table (T, P, 6, K), its first ``n_k`` members summed.
-    Returns (rx, ry, rz), metres."""
-    rx = 0.0
-    ry = 0.0
-    rz = 0.0
-    # branch-free over the members (the support test would mispredict):
-    # s = 2 d / σ clipped to 2, where both cubes of φ vanish. LLVM runs this loop 8
-    # members a step plus a scalar remainder, which the caller's padding of the table
-    # to whole steps (zero weights) skips: _kernel_numba.MEMBER_LANES
+def _rbf_sums(near, n_k, gx, gy, gz):  # pragma: no cover - runs compiled
+    """Both RBF sums (eq. 8) at the position (gx, gy, gz) scaled by 2/σ (unitless) over
+    the first ``n_k`` columns of ``near`` (9, K): rows x, y, z of the centres scaled by
+    2/σ, then the members' field's weights w / 6, then the seam field's.
+    Returns (mx, my, mz, sx, sy, sz), metres."""
+    mx = 0.0
+    my = 0.0
+    mz = 0.0
+    sx = 0.0
+    sy = 0.0
+    sz = 0.0
+    # branch-free over the centres (a support test would mispredict): s = 2 d / σ
+    # clipped to 2, where both cubes of φ vanish. LLVM runs this loop 8 centres a step
+    # plus a scalar remainder, which the caller's padding to whole steps (zero weights)
+    # skips: MEMBER_LANES
     for i in range(n_k):
-        dx = gx - rbf_table[t, p, 0, i]
-        dy = gy - rbf_table[t, p, 1, i]
-        dz = gz - rbf_table[t, p, 2, i]
+        dx = gx - near[0, i]
+        dy = gy - near[1, i]
+        dz = gz - near[2, i]
         s = np.sqrt(min(dx * dx + dy * dy + dz * dz, 4.0))
         u = 2.0 - s
         b = max(1.0 - s, 0.0)
         phi = u * u * u - 4.0 * (b * b * b)  # 6 φ
-        rx += phi * rbf_table[t, p, 3, i]
-        ry += phi * rbf_table[t, p, 4, i]
-        rz += phi * rbf_table[t, p, 5, i]
-    return rx, ry, rz
+        mx += phi * near[3, i]
+        my += phi * near[4, i]
+        mz += phi * near[5, i]
+        sx += phi * near[6, i]
+        sy += phi * near[7, i]
+        sz += phi * near[8, i]
+    return mx, my, mz, sx, sy, sz
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _gather_near(
+    rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near
+):  # pragma: no cover - runs compiled
+    """Copy into ``near`` (9, K) the columns of ``rbf_table[t, p]`` (the first ``n_k``)
+    whose centre is within scaled distance 2 (the B-spline's support) of the box
+    ``lo``-``hi``, zero the rest up to a whole :data:`MEMBER_LANES` step; returns the
+    columns to sum (a multiple of the step)."""
+    m = 0
+    for i in range(n_k):
+        cx = rbf_table[t, p, 0, i]
+        cy = rbf_table[t, p, 1, i]
+        cz = rbf_table[t, p, 2, i]
+        dx = max(lo_x - cx, 0.0) + max(cx - hi_x, 0.0)
+        dy = max(lo_y - cy, 0.0) + max(cy - hi_y, 0.0)
+        dz = max(lo_z - cz, 0.0) + max(cz - hi_z, 0.0)
+        if dx * dx + dy * dy + dz * dz < 4.0 + SUPPORT_SLACK:
+            for r in range(9):
+                near[r, m] = rbf_table[t, p, r, i]
+            m += 1
+    n_sum = -(-m // MEMBER_LANES) * MEMBER_LANES
+    for i in range(m, n_sum):
+        for r in range(9):
+            near[r, i] = 0.0
+    return n_sum
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
@@ -94,8 +134,11 @@ def _local_to_world(rotation, translation, t, p, lx, ly, lz):  # pragma: no cove
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath=_FASTMATH)
 def dense_kernel(
     pair_local,
-    pair_part,
-    pair_weight,
+    pair_seam,
+    tile_start,
+    tile_part,
+    by_vertex,
+    vertex_weight,
     vertex_start,
     quadratic,
     rotation,
@@ -103,40 +146,86 @@ def dense_kernel(
     rbf_table,
     rbf_scale,
     rbf_members,
+    moved,
     out,
 ):  # pragma: no cover - runs compiled
     """Deformed vertices of every frame into ``out`` (eqs. 8-9).
 
-    pair_local (Q, 3) p̂⁰ sorted by vertex, pair_part (Q,), pair_weight (Q,) β,
-    vertex_start (V + 1,) CSR rows; quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3)
-    R̃, translation (T, P, 3) d̃; rbf_table (T, P, 6, K): rows x, y, z of the centres
-    p̃ scaled by 2/σ, then the weights w / 6 (members along the last axis, so the
-    member loop runs over contiguous rows); rbf_scale (P,) 2/σ; rbf_members (P,)
-    members summed (0: no RBF); out (T, V, 3), metres (NaN for a vertex none of whose
-    pairs is finite).
+    pair_local (Q, 3) p̂⁰ and pair_seam (Q,) s of the pairs sorted by part, in tiles
+    tile_start (n + 1,) of one part each, tile_part (n,); by_vertex (Q,) the pairs
+    sorted by vertex, vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
+    quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3) R̃, translation (T, P, 3) d̃;
+    rbf_table (T, P, 9, K): rows x, y, z of the centres p̃ scaled by 2/σ, then the
+    members' field's weights w / 6, then the seam field's (centres along the last axis);
+    rbf_scale (P,) 2/σ; rbf_members (P,) centres summed (0: no RBF); moved (T, Q, 3)
+    scratch; out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
     """
     n_v = vertex_start.shape[0] - 1
-    for t in range(quadratic.shape[0]):
-        for v in numba.prange(n_v):
+    n_tiles = tile_part.shape[0]
+    width = rbf_table.shape[3]
+    # the tiles in _TILE_CHUNKS contiguous runs, one scratch table a run (not a tile)
+    n_runs = min(n_tiles, _TILE_CHUNKS)
+    n_t = quadratic.shape[0]
+    # each tile at each frame: its pairs moved by the quadratic field, the centres
+    # reaching its box, the RBF sums over them alone, back to the world. Two parallel
+    # loops a block (not two a frame): each barrier costs the waiting thread's spin
+    for run in numba.prange(n_runs):
+        near = np.empty((9, width))
+        for t in range(n_t):
+            for tile in range(run * n_tiles // n_runs, (run + 1) * n_tiles // n_runs):
+                p = tile_part[tile]
+                q0 = tile_start[tile]
+                q1 = tile_start[tile + 1]
+                n_k = rbf_members[p]
+                g = rbf_scale[p]
+                lo_x = lo_y = lo_z = np.inf
+                hi_x = hi_y = hi_z = -np.inf
+                for q in range(q0, q1):
+                    lx, ly, lz = _quadratic_field(
+                        quadratic, t, p, pair_local[q, 0], pair_local[q, 1], pair_local[q, 2]
+                    )
+                    moved[t, q, 0] = lx
+                    moved[t, q, 1] = ly
+                    moved[t, q, 2] = lz
+                    lo_x = min(lo_x, lx * g)
+                    lo_y = min(lo_y, ly * g)
+                    lo_z = min(lo_z, lz * g)
+                    hi_x = max(hi_x, lx * g)
+                    hi_y = max(hi_y, ly * g)
+                    hi_z = max(hi_z, lz * g)
+                n_sum = 0
+                if n_k > 0:
+                    n_sum = _gather_near(
+                        rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near
+                    )
+                for q in range(q0, q1):
+                    lx = moved[t, q, 0]
+                    ly = moved[t, q, 1]
+                    lz = moved[t, q, 2]
+                    if n_sum > 0:
+                        mx, my, mz, sx, sy, sz = _rbf_sums(near, n_sum, lx * g, ly * g, lz * g)
+                        s = pair_seam[q]
+                        lx += (1.0 - s) * mx + s * sx
+                        ly += (1.0 - s) * my + s * sy
+                        lz += (1.0 - s) * mz + s * sz
+                    wx, wy, wz = _local_to_world(rotation, translation, t, p, lx, ly, lz)
+                    moved[t, q, 0] = wx
+                    moved[t, q, 1] = wy
+                    moved[t, q, 2] = wz
+    # eq. 9: each vertex's finite pairs, β-weighted
+    for v in numba.prange(n_v):
+        for t in range(n_t):
             sx = 0.0
             sy = 0.0
             sz = 0.0
             den = 0.0
-            for q in range(vertex_start[v], vertex_start[v + 1]):
-                p = pair_part[q]
-                lx, ly, lz = _quadratic_field(
-                    quadratic, t, p, pair_local[q, 0], pair_local[q, 1], pair_local[q, 2]
-                )
-                n_k = rbf_members[p]
-                if n_k > 0:
-                    g = rbf_scale[p]
-                    rx, ry, rz = _rbf_sum(rbf_table, t, p, n_k, lx * g, ly * g, lz * g)
-                    lx += rx
-                    ly += ry
-                    lz += rz
-                wx, wy, wz = _local_to_world(rotation, translation, t, p, lx, ly, lz)
+            for i in range(vertex_start[v], vertex_start[v + 1]):
+                q = by_vertex[i]
+                wx = moved[t, q, 0]
+                wy = moved[t, q, 1]
+                wz = moved[t, q, 2]
                 if np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):
-                    beta = pair_weight[q]
+                    beta = vertex_weight[i]
                     sx += beta * wx
                     sy += beta * wy
                     sz += beta * wz

@@ -1,13 +1,16 @@
 """NumPy reference of the dense deformer's per-frame vertex evaluation (eqs. 8-9).
 
-The (vertex, part) pairs are sorted by part. For every part, one matrix product moves
-all its pairs through every frame's quadratic field at once (the pairs' quadratic
-basis ``q̂⁰`` is frame-independent and computed once, at binding); the RBF sum of
-eq. 8 at the deformed positions is, for slabs of pairs over all the frames at once,
-a stack of squared-distance matrices from one augmented product per frame, the cubic
-B-spline written so that its two cubes share one buffer, and one product per frame
-with the weights (one NumPy call covers every frame: per frame and slab, the calls'
-own overhead was a third of the time); one sparse product blends the pairs (eq. 9). :mod:`skincap.deform.dense._kernel_numba` computes the same, compiled.
+The (vertex, part) pairs come sorted by part and cut into small spatial tiles
+(:mod:`skincap.deform.dense._pair_tiles`). For every part, one matrix product moves all
+its pairs through every frame's quadratic field at once (the pairs' quadratic basis
+``q̂⁰`` is frame-independent and computed once, at binding). The RBF sum of eq. 8 is
+taken tile by tile over all the frames at once: the cubic B-spline vanishes beyond σ,
+so a tile needs only the centres within σ of its bounding box at some frame (about a
+quarter of a body part's centres); for them, a stack of squared-distance matrices from
+one augmented product per frame, the B-spline written so that its two cubes share one
+buffer, and one product per frame with the members' and the seam field's weights,
+blended by each pair's seam share. One sparse product blends the pairs (eq. 9).
+:mod:`skincap.deform.dense._kernel_numba` computes the same, compiled.
 """
 
 from __future__ import annotations
@@ -15,78 +18,101 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-__all__ = ["blend_pairs", "move_pairs_numpy"]
+__all__ = ["SUPPORT_SLACK", "blend_pairs", "move_pairs_numpy"]
 
-#: Kernel values per RBF slab (frames x members x pairs): the (2, T, K, pairs) cube
-#: buffers stay ~1 MB, near the cache, while each NumPy call still covers enough
-#: values that the calls' own overhead (a few µs each) stays small.
-_RBF_SLAB_VALUES = 1 << 16
+#: Tiles (:data:`skincap.deform.dense._pair_tiles.TILE_PAIRS` pairs each) taken together
+#: in one NumPy slab: 64 pairs a slab was ~1.3x faster than 32 or 128 on the 50k-vertex
+#: benchmark (each NumPy call's few µs of overhead against the extra centres a larger
+#: slab reaches).
+_TILES_PER_SLAB = 2
+#: Slack of the support test on squared scaled distances (the support is s² < 4): a
+#: centre left out is at s² >= 4 - 1e-9, where φ < 1e-14 of φ(0).
+SUPPORT_SLACK = 1e-9
+
+
+def _centres_reaching(box_lo: np.ndarray, box_hi: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Centres within the B-spline's support of a box at some frame.
+
+    Parameters
+    ----------
+    box_lo, box_hi : (T, 3) float64: a tile's deformed positions' bounds, scaled by 2/σ
+    centres : (T, K, 3) float64, scaled by 2/σ
+
+    Returns
+    -------
+    (k,) int64: indices of the centres whose scaled distance to the box is below 2
+    (s < 2, φ > 0) at one frame at least.
+    """
+    gap = np.maximum(box_lo[:, None] - centres, 0.0) + np.maximum(centres - box_hi[:, None], 0.0)
+    near = ((gap * gap).sum(-1) < 4.0 + SUPPORT_SLACK).any(axis=0)  # (K,)
+    return np.flatnonzero(near)
 
 
 def _add_rbf_sums(
     world: np.ndarray,
     local: np.ndarray,
+    seam: np.ndarray,
     centres: np.ndarray,
-    weights: np.ndarray,
-    scale: float,
+    member_weights: np.ndarray,
+    seam_weights: np.ndarray,
     rotation: np.ndarray,
 ) -> None:
-    """``world += (Σ_i w_i φ(||local - p̃_i|| / σ)) R`` in place (the sum of eq. 8), every
-    frame of one part at once.
+    """``world += ((1 - s) Σ_i wm_i φ_i + s Σ_i ws_i φ_i) R`` in place (the sum of eq. 8
+    for both fields of a part, blended by each pair's seam share ``s``), every frame of
+    one tile at once; ``φ_i = φ(||local - p̃_i|| / σ)``.
 
     Parameters
     ----------
     world : (n, T, 3) float64, metres
-    local : (n, T, 3) float64, metres: the deformed positions ``Ã q̂⁰``
-    centres, weights : (T, K, 3) float64, metres
-    scale : float, 2/σ (1/metres)
+    local : (n, T, 3) float64: the deformed positions ``Ã q̂⁰``, scaled by 2/σ
+    seam : (n,) float64 in [0, 1]
+    centres : (T, k, 3) float64: ``p̃``, scaled by 2/σ (so ``s = 2 d / σ`` is a distance)
+    member_weights, seam_weights : (T, k, 3) float64, metres
     rotation : (T, 3, 3) float64: R̃, taking the sum to the world's axes
     """
     n_t, k = centres.shape[:2]
-    c = centres * scale  # scaled so that s = 2 d / σ is a plain distance
     # s² = |x|² - 2 x·c + |c|²  as one product per frame: [-2c, 1, |c|²] @ [x; |x|²; 1]
     left = np.empty((n_t, k, 5))
-    left[..., :3] = -2.0 * c
+    left[..., :3] = -2.0 * centres
     left[..., 3] = 1.0
-    left[..., 4] = (c * c).sum(-1)
-    # 6 φ = (2 - s)³ - 4 max(1 - s, 0)³: the two cubes share one buffer, are combined,
-    # and one product per frame with ((w / 6) R)ᵀ takes the sum to the world.
-    # Frames lead, members run down the rows and points along them.
-    reduce = np.swapaxes((weights * (1.0 / 6.0)) @ rotation, -1, -2)  # (T, 3, K)
-    n = local.shape[0]
-    cols = max(1, min(n, _RBF_SLAB_VALUES // (n_t * k)))
-    right = np.empty((n_t, 5, cols))
-    s = np.empty((n_t, k, cols))
-    cubes = np.empty((2, n_t, k, cols))
-    square = np.empty((2, n_t, k, cols))
-    for c0 in range(0, n, cols):
-        c1 = min(n, c0 + cols)
-        m = c1 - c0
-        rg, sm, cb, sq = right[..., :m], s[..., :m], cubes[..., :m], square[..., :m]
-        np.multiply(local[c0:c1].transpose(1, 2, 0), scale, out=rg[:, :3])
-        np.einsum("txn,txn->tn", rg[:, :3], rg[:, :3], out=rg[:, 3])
-        rg[:, 4] = 1.0
-        np.matmul(left, rg, out=sm)  # s², up to rounding
-        np.clip(sm, 0.0, 4.0, out=sm)  # beyond s = 2 (d = σ) both cubes are 0
-        np.sqrt(sm, out=sm)
-        np.subtract(2.0, sm, out=cb[0])
-        np.subtract(1.0, sm, out=cb[1])
-        np.maximum(cb[1], 0.0, out=cb[1])
-        np.multiply(cb, cb, out=sq)
-        cb *= sq
-        cb[1] *= 4.0
-        np.subtract(cb[0], cb[1], out=sm)  # 6 φ
-        world[c0:c1] += (reduce @ sm).transpose(2, 0, 1)
+    left[..., 4] = (centres * centres).sum(-1)
+    right = np.empty((n_t, 5, local.shape[0]))
+    right[:, :3] = local.transpose(1, 2, 0)
+    right[:, 3] = (right[:, :3] * right[:, :3]).sum(1)
+    right[:, 4] = 1.0
+    s = left @ right  # (T, k, n): s², up to rounding
+    np.clip(s, 0.0, 4.0, out=s)  # beyond s = 2 (d = σ) both cubes are 0
+    np.sqrt(s, out=s)
+    # 6 φ = (2 - s)³ - 4 max(1 - s, 0)³: the two cubes share one buffer
+    cubes = np.empty((2, *s.shape))
+    np.subtract(2.0, s, out=cubes[0])
+    np.subtract(1.0, s, out=cubes[1])
+    np.maximum(cubes[1], 0.0, out=cubes[1])
+    square = cubes * cubes
+    cubes *= square
+    cubes[1] *= 4.0
+    np.subtract(cubes[0], cubes[1], out=s)  # 6 φ
+    # both fields' sums in one product per frame, with ((w / 6) R)ᵀ taking them to the world
+    weights = np.concatenate([member_weights, seam_weights], axis=-1) * (1.0 / 6.0)  # (T, k, 6)
+    reduce = np.concatenate(
+        [weights[..., :3] @ rotation, weights[..., 3:] @ rotation], axis=-1
+    ).swapaxes(-1, -2)  # (T, 6, k)
+    sums = (reduce @ s).transpose(2, 0, 1)  # (n, T, 6)
+    share = seam[:, None, None]
+    world += (1.0 - share) * sums[..., :3] + share * sums[..., 3:]
 
 
 def move_pairs_numpy(
     pair_basis: np.ndarray,
+    pair_seam: np.ndarray,
     part_start: np.ndarray,
+    tile_start: np.ndarray,
     quadratic: np.ndarray,
     rotation: np.ndarray,
     translation: np.ndarray,
     centres: np.ndarray,
-    rbf_weights: np.ndarray,
+    member_weights: np.ndarray,
+    seam_weights: np.ndarray,
     rbf_scale: np.ndarray,
     rbf_members: np.ndarray,
 ) -> np.ndarray:
@@ -96,16 +122,22 @@ def move_pairs_numpy(
     ----------
     pair_basis : (Q, 10) float64
         ``q̂⁰`` of every (vertex, part) pair, pairs sorted by part.
+    pair_seam : (Q,) float64 in [0, 1]
+        Each pair's share of its part's seam field (the rest follows the members' field).
     part_start : (P + 1,) int
         Pairs of part ``p`` are ``part_start[p]:part_start[p + 1]``.
+    tile_start : (n_tiles + 1,) int
+        Tiles of pairs (each within one part, ``part_start`` among its boundaries).
     quadratic : (T, P, 3, 10) float64
     rotation : (T, P, 3, 3) float64
     translation : (T, P, 3) float64, metres
-    centres, rbf_weights : (T, P, K, 3) float64, metres
+    centres, member_weights, seam_weights : (T, P, K, 3) float64, metres
+        The RBF centres ``p̃`` and both fields' weights (the members' field: 0 on the
+        seam centres).
     rbf_scale : (P,) float64, 1/metres
         ``2 / σ_p``.
     rbf_members : (P,) int
-        Members of part ``p`` in the RBF sum (0: the part has no RBF).
+        Centres of part ``p`` in the RBF sums (0: the part has no RBF).
 
     Returns
     -------
@@ -118,6 +150,7 @@ def move_pairs_numpy(
     world_field = np.swapaxes(quadratic, -1, -2) @ rotation
     world_field[..., 9, :] -= np.einsum("tpx,tpxy->tpy", translation, rotation)
     moved = np.empty((pair_basis.shape[0], n_t, 3))
+    tile_start = np.asarray(tile_start)
     for p in range(n_p):  # P (~17) batched steps
         start, stop = int(part_start[p]), int(part_start[p + 1])
         if start == stop:
@@ -128,16 +161,29 @@ def move_pairs_numpy(
         fields = np.ascontiguousarray(world_field[:, p].transpose(1, 0, 2)).reshape(-1, 3 * n_t)
         np.matmul(basis, fields, out=part.reshape(-1, 3 * n_t))
         k = int(rbf_members[p])
-        if k > 0:
-            local = (basis @ quadratic[:, p].reshape(3 * n_t, -1).T).reshape(-1, n_t, 3)
-            _add_rbf_sums(
-                part,
-                local,
-                centres[:, p, :k],
-                rbf_weights[:, p, :k],
-                float(rbf_scale[p]),
-                rotation[:, p],
-            )
+        if k == 0:
+            continue
+        scale = float(rbf_scale[p])
+        # Ã q̂⁰ of every pair and frame, scaled by 2/σ: (n, T, 3)
+        local = (basis @ quadratic[:, p].reshape(3 * n_t, -1).T).reshape(-1, n_t, 3) * scale
+        c = centres[:, p, :k] * scale
+        # slabs of _TILES_PER_SLAB tiles: fewer NumPy calls for a few more centres a slab
+        bounds = tile_start[(tile_start >= start) & (tile_start < stop)][::_TILES_PER_SLAB]
+        bounds = np.append(bounds, stop)
+        for t0, t1 in zip(bounds[:-1] - start, bounds[1:] - start, strict=True):
+            tile = local[t0:t1]
+            with np.errstate(invalid="ignore"):  # NaN fields (an unseen part): no centre
+                near = _centres_reaching(tile.min(axis=0), tile.max(axis=0), c)
+            if near.size:
+                _add_rbf_sums(
+                    part[t0:t1],
+                    tile,
+                    pair_seam[start + t0 : start + t1],
+                    c[:, near],
+                    member_weights[:, p, near],
+                    seam_weights[:, p, near],
+                    rotation[:, p],
+                )
     return moved
 
 

@@ -17,9 +17,9 @@ For every frame and every near-rigid part ``p``:
    (The paper writes the residual as ``p̃ - p̂``; the sign that makes eq. 8 reproduce
    the markers is ``p̂ - p̃``, used here.) Only the ``*_rbf`` variants. Parts built with
    seam centres (:func:`skincap.deform.dense.parts.part_frames` given the marker-surface
-   triangles; a rig's deformer is) get a second RBF through them as well, and the
-   kernels see every part twice: its members' field and its seam field, between which
-   a vertex's β is split by ``seam_weights``.
+   triangles; a rig's deformer is) get a second RBF through them as well; a vertex's
+   RBF term in such a part is its members' field and its seam field blended by its
+   ``seam_weights`` (the kernels sum both in one pass over the centres).
 4. **Vertices** (eqs. 8-9): a vertex's local reference position in each of its parts is
    moved by that part's field and taken back to the world; the results are blended by
    the vertex's part weights β.
@@ -63,13 +63,13 @@ from skincap import backends
 from skincap.backends import numba_available, resolve_backend
 from skincap.deform.dense._kernel_numba import deform_vertices_numba, dense_dispatcher
 from skincap.deform.dense._kernel_numpy import blend_pairs, move_pairs_numpy
+from skincap.deform.dense._pair_tiles import pair_tiles
 from skincap.deform.dense.parts import PartFrames, part_frames
 from skincap.errors import ValidationError
 from skincap.geometry.quadratic import (
     QUADRATIC_TERMS,
     apply_quadratic,
     fit_quadratic,
-    quadratic_basis,
 )
 from skincap.geometry.rbf import evaluate_rbf, fit_rbf, fit_rbf_fixed_centres
 from skincap.geometry.rigid import fit_rigid
@@ -498,44 +498,31 @@ class DenseDeformer:
         self.quadratic_parts = quadratic_parts
         self.parts = parts
         self.n_vertices = int(v.shape[0])
-        n_members = parts.valid.sum(axis=1)  # members fill the first slots, seam centres next
         sigma = parts.sigma
-        rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
-        # With seam centres, the kernel sees every part twice: field p through its
-        # members alone, field P + p through its seam centres too (the same rigid and
-        # quadratic fields), β split between them by the seam weights.
+        self._rbf_scale = np.where(np.isfinite(sigma) & (sigma > 0), 2.0 / sigma, 0.0)
+        # every centre of a part (members first, then its seam centres); with seam
+        # centres each part has two RBF fields through them (the members' weights are
+        # 0 on the seam centres), the same rigid and quadratic fields, and each
+        # (vertex, part) pair follows the seam field by its seam weight
+        self._n_centres = parts.valid.sum(axis=1)
         self._split = parts.has_seam_centres
-        if self._split:
-            seam = np.ones_like(beta) if seam_weights is None else np.asarray(seam_weights, float)
+        seam = np.zeros_like(beta)
+        if self._split and seam_weights is not None:
+            seam = np.asarray(seam_weights, dtype=np.float64)
             if seam.shape != beta.shape or not ((seam >= 0) & (seam <= 1)).all():
                 raise ValidationError(
                     f"seam_weights must be in [0, 1] with shape {beta.shape}; got {seam.shape}"
                 )
-            beta = np.concatenate([beta * (1.0 - seam), beta * seam], axis=1)
-            n_members = np.concatenate([parts.fitted.sum(axis=1), n_members])
-            rbf_scale = np.tile(rbf_scale, 2)
-        n_fields = beta.shape[1]
-        part_of, vertex_of = np.nonzero(beta.T > 1e-6)  # the (vertex, part) pairs of eq. 9, by part
-        self.pair_vertex = vertex_of
-        self.pair_part = part_of
-        self.pair_weight = beta[vertex_of, part_of]
-        self.pair_local = parts.to_local(v[vertex_of], part_of % parts.n_parts)  # p̂⁰ of each pair
-        self.pair_basis = quadratic_basis(self.pair_local)  # q̂⁰, (pairs, 10)
-        self._part_start = np.searchsorted(part_of, np.arange(n_fields + 1))
-        self._n_members = n_members
+        elif self._split:
+            seam = np.ones_like(beta)
+        self._tiles = pair_tiles(parts, v, beta, seam)  # the (vertex, part) pairs of eq. 9
+        self.pair_vertex = self._tiles.vertex
+        self.pair_part = self._tiles.part
+        self.pair_weight = self._tiles.weight
         self._blend = sparse.csr_matrix(
-            (self.pair_weight, (vertex_of, np.arange(vertex_of.size))),
-            shape=(self.n_vertices, vertex_of.size),
+            (self.pair_weight, (self.pair_vertex, np.arange(self.pair_vertex.size))),
+            shape=(self.n_vertices, self.pair_vertex.size),
         )
-        self._rbf_scale = rbf_scale
-        # the kernel walks each vertex's pairs: the same pairs, sorted by vertex
-        by_vertex = np.lexsort((part_of, vertex_of))
-        self._vertex_local = np.ascontiguousarray(self.pair_local[by_vertex])
-        self._vertex_part = np.ascontiguousarray(part_of[by_vertex].astype(np.int64))
-        self._vertex_weight = np.ascontiguousarray(self.pair_weight[by_vertex])
-        self._vertex_start = np.searchsorted(
-            vertex_of[by_vertex], np.arange(self.n_vertices + 1)
-        ).astype(np.int64)
         self.backend = _resolve_backend(backend)
         # "auto" got NumPy because the kernel is compiling in the background: take it
         # as soon as it lands in the cache, so a long take is not NumPy throughout
@@ -556,27 +543,28 @@ class DenseDeformer:
             NaN only for a vertex all of whose parts are NaN at that frame.
         """
         use_rbf = bool(np.any(motion.rbf_weights))
-        rbf_members = np.where(use_rbf & (self._rbf_scale > 0), self._n_members, 0)
-        per_part = [motion.quadratic, motion.rotation, motion.translation, motion.centres]
-        rbf_weights = motion.rbf_weights
-        if self._split:  # fields p (members' RBF) and P + p (with the seam centres)
-            per_part = [np.concatenate([a, a], axis=1) for a in per_part]
-            members_only = motion.member_rbf_weights
-            rbf_weights = np.concatenate(
-                [rbf_weights if members_only is None else members_only, rbf_weights], axis=1
-            )
-        fields = (*per_part, rbf_weights, self._rbf_scale, rbf_members)
+        rbf_members = np.where(use_rbf & (self._rbf_scale > 0), self._n_centres, 0)
+        member_weights = motion.member_rbf_weights
+        if not self._split or member_weights is None:  # one field: every pair follows it
+            member_weights = motion.rbf_weights
+        fields = (
+            motion.quadratic,
+            motion.rotation,
+            motion.translation,
+            motion.centres,
+            member_weights,
+            motion.rbf_weights,
+            self._rbf_scale,
+            rbf_members,
+        )
         if self._kernel_watch.landed():
             self.backend = "numba"
         if self.backend == "numba":
-            return deform_vertices_numba(
-                self._vertex_local,
-                self._vertex_part,
-                self._vertex_weight,
-                self._vertex_start,
-                *fields,
-            )
-        moved = move_pairs_numpy(self.pair_basis, self._part_start, *fields)
+            return deform_vertices_numba(self._tiles, *fields)
+        tiles = self._tiles
+        moved = move_pairs_numpy(
+            tiles.basis, tiles.seam, tiles.part_start, tiles.tile_start, *fields
+        )
         return blend_pairs(moved, self._blend)
 
     def deform(
