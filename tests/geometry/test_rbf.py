@@ -282,3 +282,19 @@ def test_ridge_functions_refuse_bad_arguments() -> None:
         choose_ridge_gcv(c, v, 0.1)  # no frame axis
     with pytest.raises(ValidationError, match="grid"):
         choose_ridge_gcv(c[None], v[None], 0.1, grid=np.array([]))
+
+
+def test_ridge_fit_with_fixed_centres_equals_frame_by_frame_fits() -> None:
+    """Centres shared by every frame: the frames with all their centres share one
+    operator per system; those with some missing are fitted alone. Same weights."""
+    rng = np.random.default_rng(34)
+    c, values, sigma, mask = _fixed_centre_case(rng, 20, 0.05)
+    mask[:4] = True  # frames with every centre: the shared operator
+    c[2, 30:] = np.nan  # padding slots of a smaller system
+    for ridge in (0.0, 1e-5, np.array([1e-6, 1e-3, 0.0])):
+        got = fit_rbf_ridge(c[None], values, sigma, mask, ridge=ridge)
+        want = np.stack(
+            [fit_rbf_ridge(c, values[t], sigma, mask[t], ridge=ridge) for t in range(20)]
+        )
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+        assert (got[~mask] == 0).all() and (got[:, 2, 30:] == 0).all()

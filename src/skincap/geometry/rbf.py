@@ -34,7 +34,10 @@ harm: each mode is multiplied by ``λ / (λ² + μ)``, at most ``1 / (2 √μ)``
 (Golub, Heath & Wahba 1979), closed-form from the same decomposition: a mode that
 only an amplified fit passes through predicts the centres left out badly and is
 damped; a well-conditioned system with smooth values keeps ρ tiny and interpolates
-to within rounding of the values' scale.
+to within rounding of the values' scale. GCV reads whatever the field cannot follow
+as noise, though, and the dense deformer's residuals are signal (the markers sample the
+skin): there it smoothed them away (ρ up to 1e-2), so the deformer fits a small fixed
+ρ by default and offers GCV as an option.
 
 Every function takes a validity mask so that a batch of frames with different missing
 centres is one array operation: an invalid centre gets weight 0 and does not constrain
@@ -512,13 +515,39 @@ def fit_rbf_ridge(
         raise ValidationError("ridge must be finite and non-negative")
     rho = np.broadcast_to(rho_in, lead).reshape(-1)
     w = np.zeros(r0.shape)
+    todo = np.ones(len(rho), dtype=bool)
+    c = np.asarray(centres)
+    if len(lead) >= 2 and c.ndim == np.ndim(values) and c.shape[0] == 1 and lead[0] > 1:
+        # centres fixed over the leading (frames) axis: the frames where a system has
+        # all its centres share one operator, V diag(λ / (λ² + μ)) Vᵀ, found once
+        n_t, k = lead[0], c0.shape[1]
+        s_t, rho_t, valid_t = s.reshape(n_t, -1), rho.reshape(n_t, -1), valid.reshape(n_t, -1, k)
+        if (s_t == s_t[:1]).all() and (rho_t == rho_t[:1]).all():
+            full = np.asarray(valid_t.any(axis=0))  # (P, K): every centre a frame can have
+            n_sys = full.shape[0]
+            identity = np.broadcast_to(np.eye(k), (n_sys, k, k))
+            operator = _ridge_solve(c0[:n_sys], identity, full, s_t[0], rho_t[0], cut)
+            same = (valid_t == full[None]).all(-1).reshape(-1)  # (T P,)
+            system = np.tile(np.arange(n_sys), n_t)[same]
+            w[same] = operator[system] @ r0[same]
+            todo = ~same
+    rows = np.flatnonzero(todo)
+    w[rows] = _ridge_solve(c0[rows], r0[rows], valid[rows], s[rows], rho[rows], cut)
+    w = np.where(valid[..., None], w, 0.0)
+    return w.reshape(*lead, *w.shape[-2:])
+
+
+def _ridge_solve(
+    c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, s: np.ndarray, rho: np.ndarray, cut: float
+) -> np.ndarray:
+    """Ridge weights (S, K, D) of flattened systems (:func:`_flat_systems`), ρ (S,)."""
+    w = np.zeros(r0.shape)
     for idx, lam, vec, beta, _, scale in _spectra(c0, r0, valid, s, cut):
         mu = (rho[idx] * scale * scale)[:, None]  # (m, 1)
         nonzero = lam != 0.0
         gain = np.where(nonzero, lam / np.where(nonzero, lam * lam + mu, 1.0), 0.0)  # λ/(λ²+μ)
         w[idx, : lam.shape[1]] = vec @ (beta * gain[..., None])
-    w = np.where(valid[..., None], w, 0.0)
-    return w.reshape(*lead, *w.shape[-2:])
+    return w
 
 
 def choose_ridge_gcv(
