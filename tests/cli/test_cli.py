@@ -304,10 +304,10 @@ def test_demo_runs_the_chain_and_writes_the_report(tmp_path):
     dense = {r["method"]: r for r in figures["dense"]["rows"]}
     assert set(dense) == {"rigid", "quadratic", "rigid_rbf", "quadratic_rbf", "global_rbf"}
     assert all(r["nan_fraction"] == 0 for r in dense.values())
-    # measured (12-frame rig, GCV-regularised RBF): RMS 2.3-2.7 mm for every variant
+    # measured (12-frame rig, ridge-regularised RBF): RMS 2.3-2.7 mm for every variant
     assert all(0 < r["rms_m"] < 0.005 for r in dense.values())
     # no RBF field throws a vertex: the per-part RBF variants' worst vertex stays within
-    # the rigid variant's (measured 37 and 35 mm against 52; 354 and 323 mm unregularised)
+    # the rigid variant's (measured 37 and 36 mm against 52; 354 and 323 mm unregularised)
     assert all(dense[m]["max_m"] < 0.06 for m in ("rigid_rbf", "quadratic_rbf"))
     assert "Dense skin" in page and (folder / "figures" / "dense_errors.png").is_file()
     assert run("demo", "-o", folder, "--frames", "240").exit_code == 2  # outputs exist
