@@ -21,6 +21,24 @@ through its eigen-decomposition with the near-zero modes left out (:func:`fit_rb
 so interpolation is exact for a well-conditioned matrix and stays bounded for a
 near-singular one.
 
+That is not enough when the support is wide against the spacing (an irregular part
+whose largest nearest-member distance, hence σ, is twice its typical spacing): the
+matrix is then indefinite with eigenvalues of ~1e-4 of the largest, kept by the
+cutoff, and the solve multiplies the residuals along them a thousandfold, so the
+field swings by metres between its centres (a 120-marker part of the demo's 12-frame
+rig: weights of 26 m, vertices thrown 35 cm). :func:`fit_rbf_ridge` fits the
+Tikhonov-regularised system instead, ``w = argmin ||Φ w - r||² + μ ||w||²`` with
+``μ = ρ max|λ|²`` (through the eigen-decomposition, so an indefinite matrix is no
+harm: each mode is multiplied by ``λ / (λ² + μ)``, at most ``1 / (2 √μ)``), and
+:func:`choose_ridge_gcv` picks ρ from the data by generalised cross-validation
+(Golub, Heath & Wahba 1979), closed-form from the same decomposition: a mode that
+only an amplified fit passes through predicts the centres left out badly and is
+damped; a well-conditioned system with smooth values keeps ρ tiny and interpolates
+to within rounding of the values' scale. GCV reads whatever the field cannot follow
+as noise, though, and the dense deformer's residuals are signal (the markers sample the
+skin): there it smoothed them away (ρ up to 1e-2), so the deformer fits a small fixed
+ρ by default and offers GCV as an option.
+
 Every function takes a validity mask so that a batch of frames with different missing
 centres is one array operation: an invalid centre gets weight 0 and does not constrain
 the others.
@@ -28,17 +46,22 @@ the others.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
 
 __all__ = [
+    "RIDGE_GRID",
+    "choose_ridge_gcv",
     "cubic_bspline",
     "dilation_from_spacing",
     "evaluate_rbf",
     "fit_rbf",
     "fit_rbf_fixed_centres",
+    "fit_rbf_ridge",
 ]
 
 
@@ -368,6 +391,236 @@ def fit_rbf_fixed_centres(
         )
     w = np.where(valid[..., None], w, 0.0)
     return w.reshape(n_t, *lead, k, d)
+
+
+#: Relative ridge strengths ρ (``μ = ρ max|λ|²``) :func:`choose_ridge_gcv` searches:
+#: from 1e-12 (interpolation to rounding) to 1 (every mode at least halved), 4 per decade.
+RIDGE_GRID = np.logspace(-12.0, 0.0, 49)
+
+
+def _flat_systems(
+    centres: np.ndarray, values: np.ndarray, sigma: np.ndarray | float, mask: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, tuple[int, ...]]:
+    """Broadcast a batch of RBF systems and flatten it as :func:`fit_rbf` reads it.
+
+    Returns ``centres (S, K, 3)`` (0 where not finite), ``values (S, K, D)`` (0 where
+    excluded), ``valid (S, K)``, ``sigma (S,)`` (1 where unusable, its systems
+    all-invalid) and the batch shape.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    r = np.asarray(values, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-1] != 3 or r.ndim < 2 or r.shape[-2] != c.shape[-2]:
+        raise ValidationError(
+            f"centres must be (..., K, 3) and values (..., K, D) with the same K; "
+            f"got {c.shape} and {r.shape}"
+        )
+    k, d = c.shape[-2], r.shape[-1]
+    lead = np.broadcast_shapes(c.shape[:-2], r.shape[:-2])
+    if mask is not None:
+        lead = np.broadcast_shapes(lead, np.shape(mask)[:-1])
+    s = np.broadcast_to(np.asarray(sigma, dtype=np.float64), lead)
+    good_sigma = np.isfinite(s) & (s > 0)
+    valid = np.isfinite(c).all(-1) & np.isfinite(r).all(-1)
+    if mask is not None:
+        valid = valid & np.asarray(mask, dtype=bool)
+    valid = np.broadcast_to(valid, (*lead, k)) & good_sigma[..., None]
+    c0 = np.broadcast_to(np.where(np.isfinite(c), c, 0.0), (*lead, k, 3)).reshape(-1, k, 3)
+    r0 = np.broadcast_to(np.where(np.isfinite(r), r, 0.0), (*lead, k, d))
+    r0 = np.where(valid[..., None], r0, 0.0).reshape(-1, k, d)
+    return c0, r0, valid.reshape(-1, k), np.where(good_sigma, s, 1.0).reshape(-1), lead
+
+
+def _spectra(
+    c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, sigma: np.ndarray, cut: float
+) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+    """The eigen-decompositions of flattened systems, grouped by size.
+
+    A system's slots after its last valid centre are decoupled (weight 0), so it is
+    decomposed cut to its first ``n`` slots, and the systems with the same ``n`` in
+    one batched ``eigh``: the cost follows each part's own size, not the largest.
+
+    Yields, per group, ``idx (m,)`` (rows of the flattened batch), ``lam (m, n)``
+    (eigenvalues, those with ``|λ| <= cut max|λ|`` set to 0: left out), ``vec (m, n, n)``,
+    ``beta (m, n, D)`` (the values in the eigenbasis), ``on_valid (m, n)`` (each mode's
+    share on the valid slots, for the trace of the smoother) and ``scale (m,)`` (max|λ|).
+    """
+    k = valid.shape[1]
+    n_eff = np.where(valid.any(-1), k - np.argmax(valid[:, ::-1], axis=-1), 0)
+    for n in np.unique(n_eff[n_eff > 0]):
+        idx = np.flatnonzero(n_eff == n)
+        v = valid[idx, :n]
+        phi = _kernel_matrix(c0[idx, :n], c0[idx, :n], sigma[idx])  # (m, n, n)
+        # an excluded centre gets a lone diagonal entry φ(0): it decouples with weight 0
+        eye = np.eye(n, dtype=bool)
+        phi = np.where(v[:, :, None] & v[:, None, :], phi, 0.0)
+        phi += np.where(eye & ~v[:, :, None], 2.0 / 3.0, 0.0)
+        lam, vec = np.linalg.eigh(phi)
+        scale = np.abs(lam).max(axis=-1)
+        lam = np.where(np.abs(lam) > cut * scale[:, None], lam, 0.0)
+        beta = np.swapaxes(vec, -1, -2) @ r0[idx, :n]
+        on_valid = np.einsum("mjn,mj->mn", vec * vec, v.astype(np.float64))
+        yield idx, lam, vec, beta, on_valid, scale
+
+
+def _check_cutoff(cutoff: float) -> float:
+    cut = float(cutoff)
+    if not (0 <= cut < 1):
+        raise ValidationError(f"cutoff must be in [0, 1); got {cutoff!r}")
+    return cut
+
+
+def fit_rbf_ridge(
+    centres: np.ndarray,
+    values: np.ndarray,
+    sigma: np.ndarray | float,
+    mask: np.ndarray | None = None,
+    *,
+    ridge: np.ndarray | float,
+    cutoff: float = 1e-6,
+) -> np.ndarray:
+    """Weights of the Tikhonov-regularised RBF fit: ``argmin ||Φ w - r||² + μ ||w||²``.
+
+    ``μ = ρ max|λ|²`` with ``λ`` the eigenvalues of the system's kernel matrix ``Φ``
+    (the centres' :func:`fit_rbf` matrix), so ρ is dimensionless and means the same
+    for every part. Solved through the eigen-decomposition, each mode multiplied by
+    ``λ / (λ² + μ)``: an indefinite or near-singular ``Φ`` (the radial cubic B-spline
+    is not positive definite in 3-D) amplifies no residual by more than
+    ``1 / (2 √μ)``. With ``ρ = 0`` this is :func:`fit_rbf` (exact interpolation,
+    modes below ``cutoff`` left out) to rounding; with ``ρ > 0`` the field passes
+    near its centres, not through them (:func:`choose_ridge_gcv` chooses ρ).
+
+    Parameters
+    ----------
+    centres : (..., K, 3) float, metres
+    values : (..., K, D) float
+        The residuals to fit (metres, D = 3); non-finite: excluded.
+    sigma : float or (...) float, metres
+        The dilation σ (positive; otherwise the system gets zero weights).
+    mask : (..., K) bool, optional
+        False excludes a centre: its weight is 0.
+    ridge : float or (...) float
+        ρ of each system (non-negative, finite).
+    cutoff : float
+        As :func:`fit_rbf`: modes with ``|λ| <= cutoff max|λ|`` are left out.
+
+    Returns
+    -------
+    weights : (..., K, D) float64
+        Zero for excluded centres and for systems with a non-positive or NaN σ.
+    """
+    cut = _check_cutoff(cutoff)
+    c0, r0, valid, s, lead = _flat_systems(centres, values, sigma, mask)
+    rho_in = np.asarray(ridge, dtype=np.float64)
+    if not (np.isfinite(rho_in).all() and (rho_in >= 0).all()):
+        raise ValidationError("ridge must be finite and non-negative")
+    rho = np.broadcast_to(rho_in, lead).reshape(-1)
+    w = np.zeros(r0.shape)
+    todo = np.ones(len(rho), dtype=bool)
+    c = np.asarray(centres)
+    if len(lead) >= 2 and c.ndim == np.ndim(values) and c.shape[0] == 1 and lead[0] > 1:
+        # centres fixed over the leading (frames) axis: the frames where a system has
+        # all its centres share one operator, V diag(λ / (λ² + μ)) Vᵀ, found once
+        n_t, k = lead[0], c0.shape[1]
+        s_t, rho_t, valid_t = s.reshape(n_t, -1), rho.reshape(n_t, -1), valid.reshape(n_t, -1, k)
+        if (s_t == s_t[:1]).all() and (rho_t == rho_t[:1]).all():
+            full = np.asarray(valid_t.any(axis=0))  # (P, K): every centre a frame can have
+            n_sys = full.shape[0]
+            identity = np.broadcast_to(np.eye(k), (n_sys, k, k))
+            operator = _ridge_solve(c0[:n_sys], identity, full, s_t[0], rho_t[0], cut)
+            same = (valid_t == full[None]).all(-1).reshape(-1)  # (T P,)
+            system = np.tile(np.arange(n_sys), n_t)[same]
+            w[same] = operator[system] @ r0[same]
+            todo = ~same
+    rows = np.flatnonzero(todo)
+    w[rows] = _ridge_solve(c0[rows], r0[rows], valid[rows], s[rows], rho[rows], cut)
+    w = np.where(valid[..., None], w, 0.0)
+    return w.reshape(*lead, *w.shape[-2:])
+
+
+def _ridge_solve(
+    c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, s: np.ndarray, rho: np.ndarray, cut: float
+) -> np.ndarray:
+    """Ridge weights (S, K, D) of flattened systems (:func:`_flat_systems`), ρ (S,)."""
+    w = np.zeros(r0.shape)
+    for idx, lam, vec, beta, _, scale in _spectra(c0, r0, valid, s, cut):
+        mu = (rho[idx] * scale * scale)[:, None]  # (m, 1)
+        nonzero = lam != 0.0
+        gain = np.where(nonzero, lam / np.where(nonzero, lam * lam + mu, 1.0), 0.0)  # λ/(λ²+μ)
+        w[idx, : lam.shape[1]] = vec @ (beta * gain[..., None])
+    return w
+
+
+def choose_ridge_gcv(
+    centres: np.ndarray,
+    values: np.ndarray,
+    sigma: np.ndarray | float,
+    mask: np.ndarray | None = None,
+    *,
+    cutoff: float = 1e-6,
+    grid: np.ndarray = RIDGE_GRID,
+) -> np.ndarray:
+    """ρ of :func:`fit_rbf_ridge` for each system, by generalised cross-validation pooled over frames.
+
+    For a ridge ρ the fitted values at the centres are ``H r`` with the smoother
+    ``H = Φ (Φ² + μ)⁻¹ Φ``, whose eigenvalues are ``f = λ² / (λ² + μ)``. GCV scores
+    ``G(ρ) = N Σ_t ||(I - H_t) r_t||² / (Σ_t tr(I - H_t))²`` (N valid centre-frames),
+    the rotation-invariant form of leave-one-out cross-validation, and the ρ of
+    ``grid`` with the lowest score is kept (the smallest on a tie, e.g. all-zero values).
+    One ρ per system over all its frames: a field that changed its smoothness from
+    frame to frame would flicker.
+
+    Parameters
+    ----------
+    centres : (T or 1, ..., K, 3) float, metres
+        The centres at each frame (a leading 1: the same at every frame).
+    values : (T, ..., K, D) float
+        The values at each frame (non-finite: excluded at that frame).
+    sigma : float or (...) float, metres
+    mask : (T, ..., K) bool, optional
+    cutoff : float
+        As :func:`fit_rbf`.
+    grid : (G,) float
+        Candidate ρ, ascending, non-negative.
+
+    Returns
+    -------
+    (...) float64
+        The chosen ρ of each system (``grid[0]`` for a system with no valid centre).
+    """
+    cut = _check_cutoff(cutoff)
+    c = np.asarray(centres, dtype=np.float64)
+    r = np.asarray(values, dtype=np.float64)
+    if r.ndim < 3 or c.ndim != r.ndim:
+        raise ValidationError(
+            f"centres must be (T or 1, ..., K, 3) and values (T, ..., K, D); "
+            f"got {c.shape} and {r.shape}"
+        )
+    g = np.asarray(grid, dtype=np.float64).reshape(-1)
+    if g.size == 0 or not (np.isfinite(g).all() and (g >= 0).all()):
+        raise ValidationError("grid must hold finite non-negative ridge strengths")
+    s = np.asarray(sigma, dtype=np.float64)
+    c0, r0, valid, s_flat, lead = _flat_systems(c, r, s[None] if s.ndim else s, mask)
+    n_t = lead[0]
+    n_sys = int(np.prod(lead[1:], dtype=np.int64))
+    residual = np.zeros((n_t * n_sys, g.size))  # Σ ||(I - H) r||² of every row
+    trace = np.zeros((n_t * n_sys, g.size))  # tr(I - H) over the valid centres
+    for idx, lam, _, beta, on_valid, scale in _spectra(c0, r0, valid, s_flat, cut):
+        lam2 = lam * lam
+        beta2 = (beta * beta).sum(-1)  # (m, n)
+        n_valid = valid[idx].sum(-1)
+        for j, rho in enumerate(g):  # G (~50) steps over (m, n)
+            mu = (rho * scale * scale)[:, None]
+            # 1 - f = μ / (λ² + μ), without the cancellation of 1 - f near f = 1
+            damped = np.divide(mu, lam2 + mu, out=np.ones_like(lam2), where=lam2 > 0)
+            residual[idx, j] = (damped * damped * beta2).sum(-1)
+            trace[idx, j] = n_valid - ((1.0 - damped) * on_valid).sum(-1)
+    residual = residual.reshape(n_t, n_sys, g.size).sum(0)
+    trace = trace.reshape(n_t, n_sys, g.size).sum(0)
+    n_obs = valid.reshape(n_t, n_sys, -1).sum(axis=(0, 2))[:, None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        score = np.where(trace > 1e-12 * n_obs, n_obs * residual / trace**2, np.inf)
+    score = np.where(np.isfinite(score).any(-1, keepdims=True), score, 0.0)  # no data: grid[0]
+    return g[np.argmin(score, axis=-1)].reshape(lead[1:])
 
 
 def evaluate_rbf(

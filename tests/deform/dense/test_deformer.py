@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from skincap.backends import numba_available
 from skincap.deform.dense.deformer import (
     METHODS,
+    RBF_RIDGE,
     DenseDeformer,
     choose_quadratic_parts,
     fit_part_motion,
@@ -88,6 +89,7 @@ def test_a_pure_quadratic_field_is_reproduced_exactly(method: str, backend: str)
 @pytest.mark.parametrize("method", ["rigid_rbf", "quadratic_rbf"])
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_rbf_variants_pass_through_every_marker(method: str, backend: str) -> None:
+    """Unregularised (the paper's eq. 7), the RBF reproduces every marker exactly."""
     rng = np.random.default_rng(2)
     ref = np.stack(np.meshgrid(np.arange(5), np.arange(4), np.arange(2), indexing="ij"), -1)
     ref = 0.05 * ref.reshape(-1, 3).astype(float) + 0.004 * rng.normal(size=(40, 3))
@@ -98,10 +100,118 @@ def test_rbf_variants_pass_through_every_marker(method: str, backend: str) -> No
     deformer = DenseDeformer(
         parts, ref, np.ones((40, 1)), backend=backend
     )  # the markers as vertices
-    out = np.concatenate(list(deformer.deform(markers, method)))
+    out = np.concatenate(list(deformer.deform(markers, method, rbf_regularisation=0.0)))
     np.testing.assert_allclose(out, markers, atol=1e-9)
     rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
     assert np.abs(rigid - markers).max() > 1e-3
+
+
+@pytest.mark.parametrize("method", ["rigid_rbf", "quadratic_rbf"])
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_regularised_rbf_follows_a_smooth_bulge_closely(method: str, backend: str) -> None:
+    """The default (a small ridge) and a ridge chosen by cross-validation pass near
+    every marker of a smooth soft-tissue bulge: far closer than the rigid fit."""
+    rng = np.random.default_rng(2)
+    ref = np.stack(np.meshgrid(np.arange(5), np.arange(4), np.arange(2), indexing="ij"), -1)
+    ref = 0.05 * ref.reshape(-1, 3).astype(float) + 0.004 * rng.normal(size=(40, 3))
+    parts = part_frames(ref, np.ones((40, 1)))
+    rot, trans = _rigid(rng, 5)
+    amplitude = 0.01 * np.sin(np.arange(5))[:, None, None]  # breathes over the frames
+    bump = np.exp(-((ref - ref.mean(0)) ** 2).sum(1) / 0.01)[None, :, None] * [0.0, 0.0, 1.0]
+    markers = np.einsum("tab,tnb->tna", rot, ref + amplitude * bump) + trans[:, None]
+    deformer = DenseDeformer(parts, ref, np.ones((40, 1)), backend=backend)
+    rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
+    rigid_off = np.abs(rigid - markers).max()
+    out = np.concatenate(list(deformer.deform(markers, method)))
+    assert np.abs(out - markers).max() < 0.002 * rigid_off  # measured: 6e-6, 3e-6
+    gcv = np.concatenate(list(deformer.deform(markers, method, rbf_regularisation="gcv")))
+    assert np.abs(gcv - markers).max() < 0.1 * rigid_off  # measured: 0.005, 3e-12
+
+
+def _wide_kernel_part(rng: np.random.Generator) -> tuple[np.ndarray, object]:
+    """A 6 x 5 x 3 marker lattice as one part whose σ sits where its kernel matrix's
+    smallest eigenvalue crosses zero: an irregular part's wide σ, made exact."""
+    from dataclasses import replace
+
+    from scipy.optimize import brentq
+
+    from skincap.geometry.rbf import evaluate_rbf
+
+    g = np.stack(np.meshgrid(np.arange(6), np.arange(5), np.arange(3), indexing="ij"), -1)
+    ref = 0.04 * g.reshape(-1, 3).astype(float) + 0.006 * rng.normal(size=(90, 3))
+    parts = part_frames(ref, np.ones((90, 1)))
+    local = parts.local_reference[0]
+
+    def smallest(sigma: float) -> float:
+        return float(np.linalg.eigvalsh(evaluate_rbf(local, np.eye(90), sigma, local))[0])
+
+    grid = np.linspace(0.08, 0.3, 45)
+    values = [smallest(x) for x in grid]
+    i = next(i for i in range(len(grid) - 1) if values[i] > 0 > values[i + 1])
+    sigma = brentq(smallest, grid[i], grid[i + 1]) * (1 + 1e-3)  # |λ| ~6e-6 of the largest
+    return ref, replace(parts, sigma=np.array([sigma]))
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_near_singular_part_kernel_no_longer_throws_vertices(backend: str) -> None:
+    """The defect of the demo's 12-frame rig in miniature: exact interpolation of a 2 cm
+    bulge through a near-singular kernel throws vertices between the markers tens of
+    cm; the regularised fits (the default ridge, and GCV's) keep every vertex closer
+    than the rigid fit (10.8 mm)."""
+    rng = np.random.default_rng(40)
+    ref, parts = _wide_kernel_part(rng)
+    rot, trans = _rigid(rng, 4)
+    bump = np.exp(-((ref - ref.mean(0)) ** 2).sum(1) / 0.01)[:, None] * [0.0, 0.0, 0.02]
+    amplitude = np.array([0.0, 1.0, -0.7, 0.4])[:, None, None]
+    noise = 0.001 * rng.normal(size=(4, 90, 3))  # soft tissue is not a perfect bump
+    markers = np.einsum("tab,tnb->tna", rot, ref + amplitude * bump + noise) + trans[:, None]
+    vertices = ref.min(0) + (ref.max(0) - ref.min(0)) * rng.random((2000, 3))
+    vbump = np.exp(-((vertices - ref.mean(0)) ** 2).sum(1) / 0.01)[:, None] * [0.0, 0.0, 0.02]
+    truth = np.einsum("tab,tnb->tna", rot, vertices + amplitude * vbump) + trans[:, None]
+    deformer = DenseDeformer(parts, vertices, np.ones((2000, 1)), backend=backend)
+    for method in ("rigid_rbf", "quadratic_rbf"):
+        exact = np.concatenate(list(deformer.deform(markers, method, rbf_regularisation=0.0)))
+        assert np.linalg.norm(exact - truth, axis=-1).max() > 0.1  # measured: 0.14-0.34 m
+        for regularisation in (RBF_RIDGE, "gcv"):
+            out = np.concatenate(
+                list(deformer.deform(markers, method, rbf_regularisation=regularisation))
+            )
+            assert np.linalg.norm(out - truth, axis=-1).max() < 0.008  # measured: 3.8-5.9 mm
+
+
+def test_the_ridge_is_chosen_once_per_take_not_per_chunk() -> None:
+    """With "gcv", deform() chooses each part's ridge over the whole take: chunking
+    changes nothing, and fit_part_motion reports the ridges it used (none when exact)."""
+    rng = np.random.default_rng(41)
+    ref, alpha = _three_parts(rng)
+    rot, trans = _rigid(rng, 9)
+    markers = np.einsum("tab,tnb->tna", rot, ref + 0.004 * rng.normal(size=(9, 60, 3)))
+    markers += trans[:, None]
+    vertices = _blob(rng, 50, (0.3, 0.0, 0.0))
+    deformer = DenseDeformer(part_frames(ref, alpha), vertices, rng.random((50, 3)))
+    for method in ("rigid_rbf", "quadratic_rbf"):
+        whole = np.concatenate(
+            list(deformer.deform(markers, method, chunk=100, rbf_regularisation="gcv"))
+        )
+        chunked = np.concatenate(
+            list(deformer.deform(markers, method, chunk=2, rbf_regularisation="gcv"))
+        )
+        np.testing.assert_allclose(chunked, whole, atol=1e-12)
+        motion = fit_part_motion(markers, deformer.parts, method, rbf_regularisation="gcv")
+        assert motion.rbf_ridge is not None and motion.rbf_ridge.shape == (2, 3)
+        assert (
+            fit_part_motion(markers, deformer.parts, method, rbf_regularisation=0).rbf_ridge is None
+        )
+        given = fit_part_motion(
+            markers, deformer.parts, method, rbf_regularisation=motion.rbf_ridge
+        )
+        np.testing.assert_allclose(given.rbf_weights, motion.rbf_weights, atol=1e-15)
+    with pytest.raises(ValidationError, match="rbf_regularisation"):
+        fit_part_motion(markers, deformer.parts, "rigid_rbf", rbf_regularisation="loo")  # type: ignore[arg-type]
+    with pytest.raises(ValidationError, match="rbf_regularisation"):
+        fit_part_motion(markers, deformer.parts, "rigid_rbf", rbf_regularisation=np.ones(4))
+    with pytest.raises(ValidationError, match="rbf_regularisation"):
+        fit_part_motion(markers, deformer.parts, "rigid_rbf", rbf_regularisation=-1.0)
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
@@ -209,7 +319,7 @@ def test_a_part_field_passes_through_its_seam_centres(method: str, backend: str)
         beta[:, p] = 1.0
         parts = part_frames(ref, alpha, surface_faces=faces)
         out = DenseDeformer(parts, ref[seam_columns], beta, backend=backend)
-        got = np.concatenate(list(out.deform(markers, method)))
+        got = np.concatenate(list(out.deform(markers, method, rbf_regularisation=0.0)))
         np.testing.assert_allclose(got, markers[:, seam_columns], atol=1e-9)
     # a point on the seam, halfway between the columns, with half weight for each part
     mid = 0.5 * (ref[12:16] + ref[16:20])
@@ -220,7 +330,7 @@ def test_a_part_field_passes_through_its_seam_centres(method: str, backend: str)
         deformer = DenseDeformer(
             part_frames(ref, alpha, surface_faces=extra), mid, half, backend=backend
         )
-        got = np.concatenate(list(deformer.deform(markers, method)))
+        got = np.concatenate(list(deformer.deform(markers, method, rbf_regularisation=0.0)))
         errors[name] = np.abs(got - truth).max()
     # measured: 0.56 (quadratic_rbf) and less (rigid_rbf) of the error without them
     assert errors["seam"] < 0.75 * errors["plain"]
@@ -281,7 +391,7 @@ def test_rigid_rbf_fits_with_fixed_centres_equal_the_plain_fit(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """rigid_rbf's RBF centres are the rest positions at every frame, so both of its
-    fits (members, seam centres) downdate one inverse per part: the weights equal
+    exact fits (members, seam centres) downdate one inverse per part: the weights equal
     fit_rbf's, with markers missing at random frames."""
     import skincap.deform.dense.deformer as deformer_module
     from skincap.geometry.rbf import fit_rbf
@@ -293,13 +403,13 @@ def test_rigid_rbf_fits_with_fixed_centres_equal_the_plain_fit(
     bent = ref + 0.004 * rng.normal(size=(12, 32, 3))
     markers = np.einsum("tab,tnb->tna", rot, bent) + trans[:, None]
     markers[rng.random((12, 32)) < 0.06] = np.nan
-    got = fit_part_motion(markers, parts, "rigid_rbf")
+    got = fit_part_motion(markers, parts, "rigid_rbf", rbf_regularisation=0.0)
 
     def plain(centres, values, sigma, mask):  # type: ignore[no-untyped-def]
         return fit_rbf(centres[None], values, sigma[None], mask)
 
     monkeypatch.setattr(deformer_module, "fit_rbf_fixed_centres", plain)
-    want = fit_part_motion(markers, parts, "rigid_rbf")
+    want = fit_part_motion(markers, parts, "rigid_rbf", rbf_regularisation=0.0)
     assert got.member_rbf_weights is not None and want.member_rbf_weights is not None
     assert np.abs(want.rbf_weights).max() > 1e-4  # the fields are not trivial
     scale = np.abs(want.rbf_weights).max()

@@ -20,6 +20,14 @@ For every frame and every near-rigid part ``p``:
    triangles; a rig's deformer is) get a second RBF through them as well; a vertex's
    RBF term in such a part is its members' field and its seam field blended by its
    ``seam_weights`` (the kernels sum both in one pass over the centres).
+   The fit is ridge-regularised (:func:`skincap.geometry.rbf.fit_rbf_ridge`,
+   :data:`RBF_RIDGE`): σ = 2 × the largest nearest-member distance makes the kernel of
+   an irregular part wide against its spacing and its matrix indefinite, and the exact
+   solve then threw vertices of the demo's 12-frame rig 35 cm. The ridge is there for
+   stability, not smoothing: the markers sample the skin, so their residuals are signal.
+   ``rbf_regularisation=0`` is the paper's exact interpolation; ``"gcv"`` chooses a
+   ridge per part by cross-validation (:func:`skincap.geometry.rbf.choose_ridge_gcv`).
+
 4. **Vertices** (eqs. 8-9): a vertex's local reference position in each of its parts is
    moved by that part's field and taken back to the world; the results are blended by
    the vertex's part weights β.
@@ -71,7 +79,13 @@ from skincap.geometry.quadratic import (
     apply_quadratic,
     fit_quadratic,
 )
-from skincap.geometry.rbf import evaluate_rbf, fit_rbf, fit_rbf_fixed_centres
+from skincap.geometry.rbf import (
+    choose_ridge_gcv,
+    evaluate_rbf,
+    fit_rbf,
+    fit_rbf_fixed_centres,
+    fit_rbf_ridge,
+)
 from skincap.geometry.rigid import fit_rigid
 
 __all__ = [
@@ -79,6 +93,8 @@ __all__ = [
     "DenseDeformer",
     "Method",
     "PartMotion",
+    "RBF_RIDGE",
+    "RbfRegularisation",
     "choose_quadratic_parts",
     "fit_part_motion",
     "held_frames",
@@ -104,6 +120,21 @@ MODEL_CHOICE_FRAMES = 24
 #: Share of a part's members at either end of each part axis that
 #: :func:`choose_quadratic_parts` also leaves out together.
 MODEL_CHOICE_END_SHARE = 0.2
+#: The RBF fit's ridge ρ (:func:`skincap.geometry.rbf.fit_rbf_ridge`): a number (0: exact
+#: interpolation), a (2, P) array (row 0: the field through all of a part's centres, row
+#: 1: its members' field) or "gcv" to choose it per part by cross-validation.
+RbfRegularisation = Literal["gcv"] | float | np.ndarray
+#: Default ridge ρ (μ = ρ max|λ|²): modes with |λ| below ~1e-3 of the largest are
+#: damped, no residual is amplified more than ~500 / max|λ| times. Vertex RMS of
+#: rigid_rbf / quadratic_rbf on the demo's 12-frame rig and on ``eval animate jr240
+#: --rom rom`` (held-out markers' mean in brackets): exact 21.91 / 11.27 and 2.289 /
+#: 2.570 (1.843) mm; ρ 1e-6: 2.40 / 2.48 and 2.289 / 2.569 (1.934); 1e-5: 2.19 / 2.28
+#: and 2.289 / 2.564 (2.099); 1e-4: 2.26 / 2.35 and 2.290 / 2.561; GCV over 1e-12..1
+#: (it reads the residuals as noise): 2.34 / 2.48 and 2.465 / 2.944 (1.958). The
+#: smallest that keeps the demo's rig from throwing vertices.
+RBF_RIDGE = 1e-6
+#: Frames (evenly spread) over which :meth:`DenseDeformer.deform` chooses the ridges.
+RIDGE_FRAMES = 64
 
 
 def warm_up_kernel() -> None:
@@ -148,6 +179,9 @@ class PartMotion:
     member_rbf_weights : (T, P, K, 3) float64 or None, metres
         The same fitted to the members alone (0 on the seam centres); None when the
         parts have no seam centre (then it is ``rbf_weights``).
+    rbf_ridge : (2, P) float64 or None
+        The ridge ρ of each part's RBF fits (row 0: through all its centres, row 1:
+        its members alone); None for exact interpolation or no RBF.
     """
 
     rotation: np.ndarray
@@ -156,6 +190,7 @@ class PartMotion:
     centres: np.ndarray
     rbf_weights: np.ndarray
     member_rbf_weights: np.ndarray | None = None
+    rbf_ridge: np.ndarray | None = None
 
 
 def _identity_field() -> np.ndarray:
@@ -197,6 +232,7 @@ def fit_part_motion(
     source_frames: np.ndarray | None = None,
     quadratic_regularisation: float = QUADRATIC_REGULARISATION,
     quadratic_parts: np.ndarray | None = None,
+    rbf_regularisation: RbfRegularisation = RBF_RIDGE,
 ) -> PartMotion:
     """Fit the rigid, quadratic and RBF fields of every part at every frame (eqs. 6-7).
 
@@ -218,6 +254,10 @@ def fit_part_motion(
         get the rigid base ``[I 0 0 0]`` under their RBF (:func:`choose_quadratic_parts`
         picks them; default every part, the paper's method). ``quadratic`` stays the
         paper's variant on every part.
+    rbf_regularisation : float, (2, P) float or "gcv"
+        The RBF fits' ridge ρ (:data:`RbfRegularisation`, default :data:`RBF_RIDGE`):
+        0 interpolates the residuals exactly (the paper's eq. 7); "gcv" chooses it for
+        each part and field from these frames (:func:`~skincap.geometry.rbf.choose_ridge_gcv`).
 
     Returns
     -------
@@ -274,35 +314,72 @@ def fit_part_motion(
         parts.valid[None, ..., None], apply_quadratic(quad, parts.local_reference[None]), 0.0
     )
     member_rbf_w = None
+    ridge = None
     if use_rbf:
-        residual = local - centres  # NaN where missing: excluded by fit_rbf
+        residual = local - centres  # NaN where missing: excluded by the fits
         member_present = present & parts.fitted
         k_fit = int(parts.fitted.sum(axis=1).max())  # the members fill the first slots
-        if use_quadratic:  # the centres move with each frame's quadratic field
-            rbf_w = fit_rbf(centres, residual, parts.sigma[None, :], present)
-            if parts.has_seam_centres:
-                member_rbf_w = np.zeros_like(rbf_w)
-                member_rbf_w[:, :, :k_fit] = fit_rbf(
-                    centres[:, :, :k_fit],
-                    residual[:, :, :k_fit],
-                    parts.sigma[None, :],
-                    member_present[:, :, :k_fit],
-                )
-        else:  # the rest positions at every frame: one inverse per part, downdated
-            rest = np.where(parts.valid[..., None], parts.local_reference, np.nan)  # padding: none
-            rbf_w = fit_rbf_fixed_centres(rest, residual, parts.sigma, present)
-            if parts.has_seam_centres:
-                member_rbf_w = np.zeros_like(rbf_w)
-                member_rbf_w[:, :, :k_fit] = fit_rbf_fixed_centres(
-                    rest[:, :k_fit],
-                    residual[:, :, :k_fit],
-                    parts.sigma,
-                    member_present[:, :, :k_fit],
-                )
+        # the quadratic variants' centres move with each frame's field; the rigid
+        # ones' stay at the rest positions (padding: none)
+        rest = np.where(parts.valid[..., None], parts.local_reference, np.nan)
+        fit_centres = centres if use_quadratic else rest[None]
+        fields = [(fit_centres, residual, present)]  # through all centres, then members'
+        if parts.has_seam_centres:
+            fields.append(
+                (fit_centres[..., :k_fit, :], residual[..., :k_fit, :], member_present[..., :k_fit])
+            )
+        ridge = _rbf_ridges(rbf_regularisation, fields, parts.sigma, n_p)
+        if ridge is None:  # exact interpolation (eq. 7)
+            fitted = [
+                fit_rbf(c, r, parts.sigma[None, :], m)
+                if use_quadratic  # one inverse per part, downdated, for fixed centres
+                else fit_rbf_fixed_centres(c[0], r, parts.sigma, m)
+                for c, r, m in fields
+            ]
+        else:
+            fitted = [
+                fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[i])
+                for i, (c, r, m) in enumerate(fields)
+            ]
+        rbf_w = fitted[0]
+        if parts.has_seam_centres:
+            member_rbf_w = np.zeros_like(rbf_w)
+            member_rbf_w[:, :, :k_fit] = fitted[1]
     else:
         rbf_w = np.zeros((n_t, n_p, k, 3))
     centres = np.where(np.isfinite(centres), centres, 0.0)
-    return PartMotion(rot, trans, quad, centres, rbf_w, member_rbf_w)
+    return PartMotion(rot, trans, quad, centres, rbf_w, member_rbf_w, ridge)
+
+
+def _rbf_ridges(
+    regularisation: RbfRegularisation,
+    fields: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    sigma: np.ndarray,
+    n_parts: int,
+) -> np.ndarray | None:
+    """(2, P) ridges of the fits in ``fields`` (chosen by GCV, or given), None for exact."""
+    if isinstance(regularisation, str):
+        if regularisation != "gcv":
+            raise ValidationError(
+                f"rbf_regularisation: expected 'gcv', a number or a (2, P) array; "
+                f"got {regularisation!r}"
+            )
+        ridge = np.zeros((2, n_parts))
+        for i, (c, r, m) in enumerate(fields):
+            ridge[i] = choose_ridge_gcv(c, r, sigma, m)
+        if len(fields) == 1:
+            ridge[1] = ridge[0]
+        return ridge
+    given = np.asarray(regularisation, dtype=np.float64)
+    try:
+        ridge = np.broadcast_to(given, (2, n_parts))
+    except ValueError:
+        raise ValidationError(
+            f"rbf_regularisation must be a number or have shape (2, {n_parts}); got {given.shape}"
+        ) from None
+    if not (np.isfinite(ridge).all() and (ridge >= 0).all()):
+        raise ValidationError("rbf_regularisation must be finite and non-negative")
+    return None if not ridge.any() else np.array(ridge)
 
 
 def choose_quadratic_parts(
@@ -574,6 +651,7 @@ class DenseDeformer:
         *,
         chunk: int = 32,
         quadratic_regularisation: float = QUADRATIC_REGULARISATION,
+        rbf_regularisation: RbfRegularisation = RBF_RIDGE,
         progress: Callable[[float], None] | None = None,
     ) -> Iterator[np.ndarray]:
         """Stream the deformed vertices of a take, ``chunk`` frames at a time.
@@ -586,6 +664,10 @@ class DenseDeformer:
             Frames per yielded block.
         quadratic_regularisation : float
             See :func:`fit_part_motion`.
+        rbf_regularisation : float, (2, P) float or "gcv"
+            See :func:`fit_part_motion`; "gcv" chooses each part's ridge once, over
+            :data:`RIDGE_FRAMES` frames spread over the take, so it is the same in
+            every chunk.
         progress : callable(fraction), optional
 
         Yields
@@ -599,6 +681,17 @@ class DenseDeformer:
         present = np.isfinite(x[:, self.parts.members]).all(-1) & self.parts.fitted
         source = held_frames(present)  # over the whole take, so holds cross chunks
         n_t = x.shape[0]
+        if isinstance(rbf_regularisation, str) and method.endswith("_rbf") and n_t:
+            sample = np.unique(np.linspace(0, n_t - 1, min(n_t, RIDGE_FRAMES)).round().astype(int))
+            ridge = fit_part_motion(
+                x[sample],
+                self.parts,
+                method,
+                quadratic_regularisation=quadratic_regularisation,
+                quadratic_parts=self.quadratic_parts,
+                rbf_regularisation=rbf_regularisation,
+            ).rbf_ridge
+            rbf_regularisation = 0.0 if ridge is None else ridge
         for s0 in range(0, n_t, int(chunk)):
             s1 = min(n_t, s0 + int(chunk))
             block_src = source[s0:s1]
@@ -614,6 +707,7 @@ class DenseDeformer:
                     source_frames=local_src,
                     quadratic_regularisation=quadratic_regularisation,
                     quadratic_parts=self.quadratic_parts,
+                    rbf_regularisation=rbf_regularisation,
                 )
                 yield self.deform_block(motion)
             if progress is not None:

@@ -148,7 +148,7 @@ def part_frames(
             f"reference: member markers {np.flatnonzero(bad)[:10].tolist()} have no reference position"
         )
     n_parts = alpha.shape[1]
-    seam = _seam_centres(member, np.isfinite(ref).all(axis=1), surface_faces)
+    seam = _seam_centres(member, np.asarray(np.isfinite(ref).all(axis=1)), surface_faces)
     k = int((counts + seam.sum(axis=0)).max())
     # padded member table: for part p the markers i with alpha[i, p] > 0, in column
     # order, then its seam centres
