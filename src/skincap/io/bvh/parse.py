@@ -18,6 +18,10 @@ _AXIS = {"X": 0, "Y": 1, "Z": 2}
 _FRAMES_RE = re.compile(r"^\s*Frames\s*:\s*(\S+)\s*$")
 _FRAME_TIME_RE = re.compile(r"^\s*Frame\s+Time\s*:\s*(\S+)\s*$")
 _MOTION_RE = re.compile(r"^[ \t]*MOTION[ \t\r]*$", re.MULTILINE)
+#: Frame Time bounds (s): 1e-7 s is the 10 MHz ceiling the C3D reader allows for a rate;
+#: a frame longer than an hour is no motion capture (and 1e-300 would make the rate 1e300).
+MIN_FRAME_TIME_S = 1e-7
+MAX_FRAME_TIME_S = 3600.0
 _BAD_NAME_RE = re.compile(r"(^\s|\s$|[\t\r\n\v\f{}]|\s\s)")
 
 
@@ -360,6 +364,12 @@ def _parse_motion(
         raise FormatError(
             path,
             f"Frame Time: must be a positive number of seconds, found {time_tok!r}",
+            line=time_line,
+        )
+    if not MIN_FRAME_TIME_S <= frame_time <= MAX_FRAME_TIME_S:
+        raise FormatError(
+            path,
+            f"Frame Time: {time_tok[:40]!r} s is outside {MIN_FRAME_TIME_S:g}..{MAX_FRAME_TIME_S:g} s",
             line=time_line,
         )
     rest = lines[i:]
