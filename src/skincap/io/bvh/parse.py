@@ -22,6 +22,10 @@ _MOTION_RE = re.compile(r"^[ \t]*MOTION[ \t\r]*$", re.MULTILINE)
 #: a frame longer than an hour is no motion capture (and 1e-300 would make the rate 1e300).
 MIN_FRAME_TIME_S = 1e-7
 MAX_FRAME_TIME_S = 3600.0
+#: The largest magnitude of an OFFSET or channel value: 1e9 is 1000 km in millimetres or
+#: 2.8 million turns in degrees; past it a value is corruption, and 1e308 overflows to
+#: inf once scaled to metres or posed (the error would then name an output, not the BVH).
+MAX_BVH_VALUE = 1e9
 _BAD_NAME_RE = re.compile(r"(^\s|\s$|[\t\r\n\v\f{}]|\s\s)")
 
 
@@ -77,6 +81,10 @@ class _Tokens:
             raise self.error(f"{what}: expected a number, found {tok!r}", line) from None
         if not math.isfinite(value):
             raise self.error(f"{what}: must be finite, found {tok!r}", line)
+        if abs(value) > MAX_BVH_VALUE:
+            raise self.error(
+                f"{what}: {tok[:40]!r} is beyond +-{MAX_BVH_VALUE:g}, not a plausible value", line
+            )
         return value
 
 
@@ -403,4 +411,14 @@ def _parse_motion(
         data = np.zeros((n_frames, 0))
     if data.shape != (n_frames, n_channels) or not np.isfinite(data).all():
         raise _diagnose_rows(path, rest, first_line, n_frames, n_channels)
+    huge = np.abs(data) > MAX_BVH_VALUE
+    if huge.any():
+        row, col = (int(k) for k in np.argwhere(huge)[0])
+        row_lines = [first_line + i for i, ln in enumerate(rest) if ln.split()]
+        raise FormatError(
+            path,
+            f"motion row {row + 1}, value {col + 1}: {data[row, col]:.6g} is beyond "
+            f"+-{MAX_BVH_VALUE:g}, not a plausible channel value",
+            line=row_lines[row],
+        )
     return data, frame_time, time_tok
