@@ -303,3 +303,14 @@ def test_skin_glb_with_an_all_zero_inverse_bind_matrix_is_refused(tmp_path: Path
     )
     assert "inverseBindMatrices[0]" in line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["leg.glb"]
+
+
+# ------------------------------------------------------- session 11: options named
+def test_solve_unknown_units_names_the_option_not_the_output(tmp_path: Path) -> None:
+    """'--units furlong' was reported against OUT.bvh, after the whole solve."""
+    result = skincap(
+        "solve", DATA / "cmu_85_02.c3d", "-o", tmp_path / "s.bvh", "--units", "furlong"
+    )
+    line = one_error_line(result, "--units")
+    assert "'furlong'" in line and "'cm'" in line
+    assert list(tmp_path.iterdir()) == []
