@@ -314,3 +314,12 @@ def test_solve_unknown_units_names_the_option_not_the_output(tmp_path: Path) -> 
     line = one_error_line(result, "--units")
     assert "'furlong'" in line and "'cm'" in line
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("count", ["1000000000", "0", "-3"])
+def test_skin_max_influences_out_of_bounds_names_the_option(tmp_path: Path, count: str) -> None:
+    """1e9 was accepted; 0 and -3 were reported against the mesh and the BVH."""
+    mesh = DATA / "makehuman_base.obj"
+    result = skincap("skin", mesh, BVH, "-o", tmp_path / "o.pc2", "--max-influences", count)
+    assert f"got {count}" in one_error_line(result, "--max-influences: expected 1..64")
+    assert list(tmp_path.iterdir()) == []
