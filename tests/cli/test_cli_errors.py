@@ -323,15 +323,3 @@ def test_skin_max_influences_out_of_bounds_names_the_option(tmp_path: Path, coun
     result = skincap("skin", mesh, BVH, "-o", tmp_path / "o.pc2", "--max-influences", count)
     assert f"got {count}" in one_error_line(result, "--max-influences: expected 1..64")
     assert list(tmp_path.iterdir()) == []
-
-
-@pytest.mark.parametrize(
-    ("option", "value"), [("--smooth-hz", "nan"), ("--loss-scale-cm", "0"), ("--loss", "fancy")]
-)
-def test_an_option_error_names_the_option_not_the_input(
-    tmp_path: Path, option: str, value: str
-) -> None:
-    """'cmu_85_02.c3d: --smooth-hz: ...' blamed the take for a bad option."""
-    result = skincap("solve", DATA / "cmu_85_02.c3d", "-o", tmp_path / "s.bvh", option, value)
-    one_error_line(result, f"{option}: expected")
-    assert list(tmp_path.iterdir()) == []

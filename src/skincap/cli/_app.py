@@ -129,12 +129,9 @@ def _skincap_error_line(exc: SkincapError) -> str:
     """``<file>: <what is wrong>`` for a skincap error, on one line.
 
     An error that names no file (an argument check deep in an algorithm) is prefixed
-    with the input files the verb was given, unless it names an option (``--x: ...``).
+    with the input files the verb was given.
     """
     text = str(exc)
-    # "--smooth-hz: ..." already names what is at fault: an option, not an input file
-    if text.startswith("--"):
-        return one_line(text)
     if getattr(exc, "path", None) is None and not isinstance(exc, MissingDependencyError):
         inputs = _verb_input_files()
         if inputs and not any(text.startswith(f"{p}:") for p in inputs):
