@@ -196,6 +196,9 @@ def test_binary_motion_is_not_printed(tmp_path: Path) -> None:
         (["--time", "nan"], "got nan"),
         (["--frame", "-5"], "--frame: the scene's frames are 0 to"),
         (["--frame", "100000"], "--frame: the scene's frames are 0 to"),
+        # a PNG skipped the --fps check; the viewer's "fps: must be positive" came instead
+        (["--fps", "nan"], "--fps: expected a positive number, got nan"),
+        (["--fps", "0"], "--fps: expected a positive number, got 0"),
     ],
 )
 def test_render_refuses_times_outside_the_take(tmp_path: Path, option, fragment) -> None:  # type: ignore[no-untyped-def]
