@@ -196,6 +196,9 @@ def test_binary_motion_is_not_printed(tmp_path: Path) -> None:
         (["--time", "nan"], "got nan"),
         (["--frame", "-5"], "--frame: the scene's frames are 0 to"),
         (["--frame", "100000"], "--frame: the scene's frames are 0 to"),
+        # a PNG skipped the --fps check; the viewer's "fps: must be positive" came instead
+        (["--fps", "nan"], "--fps: expected a positive number, got nan"),
+        (["--fps", "0"], "--fps: expected a positive number, got 0"),
     ],
 )
 def test_render_refuses_times_outside_the_take(tmp_path: Path, option, fragment) -> None:  # type: ignore[no-untyped-def]
@@ -303,3 +306,23 @@ def test_skin_glb_with_an_all_zero_inverse_bind_matrix_is_refused(tmp_path: Path
     )
     assert "inverseBindMatrices[0]" in line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["leg.glb"]
+
+
+# ------------------------------------------------------- session 11: options named
+def test_solve_unknown_units_names_the_option_not_the_output(tmp_path: Path) -> None:
+    """'--units furlong' was reported against OUT.bvh, after the whole solve."""
+    result = skincap(
+        "solve", DATA / "cmu_85_02.c3d", "-o", tmp_path / "s.bvh", "--units", "furlong"
+    )
+    line = one_error_line(result, "--units")
+    assert "'furlong'" in line and "'cm'" in line
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("count", ["1000000000", "0", "-3"])
+def test_skin_max_influences_out_of_bounds_names_the_option(tmp_path: Path, count: str) -> None:
+    """1e9 was accepted; 0 and -3 were reported against the mesh and the BVH."""
+    mesh = DATA / "makehuman_base.obj"
+    result = skincap("skin", mesh, BVH, "-o", tmp_path / "o.pc2", "--max-influences", count)
+    assert f"got {count}" in one_error_line(result, "--max-influences: expected 1..64")
+    assert list(tmp_path.iterdir()) == []

@@ -456,6 +456,13 @@ BAD_CASES = {
     "missing frame time": (mutate(SMALL, "Frame Time: .0083333\n", ""), 27, "Frame Time"),
     "zero frame time": (mutate(SMALL, ".0083333", "0"), 27, "positive"),
     "negative frame time": (mutate(SMALL, ".0083333", "-0.1"), 27, "positive"),
+    # absurd frame times: a rate of 1e300 Hz, a denormal, a frame longer than an hour
+    "tiny frame time": (mutate(SMALL, ".0083333", "1e-300"), 27, r"outside 1e-07\.\.3600 s"),
+    "denormal frame time": (mutate(SMALL, ".0083333", "5e-324"), 27, "outside"),
+    "hour-long frame time": (mutate(SMALL, ".0083333", "3601"), 27, "outside"),
+    # 1e308 overflowed once scaled or posed, and skin's error then named its output
+    "huge channel value": (mutate(SMALL, "-5 30", "-5 1e308"), 28, r"value 11: 1e\+308 is beyond"),
+    "huge offset": (mutate(SMALL, "OFFSET 0 10 0", "OFFSET 0 1e300 0"), 8, "OFFSET y: '1e300'"),
     "unknown channel": (
         mutate(SMALL, "Xrotation Yrotation Zrotation", "Xrotation Yrotation Wrotation"),
         9,

@@ -320,8 +320,18 @@ def test_points_ids_beyond_exact_floats_are_refused_not_wrapped(tmp_path):
         ) as e:
             read_points_csv(f)
         assert e.value.line == 3
-    f.write_text(f"frame,time,x,y,z,id\n0,0,0,0,0,{2**53 - 1}\n1,0.01,1,1,1,-{2**53 - 1}\n")
-    assert read_points_csv(f).ids.tolist() == [2**53 - 1, -(2**53 - 1)]
+    f.write_text(f"frame,time,x,y,z,id\n0,0,0,0,0,{2**53 - 1}\n1,0.01,1,1,1,-1\n")
+    assert read_points_csv(f).ids.tolist() == [2**53 - 1, -1]
+
+
+@pytest.mark.parametrize("bad", ["-2", "-5", "-1e15"])
+def test_points_negative_ids_other_than_unknown_are_refused(tmp_path, bad):
+    """-1 means unknown; -5 was read as an identity of its own."""
+    f = tmp_path / "pts.csv"
+    f.write_text(f"frame,time,x,y,z,id\n0,0,0,0,0,-1\n1,0.01,1,1,1,{bad}\n")
+    with pytest.raises(FormatError, match=r"ids must be >= 0, or -1 for unknown") as e:
+        read_points_csv(f)
+    assert e.value.line == 3 and "pts.csv" in str(e.value)
 
 
 def test_points_declared_frame_count_is_bounded(tmp_path):

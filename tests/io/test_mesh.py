@@ -238,6 +238,10 @@ def test_triangulate_polygons_fan() -> None:
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", 4, "at least 3 corners"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/5\n", 5, "texture coordinate index 5"),
         ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1/a 2 3\n", 4, "bad texture index"),
+        # past int64: was "face: bad vertex index" with no line
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\nf 1 2 " + "1" + "0" * 23 + "\n", 5, "out of range"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 -" + "9" * 30 + "\n", 4, "vertex index -999"),
+        ("v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nf 1/1 2/1 3/" + "9" * 20 + "\n", 5, "texture"),
         ("# only a comment\n", 1, "no vertices"),
     ],
 )

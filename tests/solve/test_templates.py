@@ -50,6 +50,11 @@ def _cmu41_with(edit) -> dict:  # type: ignore[no-untyped-def]
         (lambda s: s[3].update(end=[[]]), "'thorax' end: expected a list of marker labels"),
         (lambda s: s[0].update(origin=[["LFWT", 1.0]]), "'pelvis' origin: expected a list"),
         (lambda s: s.clear(), "'segments' is empty"),
+        # no markers anywhere: the solve said "it expects " followed by nothing
+        (
+            lambda s: [seg.update(markers=[]) for seg in s],
+            "no segment lists any 'markers'",
+        ),
     ],
 )
 def test_template_fields_of_the_wrong_kind_are_a_format_error_naming_the_file(

@@ -57,14 +57,14 @@ def _check_times(
         raise ValidationError(f"--frame: the scene's frames are 0 to {n_frames - 1}, got {frame}")
     if time is not None and not 0.0 <= time <= duration:
         raise ValidationError(f"--time: the take runs from 0 to {duration:.6g} s, got {time:g}")
+    if not (0.0 < fps < float("inf")):  # a PNG too: the scene is built with it
+        raise ValidationError(f"--fps: expected a positive number, got {fps:g}")
     if still:
         return
     if not 0.0 <= start <= duration:
         raise ValidationError(f"--start: the take runs from 0 to {duration:.6g} s, got {start:g}")
     if end is not None and not start <= end:
         raise ValidationError(f"--end ({end:g} s) must not come before --start ({start:g} s)")
-    if not (0.0 < fps < float("inf")):
-        raise ValidationError(f"--fps: expected a positive number, got {fps:g}")
     stop = duration if end is None else min(end, duration)
     pictures = (stop - start) * fps + 1
     if pictures > MAX_CLIP_FRAMES:

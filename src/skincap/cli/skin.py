@@ -9,6 +9,11 @@ import typer
 
 from skincap.cli._app import _user_errors, app, err, frame_bar, out, print_json
 from skincap.cli._options import ForceOption, MeshUnitsOption
+from skincap.errors import FormatError
+
+#: The most joints per vertex --max-influences allows: skinning formats carry 4 or 8, and
+#: past a few dozen the weights are noise (1e9 was accepted and meant "all of them").
+MAX_INFLUENCES = 64
 
 
 @app.command()
@@ -54,7 +59,9 @@ def skin(
         ),
     ] = None,
     mesh_units: MeshUnitsOption = None,
-    max_influences: Annotated[int, typer.Option(help="Joints per vertex.")] = 4,
+    max_influences: Annotated[
+        int, typer.Option(help=f"Joints per vertex, 1..{MAX_INFLUENCES}.")
+    ] = 4,
     force: ForceOption = False,
     json_output: Annotated[
         bool,
@@ -74,6 +81,12 @@ def skin(
     def announce(line: str) -> None:
         err.print(f"skin: {line}", markup=False, soft_wrap=True)
 
+    with _user_errors():
+        if not 1 <= max_influences <= MAX_INFLUENCES:
+            raise FormatError(
+                "--max-influences",
+                f"expected 1..{MAX_INFLUENCES} joints per vertex, got {max_influences}",
+            )
     with _user_errors(), frame_bar(f"skinning ({method})") as advance:
         summary = skin_file(
             mesh_path,

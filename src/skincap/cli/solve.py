@@ -29,7 +29,7 @@ from skincap.cli._options import (
     SynthFramesOption,
     SynthVerticesOption,
 )
-from skincap.errors import ValidationError
+from skincap.errors import FormatError, ValidationError
 
 
 @app.command()
@@ -114,10 +114,17 @@ def solve(
 
     Example: skincap solve walk.c3d -o walk.bvh --template cmu41 --report walk.json
     """
+    from skincap.io.bvh.units import BVH_UNITS
     from skincap.io.output_safety import guard_outputs
     from skincap.workflows.solve import solve_file
 
     outputs = [p for p in (output, markers_out, report) if p is not None]
+    with _user_errors():
+        # checked before the solve: the BVH writer's own error would name the output
+        if units not in BVH_UNITS:
+            raise FormatError(
+                "--units", f"unknown BVH length unit {units!r}, expected one of {sorted(BVH_UNITS)}"
+            )
     with _user_errors(), guard_outputs([input_file], outputs, force=force):
         with stage_progress("calibration") as advance:
             summary = solve_file(

@@ -493,7 +493,7 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
         2,0.016666666666666666,0.1,1.2,0.3,7
 
     One point per row, metres, Y up; ``frame`` 0-based and non-decreasing (frame 1
-    above is empty); ``id`` optional (-1 = unknown). ``# key=value`` comment lines
+    above is empty); ``id`` optional, an integer >= 0 (-1 = unknown). ``# key=value`` comment lines
     come first: ``rate`` (Hz) is needed when it cannot be inferred from the times
     (fewer than two distinct frames); ``frames`` gives T when the last frames are
     empty. Without ``rate`` it is inferred from the first and last frame's times,
@@ -536,6 +536,13 @@ def read_points_csv(path: str | os.PathLike[str]) -> PointCloud:
                 p,
                 f"id {idf[r]:.17g}: ids must be integers of magnitude below 2**53",
                 line=numbers[r],
+            )
+        # -1 is the one negative id (unknown); any other would pose as a real identity
+        below = idf < -1
+        if below.any():
+            r = int(np.argmax(below))
+            raise FormatError(
+                p, f"id {idf[r]:.17g}: ids must be >= 0, or -1 for unknown", line=numbers[r]
             )
         ids = idf.astype(np.int64)
     meta = {

@@ -410,6 +410,8 @@ def _parse(data: Any, source: str) -> Template:
         )
         names.add(name)
         joints.update([joint, *segments[-1].via, *(f["name"] for f in segments[-1].fixed_joints)])
+    if not seen_markers:  # nothing to match a capture's labels against, nothing to fit
+        raise bad("no segment lists any 'markers'; a template needs at least one marker label")
     _check_parent_points(bad, segments)
     return Template(
         name=str(data.get("name", Path(source).stem)),

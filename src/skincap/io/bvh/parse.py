@@ -18,6 +18,14 @@ _AXIS = {"X": 0, "Y": 1, "Z": 2}
 _FRAMES_RE = re.compile(r"^\s*Frames\s*:\s*(\S+)\s*$")
 _FRAME_TIME_RE = re.compile(r"^\s*Frame\s+Time\s*:\s*(\S+)\s*$")
 _MOTION_RE = re.compile(r"^[ \t]*MOTION[ \t\r]*$", re.MULTILINE)
+#: Frame Time bounds (s): 1e-7 s is the 10 MHz ceiling the C3D reader allows for a rate;
+#: a frame longer than an hour is no motion capture (and 1e-300 would make the rate 1e300).
+MIN_FRAME_TIME_S = 1e-7
+MAX_FRAME_TIME_S = 3600.0
+#: The largest magnitude of an OFFSET or channel value: 1e9 is 1000 km in millimetres or
+#: 2.8 million turns in degrees; past it a value is corruption, and 1e308 overflows to
+#: inf once scaled to metres or posed (the error would then name an output, not the BVH).
+MAX_BVH_VALUE = 1e9
 _BAD_NAME_RE = re.compile(r"(^\s|\s$|[\t\r\n\v\f{}]|\s\s)")
 
 
@@ -73,6 +81,10 @@ class _Tokens:
             raise self.error(f"{what}: expected a number, found {tok!r}", line) from None
         if not math.isfinite(value):
             raise self.error(f"{what}: must be finite, found {tok!r}", line)
+        if abs(value) > MAX_BVH_VALUE:
+            raise self.error(
+                f"{what}: {tok[:40]!r} is beyond +-{MAX_BVH_VALUE:g}, not a plausible value", line
+            )
         return value
 
 
@@ -362,6 +374,12 @@ def _parse_motion(
             f"Frame Time: must be a positive number of seconds, found {time_tok!r}",
             line=time_line,
         )
+    if not MIN_FRAME_TIME_S <= frame_time <= MAX_FRAME_TIME_S:
+        raise FormatError(
+            path,
+            f"Frame Time: {time_tok[:40]!r} s is outside {MIN_FRAME_TIME_S:g}..{MAX_FRAME_TIME_S:g} s",
+            line=time_line,
+        )
     rest = lines[i:]
     first_line = motion_line + 1 + i
     body = "\n".join(rest)
@@ -393,4 +411,14 @@ def _parse_motion(
         data = np.zeros((n_frames, 0))
     if data.shape != (n_frames, n_channels) or not np.isfinite(data).all():
         raise _diagnose_rows(path, rest, first_line, n_frames, n_channels)
+    huge = np.abs(data) > MAX_BVH_VALUE
+    if huge.any():
+        row, col = (int(k) for k in np.argwhere(huge)[0])
+        row_lines = [first_line + i for i, ln in enumerate(rest) if ln.split()]
+        raise FormatError(
+            path,
+            f"motion row {row + 1}, value {col + 1}: {data[row, col]:.6g} is beyond "
+            f"+-{MAX_BVH_VALUE:g}, not a plausible channel value",
+            line=row_lines[row],
+        )
     return data, frame_time, time_tok

@@ -215,11 +215,17 @@ def _corner_fields(path: Path, p: _ObjParse) -> tuple[np.ndarray, np.ndarray, np
         except (ValueError, OverflowError):
             for k, t in enumerate(f):
                 try:
-                    int(t)
+                    value = int(t)
                 except ValueError:
                     raise FormatError(
                         path,
                         f"face: bad {name} index in corner {p.corners[k]!r}",
+                        line=int(f_lines[k]),
+                    ) from None
+                if not -(2**63) <= value < 2**63:  # a whole number past int64 (1e23)
+                    raise FormatError(
+                        path,
+                        f"face: {name} index {t[:40]} out of range in corner {p.corners[k][:80]!r}",
                         line=int(f_lines[k]),
                     ) from None
             raise FormatError(path, f"face: bad {name} index") from None
