@@ -419,8 +419,7 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
         return pred
     m = state.known.size
     before, after = side_neighbours(state.known)
-    free_runs, held_ends = _end_runs(state, t)
-    out = _follow_hand(state, t, pred, held_ends & rows_mask, p)
+    free_runs = _free_end_runs(state, t)
     want = np.zeros(m, np.bool_)
     n = 0
     for j in range(m):
@@ -429,7 +428,7 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
             want[j] = True
             n += 1
     if n == 0:
-        return out
+        return pred
     rows = np.empty(n, np.int64)
     then = np.empty((n, m, 3))
     then_measured = np.empty((n, m), np.bool_)
@@ -443,16 +442,15 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
                 then_measured[u, k] = not state.invented[last, k]
             u += 1
     tolerance = p.carry_tolerance * p.median_spacing
-    return carry_last_seen(out, state.cur, state.known, rows, then, then_measured, tolerance)
+    return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
 
 
 @numba.njit(**JIT)
-def _end_runs(state, t):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy._end_runs`."""
+def _free_end_runs(state, t):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._free_end_runs`."""
     known = state.known
     m = known.size
-    free_runs = np.zeros(m, np.bool_)
-    held_ends = np.zeros(m, np.bool_)
+    runs = np.zeros(m, np.bool_)
     first = -1
     last = -1
     for j in range(m):
@@ -461,7 +459,7 @@ def _end_runs(state, t):  # pragma: no cover - runs compiled
                 first = j
             last = j
     if first < 0:
-        return free_runs, held_ends
+        return runs
     for side in range(2):
         e = 0 if side == 0 else m - 1
         seen = t - 1 - state.temp_count[e]
@@ -476,59 +474,8 @@ def _end_runs(state, t):  # pragma: no cover - runs compiled
         if end_is_free(state.positions[seen, e], state.points[a:b], is_rope, HELD_END_REACH):
             lo, hi = (0, first) if side == 0 else (last + 1, m)
             for j in range(lo, hi):
-                free_runs[j] = True
-        else:
-            held_ends[e] = True
-    return free_runs, held_ends
-
-
-@numba.njit(**JIT)
-def _nearest_point(points, lo, hi, excluded, x, reach2):  # pragma: no cover - runs compiled
-    """Index in ``lo:hi`` of the first point nearest ``x`` (3,) within squared reach
-    ``reach2`` that ``excluded`` (hi - lo,) bool does not exclude; -1 if none."""
-    best = reach2
-    k = -1
-    for i in range(lo, hi):
-        if excluded[i - lo]:
-            continue
-        d2 = 0.0
-        for c in range(3):
-            d = points[i, c] - x[c]
-            d2 += d * d
-        if d2 <= reach2 and (k < 0 or d2 < best):  # the first nearest, as argmin
-            best = d2
-            k = i
-    return k
-
-
-@numba.njit(**JIT)
-def _follow_hand(state, t, pred, ends, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy._follow_hand`."""
-    out = pred.copy()
-    if not ends.any():
-        return out
-    pa, a, b = state.offsets[t - 1], state.offsets[t], state.offsets[t + 1]
-    m = ends.size
-    rope_then = np.zeros(a - pa, np.bool_)
-    taken_now = np.zeros(b - a, np.bool_)
-    for k in range(m):
-        if state.point_index[t - 1, k] >= 0:
-            rope_then[state.point_index[t - 1, k] - pa] = True
-        if state.taken[k] >= 0:
-            taken_now[state.taken[k] - a] = True
-    for e in range(m):
-        if not ends[e]:
-            continue
-        q = _nearest_point(
-            state.points, pa, a, rope_then, state.positions[t - 1, e], HELD_END_REACH**2
-        )
-        if q < 0:
-            continue
-        k = _nearest_point(state.points, a, b, taken_now, state.points[q], p.gamma * p.gamma)
-        if k >= 0:
-            for c in range(3):
-                out[e, c] = state.positions[t - 1, e, c] + state.points[k, c] - state.points[q, c]
-    return out
+                runs[j] = True
+    return runs
 
 
 @numba.njit(**JIT)

@@ -46,7 +46,6 @@ from skincap.tracking._refusals_numpy import (
     rigid_with_body,
 )
 from skincap.tracking.curve import (
-    HELD_END_REACH,
     carry_last_seen,
     end_is_free,
     fill_interior_on_curve,
@@ -415,45 +414,37 @@ def _carry_hidden(
 ) -> np.ndarray:
     """``pred`` (M, 3) with the hidden markers of ``rows_mask`` (M,) bool that lie
     between measured markers, or in the run at a free end of the rope, carried from
-    where they were last seen (:func:`~skincap.tracking.curve.carry_last_seen`), and a
-    hidden held end moved with the hand that holds it (:func:`_follow_hand`).
+    where they were last seen (:func:`~skincap.tracking.curve.carry_last_seen`).
 
-    A held end is not carried by its rope neighbours (:func:`_end_runs`): carried
-    beyond them, an end turning with the hand strays (the synthetic jump rope's handle
-    end: 4 -> 10 cm). At a free end F, pointing the rope straight out from its last
-    measured links, misses a swinging tip by 15-25 cm; the carry follows it."""
+    Not the runs at a held end (:func:`_free_end_runs`): carried beyond its
+    neighbours, an end turning with the hand strays (the synthetic jump rope's handle
+    end: 4 -> 10 cm) and F follows the hand; at a free end F, pointing the rope
+    straight out from its last measured links, misses a swinging tip by 15-25 cm."""
     if p.carry_tolerance <= 0.0:
         return pred
     last = t - 1 - state.temp_count  # (M,) the frame each trace was last measured
     before, after = _side_neighbours(state.known)
     inside = (before >= 0) & (after < state.known.size)
-    free_runs, held_ends = _end_runs(state, t)
-    out = _follow_hand(state, t, pred, held_ends & rows_mask, p)
-    rows = np.nonzero(rows_mask & (inside | free_runs) & ~state.known & (last >= 0))[0]
+    carried = inside | _free_end_runs(state, t)
+    rows = np.nonzero(rows_mask & carried & ~state.known & (last >= 0))[0]
     if rows.size == 0:
-        return out
+        return pred
     tolerance = p.carry_tolerance * p.median_spacing
     then = state.positions[last[rows]]
     then_measured = ~state.invented[last[rows]]
-    return carry_last_seen(out, state.cur, state.known, rows, then, then_measured, tolerance)
+    return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
 
 
-def _end_runs(state: TrackState, t: int) -> tuple[np.ndarray, np.ndarray]:
-    """Where the rope's hidden ends are free or held, from the frame each end marker
-    was last measured (:func:`~skincap.tracking.curve.end_is_free`, among the points
-    the rope did not take there).
-
-    Returns ``free_runs`` (M,) bool, the hidden markers from a free end up to the
-    first measured marker, and ``held_ends`` (M,) bool, the hidden end markers that
-    were held. Both are all False when no marker is measured this frame.
-    """
+def _free_end_runs(state: TrackState, t: int) -> np.ndarray:
+    """(M,) bool: the hidden markers at an end of the rope, up to its first measured
+    marker, where that end marker was free (:func:`~skincap.tracking.curve.end_is_free`)
+    in the frame it was last measured, among the points the rope did not take there."""
     known = state.known
     m = known.size
-    free_runs = np.zeros(m, dtype=bool)
-    held_ends = np.zeros(m, dtype=bool)
+    runs = np.zeros(m, dtype=bool)
     measured = np.nonzero(known)[0]
     if measured.size == 0:
-        return free_runs, held_ends
+        return runs
     for e, run in ((0, slice(0, measured[0])), (m - 1, slice(measured[-1] + 1, m))):
         seen = t - 1 - int(state.temp_count[e])
         if known[e] or seen < 0:
@@ -463,43 +454,8 @@ def _end_runs(state: TrackState, t: int) -> tuple[np.ndarray, np.ndarray]:
         is_rope = np.zeros(b - a, dtype=bool)
         is_rope[taken[taken >= 0] - a] = True
         if end_is_free(state.positions[seen, e], state.points[a:b], is_rope):
-            free_runs[run] = True
-        else:
-            held_ends[e] = True
-    return free_runs, held_ends
-
-
-def _follow_hand(
-    state: TrackState, t: int, pred: np.ndarray, ends: np.ndarray, p: StepParams
-) -> np.ndarray:
-    """``pred`` (M, 3) with each hidden held end of ``ends`` (M,) bool moved from its
-    place in frame t - 1 as the hand moved: by the displacement from the point the
-    rope did not take nearest it there (within
-    :data:`~skincap.tracking.curve.HELD_END_REACH`) to the free point of frame t
-    nearest that one (within γ). An end with no such pair keeps ``pred`` (F)."""
-    out = pred.copy()
-    if not ends.any():
-        return out
-    pa, a, b = state.offsets[t - 1], state.offsets[t], state.offsets[t + 1]
-    then = state.points[pa:a]
-    other_then = np.ones(a - pa, dtype=bool)
-    taken_then = state.point_index[t - 1]
-    other_then[taken_then[taken_then >= 0] - pa] = False
-    now = state.points[a:b]
-    free_now = np.ones(b - a, dtype=bool)
-    free_now[state.taken[state.taken >= 0] - a] = False
-    if not (other_then.any() and free_now.any()):
-        return out
-    for e in np.nonzero(ends)[0]:
-        d2 = np.where(other_then, np.sum((then - state.positions[t - 1, e]) ** 2, axis=1), np.inf)
-        q = int(np.argmin(d2))
-        if not d2[q] <= HELD_END_REACH * HELD_END_REACH:
-            continue
-        d2 = np.where(free_now, np.sum((now - then[q]) ** 2, axis=1), np.inf)
-        k = int(np.argmin(d2))
-        if d2[k] <= p.gamma * p.gamma:
-            out[e] = state.positions[t - 1, e] + (now[k] - then[q])
-    return out
+            runs[run] = True
+    return runs
 
 
 def _neighbour_velocity(
