@@ -14,7 +14,12 @@ import warnings
 import numpy as np
 import pytest
 
-from skincap.evaluate.gap_repair import evaluate_gap_repair
+from skincap.evaluate.gap_repair import (
+    crop_frames,
+    evaluate_gap_repair,
+    gap_errors,
+    hold_back_points,
+)
 from skincap.evaluate.tracking import match_traces_to_truth, rope_tracker_from_truth
 from skincap.io.c3d import read_c3d
 from skincap.synth.real_capture import real_capture_with_rope
@@ -70,3 +75,33 @@ def test_a_hidden_rope_marker_is_repaired_within_2_cm_on_real_motion(data_dir, n
     for row in rows:
         assert row["trials"] == 4 and row["lost"] == 0, row
         assert row["mean_error_m"] < 0.02, row  # Porter: < 0.1 m
+
+
+@pytest.mark.slow
+def test_a_hidden_free_rope_end_follows_the_swing_on_real_motion(data_dir) -> None:
+    """The whip's free end (rope_11) held back 20 frames at ten starts of a real take:
+    carried with its neighbours it stays within 3 cm at every start, 1.55 cm on average
+    (F alone: 3.3 cm at the worst start, 1.72 cm on average)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "pyomeca_markers_analogs.c3d")
+    piece = MarkerSet(m.positions[150:450], m.labels, m.rate, meta=dict(m.meta))
+    take = real_capture_with_rope(piece, rope="whip", seed=1)
+    truth, labels = _rope_columns(take)
+    track = rope_tracker_from_truth(take.points, take.point_truth)
+    end = len(labels) - 1
+    errors = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        base = track(take.points)
+        trace_of, _ = match_traces_to_truth(base.positions, base.invented, truth, max_distance=0.06)
+        (trace,) = np.flatnonzero(trace_of == end)
+        for start in range(70, 260, 20):
+            held, _ = hold_back_points(take.points, take.point_truth, [labels[end]], start, 20)
+            result = track(crop_frames(held, start + 40))
+            err = gap_errors(result.positions[:, [trace]], truth[:, [end]], start, 20)
+            errors.append(float(err.mean()))
+    errors_arr = np.asarray(errors)
+    assert np.isfinite(errors_arr).all()
+    assert errors_arr.max() < 0.03, errors
+    assert errors_arr.mean() < 0.0155, errors

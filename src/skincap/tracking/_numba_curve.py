@@ -3,8 +3,8 @@
 One frame at a time, the numba twins of :func:`skincap.tracking.curve.fill_interior_on_curve`
 (the Hermite curve through the measured markers in rest arc length),
 :func:`skincap.tracking.curve.settle_single_gaps`, and the thesis' ṽ (eq. 3.3) and F
-(eq. 3.6) of :mod:`skincap.tracking._steps_numpy`, and the twin of
-:func:`skincap.tracking.curve.carry_last_seen`.
+(eq. 3.6) of :mod:`skincap.tracking._steps_numpy`, and the twins of
+:func:`skincap.tracking.curve.carry_last_seen` and :func:`skincap.tracking.curve.end_is_free`.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from skincap.tracking._numba_search import JIT, norm3
 __all__ = [
     "carry_last_seen",
     "curve_at",
+    "end_is_free",
     "fill_interior",
     "interp_along",
     "neighbour_velocity",
@@ -281,3 +282,18 @@ def carry_last_seen(pred, cur, known, rows, then, then_measured, tolerance):  # 
         for c in range(3):
             out[j, c] = w * carried[c] + (1.0 - w) * out[j, c]
     return out
+
+
+@numba.njit(**JIT)
+def end_is_free(end, points, is_rope, reach):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking.curve.end_is_free`."""
+    r2 = reach * reach
+    for i in range(points.shape[0]):
+        if is_rope[i]:
+            continue
+        d0 = points[i, 0] - end[0]
+        d1 = points[i, 1] - end[1]
+        d2 = points[i, 2] - end[2]
+        if d0 * d0 + d1 * d1 + d2 * d2 <= r2:
+            return False
+    return True

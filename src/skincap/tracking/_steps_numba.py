@@ -35,6 +35,7 @@ import numpy as np
 from skincap.tracking._numba_curve import (
     carry_last_seen,
     curve_at,
+    end_is_free,
     fill_interior,
     interp_along,
     neighbour_velocity,
@@ -51,6 +52,7 @@ from skincap.tracking._refusals_numba import (
     rigid_with_body,
     taken_in_frame,
 )
+from skincap.tracking.curve import HELD_END_REACH
 
 __all__ = [
     "accelerated_prediction",
@@ -430,11 +432,12 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
         return pred
     m = state.known.size
     before, after = side_neighbours(state.known)
+    free_runs = _free_end_runs(state, t)
     want = np.zeros(m, np.bool_)
     n = 0
     for j in range(m):
-        inside = before[j] >= 0 and after[j] < m
-        if rows_mask[j] and inside and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
+        carried = (before[j] >= 0 and after[j] < m) or free_runs[j]
+        if rows_mask[j] and carried and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
             want[j] = True
             n += 1
     if n == 0:
@@ -453,6 +456,39 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
             u += 1
     tolerance = p.carry_tolerance * p.median_spacing
     return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
+
+
+@numba.njit(**JIT)
+def _free_end_runs(state, t):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._free_end_runs`."""
+    known = state.known
+    m = known.size
+    runs = np.zeros(m, np.bool_)
+    first = -1
+    last = -1
+    for j in range(m):
+        if known[j]:
+            if first < 0:
+                first = j
+            last = j
+    if first < 0:
+        return runs
+    for side in range(2):
+        e = 0 if side == 0 else m - 1
+        seen = t - 1 - state.temp_count[e]
+        if known[e] or seen < 0:
+            continue
+        a, b = state.offsets[seen], state.offsets[seen + 1]
+        is_rope = np.zeros(b - a, np.bool_)
+        for k in range(m):
+            i = state.point_index[seen, k]
+            if i >= 0:
+                is_rope[i - a] = True
+        if end_is_free(state.positions[seen, e], state.points[a:b], is_rope, HELD_END_REACH):
+            lo, hi = (0, first) if side == 0 else (last + 1, m)
+            for j in range(lo, hi):
+                runs[j] = True
+    return runs
 
 
 @numba.njit(**JIT)

@@ -45,7 +45,12 @@ from skincap.tracking._refusals_numpy import (
     reject_overstretched,
     rigid_with_body,
 )
-from skincap.tracking.curve import carry_last_seen, fill_interior_on_curve, settle_single_gaps
+from skincap.tracking.curve import (
+    carry_last_seen,
+    end_is_free,
+    fill_interior_on_curve,
+    settle_single_gaps,
+)
 from skincap.tracking.init import gated_assignment
 from skincap.tracking.state import StepParams, TrackState
 
@@ -419,24 +424,49 @@ def _carry_hidden(
     state: TrackState, t: int, pred: np.ndarray, rows_mask: np.ndarray, p: StepParams
 ) -> np.ndarray:
     """``pred`` (M, 3) with the hidden markers of ``rows_mask`` (M,) bool that lie
-    between measured markers carried from where they were last seen
-    (:func:`~skincap.tracking.curve.carry_last_seen`).
+    between measured markers, or in the run at a free end of the rope, carried from
+    where they were last seen (:func:`~skincap.tracking.curve.carry_last_seen`).
 
-    Not the runs at the rope's ends: carried beyond its neighbours, a held end turning
-    with the hand strays (the synthetic jump rope's handle end: 4 -> 10 cm), and a
-    trace that took a wrong point there would carry it on; F follows the hand."""
+    Not the runs at a held end (:func:`_free_end_runs`): carried beyond its
+    neighbours, an end turning with the hand strays (the synthetic jump rope's handle
+    end: 4 -> 10 cm) and F follows the hand; at a free end F, pointing the rope
+    straight out from its last measured links, misses a swinging tip by 15-25 cm."""
     if p.carry_tolerance <= 0.0:
         return pred
     last = t - 1 - state.temp_count  # (M,) the frame each trace was last measured
     before, after = _side_neighbours(state.known)
     inside = (before >= 0) & (after < state.known.size)
-    rows = np.nonzero(rows_mask & inside & ~state.known & (last >= 0))[0]
+    carried = inside | _free_end_runs(state, t)
+    rows = np.nonzero(rows_mask & carried & ~state.known & (last >= 0))[0]
     if rows.size == 0:
         return pred
     tolerance = p.carry_tolerance * p.median_spacing
     then = state.positions[last[rows]]
     then_measured = ~state.invented[last[rows]]
     return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
+
+
+def _free_end_runs(state: TrackState, t: int) -> np.ndarray:
+    """(M,) bool: the hidden markers at an end of the rope, up to its first measured
+    marker, where that end marker was free (:func:`~skincap.tracking.curve.end_is_free`)
+    in the frame it was last measured, among the points the rope did not take there."""
+    known = state.known
+    m = known.size
+    runs = np.zeros(m, dtype=bool)
+    measured = np.nonzero(known)[0]
+    if measured.size == 0:
+        return runs
+    for e, run in ((0, slice(0, measured[0])), (m - 1, slice(measured[-1] + 1, m))):
+        seen = t - 1 - int(state.temp_count[e])
+        if known[e] or seen < 0:
+            continue
+        a, b = state.offsets[seen], state.offsets[seen + 1]
+        taken = state.point_index[seen]
+        is_rope = np.zeros(b - a, dtype=bool)
+        is_rope[taken[taken >= 0] - a] = True
+        if end_is_free(state.positions[seen, e], state.points[a:b], is_rope):
+            runs[run] = True
+    return runs
 
 
 def _neighbour_velocity(
@@ -644,7 +674,7 @@ def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: 
     With ``refit`` (more was measured after ``pred`` (M, 3) was made) the unknown
     interior markers go on the curve through every marker measured now (a lone one
     settled); otherwise, and at the ends, they take ``pred``. Those between measured
-    markers are then carried from where they were last seen (:func:`_carry_hidden`;
+    markers, and those at a free end, are then carried from where they were last seen (:func:`_carry_hidden`;
     only the placement: the searches keep the curve, as the synthetic whip's F1 did
     not: 0.9926 -> 0.9913 with the carried prediction searched).
     """

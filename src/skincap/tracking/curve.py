@@ -22,6 +22,8 @@ __all__ = [
     "fill_interior_on_curve",
     "settle_single_gaps",
     "carry_last_seen",
+    "end_is_free",
+    "HELD_END_REACH",
     "polyline_length",
     "resample_by_arclength",
 ]
@@ -302,6 +304,42 @@ def carry_last_seen(
     weight = np.where(count >= 3, 1.0 / (1.0 + (error / tolerance) ** 2), 0.0)[:, None]
     out[rows] = weight * carried + (1.0 - weight) * out[rows]
     return out
+
+
+#: A rope end with a point that is not the rope's this near it (metres) when it was last
+#: seen is held: a hand's markers lie within 3-20 cm of the end it holds on every real
+#: and synthetic take in tests/data, a whip's free end is 15-140 cm from the body.
+HELD_END_REACH = 0.2
+
+
+def end_is_free(
+    end: np.ndarray, points: np.ndarray, is_rope: np.ndarray, reach: float = HELD_END_REACH
+) -> bool:
+    """Whether a rope end swings free rather than being held, from one frame's points.
+
+    A held end moves with the hand that holds it, and the hand's markers are beside
+    it; a free end (a whip's tip, a dropped handle) is away from every body point.
+    The end is free when no point of the frame that is not the rope's lies within
+    ``reach`` of it. A free end passing a body point reads as held (the cautious side:
+    a held end keeps F, which follows the hand).
+
+    Parameters
+    ----------
+    end : (3,) float, metres
+        The end marker's measured position in that frame.
+    points : (P, 3) float, metres
+        Every point of the frame.
+    is_rope : (P,) bool
+        The points the rope's traces took in that frame.
+    reach : float, metres
+
+    Returns
+    -------
+    bool
+    """
+    other = np.asarray(points, dtype=np.float64)[~np.asarray(is_rope, dtype=bool)]
+    d2 = np.sum((other - np.asarray(end, dtype=np.float64)) ** 2, axis=1)
+    return not bool((d2 <= reach * reach).any())
 
 
 def _three_point_slope(

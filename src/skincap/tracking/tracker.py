@@ -25,8 +25,10 @@ Beyond the thesis:
   seen by the rigid motion of its nearest measured neighbours, blended with the curve
   by how rigidly they moved (:func:`~skincap.tracking.curve.carry_last_seen`): a bend
   that lies still or travels with the hand keeps its shape, which the curve alone
-  cuts. The rope's end runs keep F (carried beyond its neighbours, a held end turning
-  with the hand strays).
+  cuts. So is the run at a *free* end of the rope, one with no point but the rope's
+  within 20 cm when last seen (:func:`~skincap.tracking.curve.end_is_free`; a whip's
+  tip, where F misses the swing by 15-25 cm); a held end keeps F (carried beyond its
+  neighbours, an end turning with the hand strays).
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
