@@ -38,11 +38,12 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
     free point on that shell whatever its direction (:func:`_seat_lone`). A trace
     found on neither takes the free point within γ of where its link was when both
     were last measured, however short its chord (:func:`_seat_as_last_seen`: a slack
-    end folded beside the hand). With nothing measured, the two end traces are seeded first: the free point nearest to ``V`` within one
-    rest length. Free points are those the rope did not take, not body points and
-    not moving rigidly with body points (:func:`rigid_with_body`). Markers are
-    visited in order, each growing the chain for the next, until a pass finds
-    nothing; then :func:`reject_overstretched`. In place; True if any trace matched.
+    end folded beside the hand). With nothing measured, the two end traces are seeded
+    first: the free point nearest to ``V`` within one rest length. Free points are
+    those the rope did not take, not body points and not moving rigidly with body
+    points (:func:`rigid_with_body`). Markers are visited in order, each growing the
+    chain for the next, until a pass finds nothing; then :func:`reject_overstretched`.
+    In place; True if any trace matched.
     """
     a, b = _frame_bounds(state, t)
     known, cur, link_rest = state.known, state.cur, state.link_rest
