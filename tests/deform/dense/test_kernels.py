@@ -288,3 +288,43 @@ def test_pair_tiles_cover_every_pair_once_in_compact_tiles_of_one_part() -> None
             for i in ids
         ]
         assert np.median(spans) < 0.6 * span
+
+
+@needs_numba
+@pytest.mark.parametrize("method", ["rigid", "quadratic"])
+def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
+    """Without an RBF field the numba kernel blends each vertex's pairs in one fused pass
+    (no buffer of moved pairs): on parts with seam centres (as a rig builds them), a
+    take with gaps and an unseen part, it gives eqs. 8-9 and the NumPy reference, and a
+    vertex of the unseen part and a seen one follows the seen one alone."""
+    take = _random_take(7, n_frames=5)
+    ref = take["reference"]
+    parts = part_frames(ref, take["alpha"], surface_faces=Delaunay(ref[:, :2]).simplices)
+    rng = np.random.default_rng(7)
+    seam = rng.random(take["beta"].shape) * (rng.random(take["beta"].shape) < 0.7)
+    beta = take["beta"].copy()
+    beta[1:40, 3] = 0.5  # seen parts and the unseen one
+    motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
+    assert not np.any(motion.rbf_weights)
+    assert np.isnan(motion.rotation[:, 3]).all()  # part 3 unseen
+    outputs = {
+        backend: DenseDeformer(
+            parts, take["vertices"], beta, seam_weights=seam, backend=backend
+        ).deform_block(motion)
+        for backend in ("numba", "numpy")
+    }
+    deformer = DenseDeformer(parts, take["vertices"], beta, seam_weights=seam, backend="numba")
+    want = _direct_eqs_8_9(deformer, take["vertices"], motion, seam)
+    for got in outputs.values():
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        assert np.isnan(got[:, 0]).all() and np.isfinite(got[:, 1:]).all()
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(outputs["numba"], outputs["numpy"], rtol=0, atol=1e-12)
+    # the mixed vertices equal the same vertices without the unseen part
+    seen_only = beta.copy()
+    seen_only[:, 3] = 0.0
+    seen_only[0, 0] = 1.0  # vertex 0 needs some part to bind
+    alone = DenseDeformer(
+        parts, take["vertices"], seen_only, seam_weights=seam, backend="numba"
+    ).deform_block(motion)
+    np.testing.assert_allclose(outputs["numba"][:, 1:40], alone[:, 1:40], rtol=0, atol=1e-12)

@@ -7,7 +7,10 @@ B-spline's support of the tile's bounding box (about a quarter of a body part's:
 others' terms of eq. 8 are exactly 0), sums both RBF fields over them (the members'
 and the seam field, blended by each pair's seam share) and takes the result back to
 the world; then one parallel loop over the vertices blends their pairs by β (eq. 9).
-Nothing of size (vertices, centres) is ever stored.
+Nothing of size (vertices, centres) is ever stored. Without an RBF field (``rigid``,
+``quadratic``) there is no centre search to share across a tile, so the kernel takes
+one fused parallel loop over the vertices instead: each vertex's pairs moved by their
+part's field and blended by β at once, with no buffer of moved pairs.
 
 :mod:`skincap.deform.dense._kernel_numpy` is the reference this kernel must agree with
 (to rounding); :class:`skincap.deform.dense.deformer.DenseDeformer` picks between
@@ -82,7 +85,12 @@ def deform_vertices_numba(
     if n_t and n_v:
         scale = np.asarray(rbf_scale, dtype=np.float64)
         table = _rbf_table(centres, member_weights, seam_weights, scale)
-        moved = np.zeros((n_t, tiles.part.shape[0], 3))
+        if np.any(rbf_members):  # tiled: the moved pairs buffered between two passes
+            moved = np.zeros((n_t, tiles.part.shape[0], 3))
+            vertex_local, vertex_part = np.zeros((0, 3)), np.zeros(0, np.int64)
+        else:  # fused, no buffer: the pairs' p̂⁰ and part in by-vertex order instead
+            moved = np.zeros((0, 0, 3))
+            vertex_local, vertex_part = tiles.local[tiles.by_vertex], tiles.part[tiles.by_vertex]
         # one argument signature only (C-contiguous, writeable): a second would compile again
         dense_dispatcher()(
             *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local, tiles.seam)),
@@ -93,6 +101,8 @@ def deform_vertices_numba(
             *(np.require(a, np.float64, ("C", "W")) for a in (
                 quadratic, rotation, translation, table, scale)),
             np.require(rbf_members, np.int64, ("C", "W")),
+            np.require(vertex_local, np.float64, ("C", "W")),
+            np.require(vertex_part, np.int64, ("C", "W")),
             moved,
             out,
         )  # fmt: skip

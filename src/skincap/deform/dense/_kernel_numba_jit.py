@@ -20,6 +20,8 @@ _FASTMATH = {"contract", "reassoc"}
 #: Runs of tiles per frame in the parallel loop: enough to balance the threads, few
 #: enough that each run's scratch table costs nothing.
 _TILE_CHUNKS = 64
+#: Runs of vertices in the fused (no-RBF) path's parallel loop: the same balance.
+_VERTEX_CHUNKS = 64
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
@@ -131,6 +133,50 @@ def _local_to_world(rotation, translation, t, p, lx, ly, lz):  # pragma: no cove
     return wx, wy, wz
 
 
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _fused_no_rbf(
+    vertex_local, vertex_part, vertex_weight, vertex_start, quadratic, rotation, translation, out
+):  # pragma: no cover - runs compiled
+    """Eqs. 8-9 without an RBF field, one fused pass: each vertex's pairs moved by their
+    part's quadratic field, back to the world and β-blended at once (no (T, Q, 3)
+    buffer of moved pairs, which costs more than the arithmetic when there is no RBF
+    sum to amortise it). Arguments as :func:`dense_kernel`'s."""
+    n_v = vertex_start.shape[0] - 1
+    n_t = quadratic.shape[0]
+    # contiguous runs of vertices, every frame of a run in turn: a run's pairs stay in
+    # cache across the frames and its rows of ``out`` are written in whole lines
+    n_runs = min(n_v, _VERTEX_CHUNKS)
+    for run in numba.prange(n_runs):
+        v0 = run * n_v // n_runs
+        v1 = (run + 1) * n_v // n_runs
+        for t in range(n_t):
+            for v in range(v0, v1):
+                sx = 0.0
+                sy = 0.0
+                sz = 0.0
+                den = 0.0
+                for i in range(vertex_start[v], vertex_start[v + 1]):
+                    p = vertex_part[i]
+                    lx, ly, lz = _quadratic_field(
+                        quadratic, t, p, vertex_local[i, 0], vertex_local[i, 1], vertex_local[i, 2]
+                    )
+                    wx, wy, wz = _local_to_world(rotation, translation, t, p, lx, ly, lz)
+                    if np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):
+                        beta = vertex_weight[i]
+                        sx += beta * wx
+                        sy += beta * wy
+                        sz += beta * wz
+                        den += beta
+                if den > 0.0:
+                    out[t, v, 0] = sx / den
+                    out[t, v, 1] = sy / den
+                    out[t, v, 2] = sz / den
+                else:
+                    out[t, v, 0] = np.nan
+                    out[t, v, 1] = np.nan
+                    out[t, v, 2] = np.nan
+
+
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath=_FASTMATH)
 def dense_kernel(
     pair_local,
@@ -146,10 +192,17 @@ def dense_kernel(
     rbf_table,
     rbf_scale,
     rbf_members,
+    vertex_local,
+    vertex_part,
     moved,
     out,
 ):  # pragma: no cover - runs compiled
     """Deformed vertices of every frame into ``out`` (eqs. 8-9).
+
+    With no RBF field (every ``rbf_members`` 0: ``rigid``, ``quadratic``) it takes the
+    fused path (:func:`_fused_no_rbf`): vertex_local (Q, 3) p̂⁰ and vertex_part (Q,) of
+    the pairs in ``by_vertex`` order, ``moved`` unused (may be empty). Otherwise the
+    tiled path, with vertex_local and vertex_part unused (may be empty):
 
     pair_local (Q, 3) p̂⁰ and pair_seam (Q,) s of the pairs sorted by part, in tiles
     tile_start (n + 1,) of one part each, tile_part (n,); by_vertex (Q,) the pairs
@@ -161,6 +214,15 @@ def dense_kernel(
     scratch; out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
     """
     n_v = vertex_start.shape[0] - 1
+    has_rbf = False
+    for p in range(rbf_members.shape[0]):
+        has_rbf = has_rbf or rbf_members[p] > 0
+    if not has_rbf:
+        _fused_no_rbf(
+            vertex_local, vertex_part, vertex_weight, vertex_start,
+            quadratic, rotation, translation, out,
+        )  # fmt: skip
+        return
     n_tiles = tile_part.shape[0]
     width = rbf_table.shape[3]
     # the tiles in _TILE_CHUNKS contiguous runs, one scratch table a run (not a tile)
