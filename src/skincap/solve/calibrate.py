@@ -417,9 +417,99 @@ class _Calibrator(TakePoints):
             centre_w = np.where(np.isfinite(centre_w), centre_w, prior_w)
         return method, spread, centre_w
 
+    def centre_between_frames(
+        self, spec: SegmentSpec, parent: tuple[np.ndarray, np.ndarray], prior_w: np.ndarray
+    ) -> tuple[str, list[float], np.ndarray]:
+        """Method, spread (deg), centre (T, 3) m of a joint between two framed segments.
+
+        SCoRE in the joint's ``parent_points`` frame (:meth:`centres_in_parent_points`),
+        SCoRE for a ball joint, SARA for a hinge; the prior ``prior_w`` (T, 3) where the
+        range of motion in the parent's technical frame ``parent`` is too small.
+        """
+        assert spec.centre is not None
+        kind = spec.centre["kind"]
+        along = spec.centre["prior"].get("along")
+        method = "regression"
+        centre_w = prior_w
+        rp, tp = parent
+        rc, tc = self.tech[spec.name]
+        s = jc.motion_spread(rp, rc)
+        spread = [round(float(v), 2) for v in s]
+        pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+        pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
+        fitted: tuple[np.ndarray, np.ndarray] | None = None
+        sv = jc.fit_singular_values(rp, tp, rc, tc)
+        if spec.name in self.point_frames:
+            rp, tp, cp, cc = self.point_frames[spec.name]
+            spread = [round(float(v), 2) for v in jc.motion_spread(rp, rc)]
+            sv = jc.fit_singular_values(rp, tp, rc, tc)
+            fitted = (cp, cc)
+            method = "SCoRE in its parent_points frame"
+        elif kind == "ball" and s[1] >= self.min_spread:
+            usable = np.isfinite(pp).all() and np.isfinite(pc).all()
+            cp, cc, _ = jc.score_centre(
+                rp, tp, rc, tc,
+                prior=(pp, pc) if usable else None,
+                prior_spread_deg=self.score_prior_spread_deg,
+            )  # fmt: skip
+            method = "SCoRE"
+            rp, tp, cp, cc, loose = self.score_without_loose(spec, rp, tp, rc, tc, cp, cc)
+            if loose:
+                self.loose[spec.name] = loose
+                method = (
+                    f"SCoRE without {', '.join(loose)}"
+                    if len(loose) <= 3
+                    else f"SCoRE without {len(loose)} parent markers"
+                )
+                pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+                sv = jc.fit_singular_values(rp, tp, rc, tc)
+            fitted = (cp, cc)
+            along_axes = self.along_axis(spec, rp, rc)
+            if along_axes is not None:
+                ap, ac = along_axes
+                prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
+                pp, pc = (
+                    _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
+                    for r, t in ((rp, tp), (rc, tc))
+                )
+                if np.isfinite(pp).all() and np.isfinite(pc).all():
+                    # a prior trusted along the axis: it also takes the directions
+                    # the take hardly determines (under ALONG_PRIOR_SPREAD_DEG)
+                    cp, cc, _ = jc.score_centre(
+                        rp, tp, rc, tc, prior=(pp, pc),
+                        prior_spread_deg=max(self.score_prior_spread_deg, ALONG_PRIOR_SPREAD_DEG),
+                    )  # fmt: skip
+                    fitted = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
+                    method = "SCoRE + regression along the axis"
+        elif s[0] >= self.min_spread and np.isfinite(pp).all():
+            ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
+            # along the axis: where the two bones cross it (templates: axis_point)
+            crossing = self.axis_point(spec, ((rp, tp), (rc, tc)), ap, cp)
+            if crossing is not None:
+                cp, cc = jc.slide_along_axis(cp, cc, ap, ac, *crossing)
+            elif along == "axis":
+                prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
+                pp, pc = (
+                    _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
+                    for r, t in ((rp, tp), (rc, tc))
+                )
+                if np.isfinite(pp).all() and np.isfinite(pc).all():
+                    cp, cc = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
+            fitted = (cp, cc)
+            self.axes_local[spec.name] = (ap, ac)
+            method = "SARA" if kind == "hinge" else "SARA axis + regression"
+            if crossing is not None:
+                method += ", centre where the bones cross the axis"
+        self.conditions[spec.name] = [round(float(v), 4) for v in sv]
+        if fitted is not None:
+            cp, cc = fitted
+            wp = to_world(rp, tp, cp[None])[:, 0]
+            wc = to_world(rc, tc, cc[None])[:, 0]
+            centre_w = np.where(np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc)
+        return method, spread, centre_w
+
     def centre(self, spec: SegmentSpec) -> None:
         assert spec.parent is not None and spec.centre is not None
-        kind = spec.centre["kind"]
         prior_w = self.prior(spec)
         parent = self.tech.get(spec.parent)
         if spec.link:
@@ -432,88 +522,11 @@ class _Calibrator(TakePoints):
                 self.tech[spec.name] = parent
             return
         child_markers = self.present(spec)
-        along = spec.centre["prior"].get("along")
         method = "regression"
         spread: list[float] = []
         centre_w = prior_w
         if parent is not None and spec.name in self.tech:
-            rp, tp = parent
-            rc, tc = self.tech[spec.name]
-            s = jc.motion_spread(rp, rc)
-            spread = [round(float(v), 2) for v in s]
-            pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
-            pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
-            fitted: tuple[np.ndarray, np.ndarray] | None = None
-            sv = jc.fit_singular_values(rp, tp, rc, tc)
-            if spec.name in self.point_frames:
-                rp, tp, cp, cc = self.point_frames[spec.name]
-                spread = [round(float(v), 2) for v in jc.motion_spread(rp, rc)]
-                sv = jc.fit_singular_values(rp, tp, rc, tc)
-                fitted = (cp, cc)
-                method = "SCoRE in its parent_points frame"
-            elif kind == "ball" and s[1] >= self.min_spread:
-                usable = np.isfinite(pp).all() and np.isfinite(pc).all()
-                cp, cc, _ = jc.score_centre(
-                    rp, tp, rc, tc,
-                    prior=(pp, pc) if usable else None,
-                    prior_spread_deg=self.score_prior_spread_deg,
-                )  # fmt: skip
-                method = "SCoRE"
-                rp, tp, cp, cc, loose = self.score_without_loose(spec, rp, tp, rc, tc, cp, cc)
-                if loose:
-                    self.loose[spec.name] = loose
-                    method = (
-                        f"SCoRE without {', '.join(loose)}"
-                        if len(loose) <= 3
-                        else f"SCoRE without {len(loose)} parent markers"
-                    )
-                    pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
-                    sv = jc.fit_singular_values(rp, tp, rc, tc)
-                fitted = (cp, cc)
-                along_axes = self.along_axis(spec, rp, rc)
-                if along_axes is not None:
-                    ap, ac = along_axes
-                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
-                    pp, pc = (
-                        _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
-                        for r, t in ((rp, tp), (rc, tc))
-                    )
-                    if np.isfinite(pp).all() and np.isfinite(pc).all():
-                        # a prior trusted along the axis: it also takes the directions
-                        # the take hardly determines (under ALONG_PRIOR_SPREAD_DEG)
-                        cp, cc, _ = jc.score_centre(
-                            rp, tp, rc, tc, prior=(pp, pc),
-                            prior_spread_deg=max(self.score_prior_spread_deg, ALONG_PRIOR_SPREAD_DEG),
-                        )  # fmt: skip
-                        fitted = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
-                        method = "SCoRE + regression along the axis"
-            elif s[0] >= self.min_spread and np.isfinite(pp).all():
-                ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
-                # along the axis: where the two bones cross it (templates: axis_point)
-                crossing = self.axis_point(spec, ((rp, tp), (rc, tc)), ap, cp)
-                if crossing is not None:
-                    cp, cc = jc.slide_along_axis(cp, cc, ap, ac, *crossing)
-                elif along == "axis":
-                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
-                    pp, pc = (
-                        _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
-                        for r, t in ((rp, tp), (rc, tc))
-                    )
-                    if np.isfinite(pp).all() and np.isfinite(pc).all():
-                        cp, cc = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
-                fitted = (cp, cc)
-                self.axes_local[spec.name] = (ap, ac)
-                method = "SARA" if kind == "hinge" else "SARA axis + regression"
-                if crossing is not None:
-                    method += ", centre where the bones cross the axis"
-            self.conditions[spec.name] = [round(float(v), 4) for v in sv]
-            if fitted is not None:
-                cp, cc = fitted
-                wp = to_world(rp, tp, cp[None])[:, 0]
-                wc = to_world(rc, tc, cc[None])[:, 0]
-                centre_w = np.where(
-                    np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc
-                )
+            method, spread, centre_w = self.centre_between_frames(spec, parent, prior_w)
         elif parent is not None and child_markers:
             method, spread, centre_w = self.centre_from_child_markers(
                 spec, parent, prior_w, child_markers
