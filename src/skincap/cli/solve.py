@@ -7,7 +7,7 @@ Registered on :data:`skincap.cli._app.app` / ``eval_app`` / ``bench_app`` when
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -146,6 +146,11 @@ def solve(
     if json_output:
         print_json(summary)
         return
+    _print_solve_summary(input_file, output, summary)
+
+
+def _print_solve_summary(input_file: Path, output: Path, summary: dict[str, Any]) -> None:
+    """One line for ``skincap solve``: frames, joints, markers, residuals, left-out samples."""
     out.print(
         f"{input_file} -> {output}: {summary['frames']} frames, {summary['joints']} joints, "
         f"{summary['markers']} markers ({summary['template']}), RMS residual "

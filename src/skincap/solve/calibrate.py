@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -34,7 +33,15 @@ from scipy.spatial.transform import Rotation
 from skincap.errors import SkincapWarning, ValidationError
 from skincap.solve import joint_centres as jc
 from skincap.solve.segments import cluster_frames, to_local, to_world
-from skincap.solve.templates import SegmentSpec, Template, strip_prefix
+from skincap.solve.take_points import (
+    TakePoints,
+    _as_list,
+    _nanmean0,
+    _nanmedian0,
+    _unit,
+    match_markers,
+)
+from skincap.solve.templates import SegmentSpec, Template
 from skincap.types import MarkerSet
 
 __all__ = ["BodyModel", "calibrate", "match_markers", "MIN_CALIBRATION_FRAMES"]
@@ -146,62 +153,12 @@ class BodyModel:
         }
 
 
-# --------------------------------------------------------------- small helpers
-def _nanmedian0(x: np.ndarray) -> np.ndarray:
-    """Median over axis 0 ignoring NaN rows; NaN where a column has none (no warning)."""
-    ok = np.isfinite(x).all(axis=tuple(range(1, x.ndim)))
-    if not ok.any():
-        return np.full(x.shape[1:], np.nan)
-    return np.median(x[ok], axis=0)
-
-
-def _nanmean0(x: np.ndarray) -> np.ndarray:
-    """Mean over axis 0 of the rows without NaN; NaN where there is none (no warning)."""
-    ok = np.isfinite(x).all(axis=tuple(range(1, x.ndim)))
-    if not ok.any():
-        return np.full(x.shape[1:], np.nan)
-    return np.mean(x[ok], axis=0)
-
-
-def _unit(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 1e-12, v / np.where(n > 0, n, 1.0), np.nan)
-
-
 def _mean_rotation(r: np.ndarray) -> np.ndarray:
     """Chordal mean (3, 3) of rotations (T, 3, 3), NaN frames skipped."""
     ok = np.isfinite(r).all(axis=(1, 2))
     if not ok.any():
         return np.full((3, 3), np.nan)
     return Rotation.from_matrix(r[ok]).mean().as_matrix()
-
-
-def match_markers(labels: list[str], template: Template) -> dict[str, int]:
-    """Template label -> capture column, matching with ``Subject:`` prefixes stripped.
-
-    Raises
-    ------
-    ValidationError
-        No template marker is in the capture (the message lists what the template
-        expects), or two capture columns strip to the same template label.
-    """
-    wanted = set(template.markers)
-    found: dict[str, int] = {}
-    for col, label in enumerate(labels):
-        key = strip_prefix(label)
-        if key in wanted:
-            if key in found:
-                raise ValidationError(
-                    f"markers {labels[found[key]]!r} and {label!r} both match template marker {key!r}"
-                )
-            found[key] = col
-    if not found:
-        raise ValidationError(
-            f"no marker matches template {template.name}; it expects "
-            f"{', '.join(template.markers[:12])}{'...' if len(template.markers) > 12 else ''}"
-        )
-    return found
 
 
 def _right_handed(first: int, second: int, e1: np.ndarray, e2: np.ndarray) -> np.ndarray:
@@ -217,104 +174,26 @@ def _right_handed(first: int, second: int, e1: np.ndarray, e2: np.ndarray) -> np
     return out
 
 
-class _Calibrator:
+class _Calibrator(TakePoints):
+    """The calibration's steps on a take and what they find (technical and
+    anatomical frames, joint centres, hinge axes, methods); :func:`calibrate` runs them."""
+
     def __init__(self, markers: MarkerSet, template: Template, min_spread_deg: float) -> None:
-        self.template = template
+        super().__init__(markers, template)
         self.min_spread = float(min_spread_deg)
         self.score_prior_spread_deg = 0.0
-        self.columns = match_markers(markers.labels, template)
-        self.labels = markers.labels
-        self.positions = markers.positions
-        self.seen = np.isfinite(markers.positions).all(axis=2).any(axis=0)  # (N,)
-        self.n_frames = markers.n_frames
-        self.centres: dict[str, np.ndarray] = {}
         self.tech: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self.axes_local: dict[
             str, tuple[np.ndarray, np.ndarray]
         ] = {}  # hinge axis in parent, child
-        self.hinge_world: dict[str, np.ndarray] = {}
         self.methods: dict[str, str] = {}
         self.spreads: dict[str, list[float]] = {}
         self.loose: dict[str, list[str]] = {}  # segment -> parent markers SCoRE left out
         self.conditions: dict[str, list[float]] = {}  # segment -> fit_singular_values
         self.anat: dict[str, np.ndarray] = {}
-        self.origin: dict[str, np.ndarray] = {}
         # segment -> parent_points frame (T, 3, 3), (T, 3) and the centre in it and in
         # the segment's technical frame (centres_in_parent_points)
         self.point_frames: dict[str, tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] = {}
-
-    # points -------------------------------------------------------------------
-    def present(self, spec: SegmentSpec) -> list[str]:
-        """The segment's markers in the capture and seen in at least one frame."""
-        return [m for m in spec.markers if m in self.columns and self.seen[self.columns[m]]]
-
-    def marker(self, label: str) -> np.ndarray:
-        return self.positions[:, self.columns[label]]
-
-    def point(self, names: list[str], where: str) -> np.ndarray:
-        """(T, 3) mean of markers and ``@segment`` centres.
-
-        A list of markers averages those the capture has and sees in each frame; a
-        list with a joint centre is NaN where any part is missing.
-        """
-        parts = []
-        if len(names) > 1 and not any(n.startswith("@") for n in names):
-            # a centroid of markers: one the capture lacks (never seen) drops out of it
-            names = [n for n in names if n in self.columns] or names
-        for n in names:
-            if n.startswith("@"):
-                seg = n[1:]
-                if seg in self.centres:
-                    parts.append(self.centres[seg])
-                elif seg == self.template.segments[0].name and seg in self.origin:
-                    parts.append(self.origin[seg])
-                else:
-                    raise ValidationError(f"{where}: joint centre {n} is not known yet")
-            elif n in self.columns:
-                parts.append(self.marker(n))
-            else:
-                raise ValidationError(f"{where}: needs marker {n}, which the capture does not have")
-        stack = np.stack(parts)  # (P, T, 3)
-        seen = np.isfinite(stack).all(axis=2)  # (P, T)
-        if len(parts) == 1 or names[0].startswith("@"):
-            return np.mean(stack, axis=0)  # joint centres and single markers: exact or NaN
-        # a centroid of markers uses those seen in the frame (a hidden one would
-        # otherwise blank the frame); with none seen it is NaN
-        count = seen.sum(axis=0)
-        total = np.where(seen[..., None], stack, 0.0).sum(axis=0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(count[:, None] > 0, total / count[:, None], np.nan)
-
-    def prior_points(self, pr: dict[str, Any], where: str) -> tuple[np.ndarray, np.ndarray | None]:
-        """A ``from``/``towards`` prior's (T, 3) start and target points (target None
-        for a prior with neither ``towards`` nor ``towards_line``)."""
-        start = self.point(list(pr["from"]), where)
-        if "towards_line" in pr:
-            # towards the nearest point of a line (e.g. shoulder centre -> mid-wrist):
-            # from a marker on a joint's skin, that direction points into the joint
-            a = self.point(_as_list(pr["towards_line"][0]), where)
-            b = self.point(_as_list(pr["towards_line"][1]), where)
-            d = _unit(b - a)
-            return start, a + d * np.einsum("ti,ti->t", start - a, d)[:, None]
-        if "towards" in pr:
-            return start, self.point(_as_list(pr["towards"]), where)
-        return start, None
-
-    def prior(self, spec: SegmentSpec) -> np.ndarray:
-        assert spec.centre is not None  # checked by the template parser
-        pr = spec.centre["prior"]
-        where = f"joint {spec.joint} (segment {spec.name})"
-        if "harrington" in pr:
-            la, ra = (self.point([m], where) for m in pr["asis"])
-            lp, rp = (self.point([m], where) for m in pr["psis"])
-            left, right = jc.harrington_hip_centres(la, ra, lp, rp)
-            return left if pr["harrington"] == "left" else right
-        start, towards = self.prior_points(pr, where)
-        if towards is None:
-            return start
-        if "fraction" in pr:
-            return start + float(pr["fraction"]) * (towards - start)
-        return start + float(pr.get("distance", 0.0)) * _unit(towards - start)
 
     def score_without_loose(
         self,
@@ -362,50 +241,6 @@ class _Calibrator:
             cp, cc, _ = jc.score_centre(rp, tp, rc, tc)
             loose.append(kept[worst])
         return rp, tp, cp, cc, loose
-
-    def along_axis(
-        self, spec: SegmentSpec, r_parent: np.ndarray, r_child: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray] | None:
-        """The axis a ball joint's prior ``along`` names, ``(a_p, a_c)`` (3,) unit in the
-        parent's and the child's technical frames, or None (no ``along``, or the named
-        hinge axis was not found).
-
-        ``"axis"``: the joint's own principal axis of rotation
-        (:func:`~skincap.solve.joint_centres.principal_axis`); ``"hinge:SEGMENT"``: that
-        segment's hinge axis (an ankle's along its knee's: in a walk the foot turns most
-        about the shank's long axis, so its own principal axis is not the flexion axis).
-        """
-        assert spec.centre is not None
-        along = spec.centre["prior"].get("along")
-        if along == "axis":
-            return jc.principal_axis(r_parent, r_child)
-        if not isinstance(along, str) or along.removeprefix("hinge:") not in self.hinge_world:
-            return None
-        world = self.hinge_world[along.removeprefix("hinge:")]  # (T, 3)
-        ap, ac = (
-            _unit(_nanmedian0(np.einsum("tji,tj->ti", r, world))) for r in (r_parent, r_child)
-        )
-        if not (np.isfinite(ap).all() and np.isfinite(ac).all()):
-            return None
-        return ap, ac
-
-    def prior_along(self, spec: SegmentSpec, axis_world: np.ndarray) -> np.ndarray:
-        """(T, 3) the prior ``from + distance * axis`` for a prior with ``"along": "axis"``.
-
-        ``axis_world (T, 3)``: the joint's functional axis per frame (unit), signed here
-        so that it points on average towards the prior's ``towards`` points: from a
-        marker on the joint's lateral skin the centre lies along the axis, whatever
-        the direction to the other side's marker (in a walk the feet and knees are
-        not side by side, so ``towards`` alone points partly forwards or back).
-        """
-        assert spec.centre is not None
-        pr = spec.centre["prior"]
-        where = f"joint {spec.joint} (segment {spec.name})"
-        start, towards = self.prior_points(pr, where)
-        assert towards is not None  # the template parser requires it with "along"
-        dots = np.einsum("ti,ti->t", axis_world, towards - start)
-        sign = -1.0 if np.nansum(dots) < 0 else 1.0
-        return start + float(pr["distance"]) * sign * axis_world
 
     def axis_point(
         self,
@@ -469,15 +304,6 @@ class _Calibrator:
             return None
         _, rot, trans = cluster_frames(stack)
         return rot, trans
-
-    def framed_ancestor(self, spec: SegmentSpec) -> str:
-        """The segment's parent, or past ``link`` parents (their frame starts as their
-        parent's) the first ancestor that is not a link."""
-        assert spec.parent is not None
-        name = spec.parent
-        while self.template.segment(name).link and self.template.segment(name).parent:
-            name = str(self.template.segment(name).parent)
-        return name
 
     def centres_in_parent_points(self) -> None:
         """SCoRE of the joints with ``parent_points``, each in the frame of those points.
@@ -591,9 +417,99 @@ class _Calibrator:
             centre_w = np.where(np.isfinite(centre_w), centre_w, prior_w)
         return method, spread, centre_w
 
+    def centre_between_frames(
+        self, spec: SegmentSpec, parent: tuple[np.ndarray, np.ndarray], prior_w: np.ndarray
+    ) -> tuple[str, list[float], np.ndarray]:
+        """Method, spread (deg), centre (T, 3) m of a joint between two framed segments.
+
+        SCoRE in the joint's ``parent_points`` frame (:meth:`centres_in_parent_points`),
+        SCoRE for a ball joint, SARA for a hinge; the prior ``prior_w`` (T, 3) where the
+        range of motion in the parent's technical frame ``parent`` is too small.
+        """
+        assert spec.centre is not None
+        kind = spec.centre["kind"]
+        along = spec.centre["prior"].get("along")
+        method = "regression"
+        centre_w = prior_w
+        rp, tp = parent
+        rc, tc = self.tech[spec.name]
+        s = jc.motion_spread(rp, rc)
+        spread = [round(float(v), 2) for v in s]
+        pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+        pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
+        fitted: tuple[np.ndarray, np.ndarray] | None = None
+        sv = jc.fit_singular_values(rp, tp, rc, tc)
+        if spec.name in self.point_frames:
+            rp, tp, cp, cc = self.point_frames[spec.name]
+            spread = [round(float(v), 2) for v in jc.motion_spread(rp, rc)]
+            sv = jc.fit_singular_values(rp, tp, rc, tc)
+            fitted = (cp, cc)
+            method = "SCoRE in its parent_points frame"
+        elif kind == "ball" and s[1] >= self.min_spread:
+            usable = np.isfinite(pp).all() and np.isfinite(pc).all()
+            cp, cc, _ = jc.score_centre(
+                rp, tp, rc, tc,
+                prior=(pp, pc) if usable else None,
+                prior_spread_deg=self.score_prior_spread_deg,
+            )  # fmt: skip
+            method = "SCoRE"
+            rp, tp, cp, cc, loose = self.score_without_loose(spec, rp, tp, rc, tc, cp, cc)
+            if loose:
+                self.loose[spec.name] = loose
+                method = (
+                    f"SCoRE without {', '.join(loose)}"
+                    if len(loose) <= 3
+                    else f"SCoRE without {len(loose)} parent markers"
+                )
+                pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
+                sv = jc.fit_singular_values(rp, tp, rc, tc)
+            fitted = (cp, cc)
+            along_axes = self.along_axis(spec, rp, rc)
+            if along_axes is not None:
+                ap, ac = along_axes
+                prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
+                pp, pc = (
+                    _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
+                    for r, t in ((rp, tp), (rc, tc))
+                )
+                if np.isfinite(pp).all() and np.isfinite(pc).all():
+                    # a prior trusted along the axis: it also takes the directions
+                    # the take hardly determines (under ALONG_PRIOR_SPREAD_DEG)
+                    cp, cc, _ = jc.score_centre(
+                        rp, tp, rc, tc, prior=(pp, pc),
+                        prior_spread_deg=max(self.score_prior_spread_deg, ALONG_PRIOR_SPREAD_DEG),
+                    )  # fmt: skip
+                    fitted = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
+                    method = "SCoRE + regression along the axis"
+        elif s[0] >= self.min_spread and np.isfinite(pp).all():
+            ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
+            # along the axis: where the two bones cross it (templates: axis_point)
+            crossing = self.axis_point(spec, ((rp, tp), (rc, tc)), ap, cp)
+            if crossing is not None:
+                cp, cc = jc.slide_along_axis(cp, cc, ap, ac, *crossing)
+            elif along == "axis":
+                prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
+                pp, pc = (
+                    _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
+                    for r, t in ((rp, tp), (rc, tc))
+                )
+                if np.isfinite(pp).all() and np.isfinite(pc).all():
+                    cp, cc = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
+            fitted = (cp, cc)
+            self.axes_local[spec.name] = (ap, ac)
+            method = "SARA" if kind == "hinge" else "SARA axis + regression"
+            if crossing is not None:
+                method += ", centre where the bones cross the axis"
+        self.conditions[spec.name] = [round(float(v), 4) for v in sv]
+        if fitted is not None:
+            cp, cc = fitted
+            wp = to_world(rp, tp, cp[None])[:, 0]
+            wc = to_world(rc, tc, cc[None])[:, 0]
+            centre_w = np.where(np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc)
+        return method, spread, centre_w
+
     def centre(self, spec: SegmentSpec) -> None:
         assert spec.parent is not None and spec.centre is not None
-        kind = spec.centre["kind"]
         prior_w = self.prior(spec)
         parent = self.tech.get(spec.parent)
         if spec.link:
@@ -606,88 +522,11 @@ class _Calibrator:
                 self.tech[spec.name] = parent
             return
         child_markers = self.present(spec)
-        along = spec.centre["prior"].get("along")
         method = "regression"
         spread: list[float] = []
         centre_w = prior_w
         if parent is not None and spec.name in self.tech:
-            rp, tp = parent
-            rc, tc = self.tech[spec.name]
-            s = jc.motion_spread(rp, rc)
-            spread = [round(float(v), 2) for v in s]
-            pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
-            pc = _nanmedian0(to_local(rc, tc, prior_w[:, None])[:, 0])
-            fitted: tuple[np.ndarray, np.ndarray] | None = None
-            sv = jc.fit_singular_values(rp, tp, rc, tc)
-            if spec.name in self.point_frames:
-                rp, tp, cp, cc = self.point_frames[spec.name]
-                spread = [round(float(v), 2) for v in jc.motion_spread(rp, rc)]
-                sv = jc.fit_singular_values(rp, tp, rc, tc)
-                fitted = (cp, cc)
-                method = "SCoRE in its parent_points frame"
-            elif kind == "ball" and s[1] >= self.min_spread:
-                usable = np.isfinite(pp).all() and np.isfinite(pc).all()
-                cp, cc, _ = jc.score_centre(
-                    rp, tp, rc, tc,
-                    prior=(pp, pc) if usable else None,
-                    prior_spread_deg=self.score_prior_spread_deg,
-                )  # fmt: skip
-                method = "SCoRE"
-                rp, tp, cp, cc, loose = self.score_without_loose(spec, rp, tp, rc, tc, cp, cc)
-                if loose:
-                    self.loose[spec.name] = loose
-                    method = (
-                        f"SCoRE without {', '.join(loose)}"
-                        if len(loose) <= 3
-                        else f"SCoRE without {len(loose)} parent markers"
-                    )
-                    pp = _nanmedian0(to_local(rp, tp, prior_w[:, None])[:, 0])
-                    sv = jc.fit_singular_values(rp, tp, rc, tc)
-                fitted = (cp, cc)
-                along_axes = self.along_axis(spec, rp, rc)
-                if along_axes is not None:
-                    ap, ac = along_axes
-                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
-                    pp, pc = (
-                        _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
-                        for r, t in ((rp, tp), (rc, tc))
-                    )
-                    if np.isfinite(pp).all() and np.isfinite(pc).all():
-                        # a prior trusted along the axis: it also takes the directions
-                        # the take hardly determines (under ALONG_PRIOR_SPREAD_DEG)
-                        cp, cc, _ = jc.score_centre(
-                            rp, tp, rc, tc, prior=(pp, pc),
-                            prior_spread_deg=max(self.score_prior_spread_deg, ALONG_PRIOR_SPREAD_DEG),
-                        )  # fmt: skip
-                        fitted = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
-                        method = "SCoRE + regression along the axis"
-            elif s[0] >= self.min_spread and np.isfinite(pp).all():
-                ap, ac, cp, cc = jc.sara_axis(rp, tp, rc, tc, pp, pc)
-                # along the axis: where the two bones cross it (templates: axis_point)
-                crossing = self.axis_point(spec, ((rp, tp), (rc, tc)), ap, cp)
-                if crossing is not None:
-                    cp, cc = jc.slide_along_axis(cp, cc, ap, ac, *crossing)
-                elif along == "axis":
-                    prior_w = self.prior_along(spec, np.einsum("tij,j->ti", rp, ap))
-                    pp, pc = (
-                        _nanmedian0(to_local(r, t, prior_w[:, None])[:, 0])
-                        for r, t in ((rp, tp), (rc, tc))
-                    )
-                    if np.isfinite(pp).all() and np.isfinite(pc).all():
-                        cp, cc = jc.slide_along_axis(cp, cc, ap, ac, pp, pc)
-                fitted = (cp, cc)
-                self.axes_local[spec.name] = (ap, ac)
-                method = "SARA" if kind == "hinge" else "SARA axis + regression"
-                if crossing is not None:
-                    method += ", centre where the bones cross the axis"
-            self.conditions[spec.name] = [round(float(v), 4) for v in sv]
-            if fitted is not None:
-                cp, cc = fitted
-                wp = to_world(rp, tp, cp[None])[:, 0]
-                wc = to_world(rc, tc, cc[None])[:, 0]
-                centre_w = np.where(
-                    np.isfinite(wp), np.where(np.isfinite(wc), 0.5 * (wp + wc), wp), wc
-                )
+            method, spread, centre_w = self.centre_between_frames(spec, parent, prior_w)
         elif parent is not None and child_markers:
             method, spread, centre_w = self.centre_from_child_markers(
                 spec, parent, prior_w, child_markers
@@ -788,10 +627,6 @@ class _Calibrator:
                 origin = to_world(rt, tt, o_loc[None])[:, 0]
         self.anat[spec.name] = frames
         self.origin[spec.name] = origin
-
-
-def _as_list(v: Any) -> list[str]:
-    return list(v) if isinstance(v, list) else [v]
 
 
 def calibrate(

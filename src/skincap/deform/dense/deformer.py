@@ -224,6 +224,56 @@ def held_frames(member_present: np.ndarray) -> np.ndarray:
     return np.where(last >= 0, last, first[None, :])
 
 
+def _fit_part_rbfs(
+    parts: PartFrames,
+    local: np.ndarray,
+    centres: np.ndarray,
+    present: np.ndarray,
+    use_quadratic: bool,
+    rbf_regularisation: RbfRegularisation,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The RBF fields of :func:`fit_part_motion` (eq. 7) through the residuals of its
+    base fields.
+
+    ``local`` (T, P, K, 3) the markers in each part's frame (NaN where missing),
+    ``centres`` (T, P, K, 3) the base field applied to the rest positions, ``present``
+    (T, P, K) bool. Returns the weights (T, P, K, 3) through all centres, those through
+    the members only (None without seam centres), and the (2, P) ridges (None: exact).
+    """
+    n_p = parts.members.shape[0]
+    residual = local - centres  # NaN where missing: excluded by the fits
+    member_present = present & parts.fitted
+    k_fit = int(parts.fitted.sum(axis=1).max())  # the members fill the first slots
+    # the quadratic variants' centres move with each frame's field; the rigid
+    # ones' stay at the rest positions (padding: none)
+    rest = np.where(parts.valid[..., None], parts.local_reference, np.nan)
+    fit_centres = centres if use_quadratic else rest[None]
+    fields = [(fit_centres, residual, present)]  # through all centres, then members'
+    if parts.has_seam_centres:
+        fields.append(
+            (fit_centres[..., :k_fit, :], residual[..., :k_fit, :], member_present[..., :k_fit])
+        )
+    ridge = _rbf_ridges(rbf_regularisation, fields, parts.sigma, n_p)
+    if ridge is None:  # exact interpolation (eq. 7)
+        fitted = [
+            fit_rbf(c, r, parts.sigma[None, :], m)
+            if use_quadratic  # one inverse per part, downdated, for fixed centres
+            else fit_rbf_fixed_centres(c[0], r, parts.sigma, m)
+            for c, r, m in fields
+        ]
+    else:
+        fitted = [
+            fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[i])
+            for i, (c, r, m) in enumerate(fields)
+        ]
+    rbf_w = fitted[0]
+    member_rbf_w: np.ndarray | None = None
+    if parts.has_seam_centres:
+        member_rbf_w = np.zeros_like(rbf_w)
+        member_rbf_w[:, :, :k_fit] = fitted[1]
+    return rbf_w, member_rbf_w, ridge
+
+
 def fit_part_motion(
     positions: np.ndarray,
     parts: PartFrames,
@@ -313,40 +363,12 @@ def fit_part_motion(
     centres = np.where(
         parts.valid[None, ..., None], apply_quadratic(quad, parts.local_reference[None]), 0.0
     )
-    member_rbf_w = None
-    ridge = None
     if use_rbf:
-        residual = local - centres  # NaN where missing: excluded by the fits
-        member_present = present & parts.fitted
-        k_fit = int(parts.fitted.sum(axis=1).max())  # the members fill the first slots
-        # the quadratic variants' centres move with each frame's field; the rigid
-        # ones' stay at the rest positions (padding: none)
-        rest = np.where(parts.valid[..., None], parts.local_reference, np.nan)
-        fit_centres = centres if use_quadratic else rest[None]
-        fields = [(fit_centres, residual, present)]  # through all centres, then members'
-        if parts.has_seam_centres:
-            fields.append(
-                (fit_centres[..., :k_fit, :], residual[..., :k_fit, :], member_present[..., :k_fit])
-            )
-        ridge = _rbf_ridges(rbf_regularisation, fields, parts.sigma, n_p)
-        if ridge is None:  # exact interpolation (eq. 7)
-            fitted = [
-                fit_rbf(c, r, parts.sigma[None, :], m)
-                if use_quadratic  # one inverse per part, downdated, for fixed centres
-                else fit_rbf_fixed_centres(c[0], r, parts.sigma, m)
-                for c, r, m in fields
-            ]
-        else:
-            fitted = [
-                fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[i])
-                for i, (c, r, m) in enumerate(fields)
-            ]
-        rbf_w = fitted[0]
-        if parts.has_seam_centres:
-            member_rbf_w = np.zeros_like(rbf_w)
-            member_rbf_w[:, :, :k_fit] = fitted[1]
+        rbf_w, member_rbf_w, ridge = _fit_part_rbfs(
+            parts, local, centres, present, use_quadratic, rbf_regularisation
+        )
     else:
-        rbf_w = np.zeros((n_t, n_p, k, 3))
+        rbf_w, member_rbf_w, ridge = np.zeros((n_t, n_p, k, 3)), None, None
     centres = np.where(np.isfinite(centres), centres, 0.0)
     return PartMotion(rot, trans, quad, centres, rbf_w, member_rbf_w, ridge)
 
