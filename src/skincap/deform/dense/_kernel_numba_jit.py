@@ -199,14 +199,12 @@ def dense_kernel(
 ):  # pragma: no cover - runs compiled
     """Deformed vertices of every frame into ``out`` (eqs. 8-9).
 
-    With no RBF field (every ``rbf_members`` 0: ``rigid``, ``quadratic``) it takes the
-    fused path (:func:`_fused_no_rbf`): vertex_local (Q, 3) p̂⁰ and vertex_part (Q,) of
-    the pairs in ``by_vertex`` order, ``moved`` unused (may be empty). Otherwise the
-    tiled path, with vertex_local and vertex_part unused (may be empty):
-
-    pair_local (Q, 3) p̂⁰ and pair_seam (Q,) s of the pairs sorted by part, in tiles
-    tile_start (n + 1,) of one part each, tile_part (n,); by_vertex (Q,) the pairs
-    sorted by vertex, vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
+    With no RBF field (every ``rbf_members`` 0) the fused path (:func:`_fused_no_rbf`):
+    vertex_local (Q, 3) p̂⁰, vertex_part (Q,) in ``by_vertex`` order, ``moved`` unused.
+    Otherwise the tiled path (vertex_local, vertex_part unused): pair_local (Q, 3) p̂⁰
+    and pair_seam (Q,) s of the pairs sorted by part, in tiles tile_start (n + 1,) of
+    one part each, tile_part (n,); by_vertex (Q,) the pairs sorted by vertex,
+    vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
     quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3) R̃, translation (T, P, 3) d̃;
     rbf_table (T, P, 9, K): rows x, y, z of the centres p̃ scaled by 2/σ, then the
     members' field's weights w / 6, then the seam field's (centres along the last axis);
