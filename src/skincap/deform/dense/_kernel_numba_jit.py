@@ -134,6 +134,19 @@ def _local_to_world(rotation, translation, t, p, lx, ly, lz):  # pragma: no cove
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _store_blend(out, t, v, sx, sy, sz, den):  # pragma: no cover - runs compiled
+    """Eq. 9's β-weighted mean into ``out[t, v]``; NaN when no pair was finite (den 0)."""
+    if den > 0.0:
+        out[t, v, 0] = sx / den
+        out[t, v, 1] = sy / den
+        out[t, v, 2] = sz / den
+    else:
+        out[t, v, 0] = np.nan
+        out[t, v, 1] = np.nan
+        out[t, v, 2] = np.nan
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
 def _fused_no_rbf(
     vertex_local, vertex_part, vertex_weight, vertex_start, quadratic, rotation, translation, out
 ):  # pragma: no cover - runs compiled
@@ -167,14 +180,7 @@ def _fused_no_rbf(
                         sy += beta * wy
                         sz += beta * wz
                         den += beta
-                if den > 0.0:
-                    out[t, v, 0] = sx / den
-                    out[t, v, 1] = sy / den
-                    out[t, v, 2] = sz / den
-                else:
-                    out[t, v, 0] = np.nan
-                    out[t, v, 1] = np.nan
-                    out[t, v, 2] = np.nan
+                _store_blend(out, t, v, sx, sy, sz, den)
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath=_FASTMATH)
@@ -290,11 +296,4 @@ def dense_kernel(
                     sy += beta * wy
                     sz += beta * wz
                     den += beta
-            if den > 0.0:
-                out[t, v, 0] = sx / den
-                out[t, v, 1] = sy / den
-                out[t, v, 2] = sz / den
-            else:
-                out[t, v, 0] = np.nan
-                out[t, v, 1] = np.nan
-                out[t, v, 2] = np.nan
+            _store_blend(out, t, v, sx, sy, sz, den)
