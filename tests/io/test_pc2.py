@@ -180,3 +180,19 @@ def test_fuzz_mutated_bytes(tmp_path, op, pos, byte):
         return
     assert isinstance(out, PC2Cache)
     assert np.isfinite(out.frames).all()
+
+
+def test_mesh_animation_pair_fails_whole(tmp_path, cylinder, cylinder_animation):
+    """A .pc2 output is the cache and its rest OBJ: a failure in either leaves neither."""
+    from skincap.io.mesh_animation_files import write_mesh_animation
+
+    frames = cylinder_animation.frames.copy()
+    frames[4, 0, 0] = np.nan  # the cache fails midway
+    with pytest.raises(ValidationError, match="frame 4"):
+        write_mesh_animation(MeshAnimation(cylinder, frames, 24.0), tmp_path / "a.pc2", force=False)
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "b.obj").write_text("# someone else's mesh\n")  # the OBJ fails after the cache
+    with pytest.raises(OutputExistsError):
+        write_mesh_animation(cylinder_animation, tmp_path / "b.pc2", force=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b.obj"]
+    assert (tmp_path / "b.obj").read_text() == "# someone else's mesh\n"

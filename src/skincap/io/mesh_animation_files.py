@@ -32,8 +32,15 @@ def write_mesh_animation(animation: MeshAnimation, output: Path, *, force: bool)
         from skincap.io.pc2 import write_pc2
 
         rest_obj = output.with_suffix(".obj")
-        write_obj(animation.rest, rest_obj, force=force, units="m", up="y")
+        # The cache first: its frames are computed while it streams, so it is the write
+        # that can fail midway; the rest mesh is cheap. A failed OBJ takes the new cache
+        # with it, so a failure never leaves one file of the pair.
         write_pc2(animation, output, force=force)
+        try:
+            write_obj(animation.rest, rest_obj, force=force, units="m", up="y")
+        except BaseException:
+            output.unlink(missing_ok=True)
+            raise
         return [output, rest_obj]
     if ext in _USD:
         from skincap.io.usd import write_usd
