@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -139,3 +140,26 @@ def test_synth_corruption_is_recorded_and_clean_repairs_it(tmp_path):
             want = truth.positions[swap["start"] : swap["end"], true_column[label]]
             err = np.linalg.norm(got - want, axis=-1)
             assert np.nanmax(err) < 0.01, (label, np.nanmax(err))
+
+
+_CMU = Path(__file__).resolve().parents[1] / "data" / "cmu_85_02.c3d"
+
+
+@pytest.mark.parametrize(
+    "verb",
+    [
+        ["synth", "--motion", "tpose", "--frames", "2"],
+        ["synth", "--real-markers", str(_CMU), "--rope", "whip"],
+        ["eval", "animate", "--synth", "jumprope", "--frames", "4"],
+        ["eval", "solve", "--synth", "squat", "--frames", "4"],
+        ["eval", "track", "--synth", "jump"],
+        ["eval", "fill", str(_CMU)],
+    ],
+)
+def test_negative_seed_is_one_line_and_writes_nothing(tmp_path, verb):
+    """NumPy's generators refuse a negative seed; every verb with --seed says so first."""
+    out = tmp_path / "out"
+    result = run(*verb, "--seed", "-1", "-o", out)
+    assert result.exit_code == 2, result.output
+    assert "--seed: expected a non-negative integer, got -1" in result.output
+    assert "Traceback" not in result.output and not out.exists()

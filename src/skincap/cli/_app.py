@@ -24,6 +24,7 @@ from skincap.errors import (
     MissingDependencyError,
     SkincapError,
     SkincapWarning,
+    ValidationError,
     one_line,
 )
 
@@ -99,6 +100,13 @@ def _user_errors() -> Iterator[None]:
     if error_line is not None:
         _print_line(f"skincap: error: {error_line}")
         raise typer.Exit(2)
+
+
+def check_seed(seed: int) -> int:
+    """``--seed`` as NumPy's generators take it: a non-negative integer (else one line, exit 2)."""
+    if seed < 0:
+        raise ValidationError(f"--seed: expected a non-negative integer, got {seed}")
+    return seed
 
 
 def _print_line(text: str) -> None:

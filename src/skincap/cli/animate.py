@@ -7,7 +7,15 @@ from typing import Annotated, Any
 
 import typer
 
-from skincap.cli._app import _user_errors, app, eval_app, out, print_json, stage_progress
+from skincap.cli._app import (
+    _user_errors,
+    app,
+    check_seed,
+    eval_app,
+    out,
+    print_json,
+    stage_progress,
+)
 from skincap.cli._options import (
     EvalJsonOption,
     ForceOption,
@@ -233,6 +241,7 @@ def eval_animate(
             raise ValidationError(
                 "give a folder made by skincap synth or --synth CLIP (one of them)"
             )
+        check_seed(seed)
         with stage_progress("evaluating") as progress:
             if synth is not None:
                 input_dir = _synth_take(output, synth, frames, vertices, seed, force, progress)

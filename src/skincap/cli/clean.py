@@ -13,6 +13,7 @@ from skincap.cli._app import (
     _user_errors,
     app,
     bench_app,
+    check_seed,
     err,
     eval_app,
     out,
@@ -231,6 +232,7 @@ def eval_fill(
         from skincap.io.json_file import write_json
         from skincap.types import MarkerSet
 
+        check_seed(seed)
         chosen = None if methods is None else _fill_method_list(methods)
         lengths = _int_list(gap_lengths, "--gap-lengths")
         if gaps < 1 or simultaneous < 1:

@@ -15,6 +15,7 @@ from skincap.cli._app import (
     _user_errors,
     app,
     bench_app,
+    check_seed,
     eval_app,
     out,
     print_bench_results,
@@ -203,6 +204,7 @@ def eval_solve(
     with _user_errors(), guard_outputs(inputs, [output / "solve_eval.json"], force=force):
         if input_dir is not None and synth is not None:
             raise ValidationError("give a synth folder or --synth, not both")
+        check_seed(seed)
         with stage_progress("eval solve") as advance:
             result = evaluate_solve(
                 output, synth_dir=input_dir, synth_motion=synth, real=list(real or []),

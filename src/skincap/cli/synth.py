@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from skincap.cli._app import _user_errors, app, out, stage_progress
+from skincap.cli._app import _user_errors, app, check_seed, out, stage_progress
 from skincap.cli._options import ForceOption, OutputFolderOption
 
 # one alias per option, so the verb's signature reads as a list
@@ -126,7 +126,7 @@ def synth(
                 frames=frames,
                 seconds=seconds,
                 noise_mm=noise_mm,
-                seed=seed,
+                seed=check_seed(seed),
                 force=force,
                 progress=progress,
             )
@@ -158,7 +158,7 @@ def synth(
             spikes=spikes,
             swaps=swaps,
             prop=prop,
-            seed=seed,
+            seed=check_seed(seed),
             force=force,
             progress=progress,
         )

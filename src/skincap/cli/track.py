@@ -12,6 +12,7 @@ from skincap.cli._app import (
     _user_errors,
     app,
     bench_app,
+    check_seed,
     err,
     eval_app,
     frame_bar,
@@ -276,6 +277,7 @@ def eval_track(
             raise ValidationError(f"--markers: expected dense or sparse, got {markers!r}")
         if frames < 2 or starts < 1:
             raise ValidationError("--frames must be at least 2 and --starts at least 1")
+        check_seed(seed)
         gap_sizes = _parse_gaps(gaps)
         with Progress(console=err, transient=True, disable=not err.is_terminal) as progress:
             task = progress.add_task("reading", total=1.0)
