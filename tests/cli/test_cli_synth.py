@@ -163,3 +163,9 @@ def test_negative_seed_is_one_line_and_writes_nothing(tmp_path, verb):
     assert result.exit_code == 2, result.output
     assert "--seed: expected a non-negative integer, got -1" in result.output
     assert "Traceback" not in result.output and not out.exists()
+
+
+def test_bench_animate_refuses_negative_rom_frames():
+    result = run("bench", "animate", "--rom-frames", "-1")
+    assert result.exit_code == 2, result.output
+    assert "--rom-frames: expected 0 (skip) or a frame count, got -1" in result.output

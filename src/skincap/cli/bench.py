@@ -71,6 +71,12 @@ def bench_animate(
     from skincap.evaluate.bench.animate import run_animate_benchmark
 
     with _user_errors():
+        from skincap.errors import ValidationError
+
+        if rom_frames < 0:
+            raise ValidationError(
+                f"--rom-frames: expected 0 (skip) or a frame count, got {rom_frames}"
+            )
         results = run_animate_benchmark(
             n_vertices=vertices,
             n_parts=parts,
