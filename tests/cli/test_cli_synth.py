@@ -169,3 +169,18 @@ def test_bench_animate_refuses_negative_rom_frames():
     result = run("bench", "animate", "--rom-frames", "-1")
     assert result.exit_code == 2, result.output
     assert "--rom-frames: expected 0 (skip) or a frame count, got -1" in result.output
+
+
+def test_out_of_memory_is_one_line(tmp_path, monkeypatch):
+    """A request too large for the machine ends as one line and exit 2, not a traceback."""
+    import skincap.workflows.synth_folder as synth_folder
+
+    def too_big(*args, **kwargs):
+        raise MemoryError("Unable to allocate 113. GiB for an array with shape (100000000, 38, 4)")
+
+    monkeypatch.setattr(synth_folder, "synth_folder", too_big)
+    out = tmp_path / "take"
+    result = run("synth", "--motion", "tpose", "--frames", "100000000", "-o", out)
+    assert result.exit_code == 2, result.output
+    assert "skincap: error: not enough memory: Unable to allocate 113. GiB" in result.output
+    assert "Traceback" not in result.output and not out.exists()

@@ -95,6 +95,8 @@ def _user_errors() -> Iterator[None]:
             error_line = _skincap_error_line(exc)
         except OSError as exc:
             error_line = _os_error_line(exc)
+        except MemoryError as exc:  # a request too large for this machine, e.g. --frames 1e8
+            error_line = _memory_error_line(exc)
         finally:
             _flush_warnings(caught)
     if error_line is not None:
@@ -145,6 +147,14 @@ def _skincap_error_line(exc: SkincapError) -> str:
         if inputs and not any(text.startswith(f"{p}:") for p in inputs):
             text = f"{', '.join(inputs)}: {text}"
     return one_line(text)
+
+
+def _memory_error_line(exc: MemoryError) -> str:
+    """``<inputs>: not enough memory: <what NumPy could not allocate>`` on one line."""
+    inputs = _verb_input_files()
+    what = str(exc) or "an allocation failed"
+    text = f"not enough memory: {what}"
+    return one_line(f"{', '.join(inputs)}: {text}" if inputs else text)
 
 
 def _os_error_line(exc: OSError) -> str:
