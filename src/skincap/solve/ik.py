@@ -34,7 +34,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap._arrays import Progress
+from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
+from skincap.solve._ik_numba import damped_solve, ik_dispatcher, normal_equations
 
 __all__ = [
     "solve_poses",
@@ -219,6 +221,8 @@ class _Paths:
         self.marker = np.array(pair_m, dtype=np.int64)
         self.segment = np.array(pair_s, dtype=np.int64)
         self.local = np.array(pair_v, dtype=np.float64).reshape(-1, 3)
+        # marker m's pairs are start[m]:start[m + 1] (they were appended marker by marker)
+        self.start = np.concatenate([[0], np.cumsum(np.bincount(self.marker, minlength=len(mseg)))])
 
 
 #: Robust losses of a marker's distance ``s`` (metres) with scale ``c``: ``rho(s)`` and the
@@ -365,8 +369,9 @@ class _IKProblem:
     ``parents (S,)`` int64, ``offsets (S, 3)`` metres, ``mseg (M,)`` int64, ``moff (M, 3)``
     metres (as in :func:`solve_poses`); ``paths`` and ``springs`` precomputed from them;
     ``n_par = 3 + 3 S`` parameters per frame; the stopping rule (``iterations``,
-    ``tolerance`` m^2, ``relative_tolerance``) and the marker loss (``loss``,
-    ``loss_scale`` metres)."""
+    ``tolerance`` m^2, ``relative_tolerance``), the marker loss (``loss``,
+    ``loss_scale`` metres) and whether the step's linear algebra runs in the numba
+    kernels (``compiled``, :mod:`skincap.solve._ik_numba`)."""
 
     parents: np.ndarray
     offsets: np.ndarray
@@ -380,6 +385,7 @@ class _IKProblem:
     relative_tolerance: float
     loss: str
     loss_scale: float
+    compiled: bool = False
 
     def markers(self, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
         """(T, M, 3) model markers, metres, of poses ``rot (T, S, 3, 3)``, ``root (T, 3)``."""
@@ -406,6 +412,7 @@ def solve_poses(
     joint_limits: np.ndarray | None = None,
     limit_stiffness: float = 10.0,
     bone_axes: np.ndarray | None = None,
+    backend: str = "auto",
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares poses of a marker model, all frames at once.
@@ -462,6 +469,13 @@ def solve_poses(
     bone_axes : (S,) int, optional
         Each segment's long axis (0, 1, 2 for x, y, z; default y), the last of the
         Euler angles of :func:`limited_angle`.
+    backend : {"auto", "numba", "numpy"}, default "auto"
+        Where each step's normal equations are built and solved: the numba kernels
+        of :mod:`skincap.solve._ik_numba` (float64, the tree's sparsity exploited) or
+        the NumPy reference (a dense single-precision Jacobian product and
+        ``np.linalg.solve``); they agree to rounding. ``"auto"`` takes the kernels
+        once compiled (:func:`skincap.backends.resolve_backend`: the first run on a
+        machine compiles them in the background and runs NumPy).
     progress : callable(fraction, label), optional
 
     Returns
@@ -484,9 +498,26 @@ def solve_poses(
     springs.project(rot)  # start inside the joint limits
     problem = _IKProblem(
         parents, offsets, mseg, moff, paths, springs, n_par, int(iterations), float(tolerance),
-        float(relative_tolerance), loss, float(loss_scale),
+        float(relative_tolerance), loss, float(loss_scale), _resolve_backend(backend) == "numba",
     )  # fmt: skip
     return _solve_in_passes(problem, y, rot, root, chunk, warm_start, progress)
+
+
+def warm_up_kernel() -> None:
+    """Compile the IK kernels into numba's cache (run by the background compile)."""
+    solve_poses(
+        np.array([-1]), np.zeros((1, 3)), np.zeros(3, dtype=np.int64), np.eye(3),
+        np.eye(3)[None], np.eye(3)[None, None], np.zeros((1, 3)), backend="numba",
+    )  # fmt: skip
+
+
+def _resolve_backend(backend: str) -> str:
+    return resolve_backend(
+        backend,
+        numba_installed=numba_available(),
+        feature="the numba inverse-kinematics kernels",
+        kernel=("ik", ik_dispatcher),
+    )
 
 
 def _checked_model_inputs(
@@ -653,7 +684,7 @@ def _solve_chunk(
     active = np.arange(t)
     # single precision for the Jacobian products: they only choose the step (the cost and
     # the poses stay double), and halve the time of the dominant batched matmul
-    jac_all = np.zeros((t, 3 * m, n_par), dtype=np.float32)
+    jac_all = np.zeros((0 if problem.compiled else t, 3 * m, n_par), dtype=np.float32)
     root_cols = np.tile(np.arange(3), m)
     all_rows = np.arange(3 * m)
     rows = 3 * paths.marker  # (Q,) first Jacobian row of each pair's marker
@@ -677,19 +708,25 @@ def _solve_chunk(
         resid = diff * sw[..., None]  # (Ta, M, 3), zero where missing
         v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
         v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
-        jac = jac_all[:ta]
-        jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
-        # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
-        jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
-        jt = jac.transpose(0, 2, 1)
-        h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
-        g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)  # (Ta, P)
-        h += springs.normal
+        if problem.compiled:
+            h, g = normal_equations(v, sw, resid, paths.start, cols, springs.normal)
+        else:
+            jac = jac_all[:ta]
+            jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
+            # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
+            jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
+            jt = jac.transpose(0, 2, 1)
+            h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
+            g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)
+            h += springs.normal
         springs.add_gradient(g, spring)
         springs.add_limits(h, g, r_a, spring)
-        diag = np.einsum("tii->ti", h)
-        h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
-        step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
+        if problem.compiled:
+            step = damped_solve(h, g, lam, floor)  # (Ta, P)
+        else:
+            diag = np.einsum("tii->ti", h)
+            h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
+            step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
         new_root = o_a + step[:, :3]
         new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
         new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)

@@ -1,0 +1,121 @@
+"""Compiled normal equations and damped solve of the IK's Levenberg-Marquardt step, numba.
+
+The NumPy reference in :func:`skincap.solve.ik._solve_chunk` scatters every frame's
+Jacobian into a dense ``(3 M, P)`` matrix (mostly zeros), multiplies it out in single
+precision and hands the ``(T, P, P)`` stack to ``np.linalg.solve`` (an LU of a
+dense 63 x 63 matrix per frame); together that is 60 % of the IK's time. Here
+
+* :func:`normal_equations` builds ``h = normal + J^T J`` and ``g = J^T r`` (float64)
+  per frame from the closed-form blocks of each marker: ``w^2 I`` for the root origin,
+  ``-w [a]x`` between the root origin and a segment, ``(a . b) I - b a^T`` between two
+  segments on its path, with ``a``, ``b`` the weighted world vectors those segments
+  carry (``-[a]x`` is a segment's block of the marker's Jacobian rows);
+* :func:`damped_solve` adds the Levenberg-Marquardt damping and solves by symmetric
+  Gaussian elimination from the last parameter back: a segment's parameters come
+  after its parent's, so eliminating children first couples only ancestors, which
+  are coupled already -- the tree's sparsity has no fill, and the zero couplings are
+  skipped.
+
+Both agree with the NumPy reference to rounding (``tests/solve/test_ik_numba.py``).
+The kernels compile once per machine into numba's on-disk cache (``cache=True``);
+:func:`skincap.solve.ik.solve_poses` picks them with ``backend=``
+(:func:`skincap.backends.resolve_backend`).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ik_dispatcher", "normal_equations", "damped_solve"]
+
+
+@functools.cache
+def ik_dispatcher() -> Any:
+    """The numba dispatcher of the solve kernel (for :func:`skincap.backends.kernel_ready`).
+
+    The kernels live in :mod:`skincap.solve._ik_numba_jit`, which imports numba:
+    importing it here keeps numba out of ``skincap.solve``'s import.
+
+    Raises
+    ------
+    ImportError
+        numba is not installed (callers check :func:`skincap.backends.numba_available`).
+    """
+    from skincap.solve._ik_numba_jit import damped_solve_kernel
+
+    return damped_solve_kernel
+
+
+def normal_equations(
+    v: np.ndarray,
+    weight: np.ndarray,
+    resid: np.ndarray,
+    pair_start: np.ndarray,
+    pair_column: np.ndarray,
+    normal: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-frame Gauss-Newton normal equations of the marker residuals.
+
+    Parameters
+    ----------
+    v : (T, Q, 3) float64, metres
+        Per (marker, segment-on-its-path) pair, ordered by marker: the world vector
+        the segment carries to the marker, times the marker's weight.
+    weight : (T, M) float64
+        Each marker's row weight (0: missing in that frame).
+    resid : (T, M, 3) float64, metres
+        Weighted residuals, model minus measured.
+    pair_start : (M + 1,) int64
+        Marker ``m``'s pairs are ``pair_start[m]:pair_start[m + 1]``.
+    pair_column : (Q,) int64
+        Each pair's first parameter, ``3 + 3 * segment``.
+    normal : (P, P) float64
+        Added to every frame's matrix (the link springs' constant ``J^T J``).
+
+    Returns
+    -------
+    h : (T, P, P) float64
+        ``normal + J^T J``, symmetric.
+    g : (T, P) float64
+        ``J^T r``.
+    """
+    from skincap.solve._ik_numba_jit import normal_equations_kernel
+
+    t, p = weight.shape[0], normal.shape[0]
+    h = np.zeros((t, p, p))
+    g = np.zeros((t, p))
+    normal_equations_kernel(
+        np.require(v, np.float64, "C"), np.require(weight, np.float64, "C"),
+        np.require(resid, np.float64, "C"), np.require(pair_start, np.int64, "C"),
+        np.require(pair_column, np.int64, "C"), np.require(normal, np.float64, "C"), h, g,
+    )  # fmt: skip
+    return h, g
+
+
+def damped_solve(h: np.ndarray, g: np.ndarray, damping: np.ndarray, floor: float) -> np.ndarray:
+    """Levenberg-Marquardt steps ``-(h + diag(damping * diag(h) + floor))^-1 g``.
+
+    Parameters
+    ----------
+    h : (T, P, P) float64
+        Symmetric positive semi-definite normal matrices; overwritten.
+    g : (T, P) float64
+        Gradients ``J^T r``.
+    damping : (T,) float64
+        Each frame's Levenberg-Marquardt factor.
+    floor : float
+        Added to every diagonal entry (> 0 keeps the matrix positive definite).
+
+    Returns
+    -------
+    (T, P) float64
+    """
+    step = np.zeros(g.shape)
+    ik_dispatcher()(
+        h if h.flags.c_contiguous and h.dtype == np.float64 else np.ascontiguousarray(h, float),
+        np.require(g, np.float64, "C"), np.require(damping, np.float64, "C"), float(floor), step,
+    )  # fmt: skip
+    return step

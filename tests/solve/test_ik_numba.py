@@ -1,0 +1,144 @@
+"""The IK's numba kernels against the NumPy reference: normal equations, damped solve, poses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from skincap.errors import ValidationError
+from skincap.solve._ik_numba import damped_solve, normal_equations
+from skincap.solve.ik import _Paths, model_markers, solve_poses
+
+# a branching tree (a pelvis with a spine and two legs) and markers on every segment
+PARENTS = np.array([-1, 0, 1, 0, 3, 0, 5])
+OFFSETS = np.random.default_rng(0).normal(scale=0.3, size=(PARENTS.size, 3))
+SEG = np.repeat(np.arange(PARENTS.size), 3)
+LOCAL = np.random.default_rng(1).normal(scale=0.08, size=(SEG.size, 3))
+N_PAR = 3 + 3 * PARENTS.size
+DATA = Path(__file__).parents[1] / "data"
+
+
+def _dense_jacobian(v: np.ndarray, sw: np.ndarray, paths: _Paths) -> np.ndarray:
+    """(T, 3 M, P) float64 Jacobian written out entry by entry (the reference's layout)."""
+    t, m = sw.shape
+    jac = np.zeros((t, 3 * m, N_PAR))
+    for q, (mk, s) in enumerate(zip(paths.marker, paths.segment, strict=True)):
+        a = v[:, q]
+        minus_skew = np.zeros((t, 3, 3))  # -[a]x
+        minus_skew[:, 0, 1], minus_skew[:, 0, 2] = a[:, 2], -a[:, 1]
+        minus_skew[:, 1, 0], minus_skew[:, 1, 2] = -a[:, 2], a[:, 0]
+        minus_skew[:, 2, 0], minus_skew[:, 2, 1] = a[:, 1], -a[:, 0]
+        jac[:, 3 * mk : 3 * mk + 3, 3 + 3 * s : 6 + 3 * s] = minus_skew
+    for mk in range(m):
+        jac[:, 3 * mk : 3 * mk + 3, :3] = sw[:, mk, None, None] * np.eye(3)
+    return jac
+
+
+def _frames(t: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Paths]:
+    """Weighted pair vectors (T, Q, 3), weights (T, M) with misses, residuals (T, M, 3)."""
+    rng = np.random.default_rng(seed)
+    paths = _Paths(PARENTS, OFFSETS, SEG, LOCAL)
+    rot = Rotation.random(t * PARENTS.size, random_state=seed).as_matrix()
+    rot = rot.reshape(t, PARENTS.size, 3, 3)
+    sw = rng.uniform(0.2, 1.0, size=(t, SEG.size)) * (rng.random((t, SEG.size)) > 0.3)
+    v = np.einsum("tqij,qj->tqi", rot[:, paths.segment], paths.local) * sw[:, paths.marker, None]
+    resid = rng.normal(scale=0.01, size=(t, SEG.size, 3)) * sw[..., None]
+    return v, sw, resid, paths
+
+
+def test_normal_equations_equal_the_dense_jacobian_products():
+    v, sw, resid, paths = _frames(20, seed=2)
+    normal = np.zeros((N_PAR, N_PAR))
+    normal[3:6, 6:9] = normal[6:9, 3:6] = -0.5 * np.eye(3)  # a spring's coupling, kept as is
+    h, g = normal_equations(v, sw, resid, paths.start, 3 + 3 * paths.segment, normal)
+    jac = _dense_jacobian(v, sw, paths)
+    want_h = np.einsum("tri,trj->tij", jac, jac) + normal
+    want_g = np.einsum("tri,tr->ti", jac, resid.reshape(20, -1))
+    np.testing.assert_allclose(h, want_h, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(g, want_g, rtol=0, atol=1e-15)
+    # a frame with no marker seen keeps the constant matrix and a zero gradient
+    h0, g0 = normal_equations(v[:1] * 0, sw[:1] * 0, resid[:1] * 0, paths.start,
+                              3 + 3 * paths.segment, normal)  # fmt: skip
+    np.testing.assert_array_equal(h0[0], normal)
+    assert not g0.any()
+
+
+@pytest.mark.parametrize("tree", [True, False])
+def test_damped_solve_matches_numpy_on_tree_and_dense_matrices(tree):
+    rng = np.random.default_rng(3)
+    if tree:  # the sparsity the IK has
+        v, sw, resid, paths = _frames(30, seed=4)
+        h, g = normal_equations(v, sw, resid, paths.start, 3 + 3 * paths.segment,
+                                np.zeros((N_PAR, N_PAR)))  # fmt: skip
+    else:  # any positive semi-definite matrix (fill-in everywhere)
+        a = rng.normal(size=(30, 50, N_PAR))
+        h, g = np.einsum("tri,trj->tij", a, a), rng.normal(size=(30, N_PAR))
+    damping = 10.0 ** rng.uniform(-9, 3, size=30)
+    damped = h.copy()
+    idx = np.arange(N_PAR)
+    damped[:, idx, idx] += damping[:, None] * damped[:, idx, idx] + 1e-6
+    want = -np.linalg.solve(damped, g[..., None])[..., 0]
+    got = damped_solve(h.copy(), g, damping, 1e-6)
+    np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10 * np.abs(want).max())
+
+
+def _solve(y, rot, root, backend, **options):
+    return solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, backend=backend, **options)
+
+
+@pytest.mark.parametrize("options", [{}, {"loss": "huber", "loss_scale": 0.01}])
+def test_both_backends_reach_the_same_poses(options):
+    rng = np.random.default_rng(5)
+    t = 60
+    rot = Rotation.from_rotvec(rng.normal(scale=0.6, size=(t * PARENTS.size, 3))).as_matrix()
+    rot = rot.reshape(t, PARENTS.size, 3, 3)
+    root = rng.normal(size=(t, 3))
+    y = model_markers(PARENTS, OFFSETS, SEG, LOCAL, rot, root)
+    y += rng.normal(scale=0.003, size=y.shape)
+    y[rng.random(y.shape[:2]) < 0.1] = np.nan
+    kick = Rotation.from_rotvec(rng.normal(scale=0.1, size=(t * PARENTS.size, 3))).as_matrix()
+    start = kick.reshape(rot.shape) @ rot
+    # to convergence: the stopping rule would stop either where its last gain happens to fall
+    tight = dict(options, tolerance=1e-14, relative_tolerance=0.0, iterations=40)
+    ref_rot, ref_root = _solve(y, start, root + 0.02, "numpy", **tight)
+    got_rot, got_root = _solve(y, start, root + 0.02, "numba", **tight)
+    # a segment down to one marker turns freely about it: only its fit is determined
+    seen = np.isfinite(y).all(axis=2).reshape(t, PARENTS.size, 3).all(axis=2)
+    np.testing.assert_allclose(got_rot[seen], ref_rot[seen], atol=1e-6)
+    np.testing.assert_allclose(got_root, ref_root, atol=1e-7)
+    fits = [model_markers(PARENTS, OFFSETS, SEG, LOCAL, r, o) for r, o in
+            ((ref_rot, ref_root), (got_rot, got_root))]  # fmt: skip
+    np.testing.assert_allclose(fits[1], fits[0], atol=1e-5)  # metres
+
+
+def test_both_backends_fit_a_real_capture_alike():
+    from skincap.io import read
+    from skincap.solve.calibrate import calibrate
+    from skincap.solve.templates import load_template
+
+    markers = read(DATA / "cmu_85_02.c3d")
+    model = calibrate(markers, load_template("cmu41"))
+    y = markers.positions[:200, model.marker_columns]
+    rms = {}
+    for backend in ("numpy", "numba"):
+        rot, root = solve_poses(
+            model.segment_parents, model.joint_offsets, model.marker_segments,
+            model.marker_offsets, y, model.init_rotations[:200], model.init_origins[:200],
+            link_stiffness=model.link_stiffness, backend=backend,
+        )  # fmt: skip
+        fit = model_markers(model.segment_parents, model.joint_offsets, model.marker_segments,
+                            model.marker_offsets, rot, root)  # fmt: skip
+        rms[backend] = np.sqrt(np.nanmean(np.sum((fit - y) ** 2, axis=2)))
+    assert 0.003 < rms["numba"] < 0.012  # metres: a fit, not a failure
+    assert abs(rms["numba"] - rms["numpy"]) < 1e-7
+
+
+def test_an_unknown_backend_is_refused():
+    y = model_markers(
+        PARENTS, OFFSETS, SEG, LOCAL, np.tile(np.eye(3), (2, 7, 1, 1)), np.zeros((2, 3))
+    )
+    with pytest.raises(ValidationError, match="backend"):
+        _solve(y, np.tile(np.eye(3), (2, 7, 1, 1)), np.zeros((2, 3)), "fortran")
