@@ -37,8 +37,9 @@ def _dense_jacobian(v: np.ndarray, sw: np.ndarray, paths: _Paths) -> np.ndarray:
     return jac
 
 
-def _frames(t: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Paths]:
-    """Weighted pair vectors (T, Q, 3), weights (T, M) with misses, residuals (T, M, 3)."""
+def _frames(t: int, seed: int):
+    """Rotations (T, S, 3, 3), weights (T, M) with misses, residuals (T, M, 3), the
+    weighted pair vectors (T, Q, 3) and the pairs."""
     rng = np.random.default_rng(seed)
     paths = _Paths(PARENTS, OFFSETS, SEG, LOCAL)
     rot = Rotation.random(t * PARENTS.size, random_state=seed).as_matrix()
@@ -46,23 +47,27 @@ def _frames(t: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Pat
     sw = rng.uniform(0.2, 1.0, size=(t, SEG.size)) * (rng.random((t, SEG.size)) > 0.3)
     v = np.einsum("tqij,qj->tqi", rot[:, paths.segment], paths.local) * sw[:, paths.marker, None]
     resid = rng.normal(scale=0.01, size=(t, SEG.size, 3)) * sw[..., None]
-    return v, sw, resid, paths
+    return rot, sw, resid, v, paths
+
+
+def _normal_equations(rot, sw, resid, paths, normal):
+    return normal_equations(rot, paths.local, paths.segment, paths.start, sw, resid, normal)
 
 
 def test_normal_equations_equal_the_dense_jacobian_products():
-    v, sw, resid, paths = _frames(20, seed=2)
+    rot, sw, resid, v, paths = _frames(20, seed=2)
     normal = np.zeros((N_PAR, N_PAR))
     normal[3:6, 6:9] = normal[6:9, 3:6] = -0.5 * np.eye(3)  # a spring's coupling, kept as is
-    h, g = normal_equations(v, sw, resid, paths.start, 3 + 3 * paths.segment, normal)
+    h, g = _normal_equations(rot, sw, resid, paths, normal)
     jac = _dense_jacobian(v, sw, paths)
     want_h = np.einsum("tri,trj->tij", jac, jac) + normal
     want_g = np.einsum("tri,tr->ti", jac, resid.reshape(20, -1))
-    np.testing.assert_allclose(h, want_h, rtol=0, atol=1e-13)
+    upper = np.triu(np.ones((N_PAR, N_PAR), dtype=bool))  # what the solve reads
+    np.testing.assert_allclose(h[:, upper], want_h[:, upper], rtol=0, atol=1e-13)
     np.testing.assert_allclose(g, want_g, rtol=0, atol=1e-15)
     # a frame with no marker seen keeps the constant matrix and a zero gradient
-    h0, g0 = normal_equations(v[:1] * 0, sw[:1] * 0, resid[:1] * 0, paths.start,
-                              3 + 3 * paths.segment, normal)  # fmt: skip
-    np.testing.assert_array_equal(h0[0], normal)
+    h0, g0 = _normal_equations(rot[:1], sw[:1] * 0, resid[:1] * 0, paths, normal)
+    np.testing.assert_array_equal(h0[0][upper], normal[upper])
     assert not g0.any()
 
 
@@ -70,9 +75,9 @@ def test_normal_equations_equal_the_dense_jacobian_products():
 def test_damped_solve_matches_numpy_on_tree_and_dense_matrices(tree):
     rng = np.random.default_rng(3)
     if tree:  # the sparsity the IK has
-        v, sw, resid, paths = _frames(30, seed=4)
-        h, g = normal_equations(v, sw, resid, paths.start, 3 + 3 * paths.segment,
-                                np.zeros((N_PAR, N_PAR)))  # fmt: skip
+        rot, sw, resid, _, paths = _frames(30, seed=4)
+        h, g = _normal_equations(rot, sw, resid, paths, np.zeros((N_PAR, N_PAR)))
+        h = np.triu(h) + np.triu(h, 1).transpose(0, 2, 1)  # the symmetric matrix it stands for
     else:  # any positive semi-definite matrix (fill-in everywhere)
         a = rng.normal(size=(30, 50, N_PAR))
         h, g = np.einsum("tri,trj->tij", a, a), rng.normal(size=(30, N_PAR))

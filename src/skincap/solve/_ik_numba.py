@@ -5,11 +5,12 @@ Jacobian into a dense ``(3 M, P)`` matrix (mostly zeros), multiplies it out in s
 precision and hands the ``(T, P, P)`` stack to ``np.linalg.solve`` (an LU of a
 dense 63 x 63 matrix per frame); together that is 60 % of the IK's time. Here
 
-* :func:`normal_equations` builds ``h = normal + J^T J`` and ``g = J^T r`` (float64)
-  per frame from the closed-form blocks of each marker: ``w^2 I`` for the root origin,
-  ``-w [a]x`` between the root origin and a segment, ``(a . b) I - b a^T`` between two
-  segments on its path, with ``a``, ``b`` the weighted world vectors those segments
-  carry (``-[a]x`` is a segment's block of the marker's Jacobian rows);
+* :func:`normal_equations` builds ``h = normal + J^T J`` (its upper triangle) and
+  ``g = J^T r`` (float64) per frame from the closed-form blocks of each marker:
+  ``w^2 I`` for the root origin, ``-w [a]x`` between the root origin and a segment,
+  ``(a . b) I - a b^T`` between two segments on its path, with ``a``, ``b`` the
+  weighted world vectors those segments carry (``-[a]x`` is a segment's block of the
+  marker's Jacobian rows), computed there from the rotations;
 * :func:`damped_solve` adds the Levenberg-Marquardt damping and solves by symmetric
   Gaussian elimination from the last parameter back: a segment's parameters come
   after its parent's, so eliminating children first couples only ancestors, which
@@ -50,35 +51,40 @@ def ik_dispatcher() -> Any:
 
 
 def normal_equations(
-    v: np.ndarray,
+    rot: np.ndarray,
+    local: np.ndarray,
+    pair_segment: np.ndarray,
+    pair_start: np.ndarray,
     weight: np.ndarray,
     resid: np.ndarray,
-    pair_start: np.ndarray,
-    pair_column: np.ndarray,
     normal: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Per-frame Gauss-Newton normal equations of the marker residuals.
 
     Parameters
     ----------
-    v : (T, Q, 3) float64, metres
-        Per (marker, segment-on-its-path) pair, ordered by marker: the world vector
-        the segment carries to the marker, times the marker's weight.
+    rot : (T, S, 3, 3) float64
+        World rotations of the segments.
+    local : (Q, 3) float64, metres
+        Per (marker, segment-on-its-path) pair, ordered by marker and within a marker
+        from its segment rootwards: the vector the segment carries towards the marker
+        in its own frame (its child's joint offset, or the marker's offset).
+    pair_segment : (Q,) int64
+        Each pair's segment.
+    pair_start : (M + 1,) int64
+        Marker ``m``'s pairs are ``pair_start[m]:pair_start[m + 1]``.
     weight : (T, M) float64
         Each marker's row weight (0: missing in that frame).
     resid : (T, M, 3) float64, metres
         Weighted residuals, model minus measured.
-    pair_start : (M + 1,) int64
-        Marker ``m``'s pairs are ``pair_start[m]:pair_start[m + 1]``.
-    pair_column : (Q,) int64
-        Each pair's first parameter, ``3 + 3 * segment``.
-    normal : (P, P) float64
+    normal : (P, P) float64, ``P = 3 + 3 S``
         Added to every frame's matrix (the link springs' constant ``J^T J``).
 
     Returns
     -------
     h : (T, P, P) float64
-        ``normal + J^T J``, symmetric.
+        ``normal + J^T J`` in the upper triangle (row <= column, what
+        :func:`damped_solve` reads); below it, ``normal`` or partial sums.
     g : (T, P) float64
         ``J^T r``.
     """
@@ -88,9 +94,10 @@ def normal_equations(
     h = np.zeros((t, p, p))
     g = np.zeros((t, p))
     normal_equations_kernel(
-        np.require(v, np.float64, "C"), np.require(weight, np.float64, "C"),
-        np.require(resid, np.float64, "C"), np.require(pair_start, np.int64, "C"),
-        np.require(pair_column, np.int64, "C"), np.require(normal, np.float64, "C"), h, g,
+        np.require(rot, np.float64, "C"), np.require(local, np.float64, "C"),
+        np.require(pair_segment, np.int64, "C"), np.require(pair_start, np.int64, "C"),
+        np.require(weight, np.float64, "C"), np.require(resid, np.float64, "C"),
+        np.require(normal, np.float64, "C"), h, g,
     )  # fmt: skip
     return h, g
 
@@ -101,7 +108,8 @@ def damped_solve(h: np.ndarray, g: np.ndarray, damping: np.ndarray, floor: float
     Parameters
     ----------
     h : (T, P, P) float64
-        Symmetric positive semi-definite normal matrices; overwritten.
+        Symmetric positive semi-definite normal matrices, read from the upper triangle
+        (row <= column) only; overwritten.
     g : (T, P) float64
         Gradients ``J^T r``.
     damping : (T,) float64

@@ -15,30 +15,41 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def normal_equations_kernel(
-    v: np.ndarray,
+    rot: np.ndarray,
+    local: np.ndarray,
+    pair_segment: np.ndarray,
+    pair_start: np.ndarray,
     weight: np.ndarray,
     resid: np.ndarray,
-    pair_start: np.ndarray,
-    pair_column: np.ndarray,
     normal: np.ndarray,
     h: np.ndarray,
     g: np.ndarray,
 ) -> None:
-    """``h[t] = normal + J^T J`` and ``g[t] = J^T r`` of every frame (see the module
-    :mod:`skincap.solve._ik_numba` for the shapes)."""
+    """``h[t] = normal + J^T J`` (its upper triangle) and ``g[t] = J^T r`` of every frame
+    (see :func:`skincap.solve._ik_numba.normal_equations` for the shapes)."""
     n_frames, n_markers = weight.shape
     n_par = normal.shape[0]
+    v = np.zeros((pair_segment.size, 3))
     for t in range(n_frames):
         ht = h[t]
         gt = g[t]
         for i in range(n_par):
             gt[i] = 0.0
-            for j in range(n_par):
+            for j in range(i, n_par):
                 ht[i, j] = normal[i, j]
         for m in range(n_markers):
             w = weight[t, m]
             if w == 0.0:
                 continue
+            # each pair's world vector, weighted: its segment's rotation times its local vector
+            for q in range(pair_start[m], pair_start[m + 1]):
+                s = pair_segment[q]
+                for i in range(3):
+                    v[q, i] = w * (
+                        rot[t, s, i, 0] * local[q, 0]
+                        + rot[t, s, i, 1] * local[q, 1]
+                        + rot[t, s, i, 2] * local[q, 2]
+                    )
             r0, r1, r2 = resid[t, m, 0], resid[t, m, 1], resid[t, m, 2]
             # the root origin's rows are w I: block w^2 I, gradient w r
             for i in range(3):
@@ -47,39 +58,47 @@ def normal_equations_kernel(
             gt[1] += w * r1
             gt[2] += w * r2
             for qa in range(pair_start[m], pair_start[m + 1]):
-                a0, a1, a2 = v[t, qa, 0], v[t, qa, 1], v[t, qa, 2]
-                ca = pair_column[qa]
+                a0, a1, a2 = v[qa, 0], v[qa, 1], v[qa, 2]
+                ca = 3 + 3 * pair_segment[qa]
                 # a segment's rows are -[a]x: gradient [a]x r = a x r
                 gt[ca] += a1 * r2 - a2 * r1
                 gt[ca + 1] += a2 * r0 - a0 * r2
                 gt[ca + 2] += a0 * r1 - a1 * r0
-                # root origin x segment block w I^T (-[a]x), and its transpose
+                # root origin x segment block: w I^T (-[a]x)
                 ht[0, ca + 1] += w * a2
                 ht[0, ca + 2] -= w * a1
                 ht[1, ca] -= w * a2
                 ht[1, ca + 2] += w * a0
                 ht[2, ca] += w * a1
                 ht[2, ca + 1] -= w * a0
-                ht[ca + 1, 0] += w * a2
-                ht[ca + 2, 0] -= w * a1
-                ht[ca, 1] -= w * a2
-                ht[ca + 2, 1] += w * a0
-                ht[ca, 2] += w * a1
-                ht[ca + 1, 2] -= w * a0
-                # segment x segment block (-[a]x)^T (-[b]x) = (a.b) I - b a^T
-                for qb in range(pair_start[m], pair_start[m + 1]):
-                    b0, b1, b2 = v[t, qb, 0], v[t, qb, 1], v[t, qb, 2]
-                    cb = pair_column[qb]
+                # segment blocks (-[b]x)^T (-[a]x) = (a.b) I - a b^T for the segments b at
+                # or above a on the path (pairs run from the marker's segment rootwards and
+                # parents come first, so b's rows come first: the upper triangle)
+                for qb in range(qa, pair_start[m + 1]):
+                    b0, b1, b2 = v[qb, 0], v[qb, 1], v[qb, 2]
+                    cb = 3 + 3 * pair_segment[qb]
                     dot = a0 * b0 + a1 * b1 + a2 * b2
-                    ht[ca, cb] += dot - b0 * a0
-                    ht[ca, cb + 1] -= b0 * a1
-                    ht[ca, cb + 2] -= b0 * a2
-                    ht[ca + 1, cb] -= b1 * a0
-                    ht[ca + 1, cb + 1] += dot - b1 * a1
-                    ht[ca + 1, cb + 2] -= b1 * a2
-                    ht[ca + 2, cb] -= b2 * a0
-                    ht[ca + 2, cb + 1] -= b2 * a1
-                    ht[ca + 2, cb + 2] += dot - b2 * a2
+                    if cb <= ca:
+                        _add_block(ht, cb, ca, dot, a0, a1, a2, b0, b1, b2)
+                    else:  # a tree not in parents-first order: the transposed block
+                        _add_block(ht, ca, cb, dot, b0, b1, b2, a0, a1, a2)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _add_block(
+    ht: np.ndarray, row: int, col: int, dot: float,
+    a0: float, a1: float, a2: float, b0: float, b1: float, b2: float,
+) -> None:  # fmt: skip
+    """``ht[row:row + 3, col:col + 3] += (a.b) I - a b^T``."""
+    ht[row, col] += dot - a0 * b0
+    ht[row, col + 1] -= a0 * b1
+    ht[row, col + 2] -= a0 * b2
+    ht[row + 1, col] -= a1 * b0
+    ht[row + 1, col + 1] += dot - a1 * b1
+    ht[row + 1, col + 2] -= a1 * b2
+    ht[row + 2, col] -= a2 * b0
+    ht[row + 2, col + 1] -= a2 * b1
+    ht[row + 2, col + 2] += dot - a2 * b2
 
 
 @njit(cache=True, nogil=True)

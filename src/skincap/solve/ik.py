@@ -706,11 +706,13 @@ def _solve_chunk(
             _, irls = _marker_loss(np.einsum("tmi,tmi->tm", diff, diff), loss, scale)
             sw = w * np.sqrt(irls)
         resid = diff * sw[..., None]  # (Ta, M, 3), zero where missing
-        v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
-        v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
         if problem.compiled:
-            h, g = normal_equations(v, sw, resid, paths.start, cols, springs.normal)
+            h, g = normal_equations(
+                r_a, paths.local, paths.segment, paths.start, sw, resid, springs.normal
+            )
         else:
+            v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
+            v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
             jac = jac_all[:ta]
             jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
             # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
