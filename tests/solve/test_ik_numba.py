@@ -9,7 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from skincap.errors import ValidationError
-from skincap.solve._ik_numba import damped_solve, normal_equations
+from skincap.solve._ik_numba import ancestor_blocks, damped_solve, lm_steps, normal_equations
 from skincap.solve.ik import _Paths, model_markers, solve_poses
 
 # a branching tree (a pelvis with a spine and two legs) and markers on every segment
@@ -71,23 +71,51 @@ def test_normal_equations_equal_the_dense_jacobian_products():
     assert not g0.any()
 
 
-@pytest.mark.parametrize("tree", [True, False])
-def test_damped_solve_matches_numpy_on_tree_and_dense_matrices(tree):
+def _chain_columns(s: int) -> list[int]:
+    """The parameters a row on segment ``s`` may reach: the root origin and its chain."""
+    cols = [0, 1, 2]
+    while s >= 0:
+        cols += [3 + 3 * s, 4 + 3 * s, 5 + 3 * s]
+        s = PARENTS[s]
+    return cols
+
+
+@pytest.mark.parametrize("source", ["markers", "any rows"])
+def test_damped_solve_matches_numpy_solve(source):
     rng = np.random.default_rng(3)
-    if tree:  # the sparsity the IK has
+    if source == "markers":  # the IK's own normal equations
         rot, sw, resid, _, paths = _frames(30, seed=4)
         h, g = _normal_equations(rot, sw, resid, paths, np.zeros((N_PAR, N_PAR)))
         h = np.triu(h) + np.triu(h, 1).transpose(0, 2, 1)  # the symmetric matrix it stands for
-    else:  # any positive semi-definite matrix (fill-in everywhere)
-        a = rng.normal(size=(30, 50, N_PAR))
-        h, g = np.einsum("tri,trj->tij", a, a), rng.normal(size=(30, N_PAR))
+    else:  # any rows that reach a chain to the root (springs, limits): dense blocks
+        jac = np.zeros((30, 80, N_PAR))
+        for r, seg in enumerate(rng.integers(0, PARENTS.size, size=80)):
+            cols = _chain_columns(seg)
+            jac[:, r, cols] = rng.normal(size=(30, len(cols)))
+        h, g = np.einsum("tri,trj->tij", jac, jac), rng.normal(size=(30, N_PAR))
     damping = 10.0 ** rng.uniform(-9, 3, size=30)
     damped = h.copy()
     idx = np.arange(N_PAR)
     damped[:, idx, idx] += damping[:, None] * damped[:, idx, idx] + 1e-6
     want = -np.linalg.solve(damped, g[..., None])[..., 0]
-    got = damped_solve(h.copy(), g, damping, 1e-6)
+    got = damped_solve(h.copy(), g, damping, 1e-6, PARENTS)
     np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-10 * np.abs(want).max())
+    # the fused kernel (normal equations, then the solve, per frame) steps alike
+    if source == "markers":
+        fused = lm_steps(rot, paths.local, paths.segment, paths.start, sw, resid,
+                         np.zeros((N_PAR, N_PAR)), np.zeros((30, N_PAR)), np.zeros(0, np.int64),
+                         np.zeros(0, np.int64), np.zeros((30, 0, 3)), damping, 1e-6,
+                         ancestor_blocks(PARENTS))  # fmt: skip
+        np.testing.assert_allclose(fused, want, rtol=1e-8, atol=1e-10 * np.abs(want).max())
+
+
+def test_ancestor_blocks_list_each_chain_and_refuse_a_child_before_its_parent():
+    start, block = ancestor_blocks(PARENTS)
+    assert [sorted(block[start[k] : start[k + 1]]) for k in range(PARENTS.size + 1)] == [
+        [], [0], [0, 1], [0, 1, 2], [0, 1], [0, 1, 4], [0, 1], [0, 1, 6]
+    ]  # fmt: skip
+    with pytest.raises(ValidationError, match="parents first"):
+        ancestor_blocks(np.array([-1, 2, 0]))
 
 
 def _solve(y, rot, root, backend, **options):

@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 from skincap._arrays import Progress
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
-from skincap.solve._ik_numba import damped_solve, ik_dispatcher, normal_equations
+from skincap.solve._ik_numba import ancestor_blocks, ik_dispatcher, lm_steps
 
 __all__ = [
     "solve_poses",
@@ -340,20 +340,33 @@ class _Springs:
         ``u = R_p e_a``; its row is taken as ``u`` for the segment's increment and ``-u``
         for its parent's (exact for a pure hinge; LM accepts a step only when the true
         cost falls); a limit that holds adds nothing."""
-        n = self.segment.size
+        u, res = self.limit_rows(rot, r)
         for k in range(self.lim_segment.size):
-            s, p, a = self.lim_segment[k], self.lim_parent[k], self.lim_axis[k]
-            res = r[:, n + k, 0]  # (T,) k * excess
-            on = (res != 0.0)[:, None]
-            u = self.lim_k * rot[:, p, :, a] * on  # (T, 3) world axis, zero inside the limit
-            uu = np.einsum("ti,tj->tij", u, u)
-            cs, cp = 3 + 3 * s, 3 + 3 * p
+            uu = np.einsum("ti,tj->tij", u[:, k], u[:, k])
+            cs, cp = 3 + 3 * self.lim_segment[k], 3 + 3 * self.lim_parent[k]
             h[:, cs : cs + 3, cs : cs + 3] += uu
             h[:, cp : cp + 3, cp : cp + 3] += uu
             h[:, cs : cs + 3, cp : cp + 3] -= uu
             h[:, cp : cp + 3, cs : cs + 3] -= uu
-            g[:, cs : cs + 3] += u * res[:, None]
-            g[:, cp : cp + 3] -= u * res[:, None]
+        self.add_limit_gradient(g, u, res)
+
+    def limit_rows(self, rot: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each joint limit's Jacobian row ``u`` for its segment's increment, ``(T, K, 3)``
+        (the parent's is ``-u``; zero where the limit holds), and its residual ``(T, K)``
+        (the limit stiffness times the excess angle), for poses ``rot`` and residuals
+        ``r`` (from :meth:`residuals`)."""
+        res = r[:, self.segment.size :, 0]  # (T, K)
+        k = np.arange(self.lim_segment.size)
+        axes = rot[:, self.lim_parent].transpose(0, 1, 3, 2)[:, k, self.lim_axis]  # (T, K, 3)
+        return self.lim_k * axes * (res != 0.0)[..., None], res
+
+    def add_limit_gradient(self, g: np.ndarray, u: np.ndarray, res: np.ndarray) -> None:
+        """Add the joint limits' ``J^T r`` (rows ``u (T, K, 3)``, residuals ``res (T, K)``
+        from :meth:`limit_rows`) to gradients ``g (T, P)`` in place."""
+        for k in range(self.lim_segment.size):
+            cs, cp = 3 + 3 * self.lim_segment[k], 3 + 3 * self.lim_parent[k]
+            g[:, cs : cs + 3] += u[:, k] * res[:, k, None]
+            g[:, cp : cp + 3] -= u[:, k] * res[:, k, None]
 
     def add_gradient(self, g: np.ndarray, r: np.ndarray) -> None:
         """Add the springs' ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
@@ -542,6 +555,8 @@ def _checked_model_inputs(
     y = np.asarray(measured, dtype=np.float64)
     t_all, m, _ = y.shape
     s = parents.size
+    if parents.ndim != 1 or (parents >= np.arange(s)).any() or (parents[1:] < 0).any():
+        raise ValidationError("parents: expected one root first and every parent before its child")
     if mseg.shape != (m,) or moff.shape != (m, 3):
         raise ValidationError(
             f"marker_segments/offsets: expected ({m},) and ({m}, 3), got {mseg.shape} and {moff.shape}"
@@ -685,6 +700,7 @@ def _solve_chunk(
     # single precision for the Jacobian products: they only choose the step (the cost and
     # the poses stay double), and halve the time of the dominant batched matmul
     jac_all = np.zeros((0 if problem.compiled else t, 3 * m, n_par), dtype=np.float32)
+    ancestors = ancestor_blocks(parents)
     root_cols = np.tile(np.arange(3), m)
     all_rows = np.arange(3 * m)
     rows = 3 * paths.marker  # (Q,) first Jacobian row of each pair's marker
@@ -707,9 +723,14 @@ def _solve_chunk(
             sw = w * np.sqrt(irls)
         resid = diff * sw[..., None]  # (Ta, M, 3), zero where missing
         if problem.compiled:
-            h, g = normal_equations(
-                r_a, paths.local, paths.segment, paths.start, sw, resid, springs.normal
-            )
+            g = np.zeros((ta, n_par))
+            springs.add_gradient(g, spring)
+            u, res = springs.limit_rows(r_a, spring)
+            springs.add_limit_gradient(g, u, res)
+            step = lm_steps(
+                r_a, paths.local, paths.segment, paths.start, sw, resid, springs.normal, g,
+                springs.lim_segment, springs.lim_parent, u, lam, floor, ancestors,
+            )  # fmt: skip
         else:
             v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
             v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
@@ -721,11 +742,8 @@ def _solve_chunk(
             h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
             g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)
             h += springs.normal
-        springs.add_gradient(g, spring)
-        springs.add_limits(h, g, r_a, spring)
-        if problem.compiled:
-            step = damped_solve(h, g, lam, floor)  # (Ta, P)
-        else:
+            springs.add_gradient(g, spring)
+            springs.add_limits(h, g, r_a, spring)
             diag = np.einsum("tii->ti", h)
             h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
             step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
