@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from skincap.errors import ValidationError
 from skincap.solve._ik_numba import ancestor_blocks, damped_solve, lm_steps, normal_equations
-from skincap.solve.ik import _Paths, model_markers, solve_poses
+from skincap.solve.ik import _Paths, _Springs, model_markers, solve_poses
 
 # a branching tree (a pelvis with a spine and two legs) and markers on every segment
 PARENTS = np.array([-1, 0, 1, 0, 3, 0, 5])
@@ -120,6 +120,35 @@ def test_ancestor_blocks_list_each_chain_and_refuse_a_child_before_its_parent():
 
 def _solve(y, rot, root, backend, **options):
     return solve_poses(PARENTS, OFFSETS, SEG, LOCAL, y, rot, root, backend=backend, **options)
+
+
+LIMITS = np.full((PARENTS.size, 3, 2), np.nan)
+LIMITS[2, 0] = [-0.2, 0.2]  # radians about the parent's x axis: the random poses pass them
+LIMITS[4, 2] = [-0.3, 0.1]
+
+
+def test_a_step_with_springs_and_joint_limits_equals_the_dense_float64_step():
+    rot, sw, resid, v, paths = _frames(25, seed=8)
+    springs = _Springs(PARENTS, np.array([0, 0, 0.5, 0, 0, 0, 0.0]), N_PAR, LIMITS, 2.0)
+    r = springs.residuals(rot)
+    assert (r[:, springs.segment.size :, 0] != 0).sum() > 20  # limits pushing back
+    jac = _dense_jacobian(v, sw, paths)
+    h = np.einsum("tri,trj->tij", jac, jac) + springs.normal
+    g = np.einsum("tri,tr->ti", jac, resid.reshape(25, -1))
+    springs.add_gradient(g, r)
+    springs.add_limits(h, g, rot, r)
+    damping = np.full(25, 1e-3)
+    idx = np.arange(N_PAR)
+    h[:, idx, idx] += damping[:, None] * h[:, idx, idx] + 1e-6
+    want = -np.linalg.solve(h, g[..., None])[..., 0]
+    rest = np.zeros((25, N_PAR))
+    springs.add_gradient(rest, r)
+    u, res = springs.limit_rows(rot, r)
+    springs.add_limit_gradient(rest, u, res)
+    got = lm_steps(rot, paths.local, paths.segment, paths.start, sw, resid, springs.normal, rest,
+                   springs.lim_segment, springs.lim_parent, u, damping, 1e-6,
+                   ancestor_blocks(PARENTS))  # fmt: skip
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
 
 
 @pytest.mark.parametrize("options", [{}, {"loss": "huber", "loss_scale": 0.01}])
