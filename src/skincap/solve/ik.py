@@ -46,6 +46,7 @@ __all__ = [
     "refit_marker_offsets",
     "limited_angle",
     "LOSSES",
+    "ik_backend",
 ]
 
 
@@ -522,6 +523,13 @@ def warm_up_kernel() -> None:
         np.array([-1]), np.zeros((1, 3)), np.zeros(3, dtype=np.int64), np.eye(3),
         np.eye(3)[None], np.eye(3)[None, None], np.zeros((1, 3)), backend="numba",
     )  # fmt: skip
+
+
+def ik_backend(backend: str = "auto") -> str:
+    """``"numba"`` or ``"numpy"``: what :func:`solve_poses` runs with this ``backend``
+    now (``"auto"`` on a machine that has not compiled the kernels yet starts their
+    background compile and says ``"numpy"``; :func:`skincap.backends.resolve_backend`)."""
+    return _resolve_backend(backend)
 
 
 def _resolve_backend(backend: str) -> str:
