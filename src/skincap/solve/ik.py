@@ -249,7 +249,8 @@ def _cost(
     resid: np.ndarray, w: np.ndarray, loss: str = "squared", scale: float = 1.0
 ) -> np.ndarray:
     """(T,) robust cost (m^2) of marker residuals ``resid (T, M, 3)`` seen where ``w (T, M)`` is 1."""
-    rho, _ = _marker_loss(np.einsum("tmi,tmi->tm", resid, resid), loss, scale)
+    dist2 = np.einsum("tmi,tmi->tm", resid, resid)
+    rho = dist2 if loss == "squared" else _marker_loss(dist2, loss, scale)[0]  # no IRLS weights
     return np.einsum("tm,tm->t", w, rho)
 
 
