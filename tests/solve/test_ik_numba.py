@@ -204,3 +204,12 @@ def test_an_unknown_backend_is_refused():
     )
     with pytest.raises(ValidationError, match="backend"):
         _solve(y, np.tile(np.eye(3), (2, 7, 1, 1)), np.zeros((2, 3)), "fortran")
+
+
+def test_ik_backend_names_what_solve_poses_runs():
+    from skincap.solve.ik import ik_backend
+
+    assert ik_backend("numpy") == "numpy"
+    assert ik_backend("numba") == "numba"  # numba is a core dependency
+    with pytest.raises(ValidationError, match="backend"):
+        ik_backend("fortran")
