@@ -213,3 +213,14 @@ def test_ik_backend_names_what_solve_poses_runs():
     assert ik_backend("numba") == "numba"  # numba is a core dependency
     with pytest.raises(ValidationError, match="backend"):
         ik_backend("fortran")
+
+
+def test_rotated_turns_as_the_reference_exp_including_tiny_and_zero_steps():
+    from skincap.solve._ik_numba import rotated
+    from skincap.solve.ik import _exp
+
+    rng = np.random.default_rng(9)
+    step = rng.normal(scale=0.8, size=(40, 7, 3))
+    step[0, 0], step[0, 1] = 0.0, 1e-10  # the series branch below 1e-8 rad
+    rot = Rotation.random(280, random_state=2).as_matrix().reshape(40, 7, 3, 3)
+    np.testing.assert_allclose(rotated(step, rot), _exp(step) @ rot, rtol=0, atol=1e-14)

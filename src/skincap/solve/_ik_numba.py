@@ -35,7 +35,14 @@ import numpy as np
 
 from skincap.errors import ValidationError
 
-__all__ = ["ik_dispatcher", "normal_equations", "damped_solve", "lm_steps", "ancestor_blocks"]
+__all__ = [
+    "ik_dispatcher",
+    "normal_equations",
+    "damped_solve",
+    "lm_steps",
+    "ancestor_blocks",
+    "rotated",
+]
 
 
 @functools.cache
@@ -218,3 +225,14 @@ def lm_steps(
         float(floor), ancestors[0], ancestors[1], step,
     )  # fmt: skip
     return step
+
+
+def rotated(step: np.ndarray, rot: np.ndarray) -> np.ndarray:
+    """``exp(step) rot``: rotations ``rot (T, S, 3, 3)`` turned by the rotation vectors
+    ``step (T, S, 3)`` (radians, world axes), as ``_exp(step) @ rot`` in
+    :mod:`skincap.solve.ik` (to rounding); ``(T, S, 3, 3)`` float64."""
+    from skincap.solve._ik_numba_jit import rotated_kernel
+
+    out = np.zeros(rot.shape)
+    rotated_kernel(np.require(step, np.float64, "C"), np.require(rot, np.float64, "C"), out)
+    return out

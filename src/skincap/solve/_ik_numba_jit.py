@@ -274,3 +274,36 @@ def lm_step_kernel(
                     ht[cp + i, cs + j] -= uu
         _frame_damped_solve(ht, gt, damping[t], floor, anc_start, anc_block, dinv, f, x)
         step[t] = -x
+
+
+@njit(cache=True, nogil=True)
+def rotated_kernel(step: np.ndarray, rot: np.ndarray, out: np.ndarray) -> None:
+    """``out[t, s] = exp(step[t, s]) rot[t, s]`` (Rodrigues, as ``skincap.solve.ik._exp``)."""
+    n_frames, n_seg = step.shape[0], step.shape[1]
+    for t in range(n_frames):
+        for s in range(n_seg):
+            w0, w1, w2 = step[t, s, 0], step[t, s, 1], step[t, s, 2]
+            theta2 = w0 * w0 + w1 * w1 + w2 * w2
+            theta = np.sqrt(theta2)
+            if theta < 1e-8:
+                a = 1.0 - theta2 / 6.0
+                b = 0.5 - theta2 / 24.0
+            else:
+                a = np.sin(theta) / theta
+                b = (1.0 - np.cos(theta)) / theta2
+            # exp = I + a K + b K^2, K = [w]x, K^2 = w w^T - theta^2 I
+            e00 = 1.0 + b * (w0 * w0 - theta2)
+            e11 = 1.0 + b * (w1 * w1 - theta2)
+            e22 = 1.0 + b * (w2 * w2 - theta2)
+            e01 = -a * w2 + b * w0 * w1
+            e10 = a * w2 + b * w0 * w1
+            e02 = a * w1 + b * w0 * w2
+            e20 = -a * w1 + b * w0 * w2
+            e12 = -a * w0 + b * w1 * w2
+            e21 = a * w0 + b * w1 * w2
+            r = rot[t, s]
+            o = out[t, s]
+            for j in range(3):
+                o[0, j] = e00 * r[0, j] + e01 * r[1, j] + e02 * r[2, j]
+                o[1, j] = e10 * r[0, j] + e11 * r[1, j] + e12 * r[2, j]
+                o[2, j] = e20 * r[0, j] + e21 * r[1, j] + e22 * r[2, j]

@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation
 from skincap._arrays import Progress
 from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
-from skincap.solve._ik_numba import ancestor_blocks, ik_dispatcher, lm_steps
+from skincap.solve._ik_numba import ancestor_blocks, ik_dispatcher, lm_steps, rotated
 
 __all__ = [
     "solve_poses",
@@ -757,7 +757,10 @@ def _solve_chunk(
             h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
             step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
         new_root = o_a + step[:, :3]
-        new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
+        if problem.compiled:
+            new_rot = rotated(step[:, 3:].reshape(ta, -1, 3), r_a)
+        else:
+            new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
         new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
         new_spring = springs.residuals(new_rot)
         new_cost = _cost(new_x - y0, w, loss, scale) + np.einsum(
