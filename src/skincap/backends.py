@@ -54,6 +54,7 @@ WARM_UPS = {
     "skinning.dqs": "skincap.deform.skeletal.deformers:warm_up_dqs",
     "tracking": "skincap.tracking.tracker:warm_up_kernel",
     "dense": "skincap.deform.dense.deformer:warm_up_kernel",
+    "ik": "skincap.solve.ik:warm_up_kernel",
 }
 
 #: Where each of those kernels' numba dispatcher comes from (``module:function``).
@@ -62,6 +63,7 @@ DISPATCHERS = {
     "skinning.dqs": "skincap.deform.skeletal.deformers:_dqs_dispatcher",
     "tracking": "skincap.tracking.tracker:_track_frames_dispatcher",
     "dense": "skincap.deform.dense._kernel_numba:dense_dispatcher",
+    "ik": "skincap.solve._ik_numba:ik_dispatcher",
 }
 
 # a background compile older than this is taken as dead (its lock is removed)

@@ -29,7 +29,7 @@ from skincap.errors import ValidationError
 from skincap.geometry.kinematics import joint_positions
 from skincap.solve import load_template, solve_markers
 from skincap.solve.auto import auto_template, calibrate_auto
-from skincap.solve.ik import solve_poses
+from skincap.solve.ik import ik_backend, solve_poses
 from skincap.solve.templates import BUILTIN_TEMPLATES, Template, detect_template, strip_prefix
 from skincap.types import MarkerSet, Motion
 
@@ -175,26 +175,60 @@ def residual_distribution(residuals: np.ndarray, labels: list[str]) -> dict[str,
     }
 
 
-def ik_frames_per_second(result: Any, markers: MarkerSet, repeat: int = 3) -> dict[str, float]:
-    """Frames per second of the inverse kinematics alone on ``markers`` (best of ``repeat``).
+def ik_frames_per_second(result: Any, markers: MarkerSet, repeat: int = 3) -> dict[str, Any]:
+    """Frames per second of the inverse kinematics of ``result``'s solve on ``markers``.
 
-    Returns ``wall`` (elapsed time) and ``cpu`` (this process's CPU time, which a
-    machine loaded by other work distorts far less; the solver is single-threaded with
-    ``OPENBLAS_NUM_THREADS=1``).
+    Times :func:`~skincap.solve.ik.solve_poses` over all the take's frames with the
+    options the solve used (its model, link springs, loss, joint limits; the default
+    backend, as ``skincap solve`` runs it), best of ``repeat``: one pass from the
+    calibration's poses (the figure to hold against a per-frame IK), and the
+    solve's passes in turn (``1 + refine_offsets``, each from the last one's poses,
+    as :func:`~skincap.solve.pipeline.solve_markers` runs them; the offsets' refit
+    between them is not IK and not timed, nor is the re-solve of frames with a
+    rejected jump, which has none on a clean take).
+
+    Returns
+    -------
+    dict
+        ``wall`` and ``cpu``: one pass's frames per second of elapsed and of this
+        process's CPU time (a machine loaded by other work distorts CPU time far
+        less; the solver is single-threaded with ``OPENBLAS_NUM_THREADS=1``);
+        ``passes``, and ``solve_wall`` / ``solve_cpu``: the take's frames over the
+        time of all the passes; ``backend``: ``"numba"`` or ``"numpy"``.
     """
     model = result.model
     measured = markers.positions[:, model.marker_columns]
-    wall = cpu = np.inf
+    ik = getattr(result, "ik", {}) or {}
+    options: dict[str, Any] = {
+        "link_stiffness": model.link_stiffness,
+        "loss": ik.get("loss", "squared"),
+        "loss_scale": ik.get("loss_scale_m", 0.02),
+    }
+    if ik.get("joint_limits"):
+        options.update(joint_limits=model.joint_limits, bone_axes=model.bone_axes)
+    passes = 1 + int(ik.get("refine_offsets", 1))
+    backend = ik_backend()
+
+    def solve(rot: np.ndarray, root: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return solve_poses(
+            model.segment_parents, model.joint_offsets, model.marker_segments,
+            model.marker_offsets, measured, rot, root, backend=backend, **options,
+        )  # fmt: skip
+
+    best = {"wall": np.inf, "cpu": np.inf, "solve_wall": np.inf, "solve_cpu": np.inf}
     for _ in range(repeat):
         w0, c0 = time.perf_counter(), time.process_time()
-        solve_poses(
-            model.segment_parents, model.joint_offsets, model.marker_segments, model.marker_offsets,
-            measured, model.init_rotations, model.init_origins,
-            link_stiffness=model.link_stiffness,
-        )  # fmt: skip
-        wall = min(wall, time.perf_counter() - w0)
-        cpu = min(cpu, time.process_time() - c0)
-    return {"wall": float(markers.n_frames / wall), "cpu": float(markers.n_frames / max(cpu, 1e-9))}
+        rot, root = solve(model.init_rotations, model.init_origins)
+        w1, c1 = time.perf_counter(), time.process_time()
+        for _ in range(passes - 1):
+            rot, root = solve(rot, root)
+        w2, c2 = time.perf_counter(), time.process_time()
+        spans = {"wall": w1 - w0, "cpu": c1 - c0, "solve_wall": w2 - w0, "solve_cpu": c2 - c0}
+        best = {k: min(best[k], spans[k]) for k in best}
+    frames = markers.n_frames
+    out: dict[str, Any] = {k: float(frames / max(v, 1e-9)) for k, v in best.items()}
+    out.update(passes=passes, backend=backend)
+    return out
 
 
 def _template_of(markers: MarkerSet, template: str | None) -> str:
@@ -514,10 +548,12 @@ def targets_table(
     speed = [r for r in ([synthetic] if synthetic else []) + list(real.values())]
     if speed:
         first = speed[0]
+        speed_of = first["ik_frames_per_second"]
         rows.append({
             "measure": f"IK speed, {first['markers']} markers, {first['frames']} frames",
-            "measured": f"{first['ik_frames_per_second']['cpu']:,.0f} frames/s of CPU time "
-            f"({first['ik_frames_per_second']['wall']:,.0f} wall)",
+            "measured": f"{speed_of['cpu']:,.0f} frames/s of CPU time per pass "
+            f"({speed_of['wall']:,.0f} wall, {speed_of.get('backend', 'numpy')}); the solve's "
+            f"{speed_of.get('passes', 1)} passes {speed_of.get('solve_cpu', speed_of['cpu']):,.0f} frames/s",
             "target": ">= 2,000 frames/s",
             "met": str(first["ik_frames_per_second"]["cpu"] >= TARGETS["ik_frames_per_second"]).lower(),
         })  # fmt: skip

@@ -34,7 +34,9 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from skincap._arrays import Progress
+from skincap.backends import numba_available, resolve_backend
 from skincap.errors import ValidationError
+from skincap.solve._ik_numba import ancestor_blocks, ik_dispatcher, lm_steps, rotated
 
 __all__ = [
     "solve_poses",
@@ -44,6 +46,7 @@ __all__ = [
     "refit_marker_offsets",
     "limited_angle",
     "LOSSES",
+    "ik_backend",
 ]
 
 
@@ -219,6 +222,8 @@ class _Paths:
         self.marker = np.array(pair_m, dtype=np.int64)
         self.segment = np.array(pair_s, dtype=np.int64)
         self.local = np.array(pair_v, dtype=np.float64).reshape(-1, 3)
+        # marker m's pairs are start[m]:start[m + 1] (they were appended marker by marker)
+        self.start = np.concatenate([[0], np.cumsum(np.bincount(self.marker, minlength=len(mseg)))])
 
 
 #: Robust losses of a marker's distance ``s`` (metres) with scale ``c``: ``rho(s)`` and the
@@ -244,7 +249,8 @@ def _cost(
     resid: np.ndarray, w: np.ndarray, loss: str = "squared", scale: float = 1.0
 ) -> np.ndarray:
     """(T,) robust cost (m^2) of marker residuals ``resid (T, M, 3)`` seen where ``w (T, M)`` is 1."""
-    rho, _ = _marker_loss(np.einsum("tmi,tmi->tm", resid, resid), loss, scale)
+    dist2 = np.einsum("tmi,tmi->tm", resid, resid)
+    rho = dist2 if loss == "squared" else _marker_loss(dist2, loss, scale)[0]  # no IRLS weights
     return np.einsum("tm,tm->t", w, rho)
 
 
@@ -336,20 +342,33 @@ class _Springs:
         ``u = R_p e_a``; its row is taken as ``u`` for the segment's increment and ``-u``
         for its parent's (exact for a pure hinge; LM accepts a step only when the true
         cost falls); a limit that holds adds nothing."""
-        n = self.segment.size
+        u, res = self.limit_rows(rot, r)
         for k in range(self.lim_segment.size):
-            s, p, a = self.lim_segment[k], self.lim_parent[k], self.lim_axis[k]
-            res = r[:, n + k, 0]  # (T,) k * excess
-            on = (res != 0.0)[:, None]
-            u = self.lim_k * rot[:, p, :, a] * on  # (T, 3) world axis, zero inside the limit
-            uu = np.einsum("ti,tj->tij", u, u)
-            cs, cp = 3 + 3 * s, 3 + 3 * p
+            uu = np.einsum("ti,tj->tij", u[:, k], u[:, k])
+            cs, cp = 3 + 3 * self.lim_segment[k], 3 + 3 * self.lim_parent[k]
             h[:, cs : cs + 3, cs : cs + 3] += uu
             h[:, cp : cp + 3, cp : cp + 3] += uu
             h[:, cs : cs + 3, cp : cp + 3] -= uu
             h[:, cp : cp + 3, cs : cs + 3] -= uu
-            g[:, cs : cs + 3] += u * res[:, None]
-            g[:, cp : cp + 3] -= u * res[:, None]
+        self.add_limit_gradient(g, u, res)
+
+    def limit_rows(self, rot: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Each joint limit's Jacobian row ``u`` for its segment's increment, ``(T, K, 3)``
+        (the parent's is ``-u``; zero where the limit holds), and its residual ``(T, K)``
+        (the limit stiffness times the excess angle), for poses ``rot`` and residuals
+        ``r`` (from :meth:`residuals`)."""
+        res = r[:, self.segment.size :, 0]  # (T, K)
+        k = np.arange(self.lim_segment.size)
+        axes = rot[:, self.lim_parent].transpose(0, 1, 3, 2)[:, k, self.lim_axis]  # (T, K, 3)
+        return self.lim_k * axes * (res != 0.0)[..., None], res
+
+    def add_limit_gradient(self, g: np.ndarray, u: np.ndarray, res: np.ndarray) -> None:
+        """Add the joint limits' ``J^T r`` (rows ``u (T, K, 3)``, residuals ``res (T, K)``
+        from :meth:`limit_rows`) to gradients ``g (T, P)`` in place."""
+        for k in range(self.lim_segment.size):
+            cs, cp = 3 + 3 * self.lim_segment[k], 3 + 3 * self.lim_parent[k]
+            g[:, cs : cs + 3] += u[:, k] * res[:, k, None]
+            g[:, cp : cp + 3] -= u[:, k] * res[:, k, None]
 
     def add_gradient(self, g: np.ndarray, r: np.ndarray) -> None:
         """Add the springs' ``J^T r`` for residuals ``r (T, L, 3)`` to gradients ``g (T, P)`` in place."""
@@ -365,8 +384,9 @@ class _IKProblem:
     ``parents (S,)`` int64, ``offsets (S, 3)`` metres, ``mseg (M,)`` int64, ``moff (M, 3)``
     metres (as in :func:`solve_poses`); ``paths`` and ``springs`` precomputed from them;
     ``n_par = 3 + 3 S`` parameters per frame; the stopping rule (``iterations``,
-    ``tolerance`` m^2, ``relative_tolerance``) and the marker loss (``loss``,
-    ``loss_scale`` metres)."""
+    ``tolerance`` m^2, ``relative_tolerance``), the marker loss (``loss``,
+    ``loss_scale`` metres) and whether the step's linear algebra runs in the numba
+    kernels (``compiled``, :mod:`skincap.solve._ik_numba`)."""
 
     parents: np.ndarray
     offsets: np.ndarray
@@ -380,6 +400,7 @@ class _IKProblem:
     relative_tolerance: float
     loss: str
     loss_scale: float
+    compiled: bool = False
 
     def markers(self, rot: np.ndarray, root: np.ndarray) -> np.ndarray:
         """(T, M, 3) model markers, metres, of poses ``rot (T, S, 3, 3)``, ``root (T, 3)``."""
@@ -406,6 +427,7 @@ def solve_poses(
     joint_limits: np.ndarray | None = None,
     limit_stiffness: float = 10.0,
     bone_axes: np.ndarray | None = None,
+    backend: str = "auto",
     progress: Progress | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Least-squares poses of a marker model, all frames at once.
@@ -462,6 +484,13 @@ def solve_poses(
     bone_axes : (S,) int, optional
         Each segment's long axis (0, 1, 2 for x, y, z; default y), the last of the
         Euler angles of :func:`limited_angle`.
+    backend : {"auto", "numba", "numpy"}, default "auto"
+        Where each step's normal equations are built and solved: the numba kernels
+        of :mod:`skincap.solve._ik_numba` (float64, the tree's sparsity exploited) or
+        the NumPy reference (a dense single-precision Jacobian product and
+        ``np.linalg.solve``); they agree to rounding. ``"auto"`` takes the kernels
+        once compiled (:func:`skincap.backends.resolve_backend`: the first run on a
+        machine compiles them in the background and runs NumPy).
     progress : callable(fraction, label), optional
 
     Returns
@@ -484,9 +513,33 @@ def solve_poses(
     springs.project(rot)  # start inside the joint limits
     problem = _IKProblem(
         parents, offsets, mseg, moff, paths, springs, n_par, int(iterations), float(tolerance),
-        float(relative_tolerance), loss, float(loss_scale),
+        float(relative_tolerance), loss, float(loss_scale), _resolve_backend(backend) == "numba",
     )  # fmt: skip
     return _solve_in_passes(problem, y, rot, root, chunk, warm_start, progress)
+
+
+def warm_up_kernel() -> None:
+    """Compile the IK kernels into numba's cache (run by the background compile)."""
+    solve_poses(
+        np.array([-1]), np.zeros((1, 3)), np.zeros(3, dtype=np.int64), np.eye(3),
+        np.eye(3)[None], np.eye(3)[None, None], np.zeros((1, 3)), backend="numba",
+    )  # fmt: skip
+
+
+def ik_backend(backend: str = "auto") -> str:
+    """``"numba"`` or ``"numpy"``: what :func:`solve_poses` runs with this ``backend``
+    now (``"auto"`` on a machine that has not compiled the kernels yet starts their
+    background compile and says ``"numpy"``; :func:`skincap.backends.resolve_backend`)."""
+    return _resolve_backend(backend)
+
+
+def _resolve_backend(backend: str) -> str:
+    return resolve_backend(
+        backend,
+        numba_installed=numba_available(),
+        feature="the numba inverse-kinematics kernels",
+        kernel=("ik", ik_dispatcher),
+    )
 
 
 def _checked_model_inputs(
@@ -511,6 +564,8 @@ def _checked_model_inputs(
     y = np.asarray(measured, dtype=np.float64)
     t_all, m, _ = y.shape
     s = parents.size
+    if parents.ndim != 1 or (parents >= np.arange(s)).any() or (parents[1:] < 0).any():
+        raise ValidationError("parents: expected one root first and every parent before its child")
     if mseg.shape != (m,) or moff.shape != (m, 3):
         raise ValidationError(
             f"marker_segments/offsets: expected ({m},) and ({m}, 3), got {mseg.shape} and {moff.shape}"
@@ -653,7 +708,8 @@ def _solve_chunk(
     active = np.arange(t)
     # single precision for the Jacobian products: they only choose the step (the cost and
     # the poses stay double), and halve the time of the dominant batched matmul
-    jac_all = np.zeros((t, 3 * m, n_par), dtype=np.float32)
+    jac_all = np.zeros((0 if problem.compiled else t, 3 * m, n_par), dtype=np.float32)
+    ancestors = ancestor_blocks(parents)
     root_cols = np.tile(np.arange(3), m)
     all_rows = np.arange(3 * m)
     rows = 3 * paths.marker  # (Q,) first Jacobian row of each pair's marker
@@ -675,23 +731,36 @@ def _solve_chunk(
             _, irls = _marker_loss(np.einsum("tmi,tmi->tm", diff, diff), loss, scale)
             sw = w * np.sqrt(irls)
         resid = diff * sw[..., None]  # (Ta, M, 3), zero where missing
-        v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
-        v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
-        jac = jac_all[:ta]
-        jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
-        # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
-        jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
-        jt = jac.transpose(0, 2, 1)
-        h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
-        g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)  # (Ta, P)
-        h += springs.normal
-        springs.add_gradient(g, spring)
-        springs.add_limits(h, g, r_a, spring)
-        diag = np.einsum("tii->ti", h)
-        h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
-        step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
+        if problem.compiled:
+            g = np.zeros((ta, n_par))
+            springs.add_gradient(g, spring)
+            u, res = springs.limit_rows(r_a, spring)
+            springs.add_limit_gradient(g, u, res)
+            step = lm_steps(
+                r_a, paths.local, paths.segment, paths.start, sw, resid, springs.normal, g,
+                springs.lim_segment, springs.lim_parent, u, lam, floor, ancestors,
+            )  # fmt: skip
+        else:
+            v = np.einsum("tqij,qj->tqi", r_a[:, paths.segment], paths.local)  # (Ta, Q, 3)
+            v *= sw[:, paths.marker, None]  # rows of missing markers stay zero
+            jac = jac_all[:ta]
+            jac[:, all_rows, root_cols] = np.repeat(sw, 3, axis=1)  # d x / d root origin
+            # d x / d w = w x v = -[v]x w,  -[v]x = [[0, vz, -vy], [-vz, 0, vx], [vy, -vx, 0]]
+            jac[:, skew_rows, skew_cols] = (v[..., [2, 1, 2, 0, 1, 0]] * _SKEW_SIGN).reshape(ta, -1)
+            jt = jac.transpose(0, 2, 1)
+            h = (jt @ jac).astype(np.float64)  # (Ta, P, P), batched BLAS
+            g = (jt @ resid.reshape(ta, -1, 1).astype(np.float32))[..., 0].astype(np.float64)
+            h += springs.normal
+            springs.add_gradient(g, spring)
+            springs.add_limits(h, g, r_a, spring)
+            diag = np.einsum("tii->ti", h)
+            h[:, np.arange(n_par), np.arange(n_par)] += lam[:, None] * diag + floor
+            step = -np.linalg.solve(h, g[..., None])[..., 0]  # (Ta, P)
         new_root = o_a + step[:, :3]
-        new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
+        if problem.compiled:
+            new_rot = rotated(step[:, 3:].reshape(ta, -1, 3), r_a)
+        else:
+            new_rot = _exp(step[:, 3:].reshape(ta, -1, 3)) @ r_a
         new_x = model_markers(parents, offsets, mseg, moff, new_rot, new_root)
         new_spring = springs.residuals(new_rot)
         new_cost = _cost(new_x - y0, w, loss, scale) + np.einsum(
