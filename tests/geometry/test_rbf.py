@@ -324,6 +324,7 @@ def test_kernel_scale_is_the_largest_eigenvalue_of_each_masked_matrix() -> None:
         c = moving[t, p, use]
         phi = evaluate_rbf(c, np.eye(len(c)), sigma[p], c)  # the kernel matrix
         assert got[t, p] == pytest.approx(np.abs(np.linalg.eigvalsh(phi)).max(), rel=1e-12)
+    assert np.isnan(rbf_kernel_scale(np.zeros((2, 0, 3)), 1.0)).all()  # no centre slot
 
 
 def test_ridge_fit_with_a_given_scale_equals_the_eigen_fit() -> None:

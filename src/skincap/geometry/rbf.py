@@ -642,11 +642,12 @@ def rbf_kernel_scale(
         NaN for a system with no valid centre or a non-positive or NaN σ.
     """
     c = np.asarray(centres, dtype=np.float64)
+    if c.ndim >= 2 and c.shape[-2] == 0:  # no centre slot: no system has a matrix
+        lead = np.broadcast_shapes(c.shape[:-2], np.shape(sigma))
+        return np.full(lead, np.nan)
     c0, _, valid, s, lead = _flat_systems(c, np.zeros(c.shape[:-1] + (1,)), sigma, mask)
-    lam = np.linalg.eigvalsh(_masked_kernel_matrix(c0, valid, s)) if c0.shape[1] else None
-    scale = np.full(valid.shape[0], np.nan)
-    if lam is not None:
-        scale = np.where(valid.any(-1), np.abs(lam).max(axis=-1), np.nan)
+    lam = np.linalg.eigvalsh(_masked_kernel_matrix(c0, valid, s))
+    scale = np.where(valid.any(-1), np.abs(lam).max(axis=-1), np.nan)
     return scale.reshape(lead)
 
 
