@@ -16,6 +16,7 @@ from skincap.geometry.rbf import (
     fit_rbf,
     fit_rbf_fixed_centres,
     fit_rbf_ridge,
+    fit_rbf_ridge_nested,
     rbf_kernel_scale,
 )
 
@@ -394,3 +395,34 @@ def test_gcv_with_a_given_scale_chooses_for_that_ridge() -> None:
     # the smooth system's ρ was near the grid's floor, where it stops)
     shifted = choose_ridge_gcv(c[None], values, sigma, kernel_scale=10.0 * own)
     np.testing.assert_allclose(shifted, np.maximum(rho / 100.0, RIDGE_GRID[0]), rtol=1e-9)
+
+
+def test_nested_ridge_fits_equal_two_plain_fits() -> None:
+    """The inner field's matrix taken from the outer one's: the same weights as two
+    fit_rbf_ridge calls, for moving centres (shared matrix), fixed centres and ρ = 0
+    (the plain fits), with an inner mask narrower than the outer one."""
+    rng = np.random.default_rng(39)
+    moving, values, sigma, mask = _moving_case(rng)
+    inner = mask[..., :20] & (rng.random(mask[..., :20].shape) > 0.2)
+    scale = np.stack(
+        [rbf_kernel_scale(moving[0], sigma), rbf_kernel_scale(moving[0, :, :20], sigma)]
+    )
+    for centres, ridge in (
+        (moving, np.array([[1e-6, 1e-3, 1e-5], [1e-4, 1e-6, 1e-6]])),
+        (moving[:1], np.full((2, 3), 1e-5)),
+        (moving, np.array([[1e-6, 0.0, 1e-5], [1e-6, 1e-6, 1e-6]])),
+    ):
+        got, got_in = fit_rbf_ridge_nested(
+            centres, values, sigma, mask, inner, ridge=ridge, kernel_scale=scale
+        )
+        want = fit_rbf_ridge(centres, values, sigma, mask, ridge=ridge[0], kernel_scale=scale[0])
+        want_in = fit_rbf_ridge(
+            centres[..., :20, :], values[..., :20, :], sigma, inner,
+            ridge=ridge[1], kernel_scale=scale[1],
+        )  # fmt: skip
+        assert got.shape == values.shape and got_in.shape == values[..., :20, :].shape
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.abs(want).max())
+        np.testing.assert_allclose(got_in, want_in, rtol=0, atol=1e-13 * np.abs(want_in).max())
+        assert (got_in[~inner] == 0).all()
+    with pytest.raises(ValidationError, match="leading axis of 2"):
+        fit_rbf_ridge_nested(moving, values, sigma, mask, inner, ridge=ridge[0], kernel_scale=scale)

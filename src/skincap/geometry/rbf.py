@@ -64,6 +64,7 @@ __all__ = [
     "fit_rbf",
     "fit_rbf_fixed_centres",
     "fit_rbf_ridge",
+    "fit_rbf_ridge_nested",
     "rbf_kernel_scale",
 ]
 
@@ -612,16 +613,98 @@ def _masked_kernel_matrix(c0: np.ndarray, valid: np.ndarray, s: np.ndarray) -> n
 def _ridge_solve_shifted(
     c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, s: np.ndarray, mu: np.ndarray
 ) -> np.ndarray:
-    """Ridge weights (S, K, D) as ``Re[(Φ + i √μ I)⁻¹ r]``, μ (S,) given: no eigenvectors.
+    """Ridge weights (S, K, D) of flattened systems, μ (S,) given: no eigenvectors."""
+    return _solve_shifted(_masked_kernel_matrix(c0, valid, s), r0, mu)
+
+
+def _solve_shifted(phi: np.ndarray, r0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """``Re[(Φ + i √μ I)⁻¹ r]`` of (S, K, K) kernel matrices, (S, K, D) values, μ (S,).
 
     ``(Φ + i√μ)(Φ - i√μ) = Φ² + μ``, so the real part of the shifted solve is
     ``(Φ² + μ)⁻¹ Φ r``, the normal equations of the ridge fit, with the condition
     number of ``Φ + i√μ`` (at most ``max|λ| / √μ``) rather than its square.
     """
-    shifted = _masked_kernel_matrix(c0, valid, s).astype(np.complex128)
+    shifted = phi.astype(np.complex128)
     diagonal = np.einsum("skk->sk", shifted)
     diagonal += 1j * np.sqrt(mu)[:, None]
     return np.linalg.solve(shifted, r0.astype(np.complex128)).real
+
+
+def fit_rbf_ridge_nested(
+    centres: np.ndarray,
+    values: np.ndarray,
+    sigma: np.ndarray | float,
+    mask: np.ndarray | None,
+    inner_mask: np.ndarray,
+    *,
+    ridge: np.ndarray,
+    kernel_scale: np.ndarray,
+    cutoff: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_rbf_ridge` through all the centres and through the leading ones alone.
+
+    The second field's kernel matrix is the leading block of the first's, so with
+    moving centres and every ``ρ > 0`` it is taken from it rather than computed again
+    (the dense deformer's two fields of a part: its members come first, its seam
+    centres after). Otherwise, the two fits of :func:`fit_rbf_ridge`.
+
+    Parameters
+    ----------
+    centres, values, sigma, mask
+        As :func:`fit_rbf_ridge` (values non-finite: excluded from both fields).
+    inner_mask : (..., J) bool, J <= K
+        The inner field's centres among the first ``J`` (those also in ``mask``).
+    ridge : (2, ...) float
+        ρ of each system's fields: row 0 through all its centres, row 1 the inner.
+    kernel_scale : (2, ...) float
+        ``max|λ|`` scaling each field's μ (:func:`rbf_kernel_scale`), rows as ``ridge``.
+    cutoff : float
+        As :func:`fit_rbf_ridge` (only for systems with ``ρ = 0``).
+
+    Returns
+    -------
+    weights : (..., K, D) float64
+        Through all the centres.
+    inner_weights : (..., J, D) float64
+        Through the inner centres alone.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    r = np.asarray(values, dtype=np.float64)
+    inner = np.asarray(inner_mask, dtype=bool)
+    rho = np.asarray(ridge, dtype=np.float64)
+    scale = np.asarray(kernel_scale, dtype=np.float64)
+    if rho.shape[:1] != (2,) or scale.shape[:1] != (2,) or inner.shape[-1] > c.shape[-2]:
+        raise ValidationError(
+            f"ridge and kernel_scale must have a leading axis of 2 and inner_mask at most "
+            f"{c.shape[-2]} centres; got {rho.shape}, {scale.shape}, {inner.shape}"
+        )
+    k_in = inner.shape[-1]
+    if mask is not None:  # the inner centres are among the outer ones
+        inner = inner & np.asarray(mask, dtype=bool)[..., :k_in]
+    fixed = c.ndim == r.ndim and c.shape[0] == 1 and r.shape[0] > 1
+    if fixed or not (rho > 0).all() or not np.isfinite(rho).all():
+        return (
+            fit_rbf_ridge(c, r, sigma, mask, ridge=rho[0], kernel_scale=scale[0], cutoff=cutoff),
+            fit_rbf_ridge(
+                c[..., :k_in, :], r[..., :k_in, :], sigma, inner,
+                ridge=rho[1], kernel_scale=scale[1], cutoff=cutoff,
+            ),
+        )  # fmt: skip
+    c0, r0, valid, s, lead = _flat_systems(c, r, sigma, mask)
+    valid_in = valid[:, :k_in] & np.broadcast_to(inner, (*lead, k_in)).reshape(-1, k_in)
+    phi = _kernel_matrix(c0, c0, s)
+    phi_in = phi[:, :k_in, :k_in] * (valid_in[:, :, None] & valid_in[:, None, :])
+    np.einsum("skk->sk", phi_in)[~valid_in] = 2.0 / 3.0  # decoupled
+    phi *= valid[:, :, None] & valid[:, None, :]
+    np.einsum("skk->sk", phi)[~valid] = 2.0 / 3.0
+    weights = []
+    for field, (kernel, used) in enumerate(((phi, valid), (phi_in, valid_in))):
+        field_scale = np.broadcast_to(scale[field], lead).reshape(-1)
+        field_scale = np.where(np.isfinite(field_scale) & (field_scale > 0), field_scale, 1.0)
+        mu = np.broadcast_to(rho[field], lead).reshape(-1) * field_scale**2
+        w = _solve_shifted(kernel, np.where(used[..., None], r0[:, : used.shape[1]], 0.0), mu)
+        weights.append(np.where(used[..., None], w, 0.0).reshape(*lead, *w.shape[-2:]))
+    return weights[0], weights[1]
 
 
 def rbf_kernel_scale(

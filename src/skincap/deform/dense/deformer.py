@@ -89,6 +89,7 @@ from skincap.geometry.rbf import (
     fit_rbf,
     fit_rbf_fixed_centres,
     fit_rbf_ridge,
+    fit_rbf_ridge_nested,
     rbf_kernel_scale,
 )
 from skincap.geometry.rigid import fit_rigid
@@ -307,10 +308,17 @@ def _fit_part_rbfs(
             else fit_rbf_fixed_centres(c[0], r, parts.sigma, m)
             for c, r, m in fields
         ]
+    elif len(fields) == 2:  # both fields from one kernel matrix a part and frame
+        fitted = list(
+            fit_rbf_ridge_nested(
+                fit_centres, residual, parts.sigma, present, member_present[..., :k_fit],
+                ridge=ridge, kernel_scale=kernel_scale,
+            )
+        )  # fmt: skip
     else:
         fitted = [
-            fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[i], kernel_scale=kernel_scale[i])
-            for i, (c, r, m) in enumerate(fields)
+            fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[0], kernel_scale=kernel_scale[0])
+            for c, r, m in fields
         ]
     rbf_w = fitted[0]
     member_rbf_w: np.ndarray | None = None
