@@ -511,13 +511,14 @@ def fit_rbf_ridge(
         The ``max|λ|`` that scales μ, per system (:func:`rbf_kernel_scale`; a
         non-finite or non-positive one: 1). Default: each system's own, from its
         eigen-decomposition. Given, a system with ``ρ > 0`` is solved with no
-        eigen-decomposition at all: ``w = Re[(Φ + i √μ I)⁻¹ r]``, which is the same ``λ / (λ² + μ)`` on every mode
-        (``(λ + i √μ)⁻¹`` has that real part) from one batched complex LU, several
-        times cheaper than ``eigh`` and as accurate (its condition number is at most
-        ``max|λ| / √μ``); no mode is left out by ``cutoff`` there, the ridge already
-        bounds each mode's gain by ``1 / (2 √μ)``. Systems with ``ρ = 0`` are solved
-        exactly as without it. The dense deformer passes its parts' scales at rest,
-        so that μ stays one number per part over a take.
+        eigen-decomposition at all: ``w = Re[(Φ + i √μ I)⁻¹ r]``, the same
+        ``λ / (λ² + μ)`` on every mode (the real part of ``(λ + i √μ)⁻¹``) from one
+        batched complex LU, several times cheaper than ``eigh`` and as accurate (its
+        condition number is at most ``max|λ| / √μ``); no mode is left out by
+        ``cutoff`` there, the ridge already bounds each mode's gain by ``1 / (2 √μ)``.
+        Systems with ``ρ = 0`` are solved exactly as without it. The dense deformer
+        passes its parts' scales at rest, so that μ stays one number per part over a
+        take.
 
     Returns
     -------
