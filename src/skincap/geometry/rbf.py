@@ -611,11 +611,26 @@ def _masked_kernel_matrix(c0: np.ndarray, valid: np.ndarray, s: np.ndarray) -> n
     return phi
 
 
+def _size_groups(valid: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
+    """Flattened systems grouped by size: ``(idx, n)``, the systems whose last valid
+    slot is ``n - 1`` (the slots after it are decoupled, weight 0, so a group is solved
+    cut to ``n``: the cost follows each part's own size, not the largest). Systems
+    with no valid slot are in no group."""
+    k = valid.shape[1]
+    n_eff = np.where(valid.any(-1), k - np.argmax(valid[:, ::-1], axis=-1), 0)
+    for n in np.unique(n_eff[n_eff > 0]):
+        yield np.flatnonzero(n_eff == n), int(n)
+
+
 def _ridge_solve_shifted(
     c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, s: np.ndarray, mu: np.ndarray
 ) -> np.ndarray:
     """Ridge weights (S, K, D) of flattened systems, μ (S,) given: no eigenvectors."""
-    return _solve_shifted(_masked_kernel_matrix(c0, valid, s), r0, mu)
+    w = np.zeros(r0.shape)
+    for idx, n in _size_groups(valid):
+        phi = _masked_kernel_matrix(c0[idx, :n], valid[idx, :n], s[idx])
+        w[idx, :n] = _solve_shifted(phi, r0[idx, :n], mu[idx])
+    return w
 
 
 def _solve_shifted(phi: np.ndarray, r0: np.ndarray, mu: np.ndarray) -> np.ndarray:
@@ -693,19 +708,30 @@ def fit_rbf_ridge_nested(
         )  # fmt: skip
     c0, r0, valid, s, lead = _flat_systems(c, r, sigma, mask)
     valid_in = valid[:, :k_in] & np.broadcast_to(inner, (*lead, k_in)).reshape(-1, k_in)
-    phi = _kernel_matrix(c0, c0, s)
-    phi_in = phi[:, :k_in, :k_in] * (valid_in[:, :, None] & valid_in[:, None, :])
-    np.einsum("skk->sk", phi_in)[~valid_in] = 2.0 / 3.0  # decoupled
-    phi *= valid[:, :, None] & valid[:, None, :]
-    np.einsum("skk->sk", phi)[~valid] = 2.0 / 3.0
-    weights = []
-    for field, (kernel, used) in enumerate(((phi, valid), (phi_in, valid_in))):
+    mu = []
+    for field in range(2):
         field_scale = np.broadcast_to(scale[field], lead).reshape(-1)
         field_scale = np.where(np.isfinite(field_scale) & (field_scale > 0), field_scale, 1.0)
-        mu = np.broadcast_to(rho[field], lead).reshape(-1) * field_scale**2
-        w = _solve_shifted(kernel, np.where(used[..., None], r0[:, : used.shape[1]], 0.0), mu)
-        weights.append(np.where(used[..., None], w, 0.0).reshape(*lead, *w.shape[-2:]))
-    return weights[0], weights[1]
+        mu.append(np.broadcast_to(rho[field], lead).reshape(-1) * field_scale**2)
+    w, w_in = np.zeros(r0.shape), np.zeros((r0.shape[0], k_in, r0.shape[2]))
+    for idx, n in _size_groups(valid):  # each group at its own size, both fields
+        v = valid[idx, :n]
+        phi = _kernel_matrix(c0[idx, :n], c0[idx, :n], s[idx])
+        has_in = valid_in[idx].any(-1)
+        n_in = int((k_in - np.argmax(valid_in[idx, ::-1], axis=-1))[has_in].max(initial=0))
+        if n_in:  # the inner field's matrix: the leading block, re-masked
+            v_in = valid_in[idx, :n_in]
+            phi_in = phi[:, :n_in, :n_in] * (v_in[:, :, None] & v_in[:, None, :])
+            np.einsum("skk->sk", phi_in)[~v_in] = 2.0 / 3.0  # decoupled
+            r_in = np.where(v_in[..., None], r0[idx, :n_in], 0.0)
+            w_in[idx, :n_in] = _solve_shifted(phi_in, r_in, mu[1][idx])
+        phi *= v[:, :, None] & v[:, None, :]
+        np.einsum("skk->sk", phi)[~v] = 2.0 / 3.0
+        w[idx, :n] = _solve_shifted(phi, r0[idx, :n], mu[0][idx])
+    # an inner field whose outer one has no valid centre has none either (inner ⊆ outer)
+    w = np.where(valid[..., None], w, 0.0).reshape(*lead, *w.shape[-2:])
+    w_in = np.where(valid_in[..., None], w_in, 0.0).reshape(*lead, *w_in.shape[-2:])
+    return w, w_in
 
 
 def rbf_kernel_scale(
