@@ -74,6 +74,11 @@ def test_bench_reports_every_variant_on_both_backends_and_the_lbs_ratio() -> Non
     # the fits alone are part of every dense frame
     assert 0 < res["cpu_ms_per_frame"]["fits_quadratic_rbf"]
     assert res["ratios"]["fits_quadratic_rbf / quadratic_rbf_numpy"] > 0
+    # and so is the vertex pass, timed alone on each backend
+    for backend in ("numpy", "numba"):
+        assert res["cpu_ms_per_frame"][f"vertices_quadratic_rbf_{backend}"] > 0
+        share = res["ratios"][f"vertices_quadratic_rbf_{backend} / quadratic_rbf_{backend}"]
+        assert share > 0
     assert res["first_call"] is None and res["seconds"]["registration"] is None
     assert res["seconds"]["segmentation"] > 0
     assert res["config"]["default_backend"] in ("numba", "numpy")

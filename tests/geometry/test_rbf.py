@@ -16,6 +16,8 @@ from skincap.geometry.rbf import (
     fit_rbf,
     fit_rbf_fixed_centres,
     fit_rbf_ridge,
+    fit_rbf_ridge_nested,
+    rbf_kernel_scale,
 )
 
 
@@ -298,3 +300,129 @@ def test_ridge_fit_with_fixed_centres_equals_frame_by_frame_fits() -> None:
         )
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
         assert (got[~mask] == 0).all() and (got[:, 2, 30:] == 0).all()
+
+
+def _moving_case(rng: np.random.Generator) -> tuple[np.ndarray, ...]:
+    """Centres that move every frame (as the quadratic variants' do), three systems,
+    random masks, one system without σ, one with a padding slot."""
+    c = np.stack([_grid_points(rng, 32) for _ in range(3)])  # (P, K, 3)
+    sigma = np.array([dilation_from_spacing(x) for x in c])
+    moving = c[None] + 0.004 * rng.normal(size=(12, *c.shape))  # (T, P, K, 3)
+    moving[:, 0, 31] = np.nan  # a padding slot
+    sigma[2] = np.nan  # no field
+    values = 0.003 * rng.normal(size=moving.shape)
+    mask = rng.random(moving.shape[:-1]) > 0.1
+    return moving, values, sigma, mask
+
+
+def test_kernel_scale_is_the_largest_eigenvalue_of_each_masked_matrix() -> None:
+    rng = np.random.default_rng(35)
+    moving, _, sigma, mask = _moving_case(rng)
+    got = rbf_kernel_scale(moving, sigma, mask)
+    assert got.shape == (12, 3) and np.isnan(got[:, 2]).all()
+    for t, p in ((0, 0), (7, 1)):
+        use = mask[t, p] & np.isfinite(moving[t, p]).all(-1)
+        c = moving[t, p, use]
+        phi = evaluate_rbf(c, np.eye(len(c)), sigma[p], c)  # the kernel matrix
+        assert got[t, p] == pytest.approx(np.abs(np.linalg.eigvalsh(phi)).max(), rel=1e-12)
+    assert np.isnan(rbf_kernel_scale(np.zeros((2, 0, 3)), 1.0)).all()  # no centre slot
+
+
+def test_ridge_fit_with_a_given_scale_equals_the_eigen_fit() -> None:
+    """Given each system's own max|λ|, the shifted complex solve (no eigen-decomposition)
+    gives the eigen-decomposition's weights to rounding, for moving and fixed centres;
+    ρ = 0 systems stay exact interpolation."""
+    rng = np.random.default_rng(36)
+    moving, values, sigma, mask = _moving_case(rng)
+    own = rbf_kernel_scale(moving, sigma, mask)
+    for ridge in (1e-6, 1e-3, np.array([1e-6, 0.0, 1e-4])):
+        want = fit_rbf_ridge(moving, values, sigma, mask, ridge=ridge)
+        got = fit_rbf_ridge(moving, values, sigma, mask, ridge=ridge, kernel_scale=own)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+        assert (got[~mask] == 0).all() and (got[:, 2] == 0).all() and (got[:, 0, 31] == 0).all()
+    # fixed centres: the frames with every centre share one operator; a scale that is
+    # the same every frame keeps it
+    c = moving[0]
+    rest = rbf_kernel_scale(c, sigma)
+    mask[:4] = True
+    got = fit_rbf_ridge(c[None], values, sigma, mask, ridge=1e-5, kernel_scale=rest)
+    want = np.stack(
+        [
+            fit_rbf_ridge(c, values[t], sigma, mask[t], ridge=1e-5, kernel_scale=rest)
+            for t in range(12)
+        ]
+    )
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    np.testing.assert_allclose(  # the frames with every centre: their own scale is `rest`
+        got[:4],
+        fit_rbf_ridge(c[None], values[:4], sigma, ridge=1e-5),
+        atol=1e-12 * np.abs(want).max(),
+    )
+
+
+def test_a_given_scale_sets_the_ridge_and_bounds_a_null_mode() -> None:
+    """μ = ρ scale²: a scale twice the matrix's own is the fit with 4 ρ. Coincident
+    centres (a null mode the eigen fit leaves out by its cutoff) get bounded weights
+    that still pass near the values."""
+    rng = np.random.default_rng(37)
+    c = _lattice(rng)
+    sigma = dilation_from_spacing(c)
+    values = _bulge(c) + 0.001 * rng.normal(size=c.shape)
+    own = rbf_kernel_scale(c, sigma)
+    got = fit_rbf_ridge(c, values, sigma, ridge=1e-4, kernel_scale=2.0 * own)
+    want = fit_rbf_ridge(c, values, sigma, ridge=4e-4)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * np.abs(want).max())
+    twin = np.concatenate([c, c[:1]])  # centre 0 twice
+    doubled = np.concatenate([values, values[:1]])
+    w = fit_rbf_ridge(twin, doubled, sigma, ridge=1e-6, kernel_scale=own)
+    mu_bound = 1.0 / (2.0 * np.sqrt(1e-6) * own)  # the largest gain of any mode
+    assert np.abs(w).max() <= mu_bound * np.linalg.norm(doubled, axis=0).max()
+    np.testing.assert_allclose(w[0], w[-1], atol=1e-12)  # the twins share their weight
+    fitted = evaluate_rbf(twin, w, sigma, twin)
+    assert np.abs(fitted - doubled).max() < 0.05 * np.abs(values).max()
+
+
+def test_gcv_with_a_given_scale_chooses_for_that_ridge() -> None:
+    rng = np.random.default_rng(38)
+    c = np.stack([_lattice(rng), _lattice(rng)])
+    sigma = np.array([dilation_from_spacing(x) for x in c])
+    values = np.stack([np.stack([_bulge(x) for x in c])] * 2)
+    values[:, 1] += 0.002 * rng.normal(size=values[:, 1].shape)
+    own = rbf_kernel_scale(c, sigma)
+    rho = choose_ridge_gcv(c[None], values, sigma)
+    np.testing.assert_allclose(choose_ridge_gcv(c[None], values, sigma, kernel_scale=own), rho)
+    # a scale 10x the own one: the same μ is a ρ 100x smaller (the grid has 4 a decade;
+    # the smooth system's ρ was near the grid's floor, where it stops)
+    shifted = choose_ridge_gcv(c[None], values, sigma, kernel_scale=10.0 * own)
+    np.testing.assert_allclose(shifted, np.maximum(rho / 100.0, RIDGE_GRID[0]), rtol=1e-9)
+
+
+def test_nested_ridge_fits_equal_two_plain_fits() -> None:
+    """The inner field's matrix taken from the outer one's: the same weights as two
+    fit_rbf_ridge calls, for moving centres (shared matrix), fixed centres and ρ = 0
+    (the plain fits), with an inner mask narrower than the outer one."""
+    rng = np.random.default_rng(39)
+    moving, values, sigma, mask = _moving_case(rng)
+    inner = mask[..., :20] & (rng.random(mask[..., :20].shape) > 0.2)
+    scale = np.stack(
+        [rbf_kernel_scale(moving[0], sigma), rbf_kernel_scale(moving[0, :, :20], sigma)]
+    )
+    for centres, ridge in (
+        (moving, np.array([[1e-6, 1e-3, 1e-5], [1e-4, 1e-6, 1e-6]])),
+        (moving[:1], np.full((2, 3), 1e-5)),
+        (moving, np.array([[1e-6, 0.0, 1e-5], [1e-6, 1e-6, 1e-6]])),
+    ):
+        got, got_in = fit_rbf_ridge_nested(
+            centres, values, sigma, mask, inner, ridge=ridge, kernel_scale=scale
+        )
+        want = fit_rbf_ridge(centres, values, sigma, mask, ridge=ridge[0], kernel_scale=scale[0])
+        want_in = fit_rbf_ridge(
+            centres[..., :20, :], values[..., :20, :], sigma, inner,
+            ridge=ridge[1], kernel_scale=scale[1],
+        )  # fmt: skip
+        assert got.shape == values.shape and got_in.shape == values[..., :20, :].shape
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-13 * np.abs(want).max())
+        np.testing.assert_allclose(got_in, want_in, rtol=0, atol=1e-13 * np.abs(want_in).max())
+        assert (got_in[~inner] == 0).all()
+    with pytest.raises(ValidationError, match="leading axis of 2"):
+        fit_rbf_ridge_nested(moving, values, sigma, mask, inner, ridge=ridge[0], kernel_scale=scale)

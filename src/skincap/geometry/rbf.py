@@ -29,7 +29,9 @@ field swings by metres between its centres (a 120-marker part of the demo's 12-f
 rig: weights of 26 m, vertices thrown 35 cm). :func:`fit_rbf_ridge` fits the
 Tikhonov-regularised system instead, ``w = argmin ||Φ w - r||² + μ ||w||²`` with
 ``μ = ρ max|λ|²`` (through the eigen-decomposition, so an indefinite matrix is no
-harm: each mode is multiplied by ``λ / (λ² + μ)``, at most ``1 / (2 √μ)``), and
+harm: each mode is multiplied by ``λ / (λ² + μ)``, at most ``1 / (2 √μ)``; given
+``max|λ|`` (:func:`rbf_kernel_scale`), the same from one complex LU of ``Φ + i √μ I``
+instead, several times cheaper), and
 :func:`choose_ridge_gcv` picks ρ from the data by generalised cross-validation
 (Golub, Heath & Wahba 1979), closed-form from the same decomposition: a mode that
 only an amplified fit passes through predicts the centres left out badly and is
@@ -62,6 +64,8 @@ __all__ = [
     "fit_rbf",
     "fit_rbf_fixed_centres",
     "fit_rbf_ridge",
+    "fit_rbf_ridge_nested",
+    "rbf_kernel_scale",
 ]
 
 
@@ -477,6 +481,7 @@ def fit_rbf_ridge(
     *,
     ridge: np.ndarray | float,
     cutoff: float = 1e-6,
+    kernel_scale: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """Weights of the Tikhonov-regularised RBF fit: ``argmin ||Φ w - r||² + μ ||w||²``.
 
@@ -502,6 +507,18 @@ def fit_rbf_ridge(
         ρ of each system (non-negative, finite).
     cutoff : float
         As :func:`fit_rbf`: modes with ``|λ| <= cutoff max|λ|`` are left out.
+    kernel_scale : float or (...) float, optional
+        The ``max|λ|`` that scales μ, per system (:func:`rbf_kernel_scale`; a
+        non-finite or non-positive one: 1). Default: each system's own, from its
+        eigen-decomposition. Given, a system with ``ρ > 0`` is solved with no
+        eigen-decomposition at all: ``w = Re[(Φ + i √μ I)⁻¹ r]``, the same
+        ``λ / (λ² + μ)`` on every mode (the real part of ``(λ + i √μ)⁻¹``) from one
+        batched complex LU, several times cheaper than ``eigh`` and as accurate (its
+        condition number is at most ``max|λ| / √μ``); no mode is left out by
+        ``cutoff`` there, the ridge already bounds each mode's gain by ``1 / (2 √μ)``.
+        Systems with ``ρ = 0`` are solved exactly as without it. The dense deformer
+        passes its parts' scales at rest, so that μ stays one number per part over a
+        take.
 
     Returns
     -------
@@ -514,6 +531,10 @@ def fit_rbf_ridge(
     if not (np.isfinite(rho_in).all() and (rho_in >= 0).all()):
         raise ValidationError("ridge must be finite and non-negative")
     rho = np.broadcast_to(rho_in, lead).reshape(-1)
+    scale = None
+    if kernel_scale is not None:
+        scale = np.broadcast_to(np.asarray(kernel_scale, dtype=np.float64), lead).reshape(-1)
+        scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
     w = np.zeros(r0.shape)
     todo = np.ones(len(rho), dtype=bool)
     c = np.asarray(centres)
@@ -522,32 +543,222 @@ def fit_rbf_ridge(
         # all its centres share one operator, V diag(λ / (λ² + μ)) Vᵀ, found once
         n_t, k = lead[0], c0.shape[1]
         s_t, rho_t, valid_t = s.reshape(n_t, -1), rho.reshape(n_t, -1), valid.reshape(n_t, -1, k)
-        if (s_t == s_t[:1]).all() and (rho_t == rho_t[:1]).all():
+        scale_t = None if scale is None else scale.reshape(n_t, -1)
+        same_scale = scale_t is None or bool((scale_t == scale_t[:1]).all())
+        if (s_t == s_t[:1]).all() and (rho_t == rho_t[:1]).all() and same_scale:
             full = np.asarray(valid_t.any(axis=0))  # (P, K): every centre a frame can have
             n_sys = full.shape[0]
             identity = np.broadcast_to(np.eye(k), (n_sys, k, k))
-            operator = _ridge_solve(c0[:n_sys], identity, full, s_t[0], rho_t[0], cut)
+            operator = _ridge_solve(
+                c0[:n_sys], identity, full, s_t[0], rho_t[0], cut,
+                None if scale_t is None else scale_t[0],
+            )  # fmt: skip
             same = (valid_t == full[None]).all(-1).reshape(-1)  # (T P,)
             system = np.tile(np.arange(n_sys), n_t)[same]
             w[same] = operator[system] @ r0[same]
             todo = ~same
-    rows = np.flatnonzero(todo)
-    w[rows] = _ridge_solve(c0[rows], r0[rows], valid[rows], s[rows], rho[rows], cut)
+    if todo.all():  # no copies of the whole batch
+        w = _ridge_solve(c0, r0, valid, s, rho, cut, scale)
+    else:
+        rows = np.flatnonzero(todo)
+        w[rows] = _ridge_solve(
+            c0[rows], r0[rows], valid[rows], s[rows], rho[rows], cut,
+            None if scale is None else scale[rows],
+        )  # fmt: skip
     w = np.where(valid[..., None], w, 0.0)
     return w.reshape(*lead, *w.shape[-2:])
 
 
 def _ridge_solve(
-    c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, s: np.ndarray, rho: np.ndarray, cut: float
+    c0: np.ndarray,
+    r0: np.ndarray,
+    valid: np.ndarray,
+    s: np.ndarray,
+    rho: np.ndarray,
+    cut: float,
+    kernel_scale: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Ridge weights (S, K, D) of flattened systems (:func:`_flat_systems`), ρ (S,)."""
+    """Ridge weights (S, K, D) of flattened systems (:func:`_flat_systems`), ρ (S,);
+    with ``kernel_scale`` (S,) the systems with ρ > 0 by :func:`_ridge_solve_shifted`."""
     w = np.zeros(r0.shape)
-    for idx, lam, vec, beta, _, scale in _spectra(c0, r0, valid, s, cut):
-        mu = (rho[idx] * scale * scale)[:, None]  # (m, 1)
-        nonzero = lam != 0.0
-        gain = np.where(nonzero, lam / np.where(nonzero, lam * lam + mu, 1.0), 0.0)  # λ/(λ²+μ)
-        w[idx, : lam.shape[1]] = vec @ (beta * gain[..., None])
+    shifted = np.zeros(rho.shape, dtype=bool) if kernel_scale is None else rho > 0
+    if shifted.any():
+        mu = rho * kernel_scale * kernel_scale
+        if shifted.all():
+            w = _ridge_solve_shifted(c0, r0, valid, s, mu)
+        else:
+            w[shifted] = _ridge_solve_shifted(
+                c0[shifted], r0[shifted], valid[shifted], s[shifted], mu[shifted]
+            )
+    rest = np.flatnonzero(~shifted)
+    if rest.size:
+        c0, r0, valid, s, rho = c0[rest], r0[rest], valid[rest], s[rest], rho[rest]
+        for idx, lam, vec, beta, _, scale in _spectra(c0, r0, valid, s, cut):
+            mu = (rho[idx] * scale * scale)[:, None]  # (m, 1)
+            nonzero = lam != 0.0
+            gain = np.where(nonzero, lam / np.where(nonzero, lam * lam + mu, 1.0), 0.0)  # λ/(λ²+μ)
+            w[rest[idx], : lam.shape[1]] = vec @ (beta * gain[..., None])
     return w
+
+
+def _masked_kernel_matrix(c0: np.ndarray, valid: np.ndarray, s: np.ndarray) -> np.ndarray:
+    """(S, K, K) kernel matrices of flattened systems, an excluded centre decoupled
+    (a lone diagonal entry φ(0) = 2/3: weight 0, no constraint on the others)."""
+    phi = _kernel_matrix(c0, c0, s)
+    phi *= valid[:, :, None] & valid[:, None, :]
+    diagonal = np.einsum("skk->sk", phi)  # a writeable view
+    diagonal[~valid] = 2.0 / 3.0
+    return phi
+
+
+def _size_groups(valid: np.ndarray) -> Iterator[tuple[np.ndarray, int]]:
+    """Flattened systems grouped by size: ``(idx, n)``, the systems whose last valid
+    slot is ``n - 1`` (the slots after it are decoupled, weight 0, so a group is solved
+    cut to ``n``: the cost follows each part's own size, not the largest). Systems
+    with no valid slot are in no group."""
+    k = valid.shape[1]
+    n_eff = np.where(valid.any(-1), k - np.argmax(valid[:, ::-1], axis=-1), 0)
+    for n in np.unique(n_eff[n_eff > 0]):
+        yield np.flatnonzero(n_eff == n), int(n)
+
+
+def _ridge_solve_shifted(
+    c0: np.ndarray, r0: np.ndarray, valid: np.ndarray, s: np.ndarray, mu: np.ndarray
+) -> np.ndarray:
+    """Ridge weights (S, K, D) of flattened systems, μ (S,) given: no eigenvectors."""
+    w = np.zeros(r0.shape)
+    for idx, n in _size_groups(valid):
+        phi = _masked_kernel_matrix(c0[idx, :n], valid[idx, :n], s[idx])
+        w[idx, :n] = _solve_shifted(phi, r0[idx, :n], mu[idx])
+    return w
+
+
+def _solve_shifted(phi: np.ndarray, r0: np.ndarray, mu: np.ndarray) -> np.ndarray:
+    """``Re[(Φ + i √μ I)⁻¹ r]`` of (S, K, K) kernel matrices, (S, K, D) values, μ (S,).
+
+    ``(Φ + i√μ)(Φ - i√μ) = Φ² + μ``, so the real part of the shifted solve is
+    ``(Φ² + μ)⁻¹ Φ r``, the normal equations of the ridge fit, with the condition
+    number of ``Φ + i√μ`` (at most ``max|λ| / √μ``) rather than its square.
+    """
+    shifted = phi.astype(np.complex128)
+    diagonal = np.einsum("skk->sk", shifted)
+    diagonal += 1j * np.sqrt(mu)[:, None]
+    return np.linalg.solve(shifted, r0.astype(np.complex128)).real
+
+
+def fit_rbf_ridge_nested(
+    centres: np.ndarray,
+    values: np.ndarray,
+    sigma: np.ndarray | float,
+    mask: np.ndarray | None,
+    inner_mask: np.ndarray,
+    *,
+    ridge: np.ndarray,
+    kernel_scale: np.ndarray,
+    cutoff: float = 1e-6,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fit_rbf_ridge` through all the centres and through the leading ones alone.
+
+    The second field's kernel matrix is the leading block of the first's, so with
+    moving centres and every ``ρ > 0`` it is taken from it rather than computed again
+    (the dense deformer's two fields of a part: its members come first, its seam
+    centres after). Otherwise, the two fits of :func:`fit_rbf_ridge`.
+
+    Parameters
+    ----------
+    centres, values, sigma, mask
+        As :func:`fit_rbf_ridge` (values non-finite: excluded from both fields).
+    inner_mask : (..., J) bool, J <= K
+        The inner field's centres among the first ``J`` (those also in ``mask``).
+    ridge : (2, ...) float
+        ρ of each system's fields: row 0 through all its centres, row 1 the inner.
+    kernel_scale : (2, ...) float
+        ``max|λ|`` scaling each field's μ (:func:`rbf_kernel_scale`), rows as ``ridge``.
+    cutoff : float
+        As :func:`fit_rbf_ridge` (only for systems with ``ρ = 0``).
+
+    Returns
+    -------
+    weights : (..., K, D) float64
+        Through all the centres.
+    inner_weights : (..., J, D) float64
+        Through the inner centres alone.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    r = np.asarray(values, dtype=np.float64)
+    inner = np.asarray(inner_mask, dtype=bool)
+    rho = np.asarray(ridge, dtype=np.float64)
+    scale = np.asarray(kernel_scale, dtype=np.float64)
+    if rho.shape[:1] != (2,) or scale.shape[:1] != (2,) or inner.shape[-1] > c.shape[-2]:
+        raise ValidationError(
+            f"ridge and kernel_scale must have a leading axis of 2 and inner_mask at most "
+            f"{c.shape[-2]} centres; got {rho.shape}, {scale.shape}, {inner.shape}"
+        )
+    k_in = inner.shape[-1]
+    if mask is not None:  # the inner centres are among the outer ones
+        inner = inner & np.asarray(mask, dtype=bool)[..., :k_in]
+    fixed = c.ndim == r.ndim and c.shape[0] == 1 and r.shape[0] > 1
+    if fixed or not (rho > 0).all() or not np.isfinite(rho).all():
+        return (
+            fit_rbf_ridge(c, r, sigma, mask, ridge=rho[0], kernel_scale=scale[0], cutoff=cutoff),
+            fit_rbf_ridge(
+                c[..., :k_in, :], r[..., :k_in, :], sigma, inner,
+                ridge=rho[1], kernel_scale=scale[1], cutoff=cutoff,
+            ),
+        )  # fmt: skip
+    c0, r0, valid, s, lead = _flat_systems(c, r, sigma, mask)
+    valid_in = valid[:, :k_in] & np.broadcast_to(inner, (*lead, k_in)).reshape(-1, k_in)
+    mu = []
+    for field in range(2):
+        field_scale = np.broadcast_to(scale[field], lead).reshape(-1)
+        field_scale = np.where(np.isfinite(field_scale) & (field_scale > 0), field_scale, 1.0)
+        mu.append(np.broadcast_to(rho[field], lead).reshape(-1) * field_scale**2)
+    w, w_in = np.zeros(r0.shape), np.zeros((r0.shape[0], k_in, r0.shape[2]))
+    for idx, n in _size_groups(valid):  # each group at its own size, both fields
+        v = valid[idx, :n]
+        phi = _kernel_matrix(c0[idx, :n], c0[idx, :n], s[idx])
+        has_in = valid_in[idx].any(-1)
+        n_in = int((k_in - np.argmax(valid_in[idx, ::-1], axis=-1))[has_in].max(initial=0))
+        if n_in:  # the inner field's matrix: the leading block, re-masked
+            v_in = valid_in[idx, :n_in]
+            phi_in = phi[:, :n_in, :n_in] * (v_in[:, :, None] & v_in[:, None, :])
+            np.einsum("skk->sk", phi_in)[~v_in] = 2.0 / 3.0  # decoupled
+            r_in = np.where(v_in[..., None], r0[idx, :n_in], 0.0)
+            w_in[idx, :n_in] = _solve_shifted(phi_in, r_in, mu[1][idx])
+        phi *= v[:, :, None] & v[:, None, :]
+        np.einsum("skk->sk", phi)[~v] = 2.0 / 3.0
+        w[idx, :n] = _solve_shifted(phi, r0[idx, :n], mu[0][idx])
+    # an inner field whose outer one has no valid centre has none either (inner ⊆ outer)
+    w = np.where(valid[..., None], w, 0.0).reshape(*lead, *w.shape[-2:])
+    w_in = np.where(valid_in[..., None], w_in, 0.0).reshape(*lead, *w_in.shape[-2:])
+    return w, w_in
+
+
+def rbf_kernel_scale(
+    centres: np.ndarray, sigma: np.ndarray | float, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """``max|λ|`` of each system's kernel matrix, the scale of :func:`fit_rbf_ridge`'s μ.
+
+    Parameters
+    ----------
+    centres : (..., K, 3) float, metres (non-finite: not a centre)
+    sigma : float or (...) float, metres
+    mask : (..., K) bool, optional
+        False excludes a centre.
+
+    Returns
+    -------
+    (...) float64
+        NaN for a system with no valid centre or a non-positive or NaN σ.
+    """
+    c = np.asarray(centres, dtype=np.float64)
+    if c.ndim >= 2 and c.shape[-2] == 0:  # no centre slot: no system has a matrix
+        lead = np.broadcast_shapes(c.shape[:-2], np.shape(sigma))
+        return np.full(lead, np.nan)
+    c0, _, valid, s, lead = _flat_systems(c, np.zeros(c.shape[:-1] + (1,)), sigma, mask)
+    lam = np.linalg.eigvalsh(_masked_kernel_matrix(c0, valid, s))
+    scale = np.where(valid.any(-1), np.abs(lam).max(axis=-1), np.nan)
+    return scale.reshape(lead)
 
 
 def choose_ridge_gcv(
@@ -558,6 +769,7 @@ def choose_ridge_gcv(
     *,
     cutoff: float = 1e-6,
     grid: np.ndarray = RIDGE_GRID,
+    kernel_scale: np.ndarray | float | None = None,
 ) -> np.ndarray:
     """ρ of :func:`fit_rbf_ridge` for each system, by generalised cross-validation pooled over frames.
 
@@ -581,6 +793,9 @@ def choose_ridge_gcv(
         As :func:`fit_rbf`.
     grid : (G,) float
         Candidate ρ, ascending, non-negative.
+    kernel_scale : float or (...) float, optional
+        The ``max|λ|`` that scales μ for each system, as :func:`fit_rbf_ridge` takes
+        it (default: each frame's own), so that the ρ chosen means the same there.
 
     Returns
     -------
@@ -604,7 +819,12 @@ def choose_ridge_gcv(
     n_sys = int(np.prod(lead[1:], dtype=np.int64))
     residual = np.zeros((n_t * n_sys, g.size))  # Σ ||(I - H) r||² of every row
     trace = np.zeros((n_t * n_sys, g.size))  # tr(I - H) over the valid centres
+    given = None
+    if kernel_scale is not None:
+        given = np.broadcast_to(np.asarray(kernel_scale, dtype=np.float64), lead[1:])
+        given = np.tile(np.where(np.isfinite(given) & (given > 0), given, 1.0).reshape(-1), n_t)
     for idx, lam, _, beta, on_valid, scale in _spectra(c0, r0, valid, s_flat, cut):
+        scale = scale if given is None else given[idx]
         lam2 = lam * lam
         beta2 = (beta * beta).sum(-1)  # (m, n)
         n_valid = valid[idx].sum(-1)

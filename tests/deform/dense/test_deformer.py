@@ -14,11 +14,13 @@ from skincap.deform.dense.deformer import (
     choose_quadratic_parts,
     fit_part_motion,
     held_frames,
+    rbf_kernel_scales,
 )
 from skincap.deform.dense.parts import part_frames
 from skincap.deform.dense.weights import seam_vertex_weights
 from skincap.errors import ValidationError
 from skincap.geometry.quadratic import QUADRATIC_TERMS, apply_quadratic
+from skincap.geometry.rbf import evaluate_rbf
 
 #: Every analytic test runs on the numba kernel and on its NumPy reference.
 BACKENDS = ["numpy"] + (["numba"] if numba_available() else [])
@@ -417,6 +419,44 @@ def test_rigid_rbf_fits_with_fixed_centres_equal_the_plain_fit(
     np.testing.assert_allclose(
         got.member_rbf_weights, want.member_rbf_weights, rtol=0, atol=1e-9 * scale
     )
+
+
+@pytest.mark.parametrize("method", ["rigid_rbf", "quadratic_rbf"])
+def test_the_ridge_fits_solve_their_normal_equations_with_the_rest_scale(method: str) -> None:
+    """Each part's RBF weights at each frame minimise ||Φ w - r||² + μ ||w||² with
+    μ = ρ max|λ(Φ at rest)|² (rbf_kernel_scales): (Φ² + μ I) w = Φ r over the
+    present centres, with markers missing at random, for both fields of a part."""
+    rng = np.random.default_rng(22)
+    ref, alpha, faces = _two_part_strip(rng)
+    parts = part_frames(ref, alpha, surface_faces=faces)
+    rot, trans = _rigid(rng, 6)
+    bent = ref + 0.004 * rng.normal(size=(6, 32, 3))
+    markers = np.einsum("tab,tnb->tna", rot, bent) + trans[:, None]
+    markers[rng.random((6, 32)) < 0.1] = np.nan
+    rho = 1e-3  # strong enough that a wrong μ shows
+    motion = fit_part_motion(markers, parts, method, rbf_regularisation=rho)
+    scales = rbf_kernel_scales(parts)
+    assert scales.shape == (2, 2) and (scales > 0).all()
+    assert motion.member_rbf_weights is not None
+    for t in range(6):
+        for p in range(2):
+            cols = parts.members[p]
+            local = markers[t, cols] @ motion.rotation[t, p].T + motion.translation[t, p]
+            for field, weights, use in (
+                (0, motion.rbf_weights, parts.valid[p]),
+                (1, motion.member_rbf_weights, parts.fitted[p]),
+            ):
+                present = use & np.isfinite(local).all(-1)
+                c = motion.centres[t, p, present]
+                r = local[present] - c
+                w = weights[t, p, present]
+                phi = evaluate_rbf(c, np.eye(len(c)), parts.sigma[p], c)
+                mu = rho * scales[field, p] ** 2
+                lhs = phi @ (phi @ w) + mu * w
+                np.testing.assert_allclose(lhs, phi @ r, rtol=0, atol=1e-10 * np.abs(r).max())
+                assert (weights[t, p, ~present] == 0).all()
+    with pytest.raises(ValidationError, match="rbf_kernel_scale"):
+        fit_part_motion(markers, parts, method, rbf_kernel_scale=np.ones((2, 3)))
 
 
 def _bent_and_noisy_parts(rng: np.random.Generator, n_frames: int) -> tuple[np.ndarray, ...]:

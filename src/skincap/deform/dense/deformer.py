@@ -27,6 +27,10 @@ For every frame and every near-rigid part ``p``:
    stability, not smoothing: the markers sample the skin, so their residuals are signal.
    ``rbf_regularisation=0`` is the paper's exact interpolation; ``"gcv"`` chooses a
    ridge per part by cross-validation (:func:`skincap.geometry.rbf.choose_ridge_gcv`).
+   The ridge's μ = ρ max|λ|² takes ``max|λ|`` of the part's kernel matrix at rest
+   (:func:`rbf_kernel_scales`), one μ per part and field over the take, so no frame
+   needs an eigen-decomposition: the fits are one batched complex LU a field, all
+   frames and parts at once (:func:`~skincap.geometry.rbf.fit_rbf_ridge`).
 
 4. **Vertices** (eqs. 8-9): a vertex's local reference position in each of its parts is
    moved by that part's field and taken back to the world; the results are blended by
@@ -85,6 +89,8 @@ from skincap.geometry.rbf import (
     fit_rbf,
     fit_rbf_fixed_centres,
     fit_rbf_ridge,
+    fit_rbf_ridge_nested,
+    rbf_kernel_scale,
 )
 from skincap.geometry.rigid import fit_rigid
 
@@ -98,6 +104,7 @@ __all__ = [
     "choose_quadratic_parts",
     "fit_part_motion",
     "held_frames",
+    "rbf_kernel_scales",
 ]
 
 Method = Literal["rigid", "quadratic", "rigid_rbf", "quadratic_rbf"]
@@ -224,6 +231,37 @@ def held_frames(member_present: np.ndarray) -> np.ndarray:
     return np.where(last >= 0, last, first[None, :])
 
 
+def rbf_kernel_scales(parts: PartFrames) -> np.ndarray:
+    """The scales of each part's RBF ridges: ``max|λ|`` of its kernel matrices at rest.
+
+    The ridge of eq. 7's fit is ``μ = ρ max|λ|²`` (:func:`~skincap.geometry.rbf.fit_rbf_ridge`),
+    with ``λ`` the eigenvalues of a part's kernel matrix over its centres at their
+    reference positions, all present: one μ per part and field for the whole take. (The
+    matrix of a frame differs from it by the frame's quadratic field and missing
+    markers; its own ``max|λ|`` would take an eigen-decomposition of every part at every
+    frame, the fits' main cost, and let μ flicker with them.)
+
+    Parameters
+    ----------
+    parts : PartFrames
+
+    Returns
+    -------
+    (2, P) float64
+        Row 0: the kernel through all a part's centres (members and seam centres);
+        row 1: through its fitted members alone. NaN for a part without σ.
+    """
+    k_fit = int(parts.fitted.sum(axis=1).max(initial=0))
+    return np.stack(
+        [
+            rbf_kernel_scale(parts.local_reference, parts.sigma, parts.valid),
+            rbf_kernel_scale(
+                parts.local_reference[:, :k_fit], parts.sigma, parts.fitted[:, :k_fit]
+            ),
+        ]
+    )
+
+
 def _fit_part_rbfs(
     parts: PartFrames,
     local: np.ndarray,
@@ -231,14 +269,17 @@ def _fit_part_rbfs(
     present: np.ndarray,
     use_quadratic: bool,
     rbf_regularisation: RbfRegularisation,
+    kernel_scale: np.ndarray | None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
     """The RBF fields of :func:`fit_part_motion` (eq. 7) through the residuals of its
     base fields.
 
     ``local`` (T, P, K, 3) the markers in each part's frame (NaN where missing),
     ``centres`` (T, P, K, 3) the base field applied to the rest positions, ``present``
-    (T, P, K) bool. Returns the weights (T, P, K, 3) through all centres, those through
-    the members only (None without seam centres), and the (2, P) ridges (None: exact).
+    (T, P, K) bool, ``kernel_scale`` the (2, P) scales of the ridges
+    (:func:`rbf_kernel_scales`; None: computed). Returns the weights (T, P, K, 3)
+    through all centres, those through the members only (None without seam centres),
+    and the (2, P) ridges (None: exact).
     """
     n_p = parts.members.shape[0]
     residual = local - centres  # NaN where missing: excluded by the fits
@@ -253,7 +294,13 @@ def _fit_part_rbfs(
         fields.append(
             (fit_centres[..., :k_fit, :], residual[..., :k_fit, :], member_present[..., :k_fit])
         )
-    ridge = _rbf_ridges(rbf_regularisation, fields, parts.sigma, n_p)
+    if kernel_scale is None:
+        kernel_scale = rbf_kernel_scales(parts)
+    elif np.shape(kernel_scale) != (2, n_p):
+        raise ValidationError(
+            f"rbf_kernel_scale must have shape (2, {n_p}); got {np.shape(kernel_scale)}"
+        )
+    ridge = _rbf_ridges(rbf_regularisation, fields, parts.sigma, kernel_scale)
     if ridge is None:  # exact interpolation (eq. 7)
         fitted = [
             fit_rbf(c, r, parts.sigma[None, :], m)
@@ -261,10 +308,17 @@ def _fit_part_rbfs(
             else fit_rbf_fixed_centres(c[0], r, parts.sigma, m)
             for c, r, m in fields
         ]
+    elif len(fields) == 2:  # both fields from one kernel matrix a part and frame
+        fitted = list(
+            fit_rbf_ridge_nested(
+                fit_centres, residual, parts.sigma, present, member_present[..., :k_fit],
+                ridge=ridge, kernel_scale=kernel_scale,
+            )
+        )  # fmt: skip
     else:
         fitted = [
-            fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[i])
-            for i, (c, r, m) in enumerate(fields)
+            fit_rbf_ridge(c, r, parts.sigma, m, ridge=ridge[0], kernel_scale=kernel_scale[0])
+            for c, r, m in fields
         ]
     rbf_w = fitted[0]
     member_rbf_w: np.ndarray | None = None
@@ -283,6 +337,7 @@ def fit_part_motion(
     quadratic_regularisation: float = QUADRATIC_REGULARISATION,
     quadratic_parts: np.ndarray | None = None,
     rbf_regularisation: RbfRegularisation = RBF_RIDGE,
+    rbf_kernel_scale: np.ndarray | None = None,
 ) -> PartMotion:
     """Fit the rigid, quadratic and RBF fields of every part at every frame (eqs. 6-7).
 
@@ -308,6 +363,10 @@ def fit_part_motion(
         The RBF fits' ridge ρ (:data:`RbfRegularisation`, default :data:`RBF_RIDGE`):
         0 interpolates the residuals exactly (the paper's eq. 7); "gcv" chooses it for
         each part and field from these frames (:func:`~skincap.geometry.rbf.choose_ridge_gcv`).
+        A ridge's μ is ρ times the square of its part's :func:`rbf_kernel_scales`.
+    rbf_kernel_scale : (2, P) float, optional
+        ``rbf_kernel_scales(parts)``, which a caller fitting many blocks of frames
+        computes once (default: computed here).
 
     Returns
     -------
@@ -365,7 +424,7 @@ def fit_part_motion(
     )
     if use_rbf:
         rbf_w, member_rbf_w, ridge = _fit_part_rbfs(
-            parts, local, centres, present, use_quadratic, rbf_regularisation
+            parts, local, centres, present, use_quadratic, rbf_regularisation, rbf_kernel_scale
         )
     else:
         rbf_w, member_rbf_w, ridge = np.zeros((n_t, n_p, k, 3)), None, None
@@ -377,9 +436,10 @@ def _rbf_ridges(
     regularisation: RbfRegularisation,
     fields: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
     sigma: np.ndarray,
-    n_parts: int,
+    kernel_scale: np.ndarray,
 ) -> np.ndarray | None:
     """(2, P) ridges of the fits in ``fields`` (chosen by GCV, or given), None for exact."""
+    n_parts = sigma.shape[0]
     if isinstance(regularisation, str):
         if regularisation != "gcv":
             raise ValidationError(
@@ -388,7 +448,7 @@ def _rbf_ridges(
             )
         ridge = np.zeros((2, n_parts))
         for i, (c, r, m) in enumerate(fields):
-            ridge[i] = choose_ridge_gcv(c, r, sigma, m)
+            ridge[i] = choose_ridge_gcv(c, r, sigma, m, kernel_scale=kernel_scale[i])
         if len(fields) == 1:
             ridge[1] = ridge[0]
         return ridge
@@ -614,6 +674,7 @@ class DenseDeformer:
                 )
         elif self._split:
             seam = np.ones_like(beta)
+        self._rbf_kernel_scale: np.ndarray | None = None  # rbf_kernel_scales, on first use
         self._tiles = pair_tiles(parts, v, beta, seam)  # the (vertex, part) pairs of eq. 9
         self.pair_vertex = self._tiles.vertex
         self.pair_part = self._tiles.part
@@ -703,6 +764,8 @@ class DenseDeformer:
         present = np.isfinite(x[:, self.parts.members]).all(-1) & self.parts.fitted
         source = held_frames(present)  # over the whole take, so holds cross chunks
         n_t = x.shape[0]
+        if self._rbf_kernel_scale is None and method.endswith("_rbf"):
+            self._rbf_kernel_scale = rbf_kernel_scales(self.parts)
         if isinstance(rbf_regularisation, str) and method.endswith("_rbf") and n_t:
             sample = np.unique(np.linspace(0, n_t - 1, min(n_t, RIDGE_FRAMES)).round().astype(int))
             ridge = fit_part_motion(
@@ -712,6 +775,7 @@ class DenseDeformer:
                 quadratic_regularisation=quadratic_regularisation,
                 quadratic_parts=self.quadratic_parts,
                 rbf_regularisation=rbf_regularisation,
+                rbf_kernel_scale=self._rbf_kernel_scale,
             ).rbf_ridge
             rbf_regularisation = 0.0 if ridge is None else ridge
         for s0 in range(0, n_t, int(chunk)):
@@ -730,6 +794,7 @@ class DenseDeformer:
                     quadratic_regularisation=quadratic_regularisation,
                     quadratic_parts=self.quadratic_parts,
                     rbf_regularisation=rbf_regularisation,
+                    rbf_kernel_scale=self._rbf_kernel_scale,
                 )
                 yield self.deform_block(motion)
             if progress is not None:

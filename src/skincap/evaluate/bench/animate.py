@@ -17,8 +17,9 @@ cache, the automatic segmentation of a ``rom_frames``-frame take of the same mar
 and the registration of §5.1.
 
 Also timed alone: the per-frame fits of ``quadratic_rbf`` (rigid, quadratic, RBF: NumPy
-on both backends), so the fits' share of a frame and the vertex pass's can be told
-apart.
+on both backends) and, on each backend, the vertex pass of eqs. 8-9 given those fits
+(:meth:`~skincap.deform.dense.deformer.DenseDeformer.deform_block`), so a frame splits
+into the fits, the vertex pass and the rest (the streaming's own work per chunk).
 
 Ratios are ``dense / LBS`` of CPU times (how many times LBS's cost a frame of each
 variant is), NumPy / numba and fits / frame; the ms figures are for the record of this
@@ -230,12 +231,13 @@ def run_animate_benchmark(
     -------
     dict
         ``ms_per_frame`` and ``cpu_ms_per_frame`` (``<method>_numpy``,
-        ``<method>_numba``, ``lbs_numpy``, ``lbs_numba``, and ``fits_quadratic_rbf``:
-        the per-frame rigid, quadratic and RBF fits alone, part of every dense figure;
+        ``<method>_numba``, ``lbs_numpy``, ``lbs_numba``, ``fits_quadratic_rbf``:
+        the per-frame rigid, quadratic and RBF fits alone, part of every dense figure,
+        and ``vertices_quadratic_rbf_<backend>``: the vertex pass alone, given the fits;
         None when not measured: CPU counts every thread, the figure a loaded machine
         distorts least), ``ratios`` (``<method>_<backend> / lbs_<backend>`` of CPU
-        times, numba's speed-up over NumPy, and the fits' share of a
-        ``quadratic_rbf`` frame on each backend), ``max_abs_diff`` (numba against NumPy, metres),
+        times, numba's speed-up over NumPy, and the fits' and the vertex pass's shares
+        of a ``quadratic_rbf`` frame on each backend), ``max_abs_diff`` (numba against NumPy, metres),
         ``first_call`` (``cold_s``, ``warm_s``, ``cold_cpu_s``, ``warm_cpu_s`` or
         None), ``seconds`` (``segmentation``, ``registration`` or None), ``goals``,
         ``config``, ``notes``, ``lines``.
@@ -327,9 +329,14 @@ def _time_dense_variants(
             )
         except MissingDependencyError as exc:  # numba missing: reported, not fatal
             notes.append(f"dense {backend} not measured: {exc}")
-            for method in METHODS:
-                ms[f"{method}_{backend}"] = cpu_ms[f"{method}_{backend}"] = None
+            for key in (*METHODS, "vertices_quadratic_rbf"):
+                ms[f"{key}_{backend}"] = cpu_ms[f"{key}_{backend}"] = None
             continue
+        motion = fit_part_motion(scene["markers"], deformer.parts, "quadratic_rbf")
+        vertex_pass = partial(deformer.deform_block, motion)
+        _time_per_frame(
+            f"vertices_quadratic_rbf_{backend}", vertex_pass, repeat, n_frames, ms, cpu_ms
+        )
         for method in METHODS:
 
             def deform_all(
@@ -385,15 +392,11 @@ def _cpu_ratios(cpu_ms: dict[str, float | None]) -> dict[str, float | None]:
         for m in METHODS
     }
     ratios.update({f"{m}_numpy / {m}_numba": ratio(f"{m}_numpy", f"{m}_numba") for m in METHODS})
-    # the share of the per-frame fits (NumPy on both backends) in a deformed frame
-    ratios.update(
-        {
-            f"fits_quadratic_rbf / quadratic_rbf_{b}": ratio(
-                "fits_quadratic_rbf", f"quadratic_rbf_{b}"
-            )
-            for b in ("numpy", "numba")
-        }
-    )
+    # the shares of the per-frame fits (NumPy on both backends) and of the vertex pass
+    # in a deformed frame
+    for b in ("numpy", "numba"):
+        for part in ("fits_quadratic_rbf", f"vertices_quadratic_rbf_{b}"):
+            ratios[f"{part} / quadratic_rbf_{b}"] = ratio(part, f"quadratic_rbf_{b}")
     return ratios
 
 
@@ -452,13 +455,13 @@ def _summary_lines(report: dict[str, Any]) -> list[str]:
     ]
     for key, value in ms.items():
         if value is None:
-            lines.append(f"  {key:22s} not measured")
+            lines.append(f"  {key:28s} not measured")
             continue
         goal = GOALS_MS.get(key)
         tag = (
             "" if goal is None else f"  (goal <= {goal:g} ms: {'met' if goals[key] else 'MISSED'})"
         )
-        lines.append(f"  {key:22s} {value:9.3f} ms/frame  CPU {cpu_ms[key]:9.3f} ms/frame{tag}")
+        lines.append(f"  {key:28s} {value:9.3f} ms/frame  CPU {cpu_ms[key]:9.3f} ms/frame{tag}")
     for key, value in report["ratios"].items():
         if value is not None:
             lines.append(f"  CPU ratio {key:34s} {value:7.2f}x")
