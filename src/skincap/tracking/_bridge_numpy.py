@@ -30,10 +30,12 @@ def bridge_hidden_runs(state: TrackState, t: int, pred: np.ndarray, p: StepParam
     search refuses a point beyond γ of its prediction at a short chord, so nothing
     brings the traces back while the rope lies still. Here a run of at most
     :data:`BRIDGE_RUN` hidden traces ``j0 … j1``, each missing since an earlier frame
-    (``temp_count >= 1``), between measured markers ``j0 - 1`` and ``j1 + 1``, is
-    seated on the chain of free points (not taken, not body points) whose every link
-    ``k → k + 1`` is at most ``link_rest_k + adjacent_stretch γ`` long (a rope's chord
-    may be short, never long) minimising
+    (``temp_count >= 1``), between measured markers ``j0 - 1`` and ``j1 + 1`` neither of
+    which is an end of the rope (a held end lies among hand markers), is seated on the
+    chain of free points (not taken, not body points, not seen beside the trace's
+    own marker as a point the rope did not take: :func:`_seen_beside_as_other`) whose
+    every link ``k → k + 1`` is at most ``link_rest_k + adjacent_stretch γ`` long (a
+    rope's chord may be short, never long) minimising
 
         Σ_j |x_j - pred_j|  +  Σ_links max(0, link_rest_k - chord_k)
 
