@@ -24,7 +24,8 @@ so each separately compiled layer of the call tree compiled the whole tracker ag
 it runs the NumPy steps while :func:`skincap.tracking.tracker.warm_up_kernel`
 compiles these in a background process (:mod:`skincap.backends`). The refusals and
 the re-acquisition are compiled in :mod:`skincap.tracking._refusals_numba` and
-:mod:`skincap.tracking._reacquire_numba` and re-exported here.
+:mod:`skincap.tracking._reacquire_numba`, the bridging in
+:mod:`skincap.tracking._bridge_numba`, and re-exported here.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.tracking._bridge_numba import bridge_hidden_runs
 from skincap.tracking._numba_curve import (
     carry_last_seen,
     curve_at,
@@ -57,6 +59,7 @@ from skincap.tracking.curve import HELD_END_REACH
 __all__ = [
     "accelerated_prediction",
     "begin_frame",
+    "bridge_hidden_runs",
     "commit_frame",
     "continue_body_chains",
     "gap_predictions",
@@ -791,6 +794,9 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
             found_more = match_missing(state, t, pred, p)
             if not state.known.all():
                 if reacquire_on_shell(state, t, p):
+                    found_more = True
+            if not state.known.all():
+                if bridge_hidden_runs(state, t, pred, p):
                     found_more = True
     swapped = unshift_chain(state, t, p)
     if swap_onto_curve(state, t, p):

@@ -18,6 +18,7 @@ A frame (:func:`track_frame`) runs::
     match_missing                         the rest at pred, then the zipper
         match_traces / reject_* / zipper_predictions
     reacquire_on_shell                    the rest followed out along the rope
+    bridge_hidden_runs                    short hidden runs on the chain that fits between their ends
     unshift_chain                         a chain matched one marker along moves back
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
@@ -38,6 +39,7 @@ import weakref
 import numpy as np
 from scipy.spatial import cKDTree
 
+from skincap.tracking._bridge_numpy import bridge_hidden_runs
 from skincap.tracking._reacquire_numpy import reacquire_on_shell
 from skincap.tracking._refusals_numpy import (
     _squared_distances,
@@ -57,6 +59,7 @@ from skincap.tracking.state import StepParams, TrackState
 __all__ = [
     "accelerated_prediction",
     "begin_frame",
+    "bridge_hidden_runs",
     "commit_frame",
     "continue_body_chains",
     "gap_predictions",
@@ -805,6 +808,8 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
             found_more = match_missing(state, t, pred, p)
             if not state.known.all():
                 found_more |= reacquire_on_shell(state, t, p)
+            if not state.known.all():
+                found_more |= bridge_hidden_runs(state, t, pred, p)
     swapped = unshift_chain(state, t, p)
     swapped |= swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)

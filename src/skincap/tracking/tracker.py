@@ -85,6 +85,14 @@ Beyond the thesis:
   nothing measured the two end traces are seeded first at V. Body
   points, points moving rigidly with body points and points seen beside the trace's
   own marker in the frames before (a hand marker beside the held end) are refused.
+* Bridging (``bridge_hidden_runs``): a run of one or two inner traces hidden since an
+  earlier frame, between measured markers that are not the rope's ends, takes the
+  chain of free points whose links are at most their rest length (+ ``adjacent_stretch
+  γ``) minimising the distance to the predictions plus each link's shortness, when
+  the next chain costs γ more and no point of it was, where the trace was last
+  measured, a point the rope did not take beside its marker. A rope landing on the
+  floor stops dead and folds: the hidden markers lie still a few centimetres from
+  their predictions at chords more than γ short, which every search above refuses.
 * A trace measured again after temporary markers takes the velocity ṽ of its
   neighbours measured in both frames (eq. 3.3), not its jump from the invented
   position (which would predict it that far on, and miss it, the next frame).
