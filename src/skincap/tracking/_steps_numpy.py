@@ -712,7 +712,8 @@ def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: 
     With ``refit`` (more was measured after ``pred`` (M, 3) was made) the unknown
     interior markers go on the curve through every marker measured now (a lone one
     settled); otherwise, and at the ends, they take ``pred``. Those between measured
-    markers, and those at a free end, are then carried from where they were last seen (:func:`_carry_hidden`;
+    markers are then carried from where they were last seen, and those at a free end
+    dragged as a loose end (:func:`_carry_hidden`;
     only the placement: the searches keep the curve, as the synthetic whip's F1 did
     not: 0.9926 -> 0.9913 with the carried prediction searched).
     """
