@@ -80,8 +80,9 @@ def test_a_hidden_rope_marker_is_repaired_within_2_cm_on_real_motion(data_dir, n
 @pytest.mark.slow
 def test_a_hidden_free_rope_end_follows_the_swing_on_real_motion(data_dir) -> None:
     """The whip's free end (rope_11) held back 20 frames at ten starts of a real take:
-    carried with its neighbours it stays within 3 cm at every start, 1.55 cm on average
-    (F alone: 3.3 cm at the worst start, 1.72 cm on average)."""
+    dragged as a loose end it stays within 3.5 cm at every start, 0.9 cm on average
+    (3.3 cm at the worst start, 170; carried rigidly with its neighbours it was within
+    3 cm, under 1.55 on average; F alone: 3.3 cm at the worst start, 1.72 on average)."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m = read_c3d(data_dir / "pyomeca_markers_analogs.c3d")
@@ -103,5 +104,33 @@ def test_a_hidden_free_rope_end_follows_the_swing_on_real_motion(data_dir) -> No
             errors.append(float(err.mean()))
     errors_arr = np.asarray(errors)
     assert np.isfinite(errors_arr).all()
-    assert errors_arr.max() < 0.03, errors
-    assert errors_arr.mean() < 0.0155, errors
+    assert errors_arr.max() < 0.035, errors
+    assert errors_arr.mean() < 0.01, errors
+
+
+@pytest.mark.slow
+def test_a_hidden_free_end_lying_still_stays_on_real_motion(data_dir) -> None:
+    """The whip's free end (rope_11) lies on the floor while the performer turns the rope
+    beside it (pyomeca frames 210-239): held back 30 frames it stays within 2 cm of the
+    truth (carried with its turning neighbours it was 11.5 cm off, dragged with a
+    one-frame velocity 3.1 cm)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "pyomeca_markers_analogs.c3d")
+    take = real_capture_with_rope(m, rope="whip", seed=0)
+    truth, labels = _rope_columns(take)
+    track = rope_tracker_from_truth(take.points, take.point_truth)
+    end, start, n = len(labels) - 1, 210, 30
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        piece = crop_frames(take.points, start + n + 10)
+        base = track(piece)
+        trace_of, _ = match_traces_to_truth(
+            base.positions, base.invented, truth[: start + n + 10], max_distance=0.06
+        )
+        (trace,) = np.flatnonzero(trace_of == end)
+        held, _ = hold_back_points(take.points, take.point_truth, [labels[end]], start, n)
+        result = track(crop_frames(held, start + n + 10))
+    err = gap_errors(result.positions[:, [trace]], truth[:, [end]], start, n)
+    assert np.isfinite(err).all()
+    assert float(err.mean()) < 0.02, err.ravel()

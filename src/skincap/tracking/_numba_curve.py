@@ -4,7 +4,8 @@ One frame at a time, the numba twins of :func:`skincap.tracking.curve.fill_inter
 (the Hermite curve through the measured markers in rest arc length),
 :func:`skincap.tracking.curve.settle_single_gaps`, and the thesis' ṽ (eq. 3.3) and F
 (eq. 3.6) of :mod:`skincap.tracking._steps_numpy`, and the twins of
-:func:`skincap.tracking.curve.carry_last_seen` and :func:`skincap.tracking.curve.end_is_free`.
+:func:`skincap.tracking.curve.carry_last_seen`, :func:`skincap.tracking.curve.end_is_free` and
+:func:`skincap.tracking.curve.drag_free_ends`.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from skincap.tracking._numba_search import JIT, norm3
 __all__ = [
     "carry_last_seen",
     "curve_at",
+    "drag_free_ends",
     "end_is_free",
     "fill_interior",
     "interp_along",
@@ -297,3 +299,32 @@ def end_is_free(end, points, is_rope, reach):  # pragma: no cover - runs compile
         if d0 * d0 + d1 * d1 + d2 * d2 <= r2:
             return False
     return True
+
+
+@numba.njit(**JIT)
+def drag_free_ends(pred, known, prev, velocity, spacing, runs):  # pragma: no cover
+    """Twin of :func:`skincap.tracking.curve.drag_free_ends` (returns a new array)."""
+    out = pred.copy()
+    m = known.size
+    first = -1
+    last = -1
+    for j in range(m):
+        if known[j]:
+            if first < 0:
+                first = j
+            last = j
+    if first < 0:
+        return out
+    for side in range(2):
+        lo, hi, step = (first - 1, -1, -1) if side == 0 else (last + 1, m, 1)
+        for j in range(lo, hi, step):
+            if not runs[j] or known[j]:
+                continue
+            inner = j - step
+            d = prev[j] + velocity[j] - out[inner]
+            dist = norm3(d[0], d[1], d[2])
+            rest = spacing[min(j, inner)]
+            scale = rest / dist if dist > rest else 1.0
+            for c in range(3):
+                out[j, c] = out[inner, c] + scale * d[c]
+    return out

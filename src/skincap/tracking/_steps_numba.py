@@ -37,6 +37,7 @@ from skincap.tracking._bridge_numba import bridge_hidden_runs
 from skincap.tracking._numba_curve import (
     carry_last_seen,
     curve_at,
+    drag_free_ends,
     end_is_free,
     fill_interior,
     interp_along,
@@ -83,6 +84,7 @@ __all__ = [
 
 _INF = np.inf
 _PINNING_REACH = 2  # skincap.tracking._steps_numpy.PINNING_REACH
+_END_VELOCITY_FRAMES = 3  # skincap.tracking._steps_numpy.END_VELOCITY_FRAMES
 # the gate flags as NumPy bools, not literals: match_traces compiles once, not twice
 _WIDE = np.bool_(True)
 _NARROW = np.bool_(False)
@@ -431,16 +433,23 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy._carry_hidden`."""
+    m = state.known.size
+    free_runs = _free_end_runs(state, t)
+    for j in range(m):
+        free_runs[j] = free_runs[j] and rows_mask[j]
+    if free_runs.any():
+        velocity = _end_velocity(state, t, free_runs)
+        pred = drag_free_ends(
+            pred, state.known, state.positions[t - 1], velocity, state.spacing, free_runs
+        )
     if p.carry_tolerance <= 0.0:
         return pred
-    m = state.known.size
     before, after = side_neighbours(state.known)
-    free_runs = _free_end_runs(state, t)
     want = np.zeros(m, np.bool_)
     n = 0
     for j in range(m):
-        carried = (before[j] >= 0 and after[j] < m) or free_runs[j]
-        if rows_mask[j] and carried and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
+        inside = before[j] >= 0 and after[j] < m
+        if rows_mask[j] and inside and not state.known[j] and t - 1 - state.temp_count[j] >= 0:
             want[j] = True
             n += 1
     if n == 0:
@@ -459,6 +468,24 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
             u += 1
     tolerance = p.carry_tolerance * p.median_spacing
     return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
+
+
+@numba.njit(**JIT)
+def _end_velocity(state, t, rows_mask):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._end_velocity`."""
+    out = state.velocity.copy()
+    for j in range(rows_mask.size):
+        if not rows_mask[j] or state.temp_count[j] != 0:
+            continue
+        out[j] = 0.0
+        for f in range(max(t - 1 - _END_VELOCITY_FRAMES, 0), t - 1):
+            if not state.invented[f, j]:
+                for c in range(3):
+                    out[j, c] = (state.positions[t - 1, j, c] - state.positions[f, j, c]) / (
+                        t - 1 - f
+                    )
+                break
+    return out
 
 
 @numba.njit(**JIT)

@@ -49,6 +49,7 @@ from skincap.tracking._refusals_numpy import (
 )
 from skincap.tracking.curve import (
     carry_last_seen,
+    drag_free_ends,
     end_is_free,
     fill_interior_on_curve,
     settle_single_gaps,
@@ -427,26 +428,63 @@ def _carry_hidden(
     state: TrackState, t: int, pred: np.ndarray, rows_mask: np.ndarray, p: StepParams
 ) -> np.ndarray:
     """``pred`` (M, 3) with the hidden markers of ``rows_mask`` (M,) bool that lie
-    between measured markers, or in the run at a free end of the rope, carried from
-    where they were last seen (:func:`~skincap.tracking.curve.carry_last_seen`).
+    between measured markers carried from where they were last seen
+    (:func:`~skincap.tracking.curve.carry_last_seen`), and those in the run at a free
+    end of the rope (:func:`_free_end_runs`) dragged by the rope
+    (:func:`~skincap.tracking.curve.drag_free_ends`, from the end's own velocity:
+    :func:`_end_velocity`).
 
-    Not the runs at a held end (:func:`_free_end_runs`): carried beyond its
+    The runs at a held end keep F, which follows the hand: carried beyond its
     neighbours, an end turning with the hand strays (the synthetic jump rope's handle
-    end: 4 -> 10 cm) and F follows the hand; at a free end F, pointing the rope
+    end: 4 -> 10 cm). A free end is not carried either: a tip lying on the floor while
+    the rope beside it turns is carried away with the turn (pyomeca whip, rope_11
+    hidden 30 frames from 210: 11.5 cm; dragged 1.4 cm), and F, pointing the rope
     straight out from its last measured links, misses a swinging tip by 15-25 cm."""
+    free_runs = _free_end_runs(state, t) & rows_mask
+    if free_runs.any():
+        velocity = _end_velocity(state, t, free_runs)
+        pred = drag_free_ends(
+            pred, state.known, state.positions[t - 1], velocity, state.spacing, free_runs
+        )
     if p.carry_tolerance <= 0.0:
         return pred
     last = t - 1 - state.temp_count  # (M,) the frame each trace was last measured
     before, after = _side_neighbours(state.known)
     inside = (before >= 0) & (after < state.known.size)
-    carried = inside | _free_end_runs(state, t)
-    rows = np.nonzero(rows_mask & carried & ~state.known & (last >= 0))[0]
+    rows = np.nonzero(rows_mask & inside & ~state.known & (last >= 0))[0]
     if rows.size == 0:
         return pred
     tolerance = p.carry_tolerance * p.median_spacing
     then = state.positions[last[rows]]
     then_measured = ~state.invented[last[rows]]
     return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
+
+
+#: Frames over which a hidden end's last measured velocity is averaged (:func:`_end_velocity`).
+END_VELOCITY_FRAMES = 3
+
+
+def _end_velocity(state: TrackState, t: int, rows_mask: np.ndarray) -> np.ndarray:
+    """(M, 3) metres per frame: ``state.velocity``, except for the markers of
+    ``rows_mask`` (M,) bool measured in frame t - 1, which move as they moved on
+    average since the earliest measured frame f of the :data:`END_VELOCITY_FRAMES`
+    before: ``(x^{t-1} - x^f) / (t - 1 - f)``; zero without one.
+
+    A one-frame difference carries the markers' noise on as a drift (pyomeca whip,
+    rope_11 lying still from frame 210: 1.8 mm per frame, 3.1 cm mean error over 30
+    frames; over three frames 1.5 cm), and a trace measured again after a dropout
+    carries its neighbours' velocity (eq. 3.3, :func:`commit_frame`), which is right
+    for finding it in the next frame but not for a loose end; three frames still follow
+    a whip's tip as it speeds up (CMU whip from frame 724, 3-6 cm per frame: 2.4 cm,
+    five frames 3.0)."""
+    out = state.velocity.copy()
+    for j in np.nonzero(rows_mask & (state.temp_count == 0))[0]:
+        out[j] = 0.0
+        for f in range(max(t - 1 - END_VELOCITY_FRAMES, 0), t - 1):
+            if not state.invented[f, j]:
+                out[j] = (state.positions[t - 1, j] - state.positions[f, j]) / (t - 1 - f)
+                break
+    return out
 
 
 def _free_end_runs(state: TrackState, t: int) -> np.ndarray:
@@ -677,7 +715,8 @@ def place_invented(state: TrackState, t: int, pred: np.ndarray, refit: bool, p: 
     With ``refit`` (more was measured after ``pred`` (M, 3) was made) the unknown
     interior markers go on the curve through every marker measured now (a lone one
     settled); otherwise, and at the ends, they take ``pred``. Those between measured
-    markers, and those at a free end, are then carried from where they were last seen (:func:`_carry_hidden`;
+    markers are then carried from where they were last seen, and those at a free end
+    dragged as a loose end (:func:`_carry_hidden`;
     only the placement: the searches keep the curve, as the synthetic whip's F1 did
     not: 0.9926 -> 0.9913 with the carried prediction searched).
     """

@@ -23,6 +23,7 @@ __all__ = [
     "settle_single_gaps",
     "carry_last_seen",
     "end_is_free",
+    "drag_free_ends",
     "HELD_END_REACH",
     "polyline_length",
     "resample_by_arclength",
@@ -303,6 +304,69 @@ def carry_last_seen(
     error = rms * np.sqrt(1.0 + lever)
     weight = np.where(count >= 3, 1.0 / (1.0 + (error / tolerance) ** 2), 0.0)[:, None]
     out[rows] = weight * carried + (1.0 - weight) * out[rows]
+    return out
+
+
+def drag_free_ends(
+    pred: np.ndarray,
+    known: np.ndarray,
+    prev: np.ndarray,
+    velocity: np.ndarray,
+    spacing: np.ndarray,
+    runs: np.ndarray,
+) -> np.ndarray:
+    """Hidden markers at a free rope end, moved as a rope moves its loose end.
+
+    Beyond Porter (2012), whose F (eq. 3.6) turns a hidden end towards the straight
+    continuation of its last measured links: a loose end is not pushed along the
+    rope's direction, it keeps going as it went (a tip lying on the floor stays, a
+    tip in the air swings on) and is pulled only when its inner neighbour draws the
+    link beyond its length. Outward from the measured part of the rope, each marker
+    ``j`` of ``runs`` is put at its own prediction ``x_j^{t-1} + v_j`` (eqs. 3.1-3.2;
+    the velocity of an invented marker is that of its invented positions) and, if
+    that lies farther than the rest spacing ``l`` from its inner neighbour ``i``
+    (measured, or placed just before), pulled onto the sphere of radius ``l`` around
+    it (a position-based dynamics step of the end's links, no bending or gravity)::
+
+        x_j = x_i + l (y - x_i) / |y - x_i|   where |y - x_i| > l,  y = x_j^{t-1} + v_j
+
+    Parameters
+    ----------
+    pred : (M, 3) float, metres
+        This frame's markers: the measured ones (``known``) and the inner predictions.
+    known : (M,) bool
+        Measured this frame; at least one.
+    prev : (M, 3) float, metres
+        The markers in frame t - 1.
+    velocity : (M, 3) float, metres per frame
+        Their last displacement.
+    spacing : (M - 1,) float, metres
+        Rest spacings ``l_j``.
+    runs : (M,) bool
+        The hidden markers of the free end runs (each run from an end of the rope up
+        to its first measured marker); others are left.
+
+    Returns
+    -------
+    (M, 3) float64, metres
+        ``pred`` with the markers of ``runs`` placed.
+    """
+    out = np.array(pred, dtype=np.float64)
+    known = np.asarray(known, dtype=bool)
+    runs = np.asarray(runs, dtype=bool) & ~known
+    m = known.size
+    measured = np.flatnonzero(known)
+    if measured.size == 0 or not runs.any():
+        return out
+    order = [(j, j + 1) for j in range(measured[0] - 1, -1, -1)]
+    order += [(j, j - 1) for j in range(measured[-1] + 1, m)]
+    for j, inner in order:
+        if not runs[j]:
+            continue
+        d = prev[j] + velocity[j] - out[inner]
+        dist = float(np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]))
+        rest = float(spacing[min(j, inner)])
+        out[j] = out[inner] + (rest / dist if dist > rest else 1.0) * d
     return out
 
 

@@ -25,10 +25,13 @@ Beyond the thesis:
   seen by the rigid motion of its nearest measured neighbours, blended with the curve
   by how rigidly they moved (:func:`~skincap.tracking.curve.carry_last_seen`): a bend
   that lies still or travels with the hand keeps its shape, which the curve alone
-  cuts. So is the run at a *free* end of the rope, one with no point but the rope's
+  cuts. The run at a *free* end of the rope, one with no point but the rope's
   within 20 cm when last seen (:func:`~skincap.tracking.curve.end_is_free`; a whip's
-  tip, where F misses the swing by 15-25 cm); a held end keeps F (carried beyond its
-  neighbours, an end turning with the hand strays).
+  tip, where F misses the swing by 15-25 cm), is dragged as a loose end instead
+  (:func:`~skincap.tracking.curve.drag_free_ends`): it keeps its last measured
+  velocity and is pulled onto its rest spacing only by a taut link (carried with its
+  neighbours, a tip lying on the floor turns with the rope beside it); a held end
+  keeps F (carried beyond its neighbours, an end turning with the hand strays).
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
