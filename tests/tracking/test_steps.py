@@ -632,3 +632,38 @@ def test_disputed_traces_keep_the_matching_nearer_its_predictions(steps) -> None
     # traces both found lie 1.2 cm from V and on the mark of the accelerated one
     np.testing.assert_array_equal(state.known, [True, True, True, False, False])
     np.testing.assert_array_equal(state.taken[:3], 3 * m + np.arange(3))
+
+
+def test_an_unconfirmed_return_keeps_its_own_jump(steps) -> None:  # type: ignore[no-untyped-def]
+    # synthetic jump frames 81-90: a trace never measured is seated on a still body point
+    # 7 cm from its temporary marker while the rope moves 1 cm a frame; given the rope's
+    # velocity it would lie within γ of every next prediction and keep the wrong point
+    m = 5
+    rope = np.zeros((m, 3))
+    rope[:, 0] = 0.1 * np.arange(m)
+    step = np.array([0.0, 0.01, 0.0])
+    body_point = rope[2] + [0.0, 0.0, 0.07]
+    now = rope + 2 * step
+    now[2] = body_point
+
+    def velocity_after_return(*, measured_before: bool) -> np.ndarray:
+        cloud = _cloud(rope, rope + step, now)
+        state, p = blank_state(cloud, [0.1] * (m - 1))
+        state.positions[0], state.positions[1] = rope, rope + step
+        state.invented[1, 2] = True  # hidden in frame 1, invented on the rope
+        state.invented[0, 2] = not measured_before
+        state.temp_count[2] = 1 if measured_before else 2
+        state.cur[:] = now
+        state.known[:] = True
+        state.taken[:] = 2 * m + np.arange(m)
+        steps.commit_frame(state, 2, p)
+        return state.velocity[2].copy()
+
+    # unconfirmed (no measured link, 7 cm from the temporary marker moved by ṽ): its jump
+    np.testing.assert_allclose(
+        velocity_after_return(measured_before=False), body_point - (rope[2] + step), atol=1e-12
+    )
+    # measured in frame 0, but its links to 1 and 3 then differ by 7 cm: its jump too
+    np.testing.assert_allclose(
+        velocity_after_return(measured_before=True), body_point - (rope[2] + step), atol=1e-12
+    )

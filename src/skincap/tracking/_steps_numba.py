@@ -113,6 +113,20 @@ def begin_frame(state, t, p):  # pragma: no cover - runs compiled
 def commit_frame(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.commit_frame`."""
     prev = state.positions[t - 1]
+    # a trace back from temporary markers: its neighbours' velocity where the point is
+    # confirmed as its marker, else its own jump (counted before temp_count moves on)
+    m = state.known.size
+    back = np.zeros(m, np.bool_)
+    moving = np.zeros(m, np.bool_)
+    for j in range(m):
+        back[j] = state.known[j] and state.invented[t - 1, j]
+        moving[j] = state.known[j] and not state.invented[t - 1, j]
+    confirmed = np.zeros(m, np.bool_)
+    v_tilde = np.zeros((m, 3))
+    if back.any() and moving.any():
+        jump = state.cur - prev
+        v_tilde = neighbour_velocity(moving, jump, jump)
+        confirmed = _confirmed_returns(state, t, back, v_tilde, p)
     for j in range(state.known.size):
         known = state.known[j]
         state.temp_count[j] = 0 if known else state.temp_count[j] + 1
@@ -125,20 +139,36 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
         for c in range(3):
             state.positions[t, j, c] = state.cur[j, c]
             state.velocity[j, c] = state.cur[j, c] - prev[j, c]
-    # a trace back from temporary markers: its neighbours' velocity, not its own jump
-    m = state.known.size
-    back = np.zeros(m, np.bool_)
-    moving = np.zeros(m, np.bool_)
     for j in range(m):
-        back[j] = state.known[j] and state.invented[t - 1, j]
-        moving[j] = state.known[j] and not state.invented[t - 1, j]
-    if back.any() and moving.any():
-        v_tilde = neighbour_velocity(moving, state.velocity, state.velocity)
-        for j in range(m):
-            if back[j]:
-                for c in range(3):
-                    state.velocity[j, c] = v_tilde[j, c]
+        if confirmed[j]:
+            for c in range(3):
+                state.velocity[j, c] = v_tilde[j, c]
     learn_link_rest(state, p)
+
+
+@numba.njit(**JIT)
+def _confirmed_returns(state, t, back, v_tilde, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._confirmed_returns`."""
+    m = back.size
+    g2 = p.gamma * p.gamma
+    pos = state.positions
+    confirmed = np.zeros(m, np.bool_)
+    for j in range(m):
+        if not back[j]:
+            continue
+        e = state.cur[j] - (pos[t - 1, j] + v_tilde[j])
+        if e[0] * e[0] + e[1] * e[1] + e[2] * e[2] <= g2:
+            confirmed[j] = True
+            continue
+        f = t - 1 - state.temp_count[j]  # the frame j was last measured in
+        if f < 0 or state.invented[f, j]:
+            continue
+        for k in (j - 1, j + 1):
+            if 0 <= k < m and state.known[k] and not state.invented[f, k]:
+                d = (state.cur[j] - state.cur[k]) - (pos[f, j] - pos[f, k])
+                if d[0] * d[0] + d[1] * d[1] + d[2] * d[2] <= g2:
+                    confirmed[j] = True
+    return confirmed
 
 
 @numba.njit(**JIT)

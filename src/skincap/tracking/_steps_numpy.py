@@ -150,23 +150,60 @@ def commit_frame(state: TrackState, t: int, p: StepParams) -> None:
     pins it (its curve, carry and the rope's length hold it within a few spacings).
 
     A trace measured again after temporary markers takes the velocity ṽ of its
-    neighbours measured in both frames (eq. 3.3; beyond the thesis): its own
-    displacement is the error of its invented position (a slack end lying still
-    beside the hand, invented at the rest spacing 5-9 cm away, would be predicted
-    that far on and missed every other frame)."""
+    neighbours measured in both frames (eq. 3.3; beyond the thesis) when the point
+    is confirmed as its marker (:func:`_confirmed_returns`): its own displacement is
+    then the error of its invented position (a slack end lying still beside the
+    hand, invented at the rest spacing 5-9 cm away, would be predicted that far on
+    and missed every other frame). An unconfirmed return keeps its own displacement
+    (eq. 3.2): if the point is not its marker, the next frame's prediction leaves it."""
     known = state.known
     back = known & state.invented[t - 1]  # measured again after temporary markers
+    moving = known & ~back  # measured in both frames: a displacement of the rope
+    confirmed = np.zeros_like(back)
+    if back.any() and moving.any():
+        jump = state.cur - state.positions[t - 1]
+        v_tilde = _neighbour_velocity(moving, jump, jump)
+        confirmed = _confirmed_returns(state, t, back, v_tilde, p)
     state.temp_count[:] = np.where(known, 0, state.temp_count + 1)
     state.invented[t] = ~known
     state.lost_frames[t] = (state.temp_count > p.max_temp_markers) & ~_pinned(known)
     state.point_index[t] = state.taken
     state.positions[t] = state.cur
     state.velocity[:] = state.cur - state.positions[t - 1]
-    moving = known & ~back  # measured in both frames: a displacement of the rope
-    if back.any() and moving.any():
-        v_tilde = _neighbour_velocity(moving, state.velocity, state.velocity)
-        state.velocity[back] = v_tilde[back]
+    if confirmed.any():
+        state.velocity[confirmed] = v_tilde[confirmed]
     learn_link_rest(state, p)
+
+
+def _confirmed_returns(
+    state: TrackState, t: int, back: np.ndarray, v_tilde: np.ndarray, p: StepParams
+) -> np.ndarray:
+    """(M,) bool: the traces in ``back`` whose point of frame t is confirmed as their marker.
+
+    Confirmed: within γ of the temporary marker moved by ṽ (``v_tilde`` (M, 3), metres
+    per frame; the thesis' Ṽ, eq. 3.1 with 3.3), or repeating within γ its link to a
+    neighbour measured in frame t as that link was when both were last measured (the
+    frame before its temporary markers; a slack end folded beside the hand). A point
+    taken on weaker evidence (the shell of a neighbour, the wide gate) is not: given
+    ṽ, a wrong point that moves slower than the rope by less than γ (a body marker
+    beside a slow rope) lies within γ of every next prediction and is kept; given
+    its own jump, the next prediction leaves it (synthetic jump frames 81-90).
+    Call before ``temp_count`` counts frame t.
+    """
+    m = back.size
+    e = state.cur - (state.positions[t - 1] + v_tilde)
+    confirmed = back & (np.einsum("ij,ij->i", e, e) <= p.gamma * p.gamma)
+    last = t - 1 - state.temp_count  # (M,) the frame each trace was last measured in
+    for j in np.flatnonzero(back & ~confirmed & (last >= 0)):
+        f = int(last[j])
+        if state.invented[f, j]:
+            continue
+        for k in (j - 1, j + 1):
+            if 0 <= k < m and state.known[k] and not state.invented[f, k]:
+                d = (state.cur[j] - state.cur[k]) - (state.positions[f, j] - state.positions[f, k])
+                if d @ d <= p.gamma * p.gamma:
+                    confirmed[j] = True
+    return confirmed
 
 
 #: A hidden marker with a measured marker at most this many markers away along the

@@ -98,7 +98,11 @@ Beyond the thesis:
   their predictions at chords more than γ short, which every search above refuses.
 * A trace measured again after temporary markers takes the velocity ṽ of its
   neighbours measured in both frames (eq. 3.3), not its jump from the invented
-  position (which would predict it that far on, and miss it, the next frame).
+  position (which would predict it that far on, and miss it, the next frame), when
+  its point is confirmed: within γ of its temporary marker moved by ṽ, or repeating
+  its link to a measured neighbour as last measured. Otherwise it keeps its jump:
+  given ṽ, a wrong point (a body marker beside a slow rope) stays within γ of every
+  next prediction and is kept.
 * A run of traces matched one marker along the rope (``unshift_chain``: a whip jerked
   lengthwise by about a spacing in a frame keeps its shape, so every trace of the run
   takes its neighbour's marker) moves back one marker when its end trace lies more
