@@ -104,6 +104,20 @@ def test_guard_checks_every_output_before_the_block_runs(source, tmp_path):
     assert not ran and not first.exists()
 
 
+def test_guard_refuses_an_output_in_a_missing_folder_before_the_block_runs(source, tmp_path):
+    """animate --save-rig rig.npz -o missing/x.pc2 wrote the rig, then failed on the cache."""
+    rig, cache = tmp_path / "rig.npz", tmp_path / "missing" / "x.pc2"
+    ran = []
+    with pytest.raises(FormatError, match="folder .*missing.* does not exist"):
+        with guard_outputs([source], [rig, cache]):
+            ran.append(True)
+    assert not ran and not rig.exists()
+    made = tmp_path / "made"  # a folder the block makes holds its outputs, even nested
+    with guard_outputs([source], [made / "a.json", made / "plots" / "b.png"], folders=[made]):
+        ran.append(True)
+    assert ran == [True]
+
+
 def test_folder_input_protects_its_files_but_takes_new_ones(tmp_path):
     folder = tmp_path / "take"
     (folder / "truth").mkdir(parents=True)

@@ -204,7 +204,23 @@ def guard_outputs(
     ...     write_everything()
     """
     with protect_inputs(inputs):
-        for folder in folders:
+        made = [Path(folder) for folder in folders]
+        for folder in made:
             check_output_folder(folder)
-        check_outputs(outputs, force=force)
+        for target in check_outputs(outputs, force=force):
+            _refuse_missing_parent(target, made)
         yield
+
+
+def _refuse_missing_parent(target: Path, made: list[Path]) -> None:
+    """FormatError when ``target``'s folder does not exist and the block will not make it.
+
+    Checked before the block runs, so a verb with several outputs never writes the
+    first ones and then fails on a later one whose folder is missing.
+    """
+    parent = target.parent
+    if parent.is_dir():
+        return
+    if any(parent.absolute().is_relative_to(folder.absolute()) for folder in made):
+        return
+    raise FormatError(target, f"cannot write: folder {str(parent)!r} does not exist")
