@@ -141,6 +141,33 @@ def test_closest_points_match_dense_sampling() -> None:
     np.testing.assert_allclose(np.linalg.norm(bary @ tri - q, axis=1), dist, atol=1e-12)
 
 
+def test_closest_points_exact_on_a_mesh_of_fine_and_long_edges(monkeypatch) -> None:
+    """A fine sphere beside one long sliver (the MakeHuman case: fine face, coarse body):
+    the per-vertex radius groups and the query blocks give the brute-force answer."""
+    from skincap.geometry.raycast import _closest_on_triangles
+
+    monkeypatch.setattr(raycast, "_QUERY_BLOCK", 64)
+    sphere = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    v = np.concatenate([sphere.vertices, [[0.3, 0.0, 0.0], [-0.3, 0.0, 0.02], [0.0, 0.25, 0.0]]])
+    n = sphere.vertices.shape[0]
+    f = np.concatenate([sphere.faces, [[n, n + 1, n + 2]]]).astype(np.int64)
+    rng = np.random.default_rng(11)
+    q = rng.uniform(-0.35, 0.35, size=(300, 3))  # five query blocks
+    dist, face, bary = closest_points_on_mesh(v, f, q)
+    tri = v[f]  # brute force: every point against every triangle
+    bc = _closest_on_triangles(
+        np.repeat(q, len(f), axis=0), *(np.tile(tri[:, c], (len(q), 1)) for c in range(3))
+    )
+    d_all = np.linalg.norm(
+        np.einsum("kc,kcx->kx", bc, np.tile(tri, (len(q), 1, 1))) - np.repeat(q, len(f), axis=0),
+        axis=1,
+    ).reshape(len(q), len(f))
+    np.testing.assert_allclose(dist, d_all.min(axis=1), atol=1e-12)
+    np.testing.assert_allclose(
+        np.linalg.norm(np.einsum("kc,kcx->kx", bary, tri[face]) - q, axis=1), dist, atol=1e-12
+    )
+
+
 def test_segments_near_capsules_matches_sampling() -> None:
     rng = np.random.default_rng(8)
     s0, s1 = rng.normal(size=(200, 3)), rng.normal(size=(200, 3))

@@ -23,6 +23,8 @@ Units are those of the inputs (metres in skincap).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from skincap.errors import ValidationError
@@ -535,6 +537,33 @@ def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.nda
     return np.stack([1.0 - bv - bw, bv, bw], axis=1)
 
 
+#: Query points per block of :func:`closest_points_on_mesh` (bounds its candidate lists).
+_QUERY_BLOCK = 2048
+
+
+def _vertex_radius_groups(v: np.ndarray, f: np.ndarray) -> list[tuple[np.ndarray, Any, float]]:
+    """The faces' vertices grouped by their longest incident edge ``L_a``, metres.
+
+    Group ``k`` holds the vertices with ``L_a`` in ``(L 2^(k-1), L 2^k]`` (``L`` the
+    shortest such edge): its vertex indices, a KD-tree of them and its largest ``L_a``.
+    """
+    from scipy.spatial import cKDTree
+
+    length = np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2)  # (F, 3) edge c-1 -> c
+    at_corner = np.maximum(length, np.roll(length, -1, axis=1))  # the two edges at corner c
+    longest = np.zeros(v.shape[0])
+    np.maximum.at(longest, f.ravel(), at_corner.ravel())
+    used = np.unique(f)
+    reach = longest[used]
+    floor = max(float(reach.min()), 1e-12)
+    group = np.ceil(np.log2(np.maximum(reach / floor, 1.0))).astype(np.int64)
+    out = []
+    for k in np.unique(group):
+        members = used[group == k]
+        out.append((members, cKDTree(v[members]), float(longest[members].max())))
+    return out
+
+
 def closest_points_on_mesh(
     vertices: np.ndarray,
     faces: np.ndarray,
@@ -544,10 +573,15 @@ def closest_points_on_mesh(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The point of the mesh nearest to each query point (exact).
 
-    Candidate triangles come from a KD-tree of the vertices: the nearest surface point
-    lies on a triangle with a vertex within ``d + L`` of the query (``d`` the distance to
-    the nearest vertex, ``L`` the longest edge), so only those triangles are tested
-    (Ericson's closest point on a triangle, vectorised), in blocks.
+    Candidate triangles come from KD-trees of the vertices. The nearest surface point
+    ``p*`` lies within ``d`` of the query (``d`` the distance to the nearest vertex), and
+    every corner ``a`` of its triangle within ``|p* - a| <= L_a`` of it (``L_a`` the
+    longest edge at ``a``), so only triangles at the vertices within ``d + L_a`` of the
+    query are tested (Ericson's closest point on a triangle, vectorised). Vertices are
+    grouped by ``L_a`` (powers of two of the shortest), one tree and one radius per
+    group: a mesh with a few long edges (MakeHuman's coarse body beside its fine face)
+    does not make every query gather the fine region's hundreds of vertices. Queries
+    run in blocks of :data:`_QUERY_BLOCK` points, which bounds the memory.
 
     Parameters
     ----------
@@ -580,38 +614,41 @@ def closest_points_on_mesh(
     bary = np.zeros((n, 3))
     if n == 0:
         return dist, face, bary
-    used = np.unique(f)
-    tree = cKDTree(v[used])
-    longest = float(np.linalg.norm(v[f] - v[np.roll(f, 1, axis=1)], axis=2).max())
-    dv, _ = tree.query(p)
-    near = tree.query_ball_point(p, dv + longest * (1.0 + 1e-9) + 1e-12)
-    counts = np.array([len(x) for x in near], dtype=np.int64)
-    vert = used[np.concatenate([np.asarray(x, dtype=np.int64) for x in near])]
-    owner = np.repeat(np.arange(n), counts)
+    groups = _vertex_radius_groups(v, f)
     # vertex -> incident faces (CSR)
     order = np.argsort(f.ravel(), kind="stable")
     vf_face = order // 3
     vf_start = np.searchsorted(f.ravel()[order], np.arange(v.shape[0]), side="left")
     vf_count = np.bincount(f.ravel(), minlength=v.shape[0])
-    pt, k = _grid_pairs(vf_start[vert], vf_count[vert])
-    pairs = np.unique(owner[pt] * n_f + vf_face[k])  # sorted by point
-    for s0 in range(0, pairs.size, int(max_pairs)):
-        blk = pairs[s0 : s0 + int(max_pairs)]
-        pi, fi = blk // n_f, blk % n_f
-        a, b, c = v[f[fi, 0]], v[f[fi, 1]], v[f[fi, 2]]
-        bc = _closest_on_triangles(p[pi], a, b, c)
-        q = bc[:, :1] * a + bc[:, 1:2] * b + bc[:, 2:] * c
-        d = np.linalg.norm(q - p[pi], axis=1)
-        # best per point within the block (pairs are sorted by point)
-        o = np.lexsort((d, pi))
-        first = np.ones(o.size, dtype=bool)
-        first[1:] = pi[o][1:] != pi[o][:-1]
-        sel = o[first]
-        better = d[sel] < dist[pi[sel]]
-        tgt = pi[sel][better]
-        dist[tgt] = d[sel][better]
-        face[tgt] = fi[sel][better]
-        bary[tgt] = bc[sel][better]
+    nearest_tree = cKDTree(v[np.unique(f)])
+    for q0 in range(0, n, _QUERY_BLOCK):
+        q = p[q0 : q0 + _QUERY_BLOCK]
+        dv, _ = nearest_tree.query(q)
+        owners, verts = [], []
+        for members, tree, reach in groups:
+            near = tree.query_ball_point(q, dv + reach * (1.0 + 1e-9) + 1e-12)
+            counts = np.array([len(x) for x in near], dtype=np.int64)
+            owners.append(np.repeat(np.arange(q.shape[0]), counts))
+            verts.append(members[np.concatenate([np.asarray(x, dtype=np.int64) for x in near])])
+        owner, vert = np.concatenate(owners), np.concatenate(verts)
+        pt, k = _grid_pairs(vf_start[vert], vf_count[vert])
+        pairs = np.unique(owner[pt] * n_f + vf_face[k])  # sorted by point
+        for s0 in range(0, pairs.size, int(max_pairs)):
+            blk = pairs[s0 : s0 + int(max_pairs)]
+            pi, fi = blk // n_f, blk % n_f
+            a, b, c = v[f[fi, 0]], v[f[fi, 1]], v[f[fi, 2]]
+            bc = _closest_on_triangles(q[pi], a, b, c)
+            d = np.linalg.norm(bc[:, :1] * a + bc[:, 1:2] * b + bc[:, 2:] * c - q[pi], axis=1)
+            # best per point within the block (pairs are sorted by point)
+            o = np.lexsort((d, pi))
+            first = np.ones(o.size, dtype=bool)
+            first[1:] = pi[o][1:] != pi[o][:-1]
+            sel = o[first]
+            tgt = q0 + pi[sel]
+            better = d[sel] < dist[tgt]
+            dist[tgt[better]] = d[sel][better]
+            face[tgt[better]] = fi[sel][better]
+            bary[tgt[better]] = bc[sel][better]
     return dist, face, bary
 
 

@@ -538,3 +538,23 @@ def test_a_rig_carries_its_model_choice_to_its_deformer() -> None:
     np.testing.assert_array_equal(rig.deformer().quadratic_parts, [True, False])
     with pytest.raises(ValidationError):
         DenseRig.from_arrays(arrays, labels, {"quadratic_parts": [True]}).deformer()
+
+
+def test_held_out_errors_do_not_depend_on_the_fold_chunks(monkeypatch) -> None:
+    """The model choice's folds run in chunks (bounded memory): any chunk size gives the
+    same squared errors, bit for bit, as all the folds at once."""
+    from skincap.deform.dense import deformer
+
+    rng = np.random.default_rng(3)
+    reference = rng.normal(scale=0.1, size=(40, 3))
+    turn = Rotation.from_rotvec(rng.normal(scale=0.3, size=(5, 3))).as_matrix()  # (S, 3, 3)
+    bulge = 0.2 * reference[:, :1] ** 2  # a quadratic field along x
+    markers = np.einsum("sij,kj->ski", turn, reference + bulge) + rng.normal(size=(5, 1, 3))
+    markers[1, 7] = np.nan  # a missing member
+    weights = np.linspace(0.5, 1.0, 40)
+    whole = deformer._held_out_member_errors(markers, reference, weights, 0.2, 1e-6)
+    monkeypatch.setattr(deformer, "_HELD_OUT_CHUNK_ELEMENTS", 5 * 40 * 40 * 3)  # 3 folds a chunk
+    chunked = deformer._held_out_member_errors(markers, reference, weights, 0.2, 1e-6)
+    assert whole[0].size == chunked[0].size > 40
+    for a, b in zip(whole, chunked, strict=True):
+        np.testing.assert_array_equal(a, b)

@@ -566,6 +566,44 @@ def _held_out_member_errors(
     rot, trans = fit_rigid(markers[:, None], reference, w)  # (S, L, 3, 3), (S, L, 3)
     local = markers[:, None] @ np.swapaxes(rot, -1, -2) + trans[..., None, :]  # (S, L, K, 3)
     scored = present[:, None, :] & folds[None] & np.isfinite(local).all(-1)  # (S, L, K)
+    # folds in chunks: the RBF fits hold (S, L, K, K) kernels, 0.7 GB each for one
+    # 352-marker part (a still take is one part) on 2 frames; a chunk holds ~32 MB
+    s_, l_, k_ = keep.shape
+    step = max(1, _HELD_OUT_CHUNK_ELEMENTS // max(1, s_ * k_ * k_))
+    chunks = [
+        _held_out_fold_errors(
+            reference,
+            local[:, a : a + step],
+            w[:, a : a + step],
+            keep[:, a : a + step],
+            sigma,
+            quadratic_regularisation,
+        )
+        for a in range(0, l_, step)
+    ]
+    errors = [np.concatenate([c[i] for c in chunks], axis=1) for i in (0, 1)]
+    both = scored & np.isfinite(errors[0]) & np.isfinite(errors[1])
+    return errors[0][both], errors[1][both]
+
+
+#: Elements (S x L x K x K) of the held-out RBF kernels computed at once.
+_HELD_OUT_CHUNK_ELEMENTS = 4_000_000
+
+
+def _held_out_fold_errors(
+    reference: np.ndarray,
+    local: np.ndarray,
+    w: np.ndarray,
+    keep: np.ndarray,
+    sigma: float,
+    quadratic_regularisation: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Squared prediction errors (S, L, K) of the rigid and the quadratic base on some folds.
+
+    ``local`` (S, L, K, 3) the members in the part frame after each fold's rigid fit,
+    ``w`` (S, L, K) the fitting weights (0 where left out or missing), ``keep`` (S, L, K)
+    the members each fold fits.
+    """
     errors = []
     for quadratic in (False, True):
         if quadratic:
@@ -581,8 +619,7 @@ def _held_out_member_errors(
         rbf_w = fit_rbf(centres, residual, sigma, keep)
         predicted = centres + evaluate_rbf(centres, rbf_w, sigma, centres)
         errors.append(((predicted - local) ** 2).sum(-1))  # (S, L, K)
-    both = scored & np.isfinite(errors[0]) & np.isfinite(errors[1])
-    return errors[0][both], errors[1][both]
+    return errors[0], errors[1]
 
 
 class DenseDeformer:
