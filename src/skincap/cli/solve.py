@@ -201,7 +201,10 @@ def eval_solve(
     from skincap.workflows.solve import evaluate_solve
 
     inputs = [input_dir, *(real or [])]
-    with _user_errors(), guard_outputs(inputs, [output / "solve_eval.json"], force=force):
+    with (
+        _user_errors(),
+        guard_outputs(inputs, [output / "solve_eval.json"], folders=[output], force=force),
+    ):
         if input_dir is not None and synth is not None:
             raise ValidationError("give a synth folder or --synth, not both")
         check_seed(seed)
