@@ -9,7 +9,7 @@ import numba
 import numpy as np
 
 from skincap.tracking._numba_search import JIT, norm3
-from skincap.tracking._refusals_numba import rigid_with_body, taken_in_frame
+from skincap.tracking._refusals_numba import path_back_to_trace, rigid_with_body, taken_in_frame
 
 __all__ = ["bridge_hidden_runs"]
 
@@ -158,34 +158,14 @@ def _best_chain(state, t, j0, j1, free, pred, reach, gamma, p):  # pragma: no co
 @numba.njit(**JIT)
 def _seen_beside_as_other(state, t, j, point, p):  # pragma: no cover - runs compiled
     """Twin of the reference's ``_seen_beside_as_other``."""
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb == fa:
-            return False
-        best = _INF
-        n = -1
-        for q in range(fa, fb):
-            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
-            if dq < best:
-                best = dq
-                n = q
-        if not best <= p.gamma:
-            return False
-        mine = point_index[f, j]
-        if mine >= 0:
-            e = norm3(
-                points[n, 0] - points[mine, 0],
-                points[n, 1] - points[mine, 1],
-                points[n, 2] - points[mine, 2],
-            )
-            return e > p.gamma and not taken_in_frame(point_index, f, n)
-        v0 = x0 - points[n, 0]
-        v1 = x1 - points[n, 1]
-        v2 = x2 - points[n, 2]
-        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
-    return False
+    reached, f = path_back_to_trace(state, t, j, point, p)
+    if reached < 0:
+        return False
+    points = state.points
+    mine = state.point_index[f, j]
+    e = norm3(
+        points[reached, 0] - points[mine, 0],
+        points[reached, 1] - points[mine, 1],
+        points[reached, 2] - points[mine, 2],
+    )
+    return e > p.gamma and not taken_in_frame(state.point_index, f, reached)

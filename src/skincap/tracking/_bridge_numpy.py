@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skincap.tracking._refusals_numpy import rigid_with_body
+from skincap.tracking._refusals_numpy import path_back_to_trace, rigid_with_body
 from skincap.tracking.state import StepParams, TrackState
 
 __all__ = ["BRIDGE_RUN", "bridge_hidden_runs"]
@@ -125,24 +125,12 @@ def _seen_beside_as_other(state: TrackState, t: int, j: int, point: int, p: Step
     of the rope's points is no evidence either: a rope crumpling as it lands moves a
     marker a few centimetres in a frame, and the path steps onto its neighbour.
     """
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x = points[point]
-    v = np.zeros(3)
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = int(offsets[f]), int(offsets[f + 1])
-        if fb == fa:
-            return False
-        d = np.linalg.norm(points[fa:fb] - (x - v), axis=1)
-        n = int(np.argmin(d))
-        if not d[n] <= p.gamma:
-            return False
-        mine = int(point_index[f, j])
-        if mine >= 0:
-            far = np.linalg.norm(points[fa + n] - points[mine]) > p.gamma
-            return bool(far) and fa + n not in point_index[f]
-        v = x - points[fa + n]
-        x = points[fa + n]
-    return False
+    reached, f = path_back_to_trace(state, t, j, point, p)
+    if reached < 0:
+        return False
+    mine = int(state.point_index[f, j])
+    far = np.linalg.norm(state.points[reached] - state.points[mine]) > p.gamma
+    return bool(far) and reached not in state.point_index[f]
 
 
 def _best_chain(

@@ -9,7 +9,11 @@ import numba
 import numpy as np
 
 from skincap.tracking._numba_search import JIT, norm3
-from skincap.tracking._refusals_numba import reject_overstretched, rigid_with_body
+from skincap.tracking._refusals_numba import (
+    path_back_to_trace,
+    reject_overstretched,
+    rigid_with_body,
+)
 
 __all__ = ["reacquire_on_shell"]
 
@@ -163,34 +167,14 @@ def _seat(state, j, a, c, free):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
     """Twin of the reference's ``_beside_trace``."""
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
-    v0 = 0.0
-    v1 = 0.0
-    v2 = 0.0
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = offsets[f], offsets[f + 1]
-        if fb == fa:
-            return False
-        best = _INF
-        n = -1
-        for q in range(fa, fb):
-            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
-            if dq < best:
-                best = dq
-                n = q
-        if not best <= p.gamma:
-            return False
-        mine = point_index[f, j]
-        if mine >= 0:
-            e = norm3(
-                points[n, 0] - points[mine, 0],
-                points[n, 1] - points[mine, 1],
-                points[n, 2] - points[mine, 2],
-            )
-            return n != mine and e > p.gamma
-        v0 = x0 - points[n, 0]
-        v1 = x1 - points[n, 1]
-        v2 = x2 - points[n, 2]
-        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
-    return False
+    reached, f = path_back_to_trace(state, t, j, point, p)
+    if reached < 0:
+        return False
+    points = state.points
+    mine = state.point_index[f, j]
+    e = norm3(
+        points[reached, 0] - points[mine, 0],
+        points[reached, 1] - points[mine, 1],
+        points[reached, 2] - points[mine, 2],
+    )
+    return reached != mine and e > p.gamma

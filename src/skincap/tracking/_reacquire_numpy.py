@@ -11,6 +11,7 @@ import numpy as np
 
 from skincap.tracking._refusals_numpy import (
     _squared_distances,
+    path_back_to_trace,
     reject_overstretched,
     rigid_with_body,
 )
@@ -188,21 +189,9 @@ def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) 
     held end, not the end coming back from a dropout. A path that breaks (moved
     farther than γ from its prediction: the rope moving fast) is no evidence.
     """
-    points, offsets, point_index = state.points, state.offsets, state.point_index
-    x = points[point]
-    v = np.zeros(3)
-    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
-        fa, fb = int(offsets[f]), int(offsets[f + 1])
-        if fb == fa:
-            return False
-        d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
-        n = int(np.argmin(d))
-        if not d[n] <= p.gamma:
-            return False
-        mine = int(point_index[f, j])
-        if mine >= 0:
-            e = points[fa + n] - points[mine]
-            return fa + n != mine and bool(np.sqrt(e @ e) > p.gamma)
-        v = x - points[fa + n]
-        x = points[fa + n]
-    return False
+    reached, f = path_back_to_trace(state, t, j, point, p)
+    if reached < 0:
+        return False
+    mine = int(state.point_index[f, j])
+    e = state.points[reached] - state.points[mine]
+    return reached != mine and bool(np.sqrt(e @ e) > p.gamma)

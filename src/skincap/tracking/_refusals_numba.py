@@ -10,7 +10,13 @@ import numpy as np
 
 from skincap.tracking._numba_search import JIT, norm3
 
-__all__ = ["reject_odd_motion", "reject_overstretched", "rigid_with_body", "taken_in_frame"]
+__all__ = [
+    "path_back_to_trace",
+    "reject_odd_motion",
+    "reject_overstretched",
+    "rigid_with_body",
+    "taken_in_frame",
+]
 
 _INF = np.inf
 
@@ -22,6 +28,36 @@ def taken_in_frame(point_index, f, q):  # pragma: no cover - runs compiled
         if point_index[f, j] == q:
             return True
     return False
+
+
+@numba.njit(**JIT)
+def path_back_to_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
+    """Twin of the reference's ``path_back_to_trace``: (point reached, its frame) or (-1, -1)."""
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
+    v0 = 0.0
+    v1 = 0.0
+    v2 = 0.0
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = offsets[f], offsets[f + 1]
+        if fb == fa:
+            return np.int64(-1), np.int64(-1)
+        best = _INF
+        n = -1
+        for q in range(fa, fb):
+            dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
+            if dq < best:
+                best = dq
+                n = q
+        if not best <= p.gamma:
+            return np.int64(-1), np.int64(-1)
+        if point_index[f, j] >= 0:
+            return np.int64(n), np.int64(f)
+        v0 = x0 - points[n, 0]
+        v1 = x1 - points[n, 1]
+        v2 = x2 - points[n, 2]
+        x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
+    return np.int64(-1), np.int64(-1)
 
 
 @numba.njit(**JIT)

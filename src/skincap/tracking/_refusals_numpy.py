@@ -14,7 +14,7 @@ import numpy as np
 
 from skincap.tracking.state import StepParams, TrackState
 
-__all__ = ["reject_odd_motion", "reject_overstretched", "rigid_with_body"]
+__all__ = ["path_back_to_trace", "reject_odd_motion", "reject_overstretched", "rigid_with_body"]
 
 
 def _squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -23,6 +23,35 @@ def _squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     dy = x[:, None, 1] - y[None, :, 1]
     dz = x[:, None, 2] - y[None, :, 2]
     return dx * dx + dy * dy + dz * dz
+
+
+def path_back_to_trace(
+    state: TrackState, t: int, j: int, point: int, p: StepParams
+) -> tuple[int, int]:
+    """Follow ``point`` of frame t back to the last frame trace ``j`` was measured in.
+
+    Each step back takes the nearest point within γ of where the path's last move
+    takes it (constant velocity), through up to ``rigid_window`` frames. Returns
+    ``(point reached, its frame)`` at the first frame ``j`` was measured, or
+    ``(-1, -1)`` when the path breaks (an empty frame, or a move beyond γ: no
+    evidence) or ``j`` was not measured in the window.
+    """
+    points, offsets, point_index = state.points, state.offsets, state.point_index
+    x = points[point]
+    v = np.zeros(3)
+    for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
+        fa, fb = int(offsets[f]), int(offsets[f + 1])
+        if fb == fa:
+            return -1, -1
+        d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
+        n = int(np.argmin(d))
+        if not d[n] <= p.gamma:
+            return -1, -1
+        if point_index[f, j] >= 0:
+            return fa + n, f
+        v = x - points[fa + n]
+        x = points[fa + n]
+    return -1, -1
 
 
 def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
