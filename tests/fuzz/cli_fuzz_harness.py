@@ -345,7 +345,10 @@ def judge(
         v.add("timeout", f"no exit within {outcome.seconds:.1f} s{_where(err)}")
     if outcome.signal is not None:
         v.add("signal", f"{signal.Signals(outcome.signal).name}{_where(err)}")
-    if "MemoryError" in err or "std::bad_alloc" in err or "Cannot allocate memory" in err:
+    # the CLI reports a MemoryError as one line ("not enough memory: ..."), which is right
+    # for a user but still a defect on a small hostile file: the judge counts it as memory
+    memory_signs = ("MemoryError", "std::bad_alloc", "Cannot allocate memory", "not enough memory:")
+    if any(sign in err for sign in memory_signs):
         v.add("memory", f"allocation above the limit: {_last_line(err)}{_where(err)}")
     if "Traceback (most recent call last)" in err:
         v.add("traceback", f"{_last_line(err)}{_where(err)}")
