@@ -158,14 +158,5 @@ def _best_chain(state, t, j0, j1, free, pred, reach, gamma, p):  # pragma: no co
 @numba.njit(**JIT)
 def _seen_beside_as_other(state, t, j, point, p):  # pragma: no cover - runs compiled
     """Twin of the reference's ``_seen_beside_as_other``."""
-    reached, f = path_back_to_trace(state, t, j, point, p)
-    if reached < 0:
-        return False
-    points = state.points
-    mine = state.point_index[f, j]
-    e = norm3(
-        points[reached, 0] - points[mine, 0],
-        points[reached, 1] - points[mine, 1],
-        points[reached, 2] - points[mine, 2],
-    )
-    return e > p.gamma and not taken_in_frame(state.point_index, f, reached)
+    reached, f, apart = path_back_to_trace(state, t, j, point, p)
+    return reached >= 0 and apart > p.gamma and not taken_in_frame(state.point_index, f, reached)

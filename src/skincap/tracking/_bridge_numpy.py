@@ -125,12 +125,8 @@ def _seen_beside_as_other(state: TrackState, t: int, j: int, point: int, p: Step
     of the rope's points is no evidence either: a rope crumpling as it lands moves a
     marker a few centimetres in a frame, and the path steps onto its neighbour.
     """
-    reached, f = path_back_to_trace(state, t, j, point, p)
-    if reached < 0:
-        return False
-    mine = int(state.point_index[f, j])
-    far = np.linalg.norm(state.points[reached] - state.points[mine]) > p.gamma
-    return bool(far) and reached not in state.point_index[f]
+    reached, f, apart = path_back_to_trace(state, t, j, point, p)
+    return reached >= 0 and apart > p.gamma and reached not in state.point_index[f]
 
 
 def _best_chain(

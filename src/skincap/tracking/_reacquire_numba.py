@@ -167,14 +167,5 @@ def _seat(state, j, a, c, free):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
     """Twin of the reference's ``_beside_trace``."""
-    reached, f = path_back_to_trace(state, t, j, point, p)
-    if reached < 0:
-        return False
-    points = state.points
-    mine = state.point_index[f, j]
-    e = norm3(
-        points[reached, 0] - points[mine, 0],
-        points[reached, 1] - points[mine, 1],
-        points[reached, 2] - points[mine, 2],
-    )
-    return reached != mine and e > p.gamma
+    reached, f, apart = path_back_to_trace(state, t, j, point, p)
+    return reached >= 0 and reached != state.point_index[f, j] and apart > p.gamma

@@ -189,9 +189,5 @@ def _beside_trace(state: TrackState, t: int, j: int, point: int, p: StepParams) 
     held end, not the end coming back from a dropout. A path that breaks (moved
     farther than γ from its prediction: the rope moving fast) is no evidence.
     """
-    reached, f = path_back_to_trace(state, t, j, point, p)
-    if reached < 0:
-        return False
-    mine = int(state.point_index[f, j])
-    e = state.points[reached] - state.points[mine]
-    return reached != mine and bool(np.sqrt(e @ e) > p.gamma)
+    reached, f, apart = path_back_to_trace(state, t, j, point, p)
+    return reached >= 0 and reached != int(state.point_index[f, j]) and apart > p.gamma

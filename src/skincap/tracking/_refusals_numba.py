@@ -32,7 +32,8 @@ def taken_in_frame(point_index, f, q):  # pragma: no cover - runs compiled
 
 @numba.njit(**JIT)
 def path_back_to_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
-    """Twin of the reference's ``path_back_to_trace``: (point reached, its frame) or (-1, -1)."""
+    """Twin of the reference's ``path_back_to_trace``: (point reached, its frame, its
+    distance to the trace's own point) or (-1, -1, inf)."""
     points, offsets, point_index = state.points, state.offsets, state.point_index
     x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
     v0 = 0.0
@@ -41,7 +42,7 @@ def path_back_to_trace(state, t, j, point, p):  # pragma: no cover - runs compil
     for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
         fa, fb = offsets[f], offsets[f + 1]
         if fb == fa:
-            return np.int64(-1), np.int64(-1)
+            return np.int64(-1), np.int64(-1), _INF
         best = _INF
         n = -1
         for q in range(fa, fb):
@@ -50,14 +51,20 @@ def path_back_to_trace(state, t, j, point, p):  # pragma: no cover - runs compil
                 best = dq
                 n = q
         if not best <= p.gamma:
-            return np.int64(-1), np.int64(-1)
-        if point_index[f, j] >= 0:
-            return np.int64(n), np.int64(f)
+            return np.int64(-1), np.int64(-1), _INF
+        mine = point_index[f, j]
+        if mine >= 0:
+            apart = norm3(
+                points[n, 0] - points[mine, 0],
+                points[n, 1] - points[mine, 1],
+                points[n, 2] - points[mine, 2],
+            )
+            return np.int64(n), np.int64(f), apart
         v0 = x0 - points[n, 0]
         v1 = x1 - points[n, 1]
         v2 = x2 - points[n, 2]
         x0, x1, x2 = points[n, 0], points[n, 1], points[n, 2]
-    return np.int64(-1), np.int64(-1)
+    return np.int64(-1), np.int64(-1), _INF
 
 
 @numba.njit(**JIT)

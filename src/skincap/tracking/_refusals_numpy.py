@@ -27,13 +27,13 @@ def _squared_distances(x: np.ndarray, y: np.ndarray) -> np.ndarray:
 
 def path_back_to_trace(
     state: TrackState, t: int, j: int, point: int, p: StepParams
-) -> tuple[int, int]:
+) -> tuple[int, int, float]:
     """Follow ``point`` of frame t back to the last frame trace ``j`` was measured in.
 
     Each step back takes the nearest point within γ of where the path's last move
     takes it (constant velocity), through up to ``rigid_window`` frames. Returns
-    ``(point reached, its frame)`` at the first frame ``j`` was measured, or
-    ``(-1, -1)`` when the path breaks (an empty frame, or a move beyond γ: no
+    ``(point reached, its frame, its distance to j's own point there, m)`` at the
+    first frame ``j`` was measured, or ``(-1, -1, inf)`` when the path breaks (an empty frame, or a move beyond γ: no
     evidence) or ``j`` was not measured in the window.
     """
     points, offsets, point_index = state.points, state.offsets, state.point_index
@@ -42,16 +42,18 @@ def path_back_to_trace(
     for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
         fa, fb = int(offsets[f]), int(offsets[f + 1])
         if fb == fa:
-            return -1, -1
+            return -1, -1, np.inf
         d = np.sqrt(_squared_distances(points[fa:fb], (x - v)[None])[:, 0])
         n = int(np.argmin(d))
         if not d[n] <= p.gamma:
-            return -1, -1
-        if point_index[f, j] >= 0:
-            return fa + n, f
+            return -1, -1, np.inf
+        mine = int(point_index[f, j])
+        if mine >= 0:
+            e = points[fa + n] - points[mine]
+            return fa + n, f, float(np.sqrt(e @ e))
         v = x - points[fa + n]
         x = points[fa + n]
-    return -1, -1
+    return -1, -1, np.inf
 
 
 def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams) -> bool:
