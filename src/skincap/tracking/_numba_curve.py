@@ -22,6 +22,7 @@ __all__ = [
     "end_is_free",
     "fill_interior",
     "interp_along",
+    "known_span",
     "neighbour_velocity",
     "predict_ends",
     "settle",
@@ -208,15 +209,22 @@ def _predict_end(cur, prev, v_tilde, temp_count, spacing, j, step):  # pragma: n
 
 
 @numba.njit(**JIT)
-def predict_ends(cur, known, prev, v_tilde, temp_count, spacing):  # pragma: no cover
-    m = known.size
+def known_span(known):  # pragma: no cover - runs compiled
+    """(first, last) index of a True in ``known`` (m,) bool; (-1, -1) when none is."""
     first = -1
     last = -1
-    for j in range(m):
+    for j in range(known.size):
         if known[j]:
             if first < 0:
                 first = j
             last = j
+    return first, last
+
+
+@numba.njit(**JIT)
+def predict_ends(cur, known, prev, v_tilde, temp_count, spacing):  # pragma: no cover
+    m = known.size
+    first, last = known_span(known)
     for j in range(first - 1, -1, -1):
         # np.int64, not a literal: one compiled signature for both sides
         _predict_end(cur, prev, v_tilde, temp_count, spacing, j, np.int64(1))
@@ -306,13 +314,7 @@ def drag_free_ends(pred, known, prev, velocity, spacing, runs):  # pragma: no co
     """Twin of :func:`skincap.tracking.curve.drag_free_ends` (returns a new array)."""
     out = pred.copy()
     m = known.size
-    first = -1
-    last = -1
-    for j in range(m):
-        if known[j]:
-            if first < 0:
-                first = j
-            last = j
+    first, last = known_span(known)
     if first < 0:
         return out
     for side in range(2):

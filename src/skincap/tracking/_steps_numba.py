@@ -41,6 +41,7 @@ from skincap.tracking._numba_curve import (
     end_is_free,
     fill_interior,
     interp_along,
+    known_span,
     neighbour_velocity,
     predict_ends,
     settle,
@@ -524,13 +525,7 @@ def _free_end_runs(state, t):  # pragma: no cover - runs compiled
     known = state.known
     m = known.size
     runs = np.zeros(m, np.bool_)
-    first = -1
-    last = -1
-    for j in range(m):
-        if known[j]:
-            if first < 0:
-                first = j
-            last = j
+    first, last = known_span(known)
     if first < 0:
         return runs
     for side in range(2):
