@@ -11,12 +11,14 @@ import pytest
 from typer.testing import CliRunner
 
 from skincap.cli import app
+from skincap.errors import ValidationError
 from skincap.evaluate.animate import (
     adjusted_rand_index,
     evaluate_animate,
     global_rbf_frames,
     held_out_marker_errors,
     region_errors,
+    seam_split,
 )
 from skincap.io.mesh import write_obj, write_ply
 from skincap.io.pc2 import write_pc2
@@ -100,6 +102,37 @@ def test_rows_are_present_and_the_dense_chain_beats_global_interpolation(folder)
     assert result["per_vertex_rms_m"]["rigid"].shape == (31 * 16,)
     assert result["targets"]["segmentation_ari"]["met"] is True
     assert result["regions"] is None  # no truth/body.glb: no skin weights to split by
+    # the rig's split: two rigid tubes blend only around the elbow, where the parts meet
+    seams = {g["region"]: g for g in result["seams"]}
+    assert seams["seam"]["vertices"] + seams["one part"]["vertices"] == x.size
+    assert np.abs(x[per_vertex_split(result, folder) == "seam"] - ELBOW).max() < 0.12
+    for method in ("rigid", "quadratic", "rigid_rbf", "quadratic_rbf"):  # the bend is at the seam
+        assert seams["one part"]["rms_m"][method] < 0.5 * seams["seam"]["rms_m"][method]
+    assert seams["all"]["rms_m"]["quadratic_rbf"] == pytest.approx(
+        rows[("same_body", "quadratic_rbf")]["rms_m"], rel=1e-12
+    )
+
+
+def per_vertex_split(result: dict, folder: Path) -> np.ndarray:
+    """The seam split of the evaluation's same-body rig, rebuilt from the take."""
+    from skincap import io
+    from skincap.deform.dense.rig import build_dense_rig
+    from skincap.io.pc2 import read_pc2
+
+    markers = io.read(folder / "truth" / "markers.c3d")
+    skin = np.asarray(read_pc2(folder / "truth" / "mesh.pc2").frames)
+    surface = io.read(folder / "truth" / "marker_surface.ply")
+    faces = io.read(folder / "truth" / "mesh.obj").faces
+    x = markers.positions
+    rig = build_dense_rig(skin[0], faces, markers.labels, x[0], surface.faces, x, n_parts=2)
+    return seam_split(rig.vertex_weights)
+
+
+def test_seam_split_counts_the_parts_a_vertex_blends() -> None:
+    beta = np.array([[1.0, 0.0, 0.0], [0.5, 0.5, 0.0], [0.0, 0.0, 1.0], [0.2, 0.3, 0.5]])
+    np.testing.assert_array_equal(seam_split(beta), ["one part", "seam", "one part", "seam"])
+    with pytest.raises(ValidationError):
+        seam_split(np.ones(3))
 
 
 @pytest.mark.slow  # a registration and a second rig: ~10 s on a loaded machine

@@ -324,6 +324,14 @@ def _print_eval_table(result: dict[str, Any]) -> None:
             out.print(
                 f"{row['case']:<20} {row['method']:<14} not measured: {row['note']}", markup=False
             )
+    for group in result.get("seams") or []:
+        if group["region"] != "all":
+            shown = ", ".join(f"{m} {v * 1e3:.2f}" for m, v in group["rms_m"].items())
+            out.print(
+                f"vertices at a seam between parts ({group['vertices']})" if group["region"] == "seam"
+                else f"vertices inside one part ({group['vertices']})",
+                f"RMS mm: {shown}", markup=False, soft_wrap=True,
+            )  # fmt: skip
     reg = result.get("registration")
     if reg:
         out.print(

@@ -23,7 +23,11 @@ by the adjusted Rand index when that file exists.
 Where the error sits: the ``regions`` table splits every vertex row by region, the
 joint that weighs most on the vertex in the body's own skin weights
 (``truth/body.glb``: ``RightShoulder`` is the upper arm, ``Chest2`` the upper chest),
-with each method's vertex RMS there (:func:`region_errors`).
+with each method's vertex RMS there (:func:`region_errors`); the ``seams`` table splits
+it by the rig instead (:func:`seam_split`): the vertices whose part weights β blend two
+or more parts (eq. 9: on the marker-surface triangles at a seam between parts) and
+those inside one part. The dense chain interpolates between markers, so the two tell
+an error of the blending at seams from one of a part's own fields.
 
 With a *different template* (another body mesh), it is registered to the reference-pose
 markers (§5.1, :mod:`skincap.deform.dense.registration`), rigged and deformed like the
@@ -57,6 +61,7 @@ __all__ = [
     "global_rbf_frames",
     "plot_vertex_errors",
     "region_errors",
+    "seam_split",
     "vertex_errors",
 ]
 
@@ -146,6 +151,26 @@ def region_errors(
             }
         )
     return rows
+
+
+def seam_split(vertex_weights: np.ndarray) -> np.ndarray:
+    """Which vertices a dense rig blends from several parts.
+
+    Parameters
+    ----------
+    vertex_weights : (V, P) float
+        β (:attr:`skincap.deform.dense.rig.DenseRig.vertex_weights`).
+
+    Returns
+    -------
+    (V,) str
+        ``"seam"`` where two or more parts have a positive weight, ``"one part"``
+        elsewhere; the regions of :func:`region_errors`.
+    """
+    beta = np.asarray(vertex_weights, dtype=np.float64)
+    if beta.ndim != 2:
+        raise ValidationError(f"vertex_weights must have shape (V, P); got {beta.shape}")
+    return np.where((beta > 0).sum(axis=1) >= 2, "seam", "one part")
 
 
 def global_rbf_frames(
@@ -386,7 +411,8 @@ def evaluate_animate(
         ``rows`` (one per case and method: ``case``, ``method``, ``rms_m``, ``mean_m``,
         ``p95_m``, ``max_m``…), ``held_out``, ``segmentation``, ``regions``
         (:func:`region_errors` by the body's dominant skin joint; None without
-        ``truth/body.glb``), ``targets`` (value,
+        ``truth/body.glb``), ``seams`` (:func:`region_errors` by :func:`seam_split` of
+        the same-body rig), ``targets`` (value,
         target, met), ``per_vertex_rms_m`` (method -> (V,) array, for the colour maps;
         not JSON), ``vertices`` (V, 3) reference-pose vertices and ``faces``.
     """
@@ -446,6 +472,7 @@ def evaluate_animate(
         "segmentation": segmentation,
         "registration": registration,
         "regions": None if regions is None else region_errors(per_vertex, regions),
+        "seams": region_errors(per_vertex, seam_split(rig.vertex_weights)),
         "targets": _targets(rows, held, segmentation),
         "per_vertex_rms_m": per_vertex,
         "vertices": vertices,
