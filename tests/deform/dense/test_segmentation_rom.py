@@ -13,8 +13,7 @@ from scipy import sparse
 from scipy.sparse.csgraph import connected_components
 
 
-@pytest.fixture(scope="module")
-def rom_take() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _rom_take(seed: int, soft_tissue: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Marker positions (T, N, 3), surface triangles and true part of every marker."""
     from skincap.deform.skeletal.deformers import skin_motion
     from skincap.synth.inputs import build_body, build_motion
@@ -22,28 +21,48 @@ def rom_take() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     from skincap.synth.markers import dense_marker_layout, place_markers
     from skincap.synth.soft_tissue import SoftTissue
 
-    body = build_body("procedural", n_vertices=5000, seed=0)
-    motion = build_motion(body, "rom", frames=240, seconds=None, rate=120.0, units=None, seed=0)
-    seeds = np.random.default_rng(0).integers(0, 2**31 - 1, size=6)  # as generate_capture
+    body = build_body("procedural", n_vertices=5000, seed=seed)
+    motion = build_motion(body, "rom", frames=240, seconds=None, rate=120.0, units=None, seed=seed)
+    seeds = np.random.default_rng(seed).integers(0, 2**31 - 1, size=6)  # as generate_capture
     skin = np.concatenate(
         list(skin_motion(body, motion, method="dqs", backend="numpy").iter_chunks(128))
     )
-    skin += SoftTissue(body, seed=int(seeds[0])).displacements(motion, skin)
+    if soft_tissue:
+        skin += SoftTissue(body, seed=int(seeds[0])).displacements(motion, skin)
     layout = dense_marker_layout(body, seed=int(seeds[1]))
     positions, _ = place_markers(layout, skin, body.faces)
     truth = [PART_NAMES.index(p) for p in true_marker_parts(body, layout.face, layout.bary)]
     return positions, np.asarray(layout.surface_faces), np.array(truth)
 
 
+@pytest.fixture(scope="module")
+def rom_take() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Seed 0, soft tissue on (what ``skincap synth`` writes)."""
+    return _rom_take(0, soft_tissue=True)
+
+
 @pytest.mark.slow
 def test_a_fast_range_of_motion_segments_into_the_true_parts(rom_take) -> None:
     """ARI >= 0.85 (the issue's target; 0.765 before seam evidence was weighed by how
     far two parts turn apart, 0.865 after), 17 connected parts of >= 3 markers."""
+    _assert_segments_into_true_parts(*rom_take)
+
+
+@pytest.mark.slow
+def test_skin_that_follows_the_bones_segments_into_the_true_parts_on_another_seed() -> None:
+    """With the soft tissue off, a seed whose jiggling take falls short (seed 7) still
+    segments into the true parts: what the fast range of motion lacks is rigidity of
+    the flesh (its jiggle), not something the seed's body or marker layout does."""
+    _assert_segments_into_true_parts(*_rom_take(7, soft_tissue=False))
+
+
+def _assert_segments_into_true_parts(
+    positions: np.ndarray, faces: np.ndarray, truth: np.ndarray
+) -> None:
     from skincap.deform.dense.rigid_groups import surface_edges
     from skincap.deform.dense.segmentation import segment_marker_surface
     from skincap.evaluate.animate import adjusted_rand_index
 
-    positions, faces, truth = rom_take
     seg = segment_marker_surface(positions, positions[0], faces)
     assert seg.n_parts == 17
     assert (seg.marker_parts >= 0).all()
