@@ -6,10 +6,12 @@ import numpy as np
 import pytest
 from scipy.spatial import ConvexHull
 
+import skincap.deform.dense.surface_targets as surface_targets
 from skincap.deform.dense.surface_targets import (
     _closest_on_surface_near,
     marker_surface_normals,
     marker_surface_targets,
+    phong_shape,
 )
 from skincap.geometry.raycast import closest_points_on_mesh
 
@@ -62,6 +64,96 @@ def test_phong_targets_lie_on_the_sphere_where_flat_triangles_cut_under_it(spher
     assert flat.mean() > 2e-3
     assert phong_miss.mean() < 0.2 * flat.mean()
     assert phong_miss.max() < 0.35 * flat.max()
+
+
+def _cylinder(
+    radius: float, around: int, rings: int, spacing: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Markers in staggered rings on an open cylinder along Y (a limb), and its triangles."""
+    angle = 2 * np.pi * np.arange(around) / around
+    points = np.concatenate(
+        [
+            np.stack(
+                [
+                    radius * np.cos(angle + (i % 2) * np.pi / around),
+                    np.full(around, i * spacing),
+                    radius * np.sin(angle + (i % 2) * np.pi / around),
+                ],
+                axis=1,
+            )
+            for i in range(rings)
+        ]
+    )
+    i, k = np.meshgrid(np.arange(rings - 1), np.arange(around), indexing="ij")
+    i, k = i.ravel(), k.ravel()
+    a, b = i * around + k, i * around + (k + 1) % around
+    c = (i + 1) * around + (k + i % 2) % around
+    d = (i + 1) * around + (k + 1 + i % 2) % around
+    return points, np.concatenate([np.stack([a, b, c], 1), np.stack([c, b, d], 1)])
+
+
+def test_exact_on_a_sphere_and_a_cylinder_where_a_fixed_shape_factor_is_not(
+    sphere_markers, monkeypatch
+) -> None:
+    """The per-point shape factor with Max's normals puts the target on the sphere and
+    on a limb-like cylinder (markers 4-5 cm apart) to rounding; a fixed α = 1/2 leaves
+    it under the surface by a fraction of a millimetre, α = 3/4 over it by a millimetre."""
+    markers, faces = sphere_markers
+    query = _sphere_points(2000, R, seed=3)
+    r = 0.04
+    cyl, cyl_faces = _cylinder(r, 6, 9, 0.045)
+    rng = np.random.default_rng(8)
+    turn, height = rng.uniform(0, 2 * np.pi, 2000), rng.uniform(0.09, 0.27, 2000)
+    on_cyl = np.stack([r * np.cos(turn), height, r * np.sin(turn)], axis=1)
+    cyl_normals = np.stack([np.cos(turn), np.zeros_like(turn), np.sin(turn)], axis=1)
+
+    def misses() -> tuple[np.ndarray, np.ndarray]:
+        t, ok = marker_surface_targets(
+            query, query / R, markers, faces, marker_radius=0.0, max_distance=0.03
+        )
+        tc, okc = marker_surface_targets(
+            on_cyl, cyl_normals, cyl, cyl_faces, marker_radius=0.0, max_distance=0.03
+        )
+        assert ok.all() and okc.all()
+        return np.linalg.norm(t, axis=1) - R, np.linalg.norm(tc[:, [0, 2]], axis=1) - r
+
+    sphere_miss, cyl_miss = misses()
+    assert np.abs(sphere_miss).max() < 1e-9 and np.abs(cyl_miss).max() < 1e-9
+    monkeypatch.setattr(surface_targets, "PHONG_SHAPE", 0.5)
+    sphere_miss, cyl_miss = misses()
+    assert sphere_miss.min() < -2e-4 and cyl_miss.min() < -5e-4 and cyl_miss.max() <= 1e-9
+    monkeypatch.setattr(surface_targets, "PHONG_SHAPE", 0.75)
+    _, cyl_miss = misses()
+    assert cyl_miss.max() > 5e-4
+
+
+def test_phong_shape_is_one_half_in_the_flat_limit_and_bounded() -> None:
+    rng = np.random.default_rng(9)
+    bary = rng.dirichlet(np.ones(3), 500)
+    # corner normals tilted by a small angle around +Z: the flat limit
+    tilt = 1e-4 * rng.normal(size=(500, 3, 3))
+    normals = np.array([0.0, 0.0, 1.0]) + tilt
+    normals /= np.linalg.norm(normals, axis=2, keepdims=True)
+    np.testing.assert_allclose(phong_shape(bary, normals), 0.5, atol=1e-3)
+    flat = np.broadcast_to(np.array([0.0, 0.0, 1.0]), (500, 3, 3))
+    np.testing.assert_array_equal(phong_shape(bary, flat), 0.5)
+    wild = rng.normal(size=(500, 3, 3))
+    wild /= np.linalg.norm(wild, axis=2, keepdims=True)
+    alpha = phong_shape(bary, wild)
+    assert np.isfinite(alpha).all() and (alpha >= 0.5).all() and (alpha <= 1.0).all()
+
+
+def test_marker_normals_are_exact_on_a_sphere_however_uneven_the_star() -> None:
+    """Max's weights: a marker whose neighbours lie on a sphere gets the sphere's normal
+    exactly, where area weights tilt it toward the bigger triangles."""
+    rng = np.random.default_rng(10)
+    turn = np.sort(rng.uniform(0, 2 * np.pi, 7))
+    polar = rng.uniform(0.15, 0.7, 7)
+    ring = np.stack([np.sin(polar) * np.cos(turn), np.cos(polar), np.sin(polar) * np.sin(turn)], 1)
+    points = R * np.concatenate([[[0.0, 1.0, 0.0]], ring])
+    faces = np.stack([np.zeros(7, int), 1 + np.arange(7), 1 + (np.arange(7) + 1) % 7], axis=1)
+    normals = marker_surface_normals(points, faces, points, points / R)
+    np.testing.assert_allclose(normals[0], [0.0, 1.0, 0.0], atol=1e-12)
 
 
 def test_marker_radius_moves_the_target_inward(sphere_markers) -> None:

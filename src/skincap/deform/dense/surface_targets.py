@@ -10,10 +10,15 @@ one marker radius inward.
 
 The marker surface's flat triangles cut under a curved body by the sagitta (about 8 mm
 across a 5 cm chord on a 4 cm forearm), so the target is the point of Phong
-tessellation (Boubekeur & Alexa 2008) over the flat closest point, with shape factor
-1/2: each corner's tangent-plane projection, blended by the barycentric weights. On a
-circle of radius r through the corners this lands on the circle to second order in
-the chord's angle (a flat chord misses it by ``r θ² / 2``; α = 1/2 adds that back).
+tessellation (Boubekeur & Alexa 2008) over the flat closest point: each corner's
+tangent-plane projection, blended by the barycentric weights, then blended with the
+flat point by the shape factor α. A fixed α = 1/2 lands on a circle through the
+corners only to second order in the chord's angle (a flat chord misses it by
+``r θ² / 2``); markers 4-6 cm apart on a limb or the head span angles where that
+leaves the target millimetres under the skin, so each point takes the α that puts
+it on the sphere (or cylinder) its corners' normals imply (:func:`phong_shape`). The
+marker normals are Max's (1999) weighted averages, exact where a marker and its
+neighbours lie on a sphere.
 
 Triangles with an edge over :data:`LONG_EDGE_RATIO` times the median edge bridge a gap
 (arm to torso, leg to leg) and are dropped. A vertex gets no target (weight 0) where
@@ -34,11 +39,13 @@ from scipy.spatial import cKDTree
 # the exact, vectorised point-triangle closest point (Ericson 5.1.5)
 from skincap.geometry.raycast import _closest_on_triangles
 
-__all__ = ["PHONG_SHAPE", "marker_surface_normals", "marker_surface_targets"]
+__all__ = ["PHONG_SHAPE", "marker_surface_normals", "marker_surface_targets", "phong_shape"]
 
-#: Phong tessellation shape factor α: 1/2 puts a triangle's midpoints back on a circle
-#: through its corners (second order), 0 is the flat triangle.
-PHONG_SHAPE = 0.5
+#: Phong tessellation shape factor α: None (default) takes each point's α from its
+#: corners' normals so that it lands on the sphere they imply (:func:`phong_shape`);
+#: a number fixes it (1/2 is exact on a circle only in the limit of small angles
+#: between the corner normals; 0 is the flat triangle).
+PHONG_SHAPE: float | None = None
 
 #: Least cosine between a vertex normal and the marker surface's normal at its target.
 MIN_NORMAL_COSINE = 0.5
@@ -67,6 +74,36 @@ def _face_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
 
 
+def phong_shape(bary: np.ndarray, corner_normals: np.ndarray) -> np.ndarray:
+    """(K,) Phong shape factor that puts each point on the sphere its corners' normals imply.
+
+    Phong tessellation with a fixed α is exact on a circle only as the angle between the
+    corner normals goes to zero (α -> 1/2). Markers a few centimetres apart on a limb or
+    a head span a large angle, where a flat-limit α leaves the point under the skin.
+    For corners ``p_c = o + r n_c`` on a sphere (or a cylinder's cross-section) and a
+    point with barycentric weights ``b``, the Phong point is ``o + r (N + α u)`` with
+    ``N = Σ b_c n_c`` and ``u = Σ b_c (1 - N·n_c) n_c``, so ``|N + α u| = 1`` gives α
+    from the normals alone, whatever ``r``. Clipped to [1/2, 1]; 1/2 where the normals
+    agree (a flat patch: α does not matter there).
+
+    Parameters
+    ----------
+    bary : (K, 3) float, barycentric weights
+    corner_normals : (K, 3, 3) float, unit normals at each point's three corners
+    """
+    big_n = np.einsum("kc,kcx->kx", bary, corner_normals)  # (K, 3)
+    gap = 1.0 - np.einsum("kx,kcx->kc", big_n, corner_normals)  # (K, 3)
+    u = np.einsum("kc,kcx->kx", bary * gap, corner_normals)
+    uu = np.einsum("kx,kx->k", u, u)
+    nu = np.einsum("kx,kx->k", big_n, u)
+    nn = np.einsum("kx,kx->k", big_n, big_n)
+    disc = np.maximum(nu**2 - uu * (nn - 1.0), 0.0)
+    ok = uu > 1e-12
+    alpha = np.full(bary.shape[0], 0.5)
+    alpha[ok] = (np.sqrt(disc[ok]) - nu[ok]) / uu[ok]
+    return np.clip(alpha, 0.5, 1.0)
+
+
 def marker_surface_normals(
     markers: np.ndarray,
     faces: np.ndarray,
@@ -78,8 +115,10 @@ def marker_surface_normals(
     A marker surface built from a cloud need not be consistently oriented, so each
     triangle is turned to agree with the summed outward normals of the
     :data:`ORIENTATION_VOTES` nearest of ``reference_points`` (the template placed over
-    the markers; a vote, so a stray normal does not turn it) before the area-weighted
-    average at each marker.
+    the markers; a vote, so a stray normal does not turn it) before Max's (1999)
+    weighted average at each marker (each triangle's corner cross product over the
+    squared lengths of its two edges: exact for a marker whose neighbours lie on a
+    sphere, however unevenly).
 
     Parameters
     ----------
@@ -98,9 +137,18 @@ def marker_surface_normals(
     vote = reference_normals[np.asarray(nearest).reshape(centre.shape[0], k)].sum(axis=1)
     flip = np.einsum("fx,fx->f", fn, vote) < 0
     fn[flip] *= -1.0
+    # Max (1999): each corner's edge cross product over |e1|² |e2|², exact at a vertex
+    # whose neighbours lie on a sphere, however unevenly; area weights tilt a marker's
+    # normal toward its biggest triangles, and the Phong lift is only as good as these
+    sign = np.where(flip, -1.0, 1.0)[:, None]
     normals = np.zeros_like(markers)
     for corner in range(3):
-        np.add.at(normals, faces[:, corner], fn)
+        p0 = markers[faces[:, corner]]
+        e1 = markers[faces[:, (corner + 1) % 3]] - p0
+        e2 = markers[faces[:, (corner + 2) % 3]] - p0
+        w = np.einsum("fx,fx->f", e1, e1) * np.einsum("fx,fx->f", e2, e2)
+        n_corner = sign * np.cross(e1, e2) / np.maximum(w, 1e-30)[:, None]
+        np.add.at(normals, faces[:, corner], n_corner)
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
 
@@ -218,7 +266,9 @@ def marker_surface_targets(
     # Phong tessellation: the flat point projected on each corner's tangent plane, blended
     height = np.einsum("vcx,vcx->vc", flat[:, None, :] - corners, corner_normals)  # (V, 3)
     projected = flat[:, None, :] - height[:, :, None] * corner_normals
-    smooth = (1.0 - PHONG_SHAPE) * flat + PHONG_SHAPE * np.einsum("vc,vcx->vx", bary, projected)
+    alpha = phong_shape(bary, corner_normals) if PHONG_SHAPE is None else PHONG_SHAPE
+    alpha = np.broadcast_to(np.asarray(alpha, dtype=np.float64), (p.shape[0],))[:, None]
+    smooth = (1.0 - alpha) * flat + alpha * np.einsum("vc,vcx->vx", bary, projected)
     normal = np.einsum("vc,vcx->vx", bary, corner_normals)
     normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
     agree = np.einsum("vx,vx->v", normal, point_normals) >= MIN_NORMAL_COSINE
