@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from skincap.backends import numba_available
 from skincap.deform.dense import deformer as dense_deformer
+from skincap.deform.dense._kernel_numpy import F32_TOLERANCE
 from skincap.deform.dense.deformer import METHODS, DenseDeformer, PartMotion, fit_part_motion
 from skincap.deform.dense.parts import part_frames
 from skincap.errors import MissingDependencyError, ValidationError
@@ -57,21 +58,27 @@ def _random_take(seed: int, n_frames: int = 6) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("method", METHODS)
 def test_numba_equals_the_numpy_reference_on_random_parts(seed: int, method: str) -> None:
+    """Both kernels in float64 agree to rounding; with the float32 RBF sums ("mixed",
+    the default) each stays within F32_TOLERANCE of that reference."""
     take = _random_take(seed)
     parts = part_frames(take["reference"], take["alpha"])
     motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
     assert np.abs(motion.rbf_weights).max() > 0 if method.endswith("_rbf") else True
-    numpy_out = DenseDeformer(parts, take["vertices"], take["beta"], backend="numpy").deform_block(
-        motion
-    )
-    numba_out = DenseDeformer(parts, take["vertices"], take["beta"], backend="numba").deform_block(
-        motion
-    )
-    assert numpy_out.shape == numba_out.shape == (6, 301, 3)
+    out = {
+        (backend, precision): DenseDeformer(
+            parts, take["vertices"], take["beta"], backend=backend, precision=precision
+        ).deform_block(motion)
+        for backend in ("numpy", "numba")
+        for precision in ("float64", "mixed")
+    }
+    reference = out["numpy", "float64"]
+    assert reference.shape == (6, 301, 3)
     # the same NaN (vertex 0 has only the unseen part) and the same numbers elsewhere
-    np.testing.assert_array_equal(np.isnan(numpy_out), np.isnan(numba_out))
-    assert np.isnan(numpy_out[:, 0]).all() and np.isfinite(numpy_out[:, 1:]).all()
-    np.testing.assert_allclose(numba_out, numpy_out, rtol=0, atol=1e-9)
+    assert np.isnan(reference[:, 0]).all() and np.isfinite(reference[:, 1:]).all()
+    for key, got in out.items():
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(reference))
+        atol = 1e-9 if key[1] == "float64" else F32_TOLERANCE
+        np.testing.assert_allclose(got, reference, rtol=0, atol=atol, err_msg=str(key))
 
 
 @needs_numba
@@ -98,16 +105,22 @@ def test_numba_equals_the_numpy_reference_on_a_synthetic_take() -> None:
     markers = markers.copy()
     markers[3, ::7] = np.nan  # gaps
     outputs = {}
-    for backend in ("numpy", "numba"):
-        deformer = DenseDeformer(parts, skin[0], beta, backend=backend)
+    for backend, precision in (("numpy", "float64"), ("numba", "float64"), ("numpy", "mixed"),
+                               ("numba", "mixed")):  # fmt: skip
+        deformer = DenseDeformer(parts, skin[0], beta, backend=backend, precision=precision)
         for method in METHODS:
-            outputs[backend, method] = np.concatenate(list(deformer.deform(markers, method)))
+            outputs[backend, precision, method] = np.concatenate(
+                list(deformer.deform(markers, method))
+            )
     for method in METHODS:
-        np.testing.assert_allclose(
-            outputs["numba", method], outputs["numpy", method], rtol=0, atol=1e-9
-        )
+        want = outputs["numpy", "float64", method]
+        np.testing.assert_allclose(outputs["numba", "float64", method], want, rtol=0, atol=1e-9)
+        for backend in ("numpy", "numba"):  # the float32 RBF sums, against the reference
+            np.testing.assert_allclose(
+                outputs[backend, "mixed", method], want, rtol=0, atol=F32_TOLERANCE
+            )
     # and the deformation follows the true skin (a broken kernel would not)
-    error = np.linalg.norm(outputs["numba", "quadratic_rbf"] - skin, axis=-1)
+    error = np.linalg.norm(outputs["numba", "mixed", "quadratic_rbf"] - skin, axis=-1)
     assert np.sqrt((error**2).mean()) < 0.02
 
 
@@ -133,7 +146,7 @@ def test_auto_runs_numpy_while_the_kernel_compiles_then_takes_it(
     compiled = True
     second = d.deform_block(motion)
     assert d.backend == "numba"
-    np.testing.assert_allclose(second, first, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(second, first, rtol=0, atol=2 * F32_TOLERANCE)  # both mixed
     pinned = DenseDeformer(parts, take["vertices"], take["beta"], backend="numpy")
     pinned.deform_block(motion)
     assert pinned.backend == "numpy"
@@ -239,14 +252,20 @@ def test_the_tiled_kernels_equal_eqs_8_9_written_out(backend: str, method: str) 
     rng = np.random.default_rng(6)
     seam = rng.random(take["beta"].shape) * (rng.random(take["beta"].shape) < 0.7)
     deformer = DenseDeformer(
-        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend
-    )
+        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend,
+        precision="float64",
+    )  # fmt: skip
     motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
     got = deformer.deform_block(motion)
     want = _direct_eqs_8_9(deformer, take["vertices"], motion, seam)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     assert np.isnan(got[:, 0]).all() and np.isfinite(got[:, 1:]).all()
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+    mixed = DenseDeformer(
+        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend
+    ).deform_block(motion)  # float32 RBF sums where the error model allows
+    np.testing.assert_array_equal(np.isnan(mixed), np.isnan(want))
+    np.testing.assert_allclose(mixed, want, rtol=0, atol=F32_TOLERANCE)
     # the RBF moved the vertices (a kernel that dropped the sums would differ by mm)
     plain = DenseDeformer(parts, take["vertices"], take["beta"], backend=backend)
     rigid = plain.deform_block(fit_part_motion(take["markers"], parts, "rigid"))

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap.deform.dense._kernel_numpy import F32_TOLERANCE, Precision
 from skincap.deform.dense._pair_tiles import MEMBER_LANES, PairTiles
 
 __all__ = ["MEMBER_LANES", "dense_dispatcher", "deform_vertices_numba"]
@@ -57,6 +58,8 @@ def deform_vertices_numba(
     seam_weights: np.ndarray,
     rbf_scale: np.ndarray,
     rbf_members: np.ndarray,
+    *,
+    precision: Precision = "mixed",
 ) -> np.ndarray:
     """Deformed vertices of a block of frames with the compiled kernel (eqs. 8-9).
 
@@ -74,6 +77,10 @@ def deform_vertices_numba(
         ``2 / σ_p``.
     rbf_members : (P,) int64
         Centres of part ``p`` in the RBF sums (0: the part has no RBF).
+    precision : {"mixed", "float64"}
+        "mixed": a tile's RBF sums at a frame in float32 where
+        :func:`~skincap.deform.dense._kernel_numpy.f32_error_bound` stays within
+        :data:`~skincap.deform.dense._kernel_numpy.F32_TOLERANCE`; "float64": never.
 
     Returns
     -------
@@ -86,7 +93,7 @@ def deform_vertices_numba(
         scale = np.asarray(rbf_scale, dtype=np.float64)
         table = _rbf_table(centres, member_weights, seam_weights, scale)
         if np.any(rbf_members):  # tiled: the moved pairs buffered between two passes
-            moved = np.zeros((n_t, tiles.part.shape[0], 3))
+            moved = np.zeros((tiles.part.shape[0], n_t, 3))
             vertex_local, vertex_part = np.zeros((0, 3)), np.zeros(0, np.int64)
         else:  # fused, no buffer: the pairs' p̂⁰ and part in by-vertex order instead
             moved = np.zeros((0, 0, 3))
@@ -101,6 +108,7 @@ def deform_vertices_numba(
             *(np.require(a, np.float64, ("C", "W")) for a in (
                 quadratic, rotation, translation, table, scale)),
             np.require(rbf_members, np.int64, ("C", "W")),
+            F32_TOLERANCE if precision == "mixed" else -1.0,
             np.require(vertex_local, np.float64, ("C", "W")),
             np.require(vertex_part, np.int64, ("C", "W")),
             moved,
