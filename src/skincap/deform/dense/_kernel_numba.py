@@ -100,7 +100,9 @@ def deform_vertices_numba(
             vertex_local, vertex_part = tiles.local[tiles.by_vertex], tiles.part[tiles.by_vertex]
         # one argument signature only (C-contiguous, writeable): a second would compile again
         dense_dispatcher()(
-            *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local, tiles.seam)),
+            # p̂⁰ structure-of-arrays (3, Q): the tiled path runs a tile's pairs along
+            # the vector lanes
+            *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local.T, tiles.seam)),
             *(np.require(a, np.int64, ("C", "W")) for a in (
                 tiles.tile_start, tiles.tile_part, tiles.by_vertex)),
             np.require(tiles.weight_by_vertex, np.float64, ("C", "W")),

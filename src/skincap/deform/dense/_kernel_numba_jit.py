@@ -310,7 +310,7 @@ def dense_kernel(
 
     With no RBF field (every ``rbf_members`` 0) the fused path (:func:`_fused_no_rbf`):
     vertex_local (Q, 3) p̂⁰, vertex_part (Q,) in ``by_vertex`` order, ``moved`` unused.
-    Otherwise the tiled path (vertex_local, vertex_part unused): pair_local (Q, 3) p̂⁰
+    Otherwise the tiled path (vertex_local, vertex_part unused): pair_local (3, Q) p̂⁰
     and pair_seam (Q,) s of the pairs sorted by part, in tiles tile_start (n + 1,) of
     one part each, tile_part (n,); by_vertex (Q,) the pairs sorted by vertex,
     vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
@@ -352,32 +352,40 @@ def dense_kernel(
         near = np.empty((9, width))
         near32 = np.empty((9, width), dtype=np.float32)
         pos32 = np.zeros((3, tile_max), dtype=np.float32)
-        acc = np.empty((6, tile_max), dtype=np.float32)
+        acc = np.zeros((6, tile_max), dtype=np.float32)
+        loc = np.zeros((3, tile_max))  # the tile's Ã q(p̂⁰), then its world positions
         w_sum = np.empty(6)
         for tile in range(run * n_tiles // n_runs, (run + 1) * n_tiles // n_runs):
             p = tile_part[tile]
             q0 = tile_start[tile]
-            q1 = tile_start[tile + 1]
-            n_lanes = -(-(q1 - q0) // lanes) * lanes
+            n = tile_start[tile + 1] - q0
+            n_lanes = -(-n // lanes) * lanes
             n_k = rbf_members[p]
             g = rbf_scale[p]
             for t in range(n_t):  # a tile's rows of ``moved`` stay in cache over its frames
+                f = _field_of(quadratic, rotation, translation, t, p)
+                for j in range(n):  # along the lanes: the pairs' local positions are SoA
+                    lx, ly, lz = _apply_field(
+                        f, pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j]
+                    )
+                    loc[0, j] = lx
+                    loc[1, j] = ly
+                    loc[2, j] = lz
                 lo_x = lo_y = lo_z = np.inf
                 hi_x = hi_y = hi_z = -np.inf
-                f = _field_of(quadratic, rotation, translation, t, p)
-                for q in range(q0, q1):
-                    lx, ly, lz = _apply_field(
-                        f, pair_local[q, 0], pair_local[q, 1], pair_local[q, 2]
-                    )
-                    moved[q, t, 0] = lx
-                    moved[q, t, 1] = ly
-                    moved[q, t, 2] = lz
-                    lo_x = min(lo_x, lx * g)
-                    lo_y = min(lo_y, ly * g)
-                    lo_z = min(lo_z, lz * g)
-                    hi_x = max(hi_x, lx * g)
-                    hi_y = max(hi_y, ly * g)
-                    hi_z = max(hi_z, lz * g)
+                for j in range(n):
+                    lo_x = min(lo_x, loc[0, j])
+                    lo_y = min(lo_y, loc[1, j])
+                    lo_z = min(lo_z, loc[2, j])
+                    hi_x = max(hi_x, loc[0, j])
+                    hi_y = max(hi_y, loc[1, j])
+                    hi_z = max(hi_z, loc[2, j])
+                lo_x *= g
+                lo_y *= g
+                lo_z *= g
+                hi_x *= g
+                hi_y *= g
+                hi_z *= g
                 n_near = 0
                 if n_k > 0:
                     n_near = _gather_near(
@@ -406,32 +414,31 @@ def dense_kernel(
                         near32[2, i] = np.float32(near[2, i] - oz)
                         for r in range(3, 9):
                             near32[r, i] = np.float32(near[r, i])
-                    for q in range(q0, q1):
-                        pos32[0, q - q0] = np.float32(moved[q, t, 0] * g - ox)
-                        pos32[1, q - q0] = np.float32(moved[q, t, 1] * g - oy)
-                        pos32[2, q - q0] = np.float32(moved[q, t, 2] * g - oz)
+                    for j in range(n):
+                        pos32[0, j] = np.float32(loc[0, j] * g - ox)
+                        pos32[1, j] = np.float32(loc[1, j] * g - oy)
+                        pos32[2, j] = np.float32(loc[2, j] * g - oz)
                     _tile_rbf_sums_f32(near32, n_near, pos32, n_lanes, acc)
-                for q in range(q0, q1):
-                    lx = moved[q, t, 0]
-                    ly = moved[q, t, 1]
-                    lz = moved[q, t, 2]
-                    if use32:
-                        s = pair_seam[q]
-                        j = q - q0
-                        lx += (1.0 - s) * acc[0, j] + s * acc[3, j]
-                        ly += (1.0 - s) * acc[1, j] + s * acc[4, j]
-                        lz += (1.0 - s) * acc[2, j] + s * acc[5, j]
-                    elif n_near > 0:
-                        n_sum = -(-n_near // MEMBER_LANES) * MEMBER_LANES
-                        mx, my, mz, sx, sy, sz = _rbf_sums(near, n_sum, lx * g, ly * g, lz * g)
-                        s = pair_seam[q]
-                        lx += (1.0 - s) * mx + s * sx
-                        ly += (1.0 - s) * my + s * sy
-                        lz += (1.0 - s) * mz + s * sz
-                    wx, wy, wz = _field_to_world(f, lx, ly, lz)
-                    moved[q, t, 0] = wx
-                    moved[q, t, 1] = wy
-                    moved[q, t, 2] = wz
+                    for j in range(n):
+                        s = pair_seam[q0 + j]
+                        loc[0, j] += (1.0 - s) * acc[0, j] + s * acc[3, j]
+                        loc[1, j] += (1.0 - s) * acc[1, j] + s * acc[4, j]
+                        loc[2, j] += (1.0 - s) * acc[2, j] + s * acc[5, j]
+                elif n_near > 0:
+                    n_sum = -(-n_near // MEMBER_LANES) * MEMBER_LANES
+                    for j in range(n):
+                        mx, my, mz, sx, sy, sz = _rbf_sums(
+                            near, n_sum, loc[0, j] * g, loc[1, j] * g, loc[2, j] * g
+                        )
+                        s = pair_seam[q0 + j]
+                        loc[0, j] += (1.0 - s) * mx + s * sx
+                        loc[1, j] += (1.0 - s) * my + s * sy
+                        loc[2, j] += (1.0 - s) * mz + s * sz
+                for j in range(n):
+                    wx, wy, wz = _field_to_world(f, loc[0, j], loc[1, j], loc[2, j])
+                    moved[q0 + j, t, 0] = wx
+                    moved[q0 + j, t, 1] = wy
+                    moved[q0 + j, t, 2] = wz
     # eq. 9: each vertex's finite pairs, β-weighted
     for v in numba.prange(n_v):
         for t in range(n_t):
