@@ -19,6 +19,7 @@ from typing import Literal
 
 import numpy as np
 from scipy import sparse
+from scipy.spatial import cKDTree
 
 __all__ = [
     "F32_ERROR_PER_WEIGHT",
@@ -161,6 +162,41 @@ def _add_rbf_sums(
     world += seam[:, None, None] * (sums[..., 3:] - sums[..., :3])
 
 
+def _has_a_fixed_base(quadratic: np.ndarray, centres: np.ndarray) -> bool:
+    """Whether a part's base field is exactly ``[I 0 0 0]`` at every frame, (T, 3, 10),
+    and its (T, k, 3) centres the same at every frame."""
+    identity = np.zeros((3, quadratic.shape[-1]))
+    identity[:, :3] = np.eye(3)
+    return bool((quadratic == identity).all() and (centres == centres[:1]).all())
+
+
+def _rest_kernel(
+    cache: dict[int, tuple[np.ndarray, sparse.csr_matrix]],
+    part: int,
+    points: np.ndarray,
+    centres: np.ndarray,
+) -> sparse.csr_matrix:
+    """The (n, k) sparse matrix of ``6 φ`` between a part's pairs at rest and its
+    centres (both (·, 3), scaled by 2/σ), from ``cache`` when made for these centres.
+
+    Only the entries with s < 2 are stored (about a quarter of a body part's centres
+    reach a pair): 12 bytes each.
+    """
+    hit = cache.get(part)
+    if hit is not None and np.array_equal(hit[0], centres):
+        return hit[1]
+    near = cKDTree(points).sparse_distance_matrix(
+        cKDTree(centres), 2.0, output_type="ndarray"
+    )  # (i, j, s) records, s = 0 included
+    s = near["v"]
+    values = (2.0 - s) ** 3 - 4.0 * np.maximum(1.0 - s, 0.0) ** 3  # 6 φ
+    matrix = sparse.csr_matrix(
+        (values, (near["i"], near["j"])), shape=(points.shape[0], centres.shape[0])
+    )
+    cache[part] = (centres.copy(), matrix)
+    return matrix
+
+
 def move_pairs_numpy(
     pair_basis: np.ndarray,
     pair_seam: np.ndarray,
@@ -176,6 +212,7 @@ def move_pairs_numpy(
     rbf_members: np.ndarray,
     *,
     precision: Precision = "mixed",
+    rest_kernels: dict[int, tuple[np.ndarray, sparse.csr_matrix]] | None = None,
 ) -> np.ndarray:
     """Every pair's position moved by its part (eq. 8), for a block of frames.
 
@@ -201,6 +238,11 @@ def move_pairs_numpy(
         Centres of part ``p`` in the RBF sums (0: the part has no RBF).
     precision : {"mixed", "float64"}
         The RBF sums' arithmetic (:func:`_add_rbf_sums`); "float64" is the reference.
+    rest_kernels : dict, optional
+        A cache (part -> its rest centres and sparse kernel matrix) kept by the caller
+        across blocks: with it, a part whose base field is the identity at every frame
+        of the block and whose centres stay at rest sums its RBF through the matrix
+        (float64) instead of the tiles. None: always the tiles.
 
     Returns
     -------
@@ -236,6 +278,15 @@ def move_pairs_numpy(
         reduce = np.concatenate(
             [weights[..., :3] @ rotation[:, p], weights[..., 3:] @ rotation[:, p]], axis=-1
         ).swapaxes(-1, -2)  # (T, 6, k)
+        if rest_kernels is not None and _has_a_fixed_base(quadratic[:, p], c):
+            # a rigid base (rigid_rbf, or a part quadratic_rbf keeps rigid): the pairs
+            # and the centres sit at their rest positions in every frame, so the kernel
+            # values are the binding's, a sparse (n, k) matrix made once
+            phi = _rest_kernel(rest_kernels, p, basis[:, :3] * scale, c[0])
+            sums = (phi @ reduce.transpose(2, 0, 1).reshape(k, 6 * n_t)).reshape(-1, n_t, 6)
+            part += sums[..., :3]
+            part += pair_seam[start:stop, None, None] * (sums[..., 3:] - sums[..., :3])
+            continue
         # slabs of _TILES_PER_SLAB tiles: fewer NumPy calls for a few more centres a slab
         bounds = tile_start[(tile_start >= start) & (tile_start < stop)][::_TILES_PER_SLAB] - start
         with np.errstate(invalid="ignore"):  # NaN fields (an unseen part): no centre

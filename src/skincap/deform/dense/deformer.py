@@ -770,7 +770,7 @@ class DenseDeformer:
         tiles = self._tiles
         moved = move_pairs_numpy(
             tiles.basis, tiles.seam, tiles.part_start, tiles.tile_start, *fields,
-            precision=self.precision,
+            precision=self.precision, rest_kernels=tiles.rest_kernels,
         )  # fmt: skip
         return blend_pairs(moved, self._blend)
 
