@@ -12,10 +12,14 @@ Nothing of size (vertices, centres) is ever stored. Without an RBF field (``rigi
 one fused parallel loop over the vertices instead: each vertex's pairs moved by their
 part's field and blended by β at once, with no buffer of moved pairs.
 
+The RBF sums of a tile at a frame run in float32, the tile's pairs along the vector
+lanes, where the error model of :func:`skincap.deform.dense._kernel_numpy.f32_error_bound`
+stays within 1e-6 m (``precision="mixed"``, the default), else in float64.
 :mod:`skincap.deform.dense._kernel_numpy` is the reference this kernel must agree with
-(to rounding); :class:`skincap.deform.dense.deformer.DenseDeformer` picks between
-them (``backend=``, :func:`skincap.backends.resolve_backend`). The kernel compiles
-once per machine into numba's on-disk cache (``cache=True``).
+(to rounding in float64, to 1e-6 m mixed);
+:class:`skincap.deform.dense.deformer.DenseDeformer` picks between them (``backend=``,
+:func:`skincap.backends.resolve_backend`). The kernel compiles once per machine into
+numba's on-disk cache (``cache=True``).
 """
 
 from __future__ import annotations

@@ -11,6 +11,13 @@ one augmented product per frame, the B-spline written so that its two cubes shar
 buffer, and one product per frame with the members' and the seam field's weights,
 blended by each pair's seam share. One sparse product blends the pairs (eq. 9).
 :mod:`skincap.deform.dense._kernel_numba` computes the same, compiled.
+
+Precision: by default ("mixed") a tile's kernel values and sums run in float32, the
+positions taken relative to the tile's centre, where :func:`f32_error_bound` stays
+within :data:`F32_TOLERANCE` (1e-6 m), else in float64; ``precision="float64"`` is the
+reference. A part whose base field is the identity at every frame of a block (a rigid
+base) keeps its pairs and centres at rest, so its kernel values never change: it sums
+through a sparse (pairs, centres) matrix made once (``rest_kernels``), in float64.
 """
 
 from __future__ import annotations
