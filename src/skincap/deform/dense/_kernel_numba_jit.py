@@ -66,60 +66,6 @@ def _quadratic_field(quadratic, t, p, x, y, z):  # pragma: no cover - runs compi
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
-def _field_of(quadratic, rotation, translation, t, p):  # pragma: no cover - runs compiled
-    """Part ``p``'s fields in frame ``t`` as one tuple of 42 scalars: Ã (3, 10) row by
-    row, then R̃ (3, 3) row by row, then d̃ (3,). Held in registers over a tile's pairs:
-    read from the arrays inside the pair loop, every store to ``moved`` would make the
-    compiler load them again (it cannot tell the arrays apart)."""
-    a = quadratic[t, p]
-    r = rotation[t, p]
-    d = translation[t, p]
-    return (
-        a[0, 0], a[0, 1], a[0, 2], a[0, 3], a[0, 4], a[0, 5], a[0, 6], a[0, 7], a[0, 8], a[0, 9],
-        a[1, 0], a[1, 1], a[1, 2], a[1, 3], a[1, 4], a[1, 5], a[1, 6], a[1, 7], a[1, 8], a[1, 9],
-        a[2, 0], a[2, 1], a[2, 2], a[2, 3], a[2, 4], a[2, 5], a[2, 6], a[2, 7], a[2, 8], a[2, 9],
-        r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2], r[2, 0], r[2, 1], r[2, 2],
-        d[0], d[1], d[2],
-    )  # fmt: skip
-
-
-@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
-def _apply_field(f, x, y, z):  # pragma: no cover - runs compiled
-    """Ã q(p̂⁰) with the tuple of :func:`_field_of`: as :func:`_quadratic_field`."""
-    xx = x * x
-    yy = y * y
-    zz = z * z
-    xy = x * y
-    yz = y * z
-    zx = z * x
-    lx = (
-        f[0] * x + f[1] * y + f[2] * z + f[3] * xx + f[4] * yy + f[5] * zz
-        + f[6] * xy + f[7] * yz + f[8] * zx + f[9]
-    )  # fmt: skip
-    ly = (
-        f[10] * x + f[11] * y + f[12] * z + f[13] * xx + f[14] * yy + f[15] * zz
-        + f[16] * xy + f[17] * yz + f[18] * zx + f[19]
-    )  # fmt: skip
-    lz = (
-        f[20] * x + f[21] * y + f[22] * z + f[23] * xx + f[24] * yy + f[25] * zz
-        + f[26] * xy + f[27] * yz + f[28] * zx + f[29]
-    )  # fmt: skip
-    return lx, ly, lz
-
-
-@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
-def _field_to_world(f, lx, ly, lz):  # pragma: no cover - runs compiled
-    """(local - d̃) R̃ with the tuple of :func:`_field_of`: as :func:`_local_to_world`."""
-    ux = lx - f[39]
-    uy = ly - f[40]
-    uz = lz - f[41]
-    wx = ux * f[30] + uy * f[33] + uz * f[36]
-    wy = ux * f[31] + uy * f[34] + uz * f[37]
-    wz = ux * f[32] + uy * f[35] + uz * f[38]
-    return wx, wy, wz
-
-
-@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
 def _rbf_sums(near, n_k, gx, gy, gz):  # pragma: no cover - runs compiled
     """Both RBF sums (eq. 8) at the position (gx, gy, gz) scaled by 2/σ (unitless) over
     the first ``n_k`` columns of ``near`` (9, K): rows x, y, z of the centres scaled by
@@ -363,11 +309,11 @@ def dense_kernel(
             n_k = rbf_members[p]
             g = rbf_scale[p]
             for t in range(n_t):  # a tile's rows of ``moved`` stay in cache over its frames
-                f = _field_of(quadratic, rotation, translation, t, p)
                 for j in range(n):  # along the lanes: the pairs' local positions are SoA
-                    lx, ly, lz = _apply_field(
-                        f, pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j]
-                    )
+                    lx, ly, lz = _quadratic_field(
+                        quadratic, t, p,
+                        pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j],
+                    )  # fmt: skip
                     loc[0, j] = lx
                     loc[1, j] = ly
                     loc[2, j] = lz
@@ -435,7 +381,9 @@ def dense_kernel(
                         loc[1, j] += (1.0 - s) * my + s * sy
                         loc[2, j] += (1.0 - s) * mz + s * sz
                 for j in range(n):
-                    wx, wy, wz = _field_to_world(f, loc[0, j], loc[1, j], loc[2, j])
+                    wx, wy, wz = _local_to_world(
+                        rotation, translation, t, p, loc[0, j], loc[1, j], loc[2, j]
+                    )
                     moved[q0 + j, t, 0] = wx
                     moved[q0 + j, t, 1] = wy
                     moved[q0 + j, t, 2] = wz
