@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from skincap.deform.dense._kernel_numpy import F32_TOLERANCE
 from skincap.deform.dense.deformer import METHODS, DenseDeformer
 from skincap.deform.dense.parts import part_frames
 from skincap.evaluate.bench.animate import chain_scene, default_parts, run_animate_benchmark
@@ -69,8 +70,10 @@ def test_bench_reports_every_variant_on_both_backends_and_the_lbs_ratio() -> Non
             assert res["ms_per_frame"][f"{method}_{backend}"] > 0
             assert res["cpu_ms_per_frame"][f"{method}_{backend}"] > 0
             assert res["ratios"][f"{method}_{backend} / lbs_{backend}"] > 0
-        # the benchmark's own agreement check between the kernels
-        assert res["max_abs_diff"][f"{method}_numba vs {method}_numpy"] < 1e-9
+        # the benchmark's own agreement check between the kernels: each within
+        # F32_TOLERANCE of the float64 reference (float32 RBF sums), to rounding without
+        tolerance = 2 * F32_TOLERANCE if method.endswith("_rbf") else 1e-9
+        assert res["max_abs_diff"][f"{method}_numba vs {method}_numpy"] < tolerance
     # the fits alone are part of every dense frame
     assert 0 < res["cpu_ms_per_frame"]["fits_quadratic_rbf"]
     assert res["ratios"]["fits_quadratic_rbf / quadratic_rbf_numpy"] > 0

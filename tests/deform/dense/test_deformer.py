@@ -100,8 +100,8 @@ def test_rbf_variants_pass_through_every_marker(method: str, backend: str) -> No
     wobble = ref + 0.004 * rng.normal(size=(5, 40, 3))  # non-rigid, non-quadratic
     markers = np.einsum("tab,tnb->tna", rot, wobble) + trans[:, None]
     deformer = DenseDeformer(
-        parts, ref, np.ones((40, 1)), backend=backend
-    )  # the markers as vertices
+        parts, ref, np.ones((40, 1)), backend=backend, precision="float64"
+    )  # the markers as vertices (float64 sums: "mixed" agrees to 1e-6 m, test_kernels)
     out = np.concatenate(list(deformer.deform(markers, method, rbf_regularisation=0.0)))
     np.testing.assert_allclose(out, markers, atol=1e-9)
     rigid = np.concatenate(list(deformer.deform(markers, "rigid")))
@@ -320,7 +320,7 @@ def test_a_part_field_passes_through_its_seam_centres(method: str, backend: str)
         beta = np.zeros((8, 2))
         beta[:, p] = 1.0
         parts = part_frames(ref, alpha, surface_faces=faces)
-        out = DenseDeformer(parts, ref[seam_columns], beta, backend=backend)
+        out = DenseDeformer(parts, ref[seam_columns], beta, backend=backend, precision="float64")
         got = np.concatenate(list(out.deform(markers, method, rbf_regularisation=0.0)))
         np.testing.assert_allclose(got, markers[:, seam_columns], atol=1e-9)
     # a point on the seam, halfway between the columns, with half weight for each part

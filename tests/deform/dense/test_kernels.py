@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from skincap.backends import numba_available
 from skincap.deform.dense import deformer as dense_deformer
+from skincap.deform.dense._kernel_numpy import F32_TOLERANCE
 from skincap.deform.dense.deformer import METHODS, DenseDeformer, PartMotion, fit_part_motion
 from skincap.deform.dense.parts import part_frames
 from skincap.errors import MissingDependencyError, ValidationError
@@ -57,21 +58,27 @@ def _random_take(seed: int, n_frames: int = 6) -> dict[str, np.ndarray]:
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("method", METHODS)
 def test_numba_equals_the_numpy_reference_on_random_parts(seed: int, method: str) -> None:
+    """Both kernels in float64 agree to rounding; with the float32 RBF sums ("mixed",
+    the default) each stays within F32_TOLERANCE of that reference."""
     take = _random_take(seed)
     parts = part_frames(take["reference"], take["alpha"])
     motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
     assert np.abs(motion.rbf_weights).max() > 0 if method.endswith("_rbf") else True
-    numpy_out = DenseDeformer(parts, take["vertices"], take["beta"], backend="numpy").deform_block(
-        motion
-    )
-    numba_out = DenseDeformer(parts, take["vertices"], take["beta"], backend="numba").deform_block(
-        motion
-    )
-    assert numpy_out.shape == numba_out.shape == (6, 301, 3)
+    out = {
+        (backend, precision): DenseDeformer(
+            parts, take["vertices"], take["beta"], backend=backend, precision=precision
+        ).deform_block(motion)
+        for backend in ("numpy", "numba")
+        for precision in ("float64", "mixed")
+    }
+    reference = out["numpy", "float64"]
+    assert reference.shape == (6, 301, 3)
     # the same NaN (vertex 0 has only the unseen part) and the same numbers elsewhere
-    np.testing.assert_array_equal(np.isnan(numpy_out), np.isnan(numba_out))
-    assert np.isnan(numpy_out[:, 0]).all() and np.isfinite(numpy_out[:, 1:]).all()
-    np.testing.assert_allclose(numba_out, numpy_out, rtol=0, atol=1e-9)
+    assert np.isnan(reference[:, 0]).all() and np.isfinite(reference[:, 1:]).all()
+    for key, got in out.items():
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(reference))
+        atol = 1e-9 if key[1] == "float64" else F32_TOLERANCE
+        np.testing.assert_allclose(got, reference, rtol=0, atol=atol, err_msg=str(key))
 
 
 @needs_numba
@@ -98,16 +105,22 @@ def test_numba_equals_the_numpy_reference_on_a_synthetic_take() -> None:
     markers = markers.copy()
     markers[3, ::7] = np.nan  # gaps
     outputs = {}
-    for backend in ("numpy", "numba"):
-        deformer = DenseDeformer(parts, skin[0], beta, backend=backend)
+    for backend, precision in (("numpy", "float64"), ("numba", "float64"), ("numpy", "mixed"),
+                               ("numba", "mixed")):  # fmt: skip
+        deformer = DenseDeformer(parts, skin[0], beta, backend=backend, precision=precision)
         for method in METHODS:
-            outputs[backend, method] = np.concatenate(list(deformer.deform(markers, method)))
+            outputs[backend, precision, method] = np.concatenate(
+                list(deformer.deform(markers, method))
+            )
     for method in METHODS:
-        np.testing.assert_allclose(
-            outputs["numba", method], outputs["numpy", method], rtol=0, atol=1e-9
-        )
+        want = outputs["numpy", "float64", method]
+        np.testing.assert_allclose(outputs["numba", "float64", method], want, rtol=0, atol=1e-9)
+        for backend in ("numpy", "numba"):  # the float32 RBF sums, against the reference
+            np.testing.assert_allclose(
+                outputs[backend, "mixed", method], want, rtol=0, atol=F32_TOLERANCE
+            )
     # and the deformation follows the true skin (a broken kernel would not)
-    error = np.linalg.norm(outputs["numba", "quadratic_rbf"] - skin, axis=-1)
+    error = np.linalg.norm(outputs["numba", "mixed", "quadratic_rbf"] - skin, axis=-1)
     assert np.sqrt((error**2).mean()) < 0.02
 
 
@@ -133,7 +146,7 @@ def test_auto_runs_numpy_while_the_kernel_compiles_then_takes_it(
     compiled = True
     second = d.deform_block(motion)
     assert d.backend == "numba"
-    np.testing.assert_allclose(second, first, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(second, first, rtol=0, atol=2 * F32_TOLERANCE)  # both mixed
     pinned = DenseDeformer(parts, take["vertices"], take["beta"], backend="numpy")
     pinned.deform_block(motion)
     assert pinned.backend == "numpy"
@@ -239,14 +252,20 @@ def test_the_tiled_kernels_equal_eqs_8_9_written_out(backend: str, method: str) 
     rng = np.random.default_rng(6)
     seam = rng.random(take["beta"].shape) * (rng.random(take["beta"].shape) < 0.7)
     deformer = DenseDeformer(
-        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend
-    )
+        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend,
+        precision="float64",
+    )  # fmt: skip
     motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
     got = deformer.deform_block(motion)
     want = _direct_eqs_8_9(deformer, take["vertices"], motion, seam)
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     assert np.isnan(got[:, 0]).all() and np.isfinite(got[:, 1:]).all()
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-10)
+    mixed = DenseDeformer(
+        parts, take["vertices"], take["beta"], seam_weights=seam, backend=backend
+    ).deform_block(motion)  # float32 RBF sums where the error model allows
+    np.testing.assert_array_equal(np.isnan(mixed), np.isnan(want))
+    np.testing.assert_allclose(mixed, want, rtol=0, atol=F32_TOLERANCE)
     # the RBF moved the vertices (a kernel that dropped the sums would differ by mm)
     plain = DenseDeformer(parts, take["vertices"], take["beta"], backend=backend)
     rigid = plain.deform_block(fit_part_motion(take["markers"], parts, "rigid"))
@@ -328,3 +347,89 @@ def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
         parts, take["vertices"], seen_only, seam_weights=seam, backend="numba"
     ).deform_block(motion)
     np.testing.assert_allclose(outputs["numba"][:, 1:40], alone[:, 1:40], rtol=0, atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["numpy", pytest.param("numba", marks=needs_numba)])
+def test_the_float32_sums_agree_with_the_float64_reference_on_a_real_capture(
+    data_dir, backend: str
+) -> None:
+    """A real take (CMU 85_02: noise, gaps) cut into six parts of its marker surface with
+    seam centres, skin points scattered off the markers: the default ("mixed") vertex
+    pass stays within F32_TOLERANCE of float64 for both RBF variants, and it did take
+    the float32 path for some tiles (the answers differ)."""
+    from scipy.spatial import cKDTree
+
+    from skincap import io
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.deform.dense.rig import marker_weights_of
+    from skincap.deform.dense.segmentation import segment_marker_surface
+    from skincap.deform.dense.weights import candidates_from_triangle_parts
+
+    take = io.read(data_dir / "cmu_85_02.c3d")
+    keep = [i for i, lab in enumerate(take.labels) if not str(lab).startswith("*")]
+    x = take.positions[::8, keep]
+    frame = choose_reference_frame(x)
+    x = x[:, np.isfinite(x[frame]).all(axis=1)]
+    faces = build_marker_surface(x, reference_frame=frame).faces
+    seg = segment_marker_surface(x, x[frame], faces, n_parts=6)
+    cand = candidates_from_triangle_parts(faces, seg.triangle_parts, x.shape[1], seg.n_parts)
+    alpha = marker_weights_of(x, x[frame], cand, faces)
+    parts = part_frames(x[frame], alpha, surface_faces=faces)
+    rng = np.random.default_rng(0)
+    skin = x[frame][rng.integers(0, x.shape[1], 1500)] + 0.02 * rng.normal(size=(1500, 3))
+    _, nearest = cKDTree(x[frame]).query(skin, k=2)
+    beta = alpha[nearest].mean(axis=1)
+    markers = x[np.linspace(0, x.shape[0] - 1, 12).round().astype(int)]
+    for method in ("rigid_rbf", "quadratic_rbf"):
+        motion = fit_part_motion(markers, parts, method)  # type: ignore[arg-type]
+        out = {
+            precision: DenseDeformer(
+                parts,
+                skin,
+                beta,
+                backend=backend,
+                precision=precision,  # type: ignore[arg-type]
+            ).deform_block(motion)
+            for precision in ("float64", "mixed")
+        }
+        np.testing.assert_array_equal(np.isnan(out["mixed"]), np.isnan(out["float64"]))
+        diff = np.nanmax(np.abs(out["mixed"] - out["float64"]))
+        assert diff <= F32_TOLERANCE, (method, diff)
+        # NumPy sums a rigid base through its float64 rest matrices instead
+        assert diff > 0 or (backend, method) == ("numpy", "rigid_rbf")
+
+
+def test_parts_with_a_rigid_base_sum_through_their_rest_kernels() -> None:
+    """A part whose base field is the identity at every frame (rigid_rbf; the parts
+    quadratic_rbf keeps rigid) sums its RBF through a sparse matrix made once at rest:
+    the same answer as the tiles in float64, for a second block too (the cached
+    matrices), and not taken for a quadratic part."""
+    from skincap.deform.dense._kernel_numpy import blend_pairs, move_pairs_numpy
+
+    take = _random_take(7, n_frames=6)
+    ref = take["reference"]
+    parts = part_frames(ref, take["alpha"], surface_faces=Delaunay(ref[:, :2]).simplices)
+    chosen = np.array([True, False, True, False])
+    rng = np.random.default_rng(7)
+    seam = rng.random(take["beta"].shape)
+    deformer = DenseDeformer(
+        parts, take["vertices"], take["beta"], seam_weights=seam, quadratic_parts=chosen,
+        backend="numpy", precision="float64",
+    )  # fmt: skip
+    tiles = deformer._tiles
+    for method, frames in (("rigid_rbf", slice(0, 3)), ("rigid_rbf", slice(3, 6)),
+                           ("quadratic_rbf", slice(0, 6))):  # fmt: skip
+        motion = fit_part_motion(take["markers"][frames], parts, method, quadratic_parts=chosen)
+        got = deformer.deform_block(motion)
+        tiled = move_pairs_numpy(
+            tiles.basis, tiles.seam, tiles.part_start, tiles.tile_start, motion.quadratic,
+            motion.rotation, motion.translation, motion.centres, motion.member_rbf_weights,
+            motion.rbf_weights, deformer._rbf_scale,
+            np.where(deformer._rbf_scale > 0, deformer._n_centres, 0), precision="float64",
+        )  # fmt: skip
+        want = blend_pairs(tiled, deformer._blend)
+        np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+        # every part seen (0-2; part 3 never is) has its matrix after rigid_rbf; a
+        # quadratic part summed through it would not equal the tiles above
+        assert sorted(tiles.rest_kernels) == [0, 1, 2]

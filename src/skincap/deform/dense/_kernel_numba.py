@@ -12,10 +12,14 @@ Nothing of size (vertices, centres) is ever stored. Without an RBF field (``rigi
 one fused parallel loop over the vertices instead: each vertex's pairs moved by their
 part's field and blended by β at once, with no buffer of moved pairs.
 
+The RBF sums of a tile at a frame run in float32, the tile's pairs along the vector
+lanes, where the error model of :func:`skincap.deform.dense._kernel_numpy.f32_error_bound`
+stays within 1e-6 m (``precision="mixed"``, the default), else in float64.
 :mod:`skincap.deform.dense._kernel_numpy` is the reference this kernel must agree with
-(to rounding); :class:`skincap.deform.dense.deformer.DenseDeformer` picks between
-them (``backend=``, :func:`skincap.backends.resolve_backend`). The kernel compiles
-once per machine into numba's on-disk cache (``cache=True``).
+(to rounding in float64, to 1e-6 m mixed);
+:class:`skincap.deform.dense.deformer.DenseDeformer` picks between them (``backend=``,
+:func:`skincap.backends.resolve_backend`). The kernel compiles once per machine into
+numba's on-disk cache (``cache=True``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from skincap.deform.dense._kernel_numpy import F32_TOLERANCE, Precision
 from skincap.deform.dense._pair_tiles import MEMBER_LANES, PairTiles
 
 __all__ = ["MEMBER_LANES", "dense_dispatcher", "deform_vertices_numba"]
@@ -57,6 +62,8 @@ def deform_vertices_numba(
     seam_weights: np.ndarray,
     rbf_scale: np.ndarray,
     rbf_members: np.ndarray,
+    *,
+    precision: Precision = "mixed",
 ) -> np.ndarray:
     """Deformed vertices of a block of frames with the compiled kernel (eqs. 8-9).
 
@@ -74,6 +81,10 @@ def deform_vertices_numba(
         ``2 / σ_p``.
     rbf_members : (P,) int64
         Centres of part ``p`` in the RBF sums (0: the part has no RBF).
+    precision : {"mixed", "float64"}
+        "mixed": a tile's RBF sums at a frame in float32 where
+        :func:`~skincap.deform.dense._kernel_numpy.f32_error_bound` stays within
+        :data:`~skincap.deform.dense._kernel_numpy.F32_TOLERANCE`; "float64": never.
 
     Returns
     -------
@@ -86,14 +97,16 @@ def deform_vertices_numba(
         scale = np.asarray(rbf_scale, dtype=np.float64)
         table = _rbf_table(centres, member_weights, seam_weights, scale)
         if np.any(rbf_members):  # tiled: the moved pairs buffered between two passes
-            moved = np.zeros((n_t, tiles.part.shape[0], 3))
+            moved = np.zeros((tiles.part.shape[0], n_t, 3))
             vertex_local, vertex_part = np.zeros((0, 3)), np.zeros(0, np.int64)
         else:  # fused, no buffer: the pairs' p̂⁰ and part in by-vertex order instead
             moved = np.zeros((0, 0, 3))
             vertex_local, vertex_part = tiles.local[tiles.by_vertex], tiles.part[tiles.by_vertex]
         # one argument signature only (C-contiguous, writeable): a second would compile again
         dense_dispatcher()(
-            *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local, tiles.seam)),
+            # p̂⁰ structure-of-arrays (3, Q): the tiled path runs a tile's pairs along
+            # the vector lanes
+            *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local.T, tiles.seam)),
             *(np.require(a, np.int64, ("C", "W")) for a in (
                 tiles.tile_start, tiles.tile_part, tiles.by_vertex)),
             np.require(tiles.weight_by_vertex, np.float64, ("C", "W")),
@@ -101,6 +114,7 @@ def deform_vertices_numba(
             *(np.require(a, np.float64, ("C", "W")) for a in (
                 quadratic, rotation, translation, table, scale)),
             np.require(rbf_members, np.int64, ("C", "W")),
+            F32_TOLERANCE if precision == "mixed" else -1.0,
             np.require(vertex_local, np.float64, ("C", "W")),
             np.require(vertex_part, np.int64, ("C", "W")),
             moved,

@@ -11,7 +11,10 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from skincap.deform.dense._kernel_numpy import SUPPORT_SLACK
+from skincap.deform.dense._kernel_numpy import (
+    F32_ERROR_PER_WEIGHT,
+    SUPPORT_SLACK,
+)
 from skincap.deform.dense._pair_tiles import MEMBER_LANES
 
 __all__ = ["dense_kernel"]
@@ -22,6 +25,9 @@ _FASTMATH = {"contract", "reassoc"}
 _TILE_CHUNKS = 64
 #: Runs of vertices in the fused (no-RBF) path's parallel loop: the same balance.
 _VERTEX_CHUNKS = 64
+#: float32 lanes of an AVX2 vector: the float32 RBF loop runs a tile's pairs padded to
+#: whole steps of it (the padding lanes are scratch), so it has no scalar remainder.
+_F32_LANES = 8
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
@@ -93,6 +99,48 @@ def _rbf_sums(near, n_k, gx, gy, gz):  # pragma: no cover - runs compiled
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _tile_rbf_sums_f32(near32, n_near, pos32, n_lanes, acc):  # pragma: no cover - runs compiled
+    """Both RBF sums (eq. 8) of a tile's pairs in float32, the pairs along the vector
+    lanes: ``near32`` (9, K) float32, the first ``n_near`` centres (rows x, y, z scaled
+    by 2/σ and relative to the tile's origin, then the members' and the seam field's
+    weights w / 6); ``pos32`` (3, n) the pairs' positions the same way; ``acc`` (6, n)
+    float32 receives the sums (members' x, y, z, then the seam field's), metres, for the
+    first ``n_lanes`` pairs (a whole number of vector steps; lanes past the tile's pairs
+    are scratch). No horizontal reduction, no padding of the centres."""
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    four = np.float32(4.0)
+    for r in range(6):
+        for q in range(n_lanes):
+            acc[r, q] = zero
+    for i in range(n_near):
+        cx = near32[0, i]
+        cy = near32[1, i]
+        cz = near32[2, i]
+        w0 = near32[3, i]
+        w1 = near32[4, i]
+        w2 = near32[5, i]
+        w3 = near32[6, i]
+        w4 = near32[7, i]
+        w5 = near32[8, i]
+        for q in range(n_lanes):
+            dx = pos32[0, q] - cx
+            dy = pos32[1, q] - cy
+            dz = pos32[2, q] - cz
+            s = np.sqrt(min(dx * dx + dy * dy + dz * dz, four))
+            u = two - s
+            b = max(one - s, zero)
+            phi = u * u * u - four * (b * b * b)  # 6 φ
+            acc[0, q] += phi * w0
+            acc[1, q] += phi * w1
+            acc[2, q] += phi * w2
+            acc[3, q] += phi * w3
+            acc[4, q] += phi * w4
+            acc[5, q] += phi * w5
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
 def _gather_near(
     rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near
 ):  # pragma: no cover - runs compiled
@@ -116,7 +164,7 @@ def _gather_near(
     for i in range(m, n_sum):
         for r in range(9):
             near[r, i] = 0.0
-    return n_sum
+    return m
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
@@ -198,6 +246,7 @@ def dense_kernel(
     rbf_table,
     rbf_scale,
     rbf_members,
+    f32_tolerance,
     vertex_local,
     vertex_part,
     moved,
@@ -207,15 +256,17 @@ def dense_kernel(
 
     With no RBF field (every ``rbf_members`` 0) the fused path (:func:`_fused_no_rbf`):
     vertex_local (Q, 3) p̂⁰, vertex_part (Q,) in ``by_vertex`` order, ``moved`` unused.
-    Otherwise the tiled path (vertex_local, vertex_part unused): pair_local (Q, 3) p̂⁰
+    Otherwise the tiled path (vertex_local, vertex_part unused): pair_local (3, Q) p̂⁰
     and pair_seam (Q,) s of the pairs sorted by part, in tiles tile_start (n + 1,) of
     one part each, tile_part (n,); by_vertex (Q,) the pairs sorted by vertex,
     vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
     quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3) R̃, translation (T, P, 3) d̃;
     rbf_table (T, P, 9, K): rows x, y, z of the centres p̃ scaled by 2/σ, then the
     members' field's weights w / 6, then the seam field's (centres along the last axis);
-    rbf_scale (P,) 2/σ; rbf_members (P,) centres summed (0: no RBF); moved (T, Q, 3)
-    scratch; out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
+    rbf_scale (P,) 2/σ; rbf_members (P,) centres summed (0: no RBF); f32_tolerance the
+    largest modelled error (metres) of a tile's float32 RBF sums (negative: float64
+    throughout); moved (Q, T, 3) scratch (pair-major: a tile's rows are contiguous over
+    its frames); out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
     """
     n_v = vertex_start.shape[0] - 1
     has_rbf = False
@@ -234,50 +285,108 @@ def dense_kernel(
     n_t = quadratic.shape[0]
     # each tile at each frame: its pairs moved by the quadratic field, the centres
     # reaching its box, the RBF sums over them alone, back to the world. Two parallel
-    # loops a block (not two a frame): each barrier costs the waiting thread's spin
+    # loops a block (not two a frame): each barrier costs the waiting thread's spin.
+    # The RBF sums run in float32 with the pairs along the vector lanes where the
+    # error model allows (twice the lanes of float64, no horizontal reduction per
+    # pair), else in float64 with the centres along the lanes
+    lanes = _F32_LANES
+    tile_max = 0
+    for tile in range(n_tiles):
+        tile_max = max(tile_max, tile_start[tile + 1] - tile_start[tile])
+    tile_max = -(-tile_max // lanes) * lanes
     for run in numba.prange(n_runs):
         near = np.empty((9, width))
-        for t in range(n_t):
-            for tile in range(run * n_tiles // n_runs, (run + 1) * n_tiles // n_runs):
-                p = tile_part[tile]
-                q0 = tile_start[tile]
-                q1 = tile_start[tile + 1]
-                n_k = rbf_members[p]
-                g = rbf_scale[p]
+        near32 = np.empty((9, width), dtype=np.float32)
+        pos32 = np.zeros((3, tile_max), dtype=np.float32)
+        acc = np.zeros((6, tile_max), dtype=np.float32)
+        loc = np.zeros((3, tile_max))  # the tile's Ã q(p̂⁰), then its world positions
+        w_sum = np.empty(6)
+        for tile in range(run * n_tiles // n_runs, (run + 1) * n_tiles // n_runs):
+            p = tile_part[tile]
+            q0 = tile_start[tile]
+            n = tile_start[tile + 1] - q0
+            n_lanes = -(-n // lanes) * lanes
+            n_k = rbf_members[p]
+            g = rbf_scale[p]
+            for t in range(n_t):  # a tile's rows of ``moved`` stay in cache over its frames
+                for j in range(n):  # along the lanes: the pairs' local positions are SoA
+                    lx, ly, lz = _quadratic_field(
+                        quadratic, t, p,
+                        pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j],
+                    )  # fmt: skip
+                    loc[0, j] = lx
+                    loc[1, j] = ly
+                    loc[2, j] = lz
                 lo_x = lo_y = lo_z = np.inf
                 hi_x = hi_y = hi_z = -np.inf
-                for q in range(q0, q1):
-                    lx, ly, lz = _quadratic_field(
-                        quadratic, t, p, pair_local[q, 0], pair_local[q, 1], pair_local[q, 2]
-                    )
-                    moved[t, q, 0] = lx
-                    moved[t, q, 1] = ly
-                    moved[t, q, 2] = lz
-                    lo_x = min(lo_x, lx * g)
-                    lo_y = min(lo_y, ly * g)
-                    lo_z = min(lo_z, lz * g)
-                    hi_x = max(hi_x, lx * g)
-                    hi_y = max(hi_y, ly * g)
-                    hi_z = max(hi_z, lz * g)
-                n_sum = 0
+                for j in range(n):
+                    lo_x = min(lo_x, loc[0, j])
+                    lo_y = min(lo_y, loc[1, j])
+                    lo_z = min(lo_z, loc[2, j])
+                    hi_x = max(hi_x, loc[0, j])
+                    hi_y = max(hi_y, loc[1, j])
+                    hi_z = max(hi_z, loc[2, j])
+                lo_x *= g
+                lo_y *= g
+                lo_z *= g
+                hi_x *= g
+                hi_y *= g
+                hi_z *= g
+                n_near = 0
                 if n_k > 0:
-                    n_sum = _gather_near(
+                    n_near = _gather_near(
                         rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near
                     )
-                for q in range(q0, q1):
-                    lx = moved[t, q, 0]
-                    ly = moved[t, q, 1]
-                    lz = moved[t, q, 2]
-                    if n_sum > 0:
-                        mx, my, mz, sx, sy, sz = _rbf_sums(near, n_sum, lx * g, ly * g, lz * g)
-                        s = pair_seam[q]
-                        lx += (1.0 - s) * mx + s * sx
-                        ly += (1.0 - s) * my + s * sy
-                        lz += (1.0 - s) * mz + s * sz
-                    wx, wy, wz = _local_to_world(rotation, translation, t, p, lx, ly, lz)
-                    moved[t, q, 0] = wx
-                    moved[t, q, 1] = wy
-                    moved[t, q, 2] = wz
+                ox = 0.5 * (lo_x + hi_x)
+                oy = 0.5 * (lo_y + hi_y)
+                oz = 0.5 * (lo_z + hi_z)
+                use32 = False
+                if n_near > 0:
+                    # float32 where its modelled rounding error stays within the
+                    # tolerance (_kernel_numpy.f32_error_bound), per tile and frame
+                    reach = max(hi_x - ox, hi_y - oy, hi_z - oz)
+                    w_sum[:] = 0.0
+                    for i in range(n_near):
+                        reach = max(reach, abs(near[0, i] - ox), abs(near[1, i] - oy))
+                        reach = max(reach, abs(near[2, i] - oz))
+                        for r in range(6):
+                            w_sum[r] += abs(near[3 + r, i])
+                    bound = w_sum.max() * F32_ERROR_PER_WEIGHT * (reach + n_near)
+                    use32 = bound <= f32_tolerance
+                if use32:
+                    for i in range(n_near):
+                        near32[0, i] = np.float32(near[0, i] - ox)
+                        near32[1, i] = np.float32(near[1, i] - oy)
+                        near32[2, i] = np.float32(near[2, i] - oz)
+                        for r in range(3, 9):
+                            near32[r, i] = np.float32(near[r, i])
+                    for j in range(n):
+                        pos32[0, j] = np.float32(loc[0, j] * g - ox)
+                        pos32[1, j] = np.float32(loc[1, j] * g - oy)
+                        pos32[2, j] = np.float32(loc[2, j] * g - oz)
+                    _tile_rbf_sums_f32(near32, n_near, pos32, n_lanes, acc)
+                    for j in range(n):
+                        s = pair_seam[q0 + j]
+                        loc[0, j] += (1.0 - s) * acc[0, j] + s * acc[3, j]
+                        loc[1, j] += (1.0 - s) * acc[1, j] + s * acc[4, j]
+                        loc[2, j] += (1.0 - s) * acc[2, j] + s * acc[5, j]
+                elif n_near > 0:
+                    n_sum = -(-n_near // MEMBER_LANES) * MEMBER_LANES
+                    for j in range(n):
+                        mx, my, mz, sx, sy, sz = _rbf_sums(
+                            near, n_sum, loc[0, j] * g, loc[1, j] * g, loc[2, j] * g
+                        )
+                        s = pair_seam[q0 + j]
+                        loc[0, j] += (1.0 - s) * mx + s * sx
+                        loc[1, j] += (1.0 - s) * my + s * sy
+                        loc[2, j] += (1.0 - s) * mz + s * sz
+                for j in range(n):
+                    wx, wy, wz = _local_to_world(
+                        rotation, translation, t, p, loc[0, j], loc[1, j], loc[2, j]
+                    )
+                    moved[q0 + j, t, 0] = wx
+                    moved[q0 + j, t, 1] = wy
+                    moved[q0 + j, t, 2] = wz
     # eq. 9: each vertex's finite pairs, β-weighted
     for v in numba.prange(n_v):
         for t in range(n_t):
@@ -287,9 +396,9 @@ def dense_kernel(
             den = 0.0
             for i in range(vertex_start[v], vertex_start[v + 1]):
                 q = by_vertex[i]
-                wx = moved[t, q, 0]
-                wy = moved[t, q, 1]
-                wz = moved[t, q, 2]
+                wx = moved[q, t, 0]
+                wy = moved[q, t, 1]
+                wz = moved[q, t, 2]
                 if np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):
                     beta = vertex_weight[i]
                     sx += beta * wx

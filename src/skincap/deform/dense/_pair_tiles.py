@@ -17,7 +17,7 @@ centre for both fields.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -63,6 +63,10 @@ class PairTiles:
         ``weight[by_vertex]``.
     vertex_start : (V + 1,) int64
         Pairs of vertex ``v`` are ``by_vertex[vertex_start[v]:vertex_start[v + 1]]``.
+    rest_kernels : dict
+        The NumPy kernel's cache of the sparse rest kernel matrices of parts with a
+        rigid base (:func:`skincap.deform.dense._kernel_numpy.move_pairs_numpy`),
+        filled on first use.
     """
 
     vertex: np.ndarray
@@ -77,6 +81,7 @@ class PairTiles:
     by_vertex: np.ndarray
     weight_by_vertex: np.ndarray
     vertex_start: np.ndarray
+    rest_kernels: dict = field(default_factory=dict)
 
 
 def _kd_tiles(points: np.ndarray, tile_pairs: int) -> tuple[np.ndarray, np.ndarray]:

@@ -74,7 +74,7 @@ from scipy import sparse
 from skincap import backends
 from skincap.backends import numba_available, resolve_backend
 from skincap.deform.dense._kernel_numba import deform_vertices_numba, dense_dispatcher
-from skincap.deform.dense._kernel_numpy import blend_pairs, move_pairs_numpy
+from skincap.deform.dense._kernel_numpy import Precision, blend_pairs, move_pairs_numpy
 from skincap.deform.dense._pair_tiles import pair_tiles
 from skincap.deform.dense.parts import PartFrames, part_frames
 from skincap.errors import ValidationError
@@ -645,6 +645,11 @@ class DenseDeformer:
         The per-frame vertex evaluation: the compiled kernel
         (:mod:`skincap.deform.dense._kernel_numba`) or its NumPy reference
         (:mod:`skincap.deform.dense._kernel_numpy`), which agree to rounding.
+    precision : {"mixed", "float64"}, default "mixed"
+        The RBF sums of the vertex pass: "mixed" computes a tile's kernel values and
+        sums in float32 where their modelled rounding error stays within
+        :data:`~skincap.deform.dense._kernel_numpy.F32_TOLERANCE` (1e-6 m) and in
+        float64 elsewhere; "float64" everywhere (the reference).
         ``"auto"`` runs the kernel when it is compiled (in this process or in numba's
         cache) and otherwise NumPy while it compiles in the background
         (:func:`skincap.backends.resolve_backend`), switching to it as soon as it is
@@ -667,6 +672,7 @@ class DenseDeformer:
         seam_weights: np.ndarray | None = None,
         quadratic_parts: np.ndarray | None = None,
         backend: Backend = "auto",
+        precision: Precision = "mixed",
     ):
         v = np.asarray(rest_vertices, dtype=np.float64)
         beta = np.asarray(vertex_weights, dtype=np.float64)
@@ -720,6 +726,9 @@ class DenseDeformer:
             (self.pair_weight, (self.pair_vertex, np.arange(self.pair_vertex.size))),
             shape=(self.n_vertices, self.pair_vertex.size),
         )
+        if precision not in ("mixed", "float64"):
+            raise ValidationError(f"precision: expected 'mixed' or 'float64'; got {precision!r}")
+        self.precision = precision
         self.backend = _resolve_backend(backend)
         # "auto" got NumPy because the kernel is compiling in the background: take it
         # as soon as it lands in the cache, so a long take is not NumPy throughout
@@ -757,11 +766,12 @@ class DenseDeformer:
         if self._kernel_watch.landed():
             self.backend = "numba"
         if self.backend == "numba":
-            return deform_vertices_numba(self._tiles, *fields)
+            return deform_vertices_numba(self._tiles, *fields, precision=self.precision)
         tiles = self._tiles
         moved = move_pairs_numpy(
-            tiles.basis, tiles.seam, tiles.part_start, tiles.tile_start, *fields
-        )
+            tiles.basis, tiles.seam, tiles.part_start, tiles.tile_start, *fields,
+            precision=self.precision, rest_kernels=tiles.rest_kernels,
+        )  # fmt: skip
         return blend_pairs(moved, self._blend)
 
     def deform(
