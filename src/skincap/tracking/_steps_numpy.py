@@ -10,6 +10,7 @@ A frame (:func:`track_frame`) runs::
 
     V = begin_frame                       prediction by the trace's own velocity (eqs. 3.1-3.2)
     continue_body_chains                  body points of this frame
+    follow_hand                           a held end's hand anchors into this frame
     match_measured_best                   steady traces at V or at V + acceleration
         accelerated_prediction            V plus the trace's last change of velocity
         match_measured                    steady traces at V, then at V + residuals
@@ -22,7 +23,9 @@ A frame (:func:`track_frame`) runs::
     unshift_chain                         a chain matched one marker along moves back
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
+    carry_with_hand                       a hidden held end moved with its hand
     commit_frame                          row t of the results, velocity, counts
+    seat_hand                             a measured end's hand anchors
 
 Candidate points come from a KD-tree over the frame's points, built when the frame
 is first searched (the numba twin buckets it along one axis instead). The refusals
@@ -40,6 +43,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.tracking._bridge_numpy import bridge_hidden_runs
+from skincap.tracking._hand_numpy import carry_with_hand, follow_hand, seat_hand
 from skincap.tracking._reacquire_numpy import reacquire_on_shell
 from skincap.tracking._refusals_numpy import (
     _squared_distances,
@@ -874,6 +878,7 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     has_points = state.offsets[t + 1] > state.offsets[t]
     v_pred = begin_frame(state, t, p)
     continue_body_chains(state, t, v_pred, p)
+    follow_hand(state, t, p)
     if has_points:
         match_measured_best(state, t, v_pred, p)
     pred = state.positions[t - 1] + state.velocity
@@ -889,7 +894,9 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     swapped = unshift_chain(state, t, p)
     swapped |= swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
+    carry_with_hand(state, t, state.cur, p)
     commit_frame(state, t, p)
+    seat_hand(state, t, p)
 
 
 def track_frames(state: TrackState, t0: int, t1: int, p: StepParams) -> None:
