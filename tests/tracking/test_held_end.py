@@ -100,11 +100,16 @@ def test_hand_anchors_are_the_free_points_within_reach_and_follow_rigidly(steps)
     state.positions[0, 0] = end
     steps_hand = _hand_module(steps)
     steps_hand.seat_hand(state, 0, p)
-    assert sorted(state.hand_index[0].tolist()) == [1, 2, 3, 4]  # not the far one (5)
+    assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [
+        1,
+        2,
+        3,
+        4,
+    ]  # not the far one (5)
     assert (state.hand_index[1] == -1).all()  # trace 2 was not measured
     # frame 1: the end hidden, the anchors followed and the end carried with them
     steps_hand.follow_hand(state, 1, p)
-    assert sorted(state.hand_index[0].tolist()) == [6, 7, 8, 9]
+    assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [6, 7, 8, 9]
     state.known[:] = False
     state.temp_count[:] = 0
     cur = np.zeros((3, 3))

@@ -100,6 +100,10 @@ def follow_hand(state, t, p):  # pragma: no cover - runs compiled
             state.hand_index[row, k] = new
             for c in range(3):
                 state.hand_vel[row, k, c] = state.points[new, c] - state.points[q, c]
+            if state.temp_count[0 if row == 0 else state.known.size - 1] > 0:
+                state.body[new] = True
+                for c in range(3):
+                    state.body_vel[new, c] = state.hand_vel[row, k, c]
 
 
 @numba.njit(**JIT)

@@ -8,7 +8,8 @@ end is measured, the points beside it that the rope does not take (within
 are its hand anchors (:func:`seat_hand`); while it is hidden they are followed frame
 by frame, unambiguously, at constant velocity (:func:`follow_hand`), and the end is
 placed where the rigid motion of the anchors since its last measured frame takes it
-(:func:`carry_with_hand`). Only the placement: the searches keep F.
+(:func:`carry_with_hand`), and searched for there. While it is hidden, its anchors
+are body points, which a trace back from a gap does not take.
 
 The anchors live in :class:`~skincap.tracking.state.TrackState` (``hand_index``,
 ``hand_then``, ``hand_vel``; row 0 for trace 0, row 1 for trace M - 1). Each function
@@ -58,9 +59,14 @@ def follow_hand(state: TrackState, t: int, p: StepParams) -> None:
     """Before frame t is matched: move every anchor to frame t's point nearest its
     constant-velocity prediction, when that lies within γ, the second nearest lies
     more than twice as far and no earlier anchor of the same end took it; otherwise
-    the anchor is dropped (no evidence beats a wrong hand)."""
+    the anchor is dropped (no evidence beats a wrong hand). The anchors of an end
+    hidden in frame t - 1 are body points of frame t (``state.body``, ``body_vel``):
+    a trace coming back from a gap does not take them (the hidden end's F, or its
+    carried position, lies among its hand's markers), and the body chains continue
+    from them, so hand markers that dropped out before are body again."""
     a, b = int(state.offsets[t]), int(state.offsets[t + 1])
     frame = state.points[a:b]
+    ends = (0, state.known.size - 1)
     for row in range(2):
         for k in range(state.hand_index.shape[1]):
             q = int(state.hand_index[row, k])
@@ -81,6 +87,9 @@ def follow_hand(state: TrackState, t: int, p: StepParams) -> None:
                 continue
             state.hand_index[row, k] = new
             state.hand_vel[row, k] = state.points[new] - state.points[q]
+            if state.temp_count[ends[row]] > 0:  # a hidden end's hand is body
+                state.body[new] = True
+                state.body_vel[new] = state.hand_vel[row, k]
 
 
 def carry_with_hand(state: TrackState, t: int, cur: np.ndarray, p: StepParams) -> None:

@@ -459,6 +459,7 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     fill_interior(x, known, state.arclength, pred)
     settle(pred, known, state.spacing, p.settle)
     predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    carry_with_hand(state, t, pred, p)
     return pred
 
 

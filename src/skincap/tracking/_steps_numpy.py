@@ -448,7 +448,8 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     With nothing measured: V. Inside the measured part: the curve through the
     measured markers at the rest arc length, a lone marker settled toward its rest
     spacings. Beyond it: F (eq. 3.6) outward from the measured part, each at its rest
-    spacing from its inner neighbour (:func:`_predict_ends`).
+    spacing from its inner neighbour (:func:`_predict_ends`); a held end with hand
+    anchors where they carry it (:func:`~skincap.tracking._hand_numpy.carry_with_hand`).
     """
     known = state.known
     prev = state.positions[t - 1]
@@ -462,7 +463,9 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     )
     pred = settle_single_gaps(pred, known, state.spacing, p.settle)
     count = np.where(known, 0, state.temp_count + 1)
-    return _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    pred = _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    carry_with_hand(state, t, pred, p)  # a held end with its hand, not F
+    return pred
 
 
 def _carry_hidden(

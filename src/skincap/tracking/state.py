@@ -25,7 +25,7 @@ __all__ = ["HAND_ANCHORS", "StepParams", "TrackState", "leave_one_out_weights", 
 
 
 #: Points beside a held end followed as its hand while it is hidden (the nearest ones).
-HAND_ANCHORS = 4
+HAND_ANCHORS = 8
 
 
 class TrackState(NamedTuple):
