@@ -9,6 +9,10 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from conftest import blank_state
+from skincap.evaluate.gap_repair import crop_frames, gap_errors, hold_back_points
+from skincap.evaluate.tracking import match_traces_to_truth, rope_tracker_from_truth
+from skincap.io.c3d import read_c3d
+from skincap.synth.real_capture import real_capture_with_rope
 from skincap.tracking.init import init_rope
 from skincap.tracking.tracker import track_rope
 from skincap.types import PointCloud
@@ -142,3 +146,36 @@ def _hand_module(steps):  # type: ignore[no-untyped-def]
     from skincap.tracking import _hand_numba
 
     return _hand_numba
+
+
+@pytest.mark.slow
+def test_a_hidden_held_end_follows_the_foot_on_real_motion(data_dir) -> None:
+    """A jump rope held by both feet of a real take (c3d.org sample01): each held end
+    held back 20 frames at eight starts. Carried with the foot it is 3.6 cm off on
+    average, 16.7 cm at the worst start (F alone, pointing the end straight out from its
+    last links where the rope bends at the foot: 8.6 cm, 45.7 cm). Not yet the issue's
+    2 cm: the simulated end swings about the grip rather than turning with the foot,
+    and a stamp (frame 151) loses the end before some gaps start."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "c3dorg_sample01_Eb015pr.c3d")
+    take = real_capture_with_rope(m, rope="jump", hands=[["LFT1"], ["RFT1"]], seed=0)
+    labels = [x for x in take.truth.labels if x.startswith("rope_")]
+    truth = take.truth.positions[:, [take.truth.labels.index(x) for x in labels]]
+    track = rope_tracker_from_truth(take.points, take.point_truth)
+    errors = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        base = track(take.points)
+        trace_of, _ = match_traces_to_truth(base.positions, base.invented, truth, max_distance=0.06)
+        for end in (0, len(labels) - 1):
+            (trace,) = np.flatnonzero(trace_of == end)
+            for start in range(80, 400, 40):
+                held, _ = hold_back_points(take.points, take.point_truth, [labels[end]], start, 20)
+                result = track(crop_frames(held, start + 30))
+                err = gap_errors(result.positions[:, [trace]], truth[:, [end]], start, 20)
+                errors.append(float(err.mean()))
+    errors_arr = np.asarray(errors)
+    assert np.isfinite(errors_arr).all()
+    assert errors_arr.max() < 0.2, errors
+    assert errors_arr.mean() < 0.045, errors
