@@ -478,7 +478,8 @@ def _carry_hidden(
     (:func:`~skincap.tracking.curve.drag_free_ends`, from the end's own velocity:
     :func:`_end_velocity`).
 
-    The runs at a held end keep F, which follows the hand: carried beyond its
+    The runs at a held end keep F here (the end itself is then carried by its hand,
+    :func:`~skincap.tracking._hand_numpy.carry_with_hand`): carried beyond its rope
     neighbours, an end turning with the hand strays (the synthetic jump rope's handle
     end: 4 -> 10 cm). A free end is not carried either: a tip lying on the floor while
     the rope beside it turns is carried away with the turn (pyomeca whip, rope_11
