@@ -12,7 +12,7 @@ import numpy as np
 from skincap.tracking._numba_search import JIT
 from skincap.tracking.curve import HELD_END_REACH
 
-__all__ = ["carry_with_hand", "follow_hand", "seat_hand"]
+__all__ = ["carry_with_hand", "follow_hand", "place_with_hand", "search_with_hand", "seat_hand"]
 
 _INF = np.inf
 
@@ -160,3 +160,43 @@ def carry_with_hand(state, t, cur, p):  # pragma: no cover - runs compiled
                 moved = rot @ (x - c_then) + c_now
         for c in range(3):
             cur[e, c] = moved[c]
+
+
+@numba.njit(**JIT)
+def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.search_with_hand`."""
+    carried = pred.copy()
+    carry_with_hand(state, t, carried, p)
+    a, b = state.offsets[t], state.offsets[t + 1]
+    if b == a:
+        return
+    m = state.known.size
+    free = np.empty(b - a, np.bool_)
+    for i in range(b - a):
+        free[i] = not state.body[a + i]
+    for j in range(m):
+        if state.known[j]:
+            free[state.taken[j] - a] = False
+    near = (0.5 * p.gamma) ** 2
+    for row in range(2):
+        e = 0 if row == 0 else m - 1
+        if state.known[e]:
+            continue
+        best = _INF
+        for i in range(b - a):
+            if free[i]:
+                d = 0.0
+                for c in range(3):
+                    x = state.points[a + i, c] - carried[e, c]
+                    d += x * x
+                if d < best:
+                    best = d
+        if best <= near:
+            for c in range(3):
+                pred[e, c] = carried[e, c]
+
+
+@numba.njit(**JIT)
+def place_with_hand(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.place_with_hand`."""
+    carry_with_hand(state, t, state.cur, p)

@@ -23,7 +23,7 @@ import numpy as np
 from skincap.tracking.curve import HELD_END_REACH
 from skincap.tracking.state import StepParams, TrackState
 
-__all__ = ["carry_with_hand", "follow_hand", "seat_hand"]
+__all__ = ["carry_with_hand", "follow_hand", "place_with_hand", "search_with_hand", "seat_hand"]
 
 
 def _ends(m: int) -> tuple[tuple[int, int], tuple[int, int]]:
@@ -123,3 +123,32 @@ def carry_with_hand(state: TrackState, t: int, cur: np.ndarray, p: StepParams) -
             if rms <= p.rigid_range * p.median_spacing:
                 moved = rot @ (x - c_then) + c_now
         cur[e] = moved
+
+
+def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> None:
+    """Where the search looks for each hidden end with anchors, ``pred`` (M, 3), in place:
+    its carried position (:func:`carry_with_hand`) when a point of frame t that is not
+    taken and not a body point lies within γ / 2 of it, else ``pred`` as it was (F).
+    A hand carries the end's own marker there; a looser gate lets an end whose anchors
+    were seated beside a wrong point pull the rope's markers along."""
+    carried = pred.copy()
+    carry_with_hand(state, t, carried, p)
+    a, b = int(state.offsets[t]), int(state.offsets[t + 1])
+    if b == a:
+        return
+    free = ~state.body[a:b]
+    taken = state.taken[state.known]
+    free[taken - a] = False
+    near = (0.5 * p.gamma) ** 2
+    for e in (0, state.known.size - 1):
+        if state.known[e] or not free.any():
+            continue
+        d2 = np.sum((state.points[a:b][free] - carried[e]) ** 2, axis=1)
+        if d2.min() <= near:
+            pred[e] = carried[e]
+
+
+def place_with_hand(state: TrackState, t: int, p: StepParams) -> None:
+    """The temporary markers of frame t's hidden held ends, in ``state.cur``, carried
+    by their hands (:func:`carry_with_hand`)."""
+    carry_with_hand(state, t, state.cur, p)

@@ -23,7 +23,7 @@ A frame (:func:`track_frame`) runs::
     unshift_chain                         a chain matched one marker along moves back
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
-    carry_with_hand                       a hidden held end moved with its hand
+    place_with_hand                       a hidden held end moved with its hand
     commit_frame                          row t of the results, velocity, counts
     seat_hand                             a measured end's hand anchors
 
@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.tracking._bridge_numpy import bridge_hidden_runs
-from skincap.tracking._hand_numpy import carry_with_hand, follow_hand, seat_hand
+from skincap.tracking._hand_numpy import follow_hand, place_with_hand, search_with_hand, seat_hand
 from skincap.tracking._reacquire_numpy import reacquire_on_shell
 from skincap.tracking._refusals_numpy import (
     _squared_distances,
@@ -448,8 +448,9 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     With nothing measured: V. Inside the measured part: the curve through the
     measured markers at the rest arc length, a lone marker settled toward its rest
     spacings. Beyond it: F (eq. 3.6) outward from the measured part, each at its rest
-    spacing from its inner neighbour (:func:`_predict_ends`); a held end with hand
-    anchors where they carry it (:func:`~skincap.tracking._hand_numpy.carry_with_hand`).
+    spacing from its inner neighbour (:func:`_predict_ends`); a hidden held end where
+    its hand carries it when a free point lies there
+    (:func:`~skincap.tracking._hand_numpy.search_with_hand`).
     """
     known = state.known
     prev = state.positions[t - 1]
@@ -464,7 +465,7 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     pred = settle_single_gaps(pred, known, state.spacing, p.settle)
     count = np.where(known, 0, state.temp_count + 1)
     pred = _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
-    carry_with_hand(state, t, pred, p)  # a held end with its hand, not F
+    search_with_hand(state, t, pred, p)  # a held end where its hand carries it
     return pred
 
 
@@ -898,7 +899,7 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     swapped = unshift_chain(state, t, p)
     swapped |= swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
-    carry_with_hand(state, t, state.cur, p)
+    place_with_hand(state, t, p)
     commit_frame(state, t, p)
     seat_hand(state, t, p)
 
