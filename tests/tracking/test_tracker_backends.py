@@ -101,6 +101,10 @@ def test_backend_is_validated(monkeypatch: pytest.MonkeyPatch) -> None:
 # ------------------------------------------------------------------ step by step
 _STEPS = (
     "track_frame",
+    "follow_hand",
+    "search_with_hand",
+    "place_with_hand",
+    "seat_hand",
     "begin_frame",
     "continue_body_chains",
     "match_measured_best",
@@ -126,6 +130,7 @@ _STEPS = (
 _CHANGING = (
     "positions", "invented", "point_index", "lost_frames", "velocity", "temp_count",
     "body", "body_vel", "cur", "known", "taken", "link_rest",
+    "hand_index", "hand_then", "hand_vel",
 )  # fmt: skip
 
 

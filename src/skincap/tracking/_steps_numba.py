@@ -34,6 +34,7 @@ import numba
 import numpy as np
 
 from skincap.tracking._bridge_numba import bridge_hidden_runs
+from skincap.tracking._hand_numba import follow_hand, place_with_hand, search_with_hand, seat_hand
 from skincap.tracking._numba_curve import (
     carry_last_seen,
     curve_at,
@@ -458,6 +459,7 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     fill_interior(x, known, state.arclength, pred)
     settle(pred, known, state.spacing, p.settle)
     predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    search_with_hand(state, t, pred, p)
     return pred
 
 
@@ -836,6 +838,7 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
     has_points = state.offsets[t + 1] > state.offsets[t]
     v_pred = begin_frame(state, t, p)
     continue_body_chains(state, t, v_pred, p)
+    follow_hand(state, t, p)
     if has_points:
         match_measured_best(state, t, v_pred, p)
     pred = state.positions[t - 1] + state.velocity
@@ -854,7 +857,9 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
     if swap_onto_curve(state, t, p):
         swapped = True
     place_invented(state, t, pred, found_more or swapped, p)
+    place_with_hand(state, t, p)
     commit_frame(state, t, p)
+    seat_hand(state, t, p)
 
 
 @numba.njit(**JIT)

@@ -10,6 +10,7 @@ A frame (:func:`track_frame`) runs::
 
     V = begin_frame                       prediction by the trace's own velocity (eqs. 3.1-3.2)
     continue_body_chains                  body points of this frame
+    follow_hand                           a held end's hand anchors into this frame
     match_measured_best                   steady traces at V or at V + acceleration
         accelerated_prediction            V plus the trace's last change of velocity
         match_measured                    steady traces at V, then at V + residuals
@@ -22,7 +23,9 @@ A frame (:func:`track_frame`) runs::
     unshift_chain                         a chain matched one marker along moves back
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
+    place_with_hand                       a hidden held end moved with its hand
     commit_frame                          row t of the results, velocity, counts
+    seat_hand                             a measured end's hand anchors
 
 Candidate points come from a KD-tree over the frame's points, built when the frame
 is first searched (the numba twin buckets it along one axis instead). The refusals
@@ -40,6 +43,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.tracking._bridge_numpy import bridge_hidden_runs
+from skincap.tracking._hand_numpy import follow_hand, place_with_hand, search_with_hand, seat_hand
 from skincap.tracking._reacquire_numpy import reacquire_on_shell
 from skincap.tracking._refusals_numpy import (
     _squared_distances,
@@ -444,7 +448,9 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     With nothing measured: V. Inside the measured part: the curve through the
     measured markers at the rest arc length, a lone marker settled toward its rest
     spacings. Beyond it: F (eq. 3.6) outward from the measured part, each at its rest
-    spacing from its inner neighbour (:func:`_predict_ends`).
+    spacing from its inner neighbour (:func:`_predict_ends`); a hidden held end where
+    its hand carries it when a free point lies there
+    (:func:`~skincap.tracking._hand_numpy.search_with_hand`).
     """
     known = state.known
     prev = state.positions[t - 1]
@@ -458,7 +464,9 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     )
     pred = settle_single_gaps(pred, known, state.spacing, p.settle)
     count = np.where(known, 0, state.temp_count + 1)
-    return _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    pred = _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    search_with_hand(state, t, pred, p)  # a held end where its hand carries it
+    return pred
 
 
 def _carry_hidden(
@@ -471,7 +479,8 @@ def _carry_hidden(
     (:func:`~skincap.tracking.curve.drag_free_ends`, from the end's own velocity:
     :func:`_end_velocity`).
 
-    The runs at a held end keep F, which follows the hand: carried beyond its
+    The runs at a held end keep F here (the end itself is then carried by its hand,
+    :func:`~skincap.tracking._hand_numpy.carry_with_hand`): carried beyond its rope
     neighbours, an end turning with the hand strays (the synthetic jump rope's handle
     end: 4 -> 10 cm). A free end is not carried either: a tip lying on the floor while
     the rope beside it turns is carried away with the turn (pyomeca whip, rope_11
@@ -874,6 +883,7 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     has_points = state.offsets[t + 1] > state.offsets[t]
     v_pred = begin_frame(state, t, p)
     continue_body_chains(state, t, v_pred, p)
+    follow_hand(state, t, p)
     if has_points:
         match_measured_best(state, t, v_pred, p)
     pred = state.positions[t - 1] + state.velocity
@@ -889,7 +899,9 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     swapped = unshift_chain(state, t, p)
     swapped |= swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
+    place_with_hand(state, t, p)
     commit_frame(state, t, p)
+    seat_hand(state, t, p)
 
 
 def track_frames(state: TrackState, t0: int, t1: int, p: StepParams) -> None:

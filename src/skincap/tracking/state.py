@@ -21,7 +21,11 @@ from skincap.tracking.init import RopeInit
 from skincap.tracking.settings import TrackSettings
 from skincap.types import PointCloud
 
-__all__ = ["StepParams", "TrackState", "leave_one_out_weights", "start_tracking"]
+__all__ = ["HAND_ANCHORS", "StepParams", "TrackState", "leave_one_out_weights", "start_tracking"]
+
+
+#: Points beside a held end followed as its hand while it is hidden (the nearest ones).
+HAND_ANCHORS = 8
 
 
 class TrackState(NamedTuple):
@@ -66,6 +70,14 @@ class TrackState(NamedTuple):
         grid_order   (P,) int64               frame t's points cell by cell, at
                                               offsets[t]:offsets[t + 1]
 
+    A held end's hand (:mod:`skincap.tracking._hand_numpy`; row 0 for trace 0, row 1
+    for trace M - 1, K = :data:`HAND_ANCHORS`)::
+
+        hand_index   (2, K) int64             global index, in the last frame tracked, of
+                                              each anchor beside the end; -1 none
+        hand_then    (2, K, 3) float64, metres the anchors where the end was last measured
+        hand_vel     (2, K, 3) float64, metres per frame  their last displacement
+
     Learnt while tracking::
 
         link_rest    (M - 1,) float64, metres  each link's rest length as the rope has
@@ -95,6 +107,9 @@ class TrackState(NamedTuple):
     grid_info: np.ndarray
     grid_starts: np.ndarray
     grid_order: np.ndarray
+    hand_index: np.ndarray
+    hand_then: np.ndarray
+    hand_vel: np.ndarray
     link_rest: np.ndarray
 
 
@@ -209,6 +224,9 @@ def start_tracking(
         grid_info=np.full((t_frames, 4), -1.0),
         grid_starts=np.zeros(points.shape[0] + 2 * t_frames, dtype=np.int64),
         grid_order=np.zeros(points.shape[0], dtype=np.int64),
+        hand_index=np.full((2, HAND_ANCHORS), -1, dtype=np.int64),
+        hand_then=np.zeros((2, HAND_ANCHORS, 3)),
+        hand_vel=np.zeros((2, HAND_ANCHORS, 3)),
         link_rest=spacing.copy(),
     )
     return state, step_params(cloud.rate, init, settings)

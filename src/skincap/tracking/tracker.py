@@ -32,6 +32,13 @@ Beyond the thesis:
   velocity and is pulled onto its rest spacing only by a taut link (carried with its
   neighbours, a tip lying on the floor turns with the rope beside it); a held end
   keeps F (carried beyond its neighbours, an end turning with the hand strays).
+* A hidden *held* end is carried by its hand instead of F (:mod:`skincap.tracking._hand_numpy`):
+  the points the rope did not take within 20 cm of the end when it was last measured
+  are followed frame by frame (unambiguous nearest point within γ at constant
+  velocity), and the end moves by their rigid motion (Kabsch; their mean displacement
+  when fewer than three are left or they do not move rigidly); it is searched for
+  there too, and while it is hidden those anchors are body points, which a trace back
+  from a gap does not take (a hand marker beside the held end).
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would

@@ -1,0 +1,202 @@
+"""A hidden held end carried by the hand that holds it, compiled with numba.
+
+Twins of :mod:`skincap.tracking._hand_numpy` (the reference, where the method is
+told): same names, signatures and results.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from skincap.tracking._numba_search import JIT
+from skincap.tracking.curve import HELD_END_REACH
+
+__all__ = ["carry_with_hand", "follow_hand", "place_with_hand", "search_with_hand", "seat_hand"]
+
+_INF = np.inf
+
+
+@numba.njit(**JIT)
+def _d2(points, q):  # pragma: no cover - runs compiled
+    """(N,) squared distances of ``points`` (N, 3) to ``q`` (3,), summed per axis."""
+    n = points.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        dx = points[i, 0] - q[0]
+        dy = points[i, 1] - q[1]
+        dz = points[i, 2] - q[2]
+        out[i] = dx * dx + dy * dy + dz * dz
+    return out
+
+
+@numba.njit(**JIT)
+def seat_hand(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.seat_hand`."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    m = state.known.size
+    k_max = state.hand_index.shape[1]
+    reach2 = HELD_END_REACH * HELD_END_REACH
+    for row in range(2):
+        e = 0 if row == 0 else m - 1
+        if not state.known[e]:
+            continue
+        for k in range(k_max):
+            state.hand_index[row, k] = -1
+        if b == a:
+            continue
+        d2 = _d2(state.points[a:b], state.cur[e])
+        for j in range(m):
+            q = state.taken[j]
+            if q >= a and q < b:
+                d2[q - a] = _INF
+        order = np.argsort(d2, kind="mergesort")
+        n = 0
+        for u in range(min(k_max, order.size)):
+            i = order[u]
+            if not d2[i] <= reach2:
+                break
+            state.hand_index[row, n] = a + i
+            for c in range(3):
+                state.hand_then[row, n, c] = state.points[a + i, c]
+                state.hand_vel[row, n, c] = state.velocity[e, c]
+            n += 1
+
+
+@numba.njit(**JIT)
+def follow_hand(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.follow_hand`."""
+    a, b = state.offsets[t], state.offsets[t + 1]
+    g2 = p.gamma * p.gamma
+    pred = np.empty(3)
+    for row in range(2):
+        for k in range(state.hand_index.shape[1]):
+            q = state.hand_index[row, k]
+            if q < 0:
+                continue
+            state.hand_index[row, k] = -1
+            if b - a < 1:
+                continue
+            for c in range(3):
+                pred[c] = state.points[q, c] + state.hand_vel[row, k, c]
+            d2 = _d2(state.points[a:b], pred)
+            best, second, i1 = _INF, _INF, -1
+            for i in range(d2.size):
+                if d2[i] < best:
+                    second = best
+                    best = d2[i]
+                    i1 = i
+                elif d2[i] < second:
+                    second = d2[i]
+            if best > g2 or second <= 4.0 * best:
+                continue
+            new = a + i1
+            dup = False
+            for u in range(k):
+                if state.hand_index[row, u] == new:
+                    dup = True
+            if dup:
+                continue
+            state.hand_index[row, k] = new
+            for c in range(3):
+                state.hand_vel[row, k, c] = state.points[new, c] - state.points[q, c]
+            if state.temp_count[0 if row == 0 else state.known.size - 1] > 0:
+                state.body[new] = True
+                for c in range(3):
+                    state.body_vel[new, c] = state.hand_vel[row, k, c]
+
+
+@numba.njit(**JIT)
+def carry_with_hand(state, t, cur, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.carry_with_hand`."""
+    m = state.known.size
+    k_max = state.hand_index.shape[1]
+    for row in range(2):
+        e = 0 if row == 0 else m - 1
+        if state.known[e]:
+            continue
+        last = t - 1 - state.temp_count[e]
+        n = 0
+        for k in range(k_max):
+            if state.hand_index[row, k] >= 0:
+                n += 1
+        if last < 0 or n == 0:
+            continue
+        if state.invented[last, e]:
+            continue
+        now = np.empty((n, 3))
+        then = np.empty((n, 3))
+        u = 0
+        for k in range(k_max):
+            q = state.hand_index[row, k]
+            if q >= 0:
+                now[u] = state.points[q]
+                then[u] = state.hand_then[row, k]
+                u += 1
+        c_then = np.zeros(3)
+        c_now = np.zeros(3)
+        for u in range(n):
+            c_then += then[u] / n
+            c_now += now[u] / n
+        x = state.positions[last, e]
+        moved = x + (c_now - c_then)
+        if n >= 3:
+            a_m = then - c_then
+            b_m = now - c_now
+            h = np.ascontiguousarray(a_m.T) @ b_m  # (3, 3)
+            u_svd, _, vt = np.linalg.svd(h)
+            d = np.eye(3)
+            v_m = np.ascontiguousarray(vt.T)
+            u_t = np.ascontiguousarray(u_svd.T)
+            d[2, 2] = np.sign(np.linalg.det(v_m @ u_t))
+            rot = v_m @ d @ u_t
+            fit = a_m @ np.ascontiguousarray(rot.T)
+            ss = 0.0
+            for u in range(n):
+                for c in range(3):
+                    r = b_m[u, c] - fit[u, c]
+                    ss += r * r
+            if np.sqrt(ss / n) <= p.rigid_range * p.median_spacing:
+                moved = rot @ (x - c_then) + c_now
+        for c in range(3):
+            cur[e, c] = moved[c]
+
+
+@numba.njit(**JIT)
+def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.search_with_hand`."""
+    carried = pred.copy()
+    carry_with_hand(state, t, carried, p)
+    a, b = state.offsets[t], state.offsets[t + 1]
+    if b == a:
+        return
+    m = state.known.size
+    free = np.empty(b - a, np.bool_)
+    for i in range(b - a):
+        free[i] = not state.body[a + i]
+    for j in range(m):
+        if state.known[j]:
+            free[state.taken[j] - a] = False
+    near = (0.5 * p.gamma) ** 2
+    for row in range(2):
+        e = 0 if row == 0 else m - 1
+        if state.known[e]:
+            continue
+        best = _INF
+        for i in range(b - a):
+            if free[i]:
+                d = 0.0
+                for c in range(3):
+                    x = state.points[a + i, c] - carried[e, c]
+                    d += x * x
+                if d < best:
+                    best = d
+        if best <= near:
+            for c in range(3):
+                pred[e, c] = carried[e, c]
+
+
+@numba.njit(**JIT)
+def place_with_hand(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.place_with_hand`."""
+    carry_with_hand(state, t, state.cur, p)

@@ -1,0 +1,154 @@
+"""A hidden held end carried by the hand that holds it, in NumPy (the reference).
+
+Beyond Porter (2012). A held end of the rope moves rigidly with the hand (or foot)
+that holds it; the thesis' F (eq. 3.6) points the end straight out from its last
+measured links instead, which a rope bent at the hand misses by 15-30 cm. While an
+end is measured, the points beside it that the rope does not take (within
+:data:`~skincap.tracking.curve.HELD_END_REACH`, the reach that makes an end *held*)
+are its hand anchors (:func:`seat_hand`); while it is hidden they are followed frame
+by frame, unambiguously, at constant velocity (:func:`follow_hand`), and the end is
+placed where the rigid motion of the anchors since its last measured frame takes it
+(:func:`carry_with_hand`), and searched for there. While it is hidden, its anchors
+are body points, which a trace back from a gap does not take.
+
+The anchors live in :class:`~skincap.tracking.state.TrackState` (``hand_index``,
+``hand_then``, ``hand_vel``; row 0 for trace 0, row 1 for trace M - 1). Each function
+has a numba twin of the same name and signature in :mod:`skincap.tracking._hand_numba`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from skincap.tracking.curve import HELD_END_REACH
+from skincap.tracking.state import StepParams, TrackState
+
+__all__ = ["carry_with_hand", "follow_hand", "place_with_hand", "search_with_hand", "seat_hand"]
+
+
+def _ends(m: int) -> tuple[tuple[int, int], tuple[int, int]]:
+    """(row of the anchors, trace) for both ends of a rope of ``m`` markers."""
+    return (0, 0), (1, m - 1)
+
+
+def seat_hand(state: TrackState, t: int, p: StepParams) -> None:
+    """After frame t is committed: each end measured at t takes as anchors the points of
+    frame t the rope did not take within ``HELD_END_REACH`` of it, nearest first (at
+    most ``hand_index.shape[1]``), moving as the end moved (metres per frame). An end
+    with none (a free end) has no anchors; a hidden end keeps those it had."""
+    a, b = int(state.offsets[t]), int(state.offsets[t + 1])
+    k_max = state.hand_index.shape[1]
+    for row, e in _ends(state.known.size):
+        if not state.known[e]:
+            continue
+        state.hand_index[row] = -1
+        if b == a:
+            continue
+        d2 = np.sum((state.points[a:b] - state.cur[e]) ** 2, axis=1)
+        taken = state.taken[state.taken >= 0]
+        d2[taken - a] = np.inf
+        order = np.argsort(d2, kind="mergesort")[:k_max]
+        order = order[d2[order] <= HELD_END_REACH * HELD_END_REACH]
+        n = order.size
+        state.hand_index[row, :n] = order + a
+        state.hand_then[row, :n] = state.points[order + a]
+        state.hand_vel[row, :n] = state.velocity[e]
+
+
+def follow_hand(state: TrackState, t: int, p: StepParams) -> None:
+    """Before frame t is matched: move every anchor to frame t's point nearest its
+    constant-velocity prediction, when that lies within γ, the second nearest lies
+    more than twice as far and no earlier anchor of the same end took it; otherwise
+    the anchor is dropped (no evidence beats a wrong hand). The anchors of an end
+    hidden in frame t - 1 are body points of frame t (``state.body``, ``body_vel``):
+    a trace coming back from a gap does not take them (the hidden end's F, or its
+    carried position, lies among its hand's markers), and the body chains continue
+    from them, so hand markers that dropped out before are body again."""
+    a, b = int(state.offsets[t]), int(state.offsets[t + 1])
+    frame = state.points[a:b]
+    ends = (0, state.known.size - 1)
+    for row in range(2):
+        for k in range(state.hand_index.shape[1]):
+            q = int(state.hand_index[row, k])
+            if q < 0:
+                continue
+            state.hand_index[row, k] = -1
+            if b - a < 1:
+                continue
+            d2 = np.sum((frame - (state.points[q] + state.hand_vel[row, k])) ** 2, axis=1)
+            order = np.argsort(d2, kind="mergesort")[:2]
+            d1 = d2[order[0]]
+            if d1 > p.gamma * p.gamma:
+                continue
+            if order.size > 1 and d2[order[1]] <= 4.0 * d1:
+                continue
+            new = int(order[0]) + a
+            if np.any(state.hand_index[row, :k] == new):
+                continue
+            state.hand_index[row, k] = new
+            state.hand_vel[row, k] = state.points[new] - state.points[q]
+            if state.temp_count[ends[row]] > 0:  # a hidden end's hand is body
+                state.body[new] = True
+                state.body_vel[new] = state.hand_vel[row, k]
+
+
+def carry_with_hand(state: TrackState, t: int, cur: np.ndarray, p: StepParams) -> None:
+    """Place each hidden end of frame t that has anchors in ``cur`` (M, 3), in place.
+
+    The end moves from its last measured position by the rigid motion (Kabsch) of its
+    anchors from that frame to frame t, when three or more are left and they moved
+    rigidly (rms residual within ``rigid_range`` median spacings); otherwise by their
+    mean displacement. Call before ``temp_count`` counts frame t.
+    """
+    for row, e in _ends(state.known.size):
+        if state.known[e]:
+            continue
+        last = t - 1 - int(state.temp_count[e])
+        valid = state.hand_index[row] >= 0
+        if last < 0 or state.invented[last, e] or not valid.any():
+            continue
+        now = state.points[state.hand_index[row, valid]]  # (K', 3)
+        then = state.hand_then[row, valid]
+        x = state.positions[last, e]
+        c_then, c_now = then.mean(axis=0), now.mean(axis=0)
+        moved = x + (c_now - c_then)
+        if now.shape[0] >= 3:
+            h = (then - c_then).T @ (now - c_now)  # (3, 3)
+            u, _, vt = np.linalg.svd(h)
+            d = np.eye(3)
+            d[2, 2] = np.sign(np.linalg.det(vt.T @ u.T))
+            rot = vt.T @ d @ u.T  # now ≈ rot (then - c_then) + c_now
+            res = now - ((then - c_then) @ rot.T + c_now)
+            rms = np.sqrt(np.mean(np.sum(res * res, axis=1)))
+            if rms <= p.rigid_range * p.median_spacing:
+                moved = rot @ (x - c_then) + c_now
+        cur[e] = moved
+
+
+def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> None:
+    """Where the search looks for each hidden end with anchors, ``pred`` (M, 3), in place:
+    its carried position (:func:`carry_with_hand`) when a point of frame t that is not
+    taken and not a body point lies within γ / 2 of it, else ``pred`` as it was (F).
+    A hand carries the end's own marker there; a looser gate lets an end whose anchors
+    were seated beside a wrong point pull the rope's markers along."""
+    carried = pred.copy()
+    carry_with_hand(state, t, carried, p)
+    a, b = int(state.offsets[t]), int(state.offsets[t + 1])
+    if b == a:
+        return
+    free = ~state.body[a:b]
+    taken = state.taken[state.known]
+    free[taken - a] = False
+    near = (0.5 * p.gamma) ** 2
+    for e in (0, state.known.size - 1):
+        if state.known[e] or not free.any():
+            continue
+        d2 = np.sum((state.points[a:b][free] - carried[e]) ** 2, axis=1)
+        if d2.min() <= near:
+            pred[e] = carried[e]
+
+
+def place_with_hand(state: TrackState, t: int, p: StepParams) -> None:
+    """The temporary markers of frame t's hidden held ends, in ``state.cur``, carried
+    by their hands (:func:`carry_with_hand`)."""
+    carry_with_hand(state, t, state.cur, p)

@@ -1,0 +1,181 @@
+"""A hidden held end follows the hand that holds it (skincap.tracking._hand_*, issue #15)."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from conftest import blank_state
+from skincap.evaluate.gap_repair import crop_frames, gap_errors, hold_back_points
+from skincap.evaluate.tracking import match_traces_to_truth, rope_tracker_from_truth
+from skincap.io.c3d import read_c3d
+from skincap.synth.real_capture import real_capture_with_rope
+from skincap.tracking.init import init_rope
+from skincap.tracking.tracker import track_rope
+from skincap.types import PointCloud
+
+STILL, FRAMES, RATE = 60, 110, 100.0
+HIDDEN = slice(75, 95)
+
+
+def _hand_take(hide: bool) -> tuple[PointCloud, np.ndarray, np.ndarray]:
+    """A bent rope held at marker 0 by a hand of four markers; hand and rope turn
+    together about a vertical axis 40 cm away and drift sideways after the still
+    window. Returns the cloud, the rope's points of frame 0 and the true rope (T, 8, 3)."""
+    angle = np.linspace(0.0, 1.4, 8)  # an arc of radius 0.3 m: 10 cm spacings, sharply bent
+    rope = np.stack([0.3 * np.cos(angle), 1.2 + 0.3 * np.sin(angle), np.zeros(8)], axis=1)
+    hand = rope[0] + np.array(
+        [[0.04, 0.0, 0.03], [0.0, 0.05, -0.03], [0.06, 0.04, 0.0], [0.02, -0.06, 0.04]]
+    )
+    body = np.stack([np.linspace(-0.6, -0.3, 6), np.full(6, 0.9), np.full(6, 0.2)], axis=1)
+    rigid = np.concatenate([rope, hand])  # (12, 3): they move together
+    s = np.maximum(np.arange(FRAMES) - STILL, 0) / RATE  # (T,) s
+    turn = Rotation.from_rotvec(np.outer(1.5 * s, [0.0, 1.0, 0.0]))  # 1.5 rad/s about y
+    pivot = np.array([0.7, 1.2, 0.0])
+    moved = np.stack([turn[i].apply(rigid - pivot) + pivot for i in range(FRAMES)])
+    moved += (0.2 * s)[:, None, None] * np.array([0.0, 0.0, 1.0])
+    frames = []
+    for t in range(FRAMES):
+        keep = np.ones(12, dtype=bool)
+        if hide and HIDDEN.start <= t < HIDDEN.stop:
+            keep[0] = False
+        frames.append(np.concatenate([moved[t, keep], body]))
+    counts = np.array([f.shape[0] for f in frames])
+    cloud = PointCloud(
+        points=np.concatenate(frames), offsets=np.concatenate([[0], np.cumsum(counts)]), rate=RATE
+    )
+    return cloud, np.arange(8), moved[:, :8]
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_hidden_held_end_moves_with_its_hand(backend: str) -> None:
+    if backend == "numba":
+        pytest.importorskip("numba")
+    cloud, markers, truth = _hand_take(hide=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        track = track_rope(cloud, init_rope(cloud, markers=markers), backend=backend)
+    j = int(np.argmin(np.linalg.norm(track.positions[0] - truth[0, 0], axis=1)))  # its trace
+    assert j in (0, 7)
+    assert track.invented[HIDDEN, j].all()
+    err = np.linalg.norm(track.positions[HIDDEN, j] - truth[HIDDEN, 0], axis=1)
+    # the hand turns 0.3 rad while the end is hidden: carried rigidly, not straight on
+    assert err.max() < 0.005, err
+    assert not track.invented[HIDDEN.stop :, j].any()
+
+
+def test_both_backends_carry_a_held_end_alike() -> None:
+    pytest.importorskip("numba")
+    cloud, markers, _ = _hand_take(hide=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        a = track_rope(cloud, init_rope(cloud, markers=markers), backend="numpy")
+        b = track_rope(cloud, init_rope(cloud, markers=markers), backend="numba")
+    np.testing.assert_array_equal(a.point_index, b.point_index)
+    np.testing.assert_allclose(a.positions, b.positions, atol=1e-9)
+
+
+def _two_frames(hand0: np.ndarray, hand1: np.ndarray, end: np.ndarray) -> PointCloud:
+    """Frame 0: the end, then the hand points; frame 1: the hand points only."""
+    f0 = np.concatenate([end[None], hand0])
+    return PointCloud(
+        points=np.concatenate([f0, hand1]),
+        offsets=np.array([0, f0.shape[0], f0.shape[0] + hand1.shape[0]]),
+        rate=RATE,
+    )
+
+
+def test_hand_anchors_are_the_free_points_within_reach_and_follow_rigidly(steps) -> None:  # type: ignore[no-untyped-def]
+    end = np.array([0.0, 1.0, 0.0])
+    hand0 = end + np.array(
+        [[0.05, 0, 0], [0, 0.06, 0], [0, 0, 0.07], [0.03, 0.03, 0.0], [0.5, 0, 0]]
+    )
+    rot = Rotation.from_rotvec([0.0, 0.0, 0.2])
+    hand1 = rot.apply(hand0 - end) + end + np.array([0.005, 0.0, 0.0])
+    cloud = _two_frames(hand0, hand1, end)
+    state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+    # frame 0 measured: the end took point 0, its anchors are the 4 points within reach
+    state.known[:] = [True, False, False]
+    state.taken[:] = [0, -1, -1]
+    state.cur[0] = end
+    state.positions[0, 0] = end
+    steps_hand = _hand_module(steps)
+    steps_hand.seat_hand(state, 0, p)
+    assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [
+        1,
+        2,
+        3,
+        4,
+    ]  # not the far one (5)
+    assert (state.hand_index[1] == -1).all()  # trace 2 was not measured
+    # frame 1: the end hidden, the anchors followed and the end carried with them
+    steps_hand.follow_hand(state, 1, p)
+    assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [6, 7, 8, 9]
+    state.known[:] = False
+    state.temp_count[:] = 0
+    cur = np.zeros((3, 3))
+    steps_hand.carry_with_hand(state, 1, cur, p)
+    np.testing.assert_allclose(cur[0], end + np.array([0.005, 0.0, 0.0]), atol=1e-9)
+
+
+def test_an_ambiguous_anchor_is_dropped(steps) -> None:  # type: ignore[no-untyped-def]
+    end = np.array([0.0, 1.0, 0.0])
+    hand0 = end + np.array([[0.05, 0, 0]])
+    # frame 1: two points equally near the anchor's prediction: no evidence which it is
+    hand1 = end + np.array([[0.05, 0.01, 0], [0.05, -0.01, 0]])
+    cloud = _two_frames(hand0, hand1, end)
+    state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+    state.known[:] = [True, False, False]
+    state.taken[:] = [0, -1, -1]
+    state.cur[0] = end
+    steps_hand = _hand_module(steps)
+    steps_hand.seat_hand(state, 0, p)
+    assert state.hand_index[0, 0] == 1
+    steps_hand.follow_hand(state, 1, p)
+    assert (state.hand_index[0] == -1).all()
+
+
+def _hand_module(steps):  # type: ignore[no-untyped-def]
+    if steps.__name__.endswith("_numpy"):
+        from skincap.tracking import _hand_numpy
+
+        return _hand_numpy
+    from skincap.tracking import _hand_numba
+
+    return _hand_numba
+
+
+@pytest.mark.slow
+def test_a_hidden_held_end_follows_the_foot_on_real_motion(data_dir) -> None:
+    """A jump rope held by both feet of a real take (c3d.org sample01): each held end
+    held back 20 frames at eight starts. Carried with the foot it is 3.6 cm off on
+    average, 16.7 cm at the worst start (F alone, pointing the end straight out from its
+    last links where the rope bends at the foot: 8.6 cm, 45.7 cm). Not yet the issue's
+    2 cm: the simulated end swings about the grip rather than turning with the foot,
+    and a stamp (frame 151) loses the end before some gaps start."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "c3dorg_sample01_Eb015pr.c3d")
+    take = real_capture_with_rope(m, rope="jump", hands=[["LFT1"], ["RFT1"]], seed=0)
+    labels = [x for x in take.truth.labels if x.startswith("rope_")]
+    truth = take.truth.positions[:, [take.truth.labels.index(x) for x in labels]]
+    track = rope_tracker_from_truth(take.points, take.point_truth)
+    errors = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        base = track(take.points)
+        trace_of, _ = match_traces_to_truth(base.positions, base.invented, truth, max_distance=0.06)
+        for end in (0, len(labels) - 1):
+            (trace,) = np.flatnonzero(trace_of == end)
+            for start in range(80, 400, 40):
+                held, _ = hold_back_points(take.points, take.point_truth, [labels[end]], start, 20)
+                result = track(crop_frames(held, start + 30))
+                err = gap_errors(result.positions[:, [trace]], truth[:, [end]], start, 20)
+                errors.append(float(err.mean()))
+    errors_arr = np.asarray(errors)
+    assert np.isfinite(errors_arr).all()
+    assert errors_arr.max() < 0.2, errors
+    assert errors_arr.mean() < 0.045, errors
