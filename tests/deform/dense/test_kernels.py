@@ -7,6 +7,7 @@ import pytest
 from scipy.spatial import Delaunay
 from scipy.spatial.transform import Rotation
 
+from real_parts import segmented_real_take
 from skincap.backends import numba_available
 from skincap.deform.dense import deformer as dense_deformer
 from skincap.deform.dense._kernel_numpy import F32_TOLERANCE
@@ -359,21 +360,8 @@ def test_the_float32_sums_agree_with_the_float64_reference_on_a_real_capture(
     the float32 path for some tiles (the answers differ)."""
     from scipy.spatial import cKDTree
 
-    from skincap import io
-    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
-    from skincap.deform.dense.rig import marker_weights_of
-    from skincap.deform.dense.segmentation import segment_marker_surface
-    from skincap.deform.dense.weights import candidates_from_triangle_parts
-
-    take = io.read(data_dir / "cmu_85_02.c3d")
-    keep = [i for i, lab in enumerate(take.labels) if not str(lab).startswith("*")]
-    x = take.positions[::8, keep]
-    frame = choose_reference_frame(x)
-    x = x[:, np.isfinite(x[frame]).all(axis=1)]
-    faces = build_marker_surface(x, reference_frame=frame).faces
-    seg = segment_marker_surface(x, x[frame], faces, n_parts=6)
-    cand = candidates_from_triangle_parts(faces, seg.triangle_parts, x.shape[1], seg.n_parts)
-    alpha = marker_weights_of(x, x[frame], cand, faces)
+    real = segmented_real_take(data_dir / "cmu_85_02.c3d", step=8)
+    x, frame, faces, alpha = real["x"], real["frame"], real["faces"], real["alpha"]
     parts = part_frames(x[frame], alpha, surface_faces=faces)
     rng = np.random.default_rng(0)
     skin = x[frame][rng.integers(0, x.shape[1], 1500)] + 0.02 * rng.normal(size=(1500, 3))

@@ -9,6 +9,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from mesh_grids import grid_triangles
+from real_parts import segmented_real_take
 from skincap.deform.dense.segmentation import segment_marker_surface, triangle_rotations
 from skincap.deform.dense.weights import (
     candidates_from_marker_parts,
@@ -279,21 +280,10 @@ def test_every_part_holds_three_markers_and_is_connected() -> None:
 def test_segmentation_and_blend_weights_invariants_on_a_real_capture(data_dir, capture) -> None:
     """On a real take: parts of >= 3 markers; α on the simplex, a marker with one
     candidate whole, no weight outside a marker's candidates."""
-    from skincap import io
-    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
-    from skincap.deform.dense.rig import marker_weights_of
-
-    take = io.read(data_dir / capture)
-    keep = [i for i, lab in enumerate(take.labels) if not str(lab).startswith("*")]
-    x = take.positions[::4, keep]
-    frame = choose_reference_frame(x)
-    x = x[:, np.isfinite(x[frame]).all(axis=1)]
-    faces = build_marker_surface(x, reference_frame=frame).faces
-    seg = segment_marker_surface(x, x[frame], faces, n_parts=6)
+    real = segmented_real_take(data_dir / capture, step=4)
+    seg, cand, alpha, faces = real["seg"], real["cand"], real["alpha"], real["faces"]
     on = seg.marker_parts >= 0
     assert np.bincount(seg.marker_parts[on]).min() >= 3
-    cand = candidates_from_triangle_parts(faces, seg.triangle_parts, x.shape[1], seg.n_parts)
-    alpha = marker_weights_of(x, x[frame], cand, faces)
     assert np.isfinite(alpha).all() and (alpha >= 0).all()
     np.testing.assert_allclose(alpha.sum(axis=1), 1.0)
     spread = spread_candidates(cand, faces)  # the parts of its and its neighbours' triangles
