@@ -97,23 +97,22 @@ def test_hand_anchors_are_the_free_points_within_reach_and_follow_rigidly(steps)
     hand1 = rot.apply(hand0 - end) + end + np.array([0.005, 0.0, 0.0])
     cloud = _two_frames(hand0, hand1, end)
     state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
-    # frame 0 measured: the end took point 0, its anchors are the 4 points within reach
-    state.known[:] = [True, False, False]
-    state.taken[:] = [0, -1, -1]
-    state.cur[0] = end
+    # frame 0 committed with the end measured on point 0; frame 1: the end hidden.
+    # Its anchors are frame 0's 4 free points within reach, followed into frame 1
+    state.point_index[0] = [0, -1, -1]
     state.positions[0, 0] = end
+    state.temp_count[:] = 0
+    state.known[:] = False
     steps_hand = _hand_module(steps)
-    steps_hand.seat_hand(state, 0, p)
-    assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [
-        1,
-        2,
-        3,
-        4,
-    ]  # not the far one (5)
-    assert (state.hand_index[1] == -1).all()  # trace 2 was not measured
-    # frame 1: the end hidden, the anchors followed and the end carried with them
-    steps_hand.follow_hand(state, 1, p)
+    steps_hand.seat_hand(state, 1, p)
     assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [6, 7, 8, 9]
+    np.testing.assert_allclose(  # where they were: not the far one (5)
+        np.sort(state.hand_then[0, :4], axis=0), np.sort(hand0[:4], axis=0), atol=1e-12
+    )
+    assert (state.hand_index[1] == -1).all()  # trace 2 was not measured in frame 0
+    seated = state.hand_index.copy()
+    steps_hand.seat_hand(state, 1, p)  # again in the same frame: nothing changes
+    np.testing.assert_array_equal(state.hand_index, seated)
     state.known[:] = False
     state.temp_count[:] = 0
     cur = np.zeros((3, 3))
@@ -128,14 +127,31 @@ def test_an_ambiguous_anchor_is_dropped(steps) -> None:  # type: ignore[no-untyp
     hand1 = end + np.array([[0.05, 0.01, 0], [0.05, -0.01, 0]])
     cloud = _two_frames(hand0, hand1, end)
     state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
-    state.known[:] = [True, False, False]
-    state.taken[:] = [0, -1, -1]
-    state.cur[0] = end
+    state.point_index[0] = [0, -1, -1]
+    state.positions[0, 0] = end
     steps_hand = _hand_module(steps)
-    steps_hand.seat_hand(state, 0, p)
-    assert state.hand_index[0, 0] == 1
-    steps_hand.follow_hand(state, 1, p)
+    steps_hand.seat_hand(state, 1, p)  # seated on point 1, then dropped in frame 1
     assert (state.hand_index[0] == -1).all()
+    np.testing.assert_allclose(state.hand_then[0, 0], hand0[0], atol=1e-12)
+
+
+def test_a_measured_end_drops_its_hand_and_takes_none_while_measured(steps) -> None:  # type: ignore[no-untyped-def]
+    end = np.array([0.0, 1.0, 0.0])
+    hand0 = end + np.array([[0.05, 0, 0], [0, 0.06, 0]])
+    cloud = _two_frames(hand0, hand0, end)
+    state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+    state.point_index[0] = [0, -1, -1]
+    state.positions[0, 0] = end
+    steps_hand = _hand_module(steps)
+    state.known[:] = [True, False, False]  # measured in frame 1: no hand work
+    steps_hand.seat_hand(state, 1, p)
+    assert (state.hand_index == -1).all()
+    state.known[:] = False  # hidden after all (a refusal): seated from frame 0
+    steps_hand.seat_hand(state, 1, p)
+    assert sorted(i for i in state.hand_index[0].tolist() if i >= 0) == [3, 4]
+    state.known[:] = [True, False, False]  # committed measured: the hand is dropped
+    steps_hand.release_hand(state, 1, p)
+    assert (state.hand_index == -1).all()
 
 
 def _hand_module(steps):  # type: ignore[no-untyped-def]

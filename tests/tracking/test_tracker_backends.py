@@ -105,6 +105,7 @@ _STEPS = (
     "search_with_hand",
     "place_with_hand",
     "seat_hand",
+    "release_hand",
     "begin_frame",
     "continue_body_chains",
     "match_measured_best",

@@ -12,7 +12,14 @@ import numpy as np
 from skincap.tracking._numba_search import JIT
 from skincap.tracking.curve import HELD_END_REACH
 
-__all__ = ["carry_with_hand", "follow_hand", "place_with_hand", "search_with_hand", "seat_hand"]
+__all__ = [
+    "carry_with_hand",
+    "follow_hand",
+    "place_with_hand",
+    "release_hand",
+    "search_with_hand",
+    "seat_hand",
+]
 
 _INF = np.inf
 
@@ -33,21 +40,25 @@ def _d2(points, q):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def seat_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.seat_hand`."""
-    a, b = state.offsets[t], state.offsets[t + 1]
+    if t < 1:
+        return
+    f = t - 1
+    a, b = state.offsets[f], state.offsets[f + 1]
     m = state.known.size
     k_max = state.hand_index.shape[1]
     reach2 = HELD_END_REACH * HELD_END_REACH
     for row in range(2):
         e = 0 if row == 0 else m - 1
-        if not state.known[e]:
+        if state.known[e] or state.temp_count[e] > 0 or b == a:
             continue
+        seated = False
         for k in range(k_max):
-            state.hand_index[row, k] = -1
-        if b == a:
+            seated |= state.hand_index[row, k] >= 0
+        if seated:
             continue
-        d2 = _d2(state.points[a:b], state.cur[e])
+        d2 = _d2(state.points[a:b], state.positions[f, e])
         for j in range(m):
-            q = state.taken[j]
+            q = state.point_index[f, j]
             if q >= a and q < b:
                 d2[q - a] = _INF
         order = np.argsort(d2, kind="mergesort")
@@ -61,49 +72,67 @@ def seat_hand(state, t, p):  # pragma: no cover - runs compiled
                 state.hand_then[row, n, c] = state.points[a + i, c]
                 state.hand_vel[row, n, c] = state.velocity[e, c]
             n += 1
+        _follow_row(state, t, row, p)
+
+
+@numba.njit(**JIT)
+def release_hand(state, t, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.release_hand`."""
+    m = state.known.size
+    for row in range(2):
+        if state.known[0 if row == 0 else m - 1]:
+            for k in range(state.hand_index.shape[1]):
+                state.hand_index[row, k] = -1
 
 
 @numba.njit(**JIT)
 def follow_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.follow_hand`."""
+    for row in range(2):
+        _follow_row(state, t, row, p)
+
+
+@numba.njit(**JIT)
+def _follow_row(state, t, row, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy._follow_row`."""
     a, b = state.offsets[t], state.offsets[t + 1]
     g2 = p.gamma * p.gamma
     pred = np.empty(3)
-    for row in range(2):
-        for k in range(state.hand_index.shape[1]):
-            q = state.hand_index[row, k]
-            if q < 0:
-                continue
-            state.hand_index[row, k] = -1
-            if b - a < 1:
-                continue
+    end = 0 if row == 0 else state.known.size - 1
+    for k in range(state.hand_index.shape[1]):
+        q = state.hand_index[row, k]
+        if q < 0:
+            continue
+        state.hand_index[row, k] = -1
+        if b - a < 1:
+            continue
+        for c in range(3):
+            pred[c] = state.points[q, c] + state.hand_vel[row, k, c]
+        d2 = _d2(state.points[a:b], pred)
+        best, second, i1 = _INF, _INF, -1
+        for i in range(d2.size):
+            if d2[i] < best:
+                second = best
+                best = d2[i]
+                i1 = i
+            elif d2[i] < second:
+                second = d2[i]
+        if best > g2 or second <= 4.0 * best:
+            continue
+        new = a + i1
+        dup = False
+        for u in range(k):
+            if state.hand_index[row, u] == new:
+                dup = True
+        if dup:
+            continue
+        state.hand_index[row, k] = new
+        for c in range(3):
+            state.hand_vel[row, k, c] = state.points[new, c] - state.points[q, c]
+        if state.temp_count[end] > 0:
+            state.body[new] = True
             for c in range(3):
-                pred[c] = state.points[q, c] + state.hand_vel[row, k, c]
-            d2 = _d2(state.points[a:b], pred)
-            best, second, i1 = _INF, _INF, -1
-            for i in range(d2.size):
-                if d2[i] < best:
-                    second = best
-                    best = d2[i]
-                    i1 = i
-                elif d2[i] < second:
-                    second = d2[i]
-            if best > g2 or second <= 4.0 * best:
-                continue
-            new = a + i1
-            dup = False
-            for u in range(k):
-                if state.hand_index[row, u] == new:
-                    dup = True
-            if dup:
-                continue
-            state.hand_index[row, k] = new
-            for c in range(3):
-                state.hand_vel[row, k, c] = state.points[new, c] - state.points[q, c]
-            if state.temp_count[0 if row == 0 else state.known.size - 1] > 0:
-                state.body[new] = True
-                for c in range(3):
-                    state.body_vel[new, c] = state.hand_vel[row, k, c]
+                state.body_vel[new, c] = state.hand_vel[row, k, c]
 
 
 @numba.njit(**JIT)

@@ -2,11 +2,12 @@
 
 Beyond Porter (2012). A held end of the rope moves rigidly with the hand (or foot)
 that holds it; the thesis' F (eq. 3.6) points the end straight out from its last
-measured links instead, which a rope bent at the hand misses by 15-30 cm. While an
-end is measured, the points beside it that the rope does not take (within
-:data:`~skincap.tracking.curve.HELD_END_REACH`, the reach that makes an end *held*)
-are its hand anchors (:func:`seat_hand`); while it is hidden they are followed frame
-by frame, unambiguously, at constant velocity (:func:`follow_hand`), and the end is
+measured links instead, which a rope bent at the hand misses by 15-30 cm. When an
+end first goes missing, the points beside it in its last measured frame that the rope
+did not take (within :data:`~skincap.tracking.curve.HELD_END_REACH`, the reach that
+makes an end *held*) become its hand anchors (:func:`seat_hand`; a frame where every
+end is measured does no hand work); while it is hidden they are followed frame by
+frame, unambiguously, at constant velocity (:func:`follow_hand`), and the end is
 placed where the rigid motion of the anchors since its last measured frame takes it
 (:func:`carry_with_hand`), and searched for there. While it is hidden, its anchors
 are body points, which a trace back from a gap does not take.
@@ -23,7 +24,14 @@ import numpy as np
 from skincap.tracking.curve import HELD_END_REACH
 from skincap.tracking.state import StepParams, TrackState
 
-__all__ = ["carry_with_hand", "follow_hand", "place_with_hand", "search_with_hand", "seat_hand"]
+__all__ = [
+    "carry_with_hand",
+    "follow_hand",
+    "place_with_hand",
+    "release_hand",
+    "search_with_hand",
+    "seat_hand",
+]
 
 
 def _ends(m: int) -> tuple[tuple[int, int], tuple[int, int]]:
@@ -32,20 +40,30 @@ def _ends(m: int) -> tuple[tuple[int, int], tuple[int, int]]:
 
 
 def seat_hand(state: TrackState, t: int, p: StepParams) -> None:
-    """After frame t is committed: each end measured at t takes as anchors the points of
-    frame t the rope did not take within ``HELD_END_REACH`` of it, nearest first (at
-    most ``hand_index.shape[1]``), moving as the end moved (metres per frame). An end
-    with none (a free end) has no anchors; a hidden end keeps those it had."""
-    a, b = int(state.offsets[t]), int(state.offsets[t + 1])
+    """While frame t is matched: each end not measured in frame t (so far) that was
+    measured in frame t - 1 and has no anchors yet takes as anchors the points of
+    frame t - 1 the rope did not take there (``point_index``) within
+    ``HELD_END_REACH`` of it, nearest first (at most ``hand_index.shape[1]``), moving
+    as the end moved (metres per frame), and follows them into frame t
+    (:func:`follow_hand`'s rule). An end with none there (a free end) has no anchors.
+
+    Seated only when an end first goes missing, so a frame where every end is
+    measured costs nothing here; calling it again in the same frame changes nothing.
+    Call before ``temp_count`` counts frame t.
+    """
+    if t < 1:
+        return
+    f = t - 1
+    a, b = int(state.offsets[f]), int(state.offsets[f + 1])
     k_max = state.hand_index.shape[1]
     for row, e in _ends(state.known.size):
-        if not state.known[e]:
+        if state.known[e] or state.temp_count[e] > 0 or np.any(state.hand_index[row] >= 0):
             continue
-        state.hand_index[row] = -1
         if b == a:
             continue
-        d2 = np.sum((state.points[a:b] - state.cur[e]) ** 2, axis=1)
-        taken = state.taken[state.taken >= 0]
+        d2 = np.sum((state.points[a:b] - state.positions[f, e]) ** 2, axis=1)
+        taken = state.point_index[f]
+        taken = taken[(taken >= a) & (taken < b)]
         d2[taken - a] = np.inf
         order = np.argsort(d2, kind="mergesort")[:k_max]
         order = order[d2[order] <= HELD_END_REACH * HELD_END_REACH]
@@ -53,43 +71,58 @@ def seat_hand(state: TrackState, t: int, p: StepParams) -> None:
         state.hand_index[row, :n] = order + a
         state.hand_then[row, :n] = state.points[order + a]
         state.hand_vel[row, :n] = state.velocity[e]
+        _follow_row(state, t, row, p)
+
+
+def release_hand(state: TrackState, t: int, p: StepParams) -> None:
+    """After frame t is committed: each end measured in frame t drops its anchors (it
+    takes new ones from its last measured frame when it next goes missing)."""
+    for row, e in _ends(state.known.size):
+        if state.known[e]:
+            state.hand_index[row] = -1
 
 
 def follow_hand(state: TrackState, t: int, p: StepParams) -> None:
-    """Before frame t is matched: move every anchor to frame t's point nearest its
-    constant-velocity prediction, when that lies within γ, the second nearest lies
-    more than twice as far and no earlier anchor of the same end took it; otherwise
-    the anchor is dropped (no evidence beats a wrong hand). The anchors of an end
-    hidden in frame t - 1 are body points of frame t (``state.body``, ``body_vel``):
-    a trace coming back from a gap does not take them (the hidden end's F, or its
-    carried position, lies among its hand's markers), and the body chains continue
-    from them, so hand markers that dropped out before are body again."""
+    """Before frame t is matched: move the anchors of each end hidden in frame t - 1
+    into frame t (:func:`_follow_row`). They are body points of frame t
+    (``state.body``, ``body_vel``): a trace coming back from a gap does not take them
+    (the hidden end's F, or its carried position, lies among its hand's markers), and
+    the body chains continue from them, so hand markers that dropped out before are
+    body again."""
+    for row in range(2):
+        _follow_row(state, t, row, p)
+
+
+def _follow_row(state: TrackState, t: int, row: int, p: StepParams) -> None:
+    """Move every anchor of ``row`` to frame t's point nearest its constant-velocity
+    prediction, when that lies within γ, the second nearest lies more than twice as
+    far and no earlier anchor of the same end took it; otherwise the anchor is dropped
+    (no evidence beats a wrong hand). An end hidden in frame t - 1 makes them body."""
     a, b = int(state.offsets[t]), int(state.offsets[t + 1])
     frame = state.points[a:b]
-    ends = (0, state.known.size - 1)
-    for row in range(2):
-        for k in range(state.hand_index.shape[1]):
-            q = int(state.hand_index[row, k])
-            if q < 0:
-                continue
-            state.hand_index[row, k] = -1
-            if b - a < 1:
-                continue
-            d2 = np.sum((frame - (state.points[q] + state.hand_vel[row, k])) ** 2, axis=1)
-            order = np.argsort(d2, kind="mergesort")[:2]
-            d1 = d2[order[0]]
-            if d1 > p.gamma * p.gamma:
-                continue
-            if order.size > 1 and d2[order[1]] <= 4.0 * d1:
-                continue
-            new = int(order[0]) + a
-            if np.any(state.hand_index[row, :k] == new):
-                continue
-            state.hand_index[row, k] = new
-            state.hand_vel[row, k] = state.points[new] - state.points[q]
-            if state.temp_count[ends[row]] > 0:  # a hidden end's hand is body
-                state.body[new] = True
-                state.body_vel[new] = state.hand_vel[row, k]
+    end = 0 if row == 0 else state.known.size - 1
+    for k in range(state.hand_index.shape[1]):
+        q = int(state.hand_index[row, k])
+        if q < 0:
+            continue
+        state.hand_index[row, k] = -1
+        if b - a < 1:
+            continue
+        d2 = np.sum((frame - (state.points[q] + state.hand_vel[row, k])) ** 2, axis=1)
+        order = np.argsort(d2, kind="mergesort")[:2]
+        d1 = d2[order[0]]
+        if d1 > p.gamma * p.gamma:
+            continue
+        if order.size > 1 and d2[order[1]] <= 4.0 * d1:
+            continue
+        new = int(order[0]) + a
+        if np.any(state.hand_index[row, :k] == new):
+            continue
+        state.hand_index[row, k] = new
+        state.hand_vel[row, k] = state.points[new] - state.points[q]
+        if state.temp_count[end] > 0:  # a hidden end's hand is body
+            state.body[new] = True
+            state.body_vel[new] = state.hand_vel[row, k]
 
 
 def carry_with_hand(state: TrackState, t: int, cur: np.ndarray, p: StepParams) -> None:

@@ -34,7 +34,13 @@ import numba
 import numpy as np
 
 from skincap.tracking._bridge_numba import bridge_hidden_runs
-from skincap.tracking._hand_numba import follow_hand, place_with_hand, search_with_hand, seat_hand
+from skincap.tracking._hand_numba import (
+    follow_hand,
+    place_with_hand,
+    release_hand,
+    search_with_hand,
+    seat_hand,
+)
 from skincap.tracking._numba_curve import (
     carry_last_seen,
     curve_at,
@@ -459,6 +465,7 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     fill_interior(x, known, state.arclength, pred)
     settle(pred, known, state.spacing, p.settle)
     predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    seat_hand(state, t, p)
     search_with_hand(state, t, pred, p)
     return pred
 
@@ -857,9 +864,10 @@ def track_frame(state, t, p):  # pragma: no cover - runs compiled
     if swap_onto_curve(state, t, p):
         swapped = True
     place_invented(state, t, pred, found_more or swapped, p)
+    seat_hand(state, t, p)
     place_with_hand(state, t, p)
     commit_frame(state, t, p)
-    seat_hand(state, t, p)
+    release_hand(state, t, p)
 
 
 @numba.njit(**JIT)

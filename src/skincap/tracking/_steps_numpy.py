@@ -10,7 +10,7 @@ A frame (:func:`track_frame`) runs::
 
     V = begin_frame                       prediction by the trace's own velocity (eqs. 3.1-3.2)
     continue_body_chains                  body points of this frame
-    follow_hand                           a held end's hand anchors into this frame
+    follow_hand                           a hidden held end's hand anchors into this frame
     match_measured_best                   steady traces at V or at V + acceleration
         accelerated_prediction            V plus the trace's last change of velocity
         match_measured                    steady traces at V, then at V + residuals
@@ -23,9 +23,10 @@ A frame (:func:`track_frame`) runs::
     unshift_chain                         a chain matched one marker along moves back
     swap_onto_curve                       a trace off the curve moves onto it
     place_invented                        temporary markers where nothing was found
+    seat_hand                             an end gone missing: its hand from frame t - 1
     place_with_hand                       a hidden held end moved with its hand
     commit_frame                          row t of the results, velocity, counts
-    seat_hand                             a measured end's hand anchors
+    release_hand                          a measured end drops its hand
 
 Candidate points come from a KD-tree over the frame's points, built when the frame
 is first searched (the numba twin buckets it along one axis instead). The refusals
@@ -43,7 +44,13 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.tracking._bridge_numpy import bridge_hidden_runs
-from skincap.tracking._hand_numpy import follow_hand, place_with_hand, search_with_hand, seat_hand
+from skincap.tracking._hand_numpy import (
+    follow_hand,
+    place_with_hand,
+    release_hand,
+    search_with_hand,
+    seat_hand,
+)
 from skincap.tracking._reacquire_numpy import reacquire_on_shell
 from skincap.tracking._refusals_numpy import (
     _squared_distances,
@@ -465,6 +472,7 @@ def gap_predictions(state: TrackState, t: int, p: StepParams) -> np.ndarray:
     pred = settle_single_gaps(pred, known, state.spacing, p.settle)
     count = np.where(known, 0, state.temp_count + 1)
     pred = _predict_ends(pred, known, prev, v_tilde, count, state.spacing)
+    seat_hand(state, t, p)  # an end gone missing takes its hand
     search_with_hand(state, t, pred, p)  # a held end where its hand carries it
     return pred
 
@@ -899,9 +907,10 @@ def track_frame(state: TrackState, t: int, p: StepParams) -> None:
     swapped = unshift_chain(state, t, p)
     swapped |= swap_onto_curve(state, t, p)
     place_invented(state, t, pred, found_more or swapped, p)
+    seat_hand(state, t, p)
     place_with_hand(state, t, p)
     commit_frame(state, t, p)
-    seat_hand(state, t, p)
+    release_hand(state, t, p)
 
 
 def track_frames(state: TrackState, t0: int, t1: int, p: StepParams) -> None:
