@@ -164,3 +164,29 @@ def test_a_rope_landing_folded_beside_a_foot_is_found_again(c3dorg_jump_whole) -
     measured = ~track.invented[425:441][:, landed]
     assert measured.mean() >= 0.9
     assert not track.lost.any()
+
+
+def test_a_rope_held_at_a_foot_and_a_shin_is_ordered_and_followed(data_dir) -> None:  # type: ignore[no-untyped-def]
+    """The OptiTrack walking take has only leg markers: a jump rope held at a foot
+    and a shin marker, one above the other, used to start laid doubled on the floor
+    (markers 3 mm apart), so init_rope ordered it wrong from frame 0 and the traces
+    fell apart once the walk began (issue #15's kt jump). Laid in an open loop it is
+    ordered as the truth and followed through the first steps."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "kt_optitrack_walking.c3d")
+    piece = MarkerSet(m.positions[:480], m.labels, m.rate, meta=dict(m.meta))
+    take = real_capture_with_rope(
+        piece, rope="jump", hands=[["Foot_Marker1"], ["Leg_Marker1"]], seed=1
+    )
+    assert take.summary["rope_doubled_markers"] == 0
+    cloud = take.points
+    first = take.point_truth[cloud.offsets[0] : cloud.offsets[1]]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        track = rope_tracker_from_truth(cloud, take.point_truth)(cloud)
+    order = [str(first[i]) for i in track.init.indices]
+    truth_order = [f"rope_{j:02d}" for j in range(22)]
+    assert order in (truth_order, truth_order[::-1])
+    assert not track.lost.any()
+    assert classify_points(track, cloud, take.point_truth)["f1"] >= 0.95

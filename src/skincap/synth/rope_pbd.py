@@ -47,6 +47,7 @@ def simulate_rope_pbd(
     damping: float = 0.5,
     floor: float | None = None,
     lay_direction: np.ndarray | None = None,
+    arm_gap: float | None = None,
     settle_seconds: float = 1.0,
 ) -> RopeResult:
     """Simulate a rope held by one hand (whip) or two (jump) with PBD; place its markers.
@@ -81,6 +82,13 @@ def simulate_rope_pbd(
     lay_direction : (3,) float, optional
         Horizontal direction in which the part of the starting rope that would reach
         below the floor is laid along it (default +Z).
+    arm_gap : float, optional
+        ``jump``: the two arms of the part laid on the floor lie at least this far
+        apart side by side (metres; default three marker spacings), as a performer
+        lays a rope out in an open loop. Hands held apart across ``lay_direction`` by
+        that much or more keep their own separation; hands above one another (a rope
+        held at a foot and a shin) would otherwise lay both arms along one line, the
+        rope doubled on itself with markers millimetres apart.
     settle_seconds : float
         Time the rope hangs at the first frame's hands before frame 0, seconds; it
         hangs on (up to ten times as long) until no particle moves 5 µm in a frame,
@@ -118,7 +126,15 @@ def simulate_rope_pbd(
 
     x = _hanging_start(held[0], mode, n_particles, rest)
     if floor is not None:
-        x = _laid_on_floor(x, floor, lay_direction)
+        if arm_gap is None:
+            arm_gap = 3.0 * length / (n_markers + 1)
+        if not (math.isfinite(arm_gap) and arm_gap >= 0):
+            raise ValidationError(f"arm_gap: expected a distance >= 0, got {arm_gap!r}")
+        gap = arm_gap if mode == "jump" else 0.0
+        if _across(x, lay_direction) < gap:
+            # the loop is laid by arc length, so its start must keep the rest spacing
+            x = _arms_start(held[0], n_particles, rest)
+        x = _laid_on_floor(x, floor, lay_direction, gap)
     chain = _Chain(
         x=x,
         x_prev=x.copy(),
@@ -279,6 +295,38 @@ def _hanging_start(held: np.ndarray, mode: str, n: int, rest: float) -> np.ndarr
     return a + u * (b - a) - sag * np.array([0.0, 1.0, 0.0])
 
 
+def _arms_start(held: np.ndarray, n: int, rest: float) -> np.ndarray:
+    """(P, 3) a chain held at ``held`` (2, 3) metres hanging in two straight arms to a
+    low point below the hands' midpoint, ``rest`` metres between neighbours along it.
+
+    Unlike the V of :func:`_hanging_start` (whose arms share the particles equally, so
+    their links stretch or shrink by the hands' height difference over P - 1), the
+    hand held higher gets the longer arm; the chain lies straight between the hands if
+    it is too short to sag below the lower one.
+    """
+    a, b = held[0], held[1]
+    total = (n - 1) * rest
+    low = 0.5 * (a + b)
+    half_across = 0.5 * math.hypot(b[0] - a[0], b[2] - a[2])
+
+    def arms(y: float) -> float:  # length of the two arms to a low point at height y
+        return math.hypot(half_across, a[1] - y) + math.hypot(half_across, b[1] - y)
+
+    top = min(a[1], b[1])
+    if arms(top) >= total:
+        return a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+    bottom = top - total
+    for _ in range(100):  # bisection: the arms lengthen as the low point drops
+        mid = 0.5 * (top + bottom)
+        top, bottom = (mid, bottom) if arms(mid) < total else (top, mid)
+    low[1] = 0.5 * (top + bottom)
+    arm_a = float(np.linalg.norm(low - a))
+    arc = rest * np.arange(n)[:, None]  # (P, 1) metres from hand a
+    on_a = a + (low - a) * (arc / max(arm_a, 1e-12))
+    on_b = low + (b - low) * ((arc - arm_a) / max(total - arm_a, 1e-12))
+    return np.where(arc <= arm_a, on_a, on_b)
+
+
 def _link_halves(inv_mass: np.ndarray) -> list[tuple[slice, slice, np.ndarray, np.ndarray]]:
     """The even and the odd links as strided views, with each end's share of a correction."""
     n = inv_mass.shape[0]
@@ -294,14 +342,51 @@ def _link_halves(inv_mass: np.ndarray) -> list[tuple[slice, slice, np.ndarray, n
     return halves
 
 
-def _laid_on_floor(x: np.ndarray, floor: float, direction: np.ndarray | None) -> np.ndarray:
-    """(P, 3) the chain with what reaches below ``floor`` laid along it, arc length kept."""
+def _lay_and_side(direction: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """The horizontal unit lay direction (default +Z) and the horizontal unit across it."""
     lay = np.array([0.0, 0.0, 1.0]) if direction is None else np.asarray(direction, float)
     lay = lay * np.array([1.0, 0.0, 1.0])
     norm = np.linalg.norm(lay)
     lay = np.array([0.0, 0.0, 1.0]) if norm < 1e-9 else lay / norm
+    return lay, np.array([lay[2], 0.0, -lay[0]])
+
+
+def _across(x: np.ndarray, direction: np.ndarray | None) -> float:
+    """Metres between the chain's ends ``x[0]`` and ``x[-1]`` across the lay direction."""
+    return abs(float((x[0] - x[-1]) @ _lay_and_side(direction)[1]))
+
+
+def _laid_on_floor(
+    x: np.ndarray, floor: float, direction: np.ndarray | None, arm_gap: float = 0.0
+) -> np.ndarray:
+    """(P, 3) the chain with what reaches below ``floor`` laid along it, arc length kept.
+
+    ``x`` (P, 3) metres is the hanging start; a particle ``d`` metres below the floor
+    is laid ``d`` along a path on the floor. With ``arm_gap`` (metres, for a chain
+    held at both ends, its start :func:`_arms_start`) the two arms' paths are spread
+    sideways until they lie ``arm_gap`` apart: each turns out on a quarter circle,
+    runs along the lay direction and turns back in on a quarter circle to meet the
+    other at the deepest particle (an open loop with round ends).
+    """
+    lay, side = _lay_and_side(direction)
     depth = np.maximum(floor - x[:, 1], 0.0)  # (P,) metres below the floor
-    laid = x + depth[:, None] * lay
+    across = float((x[0] - x[-1]) @ side)  # the ends' own separation across the lay
+    if across < 0:
+        side, across = -side, -across
+    deepest = float(depth.max())
+    radius = min(0.5 * max(arm_gap - across, 0.0), deepest / math.pi)
+    if radius <= 0:
+        laid = x + depth[:, None] * lay
+    else:
+        # arc-length parametrised: quarter circle out, straight, quarter circle in
+        turn = 0.5 * math.pi * radius
+        out = np.minimum(depth, turn) / radius  # angle turned out, rad
+        back = np.maximum(depth - (deepest - turn), 0.0) / radius  # angle turned in
+        straight = np.clip(depth - turn, 0.0, deepest - 2.0 * turn)
+        lateral = radius * (1.0 - np.cos(out)) - radius * (1.0 - np.cos(back))
+        forward = radius * np.sin(out) + straight + radius * np.sin(back)
+        arm = np.where(np.arange(x.shape[0]) < int(np.argmax(depth)), 1.0, -1.0)
+        laid = x + forward[:, None] * lay + (arm * lateral)[:, None] * side
     laid[:, 1] = np.maximum(x[:, 1], floor)
     return laid
 
