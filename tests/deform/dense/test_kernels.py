@@ -169,11 +169,11 @@ def test_without_numba_the_numpy_reference_runs(monkeypatch: pytest.MonkeyPatch)
 @needs_numba
 def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     from skincap.backends import WARM_UPS, kernel_ready
-    from skincap.deform.dense._kernel_numba import dense_dispatcher
+    from skincap.deform.dense._kernel_numba import dense_dispatcher, dense_no_rbf_dispatcher
 
     assert WARM_UPS["dense"] == "skincap.deform.dense.deformer:warm_up_kernel"
     dense_deformer.warm_up_kernel()
-    assert kernel_ready(dense_dispatcher())
+    assert kernel_ready(dense_dispatcher()) and kernel_ready(dense_no_rbf_dispatcher())
     # what the warm-up compiled is what a take runs: no second signature to compile
     take = _random_take(5)
     parts = part_frames(take["reference"], take["alpha"])
@@ -181,6 +181,7 @@ def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     for method in METHODS:
         list(deformer.deform(take["markers"], method, chunk=4))
     assert len(dense_dispatcher().signatures) == 1
+    assert len(dense_no_rbf_dispatcher().signatures) == 1
 
 
 def test_the_centre_table_has_room_for_whole_steps() -> None:

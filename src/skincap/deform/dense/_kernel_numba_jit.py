@@ -17,7 +17,7 @@ from skincap.deform.dense._kernel_numpy import (
 )
 from skincap.deform.dense._pair_tiles import MEMBER_LANES
 
-__all__ = ["dense_kernel"]
+__all__ = ["dense_kernel", "dense_kernel_no_rbf"]
 
 _FASTMATH = {"contract", "reassoc"}
 #: Runs of tiles per frame in the parallel loop: enough to balance the threads, few
@@ -194,14 +194,20 @@ def _store_blend(out, t, v, sx, sy, sz, den):  # pragma: no cover - runs compile
         out[t, v, 2] = np.nan
 
 
-@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
-def _fused_no_rbf(
+@numba.njit(parallel=True, cache=True, nogil=True, fastmath=_FASTMATH)
+def dense_kernel_no_rbf(
     vertex_local, vertex_part, vertex_weight, vertex_start, quadratic, rotation, translation, out
 ):  # pragma: no cover - runs compiled
-    """Eqs. 8-9 without an RBF field, one fused pass: each vertex's pairs moved by their
-    part's quadratic field, back to the world and β-blended at once (no (T, Q, 3)
-    buffer of moved pairs, which costs more than the arithmetic when there is no RBF
-    sum to amortise it). Arguments as :func:`dense_kernel`'s."""
+    """Eqs. 8-9 without an RBF field (``rigid``, ``quadratic``), one fused pass: each
+    vertex's pairs moved by their part's quadratic field, back to the world and
+    β-blended at once (no (T, Q, 3) buffer of moved pairs, which costs more than the
+    arithmetic when there is no RBF sum to amortise it).
+
+    vertex_local (Q, 3) p̂⁰ and vertex_part (Q,) of the pairs sorted by vertex,
+    vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows; quadratic, rotation,
+    translation and out as :func:`dense_kernel`'s. A kernel of its own, not a branch of
+    :func:`dense_kernel`: the default ``quadratic_rbf`` never compiles it.
+    """
     n_v = vertex_start.shape[0] - 1
     n_t = quadratic.shape[0]
     # contiguous runs of vertices, every frame of a run in turn: a run's pairs stay in
@@ -231,6 +237,120 @@ def _fused_no_rbf(
                 _store_blend(out, t, v, sx, sy, sz, den)
 
 
+@numba.njit(nogil=True, fastmath=_FASTMATH)
+def _move_tile(
+    tile,
+    pair_local,
+    pair_seam,
+    tile_start,
+    tile_part,
+    quadratic,
+    rotation,
+    translation,
+    rbf_table,
+    rbf_scale,
+    rbf_members,
+    f32_tolerance,
+    near,
+    near32,
+    pos32,
+    acc,
+    loc,
+    w_sum,
+    moved,
+):  # pragma: no cover - runs compiled
+    """Eq. 8 for one tile's pairs at every frame into ``moved``: arguments as
+    :func:`dense_kernel`'s, ``near`` to ``w_sum`` the calling run's scratch. A function
+    of its own, not inlined into the kernel's parallel loop: numba's parallel passes
+    then see a loop body of one call (a large inlined body made the kernel's compile
+    take most of its time)."""
+    n_t = quadratic.shape[0]
+    lanes = _F32_LANES
+    p = tile_part[tile]
+    q0 = tile_start[tile]
+    n = tile_start[tile + 1] - q0
+    n_lanes = -(-n // lanes) * lanes
+    n_k = rbf_members[p]
+    g = rbf_scale[p]
+    for t in range(n_t):  # a tile's rows of ``moved`` stay in cache over its frames
+        for j in range(n):  # along the lanes: the pairs' local positions are SoA
+            lx, ly, lz = _quadratic_field(
+                quadratic, t, p,
+                pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j],
+            )  # fmt: skip
+            loc[0, j] = lx
+            loc[1, j] = ly
+            loc[2, j] = lz
+        lo_x = lo_y = lo_z = np.inf
+        hi_x = hi_y = hi_z = -np.inf
+        for j in range(n):
+            lo_x = min(lo_x, loc[0, j])
+            lo_y = min(lo_y, loc[1, j])
+            lo_z = min(lo_z, loc[2, j])
+            hi_x = max(hi_x, loc[0, j])
+            hi_y = max(hi_y, loc[1, j])
+            hi_z = max(hi_z, loc[2, j])
+        lo_x *= g
+        lo_y *= g
+        lo_z *= g
+        hi_x *= g
+        hi_y *= g
+        hi_z *= g
+        n_near = 0
+        if n_k > 0:
+            n_near = _gather_near(rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near)
+        ox = 0.5 * (lo_x + hi_x)
+        oy = 0.5 * (lo_y + hi_y)
+        oz = 0.5 * (lo_z + hi_z)
+        use32 = False
+        if n_near > 0:
+            # float32 where its modelled rounding error stays within the
+            # tolerance (_kernel_numpy.f32_error_bound), per tile and frame
+            reach = max(hi_x - ox, hi_y - oy, hi_z - oz)
+            w_sum[:] = 0.0
+            for i in range(n_near):
+                reach = max(reach, abs(near[0, i] - ox), abs(near[1, i] - oy))
+                reach = max(reach, abs(near[2, i] - oz))
+                for r in range(6):
+                    w_sum[r] += abs(near[3 + r, i])
+            bound = w_sum.max() * F32_ERROR_PER_WEIGHT * (reach + n_near)
+            use32 = bound <= f32_tolerance
+        if use32:
+            for i in range(n_near):
+                near32[0, i] = np.float32(near[0, i] - ox)
+                near32[1, i] = np.float32(near[1, i] - oy)
+                near32[2, i] = np.float32(near[2, i] - oz)
+                for r in range(3, 9):
+                    near32[r, i] = np.float32(near[r, i])
+            for j in range(n):
+                pos32[0, j] = np.float32(loc[0, j] * g - ox)
+                pos32[1, j] = np.float32(loc[1, j] * g - oy)
+                pos32[2, j] = np.float32(loc[2, j] * g - oz)
+            _tile_rbf_sums_f32(near32, n_near, pos32, n_lanes, acc)
+            for j in range(n):
+                s = pair_seam[q0 + j]
+                loc[0, j] += (1.0 - s) * acc[0, j] + s * acc[3, j]
+                loc[1, j] += (1.0 - s) * acc[1, j] + s * acc[4, j]
+                loc[2, j] += (1.0 - s) * acc[2, j] + s * acc[5, j]
+        elif n_near > 0:
+            n_sum = -(-n_near // MEMBER_LANES) * MEMBER_LANES
+            for j in range(n):
+                mx, my, mz, sx, sy, sz = _rbf_sums(
+                    near, n_sum, loc[0, j] * g, loc[1, j] * g, loc[2, j] * g
+                )
+                s = pair_seam[q0 + j]
+                loc[0, j] += (1.0 - s) * mx + s * sx
+                loc[1, j] += (1.0 - s) * my + s * sy
+                loc[2, j] += (1.0 - s) * mz + s * sz
+        for j in range(n):
+            wx, wy, wz = _local_to_world(
+                rotation, translation, t, p, loc[0, j], loc[1, j], loc[2, j]
+            )
+            moved[q0 + j, t, 0] = wx
+            moved[q0 + j, t, 1] = wy
+            moved[q0 + j, t, 2] = wz
+
+
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath=_FASTMATH)
 def dense_kernel(
     pair_local,
@@ -247,17 +367,13 @@ def dense_kernel(
     rbf_scale,
     rbf_members,
     f32_tolerance,
-    vertex_local,
-    vertex_part,
     moved,
     out,
 ):  # pragma: no cover - runs compiled
-    """Deformed vertices of every frame into ``out`` (eqs. 8-9).
+    """Deformed vertices of every frame into ``out`` (eqs. 8-9) with an RBF field
+    (a part with ``rbf_members`` 0 has none; without any, :func:`dense_kernel_no_rbf`).
 
-    With no RBF field (every ``rbf_members`` 0) the fused path (:func:`_fused_no_rbf`):
-    vertex_local (Q, 3) p̂⁰, vertex_part (Q,) in ``by_vertex`` order, ``moved`` unused.
-    Otherwise the tiled path (vertex_local, vertex_part unused): pair_local (3, Q) p̂⁰
-    and pair_seam (Q,) s of the pairs sorted by part, in tiles tile_start (n + 1,) of
+    pair_local (3, Q) p̂⁰ and pair_seam (Q,) s of the pairs sorted by part, in tiles tile_start (n + 1,) of
     one part each, tile_part (n,); by_vertex (Q,) the pairs sorted by vertex,
     vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
     quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3) R̃, translation (T, P, 3) d̃;
@@ -269,15 +385,6 @@ def dense_kernel(
     its frames); out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
     """
     n_v = vertex_start.shape[0] - 1
-    has_rbf = False
-    for p in range(rbf_members.shape[0]):
-        has_rbf = has_rbf or rbf_members[p] > 0
-    if not has_rbf:
-        _fused_no_rbf(
-            vertex_local, vertex_part, vertex_weight, vertex_start,
-            quadratic, rotation, translation, out,
-        )  # fmt: skip
-        return
     n_tiles = tile_part.shape[0]
     width = rbf_table.shape[3]
     # the tiles in _TILE_CHUNKS contiguous runs, one scratch table a run (not a tile)
@@ -302,91 +409,27 @@ def dense_kernel(
         loc = np.zeros((3, tile_max))  # the tile's Ã q(p̂⁰), then its world positions
         w_sum = np.empty(6)
         for tile in range(run * n_tiles // n_runs, (run + 1) * n_tiles // n_runs):
-            p = tile_part[tile]
-            q0 = tile_start[tile]
-            n = tile_start[tile + 1] - q0
-            n_lanes = -(-n // lanes) * lanes
-            n_k = rbf_members[p]
-            g = rbf_scale[p]
-            for t in range(n_t):  # a tile's rows of ``moved`` stay in cache over its frames
-                for j in range(n):  # along the lanes: the pairs' local positions are SoA
-                    lx, ly, lz = _quadratic_field(
-                        quadratic, t, p,
-                        pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j],
-                    )  # fmt: skip
-                    loc[0, j] = lx
-                    loc[1, j] = ly
-                    loc[2, j] = lz
-                lo_x = lo_y = lo_z = np.inf
-                hi_x = hi_y = hi_z = -np.inf
-                for j in range(n):
-                    lo_x = min(lo_x, loc[0, j])
-                    lo_y = min(lo_y, loc[1, j])
-                    lo_z = min(lo_z, loc[2, j])
-                    hi_x = max(hi_x, loc[0, j])
-                    hi_y = max(hi_y, loc[1, j])
-                    hi_z = max(hi_z, loc[2, j])
-                lo_x *= g
-                lo_y *= g
-                lo_z *= g
-                hi_x *= g
-                hi_y *= g
-                hi_z *= g
-                n_near = 0
-                if n_k > 0:
-                    n_near = _gather_near(
-                        rbf_table, t, p, n_k, lo_x, lo_y, lo_z, hi_x, hi_y, hi_z, near
-                    )
-                ox = 0.5 * (lo_x + hi_x)
-                oy = 0.5 * (lo_y + hi_y)
-                oz = 0.5 * (lo_z + hi_z)
-                use32 = False
-                if n_near > 0:
-                    # float32 where its modelled rounding error stays within the
-                    # tolerance (_kernel_numpy.f32_error_bound), per tile and frame
-                    reach = max(hi_x - ox, hi_y - oy, hi_z - oz)
-                    w_sum[:] = 0.0
-                    for i in range(n_near):
-                        reach = max(reach, abs(near[0, i] - ox), abs(near[1, i] - oy))
-                        reach = max(reach, abs(near[2, i] - oz))
-                        for r in range(6):
-                            w_sum[r] += abs(near[3 + r, i])
-                    bound = w_sum.max() * F32_ERROR_PER_WEIGHT * (reach + n_near)
-                    use32 = bound <= f32_tolerance
-                if use32:
-                    for i in range(n_near):
-                        near32[0, i] = np.float32(near[0, i] - ox)
-                        near32[1, i] = np.float32(near[1, i] - oy)
-                        near32[2, i] = np.float32(near[2, i] - oz)
-                        for r in range(3, 9):
-                            near32[r, i] = np.float32(near[r, i])
-                    for j in range(n):
-                        pos32[0, j] = np.float32(loc[0, j] * g - ox)
-                        pos32[1, j] = np.float32(loc[1, j] * g - oy)
-                        pos32[2, j] = np.float32(loc[2, j] * g - oz)
-                    _tile_rbf_sums_f32(near32, n_near, pos32, n_lanes, acc)
-                    for j in range(n):
-                        s = pair_seam[q0 + j]
-                        loc[0, j] += (1.0 - s) * acc[0, j] + s * acc[3, j]
-                        loc[1, j] += (1.0 - s) * acc[1, j] + s * acc[4, j]
-                        loc[2, j] += (1.0 - s) * acc[2, j] + s * acc[5, j]
-                elif n_near > 0:
-                    n_sum = -(-n_near // MEMBER_LANES) * MEMBER_LANES
-                    for j in range(n):
-                        mx, my, mz, sx, sy, sz = _rbf_sums(
-                            near, n_sum, loc[0, j] * g, loc[1, j] * g, loc[2, j] * g
-                        )
-                        s = pair_seam[q0 + j]
-                        loc[0, j] += (1.0 - s) * mx + s * sx
-                        loc[1, j] += (1.0 - s) * my + s * sy
-                        loc[2, j] += (1.0 - s) * mz + s * sz
-                for j in range(n):
-                    wx, wy, wz = _local_to_world(
-                        rotation, translation, t, p, loc[0, j], loc[1, j], loc[2, j]
-                    )
-                    moved[q0 + j, t, 0] = wx
-                    moved[q0 + j, t, 1] = wy
-                    moved[q0 + j, t, 2] = wz
+            _move_tile(
+                tile,
+                pair_local,
+                pair_seam,
+                tile_start,
+                tile_part,
+                quadratic,
+                rotation,
+                translation,
+                rbf_table,
+                rbf_scale,
+                rbf_members,
+                f32_tolerance,
+                near,
+                near32,
+                pos32,
+                acc,
+                loc,
+                w_sum,
+                moved,
+            )
     # eq. 9: each vertex's finite pairs, β-weighted
     for v in numba.prange(n_v):
         for t in range(n_t):
