@@ -312,11 +312,13 @@ def test_pair_tiles_cover_every_pair_once_in_compact_tiles_of_one_part() -> None
 
 
 @needs_numba
-@pytest.mark.parametrize("method", ["rigid", "quadratic"])
-def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_the_kernels_equal_eqs_8_9_written_out_with_an_unseen_part(method: str) -> None:
     """Without an RBF field the numba kernel blends each vertex's pairs in one fused pass
-    (no buffer of moved pairs): on parts with seam centres (as a rig builds them), a
-    take with gaps and an unseen part, it gives eqs. 8-9 and the NumPy reference, and a
+    (no buffer of moved pairs); with one, the tile pass writes a vertex's only pair
+    straight to the output and buffers the pairs of the vertices with several. On parts
+    with seam centres (as a rig builds them), a take with gaps and an unseen part, both
+    give eqs. 8-9 and the NumPy reference (a vertex of the unseen part alone NaN), and a
     vertex of the unseen part and a seen one follows the seen one alone."""
     take = _random_take(7, n_frames=5)
     ref = take["reference"]
@@ -325,16 +327,23 @@ def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
     seam = rng.random(take["beta"].shape) * (rng.random(take["beta"].shape) < 0.7)
     beta = take["beta"].copy()
     beta[1:40, 3] = 0.5  # seen parts and the unseen one
+    beta[200:] = np.eye(4)[np.argmax(beta[200:, :3], axis=1)]  # one seen part each
     motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
-    assert not np.any(motion.rbf_weights)
+    assert np.any(motion.rbf_weights) == method.endswith("_rbf")
     assert np.isnan(motion.rotation[:, 3]).all()  # part 3 unseen
     outputs = {
         backend: DenseDeformer(
-            parts, take["vertices"], beta, seam_weights=seam, backend=backend
+            parts, take["vertices"], beta, seam_weights=seam, backend=backend,
+            precision="float64",
         ).deform_block(motion)
         for backend in ("numba", "numpy")
-    }
+    }  # fmt: skip
     deformer = DenseDeformer(parts, take["vertices"], beta, seam_weights=seam, backend="numba")
+    # vertex 0 has part 3 alone, vertices 1-39 two parts or more, the rest one or more
+    assert (deformer.pair_vertex == 0).sum() == 1 and np.isin(
+        np.arange(1, 40), deformer.pair_vertex[deformer.pair_part == 3]
+    ).all()
+    assert (np.bincount(deformer.pair_vertex) == 1).sum() > 100
     want = _direct_eqs_8_9(deformer, take["vertices"], motion, seam)
     for got in outputs.values():
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
@@ -346,8 +355,9 @@ def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
     seen_only[:, 3] = 0.0
     seen_only[0, 0] = 1.0  # vertex 0 needs some part to bind
     alone = DenseDeformer(
-        parts, take["vertices"], seen_only, seam_weights=seam, backend="numba"
-    ).deform_block(motion)
+        parts, take["vertices"], seen_only, seam_weights=seam, backend="numba",
+        precision="float64",
+    ).deform_block(motion)  # fmt: skip
     np.testing.assert_allclose(outputs["numba"][:, 1:40], alone[:, 1:40], rtol=0, atol=1e-12)
 
 

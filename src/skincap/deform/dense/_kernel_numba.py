@@ -126,23 +126,57 @@ def deform_vertices_numba(
             )  # fmt: skip
             return out
         table = _rbf_table(centres, member_weights, seam_weights, scale)
-        moved = np.zeros((tiles.part.shape[0], n_t, 3))  # the moved pairs between two passes
+        pair_slot, shared_vertex, shared_start, shared_weight = _shared_vertices(tiles)
+        # the pairs of vertices with several, between the two passes
+        moved = np.zeros((shared_weight.shape[0], n_t, 3))
         dense_dispatcher()(
             # p̂⁰ structure-of-arrays (3, Q): the tiled path runs a tile's pairs along
             # the vector lanes
             *(np.require(a, np.float64, ("C", "W")) for a in (tiles.local.T, tiles.seam)),
             *(np.require(a, np.int64, ("C", "W")) for a in (
-                tiles.tile_start, tiles.tile_part, tiles.by_vertex)),
-            np.require(tiles.weight_by_vertex, np.float64, ("C", "W")),
-            np.require(tiles.vertex_start, np.int64, ("C", "W")),
+                tiles.tile_start, tiles.tile_part, tiles.vertex, pair_slot, shared_vertex,
+                shared_start)),
             *(np.require(a, np.float64, ("C", "W")) for a in (
-                quadratic, rotation, translation, table, scale)),
+                shared_weight, quadratic, rotation, translation, table, scale)),
             np.require(rbf_members, np.int64, ("C", "W")),
             F32_TOLERANCE if precision == "mixed" else -1.0,
             moved,
             out,
         )  # fmt: skip
     return out
+
+
+def _shared_vertices(tiles: PairTiles) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Where the kernel puts each pair: a vertex's only pair is eq. 9's result itself
+    (β renormalised to 1), written to the output by the tile pass; the pairs of the
+    vertices with several (a seam's) get rows ("slots") of the buffer the blend pass
+    reads, in the vertices' order.
+
+    Returns
+    -------
+    pair_slot : (Q,) int64
+        Each pair's slot, -1 for a vertex's only pair.
+    shared_vertex : (S,) int64
+        The vertices with several pairs, or none (their blend writes NaN).
+    shared_start : (S + 1,) int64
+        Slots of ``shared_vertex[i]`` are ``shared_start[i]:shared_start[i + 1]``, in the
+        order of ``tiles.by_vertex`` (the sums run in the NumPy reference's order).
+    shared_weight : (M,) float64
+        β of each slot's pair.
+    """
+    counts = np.diff(tiles.vertex_start)
+    shared = counts != 1
+    in_shared = np.repeat(shared, counts)  # (Q,), by-vertex order
+    shared_pairs = tiles.by_vertex[in_shared]
+    pair_slot = np.full(tiles.vertex.shape[0], -1, dtype=np.int64)
+    pair_slot[shared_pairs] = np.arange(shared_pairs.size)
+    shared_start = np.concatenate([[0], np.cumsum(counts[shared])]).astype(np.int64)
+    return (
+        pair_slot,
+        np.flatnonzero(shared).astype(np.int64),
+        shared_start,
+        tiles.weight_by_vertex[in_shared],
+    )
 
 
 def _rbf_table(

@@ -257,10 +257,14 @@ def _move_tile(
     acc,
     loc,
     w_sum,
+    pair_vertex,
+    pair_slot,
     moved,
+    out,
 ):  # pragma: no cover - runs compiled
-    """Eq. 8 for one tile's pairs at every frame into ``moved``: arguments as
-    :func:`dense_kernel`'s, ``near`` to ``w_sum`` the calling run's scratch. A function
+    """Eq. 8 for one tile's pairs at every frame into ``moved`` (a pair of a vertex of
+    several pairs) or straight into ``out`` (a vertex's only pair, eq. 9 being that
+    pair): arguments as :func:`dense_kernel`'s, ``near`` to ``w_sum`` the calling run's scratch. A function
     of its own, not inlined into the kernel's parallel loop: numba's parallel passes
     then see a loop body of one call (a large inlined body made the kernel's compile
     take most of its time)."""
@@ -346,9 +350,19 @@ def _move_tile(
             wx, wy, wz = _local_to_world(
                 rotation, translation, t, p, loc[0, j], loc[1, j], loc[2, j]
             )
-            moved[q0 + j, t, 0] = wx
-            moved[q0 + j, t, 1] = wy
-            moved[q0 + j, t, 2] = wz
+            slot = pair_slot[q0 + j]
+            if slot >= 0:  # a vertex of several pairs: blended after all the tiles
+                moved[slot, t, 0] = wx
+                moved[slot, t, 1] = wy
+                moved[slot, t, 2] = wz
+            elif np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):  # eq. 9, one pair
+                out[t, pair_vertex[q0 + j], 0] = wx
+                out[t, pair_vertex[q0 + j], 1] = wy
+                out[t, pair_vertex[q0 + j], 2] = wz
+            else:
+                out[t, pair_vertex[q0 + j], 0] = np.nan
+                out[t, pair_vertex[q0 + j], 1] = np.nan
+                out[t, pair_vertex[q0 + j], 2] = np.nan
 
 
 @numba.njit(parallel=True, cache=True, nogil=True, fastmath=_FASTMATH)
@@ -357,9 +371,11 @@ def dense_kernel(
     pair_seam,
     tile_start,
     tile_part,
-    by_vertex,
-    vertex_weight,
-    vertex_start,
+    pair_vertex,
+    pair_slot,
+    shared_vertex,
+    shared_start,
+    shared_weight,
     quadratic,
     rotation,
     translation,
@@ -374,17 +390,18 @@ def dense_kernel(
     (a part with ``rbf_members`` 0 has none; without any, :func:`dense_kernel_no_rbf`).
 
     pair_local (3, Q) p̂⁰ and pair_seam (Q,) s of the pairs sorted by part, in tiles tile_start (n + 1,) of
-    one part each, tile_part (n,); by_vertex (Q,) the pairs sorted by vertex,
-    vertex_weight (Q,) their β, vertex_start (V + 1,) CSR rows;
+    one part each, tile_part (n,); pair_vertex (Q,) each pair's vertex, pair_slot (Q,)
+    its row of ``moved`` (-1: its vertex's only pair, written to ``out`` directly);
+    shared_vertex (S,) the vertices of several pairs (or none), shared_start (S + 1,)
+    CSR rows of ``moved`` (their pairs' slots, in order), shared_weight (M,) the slots' β;
     quadratic (T, P, 3, 10) Ã, rotation (T, P, 3, 3) R̃, translation (T, P, 3) d̃;
     rbf_table (T, P, 9, K): rows x, y, z of the centres p̃ scaled by 2/σ, then the
     members' field's weights w / 6, then the seam field's (centres along the last axis);
     rbf_scale (P,) 2/σ; rbf_members (P,) centres summed (0: no RBF); f32_tolerance the
     largest modelled error (metres) of a tile's float32 RBF sums (negative: float64
-    throughout); moved (Q, T, 3) scratch (pair-major: a tile's rows are contiguous over
-    its frames); out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
+    throughout); moved (M, T, 3) scratch (slot-major: a vertex's rows are contiguous
+    over its frames); out (T, V, 3), metres (NaN for a vertex none of whose pairs is finite).
     """
-    n_v = vertex_start.shape[0] - 1
     n_tiles = tile_part.shape[0]
     width = rbf_table.shape[3]
     # the tiles in _TILE_CHUNKS contiguous runs, one scratch table a run (not a tile)
@@ -428,22 +445,25 @@ def dense_kernel(
                 acc,
                 loc,
                 w_sum,
+                pair_vertex,
+                pair_slot,
                 moved,
+                out,
             )
-    # eq. 9: each vertex's finite pairs, β-weighted
-    for v in numba.prange(n_v):
+    # eq. 9 for the vertices of several pairs (or none): their finite pairs, β-weighted
+    for i in numba.prange(shared_vertex.shape[0]):
+        v = shared_vertex[i]
         for t in range(n_t):
             sx = 0.0
             sy = 0.0
             sz = 0.0
             den = 0.0
-            for i in range(vertex_start[v], vertex_start[v + 1]):
-                q = by_vertex[i]
-                wx = moved[q, t, 0]
-                wy = moved[q, t, 1]
-                wz = moved[q, t, 2]
+            for m in range(shared_start[i], shared_start[i + 1]):
+                wx = moved[m, t, 0]
+                wy = moved[m, t, 1]
+                wz = moved[m, t, 2]
                 if np.isfinite(wx) and np.isfinite(wy) and np.isfinite(wz):
-                    beta = vertex_weight[i]
+                    beta = shared_weight[m]
                     sx += beta * wx
                     sy += beta * wy
                     sz += beta * wz
