@@ -182,6 +182,69 @@ def _local_to_world(rotation, translation, t, p, lx, ly, lz):  # pragma: no cove
 
 
 @numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _field_coefficients(quadratic, t, p):  # pragma: no cover - runs compiled
+    """Ã of part ``p`` in frame ``t`` as 30 scalars, row-major (quadratic (T, P, 3, 10)):
+    a tile's loops over its pairs then read them from registers, where loads from the
+    array would be repeated for every pair (the loops store to other arrays, which the
+    compiler cannot prove apart from it)."""
+    a = quadratic[t, p]
+    return (
+        a[0, 0], a[0, 1], a[0, 2], a[0, 3], a[0, 4], a[0, 5], a[0, 6], a[0, 7], a[0, 8], a[0, 9],
+        a[1, 0], a[1, 1], a[1, 2], a[1, 3], a[1, 4], a[1, 5], a[1, 6], a[1, 7], a[1, 8], a[1, 9],
+        a[2, 0], a[2, 1], a[2, 2], a[2, 3], a[2, 4], a[2, 5], a[2, 6], a[2, 7], a[2, 8], a[2, 9],
+    )  # fmt: skip
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _apply_field(c, x, y, z):  # pragma: no cover - runs compiled
+    """:func:`_quadratic_field` with Ã given by :func:`_field_coefficients` (the same
+    operations in the same order)."""
+    xx = x * x
+    yy = y * y
+    zz = z * z
+    xy = x * y
+    yz = y * z
+    zx = z * x
+    lx = (
+        c[0] * x + c[1] * y + c[2] * z + c[3] * xx + c[4] * yy + c[5] * zz
+        + c[6] * xy + c[7] * yz + c[8] * zx + c[9]
+    )  # fmt: skip
+    ly = (
+        c[10] * x + c[11] * y + c[12] * z + c[13] * xx + c[14] * yy + c[15] * zz
+        + c[16] * xy + c[17] * yz + c[18] * zx + c[19]
+    )  # fmt: skip
+    lz = (
+        c[20] * x + c[21] * y + c[22] * z + c[23] * xx + c[24] * yy + c[25] * zz
+        + c[26] * xy + c[27] * yz + c[28] * zx + c[29]
+    )  # fmt: skip
+    return lx, ly, lz
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _pose_coefficients(rotation, translation, t, p):  # pragma: no cover - runs compiled
+    """R̃ (row-major) and d̃ of part ``p`` in frame ``t`` as 12 scalars, for the same
+    reason as :func:`_field_coefficients`."""
+    r = rotation[t, p]
+    d = translation[t, p]
+    return (
+        r[0, 0], r[0, 1], r[0, 2], r[1, 0], r[1, 1], r[1, 2], r[2, 0], r[2, 1], r[2, 2],
+        d[0], d[1], d[2],
+    )  # fmt: skip
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
+def _to_world(c, lx, ly, lz):  # pragma: no cover - runs compiled
+    """:func:`_local_to_world` with the pose given by :func:`_pose_coefficients`."""
+    ux = lx - c[9]
+    uy = ly - c[10]
+    uz = lz - c[11]
+    wx = ux * c[0] + uy * c[3] + uz * c[6]
+    wy = ux * c[1] + uy * c[4] + uz * c[7]
+    wz = ux * c[2] + uy * c[5] + uz * c[8]
+    return wx, wy, wz
+
+
+@numba.njit(inline="always", nogil=True, fastmath=_FASTMATH)
 def _store_blend(out, t, v, sx, sy, sz, den):  # pragma: no cover - runs compiled
     """Eq. 9's β-weighted mean into ``out[t, v]``; NaN when no pair was finite (den 0)."""
     if den > 0.0:
@@ -277,11 +340,12 @@ def _move_tile(
     n_k = rbf_members[p]
     g = rbf_scale[p]
     for t in range(n_t):  # a tile's rows of ``moved`` stay in cache over its frames
+        field = _field_coefficients(quadratic, t, p)
+        pose = _pose_coefficients(rotation, translation, t, p)
         for j in range(n):  # along the lanes: the pairs' local positions are SoA
-            lx, ly, lz = _quadratic_field(
-                quadratic, t, p,
-                pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j],
-            )  # fmt: skip
+            lx, ly, lz = _apply_field(
+                field, pair_local[0, q0 + j], pair_local[1, q0 + j], pair_local[2, q0 + j]
+            )
             loc[0, j] = lx
             loc[1, j] = ly
             loc[2, j] = lz
@@ -347,9 +411,7 @@ def _move_tile(
                 loc[1, j] += (1.0 - s) * my + s * sy
                 loc[2, j] += (1.0 - s) * mz + s * sz
         for j in range(n):
-            wx, wy, wz = _local_to_world(
-                rotation, translation, t, p, loc[0, j], loc[1, j], loc[2, j]
-            )
+            wx, wy, wz = _to_world(pose, loc[0, j], loc[1, j], loc[2, j])
             slot = pair_slot[q0 + j]
             if slot >= 0:  # a vertex of several pairs: blended after all the tiles
                 moved[slot, t, 0] = wx
