@@ -432,3 +432,28 @@ def test_parts_with_a_rigid_base_sum_through_their_rest_kernels() -> None:
         # every part seen (0-2; part 3 never is) has its matrix after rigid_rbf; a
         # quadratic part summed through it would not equal the tiles above
         assert sorted(tiles.rest_kernels) == [0, 1, 2]
+
+
+def test_centres_reaching_a_box_are_those_within_the_support_at_some_frame() -> None:
+    """The NumPy kernel's centre search (axis by axis) against the distance from each
+    centre to each slab's box written out per frame: a centre is kept when it is within
+    scaled distance 2 of the box at one frame at least; NaN boxes or centres keep none."""
+    from skincap.deform.dense._kernel_numpy import SUPPORT_SLACK, _centres_reaching
+
+    rng = np.random.default_rng(3)
+    lo = rng.normal(size=(7, 4, 3))
+    hi = lo + rng.uniform(0.0, 1.0, size=lo.shape)
+    centres = 2.0 * rng.normal(size=(4, 30, 3))
+    lo[2, :, 1] = np.nan  # slab 2 unseen at every frame
+    centres[:, 5, 0] = np.nan  # centre 5 missing at every frame
+    with np.errstate(invalid="ignore"):
+        got = _centres_reaching(lo, hi, centres)
+    want = np.zeros((7, 30), dtype=bool)
+    for s in range(7):
+        for t in range(4):
+            for k in range(30):
+                nearest = np.clip(centres[t, k], lo[s, t], hi[s, t])
+                d2 = float(((centres[t, k] - nearest) ** 2).sum())
+                want[s, k] |= d2 < 4.0 + SUPPORT_SLACK  # False for NaN
+    np.testing.assert_array_equal(got, want)
+    assert got.any() and not got.all() and not got[2].any() and not got[:, 5].any()
