@@ -6,7 +6,9 @@ positions by their part's quadratic field, gathers the part's RBF centres within
 B-spline's support of the tile's bounding box (about a quarter of a body part's: the
 others' terms of eq. 8 are exactly 0), sums both RBF fields over them (the members'
 and the seam field, blended by each pair's seam share) and takes the result back to
-the world; then one parallel loop over the vertices blends their pairs by β (eq. 9).
+the world. A vertex with one pair (inside a part) is that pair (eq. 9 with β = 1), which
+the tile pass writes straight to the output; the pairs of the vertices with several
+(at a seam) go to a buffer, and one parallel loop over those vertices blends them by β.
 Nothing of size (vertices, centres) is ever stored. Without an RBF field (``rigid``,
 ``quadratic``) there is no centre search to share across a tile, so a second kernel
 takes one fused parallel loop over the vertices instead: each vertex's pairs moved by
