@@ -169,11 +169,11 @@ def test_without_numba_the_numpy_reference_runs(monkeypatch: pytest.MonkeyPatch)
 @needs_numba
 def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     from skincap.backends import WARM_UPS, kernel_ready
-    from skincap.deform.dense._kernel_numba import dense_dispatcher
+    from skincap.deform.dense._kernel_numba import dense_dispatcher, dense_no_rbf_dispatcher
 
     assert WARM_UPS["dense"] == "skincap.deform.dense.deformer:warm_up_kernel"
     dense_deformer.warm_up_kernel()
-    assert kernel_ready(dense_dispatcher())
+    assert kernel_ready(dense_dispatcher()) and kernel_ready(dense_no_rbf_dispatcher())
     # what the warm-up compiled is what a take runs: no second signature to compile
     take = _random_take(5)
     parts = part_frames(take["reference"], take["alpha"])
@@ -181,6 +181,7 @@ def test_the_background_compile_warm_up_compiles_the_kernel() -> None:
     for method in METHODS:
         list(deformer.deform(take["markers"], method, chunk=4))
     assert len(dense_dispatcher().signatures) == 1
+    assert len(dense_no_rbf_dispatcher().signatures) == 1
 
 
 def test_the_centre_table_has_room_for_whole_steps() -> None:
@@ -311,11 +312,13 @@ def test_pair_tiles_cover_every_pair_once_in_compact_tiles_of_one_part() -> None
 
 
 @needs_numba
-@pytest.mark.parametrize("method", ["rigid", "quadratic"])
-def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
+@pytest.mark.parametrize("method", METHODS)
+def test_the_kernels_equal_eqs_8_9_written_out_with_an_unseen_part(method: str) -> None:
     """Without an RBF field the numba kernel blends each vertex's pairs in one fused pass
-    (no buffer of moved pairs): on parts with seam centres (as a rig builds them), a
-    take with gaps and an unseen part, it gives eqs. 8-9 and the NumPy reference, and a
+    (no buffer of moved pairs); with one, the tile pass writes a vertex's only pair
+    straight to the output and buffers the pairs of the vertices with several. On parts
+    with seam centres (as a rig builds them), a take with gaps and an unseen part, both
+    give eqs. 8-9 and the NumPy reference (a vertex of the unseen part alone NaN), and a
     vertex of the unseen part and a seen one follows the seen one alone."""
     take = _random_take(7, n_frames=5)
     ref = take["reference"]
@@ -324,16 +327,23 @@ def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
     seam = rng.random(take["beta"].shape) * (rng.random(take["beta"].shape) < 0.7)
     beta = take["beta"].copy()
     beta[1:40, 3] = 0.5  # seen parts and the unseen one
+    beta[200:] = np.eye(4)[np.argmax(beta[200:, :3], axis=1)]  # one seen part each
     motion = fit_part_motion(take["markers"], parts, method)  # type: ignore[arg-type]
-    assert not np.any(motion.rbf_weights)
+    assert np.any(motion.rbf_weights) == method.endswith("_rbf")
     assert np.isnan(motion.rotation[:, 3]).all()  # part 3 unseen
     outputs = {
         backend: DenseDeformer(
-            parts, take["vertices"], beta, seam_weights=seam, backend=backend
+            parts, take["vertices"], beta, seam_weights=seam, backend=backend,
+            precision="float64",
         ).deform_block(motion)
         for backend in ("numba", "numpy")
-    }
+    }  # fmt: skip
     deformer = DenseDeformer(parts, take["vertices"], beta, seam_weights=seam, backend="numba")
+    # vertex 0 has part 3 alone, vertices 1-39 two parts or more, the rest one or more
+    assert (deformer.pair_vertex == 0).sum() == 1 and np.isin(
+        np.arange(1, 40), deformer.pair_vertex[deformer.pair_part == 3]
+    ).all()
+    assert (np.bincount(deformer.pair_vertex) == 1).sum() > 100
     want = _direct_eqs_8_9(deformer, take["vertices"], motion, seam)
     for got in outputs.values():
         np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
@@ -345,8 +355,9 @@ def test_the_fused_no_rbf_path_equals_eqs_8_9_written_out(method: str) -> None:
     seen_only[:, 3] = 0.0
     seen_only[0, 0] = 1.0  # vertex 0 needs some part to bind
     alone = DenseDeformer(
-        parts, take["vertices"], seen_only, seam_weights=seam, backend="numba"
-    ).deform_block(motion)
+        parts, take["vertices"], seen_only, seam_weights=seam, backend="numba",
+        precision="float64",
+    ).deform_block(motion)  # fmt: skip
     np.testing.assert_allclose(outputs["numba"][:, 1:40], alone[:, 1:40], rtol=0, atol=1e-12)
 
 
@@ -421,3 +432,28 @@ def test_parts_with_a_rigid_base_sum_through_their_rest_kernels() -> None:
         # every part seen (0-2; part 3 never is) has its matrix after rigid_rbf; a
         # quadratic part summed through it would not equal the tiles above
         assert sorted(tiles.rest_kernels) == [0, 1, 2]
+
+
+def test_centres_reaching_a_box_are_those_within_the_support_at_some_frame() -> None:
+    """The NumPy kernel's centre search (axis by axis) against the distance from each
+    centre to each slab's box written out per frame: a centre is kept when it is within
+    scaled distance 2 of the box at one frame at least; NaN boxes or centres keep none."""
+    from skincap.deform.dense._kernel_numpy import SUPPORT_SLACK, _centres_reaching
+
+    rng = np.random.default_rng(3)
+    lo = rng.normal(size=(7, 4, 3))
+    hi = lo + rng.uniform(0.0, 1.0, size=lo.shape)
+    centres = 2.0 * rng.normal(size=(4, 30, 3))
+    lo[2, :, 1] = np.nan  # slab 2 unseen at every frame
+    centres[:, 5, 0] = np.nan  # centre 5 missing at every frame
+    with np.errstate(invalid="ignore"):
+        got = _centres_reaching(lo, hi, centres)
+    want = np.zeros((7, 30), dtype=bool)
+    for s in range(7):
+        for t in range(4):
+            for k in range(30):
+                nearest = np.clip(centres[t, k], lo[s, t], hi[s, t])
+                d2 = float(((centres[t, k] - nearest) ** 2).sum())
+                want[s, k] |= d2 < 4.0 + SUPPORT_SLACK  # False for NaN
+    np.testing.assert_array_equal(got, want)
+    assert got.any() and not got.all() and not got[2].any() and not got[:, 5].any()

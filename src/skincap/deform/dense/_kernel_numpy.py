@@ -95,9 +95,17 @@ def _centres_reaching(box_lo: np.ndarray, box_hi: np.ndarray, centres: np.ndarra
     (S, K) bool: the centres whose scaled distance to the box is below 2 (s < 2,
     φ > 0) at one frame at least.
     """
-    c = centres[None]
-    gap = np.maximum(box_lo[:, :, None] - c, 0.0) + np.maximum(c - box_hi[:, :, None], 0.0)
-    return ((gap * gap).sum(-1) < 4.0 + SUPPORT_SLACK).any(axis=1)
+    # axis by axis, (S, T, K) arrays: no (S, T, K, 3) temporaries and no sum over a
+    # length-3 axis. A centre's gap to the box on an axis is max(lo - c, c - hi, 0) (lo
+    # <= hi: at most one is positive), summed in the same order as (gap²).sum(-1)
+    dist2 = np.zeros(())
+    for axis in range(3):
+        c = centres[None, :, :, axis]
+        gap = np.maximum(box_lo[:, :, None, axis] - c, c - box_hi[:, :, None, axis])
+        np.maximum(gap, 0.0, out=gap)
+        gap *= gap
+        dist2 = gap if axis == 0 else np.add(dist2, gap, out=dist2)
+    return (dist2 < 4.0 + SUPPORT_SLACK).any(axis=1)
 
 
 def _add_rbf_sums(

@@ -145,10 +145,12 @@ RIDGE_FRAMES = 64
 
 
 def warm_up_kernel() -> None:
-    """Compile the dense kernel into numba's cache (run by the background compile)."""
+    """Compile the dense kernels into numba's cache (run by the background compile):
+    the default ``quadratic_rbf``'s first, then the one without an RBF field."""
     parts = part_frames(np.eye(3), np.ones((3, 1)))
     deformer = DenseDeformer(parts, np.zeros((1, 3)), np.ones((1, 1)), backend="numba")
-    deformer.deform_block(fit_part_motion(np.eye(3)[None], parts, "quadratic_rbf"))
+    for method in ("quadratic_rbf", "rigid"):
+        deformer.deform_block(fit_part_motion(np.eye(3)[None], parts, method))
 
 
 def _resolve_backend(backend: str) -> str:
