@@ -29,10 +29,10 @@ transform is a fixed smooth blend of the transforms of ``n`` deformation nodes
 (:attr:`RegistrationSettings.nodes`, 1500: farthest-point samples; each vertex blends
 its :data:`NODES_PER_VERTEX` nearest among the nodes of its own and the adjacent
 geodesic cells, Sumner's ``(1 - d / d_max)²`` weights), ``X = (B ⊗ I4) Y``; a fixed
-number of nodes per vertex keeps the system equally sparse on an uneven mesh. With
-:attr:`RegistrationSettings.coarse_nodes` the first stages run on fewer nodes (coarse
-to fine: whole limbs first), each fine node then starting from the coarse transform
-at its vertex. The smoothness term is still
+number of nodes per vertex keeps the system equally sparse on an uneven mesh. The
+first stages run on fewer nodes (:attr:`RegistrationSettings.coarse_nodes` for
+:attr:`RegistrationSettings.coarse_stages` stages; coarse to fine: whole limbs
+first), each fine node then starting from the coarse transform at its vertex. The smoothness term is still
 summed over the template's edges. A 20k-vertex body then solves ``4n x 4n`` normal
 equations (one sparse LU per closest-point iteration, SuperLU, COLAMD, shared by the
 three coordinates) instead of ``4V x 4V``: ~25 s CPU and ~0.2 GB instead of ~140 s and
