@@ -164,6 +164,10 @@ def test_a_registered_template_row_measures_distance_to_the_true_skin(folder) ->
     # the markers' residual beyond their 8 mm radius
     assert result["registration"]["markers_to_surface_mean_m"] < 0.0015
     assert result["registration"]["true_skin_to_surface_mean_m"] < 4e-3
+    regions = result["registration"].get("regions")
+    if regions is not None:  # by the true body's skin joints, every vertex counted once
+        assert sum(r["vertices"] for r in regions) == template.vertices.shape[0]
+        assert sum(r["tail_share"] for r in regions) == pytest.approx(1.0)
     assert result["targets"]["quadratic_rbf_registered_template_rms_m"]["value"] == row["rms_m"]
 
 

@@ -7,7 +7,7 @@ import pytest
 
 from mesh_grids import grid_triangles
 from skincap.errors import ValidationError
-from skincap.evaluate.registration import registration_errors
+from skincap.evaluate.registration import region_breakdown, registration_errors
 
 
 def _grid(n: int = 11, size: float = 0.5, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -45,3 +45,29 @@ def test_nan_vertices_are_refused() -> None:
     bad[3, 1] = np.nan
     with pytest.raises(ValidationError, match="registered"):
         registration_errors(bad, f, v, f)
+
+
+def test_regions_say_where_the_tail_comes_from() -> None:
+    # the true plane is split in two regions; the registered plane is 1 mm above over
+    # x < 0.25 and 10 mm above beyond: the worst 5 % must all lie in the far region
+    true_v, true_f = _grid(n=21)
+    regions = np.where(true_v[:, 0] < 0.25, "near", "far")
+    reg_v, reg_f = _grid(n=21)
+    reg_v[:, 2] = np.where(reg_v[:, 0] < 0.25, 0.001, 0.010)
+    out = registration_errors(reg_v, reg_f, true_v, true_f, regions=regions)
+    rows = {r["region"]: r for r in out["regions"]}
+    assert [r["region"] for r in out["regions"]][0] == "far"
+    assert rows["far"]["tail_share"] == pytest.approx(1.0)
+    assert rows["near"]["tail_share"] == 0.0
+    assert rows["near"]["mean_m"] == pytest.approx(0.001, abs=1e-9)
+    assert rows["far"]["p95_m"] == pytest.approx(0.010, abs=1e-9)
+    assert sum(r["vertices"] for r in out["regions"]) == reg_v.shape[0]
+    assert "regions" not in registration_errors(reg_v, reg_f, true_v, true_f)
+
+
+def test_region_names_must_match_the_true_vertices() -> None:
+    v, f = _grid()
+    with pytest.raises(ValidationError, match="regions"):
+        registration_errors(v, f, v, f, regions=np.array(["a", "b"]))
+    with pytest.raises(ValidationError, match="regions"):
+        region_breakdown(np.zeros(3), np.array(["a"]))

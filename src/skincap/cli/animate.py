@@ -341,6 +341,15 @@ def _print_eval_table(result: dict[str, Any]) -> None:
             f"{reg['surface_to_true_skin_p95_m'] * 1e3:.2f} mm p95",
             markup=False,
         )
+        worst = (reg.get("regions") or [])[:3]
+        if worst:
+            out.print(
+                "registration's worst 5 % by region: " + ", ".join(
+                    f"{r['region']} {r['tail_share'] * 100:.0f} % (mean {r['mean_m'] * 1e3:.1f} mm)"
+                    for r in worst
+                ),
+                markup=False, soft_wrap=True,
+            )  # fmt: skip
     held = result["held_out"]
     if held["mean_m"] is not None:
         out.print(

@@ -437,6 +437,7 @@ def evaluate_animate(
         rows, per_vertex, "same_body", "global_rbf", global_rbf_frames(x[0], x, vertices), truth
     )
     registration: dict[str, Any] | None = None
+    regions = _vertex_regions(root / "truth" / "body.glb", vertices.shape[0])
     if template is None:
         rows.append(
             {
@@ -451,6 +452,7 @@ def evaluate_animate(
         row, registration = _registered_template_row(
             template, take["faces"], labels, x, rom_x, surface_faces, truth,
             n_parts=n_parts, marker_radius=marker_radius, landmarks=template_landmarks,
+            regions=regions,
         )  # fmt: skip
         rows.append(row)
     step(0.8, "held-out markers")
@@ -459,7 +461,6 @@ def evaluate_animate(
         n_parts=n_parts, seed=seed,
     )  # fmt: skip
     segmentation = _segmentation_figures(rig, root / "truth" / "marker_parts.csv", labels)
-    regions = _vertex_regions(root / "truth" / "body.glb", vertices.shape[0])
     step(1.0, "done")
     return {
         "folder": str(root),
@@ -617,8 +618,13 @@ def _registered_template_row(
     n_parts: int,
     marker_radius: float,
     landmarks: dict[str, int] | None,
+    regions: np.ndarray | None = None,
 ) -> tuple[dict[str, Any], dict[str, Any]]:
-    """Register another body to the markers, deform it, measure it against the true skin."""
+    """Register another body to the markers, deform it, measure it against the true skin.
+
+    ``regions`` (V,) names each true-skin vertex's region (its dominant skin joint): the
+    registration's figures then break down by region (where its p95 comes from).
+    """
     from skincap.deform.dense.registration import RegistrationSettings, register_mesh
     from skincap.deform.dense.rig import build_dense_rig
     from skincap.evaluate.registration import registration_errors
@@ -640,6 +646,7 @@ def _registered_template_row(
             truth[0],
             skin_faces,
             np.abs(reg.marker_distance - marker_radius),
+            regions,
         ),
     }
     rig = build_dense_rig(

@@ -395,3 +395,32 @@ def test_bad_marker_faces_are_refused() -> None:
         register_mesh(v, f, markers, _labels(40), landmarks={}, marker_faces=[[0, 1, 40]])
     with pytest.raises(ValidationError, match="marker_faces"):
         register_mesh(v, f, markers, _labels(40), landmarks={}, marker_faces=[[0.0, 1.0, 2.0]])
+
+
+@pytest.mark.slow
+def test_coarse_stages_register_another_body_closer_than_fine_nodes_alone() -> None:
+    """A shorter template (1.62 m) onto the dense markers of a taller body (1.80 m):
+    the default coarse-to-fine schedule (the stiff stages on ``coarse_nodes``) ends
+    closer to the true skin both ways than the same schedule on the fine nodes only
+    (measured 4.99 / 5.13 mm against 5.68 / 5.85 mm mean)."""
+    from skincap.evaluate.registration import registration_errors
+    from skincap.synth.body import procedural_body
+    from skincap.synth.markers import dense_marker_layout, place_markers
+    from skincap.synth.skeleton import synth_skeleton
+
+    template = procedural_body(synth_skeleton(1.62), n_vertices=3000, seed=0)
+    true = procedural_body(synth_skeleton(1.80), n_vertices=6000, seed=5)
+    layout = dense_marker_layout(true, target=350, seed=1)
+    markers, _ = place_markers(layout, true.vertices, true.faces, radius=0.0015)
+    labels = _labels(markers.shape[0])
+    errors = {}
+    for name, kw in (("fine", {"coarse_nodes": 0, "coarse_stages": 0}), ("default", {})):
+        reg = register_mesh(
+            template.vertices, template.faces, markers, labels, landmarks={},
+            settings=RegistrationSettings(marker_radius=0.0015, **kw),
+        )  # fmt: skip
+        errors[name] = registration_errors(reg.vertices, template.faces, true.vertices, true.faces)
+        assert np.nanmean(np.abs(reg.marker_distance - 0.0015)) < 5e-4
+    assert RegistrationSettings().coarse_stages > 0
+    for key in ("surface_to_true_skin_mean_m", "true_skin_to_surface_mean_m"):
+        assert errors["default"][key] < 0.95 * errors["fine"][key]

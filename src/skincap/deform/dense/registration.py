@@ -29,10 +29,10 @@ transform is a fixed smooth blend of the transforms of ``n`` deformation nodes
 (:attr:`RegistrationSettings.nodes`, 1500: farthest-point samples; each vertex blends
 its :data:`NODES_PER_VERTEX` nearest among the nodes of its own and the adjacent
 geodesic cells, Sumner's ``(1 - d / d_max)²`` weights), ``X = (B ⊗ I4) Y``; a fixed
-number of nodes per vertex keeps the system equally sparse on an uneven mesh. With
-:attr:`RegistrationSettings.coarse_nodes` the first stages run on fewer nodes (coarse
-to fine: whole limbs first), each fine node then starting from the coarse transform
-at its vertex. The smoothness term is still
+number of nodes per vertex keeps the system equally sparse on an uneven mesh. The
+first stages run on fewer nodes (:attr:`RegistrationSettings.coarse_nodes` for
+:attr:`RegistrationSettings.coarse_stages` stages; coarse to fine: whole limbs
+first), each fine node then starting from the coarse transform at its vertex. The smoothness term is still
 summed over the template's edges. A 20k-vertex body then solves ``4n x 4n`` normal
 equations (one sparse LU per closest-point iteration, SuperLU, COLAMD, shared by the
 three coordinates) instead of ``4V x 4V``: ~25 s CPU and ~0.2 GB instead of ~140 s and
@@ -112,11 +112,12 @@ class RegistrationSettings:
     nodes: int = 1500
     #: Nodes of the coarse stages (0: none): the first ``coarse_stages`` stages of the
     #: schedule move the template through this few nodes (whole limbs and the torso,
-    #: stiff), the rest through ``nodes`` (coarse to fine).
-    coarse_nodes: int = 0
+    #: stiff), the rest through ``nodes`` (coarse to fine): the stiff stages then size
+    #: and place body parts without bending into closest points that are still wrong.
+    coarse_nodes: int = 400
     #: Stages of ``smoothness_schedule`` (from the first, the landmark-only placement
     #: included) solved on the ``coarse_nodes`` nodes.
-    coarse_stages: int = 0
+    coarse_stages: int = 3
     #: Radius of the markers, metres: the surface is fitted this far inside each marker
     #: (along the surface normal at its closest point); 0 fits the marker centres.
     marker_radius: float = 0.0
@@ -695,8 +696,9 @@ def register_mesh(
 
     report(0.0, "landmarks")
     chosen, lm_marker, lm_vertex = _seen_landmarks(landmarks, v, f, m, names)
-    coarse = int(settings.coarse_stages) > 0 and 0 < int(settings.coarse_nodes) < int(
-        settings.nodes
+    # coarse to fine only where the coarse system has fewer nodes than the fine one
+    coarse = int(settings.coarse_stages) > 0 and 0 < int(settings.coarse_nodes) < min(
+        int(settings.nodes), v.shape[0]
     )
     system = _AffineSystem(v, f, settings.coarse_nodes if coarse else settings.nodes)
     lm_rows = system.point_rows(lm_vertex[:, None], np.ones((lm_vertex.size, 1)))
