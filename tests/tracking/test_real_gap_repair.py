@@ -134,3 +134,41 @@ def test_a_hidden_free_end_lying_still_stays_on_real_motion(data_dir) -> None:
     err = gap_errors(result.positions[:, [trace]], truth[:, [end]], start, n)
     assert np.isfinite(err).all()
     assert float(err.mean()) < 0.02, err.ravel()
+
+
+@pytest.mark.slow
+def test_a_point_back_from_a_dropout_stays_with_its_trace_in_a_folded_rope(data_dir) -> None:
+    """A jump rope between the feet lies doubled on the floor (c3d.org sample 01 as
+    ``skincap synth --real-markers … --rope jump --hands LFT1:RFT1``): rope_03 comes
+    back from a dropout in frame 245 right where rope_04's link from rope_05 reaches.
+    rope_04 held back there (a trial ``skincap eval track`` draws) must stay invented
+    near its truth, and rope_03's point go to rope_03's trace; re-acquired marker by
+    marker in rope order, rope_04 took it (12.2 cm off for 10 frames, then the two
+    traces swapped)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "c3dorg_sample01_Eb015pr.c3d")
+    take = real_capture_with_rope(m, rope="jump", hands=[["LFT1"], ["RFT1"]], seed=0)
+    truth, labels = _rope_columns(take)
+    track = rope_tracker_from_truth(take.points, take.point_truth)
+    held_label, start, n = "rope_04", 245, 10
+    col, beside = labels.index(held_label), labels.index("rope_03")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        base = track(crop_frames(take.points, start + n + 10))
+        trace_of, _ = match_traces_to_truth(
+            base.positions, base.invented, truth[: start + n + 10], max_distance=0.06
+        )
+        (trace,) = np.flatnonzero(trace_of == col)
+        (other,) = np.flatnonzero(trace_of == beside)
+        held, keep = hold_back_points(take.points, take.point_truth, [held_label], start, n)
+        result = track(crop_frames(held, start + n + 10))
+    names = np.asarray(take.point_truth)[keep].astype(str)
+    frames = slice(start, start + n + 10)
+    took = result.point_index[frames, trace]
+    assert not (names[took[took >= 0]] == "rope_03").any()  # never its neighbour's point
+    mine = result.point_index[frames, other]
+    assert (names[mine[mine >= 0]] == "rope_03").all()
+    err = gap_errors(result.positions[:, [trace]], truth[:, [col]], start, n)
+    assert np.isfinite(err).all()
+    assert float(err.mean()) < 0.02, err.ravel()

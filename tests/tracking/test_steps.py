@@ -589,6 +589,37 @@ def test_reacquire_takes_a_folded_end_where_its_last_seen_link_puts_it(steps) ->
     assert not reacquired(folded[0], last_seen_link=False)  # no link measured: no evidence
 
 
+def test_reacquire_gives_a_point_two_traces_reach_to_the_nearer_link(steps) -> None:  # type: ignore[no-untyped-def]
+    spacing, m, gamma = 0.1, 6, 0.03
+    # a rope folded back over itself at marker 2 lying still (a jump rope doubled on the
+    # floor): markers 0-2 along x, markers 3-5 back above them
+    rope = np.zeros((m, 3))
+    rope[:3, 0] = spacing * np.arange(3)
+    rope[3] = [0.15, 0.0, 0.08]
+    rope[4:] = rope[3] - spacing * np.arange(1, 3)[:, None] * [1.0, 0.0, 0.0]
+    # marker 3 was hidden in frame 0 (invented where it lies) and is back in frame 1;
+    # marker 2 drops out in frame 1: its previous link from marker 1 reaches marker 3's
+    # point (9.4 cm, within one rest length), marker 3's link from marker 4 puts it there
+    seen0 = [0, 1, 2, 4, 5]
+    seen1 = [0, 1, 3, 4, 5]
+    cloud = _cloud(rope[seen0], rope[seen1])
+    state, p = blank_state(cloud, [spacing] * (m - 1), gamma=gamma)
+    state.positions[0] = rope
+    state.invented[0, 3] = True
+    state.point_index[0] = [0, 1, 2, -1, 3, 4]
+    state.temp_count[3] = 3
+    mine = [0, 1, 4, 5]
+    state.known[mine] = True
+    state.taken[mine] = [5, 6, 8, 9]
+    state.cur[mine] = rope[mine]
+    assert np.linalg.norm(rope[3] - rope[2]) <= spacing  # marker 2's gate reaches it
+    assert np.linalg.norm(rope[3] - rope[1]) >= spacing - gamma  # on marker 1's shell
+    assert steps.reacquire_on_shell(state, 1, p)
+    assert state.known[3] and state.taken[3] == 7  # the trace whose link puts it there
+    np.testing.assert_allclose(state.cur[3], rope[3])
+    assert not state.known[2]  # its marker is hidden: nothing else on its shell
+
+
 def test_a_trace_back_from_a_gap_takes_its_neighbours_velocity(steps) -> None:  # type: ignore[no-untyped-def]
     m = 5
     rope = np.zeros((m, 3))

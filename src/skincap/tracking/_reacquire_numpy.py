@@ -36,18 +36,22 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
     previous frame's link puts it, ``m_k + (x_j^{t-1} - x_k^{t-1})``, within one rest
     length of that (the link turned by at most 60° in a frame); an inner trace missing
     for ``lone_after`` frames or more, whose previous link says little, takes the only
-    free point on that shell whatever its direction (:func:`_seat_lone`). A trace
+    free point on that shell whatever its direction (:func:`_lone`). A trace
     found on neither takes the free point within γ of where its link was when both
-    were last measured, however short its chord (:func:`_seat_as_last_seen`: a slack
+    were last measured, however short its chord (:func:`_as_last_seen`: a slack
     end folded beside the hand). With nothing measured, the two end traces are seeded
     first: the free point nearest to ``V`` within one rest length. Free points are
     those the rope did not take, not body points and not moving rigidly with body
-    points (:func:`rigid_with_body`). Markers are visited in order, each growing the
-    chain for the next, until a pass finds nothing; then :func:`reject_overstretched`.
-    In place; True if any trace matched.
+    points (:func:`rigid_with_body`). Each pass (:func:`_seat_pass`) lets every
+    unknown trace beside a measured one propose its point and seats the proposals
+    nearest-first, so a point two traces reach goes to the one whose link puts it
+    nearer (a folded rope: a measured marker's held-back neighbour reaches, within
+    one rest length, the point of a marker back from a gap beside it); passes repeat,
+    each growing the chain for the next, until one seats nothing; then
+    :func:`reject_overstretched`. In place; True if any trace matched.
     """
     a, b = _frame_bounds(state, t)
-    known, cur, link_rest = state.known, state.cur, state.link_rest
+    known, link_rest = state.known, state.link_rest
     m = known.size
     if b == a:
         return False
@@ -62,26 +66,51 @@ def reacquire_on_shell(state: TrackState, t: int, p: StepParams) -> bool:
             rest = link_rest[min(j, m - 2)]
             found |= _seat_nearest(state, t, j, prev[j] + state.velocity[j], rest, None, free, p)
     for _ in range(m):
-        grew = False
-        for j in range(m):
-            for k in (j - 1, j + 1):
-                if known[j] or not (0 <= k < m and known[k]):
-                    continue
-                rest = link_rest[min(j, k)]
-                want = cur[k] + (prev[j] - prev[k])
-                shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
-                if _seat_nearest(state, t, j, want, rest, shell, free, p):
-                    grew = True
-                elif _seat_as_last_seen(state, t, j, k, rest, free, p):
-                    grew = True
-                elif 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
-                    grew |= _seat_lone(state, t, j, shell, free, p)
-        if not grew:
+        if not _seat_pass(state, t, free, p):
             break
         found = True
     if found:
         reject_overstretched(state, t, p)
     return found
+
+
+def _seat_pass(state: TrackState, t: int, free: np.ndarray, p: StepParams) -> bool:
+    """One pass of :func:`reacquire_on_shell`: every unknown trace ``j`` beside a
+    measured ``k`` proposes a point of frame t by the first rule that finds one (the
+    shell nearest to the previous link, the link as last seen, the only point on the
+    shell), with its distance to where that rule put it (metres; the lone rule's
+    proposals last); the proposals are then seated nearest-first, a trace or a point
+    at most once, ``free`` updated. A trace whose point went to a nearer proposal
+    proposes again in the next pass. True if any trace was seated."""
+    a = int(state.offsets[t])
+    known, cur, link_rest = state.known, state.cur, state.link_rest
+    m = known.size
+    prev = state.positions[t - 1]
+    who, what, cost = [], [], []
+    for j in range(m):
+        for k in (j - 1, j + 1):
+            if known[j] or not (0 <= k < m and known[k]):
+                continue
+            rest = link_rest[min(j, k)]
+            want = cur[k] + (prev[j] - prev[k])
+            shell = (rest - p.gamma, rest + p.adjacent_stretch * p.gamma, cur[k])
+            c, d = _nearest_free(state, t, j, want, rest, shell, free, p)
+            if c < 0:
+                c, d = _as_last_seen(state, t, j, k, rest, free, p)
+            if c < 0 and 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
+                c, d = _lone(state, t, j, shell, free, p), np.inf
+            if c >= 0:
+                who.append(j)
+                what.append(c)
+                cost.append(d)
+    seated = False
+    for n in np.argsort(np.asarray(cost, dtype=np.float64), kind="stable"):
+        j, c = who[n], what[n]
+        if known[j] or not free[c]:
+            continue
+        _seat(state, j, a, c, free)
+        seated = True
+    return seated
 
 
 def _seat_nearest(
@@ -94,10 +123,29 @@ def _seat_nearest(
     free: np.ndarray,
     p: StepParams,
 ) -> bool:
-    """Trace ``j`` takes the free point of frame t nearest to ``want`` (3,) within
-    ``gate`` metres (and within ``shell`` = (inner, outer radius, centre) if given)
-    that does not move rigidly with body points; ``free`` (frame's points,) bool is
-    updated. True if it took one."""
+    """Trace ``j`` takes the point :func:`_nearest_free` finds; ``free`` is updated.
+    True if it took one."""
+    c, _ = _nearest_free(state, t, j, want, gate, shell, free, p)
+    if c < 0:
+        return False
+    _seat(state, j, int(state.offsets[t]), c, free)
+    return True
+
+
+def _nearest_free(
+    state: TrackState,
+    t: int,
+    j: int,
+    want: np.ndarray,
+    gate: float,
+    shell: tuple[float, float, np.ndarray] | None,
+    free: np.ndarray,
+    p: StepParams,
+) -> tuple[int, float]:
+    """The free point of frame t nearest to ``want`` (3,) within ``gate`` metres (and
+    within ``shell`` = (inner, outer radius, centre) if given) that is not refused for
+    trace ``j`` (seen beside its marker, moving rigidly with body points): its index
+    in the frame (-1 if none) and its distance to ``want`` (metres)."""
     a, b = _frame_bounds(state, t)
     frame = state.points[a:b]
     d = np.sqrt(_squared_distances(frame, want[None])[:, 0])
@@ -107,21 +155,20 @@ def _seat_nearest(
         ok &= (r >= shell[0]) & (r <= shell[1])
     n_ok = int(ok.sum())
     if n_ok == 0:  # the usual case for a trace still hidden: skip the sort
-        return False
+        return -1, np.inf
     for c in np.argsort(np.where(ok, d, np.inf), kind="stable")[:n_ok]:
         if _beside_trace(state, t, j, a + int(c), p) or rigid_with_body(
             state, t, -1, a + int(c), p
         ):
             continue
-        _seat(state, j, a, int(c), free)
-        return True
-    return False
+        return int(c), float(d[c])
+    return -1, np.inf
 
 
-def _seat_as_last_seen(
+def _as_last_seen(
     state: TrackState, t: int, j: int, k: int, rest: float, free: np.ndarray, p: StepParams
-) -> bool:
-    """Trace ``j``, back from a gap, takes the free point of frame t nearest to where
+) -> tuple[int, float]:
+    """For trace ``j``, back from a gap, the free point of frame t nearest to where
     its link to the measured neighbour ``k`` was when both were last measured
     (``m_k + (x_j^f - x_k^f)``, f the frame ``j`` was last measured), within γ, at
     most ``rest`` plus ``adjacent_stretch γ`` from ``m_k`` however short the chord.
@@ -130,28 +177,29 @@ def _seat_as_last_seen(
     rope): F and the shell put the end at the rest spacing, 5-9 cm from where it lies,
     and while the rope lies still nothing brings it back (AML whip: 188-246 frames). The
     link as last seen keeps the fold. Not for a trace measured in frame t - 1 (the
-    shell's previous link is that link already). ``free`` is updated; True if it took one.
+    shell's previous link is that link already). Its index in the frame (-1 if none) and
+    its distance to where the link puts it (metres).
     """
     last = t - 1 - int(state.temp_count[j])  # the frame j was last measured in
     if state.temp_count[j] == 0 or last < 0 or state.invented[last, j] or state.invented[last, k]:
-        return False
+        return -1, np.inf
     x = state.positions[last]
     want = state.cur[k] + (x[j] - x[k])
     shell = (0.0, rest + p.adjacent_stretch * p.gamma, state.cur[k])
-    return _seat_nearest(state, t, j, want, p.gamma, shell, free, p)
+    return _nearest_free(state, t, j, want, p.gamma, shell, free, p)
 
 
-def _seat_lone(
+def _lone(
     state: TrackState,
     t: int,
     j: int,
     shell: tuple[float, float, np.ndarray],
     free: np.ndarray,
     p: StepParams,
-) -> bool:
-    """Trace ``j`` takes the free point of frame t on ``shell`` = (inner, outer radius,
+) -> int:
+    """For trace ``j``, the free point of frame t on ``shell`` = (inner, outer radius,
     centre) when it is the only one there not refused (seen beside the trace's own
-    marker, moving rigidly with body points); ``free`` is updated. True if it took it."""
+    marker, moving rigidly with body points): its index in the frame, -1 if none."""
     a, b = _frame_bounds(state, t)
     frame = state.points[a:b]
     r = np.sqrt(_squared_distances(frame, shell[2][None])[:, 0])
@@ -162,12 +210,9 @@ def _seat_lone(
         ):
             continue
         if only >= 0:  # two candidates: nothing says which is the rope
-            return False
+            return -1
         only = int(c)
-    if only < 0:
-        return False
-    _seat(state, j, a, only, free)
-    return True
+    return only
 
 
 def _seat(state: TrackState, j: int, a: int, c: int, free: np.ndarray) -> None:

@@ -95,6 +95,9 @@ Beyond the thesis:
   nothing measured the two end traces are seeded first at V. Body
   points, points moving rigidly with body points and points seen beside the trace's
   own marker in the frames before (a hand marker beside the held end) are refused.
+  Each pass seats the traces' proposals nearest-first, not in rope order: in a rope
+  lying doubled, a point back from a dropout is reached both by its own trace's link
+  and, within one rest length, by a hidden neighbour's, and goes to the nearer.
 * Bridging (``bridge_hidden_runs``): a run of one or two inner traces hidden since an
   earlier frame, between measured markers that are not the rope's ends, takes the
   chain of free points whose links are at most their rest length (+ ``adjacent_stretch
