@@ -78,3 +78,26 @@ def test_a_frame_with_nothing_measured_is_not_extrapolated() -> None:
     bounded, moved = bound_invented(x, invented, np.full(4, 0.1))
     assert np.isnan(bounded[2]).all() and moved[2].all()
     np.testing.assert_array_equal(bounded[[0, 1, 3]], x[[0, 1, 3]])
+
+
+@pytest.mark.parametrize("sweeps", [1, 3, 20])
+def test_each_frame_is_bounded_as_if_alone(sweeps: int) -> None:
+    # frames converge after different numbers of sweeps (a converged frame leaves the
+    # work): the take bounded at once equals each frame bounded on its own, bit for bit
+    rng = np.random.default_rng(7)
+    t, m, gap = 40, 10, 0.1
+    wild = _straight(t, m, gap)
+    invented = rng.random((t, m)) < 0.4
+    invented[::5] = False  # frames with nothing to bound
+    invented[3, :-1] = True  # one measured marker: the others all pulled onto it
+    scale = rng.choice([0.01, 0.3, 4.0], size=(t, 1, 1))  # near, far, very far
+    wild = wild + np.where(invented[:, :, None], rng.normal(size=(t, m, 3)) * scale, 0.0)
+    spacing = np.full(m - 1, gap)
+    bounded, moved = bound_invented(wild, invented, spacing, sweeps=sweeps)
+    for f in range(t):
+        alone, alone_moved = bound_invented(
+            wild[f : f + 1], invented[f : f + 1], spacing, sweeps=sweeps
+        )
+        np.testing.assert_array_equal(bounded[f], alone[0])
+        np.testing.assert_array_equal(moved[f], alone_moved[0])
+    assert moved.any() and not moved.all()

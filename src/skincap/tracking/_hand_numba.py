@@ -89,7 +89,27 @@ def release_hand(state, t, p):  # pragma: no cover - runs compiled
 def follow_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.follow_hand`."""
     for row in range(2):
-        _follow_row(state, t, row, p)
+        if _has_anchors(state, row):
+            _follow_row(state, t, row, p)
+
+
+@numba.njit(**JIT)
+def _has_anchors(state, row):  # pragma: no cover - runs compiled
+    """Row ``row`` of ``hand_index`` holds an anchor (most frames it holds none)."""
+    for k in range(state.hand_index.shape[1]):
+        if state.hand_index[row, k] >= 0:
+            return True
+    return False
+
+
+@numba.njit(**JIT)
+def _carries(state):  # pragma: no cover - runs compiled
+    """An end hidden so far this frame has anchors: :func:`carry_with_hand` moves it."""
+    m = state.known.size
+    for row in range(2):
+        if not state.known[0 if row == 0 else m - 1] and _has_anchors(state, row):
+            return True
+    return False
 
 
 @numba.njit(**JIT)
@@ -194,6 +214,8 @@ def carry_with_hand(state, t, cur, p):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.search_with_hand`."""
+    if not _carries(state):
+        return
     carried = pred.copy()
     carry_with_hand(state, t, carried, p)
     a, b = state.offsets[t], state.offsets[t + 1]
@@ -228,4 +250,5 @@ def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
 @numba.njit(**JIT)
 def place_with_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.place_with_hand`."""
-    carry_with_hand(state, t, state.cur, p)
+    if _carries(state):
+        carry_with_hand(state, t, state.cur, p)

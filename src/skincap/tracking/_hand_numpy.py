@@ -90,7 +90,17 @@ def follow_hand(state: TrackState, t: int, p: StepParams) -> None:
     the body chains continue from them, so hand markers that dropped out before are
     body again."""
     for row in range(2):
-        _follow_row(state, t, row, p)
+        if np.any(state.hand_index[row] >= 0):
+            _follow_row(state, t, row, p)
+
+
+def _carries(state: TrackState) -> bool:
+    """An end hidden so far this frame has anchors: :func:`carry_with_hand` moves it
+    (most frames none has, and the hand steps have nothing to do)."""
+    return any(
+        not state.known[e] and np.any(state.hand_index[row] >= 0)
+        for row, e in _ends(state.known.size)
+    )
 
 
 def _follow_row(state: TrackState, t: int, row: int, p: StepParams) -> None:
@@ -164,6 +174,8 @@ def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams)
     taken and not a body point lies within γ / 2 of it, else ``pred`` as it was (F).
     A hand carries the end's own marker there; a looser gate lets an end whose anchors
     were seated beside a wrong point pull the rope's markers along."""
+    if not _carries(state):
+        return
     carried = pred.copy()
     carry_with_hand(state, t, carried, p)
     a, b = int(state.offsets[t]), int(state.offsets[t + 1])
@@ -184,4 +196,5 @@ def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams)
 def place_with_hand(state: TrackState, t: int, p: StepParams) -> None:
     """The temporary markers of frame t's hidden held ends, in ``state.cur``, carried
     by their hands (:func:`carry_with_hand`)."""
-    carry_with_hand(state, t, state.cur, p)
+    if _carries(state):
+        carry_with_hand(state, t, state.cur, p)

@@ -124,14 +124,21 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
     # a trace back from temporary markers: its neighbours' velocity where the point is
     # confirmed as its marker, else its own jump (counted before temp_count moves on)
     m = state.known.size
-    back = np.zeros(m, np.bool_)
-    moving = np.zeros(m, np.bool_)
+    any_back, any_moving = False, False
     for j in range(m):
-        back[j] = state.known[j] and state.invented[t - 1, j]
-        moving[j] = state.known[j] and not state.invented[t - 1, j]
-    confirmed = np.zeros(m, np.bool_)
-    v_tilde = np.zeros((m, 3))
-    if back.any() and moving.any():
+        if state.known[j]:
+            if state.invented[t - 1, j]:
+                any_back = True
+            else:
+                any_moving = True
+    # most frames have no trace back from temporary markers: nothing to confirm
+    returns = any_back and any_moving
+    if returns:
+        back = np.zeros(m, np.bool_)
+        moving = np.zeros(m, np.bool_)
+        for j in range(m):
+            back[j] = state.known[j] and state.invented[t - 1, j]
+            moving[j] = state.known[j] and not state.invented[t - 1, j]
         jump = state.cur - prev
         v_tilde = neighbour_velocity(moving, jump, jump)
         confirmed = _confirmed_returns(state, t, back, v_tilde, p)
@@ -147,10 +154,11 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
         for c in range(3):
             state.positions[t, j, c] = state.cur[j, c]
             state.velocity[j, c] = state.cur[j, c] - prev[j, c]
-    for j in range(m):
-        if confirmed[j]:
-            for c in range(3):
-                state.velocity[j, c] = v_tilde[j, c]
+    if returns:
+        for j in range(m):
+            if confirmed[j]:
+                for c in range(3):
+                    state.velocity[j, c] = v_tilde[j, c]
     learn_link_rest(state, p)
 
 

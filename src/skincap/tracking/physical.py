@@ -76,6 +76,36 @@ def _out_of_reach(
     return out
 
 
+def _pull(
+    x: np.ndarray,
+    j: int,
+    anchor: np.ndarray,
+    active: np.ndarray,
+    share: float,
+    s: np.ndarray,
+    stretch: float,
+    changed: np.ndarray,
+) -> None:
+    """Move marker j of each active frame of ``x`` (W, M, 3), in place, within reach of
+    its ``anchor`` (W,) marker, the anchor taking ``1 - share`` of the move; the frames
+    moved are set in ``changed`` (W,) bool. Only the active frames are computed (a
+    marker is invented in few of them)."""
+    rows = np.flatnonzero(active)
+    if not rows.size:
+        return
+    a = np.clip(anchor[rows], 0, x.shape[1] - 1)
+    reach = (1.0 + stretch) * np.abs(s[j] - s[a])  # (R,)
+    d = x[rows, j] - x[rows, a]  # (R, 3)
+    dist = np.linalg.norm(d, axis=1)
+    over = (dist > reach) & np.isfinite(dist)
+    if over.any():
+        fix = d[over] * ((dist[over] - reach[over]) / dist[over])[:, None]
+        moved = rows[over]
+        x[moved, j] -= share * fix
+        x[moved, a[over]] += (1.0 - share) * fix
+        changed[moved] = True
+
+
 def bound_invented(
     positions: np.ndarray,
     invented: np.ndarray,
@@ -138,31 +168,23 @@ def bound_invented(
     # only frames with an invented sample out of reach are worked on (most have none)
     work = np.flatnonzero(_out_of_reach(pos, inv, left, right, s, stretch).any(axis=1))
     if work.size:
-        sub, sub_inv, sub_l, sub_r = pos[work], inv[work], left[work], right[work]
-        frames = np.arange(work.size)
-
-        def pull(j: int, anchor: np.ndarray, active: np.ndarray, share: float) -> bool:
-            """Move x_j (and x_anchor by ``1 - share`` of it) within reach of x_anchor."""
-            a = np.clip(anchor, 0, m - 1)
-            reach = (1.0 + stretch) * np.abs(s[j] - s[a])  # (W,)
-            d = sub[:, j] - sub[frames, a]  # (W, 3)
-            dist = np.linalg.norm(d, axis=1)
-            over = active & (dist > reach) & np.isfinite(dist)
-            if over.any():
-                fix = d[over] * ((dist[over] - reach[over]) / dist[over])[:, None]
-                sub[over, j] -= share * fix
-                sub[frames[over], a[over]] += (1.0 - share) * fix
-            return bool(over.any())
-
+        sub = pos[work]
+        # each frame is projected on its own: a frame whose sweep moved nothing is at its
+        # fixed point and leaves the work (the next sweeps would repeat it exactly)
+        rows = np.arange(work.size)
         for _ in range(sweeps):
-            changed = False
+            x, x_inv = sub[rows], inv[work[rows]]
+            x_l, x_r = left[work[rows]], right[work[rows]]
+            changed = np.zeros(rows.size, dtype=bool)
             for j in range(m):
-                changed |= pull(j, sub_l[:, j], sub_inv[:, j] & (sub_l[:, j] >= 0), 1.0)
-                changed |= pull(j, sub_r[:, j], sub_inv[:, j] & (sub_r[:, j] < m), 1.0)
+                for anchor, exists in ((x_l[:, j], x_l[:, j] >= 0), (x_r[:, j], x_r[:, j] < m)):
+                    _pull(x, j, anchor, x_inv[:, j] & exists, 1.0, s, stretch, changed)
             for j in range(m - 1):
-                both = sub_inv[:, j] & sub_inv[:, j + 1]
-                changed |= pull(j, np.full(work.size, j + 1), both, 0.5)
-            if not changed:
+                both = x_inv[:, j] & x_inv[:, j + 1]
+                _pull(x, j, np.full(rows.size, j + 1), both, 0.5, s, stretch, changed)
+            sub[rows] = x
+            rows = rows[changed]
+            if not rows.size:
                 break
         pos[work] = sub
     # a frame with no measured marker holds no evidence of where the rope is

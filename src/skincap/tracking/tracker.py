@@ -327,9 +327,10 @@ def track_rope(
         _track_frames_dispatcher,
         backend == "auto" and track_frames.__module__.endswith("_numpy") and numba_available(),
     )
-    # frames in chunks of about a hundredth of the take, reporting after each
+    # frames in chunks of about a hundredth of the take, reporting after each (or
+    # looking for the kernel); with neither, one call (each call unboxes the state)
     t_frames = cloud.n_frames
-    every = max(1, t_frames // 100)
+    every = max(1, t_frames // 100) if progress is not None or watch.waiting else t_frames
     t0 = 1
     while t0 < t_frames:
         t1 = min(t_frames, (t0 - 1) // every * every + every + 1)
