@@ -15,11 +15,17 @@ this call and starts one detached, low-priority process that compiles the kernel
 into the cache (:func:`compile_in_background`), so the next run is compiled. The
 environment variable ``SKINCAP_COMPILE=inline`` compiles in the calling process
 instead (the behaviour of an explicit ``backend="numba"``).
+
+numba keys a cached kernel on its own file only; the tracker's and the dense deformer's
+kernels compile callees from their package's other files into themselves, so their
+modules end with :func:`key_caches_on_package`, which keys them on every source file of
+the package (an edit anywhere there recompiles them once, never runs stale code).
 """
 
 from __future__ import annotations
 
 import functools
+import hashlib
 import importlib
 import os
 import subprocess
@@ -41,6 +47,7 @@ __all__ = [
     "start_pending_compiles",
     "BACKENDS",
     "WARM_UPS",
+    "key_caches_on_package",
 ]
 
 #: The values a ``backend=`` argument takes.
@@ -157,6 +164,60 @@ def kernel_ready(dispatcher: Any) -> bool:
     except Exception:  # noqa: BLE001 - private numba API: fall back to compiling
         return True
     return any(key[1:] == probe[1:] for key in index)
+
+
+@functools.cache
+def _package_fingerprint(folder: str) -> str:
+    """sha256 of the names and bytes of every ``*.py`` file in ``folder`` (hex)."""
+    digest = hashlib.sha256()
+    for path in sorted(Path(folder).glob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def key_caches_on_package(module_name: str) -> int:
+    """Make the on-disk numba caches of a module's kernels depend on its whole package.
+
+    numba keys a cached kernel on its own bytecode and its own file's stamp only, yet
+    a kernel compiles its callees (and the constants it reads) from other modules into
+    itself: edit a callee in another file and the next process silently loads the old
+    machine code. Called at the end of a module that defines ``@njit(cache=True)``
+    kernels calling across files, this adds a fingerprint of every ``*.py`` file in the
+    module's folder to each of those kernels' cache keys, so any source change in the
+    package recompiles them (once) instead of running stale code.
+
+    Parameters
+    ----------
+    module_name : str
+        ``__name__`` of the calling module (already in ``sys.modules``).
+
+    Returns
+    -------
+    int
+        How many kernels were keyed (0 where numba's cache layout is unknown: they then
+        cache as numba always does).
+    """
+    module = sys.modules[module_name]
+    folder = str(Path(module.__file__ or ".").resolve().parent)
+    fingerprint = _package_fingerprint(folder)
+    keyed = 0
+    for value in list(vars(module).values()):
+        py_func = getattr(value, "py_func", None)
+        cache = getattr(value, "_cache", None)
+        if py_func is None or getattr(py_func, "__module__", None) != module_name:
+            continue  # not a kernel of this module (an import)
+        index_key = getattr(cache, "_index_key", None)
+        if index_key is None or getattr(index_key, "skincap_keyed", False):
+            continue  # no on-disk cache, or keyed already
+
+        def keyed_index_key(sig: Any, codegen: Any, _own: Any = index_key) -> tuple[Any, ...]:
+            return (*_own(sig, codegen), fingerprint)
+
+        keyed_index_key.skincap_keyed = True  # type: ignore[attr-defined]
+        cache._index_key = keyed_index_key
+        keyed += 1
+    return keyed
 
 
 def _lock_path(dispatcher: Any, name: str) -> Path | None:

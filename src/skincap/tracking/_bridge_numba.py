@@ -8,6 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT, norm3
 from skincap.tracking._refusals_numba import path_back_to_trace, rigid_with_body, taken_in_frame
 
@@ -160,3 +161,8 @@ def _seen_beside_as_other(state, t, j, point, p):  # pragma: no cover - runs com
     """Twin of the reference's ``_seen_beside_as_other``."""
     reached, f, apart = path_back_to_trace(state, t, j, point, p)
     return reached >= 0 and apart > p.gamma and not taken_in_frame(state.point_index, f, reached)
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
 from skincap.tracking.curve import HELD_END_REACH
 
@@ -252,3 +253,8 @@ def place_with_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.place_with_hand`."""
     if _carries(state):
         carry_with_hand(state, t, state.cur, p)
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

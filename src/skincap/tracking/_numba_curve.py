@@ -13,6 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT, norm3
 
 __all__ = [
@@ -330,3 +331,8 @@ def drag_free_ends(pred, known, prev, velocity, spacing, runs):  # pragma: no co
             for c in range(3):
                 out[j, c] = out[inner, c] + scale * d[c]
     return out
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

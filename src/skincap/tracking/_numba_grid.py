@@ -23,6 +23,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
 
 __all__ = ["build_grid", "fill_grid", "grid_cells", "grid_nearest", "grid_rows"]
@@ -175,3 +176,8 @@ def grid_rows(grid, x, bound):  # pragma: no cover - runs compiled
     if first > last:
         return 0, 0
     return grid[3][first], grid[3][last + 1]
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

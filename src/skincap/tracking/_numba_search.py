@@ -11,6 +11,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
+
 __all__ = ["JIT", "gated_assignment", "is_taken", "linear_sum_assignment", "norm3"]
 
 _INF = np.inf
@@ -182,3 +184,8 @@ def is_taken(p, known, taken):  # pragma: no cover - runs compiled
         if known[j] and taken[j] == p:
             return True
     return False
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT, norm3
 from skincap.tracking._refusals_numba import (
     path_back_to_trace,
@@ -207,3 +208,8 @@ def _beside_trace(state, t, j, point, p):  # pragma: no cover - runs compiled
     """Twin of the reference's ``_beside_trace``."""
     reached, f, apart = path_back_to_trace(state, t, j, point, p)
     return reached >= 0 and reached != state.point_index[f, j] and apart > p.gamma
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT, norm3
 
 __all__ = [
@@ -282,3 +283,8 @@ def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
         if odd[j]:
             known[j] = False
             state.taken[j] = -1
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

@@ -33,6 +33,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.tracking._bridge_numba import bridge_hidden_runs
 from skincap.tracking._hand_numba import (
     follow_hand,
@@ -883,3 +884,8 @@ def track_frames(state, t0, t1, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.track_frames`."""
     for t in range(t0, t1):
         track_frame(state, t, p)
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from skincap.backends import key_caches_on_package
 from skincap.deform.dense._kernel_numpy import (
     F32_ERROR_PER_WEIGHT,
     SUPPORT_SLACK,
@@ -531,3 +532,8 @@ def dense_kernel(
                     sz += beta * wz
                     den += beta
             _store_blend(out, t, v, sx, sy, sz, den)
+
+
+# numba keys each cache on its own file only; these kernels compile callees and constants
+# from the rest of the package into themselves (skincap.backends.key_caches_on_package)
+key_caches_on_package(__name__)
