@@ -128,7 +128,7 @@ def test_the_carry_keeps_the_rope_to_the_measured_neighbour(steps) -> None:  # t
     cloud = _two_frames(hand0, hand1, end)
     state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
     state.positions[0, 0] = end
-    state.hand_index[0, :4] = np.arange(6, 10)  # frame 1's hand points
+    state.hand_index[0, :4] = np.arange(5, 9)  # frame 1's hand points
     state.hand_then[0, :4] = hand0
     steps_hand = _hand_module(steps)
     f_end = end + np.array([0.001, 0.0, 0.0])  # where F put it
