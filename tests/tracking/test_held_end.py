@@ -67,6 +67,81 @@ def test_a_hidden_held_end_moves_with_its_hand(backend: str) -> None:
     assert not track.invented[HIDDEN.stop :, j].any()
 
 
+def _slipping_hand_take() -> tuple[PointCloud, np.ndarray, np.ndarray]:
+    """A straight rope (8 markers, 10 cm apart) drifting sideways, held at marker 0 by a
+    hand of four markers that also spins (4 rad/s) about a vertical axis 10 cm beside
+    the end, so that their rigid motion would swing the end straight out along the
+    rope, away from marker 1: the hand does not carry the rope (a wrist turning under
+    a handle). Marker 0 hidden in ``HIDDEN``. Returns the cloud, the rope's points of
+    frame 0 and the true rope (T, 8, 3)."""
+    rope = np.stack([0.1 * np.arange(8), np.full(8, 1.2), np.zeros(8)], axis=1)
+    hand = rope[0] + np.array(
+        [[-0.07, 0.0, 0.03], [0.0, 0.08, -0.03], [-0.06, 0.05, 0.0], [0.0, -0.07, 0.05]]
+    )  # 7-8 cm from the end: beyond the wide gate, so only the carry brings it near them
+    body = np.stack([np.linspace(-0.6, -0.3, 6), np.full(6, 0.9), np.full(6, 0.5)], axis=1)
+    s = np.maximum(np.arange(FRAMES) - STILL, 0) / RATE  # (T,) s
+    drift = (0.3 * s)[:, None, None] * np.array([0.0, 0.0, 1.0])
+    pivot = rope[0] + np.array([0.0, 0.0, 0.1])
+    spin = Rotation.from_rotvec(np.outer(4.0 * s, [0.0, 1.0, 0.0]))
+    hands = np.stack([spin[i].apply(hand - pivot) + pivot for i in range(FRAMES)]) + drift
+    ropes = rope[None] + drift
+    frames = []
+    for t in range(FRAMES):
+        keep = np.ones(8, dtype=bool)
+        keep[0] = not (HIDDEN.start <= t < HIDDEN.stop)
+        frames.append(np.concatenate([ropes[t, keep], hands[t], body]))
+    counts = np.array([f.shape[0] for f in frames])
+    cloud = PointCloud(
+        points=np.concatenate(frames), offsets=np.concatenate([[0], np.cumsum(counts)]), rate=RATE
+    )
+    return cloud, np.arange(8), ropes
+
+
+@pytest.mark.parametrize("backend", ["numpy", "numba"])
+def test_a_hand_that_would_stretch_the_rope_does_not_carry_the_end(backend: str) -> None:
+    if backend == "numba":
+        pytest.importorskip("numba")
+    cloud, markers, truth = _slipping_hand_take()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        init = init_rope(cloud, markers=markers)
+        track = track_rope(cloud, init, backend=backend)
+    j = int(np.argmin(np.linalg.norm(track.positions[0] - truth[0, 0], axis=1)))
+    assert j in (0, 7)
+    inner = 1 if j == 0 else 6
+    assert track.invented[HIDDEN, j].all()
+    assert not track.invented[HIDDEN, inner].any()
+    # the hand swings the carry out along the rope (8 cm over the gap): past the reach
+    # the rope allows from marker 1 it is refused, and F keeps the end on the rope
+    link = np.linalg.norm(track.positions[HIDDEN, j] - track.positions[HIDDEN, inner], axis=1)
+    assert link.max() <= 0.1 + 0.4 * init.gamma + 1e-9, link
+    err = np.linalg.norm(track.positions[HIDDEN, j] - truth[HIDDEN, 0], axis=1)
+    assert err.max() < 0.01, err
+    assert err.mean() < 0.003, err
+    assert not track.invented[HIDDEN.stop :, j].any()
+
+
+def test_the_carry_keeps_the_rope_to_the_measured_neighbour(steps) -> None:  # type: ignore[no-untyped-def]
+    end = np.array([0.0, 1.0, 0.0])
+    hand0 = end + np.array([[0.05, 0, 0], [0, 0.06, 0], [0, 0, 0.07], [0.03, 0.03, 0.0]])
+    hand1 = hand0 + np.array([-0.08, 0.0, 0.0])  # the hand slid 8 cm out along the rope
+    cloud = _two_frames(hand0, hand1, end)
+    state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+    state.positions[0, 0] = end
+    state.hand_index[0, :4] = np.arange(5, 9)  # frame 1's hand points
+    state.hand_then[0, :4] = hand0
+    steps_hand = _hand_module(steps)
+    f_end = end + np.array([0.001, 0.0, 0.0])  # where F put it
+    for nb, carried in ((end + [0.1, 0, 0], False), (end + [0.02, 0, 0], True)):
+        state.known[:] = [False, True, False]  # marker 1 measured in frame 1 at nb
+        state.cur[:] = 0.0
+        state.cur[1] = nb
+        state.cur[0] = f_end
+        steps_hand.carry_with_hand(state, 1, state.cur, p)
+        want = end + np.array([-0.08, 0.0, 0.0]) if carried else f_end
+        np.testing.assert_allclose(state.cur[0], want, atol=1e-9)
+
+
 def test_both_backends_carry_a_held_end_alike() -> None:
     pytest.importorskip("numba")
     cloud, markers, _ = _hand_take(hide=True)

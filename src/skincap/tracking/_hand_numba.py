@@ -208,8 +208,41 @@ def carry_with_hand(state, t, cur, p):  # pragma: no cover - runs compiled
                     ss += r * r
             if np.sqrt(ss / n) <= p.rigid_range * p.median_spacing:
                 moved = rot @ (x - c_then) + c_now
-        for c in range(3):
-            cur[e, c] = moved[c]
+        if _carry_keeps_rope(state, last, t, e, moved, p):
+            for c in range(3):
+                cur[e, c] = moved[c]
+
+
+@numba.njit(**JIT)
+def _carry_keeps_rope(state, last, t, e, moved, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy._carry_keeps_rope`."""
+    m = state.known.size
+    j = -1
+    if e == 0:
+        for i in range(m):
+            if state.known[i]:
+                j = i
+                break
+    else:
+        for i in range(m - 1, -1, -1):
+            if state.known[i]:
+                j = i
+                break
+    if j < 0:
+        return True
+    for f in range(last, t):
+        if state.invented[f, j]:
+            return True
+    ds = abs(state.arclength[e] - state.arclength[j])
+    if abs(e - j) == 1:
+        lim = max(ds, state.link_rest[min(e, j)]) + p.adjacent_stretch * p.gamma
+    else:
+        lim = p.stretch * ds + p.gamma
+    d2 = 0.0
+    for c in range(3):
+        r = moved[c] - state.cur[j, c]
+        d2 += r * r
+    return d2 <= lim * lim
 
 
 @numba.njit(**JIT)

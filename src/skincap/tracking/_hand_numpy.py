@@ -141,7 +141,11 @@ def carry_with_hand(state: TrackState, t: int, cur: np.ndarray, p: StepParams) -
     The end moves from its last measured position by the rigid motion (Kabsch) of its
     anchors from that frame to frame t, when three or more are left and they moved
     rigidly (rms residual within ``rigid_range`` median spacings); otherwise by their
-    mean displacement. Call before ``temp_count`` counts frame t.
+    mean displacement. The carry must keep the rope's length to the marker of frame t
+    measured nearest the end (:func:`_carry_keeps_rope`); a hand that would stretch
+    the rope there (anchors on a wrist turning under the handle, or slid onto other
+    markers) does not carry it, and ``cur[e]`` is left as it was (F). Call before
+    ``temp_count`` counts frame t.
     """
     for row, e in _ends(state.known.size):
         if state.known[e]:
@@ -165,7 +169,35 @@ def carry_with_hand(state: TrackState, t: int, cur: np.ndarray, p: StepParams) -
             rms = np.sqrt(np.mean(np.sum(res * res, axis=1)))
             if rms <= p.rigid_range * p.median_spacing:
                 moved = rot @ (x - c_then) + c_now
-        cur[e] = moved
+        if _carry_keeps_rope(state, last, t, e, moved, p):
+            cur[e] = moved
+
+
+def _carry_keeps_rope(
+    state: TrackState, last: int, t: int, e: int, moved: np.ndarray, p: StepParams
+) -> bool:
+    """Whether end ``e`` at ``moved`` (3,) lies within the reach the rope allows of the
+    marker measured nearest it in frame t (``state.known``, ``state.cur``): the bound
+    :func:`~skincap.tracking._refusals_numpy.reject_overstretched` puts on two measured
+    markers (rest spacing plus ``adjacent_stretch`` γ for neighbours, ``stretch`` times
+    the rest arc length plus γ farther apart). True when nothing is measured, or when
+    that marker was not measured in every frame from ``last`` (the end's last measured
+    frame) to t - 1: a marker back from a gap since may sit on a wrong point, and is no
+    evidence against the hand."""
+    idx = np.flatnonzero(state.known)
+    if idx.size == 0:
+        return True
+    j = int(idx[0]) if e == 0 else int(idx[-1])
+    if state.invented[last:t, j].any():
+        return True
+    ds = abs(float(state.arclength[e] - state.arclength[j]))
+    if abs(e - j) == 1:
+        link = float(state.link_rest[min(e, j)])
+        lim = max(ds, link) + p.adjacent_stretch * p.gamma
+    else:
+        lim = p.stretch * ds + p.gamma
+    d = moved - state.cur[j]
+    return bool(np.dot(d, d) <= lim * lim)
 
 
 def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> None:

@@ -38,7 +38,10 @@ Beyond the thesis:
   velocity), and the end moves by their rigid motion (Kabsch; their mean displacement
   when fewer than three are left or they do not move rigidly); it is searched for
   there too, and while it is hidden those anchors are body points, which a trace back
-  from a gap does not take (a hand marker beside the held end).
+  from a gap does not take (a hand marker beside the held end). A carry that would
+  stretch the rope beyond what ``reject_overstretched`` allows from the marker measured
+  nearest the end (measured in every frame since the end was) is refused, and F kept:
+  a wrist turning under the handle does not swing the end off the rope.
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
