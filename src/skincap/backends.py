@@ -204,7 +204,7 @@ def key_caches_on_package(module_name: str) -> int:
     keyed = 0
     for value in list(vars(module).values()):
         py_func = getattr(value, "py_func", None)
-        cache = getattr(value, "_cache", None)
+        cache: Any = getattr(value, "_cache", None)
         if py_func is None or getattr(py_func, "__module__", None) != module_name:
             continue  # not a kernel of this module (an import)
         index_key = getattr(cache, "_index_key", None)
