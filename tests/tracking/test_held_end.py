@@ -270,3 +270,45 @@ def test_a_hidden_held_end_follows_the_foot_on_real_motion(data_dir) -> None:
     assert np.isfinite(errors_arr).all()
     assert errors_arr.max() < 0.2, errors
     assert errors_arr.mean() < 0.045, errors
+
+
+def test_a_held_end_is_searched_for_at_the_free_point_nearest_its_carry(steps) -> None:  # type: ignore[no-untyped-def]
+    """The end swings about its grip (a foot stamping): its marker lies 4.5 cm from
+    where the hand's rigid motion carries it, beyond γ / 2 (and beyond the γ a lonely
+    end may move from its prediction). The search looks for it at that point, when it
+    lies within the wide gate of the carry, within the rope's reach of the marker
+    measured nearest the end and continues no other point; else at F as before."""
+    end = np.array([0.0, 1.0, 0.0])
+    hand0 = end + np.array([[0.05, 0, 0], [0, 0.06, 0], [0, 0, 0.07], [0.03, 0.03, 0.0]])
+    shift = np.array([0.0, -0.02, 0.01])
+    f_end = end + np.array([0.12, 0.0, 0.0])  # F: straight out from the rope, far off
+    steps_hand = _hand_module(steps)
+    for off, nb, before, taken in (
+        ([-0.045, 0.0, 0.0], False, False, True),  # swung 4.5 cm: searched for there
+        ([-0.045, 0.0, 0.0], True, False, False),  # marker 1 measured 30 cm off: too far
+        ([-0.07, 0.0, 0.0], False, False, False),  # beyond the wide gate (6 cm)
+        ([-0.045, 0.0, 0.0], False, True, False),  # a hand marker 1 cm off in frame 0
+    ):
+        point = end + shift + np.array(off)
+        far = end + np.array([0.3, 0.0, 0.0])
+        f0 = np.concatenate([end[None], hand0] + ([point[None] - 0.01] if before else []))
+        f1 = np.concatenate([hand0 + shift, point[None], far[None]])
+        n0 = f0.shape[0]
+        cloud = PointCloud(
+            points=np.concatenate([f0, f1]), offsets=np.array([0, n0, n0 + 6]), rate=RATE
+        )
+        state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+        state.positions[0, 0] = end
+        state.point_index[0] = [0, -1, -1]
+        state.body[n0 : n0 + 4] = True  # the hand's markers are body points
+        state.hand_index[0, :4] = np.arange(n0, n0 + 4)
+        state.hand_then[0, :4] = hand0
+        state.known[:] = False
+        if nb:  # marker 1 measured in frame 1 on the far point (and in frame 0)
+            state.known[1] = True
+            state.taken[1] = n0 + 5
+            state.cur[1] = far
+        pred = np.zeros((3, 3))
+        pred[0] = f_end
+        steps_hand.search_with_hand(state, 1, pred, p)
+        np.testing.assert_allclose(pred[0], point if taken else f_end, atol=1e-12)
