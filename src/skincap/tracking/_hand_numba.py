@@ -11,7 +11,6 @@ import numpy as np
 
 from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
-from skincap.tracking._refusals_numba import rigid_with_body
 from skincap.tracking.curve import HELD_END_REACH
 
 __all__ = [
@@ -264,13 +263,11 @@ def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
         if state.known[j]:
             free[state.taken[j] - a] = False
     near = (0.5 * p.gamma) ** 2
-    reach = (p.wide_gate * p.gamma) ** 2
     for row in range(2):
         e = 0 if row == 0 else m - 1
         if state.known[e]:
             continue
         best = _INF
-        at = -1
         for i in range(b - a):
             if free[i]:
                 d = 0.0
@@ -279,42 +276,9 @@ def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
                     d += x * x
                 if d < best:
                     best = d
-                    at = i
         if best <= near:
             for c in range(3):
                 pred[e, c] = carried[e, c]
-        elif best <= reach and _may_take(state, t, e, a + at, p):
-            for c in range(3):
-                pred[e, c] = state.points[a + at, c]
-
-
-@numba.njit(**JIT)
-def _may_take(state, t, e, q, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._hand_numpy._may_take`."""
-    last = t - 1 - state.temp_count[e]
-    if last < 0 or state.invented[last, e]:
-        return False
-    if not _carry_keeps_rope(state, last, t, e, state.points[q], p):
-        return False
-    a0, a1 = state.offsets[t - 1], state.offsets[t]
-    untaken = np.ones(a1 - a0, np.bool_)
-    for j in range(state.known.size):
-        i = state.point_index[t - 1, j]
-        if a0 <= i < a1:
-            untaken[i - a0] = False
-    own = 0.0
-    for c in range(3):
-        x = state.points[q, c] - state.positions[last, e, c]
-        own += x * x
-    for i in range(a1 - a0):
-        if untaken[i]:
-            d = 0.0
-            for c in range(3):
-                x = state.points[a0 + i, c] - state.points[q, c]
-                d += x * x
-            if d <= own:
-                return False
-    return not rigid_with_body(state, t, -1, q, p)
 
 
 @numba.njit(**JIT)

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from skincap.tracking._refusals_numpy import rigid_with_body
 from skincap.tracking.curve import HELD_END_REACH
 from skincap.tracking.state import StepParams, TrackState
 
@@ -204,16 +203,9 @@ def _carry_keeps_rope(
 def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> None:
     """Where the search looks for each hidden end with anchors, ``pred`` (M, 3), in place:
     its carried position (:func:`carry_with_hand`) when a point of frame t that is not
-    taken and not a body point lies within γ / 2 of it; else that nearest free point
-    itself when it lies within ``wide_gate`` γ of the carry, within the rope's reach of
-    the marker measured nearest the end and does not move rigidly with body points
-    (:func:`_may_take`); else ``pred`` as it was (F).
-
+    taken and not a body point lies within γ / 2 of it, else ``pred`` as it was (F).
     A hand carries the end's own marker there; a looser gate lets an end whose anchors
-    were seated beside a wrong point pull the rope's markers along. The rigid carry
-    misses an end that swings about its grip (a foot stamping) by more than the γ a
-    lonely end may move from its prediction; the point nearest the carry, when only the
-    rope can have put it there, is that end."""
+    were seated beside a wrong point pull the rope's markers along."""
     if not _carries(state):
         return
     carried = pred.copy()
@@ -225,41 +217,12 @@ def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams)
     taken = state.taken[state.known]
     free[taken - a] = False
     near = (0.5 * p.gamma) ** 2
-    reach = (p.wide_gate * p.gamma) ** 2
-    idx = np.flatnonzero(free)
     for e in (0, state.known.size - 1):
-        if state.known[e] or idx.size == 0:
+        if state.known[e] or not free.any():
             continue
-        d2 = np.sum((state.points[a:b][idx] - carried[e]) ** 2, axis=1)
-        n = int(np.argmin(d2))
-        if d2[n] <= near:
+        d2 = np.sum((state.points[a:b][free] - carried[e]) ** 2, axis=1)
+        if d2.min() <= near:
             pred[e] = carried[e]
-        elif d2[n] <= reach and _may_take(state, t, e, a + int(idx[n]), p):
-            pred[e] = state.points[a + int(idx[n])]
-
-
-def _may_take(state: TrackState, t: int, e: int, q: int, p: StepParams) -> bool:
-    """Whether hidden held end ``e`` may be searched for at point ``q`` of frame t (an
-    index into ``state.points``): the end was measured in its last frame before the gap,
-    ``q`` lies within the reach the rope allows of the marker measured nearest the end
-    (:func:`_carry_keeps_rope`), no point of frame t - 1 the rope did not take lies
-    nearer to it than the end's last measured position (else it continues that point:
-    a marker on the hand) and it does not move rigidly with body points
-    (:func:`~skincap.tracking._refusals_numpy.rigid_with_body`)."""
-    last = t - 1 - int(state.temp_count[e])
-    if last < 0 or state.invented[last, e]:
-        return False
-    if not _carry_keeps_rope(state, last, t, e, state.points[q], p):
-        return False
-    a0, a1 = int(state.offsets[t - 1]), int(state.offsets[t])
-    untaken = np.ones(a1 - a0, dtype=bool)
-    mine = state.point_index[t - 1]
-    untaken[mine[(mine >= a0) & (mine < a1)] - a0] = False
-    own = np.sum((state.points[q] - state.positions[last, e]) ** 2)
-    other = np.sum((state.points[a0:a1][untaken] - state.points[q]) ** 2, axis=1)
-    if np.any(other <= own):  # it continues a point the rope did not take: not the end
-        return False
-    return not rigid_with_body(state, t, -1, q, p)
 
 
 def place_with_hand(state: TrackState, t: int, p: StepParams) -> None:

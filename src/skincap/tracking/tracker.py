@@ -41,12 +41,7 @@ Beyond the thesis:
   from a gap does not take (a hand marker beside the held end). A carry that would
   stretch the rope beyond what ``reject_overstretched`` allows from the marker measured
   nearest the end (measured in every frame since the end was) is refused, and F kept:
-  a wrist turning under the handle does not swing the end off the rope. An end that
-  swings about its grip (a foot stamping) lies off the rigid carry: it is searched for
-  at the free point nearest the carry when that lies within ``wide_gate`` γ of it,
-  within the rope's reach of the nearest measured marker, and continues no point of the
-  frame before that the rope did not take (a hand marker) nor moves rigidly with body
-  points.
+  a wrist turning under the handle does not swing the end off the rope.
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
