@@ -553,7 +553,9 @@ def test_start_pending_compiles_starts_each_kernel_not_compiled(
     monkeypatch.setattr(
         backends, "kernel_ready", lambda d: d.py_func.__name__ == "lbs_kernel"
     )  # LBS compiled already
-    assert backends.start_pending_compiles() == ["skinning.dqs", "tracking", "dense", "ik"] == started
+    assert (
+        backends.start_pending_compiles() == ["skinning.dqs", "tracking", "dense", "ik"] == started
+    )
     monkeypatch.setenv("SKINCAP_COMPILE", "inline")
     assert backends.start_pending_compiles() == []
     with pytest.raises(ValidationError, match="names"):
