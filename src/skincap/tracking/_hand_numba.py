@@ -11,6 +11,7 @@ import numpy as np
 
 from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
+from skincap.tracking._refusals_numba import _link_limit
 from skincap.tracking.curve import HELD_END_REACH
 
 __all__ = [
@@ -233,11 +234,7 @@ def _carry_keeps_rope(state, last, t, e, moved, p):  # pragma: no cover - runs c
     for f in range(last, t):
         if state.invented[f, j]:
             return True
-    ds = abs(state.arclength[e] - state.arclength[j])
-    if abs(e - j) == 1:
-        lim = max(ds, state.link_rest[min(e, j)]) + p.adjacent_stretch * p.gamma
-    else:
-        lim = p.stretch * ds + p.gamma
+    lim = _link_limit(state.arclength, state.link_rest, min(e, j), max(e, j), p.gamma, p)
     d2 = 0.0
     for c in range(3):
         r = moved[c] - state.cur[j, c]

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from skincap.tracking._refusals_numpy import link_limit
 from skincap.tracking.curve import HELD_END_REACH
 from skincap.tracking.state import StepParams, TrackState
 
@@ -190,12 +191,7 @@ def _carry_keeps_rope(
     j = int(idx[0]) if e == 0 else int(idx[-1])
     if state.invented[last:t, j].any():
         return True
-    ds = abs(float(state.arclength[e] - state.arclength[j]))
-    if abs(e - j) == 1:
-        link = float(state.link_rest[min(e, j)])
-        lim = max(ds, link) + p.adjacent_stretch * p.gamma
-    else:
-        lim = p.stretch * ds + p.gamma
+    lim = link_limit(state.arclength, state.link_rest, min(e, j), max(e, j), p)
     d = moved - state.cur[j]
     return bool(np.dot(d, d) <= lim * lim)
 

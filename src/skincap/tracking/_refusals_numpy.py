@@ -152,6 +152,17 @@ def _keeps_distance(
 
 
 # ------------------------------------------------------------------ refusals
+def link_limit(s: np.ndarray, link_rest: np.ndarray, ja: int, jb: int, p: StepParams) -> float:
+    """Largest chord between measured markers ``ja < jb`` that :func:`reject_overstretched`
+    allows, metres: neighbours their rest spacing (the larger of the rest arc length and
+    the learnt ``link_rest``) plus ``adjacent_stretch`` γ, others ``stretch`` times the
+    rest arc length plus γ (the twin of ``_refusals_numba._link_limit``)."""
+    ds = float(s[jb] - s[ja])
+    if jb - ja == 1:
+        return max(ds, float(link_rest[ja])) + p.adjacent_stretch * p.gamma
+    return p.stretch * ds + p.gamma
+
+
 def reject_overstretched(state: TrackState, t: int, p: StepParams) -> None:
     """Refuse taken points that would stretch the rope (beyond the thesis), in place.
 
