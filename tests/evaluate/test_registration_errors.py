@@ -71,3 +71,57 @@ def test_region_names_must_match_the_true_vertices() -> None:
         registration_errors(v, f, v, f, regions=np.array(["a", "b"]))
     with pytest.raises(ValidationError, match="regions"):
         region_breakdown(np.zeros(3), np.array(["a"]))
+
+
+def _sphere(radius: float, n: int = 400) -> tuple[np.ndarray, np.ndarray]:
+    """A closed triangulated sphere (Fibonacci points, hull faces turned outward)."""
+    from scipy.spatial import ConvexHull
+
+    k = np.arange(n) + 0.5
+    polar = np.arccos(1.0 - 2.0 * k / n)
+    azimuth = np.pi * (1.0 + 5.0**0.5) * k
+    v = np.stack(
+        [np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1
+    )
+    f = ConvexHull(v).simplices
+    outward = np.einsum(
+        "fx,fx->f", np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), v[f].mean(axis=1)
+    )
+    f[outward < 0] = f[outward < 0][:, ::-1]
+    return radius * v, f
+
+
+@pytest.mark.parametrize(("scale", "inside"), [(0.97, 1.0), (1.03, 0.0)])
+def test_a_shrunken_or_inflated_sphere_lies_on_its_side(scale: float, inside: float) -> None:
+    true_v, true_f = _sphere(0.1)
+    reg_v, reg_f = _sphere(0.1 * scale, n=150)  # other vertices
+    regions = np.where(true_v[:, 2] > 0, "top", "bottom")
+    out = registration_errors(reg_v, reg_f, true_v, true_f, regions=regions)
+    assert out["surface_to_true_skin_inside_fraction"] == inside
+    for row in out["regions"]:
+        # the chords of the true sphere's triangles lie up to ~1 mm inside it
+        assert row["signed_mean_m"] == pytest.approx(0.1 * (scale - 1.0), abs=1.5e-3)
+        assert row["tail_inside_fraction"] in (inside, None)
+
+
+def test_the_tail_says_whether_it_sank_or_bulged() -> None:
+    # the registered plane sinks 1 mm under the skin over x < 0.25 and stands 10 mm
+    # out of it beyond (the grid's triangles face +z: outside is +z)
+    true_v, true_f = _grid(n=21)
+    regions = np.where(true_v[:, 0] < 0.25, "near", "far")
+    reg_v, reg_f = _grid(n=21)
+    reg_v[:, 2] = np.where(reg_v[:, 0] < 0.25, -0.001, 0.010)
+    out = registration_errors(reg_v, reg_f, true_v, true_f, regions=regions)
+    rows = {r["region"]: r for r in out["regions"]}
+    assert rows["near"]["signed_mean_m"] == pytest.approx(-0.001, abs=1e-9)
+    assert rows["far"]["signed_mean_m"] == pytest.approx(0.010, abs=1e-9)
+    assert rows["far"]["tail_inside_fraction"] == 0.0
+    assert rows["near"]["tail_inside_fraction"] is None  # none of the worst 5 % there
+    near = reg_v[:, 0] < 0.25
+    assert out["surface_to_true_skin_inside_fraction"] == pytest.approx(near.mean())
+    reg_v[:, 2] = -0.010  # all of it under the skin now
+    rows = {
+        r["region"]: r
+        for r in registration_errors(reg_v, reg_f, true_v, true_f, regions=regions)["regions"]
+    }
+    assert rows["far"]["tail_inside_fraction"] == 1.0

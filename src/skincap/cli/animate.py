@@ -311,6 +311,12 @@ def _evaluate_folder(
     )  # fmt: skip
 
 
+def _tail_side(row: dict[str, Any]) -> str:
+    """How much of a region's share of the registration's worst 5 % lies under the true skin."""
+    inside = row.get("tail_inside_fraction")
+    return "" if inside is None else f", {inside * 100:.0f} % of its worst under the skin"
+
+
 def _print_eval_table(result: dict[str, Any]) -> None:
     """The rows, the registration, the held-out markers and the targets, one line each."""
     for row in result["rows"]:
@@ -332,6 +338,7 @@ def _print_eval_table(result: dict[str, Any]) -> None:
                 else f"vertices inside one part ({group['vertices']})",
                 f"RMS mm: {shown}", markup=False, soft_wrap=True,
             )  # fmt: skip
+
     reg = result.get("registration")
     if reg:
         out.print(
@@ -345,7 +352,8 @@ def _print_eval_table(result: dict[str, Any]) -> None:
         if worst:
             out.print(
                 "registration's worst 5 % by region: " + ", ".join(
-                    f"{r['region']} {r['tail_share'] * 100:.0f} % (mean {r['mean_m'] * 1e3:.1f} mm)"
+                    f"{r['region']} {r['tail_share'] * 100:.0f} % (mean {r['mean_m'] * 1e3:.1f} mm"
+                    + _tail_side(r) + ")"
                     for r in worst
                 ),
                 markup=False, soft_wrap=True,

@@ -11,7 +11,9 @@ MoSh++, in both directions so that neither a shrunken nor a bloated fit hides):
 Plus each marker's distance to the registered surface (how closely the data term was
 met), and, given a region name per true-skin vertex (the dominant joint of its skin
 weights), the registered surface's distance per region with each region's share of
-the worst 5 % (where the p95 comes from). Nothing here prints.
+the worst 5 % (where the p95 comes from) and on which side of the skin it lies (a
+surface sunk under the skin between sparse markers, or bulging out of it). Nothing
+here prints.
 """
 
 from __future__ import annotations
@@ -62,7 +64,9 @@ def _distances_to_surface(
     return _closest_on_surface(vertices, faces, points)[0]
 
 
-def region_breakdown(distance: np.ndarray, region: np.ndarray) -> list[dict[str, Any]]:
+def region_breakdown(
+    distance: np.ndarray, region: np.ndarray, signed: np.ndarray | None = None
+) -> list[dict[str, Any]]:
     """Distances grouped by region, the regions holding most of the worst 5 % first.
 
     Parameters
@@ -71,18 +75,27 @@ def region_breakdown(distance: np.ndarray, region: np.ndarray) -> list[dict[str,
         Each registered vertex's distance to the true skin.
     region : (N,) str
         The region of each (of its closest true-skin point).
+    signed : (N,) float, metres, optional
+        The same distances signed by side: positive outside the true skin, negative
+        under it.
 
     Returns
     -------
     list of dict
         One per region: ``region``, ``vertices``, ``mean_m``, ``p95_m``, ``max_m`` and
         ``tail_share`` (its fraction of the vertices at or beyond the overall 95th percentile),
-        sorted by ``tail_share`` then ``mean_m``, both descending.
+        sorted by ``tail_share`` then ``mean_m``, both descending. With ``signed``, also
+        ``signed_mean_m`` (the region's mean signed distance, metres) and
+        ``tail_inside_fraction`` (the fraction of its worst-5 % vertices under the skin;
+        None when it has none).
     """
     d = np.asarray(distance, dtype=np.float64).ravel()
     names = np.asarray(region).astype(str).ravel()
     if names.shape != d.shape:
         raise ValidationError(f"regions: expected {d.size} names, got {names.size}")
+    side = None if signed is None else np.asarray(signed, dtype=np.float64).ravel()
+    if side is not None and side.shape != d.shape:
+        raise ValidationError(f"signed: expected {d.size} distances, got {side.size}")
     if d.size == 0:
         return []
     tail = d >= np.percentile(d, 95)
@@ -92,18 +105,55 @@ def region_breakdown(distance: np.ndarray, region: np.ndarray) -> list[dict[str,
     for k, key in enumerate(keys):
         s = inverse == k
         mean, p95, top = _summary(d[s])
-        rows.append(
-            {
-                "region": str(key),
-                "vertices": int(s.sum()),
-                "mean_m": mean,
-                "p95_m": p95,
-                "max_m": top,
-                "tail_share": float(tail[s].sum() / n_tail),
-            }
-        )
+        row: dict[str, Any] = {
+            "region": str(key),
+            "vertices": int(s.sum()),
+            "mean_m": mean,
+            "p95_m": p95,
+            "max_m": top,
+            "tail_share": float(tail[s].sum() / n_tail),
+        }
+        if side is not None:
+            in_tail = tail & s
+            row["signed_mean_m"] = float(side[s].mean())
+            row["tail_inside_fraction"] = (
+                float((side[in_tail] < 0).mean()) if in_tail.any() else None
+            )
+        rows.append(row)
     rows.sort(key=lambda r: (-r["tail_share"], -r["mean_m"]))
     return rows
+
+
+def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V, 3) unit area-weighted vertex normals (zero at a vertex in no triangle)."""
+    fn = np.cross(
+        vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]
+    )
+    n = np.zeros_like(vertices)
+    for k in range(3):
+        np.add.at(n, faces[:, k], fn)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def _side(
+    true_vertices: np.ndarray,
+    true_faces: np.ndarray,
+    points: np.ndarray,
+    face: np.ndarray,
+    bary: np.ndarray,
+) -> np.ndarray:
+    """(N,) +1 for a point outside the true skin, -1 under it, from its closest point.
+
+    The side is that of the offset from the closest point along the skin's normal
+    there, blended from its triangle's corner normals (the face normal alone flips at
+    a closest point on an edge or a corner of a convex region).
+    """
+    normals = _vertex_normals(true_vertices, true_faces)
+    corners = true_faces[face]  # (N, 3)
+    at = np.einsum("nc,ncx->nx", bary, normals[corners])
+    closest = np.einsum("nc,ncx->nx", bary, true_vertices[corners])
+    return np.where(np.einsum("nx,nx->n", points - closest, at) < 0, -1.0, 1.0)
 
 
 def _summary(d: np.ndarray) -> tuple[float, float, float]:
@@ -143,8 +193,11 @@ def registration_errors(
     dict
         ``surface_to_true_skin_{mean,p95,max}_m`` (registered vertices to the true
         surface), ``true_skin_to_surface_{mean,p95,max}_m`` (the reverse),
+        ``surface_to_true_skin_inside_fraction`` (the fraction of registered vertices
+        under the true skin: a registration sunk in or bulging out),
         ``markers_to_surface_{mean,p95}_m`` when ``marker_distance`` is given,
-        ``regions`` (:func:`region_breakdown` of the registered vertices) when
+        ``regions`` (:func:`region_breakdown` of the registered vertices, with their
+        signed distances) when
         ``regions`` is given, and ``targets``: each issue target with its value and whether it is met.
 
     Raises
@@ -171,9 +224,11 @@ def registration_errors(
     for prefix, d in (("surface_to_true_skin", forward), ("true_skin_to_surface", backward)):
         mean, p95, top = _summary(d)
         out |= {f"{prefix}_mean_m": mean, f"{prefix}_p95_m": p95, f"{prefix}_max_m": top}
+    signed = forward * _side(true, true_f, reg, face, bary)
+    out["surface_to_true_skin_inside_fraction"] = float((signed < 0).mean())
     if regions is not None:
         corner = true_f[face, np.argmax(bary, axis=1)]
-        out["regions"] = region_breakdown(forward, np.asarray(regions).astype(str)[corner])
+        out["regions"] = region_breakdown(forward, np.asarray(regions).astype(str)[corner], signed)
     if marker_distance is not None:
         md = np.asarray(marker_distance, dtype=np.float64).ravel()
         md = md[np.isfinite(md)]
