@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -184,3 +185,20 @@ def test_out_of_memory_is_one_line(tmp_path, monkeypatch):
     assert result.exit_code == 2, result.output
     assert "skincap: error: not enough memory: Unable to allocate 113. GiB" in result.output
     assert "Traceback" not in result.output and not out.exists()
+
+
+def test_a_bvh_motion_retarget_cannot_pair_is_blamed_by_name(tmp_path):
+    """A BVH of one 1000-joint chain shares no joint name with the body: the one error
+    line named no file (it came from the retarget); now it names the BVH."""
+    sys.path.insert(0, str(Path(__file__).parents[1] / "fuzz"))
+    from cli_fuzz_cases import bvh_deep_chain
+
+    src = tmp_path / "deep.bvh"
+    src.write_bytes(bvh_deep_chain(1000))
+    result = run("synth", "--motion", src, "--markers", "sparse", "--vertices", "5000",
+                 "--frames", "1", "-o", tmp_path / "out")  # fmt: skip
+    assert result.exit_code == 2, result.output
+    lines = [s for s in result.stderr.splitlines() if s.strip()]
+    assert all(s.startswith("skincap: warning: ") for s in lines[:-1])  # the guessed unit
+    assert lines[-1].startswith(f"skincap: error: {src}: no joints to pair")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["deep.bvh"]
