@@ -202,3 +202,33 @@ def test_a_bvh_motion_retarget_cannot_pair_is_blamed_by_name(tmp_path):
     assert all(s.startswith("skincap: warning: ") for s in lines[:-1])  # the guessed unit
     assert lines[-1].startswith(f"skincap: error: {src}: no joints to pair")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["deep.bvh"]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        # each asked NumPy for terabytes ("not enough memory") or ran for ever
+        (
+            ["skin", "--vertices", "100000000000000"],
+            "n_vertices: expected an integer in 1..2000000",
+        ),
+        (["skin", "--frames", "100000000000"], "n_frames: expected an integer in 1..4096"),
+        (
+            ["animate", "--vertices", "100000000000"],
+            "n_vertices: expected an integer in 1..2000000",
+        ),
+        (["animate", "--frames", "100000000000"], "n_frames: expected an integer in 1..4096"),
+        (
+            ["animate", "--rom-frames", "100000000000"],
+            "rom_frames: expected an integer in 0..20000",
+        ),
+        # a repeat of 0 or -1 was taken silently (and still printed timings)
+        (["io", "--repeat", "0"], "repeat: expected an integer in 1..1000, got 0"),
+        (["io", "--repeat", "-1"], "repeat: expected an integer in 1..1000, got -1"),
+    ],
+)
+def test_bench_sizes_beyond_any_scene_are_one_line(args, message):
+    result = run("bench", *args)
+    assert result.exit_code == 2, result.output
+    (line,) = [s for s in result.stderr.splitlines() if s.strip()]
+    assert line.startswith(f"skincap: error: {message}")
