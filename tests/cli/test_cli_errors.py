@@ -326,3 +326,29 @@ def test_skin_max_influences_out_of_bounds_names_the_option(tmp_path: Path, coun
     result = skincap("skin", mesh, BVH, "-o", tmp_path / "o.pc2", "--max-influences", count)
     assert f"got {count}" in one_error_line(result, "--max-influences: expected 1..64")
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        # a newcomer's first tries: typer printed a usage line, a hint and a boxed panel
+        (["animate", "body.obj", "take.c3d"], "Missing option '-o' / '--output'. (see 'skincap animate --help')"),
+        (["demo", "--frames", "abc"], "Invalid value for '--frames': "),
+        (["track", "x.csv", "--bogus"], "No such option: --bogus (see 'skincap track --help')"),
+        (["nosuchverb"], "No such command 'nosuchverb'. (see 'skincap --help')"),
+        (["view"], "Missing argument 'paths'. (see 'skincap view --help')"),
+    ],
+)  # fmt: skip
+def test_a_command_line_that_does_not_parse_is_one_line(tmp_path: Path, args, message) -> None:  # type: ignore[no-untyped-def]
+    result = skincap(*args)
+    assert result.returncode == 2, result.stderr
+    (line,) = result.stderr.splitlines()
+    assert line.startswith("skincap: error: ") and message in line, line
+    assert result.stdout == ""
+
+
+def test_help_and_no_arguments_still_print_the_help() -> None:
+    for args, code in (([], 2), (["--help"], 0), (["bench"], 2)):
+        result = skincap(*args)
+        assert result.returncode == code, result.stderr
+        assert "Commands" in result.stdout + result.stderr, args

@@ -201,3 +201,26 @@ def test_markers_never_seen_and_bad_markers_out_write_nothing(tmp_path):
     )
     assert result.exit_code == 2 and "--markers-out: expected .c3d, .trc, .csv" in result.stderr
     assert list(out.iterdir()) == []
+
+
+@pytest.mark.parametrize("far_m", [3e35, 2e4])
+def test_a_sample_far_beyond_any_capture_is_refused_naming_it(tmp_path, far_m):
+    """One marker sample at 3e35 m (a corrupt float in a C3D) ended in a traceback from
+    SciPy (a null rotation in the calibration's rigid fits): now one line names the file,
+    the marker and the frame, and nothing is written; the input is left as it was."""
+    from skincap.io import write
+    from skincap.types import MarkerSet
+
+    take = read(DATA / "cmu_85_02.c3d")
+    pos = take.positions[:60].copy()
+    pos[5, 1] = [far_m, -far_m, 0.5]
+    src = tmp_path / "far.c3d"
+    write(MarkerSet(positions=pos, labels=list(take.labels), rate=take.rate), src)
+    before = src.read_bytes()
+    result = run("solve", src, "-o", tmp_path / "x.bvh", "--report", tmp_path / "r.json")
+    assert result.exit_code == 2, result.output
+    (line,) = [s for s in result.stderr.splitlines() if s.strip()]
+    assert line.startswith(f"skincap: error: {src}: marker {take.labels[1]!r} in frame 5 lies at")
+    assert "beyond the ±10000 m" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["far.c3d"]
+    assert src.read_bytes() == before

@@ -1,6 +1,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -184,3 +185,50 @@ def test_out_of_memory_is_one_line(tmp_path, monkeypatch):
     assert result.exit_code == 2, result.output
     assert "skincap: error: not enough memory: Unable to allocate 113. GiB" in result.output
     assert "Traceback" not in result.output and not out.exists()
+
+
+def test_a_bvh_motion_retarget_cannot_pair_is_blamed_by_name(tmp_path):
+    """A BVH of one 1000-joint chain shares no joint name with the body: the one error
+    line named no file (it came from the retarget); now it names the BVH."""
+    sys.path.insert(0, str(Path(__file__).parents[1] / "fuzz"))
+    from cli_fuzz_cases import bvh_deep_chain
+
+    src = tmp_path / "deep.bvh"
+    src.write_bytes(bvh_deep_chain(1000))
+    result = run("synth", "--motion", src, "--markers", "sparse", "--vertices", "5000",
+                 "--frames", "1", "-o", tmp_path / "out")  # fmt: skip
+    assert result.exit_code == 2, result.output
+    lines = [s for s in result.stderr.splitlines() if s.strip()]
+    assert all(s.startswith("skincap: warning: ") for s in lines[:-1])  # the guessed unit
+    assert lines[-1].startswith(f"skincap: error: {src}: no joints to pair")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["deep.bvh"]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        # each asked NumPy for terabytes ("not enough memory") or ran for ever
+        (
+            ["skin", "--vertices", "100000000000000"],
+            "n_vertices: expected an integer in 1..2000000",
+        ),
+        (["skin", "--frames", "100000000000"], "n_frames: expected an integer in 1..4096"),
+        (
+            ["animate", "--vertices", "100000000000"],
+            "n_vertices: expected an integer in 1..2000000",
+        ),
+        (["animate", "--frames", "100000000000"], "n_frames: expected an integer in 1..4096"),
+        (
+            ["animate", "--rom-frames", "100000000000"],
+            "rom_frames: expected an integer in 0..20000",
+        ),
+        # a repeat of 0 or -1 was taken silently (and still printed timings)
+        (["io", "--repeat", "0"], "repeat: expected an integer in 1..1000, got 0"),
+        (["io", "--repeat", "-1"], "repeat: expected an integer in 1..1000, got -1"),
+    ],
+)
+def test_bench_sizes_beyond_any_scene_are_one_line(args, message):
+    result = run("bench", *args)
+    assert result.exit_code == 2, result.output
+    (line,) = [s for s in result.stderr.splitlines() if s.strip()]
+    assert line.startswith(f"skincap: error: {message}")

@@ -104,8 +104,18 @@ def _rss_bytes(pid: int) -> int:
         return 0
 
 
-def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: int) -> int:
-    """Body of the forked child: limits, clean stdio and warning filters, then the CLI."""
+def _child(
+    argv: list[str],
+    cwd: str,
+    memory_bytes: int,
+    out_fd: int,
+    err_fd: int,
+    interruptible: bool = False,
+) -> int:
+    """Body of the forked child: limits, clean stdio and warning filters, then the CLI.
+
+    ``interruptible``: SIGINT raises KeyboardInterrupt, as Ctrl-C in a shell does (a
+    serving verb such as ``view`` stops on it); otherwise it kills the child at once."""
     os.chdir(cwd)
     limit = _vm_size_bytes() + memory_bytes
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
@@ -114,7 +124,7 @@ def _child(argv: list[str], cwd: str, memory_bytes: int, out_fd: int, err_fd: in
     resource.setrlimit(resource.RLIMIT_FSIZE, (MAX_FILE_BYTES, MAX_FILE_BYTES))
     global _RESERVE
     _RESERVE = bytearray(16 << 20)
-    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGINT, signal.default_int_handler if interruptible else signal.SIG_DFL)
     os.dup2(out_fd, 1)
     os.dup2(err_fd, 2)
     sys.stdout = io.TextIOWrapper(open(1, "wb", closefd=False), write_through=True)
@@ -234,8 +244,12 @@ def run_cli(
     cwd: str | os.PathLike[str] = ".",
     memory_bytes: int = DEFAULT_MEMORY_BYTES,
     timeout_s: float = DEFAULT_TIMEOUT_S,
+    interrupt_on: str | None = None,
 ) -> Outcome:
-    """Run ``skincap <argv>`` in a forked child with memory and wall-clock limits."""
+    """Run ``skincap <argv>`` in a forked child with memory and wall-clock limits.
+
+    ``interrupt_on``: once the child's stdout holds this text, it gets SIGINT (Ctrl-C)
+    and is waited for as usual: how a serving verb (``view``) is stopped."""
     _cli_command()  # built once here, inherited by every child
 
     with tempfile.TemporaryFile() as out_f, tempfile.TemporaryFile() as err_f:
@@ -247,7 +261,12 @@ def run_cli(
             code = 70
             try:
                 code = _child(
-                    list(argv), os.fspath(cwd), memory_bytes, out_f.fileno(), err_f.fileno()
+                    list(argv),
+                    os.fspath(cwd),
+                    memory_bytes,
+                    out_f.fileno(),
+                    err_f.fileno(),
+                    interruptible=interrupt_on is not None,
                 )
             except MemoryError as exc:  # even printing its traceback ran out of memory
                 os.write(2, b"\nharness: MemoryError escaped the CLI\n")
@@ -265,6 +284,11 @@ def run_cli(
             done, status = os.waitpid(pid, os.WNOHANG)
             if done:
                 break
+            if interrupt_on is not None and interrupt_on.encode() in os.pread(
+                out_f.fileno(), 1 << 16, 0
+            ):
+                os.kill(pid, signal.SIGINT)
+                interrupt_on = None
             if rss_alarm and _rss_bytes(pid) > rss_alarm:
                 os.kill(pid, signal.SIGUSR1)
                 rss_alarm = 0

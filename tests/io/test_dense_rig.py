@@ -118,3 +118,41 @@ def test_marker_parts_out_of_range_and_a_rig_without_parts_are_refused(tmp_path)
     with open(path, "wb") as fh:  # -1: a marker in no part, as the builder writes it
         np.savez(fh, **{**good, "marker_parts": np.array([0, -1, 0, 1, 1, 1])})
     assert read_dense_rig(path)[0]["marker_parts"][1] == -1
+
+
+@pytest.mark.parametrize("compressed", [False, True])
+def test_an_npy_header_declaring_more_than_its_member_holds_is_refused(tmp_path, compressed):
+    """A header claiming shape (2**40, 3) made np.load allocate 24 TiB before reading
+    (MemoryError); now the declared size is checked against the member's first."""
+    import io
+    import re
+    import zipfile
+
+    rig = _rig()
+    path = tmp_path / "r.npz"
+    write_dense_rig(path, rig.to_arrays(), list(rig.labels), rig.settings)
+    src = zipfile.ZipFile(io.BytesIO(path.read_bytes()))
+    mode = zipfile.ZIP_DEFLATED if compressed else zipfile.ZIP_STORED
+    with zipfile.ZipFile(path, "w", compression=mode) as dst:
+        for info in src.infolist():
+            raw = src.read(info)
+            if info.filename == "vertices.npy":
+                raw = re.sub(rb"'shape': \([^)]*\)", b"'shape': (1099511627776, 3)", raw)
+            dst.writestr(info.filename, raw)
+    with pytest.raises(
+        FormatError, match=r"vertices: the header declares shape \(1099511627776, 3\)"
+    ):
+        read_dense_rig(path)
+
+
+def test_a_zip_member_claiming_more_bytes_than_deflate_can_make_is_refused(tmp_path):
+    rig = _rig()
+    path = tmp_path / "r.npz"
+    write_dense_rig(path, rig.to_arrays(), list(rig.labels), rig.settings)
+    data = bytearray(path.read_bytes())
+    # the central directory's uncompressed size of the first member: 2**32 - 1 bytes
+    first = data.index(b"PK\x01\x02")
+    data[first + 24 : first + 28] = (2**32 - 1).to_bytes(4, "little")
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match="the archive claims 4294967295 bytes"):
+        read_dense_rig(path)

@@ -138,3 +138,27 @@ def test_protection_nests_and_ends_with_its_block(source, tmp_path):
             assert is_protected_input(source) and is_protected_input(other)
         assert is_protected_input(source) and not is_protected_input(other)
     assert not is_protected_input(source)
+
+
+def test_a_folder_the_block_made_is_removed_when_it_fails(tmp_path):
+    """'skincap demo --frames 1e14' made its output folder, then failed: the empty
+    folder stayed behind. A folder that did not exist before the block goes again."""
+    from skincap.errors import ValidationError
+
+    new = tmp_path / "new" / "deeper"
+    old = tmp_path / "old"
+    old.mkdir()
+    (old / "keep.txt").write_text("x")
+    with pytest.raises(ValidationError, match="half-way"):
+        with guard_outputs([], [new / "a.txt"], folders=[new, old], force=True):
+            new.mkdir(parents=True)
+            (new / "a.txt").write_text("partial")
+            (old / "b.txt").write_text("partial")
+            raise ValidationError("failed half-way")
+    assert not new.exists()
+    assert (old / "keep.txt").read_text() == "x"  # a folder that was there stays
+    # and one the block completes is kept
+    with guard_outputs([], [new / "a.txt"], folders=[new]):
+        new.mkdir(parents=True)
+        (new / "a.txt").write_text("done")
+    assert (new / "a.txt").read_text() == "done"

@@ -395,3 +395,28 @@ def test_rom_moves_every_true_part_against_its_parent(clips) -> None:
     for part in PART_NAMES[1:]:
         joints = [LM[lm] for lm, p in PART_OF_LANDMARK.items() if p == part and lm in LM]
         assert max(moved[j] for j in joints) >= 15.0, part
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        # 1e14 frames asked NumPy for 728 TiB (skincap synth/demo/eval animate --frames)
+        (
+            {"frames": 10**14},
+            "frames: expected at most 1000000 for a synthetic take, got 100000000000000",
+        ),
+        ({"seconds": 1e300}, r"seconds: 1e\+300 s at 120 Hz is 1\.2e\+302 frames"),
+        # 4 s at 1e300 Hz: int(4e300) frames, and np.arange raised a bare ValueError
+        ({"rate": 1e300}, r"rate: expected 1\.\.100000 Hz, got 1e\+300"),
+        ({"rate": 1e-300, "frames": 10}, r"rate: expected 1\.\.100000 Hz, got 1e-300"),
+    ],
+)
+def test_clip_lengths_and_rates_beyond_any_take_are_refused(options, message):
+    with pytest.raises(ValidationError, match=message):
+        make_clip("flex", synth_skeleton(), **options)
+
+
+def test_the_longest_and_slowest_clips_allowed_are_made():
+    motion = make_clip("tpose", synth_skeleton(), rate=1.0, seconds=3.0)
+    assert motion.rotations.shape[0] == 3 and motion.rate == 1.0
+    assert np.isfinite(motion.rotations).all()

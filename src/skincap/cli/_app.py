@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+import typer.core
 from rich.console import Console
 
 from skincap.errors import (
@@ -28,12 +29,53 @@ from skincap.errors import (
     one_line,
 )
 
+
+class _OneLineUsageErrors(typer.core.TyperGroup):
+    """The root command: a command line click cannot parse (a missing ``-o``, a word
+    where a number goes, an unknown option) is one line, ``skincap: error: <what>
+    (see '<verb> --help')``, exit 2, as every other error; not a usage text and a box."""
+
+    def main(self, *args: Any, standalone_mode: bool = True, **kwargs: Any) -> Any:
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:  # a typer that vendors click
+            from typer._click import exceptions as click
+        except ImportError:  # pragma: no cover - a typer built on click
+            import click  # type: ignore[no-redef]
+
+        try:
+            code = super().main(*args, standalone_mode=False, **kwargs)
+        except click.UsageError as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError":  # 'skincap' alone: the help
+                from typer import rich_utils
+
+                rich_utils.rich_format_error(exc)
+                sys.exit(exc.exit_code)
+            ctx = exc.ctx
+            hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""
+            err.print(
+                f"skincap: error: {one_line(exc.format_message())}{hint}",
+                markup=False,
+                soft_wrap=True,
+            )
+            sys.exit(2)
+        except click.ClickException as exc:
+            err.print(f"skincap: error: {one_line(exc.format_message())}", markup=False)
+            sys.exit(exc.exit_code)
+        except typer.Abort:  # the vendored click raises typer's
+            err.print("skincap: aborted", markup=False)
+            sys.exit(1)
+        # standalone_mode=False returns an Exit's code (130 after Ctrl-C) instead of exiting
+        sys.exit(code if isinstance(code, int) else 0)
+
+
 app = typer.Typer(
     name="skincap",
     help="Optical motion capture to moving human skin. Run 'skincap demo' to see it work.",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    cls=_OneLineUsageErrors,
 )
 bench_app = typer.Typer(
     help="Benchmarks that print speed ratios against a peer measured in the same run.",
@@ -301,7 +343,7 @@ def main() -> None:
     os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "omp workqueue tbb")
     install_termination_handlers()
     try:
-        app()
+        app(prog_name="skincap")  # also under 'python -m skincap' (the hints name the verb)
     except KeyboardInterrupt:
         err.print("skincap: interrupted")
         sys.exit(130)

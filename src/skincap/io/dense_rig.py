@@ -16,6 +16,7 @@ Sidecar: ``{"format": "skincap-dense-rig", "version": 1, "labels": [...N],
 from __future__ import annotations
 
 import json
+import math
 import os
 import zipfile
 from collections.abc import Mapping
@@ -137,12 +138,52 @@ def read_dense_rig(
     if not isinstance(settings, dict):
         raise FormatError(sidecar, "settings: expected an object")
     try:
+        _check_npz_sizes(npz)
         with np.load(npz, allow_pickle=False) as data:
             arrays = {name: np.asarray(data[name]) for name in data.files}
     except (ValueError, OSError, zipfile.BadZipFile, EOFError) as exc:
         raise FormatError(npz, f"not a readable NPZ rig ({exc})") from None
     _check_arrays(npz, arrays, len(labels))
     return arrays, labels, settings
+
+
+#: Most bytes deflate can expand one byte into (zlib's limit is about 1032).
+_DEFLATE_MAX_RATIO = 1100
+
+
+def _check_npz_sizes(npz: Path) -> None:
+    """FormatError when an array's ``.npy`` header declares more bytes than its member
+    holds: ``np.load`` allocates the declared shape before it reads (a header claiming
+    (2**40, 3) asked for 24 TiB). The members' sizes are bounded by the file's own size."""
+    file_size = npz.stat().st_size
+    with zipfile.ZipFile(npz) as z:
+        for info in z.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            most = info.compress_size * (
+                1 if info.compress_type == zipfile.ZIP_STORED else _DEFLATE_MAX_RATIO
+            )
+            if info.compress_size > file_size or info.file_size > most:
+                raise FormatError(
+                    npz,
+                    f"{info.filename}: the archive claims {info.file_size} bytes from "
+                    f"{info.compress_size} stored, in a file of {file_size}",
+                )
+            with z.open(info) as f:
+                version = np.lib.format.read_magic(f)
+                if version == (1, 0):
+                    shape, _, dtype = np.lib.format.read_array_header_1_0(f)
+                else:
+                    shape, _, dtype = np.lib.format.read_array_header_2_0(f)
+                header = f.tell()
+            count = math.prod(shape)
+            if count * dtype.itemsize > info.file_size - header:
+                name = info.filename.removesuffix(".npy")
+                raise FormatError(
+                    npz,
+                    f"{name}: the header declares shape {shape} ({count * dtype.itemsize} "
+                    f"bytes) but the array holds {info.file_size - header}",
+                )
 
 
 def _check_arrays(path: Path, arrays: Mapping[str, np.ndarray], n_labels: int) -> None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import os
+import shutil
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -195,7 +196,9 @@ def guard_outputs(
 
     Every file the block writes through :func:`~skincap.io._common.atomic_output` is
     checked again when written, so no input is replaced even by an output the caller
-    did not list.
+    did not list. A folder of ``folders`` that did not exist before the block and
+    the block made is removed again, with what it holds, when the block fails: a
+    command that stops half-way leaves nothing behind.
 
     Example
     -------
@@ -209,7 +212,14 @@ def guard_outputs(
             check_output_folder(folder)
         for target in check_outputs(outputs, force=force):
             _refuse_missing_parent(target, made)
-        yield
+        new = [folder for folder in made if not os.path.lexists(folder)]
+        try:
+            yield
+        except BaseException:  # Ctrl-C too: no half-written folder stays
+            for folder in new:
+                if folder.is_dir() and not folder.is_symlink():
+                    shutil.rmtree(folder, ignore_errors=True)
+            raise
 
 
 def _refuse_missing_parent(target: Path, made: list[Path]) -> None:

@@ -86,6 +86,8 @@ __all__ = [
     "DEFAULT_SECONDS",
     "HOLD_SECONDS",
     "BLEND_SECONDS",
+    "CLIP_RATE_RANGE",
+    "MAX_CLIP_FRAMES",
     "clip_frame_count",
     "make_clip",
 ]
@@ -96,6 +98,11 @@ CLIPS: tuple[str, ...] = (
 )  # fmt: skip
 #: Default clip length, seconds.
 DEFAULT_SECONDS = 4.0
+#: Most frames of a synthetic take (2.3 hours at 120 Hz): every stage keeps (T, ...)
+#: arrays, and 1e14 frames asked NumPy for 728 TiB.
+MAX_CLIP_FRAMES = 1_000_000
+#: Frame rates a clip may be made at, Hz (1e-300 Hz sized a 4e300-frame time axis).
+CLIP_RATE_RANGE = (1.0, 100_000.0)
 #: The T-pose is held exactly for this long at the start of every clip, seconds.
 HOLD_SECONDS = 0.5
 #: Duration of the blend from the T-pose into the action, seconds.
@@ -492,17 +499,27 @@ _CLIP_FUNCS: dict[str, Callable[[ClipPose, np.ndarray, np.ndarray, np.random.Gen
 def clip_frame_count(frames: Any, seconds: Any, rate: float) -> int:
     """Frames of a clip from ``frames`` (a positive integer) or ``seconds`` (positive,
     finite) at ``rate`` Hz; neither: :data:`DEFAULT_SECONDS`. ValidationError for both,
-    or for a bad value."""
+    for a bad value, or for more than :data:`MAX_CLIP_FRAMES` frames."""
     if frames is not None and seconds is not None:
         raise ValidationError("frames and seconds: give one or neither, not both")
     if frames is not None:
         if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 1:
             raise ValidationError(f"frames: expected a positive integer, got {frames!r}")
+        if frames > MAX_CLIP_FRAMES:
+            raise ValidationError(
+                f"frames: expected at most {MAX_CLIP_FRAMES} for a synthetic take, got {frames}"
+            )
         return int(frames)
     if seconds is None:
         seconds = DEFAULT_SECONDS
     sec = check_positive("seconds", seconds, expected_finite="a positive finite duration")
-    return max(1, int(round(sec * rate)))
+    n = sec * rate
+    if not n <= MAX_CLIP_FRAMES:  # sized before int(): 4 s at 1e300 Hz would not fit
+        raise ValidationError(
+            f"seconds: {sec:g} s at {rate:g} Hz is {n:.3g} frames, more than the "
+            f"{MAX_CLIP_FRAMES} a synthetic take may have"
+        )
+    return max(1, int(round(n)))
 
 
 def make_clip(
@@ -568,6 +585,10 @@ def make_clip(
         expected="a positive number in Hz",
         expected_finite="a positive finite frame rate in Hz",
     )
+    if not CLIP_RATE_RANGE[0] <= r <= CLIP_RATE_RANGE[1]:
+        raise ValidationError(
+            f"rate: expected {CLIP_RATE_RANGE[0]:g}..{CLIP_RATE_RANGE[1]:g} Hz, got {r:g}"
+        )
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValidationError(f"seed: expected a non-negative integer, got {seed!r}")
     n = clip_frame_count(frames, seconds, r)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from skincap.errors import FormatError, ValidationError
+from skincap.errors import FormatError, ValidationError, naming_file
 from skincap.types import Mesh, Motion
 
 __all__ = ["build_body", "build_motion"]
@@ -87,4 +87,6 @@ def build_motion(
             source.channels,
             source.meta,
         )
-    return retarget(source, body)
+    # a skeleton retarget cannot pair (no shared names or landmarks) is the file's fault
+    with naming_file(path):
+        return retarget(source, body)

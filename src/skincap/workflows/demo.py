@@ -127,6 +127,9 @@ def run_demo(
 
     if isinstance(frames, bool) or not isinstance(frames, int) or frames < 240:
         raise ValidationError(f"frames: at least 240, got {frames!r}")
+    from skincap.synth.clips import clip_frame_count
+
+    clip_frame_count(frames, None, 120.0)  # the synthetic take's upper bound, before any work
     from skincap.io.output_safety import guard_outputs
 
     folder = Path(output)

@@ -15,6 +15,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from skincap._arrays import Progress
 from skincap.errors import FormatError, ValidationError, naming_file
 from skincap.io import read, write
@@ -36,13 +38,20 @@ __all__ = [
 ]
 
 
+#: Farthest a marker of a capture may lie from the origin, metres: a sample beyond it is
+#: a corrupt value (or a wrong unit), and the rigid fits of the calibration lose every
+#: other marker's digits against it (3e35 m gave a null rotation and a traceback).
+MAX_CAPTURE_COORDINATE_M = 1e4
+
+
 def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
     """The labelled markers of a capture file (``*N`` fragment columns dropped).
 
     Raises
     ------
     FormatError
-        The file holds no markers, or no labelled ones.
+        The file holds no markers, or no labelled ones, or a sample farther than
+        :data:`MAX_CAPTURE_COORDINATE_M` from the origin.
     """
     data = read(path)
     if not isinstance(data, MarkerSet):
@@ -50,7 +59,17 @@ def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
     keep = [k for k, label in enumerate(data.labels) if not label.startswith("*")]
     if not keep:
         raise FormatError(path, "has no labelled markers (only '*N' fragments): label it first")
-    return data if len(keep) == data.n_markers else data.select(keep)
+    data = data if len(keep) == data.n_markers else data.select(keep)
+    far = np.abs(data.positions) > MAX_CAPTURE_COORDINATE_M  # NaN (missing) compares False
+    if far.any():
+        t, n, _ = (int(i[0]) for i in np.nonzero(far))
+        raise FormatError(
+            path,
+            f"marker {data.labels[n]!r} in frame {t} lies at "
+            f"{[float(x) for x in data.positions[t, n]]} m, beyond the "
+            f"±{MAX_CAPTURE_COORDINATE_M:g} m a capture may reach (a corrupt sample or a wrong unit?)",
+        )
+    return data
 
 
 def _check_solve_options(

@@ -43,6 +43,13 @@ from skincap.deform.dense.segmentation import segment_marker_surface
 from skincap.deform.dense.weights import seam_vertex_weights
 from skincap.deform.skeletal.deformers import LinearBlendSkinning
 from skincap.errors import MissingDependencyError, ValidationError
+from skincap.evaluate.bench.common import (
+    BENCH_MAX_FRAMES,
+    BENCH_MAX_REPEAT,
+    BENCH_MAX_ROM_FRAMES,
+    BENCH_MAX_VERTICES,
+    check_bench_count,
+)
 
 __all__ = ["GOALS_MS", "chain_scene", "default_parts", "run_animate_benchmark"]
 
@@ -106,6 +113,10 @@ def chain_scene(
         (N, P), ``vertices`` (V, 3), ``beta`` (V, P), ``markers`` (T, N, 3),
         ``transforms`` (T, P, 4, 4): every array in metres.
     """
+    check_bench_count("n_vertices", n_vertices, 1, BENCH_MAX_VERTICES)
+    check_bench_count("n_frames", n_frames, 1, BENCH_MAX_FRAMES)
+    check_bench_count("n_parts", n_parts, 1, 200)
+    check_bench_count("n_markers", n_markers, 1, 100_000)
     if n_parts < 1 or n_markers < 6 * n_parts or n_vertices < 1 or n_frames < 1:
         raise ValidationError(
             f"need parts >= 1, markers >= 6 per part, vertices and frames >= 1; got "
@@ -244,6 +255,8 @@ def run_animate_benchmark(
     """
     if repeat < 1:
         raise ValidationError(f"repeat must be >= 1; got {repeat}")
+    check_bench_count("repeat", repeat, 1, BENCH_MAX_REPEAT)
+    check_bench_count("rom_frames", rom_frames, 0, BENCH_MAX_ROM_FRAMES)
     scene = chain_scene(n_vertices, n_parts, n_markers, n_frames, seed=seed)
     notes: list[str] = []
     parts, seam = default_parts(scene)

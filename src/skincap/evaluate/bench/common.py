@@ -22,6 +22,25 @@ import numpy as np
 
 from skincap.errors import MissingDependencyError, ValidationError
 
+#: Largest sizes a benchmark is built with: a scene beyond them is a typo, and 1e14
+#: vertices or frames asked NumPy for petabytes.
+BENCH_MAX_VERTICES = 2_000_000
+BENCH_MAX_FRAMES = 4096  # timed frames: (frames, vertices, 3) float64 outputs are held
+BENCH_MAX_ROM_FRAMES = 20_000
+BENCH_MAX_REPEAT = 1_000
+
+
+def check_bench_count(name: str, value: Any, low: int, high: int) -> int:
+    """``value`` as an int in ``low..high``; ValidationError naming ``name`` otherwise."""
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, np.integer))
+        or not low <= value <= high
+    ):
+        raise ValidationError(f"{name}: expected an integer in {low}..{high}, got {value!r}")
+    return int(value)
+
+
 __all__ = [
     "best_time",
     "first_call_in_fresh_process",
@@ -219,6 +238,7 @@ def run_io_benchmarks(*, repeat: int = 5) -> dict[str, Any]:
     -------
     dict with the measured seconds, the ratios and ``lines`` of text to print.
     """
+    repeat = check_bench_count("repeat", repeat, 1, BENCH_MAX_REPEAT)
     try:
         import bvhio
     except ImportError:

@@ -30,7 +30,13 @@ from skincap.deform.skeletal.deformers import (
     numba_available,
 )
 from skincap.errors import ValidationError
-from skincap.evaluate.bench.common import best_seconds
+from skincap.evaluate.bench.common import (
+    BENCH_MAX_FRAMES,
+    BENCH_MAX_REPEAT,
+    BENCH_MAX_VERTICES,
+    best_seconds,
+    check_bench_count,
+)
 
 __all__ = ["run_skinning_benchmark"]
 
@@ -184,15 +190,15 @@ class _Measured(NamedTuple):
 def _check_sizes(
     n_vertices: int, n_influences: int, n_frames: int, repeat: int, n_joints: int
 ) -> None:
-    for name, value, low in (
-        ("n_vertices", n_vertices, 1),
-        ("n_influences", n_influences, 1),
-        ("n_frames", n_frames, 1),
-        ("repeat", repeat, 1),
-        ("n_joints", n_joints, 1),
+    for name, value, high in (
+        ("n_vertices", n_vertices, BENCH_MAX_VERTICES),
+        ("n_influences", n_influences, 10_000),
+        # one batch of (frames, vertices, 3) float64 is held per backend
+        ("n_frames", n_frames, BENCH_MAX_FRAMES),
+        ("repeat", repeat, BENCH_MAX_REPEAT),
+        ("n_joints", n_joints, 10_000),
     ):
-        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
-            raise ValidationError(f"{name}: expected an integer >= {low}, got {value!r}")
+        check_bench_count(name, value, 1, high)
     if n_influences > n_joints:
         raise ValidationError(
             f"n_influences: {n_influences} influences need at least as many joints, got {n_joints}"
