@@ -190,3 +190,35 @@ def test_a_rope_held_at_a_foot_and_a_shin_is_ordered_and_followed(data_dir) -> N
     assert order in (truth_order, truth_order[::-1])
     assert not track.lost.any()
     assert classify_points(track, cloud, take.point_truth)["f1"] >= 0.95
+
+
+@pytest.fixture(scope="module")
+def kt_jump_whole(data_dir):  # type: ignore[no-untyped-def]
+    """The whole OptiTrack walk (seed 0, as ``skincap synth --rope jump --hands
+    Foot_Marker1:Leg_Marker1``): the rope's end lies on the floor beside the knee and
+    foot markers, moving with them."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        m = read_c3d(data_dir / "kt_optitrack_walking.c3d")
+        take = real_capture_with_rope(
+            m, rope="jump", hands=[["Foot_Marker1"], ["Leg_Marker1"]], seed=0
+        )
+        track = rope_tracker_from_truth(take.points, take.point_truth)(take.points)
+    return take, track
+
+
+@pytest.mark.slow
+def test_rope_points_back_beside_a_hidden_trace_do_not_become_body_points(kt_jump_whole) -> None:  # type: ignore[no-untyped-def]
+    # the end of the rope lies on the floor beside the knee and foot markers; a leg
+    # marker's body chain passed onto a hidden rope marker's point as it came back
+    # (its trace, hidden, did not count against the chain), and the trace, back from
+    # its gap, refused it as a body point for as long as the chain went on (about a
+    # third of the rope points left untaken were body points): recall 0.9238 ->
+    # 0.9303, F1 0.9556 -> 0.9591
+    # (issue #15's 0.99 is not met here yet: the traces of the end held at the foot
+    # also refuse their own points as moving rigidly with the leg)
+    take, track = kt_jump_whole
+    scores = classify_points(track, take.points, take.point_truth)
+    assert scores["recall"] >= 0.928
+    assert scores["f1"] >= 0.958
+    assert scores["precision"] >= 0.989

@@ -94,6 +94,30 @@ def test_body_chains_continue_unambiguous_body_points_only(steps) -> None:  # ty
     assert not body.any()
 
 
+def test_a_hidden_traces_prediction_stops_a_body_chain(steps) -> None:  # type: ignore[no-untyped-def]
+    # a body marker drops out beside a rope marker hidden at the same time; the rope
+    # marker's point comes back where the body marker's velocity would have taken it.
+    # The hidden trace predicts it there (its invented position plus its velocity), so
+    # the point is ambiguous, not body: the trace, back from its gap, refuses body
+    # points, and the chain would otherwise hold the rope marker's point from then on
+    prev = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    pts = np.array([[0.011, 0.0, 0.0], [0.5, 0.002, 0.0]])
+    cloud = _cloud(prev, pts)
+
+    def run(v_hidden: np.ndarray) -> np.ndarray:
+        state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03, body_chain_gate=1.0 / 3.0)
+        state.body[:2] = [True, True]
+        state.body_vel[0] = [0.01, 0.0, 0.0]
+        state.point_index[0] = -1  # no trace measured in frame 0: all hidden
+        state.invented[0] = True
+        v_pred = np.array([v_hidden, [np.nan, np.nan, np.nan], [9.0, 9.0, 9.0]])
+        steps.continue_body_chains(state, 1, v_pred, p)
+        return state.body[2:].copy()
+
+    np.testing.assert_array_equal(run(np.array([9.0, 0.0, 0.0])), [True, True])
+    np.testing.assert_array_equal(run(np.array([0.012, 0.0, 0.0])), [False, True])
+
+
 def _zipper(steps, cur: np.ndarray, known: np.ndarray, spacing: np.ndarray):  # type: ignore[no-untyped-def]
     state, p = blank_state(_cloud(np.zeros((1, 3))), spacing)
     state.cur[:] = cur

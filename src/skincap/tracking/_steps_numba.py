@@ -233,12 +233,12 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
                 p_count[i - a] += 1
                 q_count[q - pa] += 1
                 p_q[i - a] = q
-    # and near the predictions V of the traces measured in frame t - 1
+    # and near the predictions V of every trace, measured or hidden in frame t - 1
     near_rope = np.zeros(b - a, np.bool_)
     for j in range(v_pred.shape[0]):
-        if state.point_index[t - 1, j] < 0:
-            continue
         x, y, z = v_pred[j, 0], v_pred[j, 1], v_pred[j, 2]
+        if not (np.isfinite(x) and np.isfinite(y) and np.isfinite(z)):
+            continue
         k0, k1 = _rows_within(grid, x, y, z, eps)
         for k in range(k0, k1):
             i = grid[4][k]

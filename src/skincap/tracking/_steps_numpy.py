@@ -254,9 +254,12 @@ def continue_body_chains(state: TrackState, t: int, v_pred: np.ndarray, p: StepP
 
     A point is a body point when it is the only point within ``ε = body_chain_gate γ``
     of where a previous body point's velocity takes it, that prediction is the only
-    one (body, or ``v_pred`` (M, 3) of a trace measured in frame t - 1) within ε of
-    it. Writes ``state.body`` and ``state.body_vel`` (its displacement, metres per
-    frame; zero elsewhere) for frame t's points.
+    one (body, or ``v_pred`` (M, 3) of any trace) within ε of it. A hidden trace's
+    prediction counts too: a body marker that drops out beside a rope marker hidden at
+    the same time would otherwise hand its chain to that marker's point when it comes
+    back, which the trace, back from its gap, then refuses as a body point. Writes
+    ``state.body`` and ``state.body_vel`` (its displacement, metres per frame; zero
+    elsewhere) for frame t's points.
     """
     a0, a1 = _frame_bounds(state, t - 1)
     a2 = int(state.offsets[t + 1])
@@ -271,7 +274,7 @@ def continue_body_chains(state: TrackState, t: int, v_pred: np.ndarray, p: StepP
         pred = prev_points[qi] + state.body_vel[a0:a1][qi]
         near = _squared_distances(points, pred) < eps * eps  # (N, Q)
         single = near.sum(axis=1) == 1
-        rope_pred = v_pred[state.point_index[t - 1] >= 0]
+        rope_pred = v_pred[np.isfinite(v_pred).all(axis=1)]
         if rope_pred.shape[0]:
             single &= ~(_squared_distances(points, rope_pred) < eps * eps).any(axis=1)
         ok = near & single[:, None] & (near.sum(axis=0) == 1)[None, :]

@@ -64,11 +64,12 @@ Beyond the thesis:
 * Body chains: every point of frame 0 the rope does not take is a body point (the user
   selected the rope there); a point that continues a body point of the previous frame
   (the only point within ``γ / 3`` of where that point's velocity takes it, and that
-  point the only one near it, and no trace measured there predicted near it) is a
-  body point too. A trace coming back from a gap (or never seen) does not take a
-  body point. This keeps the traces of markers hidden in the initialisation window,
-  invented on the curve beside the legs, off the leg markers while the rope hangs
-  still and no motion test can tell the two apart.
+  point the only one near it, and no trace, measured or hidden, predicted near it) is
+  a body point too: a hidden trace's prediction keeps a chain from passing onto its
+  marker's point when a body marker beside it drops out. A trace coming back from a
+  gap (or never seen) does not take a body point. This keeps the traces of markers
+  hidden in the initialisation window, invented on the curve beside the legs, off the
+  leg markers while the rope hangs still and no motion test can tell the two apart.
 * The zipper: a run of two or more invented markers inside the rope (a whip's wave,
   a rope lifting off the floor) is badly bridged by the curve, so the markers at the
   run's ends are also searched where the measured side continues: bent as it bends
