@@ -7,7 +7,8 @@ track``); bucketing the frame into cells one gate wide along the axis that sprea
 it most evenly (fewest pairs of points sharing a cell), then scanning only the cells
 a gate reaches, asks the same question of ~5 % of the points. The tracker buckets
 each frame once (:func:`fill_grid` into buffers its state keeps) and every step of
-that frame and of the next searches the same grid.
+that frame and of the next searches the same grid, as do the backward scans of the
+rigidity refusal over the frames of their window.
 
 A grid is the tuple ``(axis, lo, inv_width, starts, order)``: ``axis`` (0, 1, 2),
 ``lo`` the smallest coordinate along it (metres), ``inv_width`` one over the cell

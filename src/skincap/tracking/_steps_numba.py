@@ -7,9 +7,11 @@ step does and why): the same ``(state, t, …, p)`` arguments, a
 :class:`~skincap.tracking.state.StepParams`. Loops replace the vectorised
 expressions, the KD-tree queries become a k-nearest search over the frame's few
 hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: each
-frame is bucketed once, into buffers the state keeps (:func:`frame_grid`), and every
-search of that frame and of the next scans only the cells within its gate: the
-matching passes, the body-point chains and the "follows something slower" refusal),
+frame is bucketed once, into buffers the state keeps (:func:`frame_grid`, compiled in
+:mod:`skincap.tracking._refusals_numba`), and every search of that frame and of the
+next scans only the cells within its gate: the matching passes, the body-point chains
+and the "follows something slower" refusal; the refusals' backward scans search the
+grids of the frames of their window),
 and the leave-one-out curve is evaluated directly. It takes the same points and
 invents the same markers; invented positions agree to rounding (the order of a few
 additions differs).
