@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import blank_state
+from conftest import blank_state, rope_truth_indices
 from skincap.tracking import _steps_numpy
 from skincap.types import PointCloud
 
@@ -263,6 +263,90 @@ def test_rigidity_test_agrees_between_backends() -> None:
             for j in (0, -1):
                 args = (state, t, j, where[t, obj], p)
                 assert _steps_numba.rigid_with_body(*args) == _steps_numpy.rigid_with_body(*args)
+
+
+def _truth_state(take, t: int):  # type: ignore[no-untyped-def]
+    """(state, params) of a synthetic take as if tracked perfectly up to frame t: each
+    trace's points from the truth labels, frame t's rope points taken."""
+    from skincap.tracking.init import init_rope
+    from skincap.tracking.settings import TrackSettings
+    from skincap.tracking.state import start_tracking
+
+    cloud = take.points
+    state, p = start_tracking(
+        cloud, init_rope(cloud, markers=rope_truth_indices(take)), TrackSettings()
+    )
+    labels = take.point_truth.astype(str)
+    names = np.unique(labels[np.char.startswith(labels, "rope_")])
+    for j, name in enumerate(names):
+        rows = np.nonzero(labels == name)[0]
+        frames = cloud.frame_index[rows]
+        state.point_index[frames[frames < t], j] = rows[frames < t]
+        state.taken[j] = rows[frames == t][0] if np.any(frames == t) else -1
+    return state, p
+
+
+def test_backward_scans_agree_between_backends_on_every_point(whip_take) -> None:  # type: ignore[no-untyped-def]
+    """The compiled backward scans search each past frame's grid, not every point: on
+    every point of three frames of a dense take they answer as the reference does."""
+    pytest.importorskip("numba")
+    from skincap.tracking import _refusals_numba, _refusals_numpy
+
+    cloud = whip_take.points
+    body_like = asked = reached = 0
+    for t in (45, 120, 190):
+        state, p = _truth_state(whip_take, t)
+        for point in range(int(cloud.offsets[t]), int(cloud.offsets[t + 1])):
+            for j in (-1, 3):
+                want = _steps_numpy.rigid_with_body(state, t, j, point, p)
+                assert _refusals_numba.rigid_with_body(state, t, j, point, p) == want, (t, point)
+                body_like += want
+                asked += 1
+            for j in (0, 11):
+                want = _refusals_numpy.path_back_to_trace(state, t, j, point, p)
+                got = _refusals_numba.path_back_to_trace(state, t, j, point, p)
+                # the same point and frame; the distance to rounding (the backends add
+                # the squares in different orders)
+                assert got[:2] == want[:2], (t, point, j)
+                assert got[2] == pytest.approx(want[2], rel=1e-12), (t, point, j)
+                reached += want[0] >= 0
+    assert 0 < body_like < asked and reached > 0  # both answers were asked for
+
+
+def test_backward_scans_break_ties_to_the_lower_row() -> None:
+    """Two points equally near the prediction on either side of it along the grid's
+    axis, the far-side one first in the frame: the scan of every point takes the first,
+    the compiled grid search (which meets the lower cell first) must too."""
+    pytest.importorskip("numba")
+    from skincap.tracking import _refusals_numba, _refusals_numpy
+    from skincap.tracking._numba_grid import build_grid
+
+    half = 3.0 / 128.0  # m; dyadic coordinates: both distances exactly equal
+    frames = []
+    for f in range(40):
+        centre = np.array([f / 64.0, 1.0, 0.0])  # moving along x
+        pair = centre + np.array([[half, 0.0, 0.0], [-half, 0.0, 0.0]])  # + side first
+        line = centre + np.stack(
+            [np.arange(30) * 0.05 - 0.75, 0 * np.ones(30), 0.8 * np.ones(30)], 1
+        )
+        frames.append(np.concatenate([pair, line]))
+    t = 39
+    frames[t] = np.concatenate([frames[t], (frames[t - 1][0] + frames[t - 1][1])[None] / 2])
+    cloud = _cloud(*frames)
+    state, p = blank_state(cloud, [0.12, 0.12])
+    a = int(cloud.offsets[t - 1])
+    axis, lo, inv, _, _ = build_grid(cloud.points, a, int(cloud.offsets[t]), p.gamma)
+    cells = np.floor((cloud.points[[a, a + 1], axis] - lo) * inv)
+    assert axis == 0 and cells[1] < cells[0]  # the + side's cell is met second
+    state.point_index[:t, 0] = cloud.offsets[:t] + 5  # the trace's own points, far off
+    point = int(cloud.offsets[t + 1]) - 1  # exactly between frame t - 1's pair
+    want = _refusals_numpy.path_back_to_trace(state, t, 0, point, p)
+    assert want[0] == a and want[1] == t - 1  # the first of the pair, the + side
+    assert _refusals_numba.path_back_to_trace(state, t, 0, point, p) == want
+    for j in (-1, 0):
+        assert _refusals_numba.rigid_with_body(state, t, j, point, p) == (
+            _steps_numpy.rigid_with_body(state, t, j, point, p)
+        )
 
 
 def test_a_stretched_link_drops_its_body_like_side(steps) -> None:  # type: ignore[no-untyped-def]

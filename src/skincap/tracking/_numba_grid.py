@@ -7,7 +7,8 @@ track``); bucketing the frame into cells one gate wide along the axis that sprea
 it most evenly (fewest pairs of points sharing a cell), then scanning only the cells
 a gate reaches, asks the same question of ~5 % of the points. The tracker buckets
 each frame once (:func:`fill_grid` into buffers its state keeps) and every step of
-that frame and of the next searches the same grid.
+that frame and of the next searches the same grid, as do the backward scans of the
+rigidity refusal over the frames of their window.
 
 A grid is the tuple ``(axis, lo, inv_width, starts, order)``: ``axis`` (0, 1, 2),
 ``lo`` the smallest coordinate along it (metres), ``inv_width`` one over the cell
@@ -26,7 +27,7 @@ import numpy as np
 from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
 
-__all__ = ["build_grid", "fill_grid", "grid_cells", "grid_nearest", "grid_rows"]
+__all__ = ["build_grid", "cell_span", "fill_grid", "grid_cells", "grid_nearest", "grid_rows"]
 
 _INF = np.inf
 
@@ -117,7 +118,14 @@ def grid_cells(grid, x, bound):  # pragma: no cover - runs compiled
     """(first, last) cells a search ``bound`` metres around coordinate ``x`` reaches
     along the grid's axis; first > last when none (or ``x`` is NaN)."""
     _, lo, inv, starts, _ = grid
-    n_cells = starts.size - 1
+    return cell_span(lo, inv, starts.size - 1, x, bound)
+
+
+@numba.njit(**JIT)
+def cell_span(lo, inv, n_cells, x, bound):  # pragma: no cover - runs compiled
+    """:func:`grid_cells` of a grid given by its lowest coordinate ``lo`` (metres),
+    ``inv`` (1 / cell width) and number of cells (for callers that keep a grid's
+    numbers rather than the tuple)."""
     u0 = (x - bound - lo) * inv
     u1 = (x + bound - lo) * inv
     if inv == 0.0:  # every point is in cell 0 (_cell)

@@ -9,9 +9,11 @@ import numba
 import numpy as np
 
 from skincap.backends import key_caches_on_package
+from skincap.tracking._numba_grid import cell_span, fill_grid, grid_rows
 from skincap.tracking._numba_search import JIT, norm3
 
 __all__ = [
+    "frame_grid",
     "path_back_to_trace",
     "reject_odd_motion",
     "reject_overstretched",
@@ -20,6 +22,71 @@ __all__ = [
 ]
 
 _INF = np.inf
+# a search bound's margin: the grid's cells come from (x - lo) * inv, whose rounding
+# must not drop a row whose exact distance is within the bound
+_PAD = 1.0 + 1e-9
+
+
+@numba.njit(**JIT)
+def frame_grid(state, t, p):  # pragma: no cover - runs compiled
+    """Frame t's points bucketed in cells γ wide (a
+    :mod:`~skincap.tracking._numba_grid` grid), built on the first call for the frame
+    into the state's ``grid_*`` buffers and returned from them afterwards."""
+    info = state.grid_info
+    _ensure_grid(state.points, state.offsets, info, state.grid_starts, state.grid_order, t, p.gamma)
+    a, b = state.offsets[t], state.offsets[t + 1]
+    s0 = a + 2 * t
+    cells = np.int64(info[t, 3])
+    return (
+        np.int64(info[t, 0]),
+        info[t, 1],
+        info[t, 2],
+        state.grid_starts[s0 : s0 + cells + 1],
+        state.grid_order[a:b],
+    )
+
+
+@numba.njit(**JIT)
+def _ensure_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no cover
+    """Bucket frame f into the state's grid buffers (``grid_info``, ``grid_starts``,
+    ``grid_order``) unless that was done already (:func:`frame_grid`)."""
+    if info[f, 0] >= 0.0:
+        return
+    a, b = offsets[f], offsets[f + 1]
+    axis, lo, inv, cells = fill_grid(
+        points, a, b, gamma, starts[a + 2 * f : b + 2 * f + 2], order[a:b]
+    )
+    info[f, 0], info[f, 1], info[f, 2], info[f, 3] = axis, lo, inv, cells
+
+
+@numba.njit(**JIT)
+def _grid_run(points, offsets, info, starts, order, f, gamma, x, y, z, bound):  # pragma: no cover
+    """``(k0, k1)``: ``order[k0:k1]`` (the state's ``grid_order``) are frame f's rows in
+    the cells a search ``bound`` metres around (x, y, z) reaches, as
+    :func:`_rows_within` of :func:`frame_grid`; the grid is built on first use. Takes
+    the state's arrays rather than the state: the backward scans call it for every
+    frame of their window, and passing the whole state costs more than the search."""
+    _ensure_grid(points, offsets, info, starts, order, f, gamma)
+    axis = np.int64(info[f, 0])
+    first, last = cell_span(
+        info[f, 1],
+        info[f, 2],
+        np.int64(info[f, 3]),
+        x if axis == 0 else (y if axis == 1 else z),
+        bound,
+    )
+    if first > last:
+        return 0, 0
+    a = offsets[f]
+    s0 = a + 2 * f
+    return a + starts[s0 + first], a + starts[s0 + last + 1]
+
+
+@numba.njit(**JIT)
+def _rows_within(grid, x, y, z, bound):  # pragma: no cover - runs compiled
+    """:func:`~skincap.tracking._numba_grid.grid_rows` around the point (x, y, z)."""
+    axis = grid[0]
+    return grid_rows(grid, x if axis == 0 else (y if axis == 1 else z), bound)
 
 
 @numba.njit(**JIT)
@@ -36,19 +103,27 @@ def path_back_to_trace(state, t, j, point, p):  # pragma: no cover - runs compil
     """Twin of the reference's ``path_back_to_trace``: (point reached, its frame, its
     distance to the trace's own point) or (-1, -1, inf)."""
     points, offsets, point_index = state.points, state.offsets, state.point_index
+    info, starts, order = state.grid_info, state.grid_starts, state.grid_order
     x0, x1, x2 = points[point, 0], points[point, 1], points[point, 2]
     v0 = 0.0
     v1 = 0.0
     v2 = 0.0
+    reach = p.gamma * _PAD
     for f in range(t - 1, max(t - 1 - p.rigid_window, -1), -1):
         fa, fb = offsets[f], offsets[f + 1]
         if fb == fa:
             return np.int64(-1), np.int64(-1), _INF
         best = _INF
         n = -1
-        for q in range(fa, fb):
+        # only a nearest point within γ counts: the grid's rows within γ of the
+        # prediction, ties to the lower row as in a scan of the whole frame
+        k0, k1 = _grid_run(
+            points, offsets, info, starts, order, f, p.gamma, x0 - v0, x1 - v1, x2 - v2, reach
+        )
+        for k in range(k0, k1):
+            q = order[k]
             dq = norm3(points[q, 0] - (x0 - v0), points[q, 1] - (x1 - v1), points[q, 2] - (x2 - v2))
-            if dq < best:
+            if dq < best or (dq == best and q < n):
                 best = dq
                 n = q
         if not best <= p.gamma:
@@ -69,13 +144,20 @@ def path_back_to_trace(state, t, j, point, p):  # pragma: no cover - runs compil
 
 
 @numba.njit(**JIT)
-def _follow_back(points, offsets, t, window, point, tol, traj):  # pragma: no cover
+def _follow_back(points, offsets, grids, t, window, point, tol, traj):  # pragma: no cover
     """Fill ``traj`` (W + 1, 3) with the point's path back by unambiguous nearest points
-    at constant velocity (last row the point); False where it is ambiguous."""
+    at constant velocity (last row the point); False where it is ambiguous.
+
+    Each frame's search scans only its grid's rows within 4 ``tol`` of the prediction:
+    the nearest point counts only within 2 ``tol`` and the second only when nearer
+    than twice that, so the rows beyond decide nothing. Ties go to the lower row, the
+    nearest and second nearest are those of a scan of the whole frame."""
+    info, starts, order, gamma = grids
     traj[window] = points[point]
     vx = 0.0
     vy = 0.0
     vz = 0.0
+    reach = 4.0 * tol * _PAD
     for f in range(t - 1, t - window - 1, -1):
         fa, fb = offsets[f], offsets[f + 1]
         if fb - fa < 2:
@@ -87,9 +169,11 @@ def _follow_back(points, offsets, t, window, point, tol, traj):  # pragma: no co
         d1 = _INF
         d2 = _INF
         n1 = -1
-        for q in range(fa, fb):
+        k0, k1 = _grid_run(points, offsets, info, starts, order, f, gamma, qx, qy, qz, reach)
+        for k in range(k0, k1):
+            q = order[k]
             dd = norm3(points[q, 0] - qx, points[q, 1] - qy, points[q, 2] - qz)
-            if dd < d1:
+            if dd < d1 or (dd == d1 and q < n1):
                 d2 = d1
                 d1 = dd
                 n1 = q
@@ -105,12 +189,20 @@ def _follow_back(points, offsets, t, window, point, tol, traj):  # pragma: no co
 
 
 @numba.njit(**JIT)
-def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):  # pragma: no cover
+def _keeps_distance(
+    points, offsets, point_index, grids, t, window, traj, c, dq, tol
+):  # pragma: no cover
     """True when the partner point ``c`` follows the path ``traj`` back through the
-    window at a constant distance ``dq``."""
+    window at a constant distance ``dq``.
+
+    Each frame's search scans only its grid's rows within ``tol`` of the prediction
+    (a nearest point farther refuses anyway); ties go to the lower row, as in a scan
+    of the whole frame."""
+    info, starts, order, gamma = grids
     qx = points[c, 0]
     qy = points[c, 1]
     qz = points[c, 2]
+    reach = tol * _PAD
     for f in range(t - 1, t - window - 1, -1):
         fa, fb = offsets[f], offsets[f + 1]
         if fb == fa:
@@ -121,16 +213,20 @@ def _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol): 
         pz = qz + traj[r, 2] - traj[r + 1, 2]
         best = _INF
         n = fa
-        for q in range(fa, fb):
+        k0, k1 = _grid_run(points, offsets, info, starts, order, f, gamma, px, py, pz, reach)
+        for k in range(k0, k1):
+            q = order[k]
             dd = norm3(points[q, 0] - px, points[q, 1] - py, points[q, 2] - pz)
-            if dd < best and not taken_in_frame(point_index, f, q):
+            if (dd < best or (dd == best and q < n)) and not taken_in_frame(point_index, f, q):
                 best = dd
                 n = q
+        if not best < tol:
+            return False
         qx = points[n, 0]
         qy = points[n, 1]
         qz = points[n, 2]
         to_p = norm3(qx - traj[r, 0], qy - traj[r, 1], qz - traj[r, 2])
-        if not (best < tol and abs(to_p - dq) < tol):
+        if not abs(to_p - dq) < tol:
             return False
     return True
 
@@ -142,6 +238,8 @@ def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
     if t < window:
         return False
     points, offsets, point_index = state.points, state.offsets, state.point_index
+    # the grid buffers and γ (their cell width) for the scans of every frame
+    grids = (state.grid_info, state.grid_starts, state.grid_order, p.gamma)
     spacing = p.median_spacing
     tol = p.rigid_range * spacing
     traj = np.empty((window + 1, 3))
@@ -155,7 +253,7 @@ def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
         traj[window] = points[point]
         for f in range(t - window, t):
             traj[f - t + window] = points[point_index[f, j]]
-    elif not _follow_back(points, offsets, t, window, point, tol, traj):
+    elif not _follow_back(points, offsets, grids, t, window, point, tol, traj):
         return False
     far = 0.0
     for r in range(window):
@@ -165,8 +263,26 @@ def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
         far = max(far, dd)
     if far < p.rigid_move * spacing:
         return False
+    # partners within rigid_radius of the point, through frame t's grid: the count,
+    # not the order they are tried in, decides
     found = 0
-    for c in range(offsets[t], offsets[t + 1]):
+    radius = p.rigid_radius * spacing
+    info, starts, order, gamma = grids
+    k0, k1 = _grid_run(
+        points,
+        offsets,
+        info,
+        starts,
+        order,
+        t,
+        gamma,
+        traj[window, 0],
+        traj[window, 1],
+        traj[window, 2],
+        radius * _PAD,
+    )
+    for k in range(k0, k1):
+        c = order[k]
         if c == point:
             continue
         dq = norm3(
@@ -174,7 +290,7 @@ def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
             points[c, 1] - traj[window, 1],
             points[c, 2] - traj[window, 2],
         )
-        if not dq < p.rigid_radius * spacing:
+        if not dq < radius:
             continue
         mine = False
         for jj in range(state.taken.size):
@@ -182,7 +298,7 @@ def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
                 mine = True
         if mine:
             continue
-        if _keeps_distance(points, offsets, point_index, t, window, traj, c, dq, tol):
+        if _keeps_distance(points, offsets, point_index, grids, t, window, traj, c, dq, tol):
             found += 1
             if found >= p.rigid_partners:
                 return True

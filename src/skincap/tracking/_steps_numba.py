@@ -7,9 +7,11 @@ step does and why): the same ``(state, t, …, p)`` arguments, a
 :class:`~skincap.tracking.state.StepParams`. Loops replace the vectorised
 expressions, the KD-tree queries become a k-nearest search over the frame's few
 hundred points bucketed along one axis (:mod:`skincap.tracking._numba_grid`: each
-frame is bucketed once, into buffers the state keeps (:func:`frame_grid`), and every
-search of that frame and of the next scans only the cells within its gate: the
-matching passes, the body-point chains and the "follows something slower" refusal),
+frame is bucketed once, into buffers the state keeps (:func:`frame_grid`, compiled in
+:mod:`skincap.tracking._refusals_numba`), and every search of that frame and of the
+next scans only the cells within its gate: the matching passes, the body-point chains
+and the "follows something slower" refusal; the refusals' backward scans search the
+grids of the frames of their window),
 and the leave-one-out curve is evaluated directly. It takes the same points and
 invents the same markers; invented positions agree to rounding (the order of a few
 additions differs).
@@ -55,10 +57,12 @@ from skincap.tracking._numba_curve import (
     settle,
     side_neighbours,
 )
-from skincap.tracking._numba_grid import fill_grid, grid_nearest, grid_rows
+from skincap.tracking._numba_grid import grid_nearest
 from skincap.tracking._numba_search import JIT, gated_assignment, is_taken, norm3
 from skincap.tracking._reacquire_numba import reacquire_on_shell
 from skincap.tracking._refusals_numba import (
+    _rows_within,
+    frame_grid,
     reject_odd_motion,
     reject_overstretched,
     rigid_with_body,
@@ -251,41 +255,6 @@ def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compil
         body[i] = True
         for c in range(3):
             body_vel[i, c] = points[i, c] - points[q, c]
-
-
-@numba.njit(**JIT)
-def frame_grid(state, t, p):  # pragma: no cover - runs compiled
-    """Frame t's points bucketed in cells γ wide (a
-    :mod:`~skincap.tracking._numba_grid` grid), built on the first call for the frame
-    into the state's ``grid_*`` buffers and returned from them afterwards."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    s0 = a + 2 * t
-    info = state.grid_info
-    if info[t, 0] < 0.0:
-        axis, lo, inv, cells = fill_grid(
-            state.points,
-            a,
-            b,
-            p.gamma,
-            state.grid_starts[s0 : b + 2 * t + 2],
-            state.grid_order[a:b],
-        )
-        info[t, 0], info[t, 1], info[t, 2], info[t, 3] = axis, lo, inv, cells
-    cells = np.int64(info[t, 3])
-    return (
-        np.int64(info[t, 0]),
-        info[t, 1],
-        info[t, 2],
-        state.grid_starts[s0 : s0 + cells + 1],
-        state.grid_order[a:b],
-    )
-
-
-@numba.njit(**JIT)
-def _rows_within(grid, x, y, z, bound):  # pragma: no cover - runs compiled
-    """:func:`~skincap.tracking._numba_grid.grid_rows` around the point (x, y, z)."""
-    axis = grid[0]
-    return grid_rows(grid, x if axis == 0 else (y if axis == 1 else z), bound)
 
 
 @numba.njit(**JIT)
