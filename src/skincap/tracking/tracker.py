@@ -41,7 +41,13 @@ Beyond the thesis:
   from a gap does not take (a hand marker beside the held end). A carry that would
   stretch the rope beyond what ``reject_overstretched`` allows from the marker measured
   nearest the end (measured in every frame since the end was) is refused, and F kept:
-  a wrist turning under the handle does not swing the end off the rope.
+  a wrist turning under the handle does not swing the end off the rope. An end that
+  swings about its grip (a foot stamping) lies off the rigid carry and off its own V:
+  in the frame after it was measured it is searched for at the free point nearest the
+  carry when that lies within ``wide_gate`` γ of both, within the rope's reach of the
+  nearest measured marker, and continues no point of the frame before that the rope
+  did not take (a hand marker) nor moves rigidly with body points. An end hidden for
+  longer is not: the hand's markers coming back from their dropouts lie beside it.
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
