@@ -67,6 +67,11 @@ Beyond the thesis:
 * A point that continues a point of the previous frame that the rope did not take,
   moving slower than the rope by more than γ, is a body marker beside a fast rope:
   traces coming back from a gap, and inner traces, do not take it.
+* A trace coming back from a gap does not take, in the wide gate, a point that lies
+  nearer V of a trace measured in the frame before and not found yet (within
+  ``wide_gate`` γ of it) than its own prediction: that marker moved a little more than
+  γ and its hidden neighbour, predicted on the curve, would otherwise take its point
+  and the two swap.
 * Body chains: every point of frame 0 the rope does not take is a body point (the user
   selected the rope there); a point that continues a body point of the previous frame
   (the only point within ``γ / 3`` of where that point's velocity takes it, and that
