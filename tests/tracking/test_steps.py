@@ -806,3 +806,48 @@ def test_an_unconfirmed_return_keeps_its_own_jump(steps) -> None:  # type: ignor
     np.testing.assert_allclose(
         velocity_after_return(measured_before=True), body_point - (rope[2] + step), atol=1e-12
     )
+
+
+@pytest.mark.parametrize(
+    ("case", "taken"),
+    [
+        ("missed at V", False),  # trace 1's V lies 3.1 cm from the point, trace 2's 4.5
+        ("hidden too", True),  # trace 1 was not measured in frame 0: no V of its own
+        ("found", True),  # trace 1 found its point elsewhere this frame
+        ("V far", True),  # trace 1's V lies 6.6 cm off: beyond the wide gate
+        ("nearer own", True),  # trace 2 is predicted 2 cm from the point
+    ],
+)
+def test_a_returning_trace_leaves_the_point_of_a_trace_missed_at_v(
+    steps, case: str, taken: bool
+) -> None:  # type: ignore[no-untyped-def]
+    """Marker 1 moves 3.1 cm in a frame, just beyond γ of V; marker 2, hidden for two
+    frames, is predicted on the curve 4.5 cm from marker 1's point. In the wide gate
+    trace 2 does not take a point that lies nearer V of a trace measured in the frame
+    before and not found yet (within the wide gate) than its own prediction."""
+    prev = np.array([[0.0, 0, 0], [0.12, 0, 0], [0.24, 0, 0], [0.36, 0, 0]])
+    q = prev[1] + [0.0, 0.031, 0.0]  # marker 1's point in frame 1
+    p3 = np.array([0.24, 0.031, 0.0])  # marker 3, folded back to a spacing from q
+    other = q + [0.0, 0.1, 0.0]  # where trace 1 is found in case "found"
+    cloud = _cloud(prev, np.stack([prev[0], q, p3, other]))
+    state, p = blank_state(cloud, [0.12, 0.12, 0.12], gamma=0.03)
+    state.positions[0] = prev
+    state.point_index[0] = [0, 1, 2, 3]
+    state.temp_count[2] = 2
+    state.invented[0, 2] = True
+    state.known[:] = [True, False, False, True]
+    state.taken[:] = [4, -1, -1, 6]
+    state.cur[[0, 3]] = [prev[0], p3]
+    if case == "hidden too":
+        state.temp_count[1] = 1
+        state.invented[0, 1] = True
+    if case == "found":
+        state.known[1], state.taken[1], state.cur[1] = True, 7, other
+    if case == "V far":
+        state.velocity[1] = [0.0, -0.035, 0.0]
+    pred = np.zeros((4, 3))
+    pred[2] = q + [0.02 if case == "nearer own" else 0.045, 0.0, 0.0]
+    steps.match_traces(state, 1, np.array([2]), pred, True, p)
+    assert bool(state.known[2]) == taken
+    if taken:
+        assert state.taken[2] == 5

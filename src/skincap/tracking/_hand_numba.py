@@ -11,7 +11,7 @@ import numpy as np
 
 from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
-from skincap.tracking._refusals_numba import _link_limit
+from skincap.tracking._refusals_numba import _link_limit, rigid_with_body
 from skincap.tracking.curve import HELD_END_REACH
 
 __all__ = [
@@ -265,6 +265,7 @@ def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
         if state.known[e]:
             continue
         best = _INF
+        at = -1
         for i in range(b - a):
             if free[i]:
                 d = 0.0
@@ -273,9 +274,51 @@ def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
                     d += x * x
                 if d < best:
                     best = d
+                    at = i
+        if at < 0:
+            continue
         if best <= near:
             for c in range(3):
                 pred[e, c] = carried[e, c]
+        elif _may_take(state, t, e, a + at, best, p):
+            for c in range(3):
+                pred[e, c] = state.points[a + at, c]
+
+
+@numba.njit(**JIT)
+def _may_take(state, t, e, q, d2, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy._may_take`."""
+    reach = (p.wide_gate * p.gamma) ** 2
+    last = t - 1
+    if d2 > reach or state.temp_count[e] != 0 or state.invented[last, e]:
+        return False
+    dv = 0.0
+    for c in range(3):
+        x = state.points[q, c] - (state.positions[last, e, c] + state.velocity[e, c])
+        dv += x * x
+    if dv > reach:
+        return False
+    if not _carry_keeps_rope(state, last, t, e, state.points[q], p):
+        return False
+    a0, a1 = state.offsets[last], state.offsets[t]
+    untaken = np.ones(a1 - a0, np.bool_)
+    for j in range(state.known.size):
+        i = state.point_index[last, j]
+        if a0 <= i < a1:
+            untaken[i - a0] = False
+    own = 0.0
+    for c in range(3):
+        x = state.points[q, c] - state.positions[last, e, c]
+        own += x * x
+    for i in range(a1 - a0):
+        if untaken[i]:
+            d = 0.0
+            for c in range(3):
+                x = state.points[a0 + i, c] - state.points[q, c]
+                d += x * x
+            if d <= own:
+                return False
+    return not rigid_with_body(state, t, -1, q, p)
 
 
 @numba.njit(**JIT)

@@ -9,7 +9,8 @@ makes an end *held*) become its hand anchors (:func:`seat_hand`; a frame where e
 end is measured does no hand work); while it is hidden they are followed frame by
 frame, unambiguously, at constant velocity (:func:`follow_hand`), and the end is
 placed where the rigid motion of the anchors since its last measured frame takes it
-(:func:`carry_with_hand`), and searched for there. While it is hidden, its anchors
+(:func:`carry_with_hand`), and searched for there (in the frame it goes missing, also
+at the free point nearest there: :func:`search_with_hand`). While it is hidden, its anchors
 are body points, which a trace back from a gap does not take.
 
 The anchors live in :class:`~skincap.tracking.state.TrackState` (``hand_index``,
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from skincap.tracking._refusals_numpy import link_limit
+from skincap.tracking._refusals_numpy import link_limit, rigid_with_body
 from skincap.tracking.curve import HELD_END_REACH
 from skincap.tracking.state import StepParams, TrackState
 
@@ -199,9 +200,16 @@ def _carry_keeps_rope(
 def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams) -> None:
     """Where the search looks for each hidden end with anchors, ``pred`` (M, 3), in place:
     its carried position (:func:`carry_with_hand`) when a point of frame t that is not
-    taken and not a body point lies within γ / 2 of it, else ``pred`` as it was (F).
+    taken and not a body point lies within γ / 2 of it; else, for an end measured in
+    frame t - 1, that nearest free point itself when :func:`_may_take` allows it; else
+    ``pred`` as it was (F).
+
     A hand carries the end's own marker there; a looser gate lets an end whose anchors
-    were seated beside a wrong point pull the rope's markers along."""
+    were seated beside a wrong point pull the rope's markers along. The rigid carry
+    misses an end that swings about its grip (a foot stamping) by more than the γ a
+    lonely end may move from its prediction, and its own velocity misses the new
+    direction too; the free point nearest the carry, when the end's own motion and the
+    rope both reach it, is that end."""
     if not _carries(state):
         return
     carried = pred.copy()
@@ -213,12 +221,50 @@ def search_with_hand(state: TrackState, t: int, pred: np.ndarray, p: StepParams)
     taken = state.taken[state.known]
     free[taken - a] = False
     near = (0.5 * p.gamma) ** 2
+    idx = np.flatnonzero(free)
     for e in (0, state.known.size - 1):
-        if state.known[e] or not free.any():
+        if state.known[e] or idx.size == 0:
             continue
-        d2 = np.sum((state.points[a:b][free] - carried[e]) ** 2, axis=1)
-        if d2.min() <= near:
+        d2 = np.sum((state.points[a:b][idx] - carried[e]) ** 2, axis=1)
+        n = int(np.argmin(d2))
+        if d2[n] <= near:
             pred[e] = carried[e]
+        elif _may_take(state, t, e, a + int(idx[n]), float(d2[n]), p):
+            pred[e] = state.points[a + int(idx[n])]
+
+
+def _may_take(state: TrackState, t: int, e: int, q: int, d2: float, p: StepParams) -> bool:
+    """Whether hidden held end ``e`` may be searched for at point ``q`` of frame t (an
+    index into ``state.points``), ``d2`` (m²) from its carried position.
+
+    Only an end whose point went missing this frame: measured in frame t - 1, with
+    ``q`` within ``wide_gate`` γ of both its carry and its own velocity's prediction
+    (V): the end swung off both by less than the wide gate. An end hidden for longer
+    has no velocity of its own to confirm a point, and the hand's markers coming back
+    from their dropouts lie beside its carry. Further, ``q`` lies within the reach the
+    rope allows of the marker measured nearest the end (:func:`_carry_keeps_rope`), no
+    point of frame t - 1 the rope did not take lies nearer to it than the end's last
+    position (else it continues that point: a marker on the hand) and it does not move
+    rigidly with body points
+    (:func:`~skincap.tracking._refusals_numpy.rigid_with_body`)."""
+    reach = (p.wide_gate * p.gamma) ** 2
+    last = t - 1
+    if d2 > reach or state.temp_count[e] != 0 or state.invented[last, e]:
+        return False
+    v = state.positions[last, e] + state.velocity[e]
+    if np.sum((state.points[q] - v) ** 2) > reach:
+        return False
+    if not _carry_keeps_rope(state, last, t, e, state.points[q], p):
+        return False
+    a0, a1 = int(state.offsets[last]), int(state.offsets[t])
+    untaken = np.ones(a1 - a0, dtype=bool)
+    mine = state.point_index[last]
+    untaken[mine[(mine >= a0) & (mine < a1)] - a0] = False
+    own = np.sum((state.points[q] - state.positions[last, e]) ** 2)
+    other = np.sum((state.points[a0:a1][untaken] - state.points[q]) ** 2, axis=1)
+    if np.any(other <= own):  # it continues a point the rope did not take: not the end
+        return False
+    return not rigid_with_body(state, t, -1, q, p)
 
 
 def place_with_hand(state: TrackState, t: int, p: StepParams) -> None:

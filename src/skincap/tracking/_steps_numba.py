@@ -296,6 +296,25 @@ def _follows_other(state, t, row, candidate, pred, gamma, prev_grid):  # pragma:
 
 
 @numba.njit(**JIT)
+def _continues_missed(state, t, candidate, dist, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._steps_numpy._continues_missed` for one
+    candidate point at ``dist`` metres from the returning trace's prediction."""
+    gate2 = (p.wide_gate * p.gamma) ** 2
+    own2 = dist**2
+    x, y, z = state.points[candidate, 0], state.points[candidate, 1], state.points[candidate, 2]
+    for j in range(state.known.size):
+        if state.temp_count[j] != 0 or state.known[j]:
+            continue
+        dx = x - (state.positions[t - 1, j, 0] + state.velocity[j, 0])
+        dy = y - (state.positions[t - 1, j, 1] + state.velocity[j, 1])
+        dz = z - (state.positions[t - 1, j, 2] + state.velocity[j, 2])
+        d2 = dx * dx + dy * dy + dz * dz
+        if d2 <= gate2 and d2 < own2:
+            return True
+    return False
+
+
+@numba.njit(**JIT)
 def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compiled
     """(R, kk) distances (inf beyond the gate or taken) and global indices of the
     nearest free points of frame t to each row's prediction."""
@@ -380,6 +399,7 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
                 or (slow and d[r, c] >= gamma)
                 or (judged and _follows_other(state, t, row, i, pred, gamma, prev_grid))
                 or (wide and not steady and rigid_with_body(state, t, np.int64(-1), i, p))
+                or (wide and not steady and _continues_missed(state, t, i, d[r, c], p))
             ):
                 d[r, c] = _INF
     if wide:

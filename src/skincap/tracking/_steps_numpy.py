@@ -298,7 +298,9 @@ def match_traces(
     trace that is not steady, points moving rigidly with body points
     (:func:`rigid_with_body`); points beyond γ of the prediction unless at their rest
     spacing (± γ) from a measured neighbour, and any point more than γ beyond that
-    spacing from a measured neighbour (a bent rope's chord is shorter, never longer). Conflicts are resolved one-to-one, minimising the summed
+    spacing from a measured neighbour (a bent rope's chord is shorter, never longer); for
+    a trace that is not steady, points nearer V of a trace measured in frame t - 1 and not
+    found yet than its own prediction (:func:`_continues_missed`). Conflicts are resolved one-to-one, minimising the summed
     distance (:func:`~skincap.tracking.init.gated_assignment`). Writes ``cur``,
     ``known``, ``taken``; True if any trace matched.
     """
@@ -322,6 +324,7 @@ def match_traces(
         d = np.where(slow[:, None] & (d >= gamma), np.inf, d)
     d = np.where(_follows_other(state, t, rows, pred, i, d, gamma), np.inf, d)
     if wide:
+        d = np.where(_continues_missed(state, t, rows, i, d, p), np.inf, d)
         for r in np.nonzero(~steady[rows])[0]:
             for c in range(d.shape[1]):
                 if np.isfinite(d[r, c]) and d[r, c] < gate:
@@ -407,6 +410,36 @@ def _follows_other(
         _squared_distances(state.points[cand[r_idx, c_idx]], q) < (lim[r_idx] * lim[r_idx])[:, None]
     )
     out[r_idx, c_idx] = near.any(axis=1)
+    return out
+
+
+def _continues_missed(
+    state: TrackState, t: int, rows: np.ndarray, cand: np.ndarray, dist: np.ndarray, p: StepParams
+) -> np.ndarray:
+    """(R, K) bool: the candidate of a trace coming back from a gap (``temp_count > 0``)
+    lies nearer V of a trace measured in frame t - 1 and not found yet this frame than
+    ``dist`` (its distance to the returning trace's prediction, metres), and within
+    ``wide_gate`` γ of that V (beyond the thesis).
+
+    A marker that moves a little more than γ in a frame is missed at V, and then looked
+    for at the curve through the measured markers, as is its hidden neighbour: the
+    neighbour, a spacing along the rope, can lie nearer its point by millimetres
+    (c3d.org jump, a foot stamping beside a held-back marker) and the two traces swap
+    for the rest of the gap. The point continues the missed trace's own.
+    """
+    out = np.zeros(dist.shape, dtype=bool)
+    missed = (state.temp_count == 0) & ~state.known
+    returning = state.temp_count[rows] > 0
+    if not missed.any() or not returning.any():
+        return out
+    v = state.positions[t - 1][missed] + state.velocity[missed]  # (Q, 3)
+    r_idx, c_idx = np.nonzero(returning[:, None] & np.isfinite(dist))
+    if r_idx.size == 0:
+        return out
+    gate2 = (p.wide_gate * p.gamma) ** 2
+    dv2 = _squared_distances(state.points[cand[r_idx, c_idx]], v)  # (N, Q)
+    own2 = dist[r_idx, c_idx] ** 2
+    out[r_idx, c_idx] = ((dv2 <= gate2) & (dv2 < own2[:, None])).any(axis=1)
     return out
 
 

@@ -41,7 +41,13 @@ Beyond the thesis:
   from a gap does not take (a hand marker beside the held end). A carry that would
   stretch the rope beyond what ``reject_overstretched`` allows from the marker measured
   nearest the end (measured in every frame since the end was) is refused, and F kept:
-  a wrist turning under the handle does not swing the end off the rope.
+  a wrist turning under the handle does not swing the end off the rope. An end that
+  swings about its grip (a foot stamping) lies off the rigid carry and off its own V:
+  in the frame after it was measured it is searched for at the free point nearest the
+  carry when that lies within ``wide_gate`` γ of both, within the rope's reach of the
+  nearest measured marker, and continues no point of the frame before that the rope
+  did not take (a hand marker) nor moves rigidly with body points. An end hidden for
+  longer is not: the hand's markers coming back from their dropouts lie beside it.
 * After more than ``maxTempMarkers`` consecutive temporary markers a trace is *lost*,
   unless a marker measured within two markers along the rope pins it (a marker hidden
   between seen neighbours is repaired however long its gap: a limit in time would
@@ -61,6 +67,11 @@ Beyond the thesis:
 * A point that continues a point of the previous frame that the rope did not take,
   moving slower than the rope by more than γ, is a body marker beside a fast rope:
   traces coming back from a gap, and inner traces, do not take it.
+* A trace coming back from a gap does not take, in the wide gate, a point that lies
+  nearer V of a trace measured in the frame before and not found yet (within
+  ``wide_gate`` γ of it) than its own prediction: that marker moved a little more than
+  γ and its hidden neighbour, predicted on the curve, would otherwise take its point
+  and the two swap.
 * Body chains: every point of frame 0 the rope does not take is a body point (the user
   selected the rope there); a point that continues a body point of the previous frame
   (the only point within ``γ / 3`` of where that point's velocity takes it, and that
