@@ -15,7 +15,9 @@ do is move rigidly, so the groups are judged by that, on their markers:
   the pair whose union adds the least residual first (Ward's rule with the rigid
   residual as the within-group scatter), until the target count remains. A hand
   never joins its forearm while slivers of one limb remain, however the rotations of
-  their triangles compare.
+  their triangles compare. Optionally the first merges weigh each pair's peak turn
+  instead (``peak_turn_above``): a sliver of flesh that jiggles all take adds more
+  residual than a hand that turns hard for a few frames.
 * **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
   markers and each marker moves to the neighbouring part whose motion predicts its
   trajectory better than its own part's does (a k-means step with rigid motions as the
