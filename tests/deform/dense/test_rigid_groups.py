@@ -186,3 +186,31 @@ def test_seam_markers_are_judged_where_the_parts_turn_apart() -> None:
         patch.setattr(rigid_groups, "_TURN_FLOOR", 1e6)
         plain, _ = refine_marker_parts(truth, edges, x, ref)
     assert (plain != truth).sum() >= 4
+
+
+def test_a_brief_hard_turn_outweighs_flesh_that_jiggles_all_take() -> None:
+    """A strip whose body (x < 0.36 m) jiggles all take (a 2 cm bump oscillating at
+    6 Hz, zero at its ends) and whose tip turns 40 degrees for 0.1 s of the 1.7 s:
+    over the take the tip adds less residual to the body than the body's two halves
+    add to each other, so the residual merges the tip away; at its peak frame the tip
+    turns far more, so the peak-turn cost keeps it and joins the halves."""
+    ref, faces = _strip()
+    n_frames = 200
+    t = np.arange(n_frames) / 120.0
+    body = ref[:, 0] < 0.36
+    bump = np.where(body, np.sin(np.pi * ref[:, 0] / 0.36) ** 2, 0.0)  # (N,)
+    wobble = 0.02 * np.stack([np.sin(2 * np.pi * 6.0 * t), np.cos(2 * np.pi * 6.0 * t)], 1)
+    x = np.repeat(ref[None], n_frames, axis=0)
+    x[:, :, 1:3] += bump[None, :, None] * wobble[:, None, :]  # across the strip and out of it
+    pulse = np.where((t > 0.7) & (t < 0.8), np.sin(np.pi * (t - 0.7) / 0.1) ** 2, 0.0)
+    turn = Rotation.from_rotvec(np.radians(40.0) * pulse[:, None] * [0, 0, 1.0]).as_matrix()
+    hinge = np.array([0.36, 0.06, 0.0])
+    tip = ~body
+    x[:, tip] = np.einsum("tab,nb->tna", turn, ref[tip] - hinge) + hinge
+    pieces = np.where(tip, 2, (ref[:, 0] >= 0.18).astype(int))
+    edges = surface_edges(faces)
+    by_residual = merge_groups_by_rigid_residual(pieces, edges, x, ref, 2)
+    assert len(np.unique(by_residual[tip])) == 1 and by_residual[tip][0] in by_residual[body]
+    got = merge_groups_by_rigid_residual(pieces, edges, x, ref, 2, peak_turn_above=2)
+    assert got.max() == 1
+    assert len(set(zip(got.tolist(), tip.tolist(), strict=True))) == 2  # tip alone, body whole

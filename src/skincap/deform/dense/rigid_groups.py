@@ -15,7 +15,9 @@ do is move rigidly, so the groups are judged by that, on their markers:
   the pair whose union adds the least residual first (Ward's rule with the rigid
   residual as the within-group scatter), until the target count remains. A hand
   never joins its forearm while slivers of one limb remain, however the rotations of
-  their triangles compare.
+  their triangles compare. Optionally the first merges weigh each pair's peak turn
+  instead (``peak_turn_above``): a sliver of flesh that jiggles all take adds more
+  residual than a hand that turns hard for a few frames.
 * **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
   markers and each marker moves to the neighbouring part whose motion predicts its
   trajectory better than its own part's does (a k-means step with rigid motions as the
@@ -149,11 +151,17 @@ def merge_groups_by_rigid_residual(
     target: int,
     *,
     min_markers: int = 3,
+    peak_turn_above: int | None = None,
 ) -> np.ndarray:
     """Merge adjacent marker groups, least added rigid residual first, to ``target`` groups.
 
     Groups with fewer than ``min_markers`` markers (too few for a rigid fit) merge
     first, each into the neighbour whose motion it follows best, whatever the count.
+    While more than ``peak_turn_above`` groups remain, pairs are judged by how far
+    they turn apart at their peak frame instead (:func:`_peak_turn_costs`): among the
+    slivers of an over-segmentation, flesh that jiggles all take long adds more
+    residual than a hand that turns hard for a few frames; a joint's peak turn does
+    not drown in the frames where it is still.
 
     Parameters
     ----------
@@ -166,6 +174,10 @@ def merge_groups_by_rigid_residual(
     min_markers : int
         Smallest group kept; a smaller one with no neighbour (a loose island of the
         surface) becomes -1.
+    peak_turn_above : int, optional
+        Merge by the peak-turn cost while more than this many groups (of
+        ``min_markers`` or more) remain, then by the added residual (at or below
+        ``target``: the peak turn throughout); None: the residual throughout.
 
     Returns
     -------
@@ -183,14 +195,17 @@ def merge_groups_by_rigid_residual(
     keep = (ga >= 0) & (gb >= 0) & (ga != gb)
     pairs = np.unique(np.sort(np.stack([ga[keep], gb[keep]], axis=1), axis=1), axis=0)
     cost = _pair_costs(sums, own, pairs)
+    turn_until = int(target) if peak_turn_above is None else int(peak_turn_above)
+    turn_cost = _peak_turn_costs(sums, size, pairs) if peak_turn_above is not None else None
     into = np.arange(n_g)  # where each original group went
     alive = np.ones(n_g, dtype=bool)
     while pairs.shape[0]:
         small = (size[pairs] < int(min_markers)).any(axis=1)
+        n_fit = (alive & (size >= int(min_markers))).sum()  # loose tiny ones: no count
         if small.any():  # too small to fit: merged first, whatever the count
             k = int(np.flatnonzero(small)[np.argmin(cost[small])])
-        elif (alive & (size >= int(min_markers))).sum() > target:  # loose tiny ones: no count
-            k = int(np.argmin(cost))
+        elif n_fit > target:
+            k = int(np.argmin(turn_cost if turn_cost is not None and n_fit > turn_until else cost))
         else:
             break
         a, b = (int(v) for v in pairs[k])
@@ -205,6 +220,8 @@ def merge_groups_by_rigid_residual(
         moved = np.unique(moved[moved[:, 0] != moved[:, 1]], axis=0)
         pairs = np.concatenate([pairs[~hit], moved])
         cost = np.concatenate([cost[~hit], _pair_costs(sums, own, moved)])
+        if turn_cost is not None:
+            turn_cost = np.concatenate([turn_cost[~hit], _peak_turn_costs(sums, size, moved)])
     merged = np.where(labels >= 0, into[np.maximum(labels, 0)], -1)
     loose = (merged >= 0) & (size[np.maximum(merged, 0)] < int(min_markers))
     return compact_labels(np.where(loose, -1, merged))
@@ -215,6 +232,31 @@ def _pair_costs(sums: np.ndarray, own: np.ndarray, pairs: np.ndarray) -> np.ndar
     if not pairs.shape[0]:
         return np.zeros(0)
     return _residual_of_sums(sums[pairs[:, 0]] + sums[pairs[:, 1]]) - own[pairs].sum(1)
+
+
+def _peak_turn_costs(sums: np.ndarray, size: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """How far each pair of groups turns apart at its peak frame, (pairs,) m².
+
+    ``w · max_t ||R_a(t) - R_b(t)||²_F · s²(t) / 3`` with ``w = n_a n_b / (n_a + n_b)``
+    (Ward's size factor, so slivers still merge before parts) and ``s²`` the mean
+    squared distance of the smaller group's markers from their centroid in the
+    reference: the mean squared displacement the two fitted rotations' difference
+    gives the smaller group's markers (directions averaged). Measured on the smaller
+    group's own extent, a rotation its markers cannot pin down (three markers nearly
+    in a line) moves them little. Frames where a group has fewer than three markers
+    count 0.
+    """
+    if not pairs.shape[0]:
+        return np.zeros(0)
+    sa, sb = sums[pairs[:, 0]], sums[pairs[:, 1]]
+    rot_a, _ = _motions_of_sums(sa)
+    rot_b, _ = _motions_of_sums(sb)
+    turn = np.nan_to_num(((rot_a - rot_b) ** 2).sum(axis=(-1, -2)), nan=0.0)  # (K, T)
+    na, nb = size[pairs[:, 0]].astype(np.float64), size[pairs[:, 1]].astype(np.float64)
+    small = np.where((na <= nb)[:, None, None], sa, sb)  # (K, T, 18)
+    count = np.maximum(small[..., 0], 1.0)
+    spread = (small[..., 8] - (small[..., 4:7] ** 2).sum(-1) / count) / count  # (K, T) m²
+    return na * nb / (na + nb) * (turn * spread).max(axis=-1) / 3.0
 
 
 def compact_labels(labels: np.ndarray) -> np.ndarray:

@@ -15,7 +15,11 @@
    there are fewer than twice ``n_parts`` of them: the merge below needs an
    over-segmentation to choose from.
 4. **Merging and seams** (:mod:`.rigid_groups`): adjacent marker groups are merged,
-   the pair whose union moves least rigidly over the take last (the smallest added
+   while more than 1.5 ``n_parts`` remain the pair that turns apart least at its
+   peak frame first (the rotation difference of their fits, measured on the smaller
+   group's extent, times Ward's size factor: a sliver of jiggling flesh adds residual
+   over the whole take, a hand that turns hard for a few frames adds little), then
+   the pair whose union moves least rigidly over the take (the smallest added
    rigid-fit residual first), until ``n_parts`` remain (a group with fewer than
    ``min_markers`` markers, too few for a rigid fit, merges first whatever the
    count); then every seam marker moves to the adjacent part whose rigid motion
@@ -265,8 +269,16 @@ def segment_marker_surface(
     if progress:
         progress(0.6)
     x_used = x[::step]
+    # the first merges (down to 1.5 x n_parts) weigh each pair's peak turn, the last
+    # ones the residual over the take (see the module docstring, step 4)
     groups = merge_groups_by_rigid_residual(
-        groups, edges, x_used, ref, int(n_parts), min_markers=int(min_markers)
+        groups,
+        edges,
+        x_used,
+        ref,
+        int(n_parts),
+        min_markers=int(min_markers),
+        peak_turn_above=(3 * int(n_parts) + 1) // 2,
     )
     marker_parts, errors = refine_marker_parts(
         groups, edges, x_used, ref, min_markers=int(min_markers)
