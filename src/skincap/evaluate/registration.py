@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from skincap.errors import ValidationError
+from skincap.geometry.normals import area_weighted_vertex_normals
 from skincap.geometry.raycast import closest_points_on_mesh
 
 __all__ = ["REGISTRATION_TARGETS", "region_breakdown", "registration_errors"]
@@ -124,18 +125,6 @@ def region_breakdown(
     return rows
 
 
-def _vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals (zero at a vertex in no triangle)."""
-    fn = np.cross(
-        vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]]
-    )
-    n = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(n, faces[:, k], fn)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-
-
 def _side(
     true_vertices: np.ndarray,
     true_faces: np.ndarray,
@@ -149,7 +138,7 @@ def _side(
     there, blended from its triangle's corner normals (the face normal alone flips at
     a closest point on an edge or a corner of a convex region).
     """
-    normals = _vertex_normals(true_vertices, true_faces)
+    normals = area_weighted_vertex_normals(true_vertices, true_faces)
     corners = true_faces[face]  # (N, 3)
     at = np.einsum("nc,ncx->nx", bary, normals[corners])
     closest = np.einsum("nc,ncx->nx", bary, true_vertices[corners])

@@ -62,6 +62,7 @@ from skincap._arrays import Progress
 from skincap.deform.dense.landmarks import automatic_landmarks
 from skincap.deform.dense.surface_targets import marker_surface_targets
 from skincap.errors import SkincapWarning, ValidationError
+from skincap.geometry.normals import area_weighted_vertex_normals
 from skincap.geometry.raycast import closest_points_on_mesh
 
 __all__ = [
@@ -316,16 +317,6 @@ def _solve_normal_equations(normal: sp.spmatrix, rhs: np.ndarray) -> np.ndarray:
     return spla.splu(sp.csc_matrix(normal), permc_spec="COLAMD").solve(np.asarray(rhs))
 
 
-def _vertex_normals(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals (zero for an isolated vertex)."""
-    fn = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    n = np.zeros_like(v)
-    for k in range(3):
-        np.add.at(n, f[:, k], fn)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
-
-
 # ------------------------------------------------------------------------ steps
 def _seen_landmarks(
     landmarks: dict[str, int] | None,
@@ -538,7 +529,7 @@ def _data_targets(
     _, face, bary = closest_points_on_mesh(current, faces, markers)
     if marker_radius <= 0:
         return face, bary, markers
-    normals = _vertex_normals(current, faces)
+    normals = area_weighted_vertex_normals(current, faces)
     n_at = np.einsum("kc,kcx->kx", bary, normals[faces[face]])
     n_at /= np.maximum(np.linalg.norm(n_at, axis=1, keepdims=True), 1e-12)
     return face, bary, markers - marker_radius * n_at
@@ -568,7 +559,7 @@ def _surface_rows(
         return sp.csr_matrix((0, 4 * system.n_nodes)), np.zeros((0, 3))
     targets, valid = marker_surface_targets(
         current,
-        _vertex_normals(current, system.faces),
+        area_weighted_vertex_normals(current, system.faces),
         surface.markers,
         surface.faces,
         marker_radius=settings.marker_radius,
