@@ -250,6 +250,27 @@ def test_a_point_moving_rigidly_with_body_points_is_body_like(steps) -> None:  #
     assert not steps.rigid_with_body(state, 20, -1, where[20, 0], p)
 
 
+def test_points_a_hidden_trace_predicts_are_not_rigidity_partners(steps) -> None:  # type: ignore[no-untyped-def]
+    # rope markers hidden together move together: a point within γ of a hidden
+    # trace's prediction is that trace's marker, not a body point confirming another
+    cloud, where = _segment_and_rope()
+    t = 39
+    state, p = blank_state(cloud, [0.12, 0.12])
+    state.point_index[:t, 0] = where[:t, 0]
+    state.taken[0] = where[t, 0]
+    state.known[0] = True
+    x1 = cloud.points[where[t - 1 : t + 1, 1]]  # segment marker 1 in frames t - 1, t
+    assert steps.rigid_with_body(state, t, 0, where[t, 0], p)  # partners 1 and 2
+    state.positions[t - 1, 1] = x1[0]
+    state.velocity[1] = x1[1] - x1[0]  # trace 1, hidden in frame t - 1, predicted on it
+    assert not steps.rigid_with_body(state, t, 0, where[t, 0], p)  # partner 2 alone
+    state.known[1] = True  # found already (its point taken or not): its prediction is spent
+    assert steps.rigid_with_body(state, t, 0, where[t, 0], p)
+    state.known[1] = False
+    state.point_index[t - 1, 1] = where[t - 1, 3]  # measured in frame t - 1: not hidden
+    assert steps.rigid_with_body(state, t, 0, where[t, 0], p)
+
+
 def test_rigidity_test_agrees_between_backends() -> None:
     pytest.importorskip("numba")
     from skincap.tracking import _steps_numba

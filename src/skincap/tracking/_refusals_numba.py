@@ -232,6 +232,22 @@ def _keeps_distance(
 
 
 @numba.njit(**JIT)
+def _near_hidden(state, t, x, y, z, gamma):  # pragma: no cover - runs compiled
+    """True when (x, y, z) lies within γ of the prediction V of a trace hidden in frame
+    t - 1 and not found yet (the reference's ``_hidden_predictions``)."""
+    pos, vel = state.positions[t - 1], state.velocity
+    for jj in range(state.known.size):
+        if state.known[jj] or state.point_index[t - 1, jj] >= 0:
+            continue
+        dx = x - (pos[jj, 0] + vel[jj, 0])
+        dy = y - (pos[jj, 1] + vel[jj, 1])
+        dz = z - (pos[jj, 2] + vel[jj, 2])
+        if dx * dx + dy * dy + dz * dz < gamma * gamma:
+            return True
+    return False
+
+
+@numba.njit(**JIT)
 def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._refusals_numpy.rigid_with_body`."""
     window = p.rigid_window
@@ -296,7 +312,7 @@ def rigid_with_body(state, t, j, point, p):  # pragma: no cover - runs compiled
         for jj in range(state.taken.size):
             if state.taken[jj] == c:
                 mine = True
-        if mine:
+        if mine or _near_hidden(state, t, points[c, 0], points[c, 1], points[c, 2], p.gamma):
             continue
         if _keeps_distance(points, offsets, point_index, grids, t, window, traj, c, dq, tol):
             found += 1

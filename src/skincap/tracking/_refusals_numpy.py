@@ -67,7 +67,9 @@ def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams
     than ``rigid_move`` spacings. Every point of frame t within ``rigid_radius``
     spacings that the rope does not take (``state.taken``) is followed backward,
     moving as the path moved, to the nearest point within ``rigid_range`` spacings of
-    that prediction the rope did not take; the point is body-like when at least
+    that prediction the rope did not take; points within γ of the prediction V of a
+    trace hidden in frame t - 1 and not found yet are not partners (that trace's
+    marker). The point is body-like when at least
     ``rigid_partners`` of them keep their distance to it within ``rigid_range``
     spacings over the whole window. Spacings are the median rest spacing. Frames
     before ``rigid_window``: False.
@@ -93,6 +95,11 @@ def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams
     cand = (d0 < p.rigid_radius * spacing) & (np.arange(a, b) != point)
     taken = state.taken
     cand[taken[(taken >= a) & (taken < b)] - a] = False
+    hidden = _hidden_predictions(state, t)
+    if cand.any() and hidden.shape[0]:
+        # a point a hidden trace may yet take is rope, not a body partner: hidden rope
+        # neighbours moving together would otherwise confirm each other as body
+        cand &= ~(_squared_distances(frame, hidden) < p.gamma * p.gamma).any(axis=1)
     found = 0
     for c in np.nonzero(cand)[0]:
         if _keeps_distance(points, offsets, point_index, t, window, traj, frame[c], d0[c], tol):
@@ -100,6 +107,14 @@ def rigid_with_body(state: TrackState, t: int, j: int, point: int, p: StepParams
             if found >= p.rigid_partners:
                 return True
     return False
+
+
+def _hidden_predictions(state: TrackState, t: int) -> np.ndarray:
+    """(H, 3) metres: the predictions V (position in frame t - 1 plus velocity) of the
+    traces hidden in frame t - 1 and not found yet in frame t, finite ones only."""
+    hidden = (state.point_index[t - 1] < 0) & ~state.known
+    pred = state.positions[t - 1][hidden] + state.velocity[hidden]
+    return pred[np.isfinite(pred).all(axis=1)]
 
 
 def _follow_back(

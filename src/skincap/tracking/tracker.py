@@ -92,8 +92,9 @@ Beyond the thesis:
   resolved by keeping the largest consistent chain (a trace that slipped onto its
   neighbour's marker is dropped), markers on points that move rigidly with body
   points counting against a chain (a body marker keeps its distance to two or more
-  points the rope does not take over the last quarter second; a rope marker does
-  not): the body-like side of a stretched link goes. A trace coming back from a gap
+  points the rope does not take over the last quarter second, none within γ of the
+  prediction of a trace hidden in the previous frame and not found yet: rope markers
+  hidden together move together; a rope marker does not): the body-like side of a stretched link goes. A trace coming back from a gap
   does not take such a point either. A trace that sits more than ``2 γ`` off the
   curve through the other measured markers moves to a free point on that curve (it
   had taken a body point while its marker was hidden).
