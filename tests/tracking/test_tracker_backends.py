@@ -315,3 +315,58 @@ def test_reacquire_agrees_between_backends_in_crowded_frames() -> None:
         assert numba_out[0] == found
         for got, ref in zip(numba_out[1:], (known, taken, cur), strict=True):
             np.testing.assert_array_equal(got, ref)
+
+
+def test_hand_anchors_agree_between_backends_in_crowded_frames() -> None:
+    """A hidden end's hand seated among many points within reach (more than it keeps,
+    some tied in distance, one a trace's point) in frames of a few hundred points over
+    many grid cells, then followed into a frame where one anchor has a twin nearby: the
+    numba twin, which searches the frame grid, keeps the nearest by (distance, row) as
+    the reference's stable sort does and drops the ambiguous anchor alike."""
+    from skincap.tracking import _hand_numba, _hand_numpy
+
+    rng = np.random.default_rng(3)
+    end = np.array([0.0, 1.0, 0.0])
+    k_max = 8
+    for trial in range(6):
+        # offsets in 1/64 m: exact, so mirrored ones tie exactly in distance
+        near = rng.integers(-8, 9, size=(14, 3)) / 64.0
+        near = near[np.linalg.norm(near, axis=1) > 0.01]
+        near = np.concatenate([near, -near[:3], near[:2]])  # mirrored and doubled: ties
+        clutter = rng.uniform([-1.5, 1.4, -1.0], [1.5, 2.0, 1.0], size=(300, 3))
+        frame0 = np.concatenate([[end], end + near, clutter])
+        frame0[1:] = frame0[1 + rng.permutation(frame0.shape[0] - 1)]  # rows shuffled
+        moved = frame0 + [0.004, 0.002, 0.0]  # the hand moved 4.5 mm
+        # a second point beside one of the nearest anchors' next positions: ambiguous
+        d2 = np.sum((frame0[1:] - end) ** 2, axis=1)
+        nearest = 1 + np.lexsort((np.arange(d2.size), d2))[:k_max]
+        twin = moved[nearest[trial % k_max]] + [0.0, 0.0, 0.003]
+        frame1 = np.concatenate([moved, [twin]])
+        n0 = frame0.shape[0]
+        cloud = PointCloud(
+            points=np.concatenate([frame0, frame1]),
+            offsets=np.array([0, n0, n0 + frame1.shape[0]]),
+            rate=120.0,
+        )
+        out = []
+        for hand in (_hand_numpy, _hand_numba):
+            state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+            state.point_index[0] = [0, -1, -1]  # the end measured on row 0 of frame 0
+            state.positions[0, 0] = end
+            state.velocity[0] = [0.001, 0.0, 0.0]
+            hand.seat_hand(state, 1, p)
+            out.append(state)
+        ref, got = out
+        d2 = np.sum((frame0[1:] - end) ** 2, axis=1)  # the reference's own sum
+        nearest = 1 + np.lexsort((np.arange(d2.size), d2))[:k_max]
+        np.testing.assert_array_equal(ref.hand_then[0], frame0[nearest])
+        # followed into frame 1 but for the ambiguous ones: the one given a twin and
+        # those doubled in the take (two points equally near)
+        doubled = [np.sum(np.all(frame0 == frame0[i], axis=1)) > 1 for i in nearest]
+        keep = np.array(doubled) == 0
+        keep[trial % k_max] = False
+        assert keep.sum() >= 2
+        followed = ref.hand_index[0][ref.hand_index[0] >= 0]
+        np.testing.assert_array_equal(np.sort(followed), np.sort(n0 + nearest[keep]))
+        for field in ("hand_index", "hand_then", "hand_vel", "body", "body_vel"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(ref, field), err_msg=field)
