@@ -6,13 +6,14 @@ import numpy as np
 import pytest
 from scipy.optimize import linear_sum_assignment
 
-from conftest import rope_truth_indices
+from conftest import blank_state, rope_truth_indices
 from skincap.errors import MissingDependencyError, ValidationError
 from skincap.evaluate.gap_repair import hold_back_points
 from skincap.synth.scenes import jump_rope_scene
 from skincap.tracking import tracker
 from skincap.tracking.init import gated_assignment, init_rope
 from skincap.tracking.tracker import RopeTrack, track_rope
+from skincap.types import PointCloud
 
 pytest.importorskip("numba")
 
@@ -257,3 +258,115 @@ def test_auto_takes_the_kernel_mid_run_once_the_background_compile_lands(
     reference = track_rope(cloud, init, backend="numpy")
     np.testing.assert_array_equal(mixed.positions, reference.positions)
     np.testing.assert_array_equal(mixed.point_index, reference.point_index)
+
+
+def test_reacquire_agrees_between_backends_in_crowded_frames() -> None:
+    """Re-acquisition in frames of a few hundred points spread over many grid cells, with
+    the nearest candidate refused (seen beside the trace) and the true point doubled
+    (a tie in distance): the numba twin, which searches the frame grid, seats what the
+    reference's scan of every point does - the point behind the refused one, the
+    lower row of a tie - and the clutter out of reach changes nothing."""
+    from skincap.tracking import _steps_numba, _steps_numpy
+
+    spacing, m, gamma = 0.1, 10, 0.03
+    rope = np.zeros((m, 3))
+    rope[:, 0] = spacing * np.arange(m)
+    shift = np.array([0.0, 0.026, 0.0])  # the rope moved 2.6 cm: beyond γ of nothing
+    rng = np.random.default_rng(7)
+    for trial in range(12):
+        hidden = np.sort(rng.choice(np.arange(1, m - 1), size=4, replace=False))
+        seen = np.setdiff1d(np.arange(m), hidden)
+        want = rope + shift  # where a measured neighbour's link puts each marker
+        true = want + [0.008, 0.0, 0.0]  # 8 mm off: 2.7 cm from its frame-0 point
+        decoy = want + [0.0, 0.006, 0.0]  # nearer, 3.2 cm from the trace's frame-0 point
+        decoy_before = decoy[hidden] + [0.0, 0.025, 0.0]  # a marker it continues
+        # clutter over 3 m along x, 30-90 cm off the rope: in the grid's cells, out of reach
+        clutter = rng.uniform([-1.0, 0.3, 0.3], [2.0, 0.9, 0.9], size=(300, 3))
+        frame0 = np.concatenate([rope, decoy_before, clutter])
+        twin = hidden[trial % hidden.size]  # its true point twice: a tie
+        rows = np.concatenate(
+            [want[seen], true[hidden], decoy[hidden], true[[twin]], clutter + 0.002]
+        )
+        perm = rng.permutation(rows.shape[0])
+        frame1 = rows[perm]
+        at = np.argsort(perm) + frame0.shape[0]  # global row of each of `rows`
+        cloud = PointCloud(
+            points=np.concatenate([frame0, frame1]),
+            offsets=np.array([0, frame0.shape[0], frame0.shape[0] + frame1.shape[0]]),
+            rate=120.0,
+        )
+        out = []
+        for steps in (_steps_numpy, _steps_numba):
+            state, p = blank_state(cloud, [spacing] * (m - 1), gamma=gamma)
+            state.positions[0] = rope
+            state.point_index[0] = np.arange(m)
+            state.known[seen] = True
+            state.taken[seen] = at[: seen.size]
+            state.cur[seen] = want[seen]
+            found = bool(steps.reacquire_on_shell(state, 1, p))
+            out.append((found, state.known.copy(), state.taken.copy(), state.cur.copy()))
+        (found, known, taken, cur), numba_out = out
+        expected = at[seen.size : seen.size + hidden.size].copy()  # the true points
+        u = np.searchsorted(hidden, twin)
+        expected[u] = min(expected[u], at[seen.size + 2 * hidden.size])  # a tie: lower row
+        assert found and known.all()
+        np.testing.assert_array_equal(taken[hidden], expected)
+        np.testing.assert_allclose(cur[hidden], true[hidden])
+        assert numba_out[0] == found
+        for got, ref in zip(numba_out[1:], (known, taken, cur), strict=True):
+            np.testing.assert_array_equal(got, ref)
+
+
+def test_hand_anchors_agree_between_backends_in_crowded_frames() -> None:
+    """A hidden end's hand seated among many points within reach (more than it keeps,
+    some tied in distance, one a trace's point) in frames of a few hundred points over
+    many grid cells, then followed into a frame where one anchor has a twin nearby: the
+    numba twin, which searches the frame grid, keeps the nearest by (distance, row) as
+    the reference's stable sort does and drops the ambiguous anchor alike."""
+    from skincap.tracking import _hand_numba, _hand_numpy
+
+    rng = np.random.default_rng(3)
+    end = np.array([0.0, 1.0, 0.0])
+    k_max = 8
+    for trial in range(6):
+        # offsets in 1/64 m: exact, so mirrored ones tie exactly in distance
+        near = rng.integers(-8, 9, size=(14, 3)) / 64.0
+        near = near[np.linalg.norm(near, axis=1) > 0.01]
+        near = np.concatenate([near, -near[:3], near[:2]])  # mirrored and doubled: ties
+        clutter = rng.uniform([-1.5, 1.4, -1.0], [1.5, 2.0, 1.0], size=(300, 3))
+        frame0 = np.concatenate([[end], end + near, clutter])
+        frame0[1:] = frame0[1 + rng.permutation(frame0.shape[0] - 1)]  # rows shuffled
+        moved = frame0 + [0.004, 0.002, 0.0]  # the hand moved 4.5 mm
+        # a second point beside one of the nearest anchors' next positions: ambiguous
+        d2 = np.sum((frame0[1:] - end) ** 2, axis=1)
+        nearest = 1 + np.lexsort((np.arange(d2.size), d2))[:k_max]
+        twin = moved[nearest[trial % k_max]] + [0.0, 0.0, 0.003]
+        frame1 = np.concatenate([moved, [twin]])
+        n0 = frame0.shape[0]
+        cloud = PointCloud(
+            points=np.concatenate([frame0, frame1]),
+            offsets=np.array([0, n0, n0 + frame1.shape[0]]),
+            rate=120.0,
+        )
+        out = []
+        for hand in (_hand_numpy, _hand_numba):
+            state, p = blank_state(cloud, [0.1, 0.1], gamma=0.03)
+            state.point_index[0] = [0, -1, -1]  # the end measured on row 0 of frame 0
+            state.positions[0, 0] = end
+            state.velocity[0] = [0.001, 0.0, 0.0]
+            hand.seat_hand(state, 1, p)
+            out.append(state)
+        ref, got = out
+        d2 = np.sum((frame0[1:] - end) ** 2, axis=1)  # the reference's own sum
+        nearest = 1 + np.lexsort((np.arange(d2.size), d2))[:k_max]
+        np.testing.assert_array_equal(ref.hand_then[0], frame0[nearest])
+        # followed into frame 1 but for the ambiguous ones: the one given a twin and
+        # those doubled in the take (two points equally near)
+        doubled = [np.sum(np.all(frame0 == frame0[i], axis=1)) > 1 for i in nearest]
+        keep = np.array(doubled) == 0
+        keep[trial % k_max] = False
+        assert keep.sum() >= 2
+        followed = ref.hand_index[0][ref.hand_index[0] >= 0]
+        np.testing.assert_array_equal(np.sort(followed), np.sort(n0 + nearest[keep]))
+        for field in ("hand_index", "hand_then", "hand_vel", "body", "body_vel"):
+            np.testing.assert_array_equal(getattr(got, field), getattr(ref, field), err_msg=field)

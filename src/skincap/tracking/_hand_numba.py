@@ -11,7 +11,13 @@ import numpy as np
 
 from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT
-from skincap.tracking._refusals_numba import _link_limit, rigid_with_body
+from skincap.tracking._refusals_numba import (
+    _PAD,
+    _grid_run,
+    _link_limit,
+    rigid_with_body,
+    taken_in_frame,
+)
 from skincap.tracking.curve import HELD_END_REACH
 
 __all__ = [
@@ -27,19 +33,6 @@ _INF = np.inf
 
 
 @numba.njit(**JIT)
-def _d2(points, q):  # pragma: no cover - runs compiled
-    """(N,) squared distances of ``points`` (N, 3) to ``q`` (3,), summed per axis."""
-    n = points.shape[0]
-    out = np.empty(n)
-    for i in range(n):
-        dx = points[i, 0] - q[0]
-        dy = points[i, 1] - q[1]
-        dz = points[i, 2] - q[2]
-        out[i] = dx * dx + dy * dy + dz * dz
-    return out
-
-
-@numba.njit(**JIT)
 def seat_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.seat_hand`."""
     if t < 1:
@@ -48,7 +41,6 @@ def seat_hand(state, t, p):  # pragma: no cover - runs compiled
     a, b = state.offsets[f], state.offsets[f + 1]
     m = state.known.size
     k_max = state.hand_index.shape[1]
-    reach2 = HELD_END_REACH * HELD_END_REACH
     for row in range(2):
         e = 0 if row == 0 else m - 1
         if state.known[e] or state.temp_count[e] > 0 or b == a:
@@ -58,23 +50,64 @@ def seat_hand(state, t, p):  # pragma: no cover - runs compiled
             seated |= state.hand_index[row, k] >= 0
         if seated:
             continue
-        d2 = _d2(state.points[a:b], state.positions[f, e])
-        for j in range(m):
-            q = state.point_index[f, j]
-            if q >= a and q < b:
-                d2[q - a] = _INF
-        order = np.argsort(d2, kind="mergesort")
-        n = 0
-        for u in range(min(k_max, order.size)):
-            i = order[u]
-            if not d2[i] <= reach2:
-                break
-            state.hand_index[row, n] = a + i
-            for c in range(3):
-                state.hand_then[row, n, c] = state.points[a + i, c]
-                state.hand_vel[row, n, c] = state.velocity[e, c]
-            n += 1
+        _seat_row(state, f, row, e, p)
         _follow_row(state, t, row, p)
+
+
+@numba.njit(**JIT)
+def _seat_row(state, f, row, e, p):  # pragma: no cover - runs compiled
+    """Row ``row`` of the hand: the ``K`` points of frame f nearest to trace ``e``'s
+    position there (no trace's point, within ``HELD_END_REACH``; by (distance, row) as
+    the reference's stable sort orders them), their positions and ``e``'s velocity.
+
+    Scans only frame f's grid rows within the reach
+    (:func:`~skincap.tracking._refusals_numba.frame_grid`), not the whole frame."""
+    points, order = state.points, state.grid_order
+    k_max = state.hand_index.shape[1]
+    reach2 = HELD_END_REACH * HELD_END_REACH
+    x0, x1, x2 = state.positions[f, e, 0], state.positions[f, e, 1], state.positions[f, e, 2]
+    k0, k1 = _grid_run(
+        points,
+        state.offsets,
+        state.grid_info,
+        state.grid_starts,
+        order,
+        f,
+        p.gamma,
+        x0,
+        x1,
+        x2,
+        HELD_END_REACH * _PAD,
+    )
+    kept = state.hand_index[row]  # all -1 here (the caller seats an empty row only)
+    d_kept = np.empty(k_max)
+    n = 0
+    for k in range(k0, k1):
+        q = order[k]
+        dx = points[q, 0] - x0
+        dy = points[q, 1] - x1
+        dz = points[q, 2] - x2
+        d = dx * dx + dy * dy + dz * dz  # squared, summed x, y, z
+        if not d <= reach2:
+            continue
+        if n == k_max and (d > d_kept[n - 1] or (d == d_kept[n - 1] and q > kept[n - 1])):
+            continue
+        if taken_in_frame(state.point_index, f, q):
+            continue
+        # insertion among those kept so far, ascending by (distance, row)
+        pos = n if n < k_max else k_max - 1
+        while pos > 0 and (d_kept[pos - 1] > d or (d_kept[pos - 1] == d and kept[pos - 1] > q)):
+            d_kept[pos] = d_kept[pos - 1]
+            kept[pos] = kept[pos - 1]
+            pos -= 1
+        d_kept[pos] = d
+        kept[pos] = q
+        if n < k_max:
+            n += 1
+    for u in range(n):
+        for c in range(3):
+            state.hand_then[row, u, c] = points[kept[u], c]
+            state.hand_vel[row, u, c] = state.velocity[e, c]
 
 
 @numba.njit(**JIT)
@@ -119,6 +152,7 @@ def _follow_row(state, t, row, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy._follow_row`."""
     a, b = state.offsets[t], state.offsets[t + 1]
     g2 = p.gamma * p.gamma
+    points, order = state.points, state.grid_order
     pred = np.empty(3)
     end = 0 if row == 0 else state.known.size - 1
     for k in range(state.hand_index.shape[1]):
@@ -130,18 +164,36 @@ def _follow_row(state, t, row, p):  # pragma: no cover - runs compiled
             continue
         for c in range(3):
             pred[c] = state.points[q, c] + state.hand_vel[row, k, c]
-        d2 = _d2(state.points[a:b], pred)
-        best, second, i1 = _INF, _INF, -1
-        for i in range(d2.size):
-            if d2[i] < best:
+        # the nearest point must lie within γ and the next beyond twice its distance,
+        # so only frame t's grid rows within 2γ of the prediction can decide
+        k0, k1 = _grid_run(
+            points,
+            state.offsets,
+            state.grid_info,
+            state.grid_starts,
+            order,
+            t,
+            p.gamma,
+            pred[0],
+            pred[1],
+            pred[2],
+            2.0 * p.gamma * _PAD,
+        )
+        best, second, new = _INF, _INF, -1
+        for u in range(k0, k1):
+            i = order[u]
+            dx = points[i, 0] - pred[0]
+            dy = points[i, 1] - pred[1]
+            dz = points[i, 2] - pred[2]
+            d = dx * dx + dy * dy + dz * dz  # squared, summed x, y, z
+            if d < best or (d == best and i < new):  # ties to the lower row, as a scan
                 second = best
-                best = d2[i]
-                i1 = i
-            elif d2[i] < second:
-                second = d2[i]
+                best = d
+                new = i
+            elif d < second:
+                second = d
         if best > g2 or second <= 4.0 * best:
             continue
-        new = a + i1
         dup = False
         for u in range(k):
             if state.hand_index[row, u] == new:

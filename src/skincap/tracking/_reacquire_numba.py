@@ -11,6 +11,8 @@ import numpy as np
 from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT, norm3
 from skincap.tracking._refusals_numba import (
+    _PAD,
+    _grid_run,
     path_back_to_trace,
     reject_overstretched,
     rigid_with_body,
@@ -75,13 +77,11 @@ def _seat_pass(state, t, free, p):  # pragma: no cover - runs compiled
             want = cur[k] + (prev[j] - prev[k])
             inner = rest - p.gamma
             outer = rest + p.adjacent_stretch * p.gamma
-            c, d = _nearest_free(
-                state, t, j, want, rest, _SHELL, inner, outer, cur[k].copy(), free, p
-            )
+            c, d = _nearest_free(state, t, j, want, rest, _SHELL, inner, outer, cur[k], free, p)
             if c < 0:
                 c, d = _as_last_seen(state, t, j, k, rest, free, p)
             if c < 0 and 0 < j < m - 1 and state.temp_count[j] >= p.lone_after:
-                c = _lone(state, t, j, inner, outer, cur[k].copy(), free, p)
+                c = _lone(state, t, j, inner, outer, cur[k], free, p)
                 d = _INF
             if c >= 0:
                 who[n], what[n], cost[n] = j, c, d
@@ -119,41 +119,61 @@ def _nearest_free(
     state, t, j, want, gate, use_shell, inner, outer, centre, free, p
 ):  # pragma: no cover
     """Twin of the reference's ``_nearest_free``: the shell is (``inner``, ``outer``,
-    ``centre``) when ``use_shell``; (index in the frame or -1, distance)."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    points = state.points
-    n = b - a
-    d = np.full(n, _INF)
-    n_ok = 0
-    for c in range(n):
-        if not free[c]:
-            continue
-        q = a + c
-        dc = norm3(points[q, 0] - want[0], points[q, 1] - want[1], points[q, 2] - want[2])
-        if not dc <= gate:
-            continue
-        if use_shell:
-            r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
-            if not (r >= inner and r <= outer):
-                continue
-        d[c] = dc
-        n_ok += 1
-    if n_ok == 0:  # the usual case for a trace still hidden
-        return np.int64(-1), _INF
+    ``centre``) when ``use_shell``; (index in the frame or -1, distance).
+
+    Scans only frame t's grid rows within ``gate`` of ``want`` (the tracker's frame
+    grid, :func:`~skincap.tracking._refusals_numba.frame_grid`), and takes the
+    candidates in ascending (distance, row) order, as the reference's stable sort
+    does, by rescanning that run for the next one after each refusal: refusals are
+    rare, and a rescan of a few rows costs less than a buffer per call."""
+    a = state.offsets[t]
+    points, order = state.points, state.grid_order
+    k0, k1 = _grid_run(
+        points,
+        state.offsets,
+        state.grid_info,
+        state.grid_starts,
+        order,
+        t,
+        p.gamma,
+        want[0],
+        want[1],
+        want[2],
+        gate * _PAD,
+    )
+    last_d = -1.0  # the last candidate refused, in (distance, row) order
+    last_q = -1
     while True:
-        best = -1
-        for c in range(n):
-            if d[c] < _INF and (best < 0 or d[c] < d[best]):
-                best = c
-        if best < 0:
+        best_q = -1
+        best_d = _INF
+        for k in range(k0, k1):
+            q = order[k]
+            if not free[q - a]:
+                continue
+            dc = norm3(points[q, 0] - want[0], points[q, 1] - want[1], points[q, 2] - want[2])
+            if not (dc <= gate and dc < _INF):
+                continue
+            if dc < last_d or (dc == last_d and q <= last_q):  # refused already
+                continue
+            if best_q >= 0 and (dc > best_d or (dc == best_d and q > best_q)):
+                continue
+            if use_shell:
+                r = norm3(
+                    points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2]
+                )
+                if not (r >= inner and r <= outer):
+                    continue
+            best_q = q
+            best_d = dc
+        if best_q < 0:  # the usual case for a trace still hidden
             return np.int64(-1), _INF
-        dist = d[best]
-        d[best] = _INF
-        if _beside_trace(state, t, j, a + best, p) or rigid_with_body(
-            state, t, np.int64(-1), a + best, p
+        if _beside_trace(state, t, j, best_q, p) or rigid_with_body(
+            state, t, np.int64(-1), best_q, p
         ):
+            last_d = best_d
+            last_q = best_q
             continue
-        return np.int64(best), dist
+        return np.int64(best_q - a), best_d
 
 
 @numba.njit(**JIT)
@@ -166,22 +186,36 @@ def _as_last_seen(state, t, j, k, rest, free, p):  # pragma: no cover - runs com
     for c in range(3):
         want[c] = state.cur[k, c] + (state.positions[last, j, c] - state.positions[last, k, c])
     outer = rest + p.adjacent_stretch * p.gamma
-    return _nearest_free(
-        state, t, j, want, p.gamma, _SHELL, 0.0, outer, state.cur[k].copy(), free, p
-    )
+    return _nearest_free(state, t, j, want, p.gamma, _SHELL, 0.0, outer, state.cur[k], free, p)
 
 
 @numba.njit(**JIT)
 def _lone(state, t, j, inner, outer, centre, free, p):  # pragma: no cover
     """Twin of the reference's ``_lone``: the shell is (``inner``, ``outer``,
     ``centre``)."""
-    a, b = state.offsets[t], state.offsets[t + 1]
-    points = state.points
+    a = state.offsets[t]
+    points, order = state.points, state.grid_order
+    # frame t's grid rows within the shell's outer radius; the answer does not depend
+    # on the order the candidates are met in (one survivor or none)
+    k0, k1 = _grid_run(
+        points,
+        state.offsets,
+        state.grid_info,
+        state.grid_starts,
+        order,
+        t,
+        p.gamma,
+        centre[0],
+        centre[1],
+        centre[2],
+        outer * _PAD,
+    )
     only = -1
-    for c in range(b - a):
+    for k in range(k0, k1):
+        q = order[k]
+        c = q - a
         if not free[c]:
             continue
-        q = a + c
         r = norm3(points[q, 0] - centre[0], points[q, 1] - centre[1], points[q, 2] - centre[2])
         if not (r >= inner and r <= outer):
             continue
