@@ -10,11 +10,12 @@ import numba
 import numpy as np
 
 from skincap.backends import key_caches_on_package
+from skincap.tracking._numba_grid import insert_nearest
 from skincap.tracking._numba_search import JIT
 from skincap.tracking._refusals_numba import (
     _PAD,
-    _grid_run,
     _link_limit,
+    grid_run_of,
     rigid_with_body,
     taken_in_frame,
 )
@@ -66,19 +67,7 @@ def _seat_row(state, f, row, e, p):  # pragma: no cover - runs compiled
     k_max = state.hand_index.shape[1]
     reach2 = HELD_END_REACH * HELD_END_REACH
     x0, x1, x2 = state.positions[f, e, 0], state.positions[f, e, 1], state.positions[f, e, 2]
-    k0, k1 = _grid_run(
-        points,
-        state.offsets,
-        state.grid_info,
-        state.grid_starts,
-        order,
-        f,
-        p.gamma,
-        x0,
-        x1,
-        x2,
-        HELD_END_REACH * _PAD,
-    )
+    k0, k1 = grid_run_of(state, f, p.gamma, x0, x1, x2, HELD_END_REACH * _PAD)
     kept = state.hand_index[row]  # all -1 here (the caller seats an empty row only)
     d_kept = np.empty(k_max)
     n = 0
@@ -94,16 +83,7 @@ def _seat_row(state, f, row, e, p):  # pragma: no cover - runs compiled
             continue
         if taken_in_frame(state.point_index, f, q):
             continue
-        # insertion among those kept so far, ascending by (distance, row)
-        pos = n if n < k_max else k_max - 1
-        while pos > 0 and (d_kept[pos - 1] > d or (d_kept[pos - 1] == d and kept[pos - 1] > q)):
-            d_kept[pos] = d_kept[pos - 1]
-            kept[pos] = kept[pos - 1]
-            pos -= 1
-        d_kept[pos] = d
-        kept[pos] = q
-        if n < k_max:
-            n += 1
+        n = insert_nearest(d_kept, kept, n, k_max, d, q)
     for u in range(n):
         for c in range(3):
             state.hand_then[row, u, c] = points[kept[u], c]
@@ -166,19 +146,7 @@ def _follow_row(state, t, row, p):  # pragma: no cover - runs compiled
             pred[c] = state.points[q, c] + state.hand_vel[row, k, c]
         # the nearest point must lie within γ and the next beyond twice its distance,
         # so only frame t's grid rows within 2γ of the prediction can decide
-        k0, k1 = _grid_run(
-            points,
-            state.offsets,
-            state.grid_info,
-            state.grid_starts,
-            order,
-            t,
-            p.gamma,
-            pred[0],
-            pred[1],
-            pred[2],
-            2.0 * p.gamma * _PAD,
-        )
+        k0, k1 = grid_run_of(state, t, p.gamma, pred[0], pred[1], pred[2], 2.0 * p.gamma * _PAD)
         best, second, new = _INF, _INF, -1
         for u in range(k0, k1):
             i = order[u]

@@ -137,6 +137,21 @@ def cell_span(lo, inv, n_cells, x, bound):  # pragma: no cover - runs compiled
     return first, last
 
 
+@numba.njit(inline="always", **JIT)
+def insert_nearest(d_kept, kept, n, k_max, d, q):  # pragma: no cover - runs compiled
+    """Insert (d, q) among the first ``n`` entries of ``d_kept``/``kept``, kept ascending
+    by (distance, index) and at most ``k_max`` long (the last one drops out when full;
+    the caller has refused a (d, q) not below it). Returns the new count."""
+    pos = n if n < k_max else k_max - 1
+    while pos > 0 and (d_kept[pos - 1] > d or (d_kept[pos - 1] == d and kept[pos - 1] > q)):
+        d_kept[pos] = d_kept[pos - 1]
+        kept[pos] = kept[pos - 1]
+        pos -= 1
+    d_kept[pos] = d
+    kept[pos] = q
+    return n + 1 if n < k_max else n
+
+
 @numba.njit(**JIT)
 def grid_nearest(points, grid, b, q, kk, bound, d_out, i_out):  # pragma: no cover
     """The kk nearest of the grid's points (rows of ``points`` below ``b``) to q (3,)
@@ -163,16 +178,7 @@ def grid_nearest(points, grid, b, q, kk, bound, d_out, i_out):  # pragma: no cov
             continue
         if n_found == kk and (d > d_out[kk - 1] or (d == d_out[kk - 1] and p > i_out[kk - 1])):
             continue
-        # insertion into the kk kept so far, ascending by (distance, index)
-        pos = n_found if n_found < kk else kk - 1
-        while pos > 0 and (d_out[pos - 1] > d or (d_out[pos - 1] == d and i_out[pos - 1] > p)):
-            d_out[pos] = d_out[pos - 1]
-            i_out[pos] = i_out[pos - 1]
-            pos -= 1
-        d_out[pos] = d
-        i_out[pos] = p
-        if n_found < kk:
-            n_found += 1
+        n_found = insert_nearest(d_out, i_out, n_found, kk, d, p)
 
 
 @numba.njit(**JIT)

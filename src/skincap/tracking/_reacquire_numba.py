@@ -12,7 +12,7 @@ from skincap.backends import key_caches_on_package
 from skincap.tracking._numba_search import JIT, norm3
 from skincap.tracking._refusals_numba import (
     _PAD,
-    _grid_run,
+    grid_run_of,
     path_back_to_trace,
     reject_overstretched,
     rigid_with_body,
@@ -128,19 +128,7 @@ def _nearest_free(
     rare, and a rescan of a few rows costs less than a buffer per call."""
     a = state.offsets[t]
     points, order = state.points, state.grid_order
-    k0, k1 = _grid_run(
-        points,
-        state.offsets,
-        state.grid_info,
-        state.grid_starts,
-        order,
-        t,
-        p.gamma,
-        want[0],
-        want[1],
-        want[2],
-        gate * _PAD,
-    )
+    k0, k1 = grid_run_of(state, t, p.gamma, want[0], want[1], want[2], gate * _PAD)
     last_d = -1.0  # the last candidate refused, in (distance, row) order
     last_q = -1
     while True:
@@ -197,19 +185,7 @@ def _lone(state, t, j, inner, outer, centre, free, p):  # pragma: no cover
     points, order = state.points, state.grid_order
     # frame t's grid rows within the shell's outer radius; the answer does not depend
     # on the order the candidates are met in (one survivor or none)
-    k0, k1 = _grid_run(
-        points,
-        state.offsets,
-        state.grid_info,
-        state.grid_starts,
-        order,
-        t,
-        p.gamma,
-        centre[0],
-        centre[1],
-        centre[2],
-        outer * _PAD,
-    )
+    k0, k1 = grid_run_of(state, t, p.gamma, centre[0], centre[1], centre[2], outer * _PAD)
     only = -1
     for k in range(k0, k1):
         q = order[k]

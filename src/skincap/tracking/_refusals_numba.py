@@ -82,6 +82,25 @@ def _grid_run(points, offsets, info, starts, order, f, gamma, x, y, z, bound):  
     return a + starts[s0 + first], a + starts[s0 + last + 1]
 
 
+@numba.njit(inline="always", **JIT)
+def grid_run_of(state, f, gamma, x, y, z, bound):  # pragma: no cover - runs compiled
+    """:func:`_grid_run` on a tracker state's arrays, for callers that hold the state
+    (inlined into them at compile time, so the state is not passed at run time)."""
+    return _grid_run(
+        state.points,
+        state.offsets,
+        state.grid_info,
+        state.grid_starts,
+        state.grid_order,
+        f,
+        gamma,
+        x,
+        y,
+        z,
+        bound,
+    )
+
+
 @numba.njit(**JIT)
 def _rows_within(grid, x, y, z, bound):  # pragma: no cover - runs compiled
     """:func:`~skincap.tracking._numba_grid.grid_rows` around the point (x, y, z)."""
