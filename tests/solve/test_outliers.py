@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from skincap.errors import ValidationError
-from skincap.solve.outliers import jumped_samples
+from skincap.solve.outliers import jumped_samples, off_body_samples
 
 
 def _smooth_take(n_frames=200, n_markers=4, seed=0):
@@ -53,3 +53,46 @@ def test_shapes_are_checked():
     with pytest.raises(ValidationError, match="measured/fitted"):
         jumped_samples(np.zeros((5, 2, 3)), np.zeros((5, 3, 3)))
     assert not jumped_samples(np.full((1, 2, 3), 0.1), np.zeros((1, 2, 3))).any()
+
+
+def test_a_sample_far_off_the_body_is_flagged_and_nothing_else():
+    measured, _ = _smooth_take(n_markers=6)
+    measured[30, 2] = [5000.0, 3.0, 1.0]  # a corrupt sample, kilometres away
+    measured[80, 4] += [1.6, 0.0, 0.0]  # a ghost 1.6 m off
+    measured[90:100, 0] = np.nan  # a gap is not off the body
+    flagged = off_body_samples(measured)
+    expected = np.zeros_like(flagged)
+    expected[30, 2] = expected[80, 4] = True
+    np.testing.assert_array_equal(flagged, expected)
+
+
+def test_frames_with_too_few_markers_are_not_judged():
+    measured, _ = _smooth_take(n_markers=4)
+    measured[10, 2:] = np.nan
+    measured[10, 1] = [5000.0, 0.0, 0.0]  # two markers seen: no trusted centre
+    assert not off_body_samples(measured).any()
+    with pytest.raises(ValidationError):
+        off_body_samples(np.zeros((3, 4)))
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "aml_PronetoRun01_labeled.c3d",
+        "btk_pig_calibration_hole_unlabeled_fragments.c3d",
+        "c3dorg_sample01_Eb015pr.c3d",
+        "cmu_85_02.c3d",
+        "kt_optitrack_walking.c3d",
+        "pyomeca_markers_analogs.c3d",
+    ],
+)
+def test_no_sample_of_a_real_labelled_capture_is_off_the_body(data_dir, name):
+    import warnings
+
+    from skincap.errors import SkincapWarning
+    from skincap.io import read
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        take = read(data_dir / name)
+    assert not off_body_samples(take.positions).any()

@@ -156,7 +156,8 @@ def _print_solve_summary(input_file: Path, output: Path, summary: dict[str, Any]
         f"{input_file} -> {output}: {summary['frames']} frames, {summary['joints']} joints, "
         f"{summary['markers']} markers ({summary['template']}), RMS residual "
         f"{summary['rms_m'] * 100:.2f} cm, max {summary['max_m'] * 100:.2f} cm"
-        + (f", {summary['rejected']} jumped samples left out" if summary["rejected"] else ""),
+        + (f", {summary['rejected']} jumped samples left out" if summary["rejected"] else "")
+        + (f", {summary['off_body']} off-body samples left out" if summary["off_body"] else ""),
         markup=False,
         soft_wrap=True,
     )

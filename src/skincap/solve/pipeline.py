@@ -8,16 +8,17 @@ model's markers per frame and the residual report.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from skincap._arrays import Progress
-from skincap.errors import ValidationError
+from skincap.errors import SkincapWarning, ValidationError
 from skincap.solve.calibrate import BodyModel, calibrate
 from skincap.solve.ik import model_markers, refit_marker_offsets, solve_poses
-from skincap.solve.outliers import jumped_samples
+from skincap.solve.outliers import jumped_samples, off_body_samples
 from skincap.solve.skeleton import motion_of, skeleton_of
 from skincap.solve.smooth import smooth_poses
 from skincap.solve.templates import Template, load_template
@@ -48,6 +49,9 @@ class SolveResult:
     rejected : (T, M) bool
         Samples left out as jumps off their segment (:mod:`skincap.solve.outliers`):
         solved as missing, their residual NaN.
+    off_body : (T, M) bool or None
+        Samples left out before calibration as too far from the rest of the body
+        (:func:`skincap.solve.outliers.off_body_samples`); NaN residuals too.
     """
 
     motion: Motion
@@ -59,6 +63,7 @@ class SolveResult:
     smooth_hz: float | None = None
     ik: dict[str, Any] = field(default_factory=dict)
     rejected: np.ndarray | None = None
+    off_body: np.ndarray | None = None
 
     def report(self) -> dict[str, Any]:
         return residual_report(self)
@@ -75,6 +80,7 @@ def solve_markers(
     refine_offsets: int = 1,
     joint_limits: bool = False,
     reject_jumps: bool = True,
+    drop_off_body: bool = True,
     progress: Progress | None = None,
 ) -> SolveResult:
     """Solve a skeleton motion from a labelled marker capture.
@@ -118,6 +124,11 @@ def solve_markers(
         residuals are NaN. On AML PronetoRun01 it leaves out LSHPA in frames
         1248-1251 (swapped onto another track) and the max residual falls from 4.07 to
         3.73 cm; CMU 85_02 and the synthetic walk and squat have no such sample.
+    drop_off_body : bool, default True
+        Before calibration, leave out (with a warning) the samples too far from the
+        rest of the body to be on the performer
+        (:func:`skincap.solve.outliers.off_body_samples`); listed in the report
+        (``off_body_samples``).
     progress : callable(fraction, label), optional
 
     Returns
@@ -131,6 +142,7 @@ def solve_markers(
     """
     if progress is not None:
         progress(0.0, "calibration")
+    markers, off_body = _without_off_body(markers) if drop_off_body else (markers, None)
     if isinstance(template, BodyModel):
         model = template
         cols = model.marker_columns
@@ -144,6 +156,9 @@ def solve_markers(
         model = calibrate(markers, tpl)
     if model.marker_columns.size == 0:
         raise ValidationError("no template marker was seen with its segment")
+    if off_body is not None:  # only the markers solved count (a prop's marker may roam)
+        off_body = off_body[:, model.marker_columns]
+        _warn_off_body(off_body, list(model.marker_labels))
 
     def ik_progress(f: float, label: str) -> None:
         if progress is not None:
@@ -182,6 +197,28 @@ def solve_markers(
             "reject_jumps": bool(reject_jumps),
         },
         rejected=rejected,
+        off_body=off_body,
+    )
+
+
+def _without_off_body(markers: MarkerSet) -> tuple[MarkerSet, np.ndarray]:
+    """``markers`` with the off-body samples NaN, and their ``(T, M)`` mask."""
+    off = off_body_samples(markers.positions)
+    if not off.any():
+        return markers, off
+    return replace(markers, positions=np.where(off[..., None], np.nan, markers.positions)), off
+
+
+def _warn_off_body(off: np.ndarray, labels: list[str]) -> None:
+    """Say how many of the solved markers' samples ``off (T, M)`` were left out."""
+    if not off.any():
+        return
+    t, m = (int(i[0]) for i in np.nonzero(off))
+    warnings.warn(
+        f"{int(off.sum())} sample(s) lie too far from the rest of the body to be on the "
+        f"performer and are left out (first: {labels[m]!r} in frame {t})",
+        SkincapWarning,
+        stacklevel=3,
     )
 
 
@@ -364,7 +401,8 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
         "smoothing_hz": result.smooth_hz,
         "ik": dict(result.ik),
         "overall": _stats(r),
-        "rejected_samples": _rejected(result),
+        "rejected_samples": _frames_of(result.rejected, model.marker_labels),
+        "off_body_samples": _frames_of(result.off_body, model.marker_labels),
         "per_marker": {label: _stats(r[:, k]) for k, label in enumerate(model.marker_labels)},
         "per_frame_rms_m": [None if not np.isfinite(v) else round(float(v), 6) for v in per_frame],
         "joint_centres": {
@@ -386,12 +424,10 @@ def residual_report(result: SolveResult) -> dict[str, Any]:
     }
 
 
-def _rejected(result: SolveResult) -> dict[str, Any]:
-    """The samples left out as jumps: their count and, per marker, the frames."""
-    mask = result.rejected
+def _frames_of(mask: np.ndarray | None, labels: list[str] | tuple[str, ...]) -> dict[str, Any]:
+    """Samples left out (a ``(T, M)`` mask): their count and, per marker, the frames."""
     if mask is None:
         return {"count": 0, "frames": {}}
-    labels = result.model.marker_labels
     return {
         "count": int(mask.sum()),
         "frames": {

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -137,7 +138,14 @@ def _resolve_template(template: str, input_path: str | os.PathLike[str], markers
         check_synth_dense_body(input_path)
     if template == "auto":
         from skincap.solve.auto import calibrate_auto
+        from skincap.solve.outliers import off_body_samples
 
+        # the search must not see what solve_markers leaves out (and warns about) later
+        off = off_body_samples(markers.positions)
+        if off.any():
+            markers = replace(
+                markers, positions=np.where(off[..., None], np.nan, markers.positions)
+            )
         tpl: Any = calibrate_auto(markers)
     else:
         tpl = template
@@ -228,7 +236,8 @@ def solve_file(
     -------
     dict
         ``frames``, ``joints``, ``markers``, ``rms_m``, ``max_m``, ``template``,
-        ``rejected`` (samples left out as jumps), ``outputs`` (the files written).
+        ``rejected`` (samples left out as jumps), ``off_body`` (samples left out as too far
+        from the body), ``outputs`` (the files written).
     """
     _check_solve_options(output_path, markers_out, loss, loss_scale_m, refine_offsets)
     markers = read_labelled_markers(input_path)
@@ -261,6 +270,7 @@ def solve_file(
         "rms_m": rep["overall"]["rms_m"],
         "max_m": rep["overall"]["max_m"],
         "rejected": rep["rejected_samples"]["count"],
+        "off_body": rep["off_body_samples"]["count"],
         "outputs": outputs,
     }
 
