@@ -46,7 +46,7 @@ def test_swept_volume_is_restored_in_every_frame(limb) -> None:
     d = SweepDeformer(limb, chains=CYLINDER_CHAIN)
     (lv,) = d.volumes
     m = _bends(limb, [0.0, 30.0, 60.0, 90.0, 120.0, 140.0])
-    centres, quats = d.key_poses(d.limbs[0], m)
+    centres, quats = d.key_poses(0, m)
     before = lv.volume(centres, quats)
     beta = lv.scales(centres, quats)
     c = lv._integrand(centres, quats)

@@ -36,7 +36,7 @@ def nlerp(q0: np.ndarray, q1: np.ndarray, u: np.ndarray) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class SweepBasis:
     """Fixed interpolation weights of a sweep at parameters ``t`` (n,).
 

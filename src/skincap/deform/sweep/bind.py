@@ -30,7 +30,7 @@ from skincap.types import Mesh
 __all__ = ["LimbBinding", "bind_limb"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LimbBinding:
     """The vertices of one limb bound to its sweep.
 

@@ -39,7 +39,7 @@ def subtree(parents: np.ndarray, joint: int) -> np.ndarray:
     return inside
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LimbChain:
     """One swept limb.
 

@@ -131,11 +131,13 @@ class SweepDeformer:
         return self.skinner.n_vertices
 
     # ------------------------------------------------------------------ keys
-    def key_poses(self, limb: LimbSweep, matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Posed key centres (T, K, 3) metres and quaternions (T, K, 4), hemisphere-aligned.
+    def key_poses(self, k: int, matrices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Posed key centres (T, K, 3) metres and quaternions (T, K, 4) of limb ``k``.
 
-        ``matrices`` (T, J, 4, 4) are skinning matrices (identity in the bind pose).
+        ``matrices`` (T, J, 4, 4) are skinning matrices (identity in the bind pose);
+        the quaternions are hemisphere-aligned along the sweep.
         """
+        limb = self.limbs[k]
         chain = limb.chain
         joints = chain.joints
         m = joints.size
@@ -163,14 +165,14 @@ class SweepDeformer:
         delta = np.where(is_joint[None, :, None], joint_rot[:, pivot], along)
         arm = limb.keys.centres - limb.joint_pos[pivot]  # (K, 3) from the pivot, rest
         centres = posed[:, pivot] + quat_apply(delta, arm)
-        quats = align_hemispheres(quat_multiply(delta, self._rest_q[self.limbs.index(limb)]))
+        quats = align_hemispheres(quat_multiply(delta, self._rest_q[k]))
         return centres, quats
 
     # --------------------------------------------------------------- vertices
     def _limb_vertices(self, k: int, matrices: np.ndarray) -> np.ndarray:
         """(T, n, 3) positions of limb ``k``'s bound vertices on its posed sweep."""
-        limb, bound = self.limbs[k], self.bindings[k]
-        centres, quats = self.key_poses(limb, matrices)
+        bound = self.bindings[k]
+        centres, quats = self.key_poses(k, matrices)
         basis = bound.basis
         local = np.broadcast_to(bound.local, (matrices.shape[0],) + bound.local.shape)
         if self.volumes is not None:

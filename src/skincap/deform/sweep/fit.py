@@ -38,7 +38,7 @@ __all__ = ["LimbSweep", "fit_limb", "key_layout"]
 MIN_SECTION = 8
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LimbSweep:
     """A limb's rest sweep and how each key ellipse is carried by the skeleton.
 
