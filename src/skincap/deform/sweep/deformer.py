@@ -2,11 +2,14 @@
 
 Per frame, from the skinning matrices ``S = W @ inverse_bind`` (J, 4, 4):
 
-1. every key ellipse moves with the joints (§4.1): a key along a link turns with the
-   link's first joint plus a share of the twist the link's last joint has about the
-   link (its fraction of the way down), about the first joint's posed position; a
-   joint's key turns by the rotation halfway (slerp at 1/2) between its incoming link
-   (with its full twist) and its outgoing link, so its plane bisects the two bones;
+1. every key ellipse moves with the joints (§4.1): a key along a bone turns with the
+   bone, about the bone's first joint, with the bone's own turn about its axis
+   relative to the bone above (a forearm's pronation, a humerus' rotation) faded in
+   along it -- none at its first joint, all of it at the next -- and, on the last
+   bone, the end joint's turn about that bone (pronation carried by the hand) faded in
+   the same way; a joint's key turns by the rotation halfway (slerp at 1/2) between
+   the bone above and the bone below as they meet at the joint, so its plane bisects
+   the two bones;
 2. each limb's radii are scaled so its swept volume stays at the rest value
    (§4.4, :class:`~skincap.deform.sweep.volume.LimbVolume`; ``volume=False`` skips it):
    a vertex on or outside its ellipse moves with the ellipse's rim (its displacement
@@ -52,6 +55,16 @@ def _twist(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
     """(..., 4) quaternions turning by ``angle`` (...) radians about the unit ``axis`` (3,)."""
     half = 0.5 * angle
     return np.concatenate([np.sin(half)[..., None] * axis, np.cos(half)[..., None]], axis=-1)
+
+
+def _axial(rel: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Twist angle (...) radians of unit quaternions (..., 4) about unit ``axis`` (..., 3).
+
+    The twist of the swing-twist split ``rel = swing * twist``, taken the shorter way
+    (within +-180 degrees).
+    """
+    rel = np.where(rel[..., 3:] < 0, -rel, rel)
+    return 2.0 * np.arctan2(np.sum(rel[..., :3] * axis, axis=-1), rel[..., 3])
 
 
 def _halfway(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -150,18 +163,25 @@ class SweepDeformer:
             q_parent = q[:, 0]
         axes = np.diff(limb.joint_pos, axis=0)
         axes /= np.linalg.norm(axes, axis=1, keepdims=True)  # (m-1, 3) rest link directions
-        rel = quat_multiply(quat_conjugate(q[:, :-1]), q[:, 1:])  # (T, m-1, 4)
-        rel = np.where(rel[..., 3:] < 0, -rel, rel)  # the shorter way: |twist| <= 180 deg
-        twist = 2.0 * np.arctan2(np.einsum("tli,li->tl", rel[..., :3], axes), rel[..., 3])
-        full = quat_multiply(q[:, :-1], _twist(axes, twist))  # (T, m-1, 4) links, twisted
-        incoming = np.concatenate([q_parent[:, None], full], axis=1)  # (T, m, 4)
-        joint_rot = _halfway(incoming, q)
+        before = np.concatenate([q_parent[:, None], q[:, :-1]], axis=1)  # (T, m, 4)
+        rel = quat_multiply(quat_conjugate(before), q)  # each joint against the one above
+        # a joint's turn about its own bone fades in along that bone (0 at the joint, all
+        # of it at the next); the end joint's turn about the last bone (a wrist's
+        # pronation) fades in along the last bone
+        fade_in = _axial(rel[:, :-1], axes)  # (T, m-1)
+        end_turn = np.zeros_like(fade_in)
+        end_turn[:, -1] = _axial(rel[:, -1], axes[-1])
+        link_start = quat_multiply(q[:, :-1], _twist(axes, -fade_in))  # (T, m-1, 4)
+        link_end = quat_multiply(q[:, :-1], _twist(axes, end_turn))
+        incoming = np.concatenate([q_parent[:, None], link_end], axis=1)  # (T, m, 4)
+        outgoing = np.concatenate([link_start, q[:, -1:]], axis=1)
+        joint_rot = _halfway(incoming, outgoing)
         pivot, frac = limb.pivot, limb.frac
         is_joint = frac < 0
         li = np.minimum(pivot, m - 2)
-        along = quat_multiply(
-            q[:, li], _twist(axes[li], np.clip(frac, 0.0, 1.0)[None] * twist[:, li])
-        )  # (T, K, 4)
+        f = np.clip(frac, 0.0, 1.0)[None]
+        turn = (f - 1.0) * fade_in[:, li] + f * end_turn[:, li]  # (T, K) about the link
+        along = quat_multiply(q[:, li], _twist(axes[li], turn))  # (T, K, 4)
         delta = np.where(is_joint[None, :, None], joint_rot[:, pivot], along)
         arm = limb.keys.centres - limb.joint_pos[pivot]  # (K, 3) from the pivot, rest
         centres = posed[:, pivot] + quat_apply(delta, arm)
