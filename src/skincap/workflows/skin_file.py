@@ -91,7 +91,8 @@ def skin_file(
         Deformer of baked outputs (``.glb`` is always LBS). ``"sweep"``: the arms
         and legs follow sweeps of ellipses fitted to the mesh (Hyun et al. 2005,
         :mod:`skincap.deform.sweep`, volume kept), the rest DQS; a mesh whose limbs
-        the sweeps cannot be fitted to raises :class:`FormatError` naming it.
+        the sweeps cannot be fitted to raises :class:`FormatError` naming it (a rig
+        whose joint names give no limb: the file the rig came from).
     weights : {"auto", "file"}, optional
         Bone heat or the file's weights; default: the file's for a rigged mesh.
     name_map : path-like, optional
@@ -159,7 +160,11 @@ def skin_file(
             try:
                 animation = sweep_motion(setup.mesh, setup.motion, progress=fractions)
             except ValidationError as exc:
-                raise FormatError(mesh_path, str(exc).removeprefix("mesh: ")) from None
+                text = str(exc)
+                # limb names come from the rig: the BVH's when a bare mesh took its skeleton
+                rig_file = motion_path if setup.report.get("rig") == "motion" else mesh_path
+                at_fault = rig_file if text.startswith("skeleton: ") else mesh_path
+                raise FormatError(at_fault, text.removeprefix("mesh: ")) from None
         written = write_skinned(
             setup, output, method=method, force=force, progress=fractions, animation=animation
         )

@@ -112,7 +112,7 @@ def limb_chains(
     if conv is None:
         raise ValidationError(
             "skeleton: its joint names follow no known convention (CMU, Biovision, MakeHuman), "
-            "so no arm or leg chain to sweep was found; name the chains"
+            "so no arm or leg chain to sweep was found (the Python API takes chains=)"
         )
     table = CONVENTIONS[conv]
     out = []
