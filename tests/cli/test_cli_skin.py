@@ -165,7 +165,8 @@ def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
     (maps / "target.json").write_text('{"Hips": "NoSuchBone"}')
     for extra, message in [
         (["--method", "dqs", "-o", tmp_path / "x.glb"], "linear blend"),
-        (["--method", "cubic", "-o", tmp_path / "x.pc2"], "lbs or dqs"),
+        (["--method", "cubic", "-o", tmp_path / "x.pc2"], "lbs, dqs or sweep"),
+        (["--method", "sweep", "-o", tmp_path / "x.glb"], "bake sweep"),
         (["-o", tmp_path / "x.fbx"], "cannot write"),
         (
             ["--weights", "file", "-o", tmp_path / "x.glb", "--map", tmp_path / "missing.json"],
@@ -186,3 +187,44 @@ def test_skin_rejects_dqs_in_gltf_and_bad_options(tmp_path, makehuman_dir):
         assert message in result.stderr
         assert len(result.stderr.strip().splitlines()) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_skin_sweep_pc2_matches_the_api(tmp_path, makehuman_dir):
+    """--method sweep bakes what SweepDeformer gives through the Python API."""
+    from skincap.deform.skeletal.pipeline import prepare_skinning
+    from skincap.deform.skeletal.rig import skinning_matrices
+    from skincap.deform.sweep import SweepDeformer
+    from skincap.io.bvh import read_bvh
+    from skincap.io.makehuman import read_makehuman
+    from skincap.io.pc2 import read_pc2
+
+    bvh = DATA / "bvhtoolbox_test_mocapbank.bvh"
+    out = tmp_path / "mocap.pc2"
+    mesh = makehuman_dir / "makehuman_base.obj"
+    result = run("skin", mesh, bvh, "--units", "cm", "--method", "sweep", "-o", out)
+    assert result.exit_code == 0, result.output
+    assert "sweep" in result.stdout
+    cache = read_pc2(out)
+    assert cache.frames.shape == (455, 13380, 3)
+    setup = prepare_skinning(read_makehuman(mesh), read_bvh(bvh, units="cm"))
+    frame = 300
+    matrices = skinning_matrices(setup.motion, setup.mesh.skin)[frame]
+    expected = SweepDeformer(setup.mesh).deform(matrices)
+    np.testing.assert_allclose(cache.frames[frame], expected, atol=1e-5)  # PC2 stores float32
+
+
+def test_skin_sweep_refuses_a_mesh_without_limbs(tmp_path):
+    """A closed tetrahedron has no arm or leg to fit a sweep to: one line naming it, exit 2."""
+    tet = tmp_path / "in" / "tet.obj"
+    tet.parent.mkdir()
+    tet.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\nf 1 4 2\nf 2 4 3\n")
+    out = tmp_path / "out"
+    out.mkdir()
+    result = run("skin", tet, DATA / "cmu_131_01_bvh11.bvh", "--units", "cmu",
+                 "--method", "sweep", "-o", out / "t.pc2")  # fmt: skip
+    assert result.exit_code == 2, result.output
+    lines = result.stderr.strip().splitlines()
+    assert lines[-1].startswith(f"skincap: error: {tet}: cannot fit the arm_l sweep"), lines
+    assert sum("error" in line for line in lines) == 1
+    assert list(out.iterdir()) == []

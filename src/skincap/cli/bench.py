@@ -102,3 +102,25 @@ def bench_synth(
     with _user_errors():
         results = run_synth_benchmark(frames=frames, vertices=vertices)
     print_bench_results(results, json_output=False)
+
+
+@bench_app.command("sweep")
+def bench_sweep(
+    frames: Annotated[int, typer.Option(help="Frames of the CMU walk per timed call.")] = 64,
+    subdivide: Annotated[
+        int,
+        typer.Option(help="Split every triangle in four this many times (0-2; 1: 53k vertices)."),
+    ] = 0,
+    repeat: RepeatOption = 5,
+    json_output: BenchJsonOption = False,
+) -> None:
+    """Sweep deformer CPU ms/frame on the MakeHuman body walking, against our LBS and DQS
+    in the same run, as ratios, beside Hyun et al.'s 7 fps for 72,712 vertices.
+
+    Example: skincap bench sweep --subdivide 1
+    """
+    from skincap.evaluate.bench.sweep import run_sweep_benchmark
+
+    with _user_errors():
+        results = run_sweep_benchmark(n_frames=frames, repeat=repeat, subdivide=subdivide)
+    print_bench_results(results, json_output)

@@ -37,7 +37,8 @@ def skin(
     method: Annotated[
         str,
         typer.Option(
-            help="Deformer for baked outputs: lbs or dqs (glTF skinning is always linear)."
+            help="Deformer for baked outputs: lbs, dqs, or sweep (arms and legs on sweeps of "
+            "ellipses fitted to the mesh, volume kept; Hyun et al. 2005). glTF skinning is always linear."
         ),
     ] = "lbs",
     weights: Annotated[

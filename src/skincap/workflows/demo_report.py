@@ -363,30 +363,31 @@ def _dense_section(dn: dict[str, Any]) -> Section:
 
 
 def _skinning_section(sk: dict[str, Any], artefacts: list[dict[str, Any]]) -> Section:
-    """Skinning: the walk and the LBS/DQS artefact table."""
-    art_rows = {}
+    """Skinning: the walk and the LBS/DQS/sweep artefact table."""
+    art_rows: dict[str, dict[str, dict[str, Any]]] = {}
     for row in artefacts:
         art_rows.setdefault(row["case"], {})[row["method"]] = row
+    methods = [(m, label) for m, label in (("lbs", "LBS"), ("dqs", "DQS"), ("sweep", "Sweep"))
+               if any(m in r for r in art_rows.values())]  # fmt: skip
     return (
         Section("5. Skinning: the MakeHuman body walks a CMU capture")
         .text(
             f"The CC0 MakeHuman body ({sk['vertices']} vertices, {sk['joints']} joints) is "
             "retargeted to the CMU walk: walk.glb (joint animation, linear blend skinning "
             f"in any glTF player) and walk_dqs.pc2 ({sk['pc2_frames']} frames of "
-            "dual-quaternion skinning). The artefact table bends and twists single joints."
+            "dual-quaternion skinning). The artefact table bends and twists single joints; "
+            "the sweep rows are the sweep-based deformer (Hyun et al. 2005)."
         )
         .table(
-            ["case", "LBS volume", "DQS volume", "LBS min radius", "DQS min radius"],
+            ["case"]
+            + [f"{label} volume" for _, label in methods]
+            + [f"{label} min radius" for _, label in methods],
             [
-                [
-                    case,
-                    f"{m['lbs']['volume_change_pct']:+.1f} %",
-                    f"{m['dqs']['volume_change_pct']:+.1f} %",
-                    f"{m['lbs']['min_radius_ratio']:.2f}",
-                    f"{m['dqs']['min_radius_ratio']:.2f}",
-                ]
+                [case]
+                + [f"{m[k]['volume_change_pct']:+.1f} %" for k, _ in methods]
+                + [f"{m[k]['min_radius_ratio']:.2f}" for k, _ in methods]
                 for case, m in art_rows.items()
-                if "lbs" in m and "dqs" in m
+                if all(k in m for k, _ in methods)
             ],
         )
     )

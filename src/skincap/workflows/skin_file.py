@@ -27,12 +27,16 @@ from skincap.io.mesh_animation_files import animation_output_files, write_mesh_a
 from skincap.workflows.progress import FrameProgress, frame_fractions
 
 __all__ = [
+    "SKIN_METHODS",
     "SKIN_OUTPUTS",
     "skin_file",
     "mesh_input_files",
     "skin_output_files",
     "write_skinned",
 ]
+
+#: Deformers of :func:`skin_file`: skeletal LBS and DQS, and the sweep-based deformer.
+SKIN_METHODS = ("lbs", "dqs", "sweep")
 
 #: Output extensions of :func:`skin_file` (an output without one is a folder).
 SKIN_OUTPUTS = (".glb", ".pc2", ".usd", ".usda", ".usdc")
@@ -83,8 +87,12 @@ def skin_file(
         A BVH motion.
     output : path-like
         By extension (:data:`SKIN_OUTPUTS`), or a folder for an OBJ sequence.
-    method : {"lbs", "dqs"}
-        Deformer of baked outputs (``.glb`` is always LBS).
+    method : {"lbs", "dqs", "sweep"}
+        Deformer of baked outputs (``.glb`` is always LBS). ``"sweep"``: the arms
+        and legs follow sweeps of ellipses fitted to the mesh (Hyun et al. 2005,
+        :mod:`skincap.deform.sweep`, volume kept), the rest DQS; a mesh whose limbs
+        the sweeps cannot be fitted to raises :class:`FormatError` naming it (a rig
+        whose joint names give no limb: the file the rig came from).
     weights : {"auto", "file"}, optional
         Bone heat or the file's weights; default: the file's for a rigged mesh.
     name_map : path-like, optional
@@ -144,8 +152,21 @@ def skin_file(
                 raise
             raise FormatError(map_path, text.removeprefix("name_map: ")) from None
         frames = setup.motion.n_frames
+        fractions = frame_fractions(progress, frames)
+        animation = None
+        if method == "sweep":  # fitted before anything is written: a misfit names the mesh
+            from skincap.deform.sweep import sweep_motion
+
+            try:
+                animation = sweep_motion(setup.mesh, setup.motion, progress=fractions)
+            except ValidationError as exc:
+                text = str(exc)
+                # limb names come from the rig: the BVH's when a bare mesh took its skeleton
+                rig_file = motion_path if setup.report.get("rig") == "motion" else mesh_path
+                at_fault = rig_file if text.startswith("skeleton: ") else mesh_path
+                raise FormatError(at_fault, text.removeprefix("mesh: ")) from None
         written = write_skinned(
-            setup, output, method=method, force=force, progress=frame_fractions(progress, frames)
+            setup, output, method=method, force=force, progress=fractions, animation=animation
         )
         return {
             "mesh": str(mesh_path),
@@ -166,8 +187,8 @@ def _check_skin_request(output: Path, *, method: str, weights: str | None, force
     """Refuse an unknown method, weights or output extension, DQS into ``.glb``, and a
     non-empty output folder without ``force``, before any input is read."""
     ext = output.suffix.lower()
-    if method not in ("lbs", "dqs"):
-        raise FormatError(output, f"--method must be lbs or dqs, got {method!r}")
+    if method not in SKIN_METHODS:
+        raise FormatError(output, f"--method must be lbs, dqs or sweep, got {method!r}")
     if ext and ext not in SKIN_OUTPUTS:
         raise FormatError(
             output,
@@ -176,7 +197,7 @@ def _check_skin_request(output: Path, *, method: str, weights: str | None, force
     if ext == ".glb" and method != "lbs":
         raise FormatError(
             output,
-            "glTF skinning is linear blend skinning; write .pc2, .usd or a folder to bake DQS",
+            f"glTF skinning is linear blend skinning; write .pc2, .usd or a folder to bake {method}",
         )
     if weights not in (None, "auto", "file"):
         raise FormatError(output, f"--weights must be auto or file, got {weights!r}")
@@ -212,12 +233,20 @@ def bytes_text(size: float) -> str:
 
 
 def write_skinned(
-    setup: Any, output: Path, *, method: str, force: bool, progress: Callable[[float], None]
+    setup: Any,
+    output: Path,
+    *,
+    method: str,
+    force: bool,
+    progress: Callable[[float], None],
+    animation: Any = None,
 ) -> list[Path]:
     """Export a :class:`SkinningSetup` by ``output``'s extension; return the written paths.
 
     ``progress`` receives the fraction of frames deformed (1.0 at once for ``.glb``,
-    which stores the joint animation, not baked frames).
+    which stores the joint animation, not baked frames). ``animation``: an already
+    built :class:`~skincap.types.MeshAnimation` of ``setup`` to write instead of
+    skinning it with ``method`` (how ``skin_file`` passes the sweep deformer's).
     """
     from skincap.deform.skeletal.deformers import skin_motion
 
@@ -228,5 +257,6 @@ def write_skinned(
         write_glb(setup.mesh, setup.motion, output, force=force)
         progress(1.0)
         return [output]
-    animation = skin_motion(setup.mesh, setup.motion, method=method, progress=progress)
+    if animation is None:
+        animation = skin_motion(setup.mesh, setup.motion, method=method, progress=progress)
     return write_mesh_animation(animation, output, force=force)

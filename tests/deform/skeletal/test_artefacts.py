@@ -122,13 +122,42 @@ def test_makehuman_forearm_and_elbow(table) -> None:
     assert bl["min_radius_ratio"] < 0.7 and bd["min_radius_ratio"] > 0.85
 
 
+def test_sweep_keeps_volume_and_sections(table) -> None:
+    """The sweep deformer (Hyun et al.): constant volume and no collapse, the paper's claim.
+
+    Bounds: the cylinder's twist and bend regions within 5 % of their rest volume and
+    the body's within 5 % (LBS loses 12-53 %, DQS up to 18 % at the bent elbow); no
+    section thinner than 0.9 of its rest radius where LBS goes to 0-0.6.
+    """
+    for case in (
+        "cylinder twist 180 deg",
+        "cylinder bend 150 deg",
+        "body forearm twist 180 deg",
+        "body elbow twist 180 deg",
+        "body elbow bend 150 deg",
+    ):
+        sweep, lbs = table[(case, "sweep")], table[(case, "lbs")]
+        assert abs(sweep["volume_change_pct"]) < 5.0, (case, sweep)
+        assert sweep["min_radius_ratio"] > 0.9, (case, sweep)
+        assert abs(sweep["volume_change_pct"]) < abs(lbs["volume_change_pct"]) / 3.0
+        assert sweep["min_radius_ratio"] > lbs["min_radius_ratio"]
+    # at the strongly bent elbow the sweep keeps what DQS loses
+    bent = table[("body elbow bend 150 deg", "dqs")]
+    assert (
+        abs(table[("body elbow bend 150 deg", "sweep")]["volume_change_pct"])
+        < abs(bent["volume_change_pct"]) - 10.0
+    )
+
+
 def test_table_rows_and_body_closed(body) -> None:
     rows = artefact_table()
     assert [(r["case"], r["method"]) for r in rows] == [
         ("cylinder twist 180 deg", "lbs"),
         ("cylinder twist 180 deg", "dqs"),
+        ("cylinder twist 180 deg", "sweep"),
         ("cylinder bend 150 deg", "lbs"),
         ("cylinder bend 150 deg", "dqs"),
+        ("cylinder bend 150 deg", "sweep"),
     ]
     assert set(rows[0]) == {
         "case",

@@ -1,4 +1,4 @@
-"""The skinning artefacts Mazrimas & Beinaravicius name, measured: LBS against DQS.
+"""The skinning artefacts Mazrimas & Beinaravicius name, measured: LBS, DQS and sweeps.
 
 Linear blend skinning averages matrices. Where two joints' transforms differ by a
 large rotation the average is no longer a rotation and the skin shrinks towards the
@@ -29,6 +29,10 @@ twisted by 180 degrees about the second bone's axis and bent so that the two
 segments' directions are 150 degrees apart; and the same on the MakeHuman body's
 right forearm and elbow (the body mesh is passed in by the caller: this module does
 not read files).
+
+Each case is measured for LBS, DQS and the sweep-based deformer
+(:mod:`skincap.deform.sweep`, Hyun et al. 2005), whose claim is a constant volume and
+no collapsing cross-section.
 """
 
 from __future__ import annotations
@@ -55,6 +59,9 @@ __all__ = [
     "body_artefacts",
     "artefact_table",
 ]
+
+#: The deformers compared: skeletal LBS and DQS, and the sweep-based deformer (Hyun et al.).
+METHODS = ("lbs", "dqs", "sweep")
 
 #: The MakeHuman default rig's right forearm bone (its head is the elbow).
 MAKEHUMAN_FOREARM = "lowerarm01.R"
@@ -398,13 +405,18 @@ def _rows(
     region: np.ndarray,
     sections: list[np.ndarray],
     backend: Backend,
+    sweep_chains: dict[str, tuple[str, ...]] | None = None,
 ) -> list[dict[str, Any]]:
     rest_volume = float(capped_volume(mesh.vertices, mesh.faces, region))
     rest_radius = np.array([section_radius(mesh.vertices[s]) for s in sections])
+    from skincap.deform.sweep.deformer import SweepDeformer  # a peer deformer, measured here
+
+    deformers: dict[str, Any] = {m: make_deformer(m, mesh, backend=backend) for m in ("lbs", "dqs")}
+    deformers["sweep"] = SweepDeformer(mesh, chains=sweep_chains, backend=backend)
     rows: list[dict[str, Any]] = []
     for case, (matrices, angle) in poses.items():
-        for method in ("lbs", "dqs"):
-            posed = make_deformer(method, mesh, backend=backend).deform(matrices)
+        for method in METHODS:
+            posed = deformers[method].deform(matrices)
             volume = float(capped_volume(posed, mesh.faces, region))
             radius = np.array([section_radius(posed[s]) for s in sections])
             rows.append(
@@ -459,7 +471,8 @@ def cylinder_artefacts(
     ring_x = mesh.meta["ring_x"]
     sections = [rings[i] for i in np.nonzero(np.abs(ring_x - joint) <= blend + 1e-12)[0]]
     poses = _twist_and_bend(mesh.skin, 1, twist_deg, bend_deg)  # type: ignore[arg-type]
-    return _rows("cylinder", mesh, poses, region, sections, backend)
+    chain = {"limb": ("upper", "lower", "lower_end")}
+    return _rows("cylinder", mesh, poses, region, sections, backend, chain)
 
 
 def _joint_region(
@@ -560,7 +573,7 @@ def body_artefacts(
 
 
 def artefact_table(body: Mesh | None = None, *, backend: Backend = "auto") -> list[dict[str, Any]]:
-    """The artefact table: LBS against DQS on the cylinder and, if given, the body.
+    """The artefact table: LBS, DQS and the sweep deformer on the cylinder and, if given, the body.
 
     Parameters
     ----------
@@ -574,7 +587,9 @@ def artefact_table(body: Mesh | None = None, *, backend: Backend = "auto") -> li
     -------
     list of dict
         One row per case and method, with keys ``case`` (str), ``method``
-        (``"lbs"``/``"dqs"``), ``volume_change_pct`` (float, % of the region's rest
+        (``"lbs"``/``"dqs"``/``"sweep"``, :data:`METHODS`; the sweep deformer is
+        :class:`skincap.deform.sweep.SweepDeformer` with its defaults, the cylinder
+        swept along its two bones), ``volume_change_pct`` (float, % of the region's rest
         volume; negative = lost), ``min_radius_ratio`` (float, smallest deformed /
         rest cross-section minor radius near the joint), ``rest_volume_m3`` (float)
         and ``rotation_deg`` (float, the rotation applied relative to the bind pose).
