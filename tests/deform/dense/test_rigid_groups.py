@@ -214,3 +214,42 @@ def test_a_brief_hard_turn_outweighs_flesh_that_jiggles_all_take() -> None:
     got = merge_groups_by_rigid_residual(pieces, edges, x, ref, 2, peak_turn_above=2)
     assert got.max() == 1
     assert len(set(zip(got.tolist(), tip.tolist(), strict=True))) == 2  # tip alone, body whole
+
+
+def test_a_brief_turn_outweighs_slivers_of_jiggling_flesh_beyond_their_jiggle() -> None:
+    """A strip of 16 x 4 markers: a still base (x < 0.32 m, four rigid pieces), a body
+    (0.32-0.48 m, cut into two slivers) that bends 45° away from the base over the
+    take and jiggles all take (a 2 cm bump out of the strip at 6 Hz), and a tip
+    (x >= 0.52 m) that turns 20° on the body for 0.1 s. The jiggle turns the slivers'
+    fitted rotations apart further than the tip turns, so both the residual and the
+    peak turn join the tip to the nearer sliver; weighed by how far each pair moves
+    apart beyond the jiggle of its markers, the slivers join and the tip stays."""
+    nx, ny = 16, 4
+    ref, faces = _strip(nx, ny)
+    col = np.repeat(np.arange(nx), ny)
+    t = np.arange(200) / 120.0
+    base, body, tip = col < 8, (col >= 8) & (col < 13), col >= 13
+    bump = np.where(body, np.sin(np.pi * np.clip((ref[:, 0] - 0.30) / 0.20, 0, 1)) ** 2, 0.0)
+    x = np.repeat(ref[None], t.size, axis=0)
+    x[:, :, 2] += 0.02 * bump[None, :] * np.sin(2 * np.pi * 6.0 * t)[:, None]
+    pulse = np.where((t > 0.7) & (t < 0.8), np.sin(np.pi * (t - 0.7) / 0.1) ** 2, 0.0)
+    turn = Rotation.from_rotvec(np.radians(20.0) * pulse[:, None] * [0, 0, 1.0]).as_matrix()
+    hinge = np.array([0.50, 0.06, 0.0])
+    x[:, tip] = np.einsum("tab,nb->tna", turn, ref[tip] - hinge) + hinge
+    bend = np.sin(np.pi * t / t[-1]) ** 2
+    slow = Rotation.from_rotvec(np.radians(45.0) * bend[:, None] * [0, -1.0, 0]).as_matrix()
+    knee = np.array([0.30, 0.0, 0.0])
+    x[:, ~base] = np.einsum("tab,tnb->tna", slow, x[:, ~base] - knee) + knee
+    pieces = np.where(base, col // 2, np.where(body, np.where(col < 11, 4, 5), 6))
+    truth = np.where(base, 0, np.where(body, 1, 2))
+    edges = surface_edges(faces)
+
+    def right(got: np.ndarray) -> bool:
+        return got.max() == 2 and len(set(zip(got.tolist(), truth.tolist(), strict=True))) == 3
+
+    assert not right(merge_groups_by_rigid_residual(pieces, edges, x, ref, 3))
+    assert not right(merge_groups_by_rigid_residual(pieces, edges, x, ref, 3, peak_turn_above=3))
+    got = merge_groups_by_rigid_residual(
+        pieces, edges, x, ref, 3, peak_turn_above=3, jiggle_scaled=True
+    )
+    assert right(got)

@@ -17,7 +17,11 @@ do is move rigidly, so the groups are judged by that, on their markers:
   never joins its forearm while slivers of one limb remain, however the rotations of
   their triangles compare. Optionally the first merges weigh each pair's peak turn
   instead (``peak_turn_above``): a sliver of flesh that jiggles all take adds more
-  residual than a hand that turns hard for a few frames.
+  residual than a hand that turns hard for a few frames. And the peak turn can be
+  weighed by the evidence that a pair moves apart beyond its flesh's jiggle
+  (``jiggle_scaled``): the residual the union adds at its worst frame over its
+  markers' own residual level, so that two slivers of a jiggling limb, whose fitted
+  rotations the jiggle turns apart, join before a hand leaves its forearm.
 * **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
   markers and each marker moves to the neighbouring part whose motion predicts its
   trajectory better than its own part's does (a k-means step with rigid motions as the
@@ -99,6 +103,12 @@ def _residual_of_sums(sums: np.ndarray) -> np.ndarray:
 
     Frames where the set has fewer than three markers add nothing.
     """
+    return _frame_residuals(sums).sum(-1) / max(sums.shape[-2], 1)
+
+
+def _frame_residuals(sums: np.ndarray) -> np.ndarray:
+    """(..., T, 18) sums -> (..., T) rigid residual of every frame, summed over the
+    markers (m²); 0 where the set has fewer than three markers."""
     n = sums[..., 0]
     safe = np.maximum(n, 1.0)
     sx, sr = sums[..., 1:4], sums[..., 4:7]
@@ -108,7 +118,7 @@ def _residual_of_sums(sums: np.ndarray) -> np.ndarray:
     sign = np.where(np.linalg.det(h) < 0, -1.0, 1.0)
     spread = sums[..., 7] - (sx * sx).sum(-1) / safe + sums[..., 8] - (sr * sr).sum(-1) / safe
     e = np.maximum(spread - 2.0 * (sv[..., 0] + sv[..., 1] + sign * sv[..., 2]), 0.0)
-    return np.where(n >= 3, e, 0.0).sum(-1) / max(sums.shape[-2], 1)
+    return np.where(n >= 3, e, 0.0)
 
 
 def rigid_residuals(positions: np.ndarray, reference: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -152,6 +162,7 @@ def merge_groups_by_rigid_residual(
     *,
     min_markers: int = 3,
     peak_turn_above: int | None = None,
+    jiggle_scaled: bool = False,
 ) -> np.ndarray:
     """Merge adjacent marker groups, least added rigid residual first, to ``target`` groups.
 
@@ -178,6 +189,11 @@ def merge_groups_by_rigid_residual(
         Merge by the peak-turn cost while more than this many groups (of
         ``min_markers`` or more) remain, then by the added residual (at or below
         ``target``: the peak turn throughout); None: the residual throughout.
+    jiggle_scaled : bool
+        With ``peak_turn_above``: weigh each pair's peak turn with the evidence that
+        the two move apart beyond their flesh's jiggle (:func:`_jiggle_scaled_costs`):
+        two slivers of a jiggling thigh or upper arm "turn apart" by their poorly
+        fitted rotations, a hand and its forearm by a joint.
 
     Returns
     -------
@@ -189,14 +205,24 @@ def merge_groups_by_rigid_residual(
     size = np.bincount(labels[labels >= 0], minlength=n_g).astype(np.int64)
     x, r = _centred_take(positions, reference)
     sums = _group_sums(_marker_sums(x, r), labels, n_g)  # (G, T, 18)
-    own = _residual_of_sums(sums)  # (G,)
+    own_t = _frame_residuals(sums)  # (G, T) m², summed over each group's markers
+    own = own_t.mean(axis=-1)  # (G,)
+    floor = _jiggle_floor(own, size) if jiggle_scaled else 0.0
     e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     ga, gb = labels[e[:, 0]], labels[e[:, 1]]
     keep = (ga >= 0) & (gb >= 0) & (ga != gb)
     pairs = np.unique(np.sort(np.stack([ga[keep], gb[keep]], axis=1), axis=1), axis=0)
     cost = _pair_costs(sums, own, pairs)
     turn_until = int(target) if peak_turn_above is None else int(peak_turn_above)
-    turn_cost = _peak_turn_costs(sums, size, pairs) if peak_turn_above is not None else None
+
+    def turn_costs(pr: np.ndarray) -> np.ndarray | None:
+        if peak_turn_above is None:
+            return None
+        if jiggle_scaled:
+            return _jiggle_scaled_costs(sums, size, own_t, pr, floor)
+        return _peak_turn_costs(sums, size, pr)
+
+    turn_cost = turn_costs(pairs)
     into = np.arange(n_g)  # where each original group went
     alive = np.ones(n_g, dtype=bool)
     while pairs.shape[0]:
@@ -211,7 +237,8 @@ def merge_groups_by_rigid_residual(
         a, b = (int(v) for v in pairs[k])
         sums[a] += sums[b]
         size[a] += size[b]
-        own[a] = _residual_of_sums(sums[a])
+        own_t[a] = _frame_residuals(sums[a])
+        own[a] = own_t[a].mean()
         into[into == b] = a
         alive[b] = False
         # pairs away from a and b keep their cost; b's pairs become a's and are re-costed
@@ -221,7 +248,7 @@ def merge_groups_by_rigid_residual(
         pairs = np.concatenate([pairs[~hit], moved])
         cost = np.concatenate([cost[~hit], _pair_costs(sums, own, moved)])
         if turn_cost is not None:
-            turn_cost = np.concatenate([turn_cost[~hit], _peak_turn_costs(sums, size, moved)])
+            turn_cost = np.concatenate([turn_cost[~hit], turn_costs(moved)])
     merged = np.where(labels >= 0, into[np.maximum(labels, 0)], -1)
     loose = (merged >= 0) & (size[np.maximum(merged, 0)] < int(min_markers))
     return compact_labels(np.where(loose, -1, merged))
@@ -257,6 +284,51 @@ def _peak_turn_costs(sums: np.ndarray, size: np.ndarray, pairs: np.ndarray) -> n
     count = np.maximum(small[..., 0], 1.0)
     spread = (small[..., 8] - (small[..., 4:7] ** 2).sum(-1) / count) / count  # (K, T) m²
     return na * nb / (na + nb) * (turn * spread).max(axis=-1) / 3.0
+
+
+#: Groups of fewer markers do not measure the take's jiggle: their rigid fit absorbs it.
+_JIGGLE_GROUP_MIN = 6
+#: The jiggle floor in units of the groups' median per-marker residual: a rigid bone
+#: piece, whose own residual is ~0, must not make every sliver beside it look distinct.
+_JIGGLE_FLOOR_SCALE = 10.0
+
+
+def _jiggle_floor(own: np.ndarray, size: np.ndarray) -> float:
+    """The take's jiggle level per marker (m²): ``_JIGGLE_FLOOR_SCALE`` times the median
+    over groups of ``_JIGGLE_GROUP_MIN`` or more markers (all groups of three or more
+    if none is that large) of their mean squared rigid-fit residual per marker and
+    frame; ``own`` (G,) mean residual per frame, summed over markers, ``size`` (G,)."""
+    for least in (_JIGGLE_GROUP_MIN, 3):
+        big = size >= least
+        if big.any():
+            return _JIGGLE_FLOOR_SCALE * float(np.median(own[big] / size[big]))
+    return 0.0
+
+
+def _jiggle_scaled_costs(
+    sums: np.ndarray, size: np.ndarray, own_t: np.ndarray, pairs: np.ndarray, floor: float
+) -> np.ndarray:
+    """Peak turn of each pair weighed by how far the pair moves apart beyond jiggle, (pairs,) m.
+
+    ``sqrt(turn · jump)`` with ``turn`` the peak-turn cost (:func:`_peak_turn_costs`, m²)
+    and ``jump = max_t ΔE(t) / σ²`` the residual a merge adds at its worst frame (m²,
+    summed over the markers) over the pair's jiggle level ``σ²`` (its markers' mean
+    squared residual under their own groups' fits over the take plus the take's floor,
+    :func:`_jiggle_floor`, m² per marker): the number of markers' worth of jiggle the
+    merge costs at its peak. Two slivers of a jiggling limb fit poorly apart and
+    together alike (a small ``jump``, whatever their fitted rotations do); a hand fits
+    its three or four markers exactly and a joint's turn adds many markers' worth.
+    Both measures have to agree that a pair is apart: the turn keeps the pelvis from a
+    jiggling belly, the jump a hand from its forearm.
+    """
+    if not pairs.shape[0]:
+        return np.zeros(0)
+    na, nb = size[pairs[:, 0]].astype(np.float64), size[pairs[:, 1]].astype(np.float64)
+    added = _frame_residuals(sums[pairs[:, 0]] + sums[pairs[:, 1]]) - own_t[pairs].sum(1)
+    sigma2 = (own_t[pairs].sum(1).mean(-1) + floor * (na + nb)) / (na + nb)  # m² per marker
+    jump = added.max(axis=-1) / np.maximum(sigma2, 1e-300)
+    turn = _peak_turn_costs(sums, size, pairs)
+    return np.sqrt(np.maximum(turn, 0.0) * np.maximum(jump, 0.0))
 
 
 def compact_labels(labels: np.ndarray) -> np.ndarray:

@@ -15,14 +15,17 @@
    there are fewer than twice ``n_parts`` of them: the merge below needs an
    over-segmentation to choose from.
 4. **Merging and seams** (:mod:`.rigid_groups`): adjacent marker groups are merged,
-   while more than 1.5 ``n_parts`` remain the pair that turns apart least at its
-   peak frame first (the rotation difference of their fits, measured on the smaller
-   group's extent, times Ward's size factor: a sliver of jiggling flesh adds residual
-   over the whole take, a hand that turns hard for a few frames adds little), then
-   the pair whose union moves least rigidly over the take (the smallest added
-   rigid-fit residual first), until ``n_parts`` remain (a group with fewer than
-   ``min_markers`` markers, too few for a rigid fit, merges first whatever the
-   count); then every seam marker moves to the adjacent part whose rigid motion
+   the pair with the least evidence of moving apart first, until ``n_parts`` remain:
+   the geometric mean of how far the pair turns apart at its peak frame (the
+   rotation difference of their fits, measured on the smaller group's extent, times
+   Ward's size factor: a sliver of jiggling flesh adds residual over the whole take,
+   a hand that turns hard for a few frames adds little) and of the residual their
+   union adds at its worst frame in units of their markers' own jiggle (two slivers
+   of a jiggling upper arm fit poorly apart and together alike, whatever their
+   fitted rotations do; a hand fits exactly and its wrist's turn costs many markers'
+   worth). A group with fewer than ``min_markers`` markers, too few for a rigid fit,
+   merges first by the residual its union adds, whatever the count; then every seam
+   marker moves to the adjacent part whose rigid motion
    predicts its trajectory best, judged on the frames where the two parts turn apart
    (soft tissue pulls a part's fit while its joints are still), a few rounds, every
    part kept connected on the marker surface (through its edges) and at
@@ -38,8 +41,9 @@
    0.854); seams judged where the parts turn apart 0.865 / 0.952 / 0.942 (seed 7:
    0.792 / 0.867; MakeHuman 0.719 / 0.862). At 240 frames (each joint through its
    range in 0.17 s) the soft-tissue jiggle of the chest and upper arms costs a rigid
-   fit as much as a wrist's turn, so the merge still puts each hand into its forearm
-   and splits the chest; merging by the residual of a shared rotation (each group its
+   fit as much as a wrist's turn, so by residual or peak turn alone the merge put
+   each hand into its forearm and split an upper arm or the chest (hence the jiggle
+   scale above); merging by the residual of a shared rotation (each group its
    own translation), by mean rotation distance (with or without Ward's size factor),
    or absorbing parts that are all seam and merging again did no better on the seven
    takes.
@@ -269,8 +273,8 @@ def segment_marker_surface(
     if progress:
         progress(0.6)
     x_used = x[::step]
-    # the first merges (down to 1.5 x n_parts) weigh each pair's peak turn, the last
-    # ones the residual over the take (see the module docstring, step 4)
+    # every merge weighs each pair's peak turn with how far the pair moves apart beyond
+    # the flesh's jiggle (see the module docstring, step 4)
     groups = merge_groups_by_rigid_residual(
         groups,
         edges,
@@ -278,7 +282,8 @@ def segment_marker_surface(
         ref,
         int(n_parts),
         min_markers=int(min_markers),
-        peak_turn_above=(3 * int(n_parts) + 1) // 2,
+        peak_turn_above=int(n_parts),
+        jiggle_scaled=True,
     )
     marker_parts, errors = refine_marker_parts(
         groups, edges, x_used, ref, min_markers=int(min_markers)
