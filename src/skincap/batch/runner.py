@@ -528,6 +528,8 @@ def run_batch(
         check_output_folder(out)
     takes = plan_takes(spec, found, out, options)
     _check_options(spec, options)
+    if spec.check is not None:
+        spec.check(out, options)
     previous = _previous_summary(out)
     pending = [i for i, t in enumerate(takes) if force or not t.done()]
     if not force and previous is not None and len(pending) < len(takes):

@@ -62,6 +62,9 @@ class BatchVerb:
         Compiled kernels the verb may reach (keys of :data:`skincap.backends.WARM_UPS`).
     batch_options : tuple of str
         Options the batch adds to the workflow's (consumed by ``plan``, not passed on).
+    check : callable(out_dir, options), optional
+        The workflow's own check of the options that need no file read, run once
+        before any take (a bad option is one error, not one per take).
     """
 
     name: str
@@ -71,6 +74,7 @@ class BatchVerb:
     figures: Callable[[Mapping[str, Any]], dict[str, Any]]
     kernels: tuple[str, ...] = ()
     batch_options: tuple[str, ...] = field(default=())
+    check: Callable[[Path, Mapping[str, Any]], None] | None = None
 
     def workflow_function(self) -> Callable[..., dict[str, Any]]:
         """The workflow itself (imported on first use, in the worker)."""
@@ -105,6 +109,17 @@ def _clean_figures(summary: Mapping[str, Any]) -> dict[str, Any]:
         "largest_move_mm": guard["largest_move_mm"],
         "hidden_markers_labelled": summary["hidden"]["new_markers"],
     }
+
+
+def _check_clean(out_dir: Path, options: Mapping[str, Any]) -> None:
+    from skincap.workflows.clean_file import check_clean_options
+
+    check_clean_options(
+        options.get("method", "local_pca"),
+        options.get("rigid_blend"),
+        options.get("smooth", True),
+        options.get("iterations", 10),
+    )
 
 
 # ------------------------------------------------------------------------- track
@@ -147,6 +162,18 @@ def _solve_figures(summary: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
+def _check_solve(out_dir: Path, options: Mapping[str, Any]) -> None:
+    from skincap.workflows.solve import check_solve_options
+
+    check_solve_options(
+        out_dir / "take.bvh",
+        None,
+        options.get("loss", "squared"),
+        options.get("loss_scale_m", 0.02),
+        options.get("refine_offsets", 1),
+    )
+
+
 # ----------------------------------------------------------------------- convert
 def _target_suffix(options: Mapping[str, Any], verb: str) -> str:
     to = options.get("to")
@@ -183,6 +210,15 @@ def _plan_skin(out_dir: Path, name: str, options: Mapping[str, Any]) -> TakePlan
     return TakePlan(call, skin_output_files(output))
 
 
+def _check_skin(out_dir: Path, options: Mapping[str, Any]) -> None:
+    from skincap.workflows.skin_file import check_skin_request
+
+    output = out_dir / f"take{_target_suffix(options, 'skin')}"
+    check_skin_request(
+        output, method=options.get("method", "lbs"), weights=options.get("weights"), force=True
+    )
+
+
 def _skin_figures(summary: Mapping[str, Any]) -> dict[str, Any]:
     keys = ("frames", "rate", "vertices", "joints", "height_m", "weights")
     return {k: summary[k] for k in keys if k in summary}
@@ -202,6 +238,22 @@ def _plan_animate(out_dir: Path, name: str, options: Mapping[str, Any]) -> TakeP
     return TakePlan(call, [*animation_output_files(output), report])
 
 
+def _check_animate(out_dir: Path, options: Mapping[str, Any]) -> None:
+    from skincap.errors import FormatError
+    from skincap.workflows.animate_file import ANIMATE_OUTPUTS, check_animate_options
+
+    to = _target_suffix(options, "animate")
+    if to.lower() not in ANIMATE_OUTPUTS:
+        raise FormatError("--to", f"animate writes {', '.join(ANIMATE_OUTPUTS)}, not {to!r}")
+    if options.get("mesh") is None and options.get("rig") is None:
+        raise ValidationError("--mesh: batch animate needs the body mesh, or a saved --rig")
+    check_animate_options(
+        options.get("method", "quadratic_rbf"),
+        options.get("n_parts", 17),
+        options.get("marker_radius_mm", 0.0),
+    )
+
+
 def _animate_figures(summary: Mapping[str, Any]) -> dict[str, Any]:
     keys = ("frames", "vertices", "markers", "method", "parts")
     return {k: summary[k] for k in keys if isinstance(summary.get(k), int | float | str)}
@@ -217,6 +269,7 @@ BATCH_VERBS: dict[str, BatchVerb] = {
             (".c3d", ".trc", ".csv"),
             _plan_clean,
             _clean_figures,
+            check=_check_clean,
         ),
         BatchVerb(
             "track",
@@ -233,6 +286,7 @@ BATCH_VERBS: dict[str, BatchVerb] = {
             _plan_solve,
             _solve_figures,
             kernels=("ik",),
+            check=_check_solve,
         ),
         BatchVerb(
             "convert",
@@ -250,6 +304,7 @@ BATCH_VERBS: dict[str, BatchVerb] = {
             _skin_figures,
             kernels=("skinning.lbs", "skinning.dqs"),
             batch_options=("to", "mesh"),
+            check=_check_skin,
         ),
         BatchVerb(
             "animate",
@@ -259,6 +314,7 @@ BATCH_VERBS: dict[str, BatchVerb] = {
             _animate_figures,
             kernels=("dense",),
             batch_options=("to", "mesh"),
+            check=_check_animate,
         ),
     )
 }
