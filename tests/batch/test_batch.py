@@ -254,3 +254,66 @@ def test_every_real_capture_through_clean_equals_clean_alone(tmp_path: Path) -> 
     result = run_batch("clean", [tmp_path / "in"], tmp_path / "out", scheduler="synchronous")
     assert result.count("done") == len(names)
     _check_batch_equals_alone(inputs, tmp_path / "out", tmp_path / "alone", result.rows)
+
+
+@pytest.mark.slow
+def test_other_verbs_take_their_own_options(tmp_path: Path) -> None:
+    """convert, solve and skin through the batch: the verb's outputs per take, its figures."""
+    from skincap.io import read
+
+    runner = CliRunner()
+    inputs = [DATA / "cmu_85_02.c3d", DATA / "c3dorg_sample01_Eb015pr.c3d"]
+    converted = runner.invoke(
+        app,
+        ["batch", "convert", *map(str, inputs), "--to", "trc", "-o", str(tmp_path / "trc")],
+        catch_exceptions=False,
+    )
+    assert converted.exit_code == 0, converted.output
+    for src in inputs:
+        back = read(tmp_path / "trc" / f"{src.stem}.trc")
+        assert back.n_frames == read(src).n_frames
+    # solve: the verb's --loss-scale-cm reaches the workflow in metres, as `solve` passes it
+    solved = run_batch(
+        "solve",
+        [DATA / "cmu_85_02.c3d"],
+        tmp_path / "bvh",
+        options={"template": "cmu41", "loss": "huber", "loss_scale_m": 0.03},
+        scheduler="synchronous",
+    )
+    row = solved.rows[0]
+    assert row["status"] == "done", row
+    assert row["figures"]["joints"] > 10 and 0 < row["figures"]["rms_m"] < 0.05
+    report = json.loads((tmp_path / "bvh" / "cmu_85_02.report.json").read_text(encoding="utf-8"))
+    assert report["frames"] == row["figures"]["frames"] == 810
+    bad = runner.invoke(
+        app,
+        [
+            "batch",
+            "solve",
+            str(DATA / "cmu_85_02.c3d"),
+            "-o",
+            str(tmp_path / "b2"),
+            "--units",
+            "furlong",
+        ],
+    )
+    assert bad.exit_code == 2 and "skincap: error: --units: unknown BVH length unit" in bad.output
+    # skin: one body, many motions; a capture among the motions fails alone
+    skinned = run_batch(
+        "skin",
+        [DATA / "makehuman_tpose.bvh", DATA / "cmu_85_02.c3d"],
+        tmp_path / "skin",
+        options={"mesh": DATA / "makehuman_base.obj", "to": ".pc2"},
+        scheduler="synchronous",
+    )
+    status = {r["name"]: r["status"] for r in skinned.rows}
+    assert status == {"makehuman_tpose": "done", "cmu_85_02": "failed"}
+    assert (tmp_path / "skin" / "makehuman_tpose.pc2").is_file()
+    assert (tmp_path / "skin" / "makehuman_tpose.obj").is_file()
+    # track's rope selection is checked as track checks it, before any take
+    no_rope = runner.invoke(
+        app, ["batch", "track", str(DATA / "cmu_85_02.c3d"), "-o", str(tmp_path / "t")]
+    )
+    assert no_rope.exit_code == 2
+    assert "give exactly one of --rope-box, --rope-markers or --rope auto" in no_rope.output
+    assert not (tmp_path / "t").exists()
