@@ -1,8 +1,7 @@
 """``skincap bench batch``: N takes on a local cluster against the same N one after another.
 
-Both runs clean the same copies of the real captures shipped with skincap's tests
-(or, in an installed package without them, the demo's own capture) in one process's
-period, so the ratio is a same-run figure: the batch's wall-clock speed-up over the
+Both runs clean the same copies of the real captures shipped in the package, in one
+process's period, so the ratio is a same-run figure: the batch's wall-clock speed-up over the
 sequential run. The CPU seconds of the takes (summed over the workers) say how much
 of the speed-up the cores gave and how much the cluster's start cost.
 """
@@ -16,31 +15,21 @@ import time
 from pathlib import Path
 from typing import Any
 
-from skincap.errors import FormatError, ValidationError
+from skincap.errors import ValidationError
 
 __all__ = ["bench_takes", "run_batch_benchmark"]
 
 
 def bench_takes(folder: Path, n_takes: int) -> list[Path]:
-    """Copy ``n_takes`` labelled captures into ``folder`` (cycling over the sources).
+    """Copy ``n_takes`` real captures shipped with skincap into ``folder`` (cycling over them).
 
-    The sources are the real captures of the repository's ``tests/data`` that
-    ``clean`` takes (CMU 85_02, the pyomeca trajectories CSV), found beside the
-    source tree.
-
-    Raises
-    ------
-    FormatError
-        No source capture is found (an installed package without the tests).
+    The sources are the package's own real captures (:mod:`skincap.data`: CMU 85_02,
+    Vicon, 41 labelled markers; the kineticstoolkit OptiTrack walk, 12 markers), so the
+    benchmark runs on any install.
     """
-    data = Path(__file__).resolve().parents[3] / "tests" / "data"
-    sources = [
-        p
-        for p in (data / "cmu_85_02.c3d", data / "pyomeca_vicon_nexus_trajectories.csv")
-        if p.is_file()
-    ]
-    if not sources:
-        raise FormatError(data, "bench batch needs the repository's real captures (tests/data)")
+    from skincap.data import path as data_path
+
+    sources = [data_path("cmu_85_02.c3d"), data_path("kt_optitrack_walking.c3d")]
     folder.mkdir(parents=True, exist_ok=True)
     takes = []
     for i in range(n_takes):

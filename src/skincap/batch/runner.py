@@ -353,22 +353,38 @@ def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
         return
     # one thread per worker: the workflows are CPU-bound NumPy/numba and the nanny pins
     # each worker's BLAS to one thread, so N workers use N cores
-    cluster = distributed.LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        silence_logs=logging.ERROR,
-    )
+    # numba's parallel kernels (skinning, dense) share the cores among the workers too
+    threads = max(1, (os.cpu_count() or 1) // max(1, workers or 1))
+    with warnings.catch_warnings():
+        # no dashboard; the scheduler's small HTTP server moves to a free port, say nothing
+        warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
+        cluster = distributed.LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=logging.ERROR,
+            env={"NUMBA_NUM_THREADS": str(threads)},
+        )
     with cluster, distributed.Client(cluster) as client:
         yield client
 
 
+def _check_scheduler(scheduler: str | None) -> None:
+    if scheduler in (None, "local", "synchronous"):
+        return
+    if "://" not in str(scheduler):
+        raise FormatError(
+            "--scheduler",
+            f"expected tcp://host:port of a Dask scheduler or 'synchronous', got {scheduler!r}",
+        )
+
+
 def _check_workers(workers: int | None, scheduler: str | None) -> int | None:
     if workers is not None and scheduler not in (None, "synchronous", "local"):
-        raise ValidationError("--workers: the cluster at --scheduler has its own workers")
+        raise FormatError("--workers", "the cluster at --scheduler has its own workers")
     if workers is not None and not 1 <= workers <= 1024:
-        raise ValidationError(f"--workers: expected 1..1024, got {workers}")
+        raise FormatError("--workers", f"expected 1..1024, got {workers}")
     if workers is None and scheduler in (None, "local"):
         return os.cpu_count() or 1
     return workers
@@ -521,6 +537,7 @@ def run_batch(
     options = dict(options or {})
     if "force" in options or "progress" in options:
         raise ValidationError("options: pass force to run_batch itself; progress is the batch's")
+    _check_scheduler(scheduler)
     workers = _check_workers(workers, scheduler)
     out = Path(out_dir)
     found = collect_inputs(inputs, spec.suffixes, exclude=out)
@@ -542,6 +559,43 @@ def run_batch(
             )
     if scheduler != "synchronous":
         _import_distributed()  # the one-line MissingDependencyError before anything is made
+    with contextlib.ExitStack() as stack:
+        # the cluster first: a scheduler that cannot be reached leaves nothing behind
+        client = None
+        if pending and scheduler != "synchronous":
+            client = stack.enter_context(
+                _client(None if scheduler == "local" else scheduler, workers)
+            )
+        return _run_planned(
+            spec,
+            takes,
+            pending,
+            out,
+            options,
+            force,
+            previous,
+            client,
+            scheduler,
+            workers,
+            progress,
+        )
+
+
+def _run_planned(
+    spec: BatchVerb,
+    takes: list[Take],
+    pending: list[int],
+    out: Path,
+    options: Mapping[str, Any],
+    force: bool,
+    previous: Mapping[str, Any] | None,
+    client: Any,
+    scheduler: str | None,
+    workers: int | None,
+    progress: BatchProgress | None,
+) -> BatchResult:
+    """Make the output folders, run the ``pending`` takes, write the summary (see :func:`run_batch`)."""
+    verb = spec.name
     out.mkdir(parents=True, exist_ok=True)
     for i in pending:  # a take's workflow writes into an existing folder only
         for path in takes[i].outputs:
@@ -576,10 +630,10 @@ def run_batch(
 
     scheduler_name = scheduler or f"local:{workers}"
     try:
-        if scheduler == "synchronous":
+        if client is None:
             _run_synchronous(spec, takes, pending, out, options, force, record)
         else:
-            _run_distributed(spec, takes, pending, out, options, force, record, scheduler, workers)
+            _run_distributed(spec, takes, pending, out, options, force, record, client)
     except BaseException:  # Ctrl-C, SIGTERM: keep the finished takes' rows
         for i in pending:
             rows.setdefault(
@@ -643,41 +697,37 @@ def _run_distributed(
     options: Mapping[str, Any],
     force: bool,
     record: Callable[[int, dict[str, Any]], None],
-    scheduler: str | None,
-    workers: int | None,
+    client: Any,
 ) -> None:
     """One task per take on a distributed cluster; rows recorded as tasks finish."""
-    if not pending:
-        return
     distributed = _import_distributed()
-    with _client(None if scheduler == "local" else scheduler, workers) as client:
-        futures = {}
-        for i in pending:
-            future = client.submit(
-                run_take,
-                spec.name,
-                str(takes[i].input),
-                takes[i].name,
-                str(out),
-                dict(options),
-                force,
-                key=f"skincap-{spec.name}-{i}-{os.getpid()}-{time.time_ns()}",
-                pure=False,
-            )
-            futures[future] = i
-        try:
-            for future in distributed.as_completed(futures):
-                i = futures[future]
-                try:
-                    row = future.result()
-                except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory)
-                    row = {
-                        "input": str(takes[i].input), "name": takes[i].name, "status": "crashed",
-                        "error": one_line(f"{takes[i].input}: the worker running it died "
-                                          f"({type(exc).__name__}: {exc})"),
-                        "outputs": [], "figures": {}, "warnings": [],
-                    }  # fmt: skip
-                record(i, row)
-        except BaseException:
-            client.cancel(list(futures), force=True)
-            raise
+    futures = {}
+    for i in pending:
+        future = client.submit(
+            run_take,
+            spec.name,
+            str(takes[i].input),
+            takes[i].name,
+            str(out),
+            dict(options),
+            force,
+            key=f"skincap-{spec.name}-{i}-{os.getpid()}-{time.time_ns()}",
+            pure=False,
+        )
+        futures[future] = i
+    try:
+        for future in distributed.as_completed(futures):
+            i = futures[future]
+            try:
+                row = future.result()
+            except Exception as exc:  # noqa: BLE001 - the worker died (killed, out of memory)
+                row = {
+                    "input": str(takes[i].input), "name": takes[i].name, "status": "crashed",
+                    "error": one_line(f"{takes[i].input}: the worker running it died "
+                                      f"({type(exc).__name__}: {exc})"),
+                    "outputs": [], "figures": {}, "warnings": [],
+                }  # fmt: skip
+            record(i, row)
+    except BaseException:
+        client.cancel(list(futures), force=True)
+        raise
