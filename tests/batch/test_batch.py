@@ -317,3 +317,30 @@ def test_other_verbs_take_their_own_options(tmp_path: Path) -> None:
     assert no_rope.exit_code == 2
     assert "give exactly one of --rope-box, --rope-markers or --rope auto" in no_rope.output
     assert not (tmp_path / "t").exists()
+
+
+@pytest.mark.slow
+def test_existing_scheduler_address(tmp_path: Path) -> None:
+    """--scheduler tcp://...: the takes run on a cluster the batch did not start, which stays up."""
+    import logging
+
+    from distributed import Client, LocalCluster
+
+    _takes(tmp_path / "in", names=("cmu_85_02.c3d",))
+    with LocalCluster(
+        n_workers=1, threads_per_worker=1, dashboard_address=None, silence_logs=logging.ERROR
+    ) as cluster:
+        result = run_batch(
+            "clean", [tmp_path / "in"], tmp_path / "out", scheduler=cluster.scheduler_address
+        )
+        with Client(cluster.scheduler_address) as client:  # the cluster is still there
+            assert len(client.scheduler_info()["workers"]) == 1
+    assert {r["name"]: r["status"] for r in result.rows} == {
+        "cmu_85_02": "done",
+        "notes": "failed",
+        "truncated": "failed",
+    }
+    mine, _ = _alone(tmp_path / "in" / "cmu_85_02.c3d", tmp_path / "alone")
+    assert _digest(tmp_path / "out" / "cmu_85_02.c3d") == _digest(mine)
+    with pytest.raises(FormatError, match="--workers"):
+        run_batch("clean", [tmp_path / "in"], tmp_path / "o2", scheduler="tcp://x:1", workers=2)

@@ -85,7 +85,7 @@ def run_batch_benchmark(*, n_takes: int = 4, workers: int = 2) -> dict[str, Any]
         f"batch clean, {n_takes} takes (real captures), {workers} workers, cores {os.cpu_count()}",
         f"  one after another : {seq_wall:8.2f} s wall, {seq_cpu:7.2f} s CPU",
         f"  batch on Dask     : {batch_wall:8.2f} s wall (cluster start included), "
-        f"{task_cpu:7.2f} s CPU in the takes",
+        f"{task_cpu:7.2f} s CPU of the workers in the takes (Dask's threads included)",
         f"  batch, warm workers: {warm_wall:7.2f} s wall, {warm_cpu:7.2f} s CPU in the takes",
         f"  speed-up          : {speedup:.2f}x with the cluster's start, {warm_speedup:.2f}x "
         f"warm (same run); outputs identical: {identical}",

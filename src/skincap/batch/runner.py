@@ -603,7 +603,12 @@ def _run_planned(
     if pending and spec.kernels:
         from skincap.backends import start_pending_compiles
 
-        start_pending_compiles(spec.kernels)  # once here, not once per worker
+        # once per machine and numba cache (a lock beside the cache), not once per take:
+        # here, and on the workers of a cluster elsewhere, which have caches of their own
+        start_pending_compiles(spec.kernels)
+        if client is not None and scheduler not in (None, "local"):
+            with contextlib.suppress(Exception):  # a worker that cannot compile runs NumPy
+                client.run(start_pending_compiles, spec.kernels)
     old_rows = {r.get("input"): r for r in (previous or {}).get("rows", []) if isinstance(r, dict)}
     rows: dict[int, dict[str, Any]] = {}
     for i in sorted(set(range(len(takes))) - set(pending)):
@@ -676,6 +681,7 @@ def _run_synchronous(
     record: Callable[[int, dict[str, Any]], None],
 ) -> None:
     """Each take through dask's synchronous scheduler, in this process, in order."""
+    dask: Any
     try:
         import dask
     except ImportError:  # the synchronous path needs no cluster: plain calls do the same

@@ -79,7 +79,8 @@ class BatchVerb:
     def workflow_function(self) -> Callable[..., dict[str, Any]]:
         """The workflow itself (imported on first use, in the worker)."""
         module, function = self.workflow.split(":")
-        return getattr(importlib.import_module(module), function)  # type: ignore[no-any-return]
+        workflow: Callable[..., dict[str, Any]] = getattr(importlib.import_module(module), function)
+        return workflow
 
 
 def _workflow_options(options: Mapping[str, Any], batch_options: tuple[str, ...]) -> dict[str, Any]:
