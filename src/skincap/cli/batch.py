@@ -191,6 +191,7 @@ def _batch_command(
     to_workflow_options: Callable[..., dict[str, Any]],
     *,
     extra: dict[str, tuple[Any, Any]] | None = None,
+    writes: str,
     example: str,
 ) -> None:
     """Register ``batch <verb>``: the batch options, then the verb's own options.
@@ -238,6 +239,8 @@ def _batch_command(
     command.__annotations__ = {p.name: p.annotation for p in params}
     command.__doc__ = (
         f"Many takes through '{verb}': {summary[0].lower()}{summary[1:]}\n\n"
+        f"Writes, per take (named after its input), {writes}; and DIR/batch.json, "
+        f"DIR/batch.csv: a row per take (status, seconds, outputs, the error, key figures). "
         f"Takes run on local worker processes (--workers) or a Dask cluster "
         f"(--scheduler); a take whose outputs exist is skipped (resume) unless --force. "
         f"{_EPILOG}\n\nExample: {example}"
@@ -250,6 +253,7 @@ _batch_command(
     "clean",
     clean_cli.clean,
     clean_cli.clean_workflow_options,
+    writes="DIR/<take>.c3d and its report DIR/<take>.report.json",
     example="skincap batch clean captures/ -o cleaned --workers 2 (writes cleaned/<take>.c3d "
     "and cleaned/<take>.report.json)",
 )
@@ -257,12 +261,14 @@ _batch_command(
     "track",
     track_cli.track,
     track_cli.track_workflow_options,
+    writes="the folder DIR/<take>/ (rope.c3d, body_points.csv, rope_curve.csv, report.json)",
     example="skincap batch track 'session/*.csv' --rope auto -o tracked (a folder per take)",
 )
 _batch_command(
     "solve",
     solve_cli.solve,
     solve_cli.solve_workflow_options,
+    writes="DIR/<take>.bvh and its report DIR/<take>.report.json",
     example="skincap batch solve cleaned/ --template cmu41 -o solved (<take>.bvh and "
     "<take>.report.json)",
 )
@@ -271,6 +277,7 @@ _batch_command(
     convert_cli.convert,
     convert_cli.convert_workflow_options,
     extra={"to": (_To, ...)},
+    writes="DIR/<take><--to>",
     example="skincap batch convert captures/ --to .trc -o trc",
 )
 _batch_command(
@@ -281,6 +288,7 @@ _batch_command(
         "mesh": (Annotated[Path, typer.Option("--mesh", help="The body mesh (skin's MESH).")], ...),
         "to": (_To, ".pc2"),
     },
+    writes="DIR/<take><--to> (a .pc2 with its .obj beside it)",
     example="skincap batch skin motions/ --mesh makehuman_base.obj --units cmu -o skinned",
 )
 _batch_command(
@@ -288,6 +296,7 @@ _batch_command(
     animate_cli.animate,
     animate_cli.animate_workflow_options,
     extra={"mesh": (_MeshOption, None), "to": (_To, ".pc2")},
+    writes="DIR/<take><--to> (a .pc2 with its .obj beside it) and DIR/<take>.report.json",
     example="skincap batch animate takes/ --rig subject.npz -o animated",
 )
 
