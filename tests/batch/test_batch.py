@@ -344,3 +344,27 @@ def test_existing_scheduler_address(tmp_path: Path) -> None:
     assert _digest(tmp_path / "out" / "cmu_85_02.c3d") == _digest(mine)
     with pytest.raises(FormatError, match="--workers"):
         run_batch("clean", [tmp_path / "in"], tmp_path / "o2", scheduler="tcp://x:1", workers=2)
+
+
+def test_a_crash_in_one_take_is_recorded_with_its_traceback(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An unexpected exception (a bug) in one take: status crashed, exit status 1, the rest run."""
+    import skincap.workflows.clean_file as clean_module
+
+    real = clean_module.clean_file
+
+    def flaky(src, output, **kwargs):  # noqa: ANN001, ANN202
+        if Path(src).name == "cmu_85_02.c3d":
+            raise ZeroDivisionError("a bug")
+        return real(src, output, **kwargs)
+
+    monkeypatch.setattr(clean_module, "clean_file", flaky)
+    _takes(tmp_path / "in", names=("cmu_85_02.c3d", "c3dorg_sample01_Eb015pr.c3d"))
+    result = run_batch("clean", [tmp_path / "in"], tmp_path / "out", scheduler="synchronous")
+    rows = {r["name"]: r for r in result.rows}
+    assert rows["cmu_85_02"]["status"] == "crashed"
+    assert rows["cmu_85_02"]["error"].endswith("ZeroDivisionError: a bug")
+    assert "ZeroDivisionError" in rows["cmu_85_02"]["traceback"]
+    assert rows["c3dorg_sample01_Eb015pr"]["status"] == "done"
+    assert result.exit_status == 1

@@ -288,7 +288,8 @@ def run_take(
     -------
     dict
         The row: ``input``, ``name``, ``status`` (``done``, ``failed`` on a skincap,
-        OS or memory error, ``crashed`` on any other exception), ``seconds`` (wall),
+        OS or memory error, ``crashed`` on any other exception, with its
+        ``traceback``), ``seconds`` (wall),
         ``cpu_seconds``, ``outputs``, ``error`` (one line or None), ``warnings`` (each
         distinct one once), ``figures``, ``worker`` (host and process id).
     """
@@ -308,7 +309,13 @@ def run_take(
         except (SkincapError, OSError, MemoryError) as exc:
             row.update(status="failed", error=_error_line(exc, src))
         except Exception as exc:  # noqa: BLE001 - a bug in one take must not stop the batch
-            row.update(status="crashed", error=one_line(f"{src}: {type(exc).__name__}: {exc}"))
+            import traceback
+
+            row.update(
+                status="crashed",
+                error=one_line(f"{src}: {type(exc).__name__}: {exc}"),
+                traceback=traceback.format_exc(),  # for a bug report (batch.json only)
+            )
     shown: list[str] = []
     for w in caught:
         text = one_line(str(w.message))
