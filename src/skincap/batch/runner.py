@@ -362,7 +362,9 @@ def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
     # each worker's BLAS to one thread, so N workers use N cores
     # numba's parallel kernels (skinning, dense) share the cores among the workers too
     threads = max(1, (os.cpu_count() or 1) // max(1, workers or 1))
-    with warnings.catch_warnings():
+    import dask
+
+    with warnings.catch_warnings(), dask.config.set(_QUIET_WORKERS):
         # no dashboard; the scheduler's small HTTP server moves to a free port, say nothing
         warnings.filterwarnings("ignore", message="Port .* is already in use", category=UserWarning)
         cluster = distributed.LocalCluster(
@@ -375,6 +377,17 @@ def _client(scheduler: str | None, workers: int | None) -> Iterator[Any]:
         )
     with cluster, distributed.Client(cluster) as client:
         yield client
+
+
+#: Dask settings of the local cluster's workers: no statistical profiler (it samples the
+#: task's stack every 10 ms) and slower memory and system monitors, so a worker's own
+#: threads take little CPU from the takes on a machine with as many workers as cores.
+_QUIET_WORKERS = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.admin.system-monitor.interval": "2s",
+    "distributed.admin.tick.interval": "200ms",
+}
 
 
 def _check_scheduler(scheduler: str | None) -> None:
