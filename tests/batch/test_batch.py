@@ -245,6 +245,15 @@ def test_two_process_local_cluster_equals_synchronous(tmp_path: Path) -> None:
     assert result.exit_status == 2
     _check_batch_equals_alone(inputs, tmp_path / "out", tmp_path / "alone", result.rows)
     assert len({r["worker"] for r in result.rows}) == 2  # both worker processes took takes
+    data = json.loads((tmp_path / "out" / "batch.json").read_text(encoding="utf-8"))
+    assert data["scheduler"] == "local:2"
+    # one take to run: one worker process is started, not two
+    (tmp_path / "one").mkdir()
+    shutil.copyfile(DATA / "cmu_85_02.c3d", tmp_path / "one" / "cmu_85_02.c3d")
+    single = run_batch("clean", [tmp_path / "one"], tmp_path / "o2", workers=2)
+    assert [r["status"] for r in single.rows] == ["done"]
+    data = json.loads((tmp_path / "o2" / "batch.json").read_text(encoding="utf-8"))
+    assert data["scheduler"] == "local:1"
 
 
 @pytest.mark.slow

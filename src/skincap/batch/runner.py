@@ -526,7 +526,8 @@ def run_batch(
         plus the verb's batch options (``to``: the output extension of ``convert``,
         ``skin`` and ``animate``; ``mesh``: the body mesh of ``skin`` and ``animate``).
     workers : int, optional
-        Worker processes of the local cluster (default: the core count).
+        Worker processes of the local cluster (default: the core count; never more
+        than the takes to run).
     scheduler : str, optional
         None or ``"local"``: a local cluster of ``workers`` processes;
         ``"synchronous"``: one take after another in this process;
@@ -582,10 +583,11 @@ def run_batch(
     with contextlib.ExitStack() as stack:
         # the cluster first: a scheduler that cannot be reached leaves nothing behind
         client = None
+        local = scheduler in (None, "local")
+        # never more worker processes than takes to run: each costs a start and imports
+        started = min(workers, len(pending)) if local and workers is not None else workers
         if pending and scheduler != "synchronous":
-            client = stack.enter_context(
-                _client(None if scheduler == "local" else scheduler, workers)
-            )
+            client = stack.enter_context(_client(None if local else scheduler, started))
         return _run_planned(
             spec,
             takes,
@@ -596,7 +598,7 @@ def run_batch(
             previous,
             client,
             scheduler,
-            workers,
+            started,
             progress,
         )
 

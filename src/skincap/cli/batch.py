@@ -60,7 +60,10 @@ _Output = Annotated[
 ]
 _Workers = Annotated[
     int | None,
-    typer.Option(help="Worker processes of the local cluster (default: the core count)."),
+    typer.Option(
+        help="Worker processes of the local cluster (default: the core count; never more "
+        "than the takes to run)."
+    ),
 ]
 _Scheduler = Annotated[
     str | None,
