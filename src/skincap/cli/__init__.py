@@ -21,6 +21,7 @@ from skincap.cli import (  # noqa: F401, I001  (registers the verbs in --help or
     track,
     solve,
     view,
+    batch,
 )
 from skincap.cli._app import app, main
 

@@ -130,20 +130,22 @@ def animate(
                 mesh_path,
                 markers_path,
                 output,
-                rom=rom,
-                method=method,
-                n_parts=parts,
-                surface=surface,
-                landmarks=landmarks,
-                reference_frame=reference_frame,
-                register=register,
-                marker_radius_mm=marker_radius,
                 save_rig=save_rig,
-                rig=rig,
                 report=report,
-                mesh_units=mesh_units,
                 force=force,
                 progress=progress,
+                **animate_workflow_options(
+                    rom,
+                    method,
+                    parts,
+                    surface,
+                    landmarks,
+                    reference_frame,
+                    register,
+                    marker_radius,
+                    rig,
+                    mesh_units,
+                ),  # fmt: skip
             )
     if json_output:
         print_json(summary)
@@ -157,6 +159,33 @@ def animate(
         markup=False,
         soft_wrap=True,
     )
+
+
+def animate_workflow_options(
+    rom: Path | None,
+    method: str,
+    parts: int,
+    surface: Path | None,
+    landmarks: Path | None,
+    reference_frame: int | None,
+    register: bool,
+    marker_radius: float,
+    rig: Path | None,
+    mesh_units: str | None,
+) -> dict[str, Any]:
+    """``animate``'s options as :func:`animate_file`'s keywords (shared with ``batch animate``)."""
+    return {
+        "rom": rom,
+        "method": method,
+        "n_parts": parts,
+        "surface": surface,
+        "landmarks": landmarks,
+        "reference_frame": reference_frame,
+        "register": register,
+        "marker_radius_mm": marker_radius,
+        "rig": rig,
+        "mesh_units": mesh_units,
+    }
 
 
 # ------------------------------------------------------------------ eval animate

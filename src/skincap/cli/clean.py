@@ -96,27 +96,47 @@ def clean(
     """
     from skincap.workflows.clean_file import clean_file
 
+    options = clean_workflow_options(
+        method, rigid_blend, reference_frame, surface, no_smooth, lam, iterations, no_hidden
+    )
     with _user_errors(), stage_progress("cleaning") as progress:
         summary = clean_file(
             src,
             output,
-            method=method,
-            rigid_blend=rigid_blend,
-            reference_frame=reference_frame,
-            surface=surface,
-            smooth=not no_smooth,
-            lam=lam,
-            iterations=iterations,
             report=report,
             fragment_truth=fragment_truth,
-            recover_hidden=not no_hidden,
             force=force,
             progress=progress,
+            **options,
         )
     if json_output:
         print(json.dumps(clean_summary(summary), indent=2))
     else:
         out.print(format_clean_summary(summary), markup=False, soft_wrap=True)
+
+
+def clean_workflow_options(
+    method: str,
+    rigid_blend: float | None,
+    reference_frame: int | None,
+    surface: Path | None,
+    no_smooth: bool,
+    lam: float,
+    iterations: int,
+    no_hidden: bool,
+) -> dict[str, Any]:
+    """``clean``'s options (by their parameter names) as :func:`clean_file`'s keywords;
+    ``skincap batch clean`` takes the same options through this."""
+    return {
+        "method": method,
+        "rigid_blend": rigid_blend,
+        "reference_frame": reference_frame,
+        "surface": surface,
+        "smooth": not no_smooth,
+        "lam": lam,
+        "iterations": iterations,
+        "recover_hidden": not no_hidden,
+    }
 
 
 def clean_summary(report: dict[str, Any]) -> dict[str, Any]:

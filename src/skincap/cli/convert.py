@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -33,9 +33,14 @@ def convert(
     from skincap.workflows.convert_file import convert_file
 
     with _user_errors():
-        counts = convert_file(src, dst, force=force, units=units, points=points)
+        counts = convert_file(src, dst, force=force, **convert_workflow_options(units, points))
     if json_output:
         print_json({"input": str(src), "output": str(dst), **counts})
         return
     what = ", ".join(f"{n} {name}" for name, n in counts.items())
     out.print(f"{src} -> {dst}: {what}", markup=False)
+
+
+def convert_workflow_options(units: str | None, points: bool) -> dict[str, Any]:
+    """``convert``'s options as :func:`convert_file`'s keywords (shared with ``batch convert``)."""
+    return {"units": units, "points": points}

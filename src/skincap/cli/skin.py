@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -83,25 +83,18 @@ def skin(
         err.print(f"skin: {line}", markup=False, soft_wrap=True)
 
     with _user_errors():
-        if not 1 <= max_influences <= MAX_INFLUENCES:
-            raise FormatError(
-                "--max-influences",
-                f"expected 1..{MAX_INFLUENCES} joints per vertex, got {max_influences}",
-            )
+        options = skin_workflow_options(
+            method, weights, name_map, units, mesh_units, max_influences
+        )
     with _user_errors(), frame_bar(f"skinning ({method})") as advance:
         summary = skin_file(
             mesh_path,
             motion_path,
             output,
-            method=method,
-            weights=weights,
-            name_map=name_map,
-            units=units,
-            mesh_units=mesh_units,
-            max_influences=max_influences,
             force=force,
             progress=advance,
             notify=announce,
+            **options,
         )
     if json_output:
         print_json(summary)
@@ -114,3 +107,33 @@ def skin(
         markup=False,
         soft_wrap=True,
     )
+
+
+def skin_workflow_options(
+    method: str,
+    weights: str | None,
+    name_map: Path | None,
+    units: str | None,
+    mesh_units: str | None,
+    max_influences: int,
+) -> dict[str, Any]:
+    """``skin``'s options, checked, as :func:`skin_file`'s keywords (shared with ``batch skin``).
+
+    Raises
+    ------
+    FormatError
+        ``--max-influences`` outside 1..:data:`MAX_INFLUENCES`.
+    """
+    if not 1 <= max_influences <= MAX_INFLUENCES:
+        raise FormatError(
+            "--max-influences",
+            f"expected 1..{MAX_INFLUENCES} joints per vertex, got {max_influences}",
+        )
+    return {
+        "method": method,
+        "weights": weights,
+        "name_map": name_map,
+        "units": units,
+        "mesh_units": mesh_units,
+        "max_influences": max_influences,
+    }

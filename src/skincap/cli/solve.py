@@ -115,39 +115,72 @@ def solve(
 
     Example: skincap solve walk.c3d -o walk.bvh --template cmu41 --report walk.json
     """
-    from skincap.io.bvh.units import BVH_UNITS
     from skincap.io.output_safety import guard_outputs
     from skincap.workflows.solve import solve_file
 
     outputs = [p for p in (output, markers_out, report) if p is not None]
     with _user_errors():
-        # checked before the solve: the BVH writer's own error would name the output
-        if units not in BVH_UNITS:
-            raise FormatError(
-                "--units", f"unknown BVH length unit {units!r}, expected one of {sorted(BVH_UNITS)}"
-            )
+        options = solve_workflow_options(
+            template,
+            units,
+            smooth_hz,
+            loss,
+            loss_scale_cm,
+            refine_offsets,
+            joint_limits,
+            keep_jumps,
+        )
     with _user_errors(), guard_outputs([input_file], outputs, force=force):
         with stage_progress("calibration") as advance:
             summary = solve_file(
                 input_file,
                 output,
-                template=template,
-                units=units,
                 markers_out=markers_out,
                 report=report,
                 force=force,
-                smooth_hz=smooth_hz,
-                loss=loss,
-                loss_scale_m=loss_scale_cm / 100.0,
-                refine_offsets=refine_offsets,
-                joint_limits=joint_limits,
-                reject_jumps=not keep_jumps,
                 progress=advance,
+                **options,
             )
     if json_output:
         print_json(summary)
         return
     _print_solve_summary(input_file, output, summary)
+
+
+def solve_workflow_options(
+    template: str,
+    units: str,
+    smooth_hz: float | None,
+    loss: str,
+    loss_scale_cm: float,
+    refine_offsets: int,
+    joint_limits: bool,
+    keep_jumps: bool,
+) -> dict[str, Any]:
+    """``solve``'s options as :func:`solve_file`'s keywords (shared with ``batch solve``).
+
+    Raises
+    ------
+    FormatError
+        An unknown ``--units`` (checked before the solve: the BVH writer's own error
+        would name the output).
+    """
+    from skincap.io.bvh.units import BVH_UNITS
+
+    if units not in BVH_UNITS:
+        raise FormatError(
+            "--units", f"unknown BVH length unit {units!r}, expected one of {sorted(BVH_UNITS)}"
+        )
+    return {
+        "template": template,
+        "units": units,
+        "smooth_hz": smooth_hz,
+        "loss": loss,
+        "loss_scale_m": loss_scale_cm / 100.0,
+        "refine_offsets": refine_offsets,
+        "joint_limits": joint_limits,
+        "reject_jumps": not keep_jumps,
+    }
 
 
 def _print_solve_summary(input_file: Path, output: Path, summary: dict[str, Any]) -> None:

@@ -43,6 +43,33 @@ def _parse_numbers(text: str, option: str, *, count: int | None, kind: type) -> 
     return values
 
 
+def track_workflow_options(
+    rope_box: str | None, rope_markers: str | None, rope: str | None, window: float
+) -> dict[str, Any]:
+    """``track``'s options, checked, as :func:`track_file`'s keywords (shared with
+    ``batch track``).
+
+    Raises
+    ------
+    ValidationError
+        Not exactly one rope selection, a malformed box or index list, a bad window.
+    """
+    if not (math.isfinite(window) and window > 0):  # before the rope checks: -1, nan, inf
+        raise ValidationError(f"--window: expected seconds > 0, got {window:g}")
+    given = [rope_box is not None, rope_markers is not None, rope is not None]
+    if sum(given) != 1:
+        raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")
+    if rope is not None and rope != "auto":
+        raise ValidationError(f"--rope: the only choice is 'auto', got {rope!r}")
+    box = None if rope_box is None else _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
+    idx = (
+        None
+        if rope_markers is None
+        else _parse_numbers(rope_markers, "--rope-markers", count=None, kind=int)
+    )
+    return {"box": box, "markers": idx, "auto": rope is not None, "window_seconds": window}
+
+
 @app.command()
 def track(
     input_file: Annotated[
@@ -80,33 +107,8 @@ def track(
 
     outputs = [output / name for name in OUTPUT_NAMES]
     with _user_errors(), frame_bar("tracking the rope") as advance:
-        if not (math.isfinite(window) and window > 0):  # before the rope checks: -1, nan, inf
-            raise ValidationError(f"--window: expected seconds > 0, got {window:g}")
-        given = [rope_box is not None, rope_markers is not None, rope is not None]
-        if sum(given) != 1:
-            raise ValidationError("give exactly one of --rope-box, --rope-markers or --rope auto")
-        if rope is not None and rope != "auto":
-            raise ValidationError(f"--rope: the only choice is 'auto', got {rope!r}")
-        box = (
-            None
-            if rope_box is None
-            else _parse_numbers(rope_box, "--rope-box", count=6, kind=float)
-        )
-        idx = (
-            None
-            if rope_markers is None
-            else _parse_numbers(rope_markers, "--rope-markers", count=None, kind=int)
-        )
-        report = track_file(
-            input_file,
-            output,
-            box=box,
-            markers=idx,
-            auto=rope is not None,
-            window_seconds=window,
-            force=force,
-            progress=advance,
-        )
+        options = track_workflow_options(rope_box, rope_markers, rope, window)
+        report = track_file(input_file, output, force=force, progress=advance, **options)
     if json_output:
         print_json(
             {

@@ -50,6 +50,7 @@ __all__ = [
     "MIN_MARKERS",
     "animate_file",
     "animate_markers",
+    "check_animate_options",
     "labelled_markers",
     "read_landmarks",
 ]
@@ -193,7 +194,7 @@ def animate_file(
     from skincap.io.output_safety import guard_outputs
     from skincap.workflows.skin_file import mesh_input_files
 
-    _check_options(method, n_parts, marker_radius_mm)
+    check_animate_options(method, n_parts, marker_radius_mm)
     markers_path, output = Path(markers_path), Path(output)
     given = {"mesh": mesh_path, "rom": rom, "surface": surface, "landmarks": landmarks,
              "rig": rig, "save_rig": save_rig, "report": report}  # fmt: skip
@@ -229,7 +230,7 @@ def animate_file(
         )  # fmt: skip
 
 
-def _check_options(method: str, n_parts: int, marker_radius_mm: float) -> None:
+def check_animate_options(method: str, n_parts: int, marker_radius_mm: float) -> None:
     """Refuse a bad option before any file is touched, naming the option (not the output)."""
     from skincap.deform.dense.deformer import METHODS
 
@@ -486,7 +487,7 @@ def _timed_frames(
     """The deformer's chunks, each one's wall time and frame count appended to ``timing``."""
     blocks = subject.deformer().deform(
         positions,
-        cast("Method", method),  # checked against METHODS by _check_options
+        cast("Method", method),  # checked against METHODS by check_animate_options
         chunk=CHUNK_FRAMES,
         progress=_stage(progress, "deformation"),
     )

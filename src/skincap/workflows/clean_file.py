@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from skincap.cleanup.surface import MarkerSurface
     from skincap.types import MarkerSet
 
-__all__ = ["clean_file", "read_marker_surface"]
+__all__ = ["check_clean_options", "clean_file", "read_marker_surface"]
 
 #: Most smoothing iterations ``clean --iterations`` takes.
 MAX_SMOOTH_ITERATIONS = 1000
@@ -104,6 +104,32 @@ def read_marker_surface(
     return surface_from_faces(faces, ref, reference_frame=frame)
 
 
+def check_clean_options(
+    method: str, rigid_blend: float | None, smooth: bool, iterations: int
+) -> None:
+    """Refuse :func:`clean_file`'s options that need no file read, naming the option.
+
+    Raises
+    ------
+    ValidationError, FormatError
+        An unknown fill method, a rigid blend outside [0, 1], smoothing iterations
+        outside 1..:data:`MAX_SMOOTH_ITERATIONS`.
+    """
+    from skincap.cleanup.methods import FILL_METHODS
+
+    if method not in FILL_METHODS:
+        raise ValidationError(
+            f"--method: expected one of {', '.join(FILL_METHODS)}, got {method!r}"
+        )
+    if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
+        raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
+    if smooth and not 1 <= iterations <= MAX_SMOOTH_ITERATIONS:
+        # 1000 cost 0.7 s more than 10 on a 240-frame, 41-marker take; a billion never end
+        raise ValidationError(
+            f"--iterations: expected 1..{MAX_SMOOTH_ITERATIONS}, got {iterations}"
+        )
+
+
 def clean_file(
     src: str | os.PathLike[str],
     output: str | os.PathLike[str],
@@ -150,7 +176,6 @@ def clean_file(
         (:meth:`~skincap.cleanup.report.CleanReport.as_dict`) with ``input`` and ``output`` added.
     """
     from skincap import io
-    from skincap.cleanup.methods import FILL_METHODS
     from skincap.cleanup.pipeline import clean_markers
     from skincap.cleanup.settings import CleanSettings, FillSettings, SmoothSettings
     from skincap.io.json_file import write_json
@@ -162,17 +187,7 @@ def clean_file(
     inputs = [src, surface, fragment_truth]
     outputs = [output] if report is None else [output, report]
     # options first, before any file is touched, named as the option (not the output)
-    if method not in FILL_METHODS:
-        raise ValidationError(
-            f"--method: expected one of {', '.join(FILL_METHODS)}, got {method!r}"
-        )
-    if rigid_blend is not None and not 0.0 <= rigid_blend <= 1.0:
-        raise FormatError("--rigid-blend", f"expected a weight in [0, 1], got {rigid_blend}")
-    if smooth and not 1 <= iterations <= MAX_SMOOTH_ITERATIONS:
-        # 1000 cost 0.7 s more than 10 on a 240-frame, 41-marker take; a billion never end
-        raise ValidationError(
-            f"--iterations: expected 1..{MAX_SMOOTH_ITERATIONS}, got {iterations}"
-        )
+    check_clean_options(method, rigid_blend, smooth, iterations)
     with guard_outputs(inputs, outputs, force=force):
         if output.suffix.lower() != ".c3d":
             raise FormatError(output, "the cleaned capture is written as .c3d")

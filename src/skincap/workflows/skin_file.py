@@ -29,6 +29,7 @@ from skincap.workflows.progress import FrameProgress, frame_fractions
 __all__ = [
     "SKIN_METHODS",
     "SKIN_OUTPUTS",
+    "check_skin_request",
     "skin_file",
     "mesh_input_files",
     "skin_output_files",
@@ -129,7 +130,7 @@ def skin_file(
         folders=[] if output.suffix else [output],
         force=force,
     ):
-        _check_skin_request(output, method=method, weights=weights, force=force)
+        check_skin_request(output, method=method, weights=weights, force=force)
         mesh = io.read_mesh(mesh_path, units=mesh_units)
         motion = read_bvh(motion_path, units=units)
         if motion.n_frames == 0:  # every output is an animation; none of them can be empty
@@ -183,7 +184,7 @@ def skin_file(
         }
 
 
-def _check_skin_request(output: Path, *, method: str, weights: str | None, force: bool) -> None:
+def check_skin_request(output: Path, *, method: str, weights: str | None, force: bool) -> None:
     """Refuse an unknown method, weights or output extension, DQS into ``.glb``, and a
     non-empty output folder without ``force``, before any input is read."""
     ext = output.suffix.lower()

@@ -30,6 +30,7 @@ MARKER_OUTPUTS = (".c3d", ".trc", ".csv")
 MAX_REFINE_ROUNDS = 20
 
 __all__ = [
+    "check_solve_options",
     "solve_file",
     "read_labelled_markers",
     "read_synth_take",
@@ -73,7 +74,7 @@ def read_labelled_markers(path: str | os.PathLike[str]) -> MarkerSet:
     return data
 
 
-def _check_solve_options(
+def check_solve_options(
     output_path: str | os.PathLike[str],
     markers_out: str | os.PathLike[str] | None,
     loss: str,
@@ -239,7 +240,7 @@ def solve_file(
         ``rejected`` (samples left out as jumps), ``off_body`` (samples left out as too far
         from the body), ``outputs`` (the files written).
     """
-    _check_solve_options(output_path, markers_out, loss, loss_scale_m, refine_offsets)
+    check_solve_options(output_path, markers_out, loss, loss_scale_m, refine_offsets)
     markers = read_labelled_markers(input_path)
     _check_smooth_hz(smooth_hz, markers.rate)
     from skincap.solve import solve_markers
