@@ -156,6 +156,12 @@ def _parameter_section(path: Path, data: bytes) -> tuple[int, int, str]:
             f"parameter section of {nblocks} blocks from byte {start} does not fit in the file ({size} bytes)",
             offset=start + 2,
         )
+    # some writers declare fewer blocks than their records fill (Peak Performance);
+    # the records may run on to where the header says the data starts, as ezc3d reads
+    data_block = int.from_bytes(data[16:18], "big" if processor == "mips" else "little")
+    data_start = (data_block - 1) * 512
+    if end < data_start <= size:
+        end = data_start
     return start, end, processor
 
 
