@@ -57,3 +57,28 @@ def test_peak_file_round_trips_with_its_analog_channels(tmp_path):
     assert b["parameters"]["ANALOG"]["RATE"]["value"][0] == 600.0
     back = _read(out)
     np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)
+
+
+BTS = EXTERNAL / "c3dorg_sample28_bts_dynamic.c3d"
+
+
+def test_parameter_names_with_spaces_are_read_and_kept():
+    """Vicon and BTS write subject measurements as ``Pelvis Width`` (a space in the
+    name, printable ASCII): the scan keeps them, as written, for the writer."""
+    from skincap.io.c3d.scan import scan_c3d
+
+    layout = scan_c3d(BTS, BTS.read_bytes())
+    spaced = sorted(name for group, name in layout.params if group == "SUBJECT" and " " in name)
+    assert spaced == [
+        "LEFT ANKLE",
+        "LEFT KNEE",
+        "LEFT LEG",
+        "LEFT PELVIS DEPTH",
+        "PELVIS WIDTH",
+        "RIGHT ANKLE",
+        "RIGHT KNEE",
+        "RIGHT LEG",
+        "RIGHT PELVIS DEPTH",
+    ]
+    records = layout.records["SUBJECT"][3]
+    assert records["PELVIS WIDTH"].name == "Pelvis Width"

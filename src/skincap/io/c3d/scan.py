@@ -192,7 +192,8 @@ def _read_records(
         if name_end + 2 > end:
             raise FormatError(path, "parameter record runs past the parameter section", offset=pos)
         name_raw = data[pos + 2 : name_end]
-        if not all(32 < c < 127 for c in name_raw):
+        # printable ASCII; Vicon's PROCESSING group names hold spaces ("Pelvis Width")
+        if not all(32 <= c < 127 for c in name_raw):
             raise FormatError(
                 path, f"parameter name {name_raw!r} is not printable ASCII", offset=pos + 2
             )
