@@ -82,3 +82,78 @@ def test_parameter_names_with_spaces_are_read_and_kept():
     ]
     records = layout.records["SUBJECT"][3]
     assert records["PELVIS WIDTH"].name == "Pelvis Width"
+
+
+@pytest.mark.parametrize("path", sorted(EXTERNAL.parent.glob("*.c3d")), ids=lambda p: p.stem)
+def test_points_by_header_decodes_as_ezc3d(path):
+    """The fallback decoder gives ezc3d's points and residuals where both read a file
+    at the same layout (Intel and DEC, float and integer)."""
+    from skincap.io.c3d.reader import _points_by_header
+    from skincap.io.c3d.scan import scan_c3d
+
+    data = path.read_bytes()
+    layout = scan_c3d(path, data)
+    c = ezc3d.c3d(str(path))
+    expect = c["data"]["points"]
+    points, residuals = _points_by_header(layout, data, expect.shape[2])
+    np.testing.assert_array_equal(np.isnan(points), np.isnan(expect))
+    np.testing.assert_allclose(points, expect, rtol=1e-6, atol=1e-6, equal_nan=True)
+    np.testing.assert_allclose(residuals[0], c["data"]["meta_points"]["residuals"][0], atol=1e-6)
+
+
+def _bts_raw_frames() -> np.ndarray:
+    """The BTS file's frames decoded by hand at the header's stride: (296, 142) float32
+    (34 points x 4 words, then 6 analog samples)."""
+    data = BTS.read_bytes()
+    words = np.frombuffer(data[:20], dtype="<u2")
+    assert (words[1], words[2], words[9]) == (34, 6, 1)  # points, analog samples/frame
+    start = (int(words[8]) - 1) * 512
+    return np.frombuffer(data[start:], dtype="<f4").reshape(296, 34 * 4 + 6)
+
+
+def test_frames_without_analog_rate_are_read_at_the_headers_stride():
+    """BTS wrote 6 analog samples into every frame but no ANALOG:RATE: ezc3d then reads
+    no analogs and the points at a 544-byte stride instead of 568 (metres of jumps);
+    the header's layout decides."""
+    m = _read(BTS)
+    assert (m.n_frames, m.n_markers, m.rate) == (296, 34, 100.0)
+    raw = _bts_raw_frames()[:, : 34 * 4].reshape(296, 34, 4)
+    seen = raw[..., 3] >= 0
+    expect = to_y_up(raw[..., :3].astype(np.float64) * 0.001, m.meta["up"])
+    measured = seen & ~(raw[..., :3] == 0).all(axis=2)
+    np.testing.assert_array_equal(~m.missing, measured)
+    np.testing.assert_allclose(m.positions[measured], expect[measured], atol=1e-9)
+    # a walk at 100 Hz: smooth trajectories, markers at their heights (file Y up)
+    walk = _read_y_up(BTS)
+    acc = np.linalg.norm(np.diff(walk.positions, 2, axis=0), axis=2)
+    assert np.nanpercentile(acc, 99) < 0.03
+    y = walk.positions[..., 1]
+    height = {
+        lab: np.median(y[~walk.missing[:, i], i])
+        for i, lab in enumerate(walk.labels)
+        if lab in ("r asis", "r knee 1", "r mall", "r met")
+    }
+    assert height["r asis"] > height["r knee 1"] > height["r mall"] > height["r met"] > 0
+
+
+def _read_y_up(path: Path):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UnitWarning)
+        return read_c3d(path, up="y")
+
+
+def test_frames_without_analog_rate_write_a_file_ezc3d_reads(tmp_path):
+    m = _read(BTS)
+    out = tmp_path / "bts.c3d"
+    write_c3d(m, out)
+    c = ezc3d.c3d(str(out))
+    assert c["parameters"]["ANALOG"]["RATE"]["value"][0] == 100.0
+    analogs = _bts_raw_frames()[:, 34 * 4 :].T  # (6, 296) as stored
+    assert c["data"]["analogs"].shape == (1, 6, 296)
+    gen = c["parameters"]["ANALOG"]["GEN_SCALE"]["value"][0]
+    scale = np.asarray(c["parameters"]["ANALOG"]["SCALE"]["value"])[:, None]
+    offset = np.asarray(c["parameters"]["ANALOG"]["OFFSET"]["value"])[:, None]
+    np.testing.assert_allclose(c["data"]["analogs"][0], (analogs - offset) * scale * gen, rtol=1e-6)
+    back = _read(out)
+    np.testing.assert_array_equal(back.missing, m.missing)
+    np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)

@@ -299,6 +299,11 @@ def _decode_with_ezc3d(
         rate_ez = float(c3d.header().frameRate())
     except (RuntimeError, OSError, ValueError, IndexError, MemoryError, TypeError) as exc:
         raise FormatError(p, f"ezc3d could not read the file: {exc}") from None
+    if int(c3d.header().nbAnalogsMeasurement()) != layout.n_analog_per_frame:
+        # ezc3d derives the analog samples per frame from ANALOG:RATE; a file without
+        # it (BTS: c3d.org sample28) still stores the header's count in every frame,
+        # and ezc3d would read the points at the wrong stride
+        points, residuals = _points_by_header(layout, data, n_frames)
     word = 4 if layout.scale < 0 else 2
     frame_bytes = (4 * layout.n_points + layout.n_analog_per_frame) * word
     # ezc3d stops quietly at the end of a truncated file: hold it to the header's count
@@ -316,6 +321,45 @@ def _decode_with_ezc3d(
             p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})"
         )
     return c3d, points, residuals, n_frames, rate_ez
+
+
+def _points_by_header(
+    layout: C3dLayout, data: bytes, n_frames: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points as ezc3d decodes them, at the header's frame layout: points (4, N, T)
+    in file units (NaN where the residual word is negative, last row 1) and residuals
+    (1, N, T) (the residual word's high byte times the point scale, -1 where invalid).
+
+    Only the data section's bytes the header declares are read (the caller checks the
+    file holds them).
+    """
+    n = layout.n_points
+    words = 4 * n + layout.n_analog_per_frame
+    is_float = layout.scale < 0
+    size = 4 if is_float else 2
+    need = n_frames * words * size
+    block = data[layout.data_offset : layout.data_offset + need]
+    if len(block) < need:
+        block = block + bytes(need - len(block))  # the caller refuses a truncated file
+    if is_float:
+        with np.errstate(invalid="ignore", over="ignore"):
+            flat = decode_floats(block, layout.processor)
+    else:
+        ie = ">" if layout.processor == "mips" else "<"
+        flat = np.frombuffer(block, dtype=f"{ie}i2").astype(np.float64)
+    per_point = flat.reshape(n_frames, words)[:, : 4 * n].reshape(n_frames, n, 4)
+    xyz = per_point[..., :3].transpose(2, 1, 0)  # (3, N, T)
+    if not is_float:
+        xyz = xyz * abs(layout.scale)
+    fourth = per_point[..., 3].T  # (N, T)
+    with np.errstate(invalid="ignore"):
+        word4 = np.clip(np.where(np.isfinite(fourth), np.trunc(fourth), -1.0), -1, 0xFFFF)
+    word4 = word4.astype(np.int64)
+    invalid = word4 < 0
+    residuals = np.where(invalid, -1.0, ((word4 >> 8) & 0xFF) * abs(layout.scale))
+    points = np.ones((4, n, n_frames))
+    points[:3] = np.where(invalid[None], np.nan, xyz)
+    return points, residuals[None]
 
 
 def _model_output_columns(
