@@ -157,3 +157,24 @@ def test_frames_without_analog_rate_write_a_file_ezc3d_reads(tmp_path):
     back = _read(out)
     np.testing.assert_array_equal(back.missing, m.missing)
     np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)
+
+
+MOTION_MONITOR = EXTERNAL / "c3dorg_sample24_motionmonitor.c3d"
+
+
+def test_analog_count_from_the_rates_when_the_header_word_cannot_fill_the_file(tmp_path):
+    """The MotionMonitor's header says 16 analog samples a frame; its 16 channels at
+    980 Hz against 140 Hz store 112, which is what fills the file: its 840 frames and
+    5880 analog samples go out whole (the header's count lost two thirds of the frames)."""
+    data = MOTION_MONITOR.read_bytes()
+    assert int.from_bytes(data[4:6], "little") == 16
+    m = _read(MOTION_MONITOR)
+    assert (m.n_frames, m.n_markers, m.rate) == (840, 8, 140.0)
+    _same_as_ezc3d(MOTION_MONITOR, 1.0)
+    out = tmp_path / "mm.c3d"
+    write_c3d(m, out)
+    a, b = ezc3d.c3d(str(MOTION_MONITOR)), ezc3d.c3d(str(out))
+    assert b["data"]["points"].shape[2] == 840
+    assert b["data"]["analogs"].shape == a["data"]["analogs"].shape == (1, 16, 5880)
+    np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"])
+    np.testing.assert_allclose(_read(out).positions, m.positions, atol=1e-6, equal_nan=True)

@@ -116,9 +116,49 @@ def scan_c3d(path: Path, data: bytes) -> C3dLayout:
         if scale_p is None or not len(scale_p) or scale_p[0] == 0:
             raise FormatError(path, f"point scale factor {scale} is zero or not finite", offset=12)
         scale = float(scale_p[0])
+    n_analog = _analog_words_per_frame(
+        params, len(data) - data_offset, n_points, n_analog, last - first + 1, scale, rate
+    )
     return C3dLayout(
         processor, n_points, n_analog, first, last, scale, data_offset, rate, params, records
     )
+
+
+def _analog_words_per_frame(
+    params: dict[tuple[str, str], Any],
+    data_bytes: int,
+    n_points: int,
+    n_analog_header: int,
+    n_frames: int,
+    scale: float,
+    header_rate: float,
+) -> int:
+    """Analog samples stored per frame: the header's word, unless ANALOG:USED x the
+    subframes ANALOG:RATE / POINT:RATE give another count and only that one fills the
+    ``data_bytes`` after the data start with ``n_frames`` frames (to the last block).
+
+    The MotionMonitor's header says 16 where its 16 channels at 980 Hz against 140 Hz
+    store 112 (c3d.org sample24); BTS writes the header's count and no ANALOG:RATE.
+    """
+
+    def first(key: tuple[str, str]) -> float:
+        v = params.get(key)
+        return float(v[0]) if isinstance(v, np.ndarray) and v.size else 0.0
+
+    used, analog_rate = first(("ANALOG", "USED")), first(("ANALOG", "RATE"))
+    point_rate = first(("POINT", "RATE")) or header_rate
+    if not (used > 0 and analog_rate > 0 and point_rate > 0 and n_frames > 0):
+        return n_analog_header
+    from_rates = int(used) * int(round(analog_rate / point_rate))
+    word = 4 if scale < 0 else 2
+
+    def fills(per_frame: int) -> bool:
+        need = n_frames * (4 * n_points + per_frame) * word
+        return need <= data_bytes < need + 512
+
+    if from_rates != n_analog_header and fills(from_rates) and not fills(n_analog_header):
+        return from_rates
+    return n_analog_header
 
 
 def _parameter_section(path: Path, data: bytes) -> tuple[int, int, str]:
