@@ -10,7 +10,7 @@ import ezc3d
 import numpy as np
 import pytest
 
-from skincap.errors import UnitWarning
+from skincap.errors import SkincapWarning
 from skincap.io._common import to_y_up
 from skincap.io.c3d import read_c3d, write_c3d
 
@@ -20,7 +20,7 @@ PEAK = EXTERNAL / "c3dorg_sample15_peak_FP1.c3d"
 
 def _read(path: Path):
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UnitWarning)
+        warnings.simplefilter("ignore", SkincapWarning)  # guessed units, left-out parameters
         return read_c3d(path)
 
 
@@ -138,7 +138,7 @@ def test_frames_without_analog_rate_are_read_at_the_headers_stride():
 
 def _read_y_up(path: Path):
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UnitWarning)
+        warnings.simplefilter("ignore", SkincapWarning)
         return read_c3d(path, up="y")
 
 
@@ -178,3 +178,28 @@ def test_analog_count_from_the_rates_when_the_header_word_cannot_fill_the_file(t
     assert b["data"]["analogs"].shape == a["data"]["analogs"].shape == (1, 16, 5880)
     np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"])
     np.testing.assert_allclose(_read(out).positions, m.positions, atol=1e-6, equal_nan=True)
+
+
+VICON_TYPE2 = EXTERNAL / "c3dorg_sample10_vicon_type2.c3d"
+
+
+def test_parameters_of_an_undefined_group_are_left_out_with_a_warning(tmp_path):
+    """Vicon's c3d.org sample10 holds its SUBJECTS parameters (IS_STATIC...) in group 7
+    but defines no group 7: read with a warning naming them, the rest kept."""
+    with pytest.warns(SkincapWarning, match=r"byte 709: 9 parameters of group id 7.*IS_STATIC"):
+        m = read_c3d(VICON_TYPE2)
+    assert (m.n_frames, m.n_markers, m.rate) == (199, 13, 60.0)
+    _same_as_ezc3d(VICON_TYPE2, 0.001)
+    out = tmp_path / "type2.c3d"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        write_c3d(m, out)
+    a, b = ezc3d.c3d(str(VICON_TYPE2)), ezc3d.c3d(str(out))
+    np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"])
+    fp = ("TYPE", "CORNERS", "ORIGIN", "CHANNEL", "CAL_MATRIX")
+    for name in fp:
+        if name in a["parameters"]["FORCE_PLATFORM"]:
+            np.testing.assert_array_equal(
+                b["parameters"]["FORCE_PLATFORM"][name]["value"],
+                a["parameters"]["FORCE_PLATFORM"][name]["value"],
+            )

@@ -7,6 +7,7 @@ camera mask of invented samples.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import numpy as np
 
 from skincap.errors import (
     FormatError,
+    SkincapWarning,
 )
 from skincap.io.c3d.content import (
     C3dParameter,
@@ -347,19 +349,29 @@ def _index_parameters(
 ) -> tuple[dict[tuple[str, str], Any], dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]]]:
     """Values by (GROUP, NAME) and the records by group (C3dLayout.records), in file order.
 
-    FormatError for a parameter of an undefined group.
+    A parameter of an undefined group (Vicon's c3d.org sample10 has ``IS_STATIC`` in
+    group 7 and no group 7) has no group to be found or written in: it is left out with
+    a SkincapWarning naming it, as ezc3d leaves it in a nameless group.
     """
     params: dict[tuple[str, str], Any] = {}
     records: dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]] = {}
     for gid, gname in groups.items():  # file order; a name defined twice is one group
         records.setdefault(gname, (*group_meta[gid], {}))
-    for gid, name, value, where, record in raw_params:
+    orphans = [(gid, name, where) for gid, name, _, where, _ in raw_params if gid not in groups]
+    if orphans:
+        names = ", ".join(name for _, name, _ in orphans[:5]) + (
+            ", ..." if len(orphans) > 5 else ""
+        )
+        ids = sorted({gid for gid, _, _ in orphans})
+        warnings.warn(
+            f"{path}: byte {orphans[0][2]}: {len(orphans)} parameters of group id "
+            f"{', '.join(map(str, ids))}, which the file does not define, left out ({names})",
+            SkincapWarning,
+            stacklevel=4,
+        )
+    for gid, name, value, _where, record in raw_params:
         if gid not in groups:
-            raise FormatError(
-                path,
-                f"parameter {name!r} belongs to group id {gid}, which is not defined",
-                offset=where,
-            )
+            continue
         key = (groups[gid], name)
         # a group may appear twice under two ids (Vicon writes PROCESSING so): the
         # later definition of a parameter wins, as in ezc3d
