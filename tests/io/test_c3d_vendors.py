@@ -203,3 +203,66 @@ def test_parameters_of_an_undefined_group_are_left_out_with_a_warning(tmp_path):
                 b["parameters"]["FORCE_PLATFORM"][name]["value"],
                 a["parameters"]["FORCE_PLATFORM"][name]["value"],
             )
+
+
+OPTITRACK = EXTERNAL / "btk_optitrack_mocap36.c3d"
+BKIN = EXTERNAL / "c3dorg_sample22_bkin.c3d"
+
+
+def _raw_float_frames(path: Path, n_frames: int, words: int) -> np.ndarray:
+    """(n_frames, words) float32 of an Intel float C3D's data section, by hand."""
+    data = path.read_bytes()
+    start = (int.from_bytes(data[16:18], "little") - 1) * 512
+    return np.frombuffer(data[start : start + n_frames * words * 4], dtype="<f4").reshape(
+        n_frames, words
+    )
+
+
+def test_record_without_its_description_byte_is_read_by_its_pointer():
+    """OptiTrack left out POINT:LABELS' description-length byte (its values run to the
+    record's pointer), which ezc3d refuses: the records are read by their pointers."""
+    from skincap.io.c3d import checks
+
+    with pytest.raises(Exception, match="LABELS"):
+        checks.check_before_ezc3d(OPTITRACK, OPTITRACK.read_bytes())
+    with pytest.warns(SkincapWarning, match="LABELS: no description length byte"):
+        m = read_c3d(OPTITRACK)
+    assert (m.n_frames, m.n_markers, m.rate) == (1380, 36, 100.0)
+    assert m.labels[:2] == ["Skeleton_Hip2", "Skeleton_Hip1"]
+    assert all(lab.startswith("Skeleton_") for lab in m.labels)
+    raw = _raw_float_frames(OPTITRACK, 1380, 36 * 4).reshape(1380, 36, 4)
+    measured = (raw[..., 3] >= 0) & ~(raw[..., :3] == 0).all(axis=2)
+    np.testing.assert_array_equal(~m.missing, measured)
+    expect = to_y_up(raw[..., :3].astype(np.float64) * 0.001, m.meta["up"])
+    np.testing.assert_allclose(m.positions[measured], expect[measured], atol=1e-9)
+
+
+def test_long_descriptions_are_cut_to_what_a_signed_length_holds(tmp_path):
+    """BKIN's Dexterit-E writes descriptions of up to 255 bytes; ezc3d reads the length
+    signed and would ask for 4 GiB. Cut to 127, the file reads and converts whole."""
+    with pytest.warns(SkincapWarning, match="SESSION: description of 163 bytes cut to 127"):
+        m = read_c3d(BKIN)
+    assert (m.n_frames, m.n_markers, m.rate) == (5065, 2, 1000.0)
+    assert m.labels == ["Right_Hand", "Left_Hand"]
+    raw = _raw_float_frames(BKIN, 5065, 2 * 4 + 20)
+    np.testing.assert_allclose(
+        m.positions[:, 0], to_y_up(raw[:, :3].astype(np.float64), m.meta["up"]), atol=1e-9
+    )
+    out = tmp_path / "bkin.c3d"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        write_c3d(m, out)
+    c = ezc3d.c3d(str(out))
+    assert c["data"]["analogs"].shape == (1, 20, 5065)
+    analog = c["parameters"]["ANALOG"]
+    scale = np.asarray(analog["SCALE"]["value"])[:, None] * analog["GEN_SCALE"]["value"][0]
+    offset = np.asarray(analog["OFFSET"]["value"])[:, None]
+    np.testing.assert_allclose(c["data"]["analogs"][0], (raw[:, 8:].T - offset) * scale, rtol=1e-6)
+    assert "EVENT_DEFINITIONS" in c["parameters"] and "RIGHT_KINARM" in c["parameters"]
+
+
+@pytest.mark.parametrize("path", sorted(EXTERNAL.parent.glob("*.c3d")), ids=lambda p: p.stem)
+def test_well_formed_files_need_no_repair(path):
+    from skincap.io.c3d.repair import repaired_parameter_section
+
+    assert repaired_parameter_section(path.read_bytes()) is None

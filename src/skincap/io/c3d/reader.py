@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 import warnings
 from pathlib import Path
 from typing import Any, Literal
@@ -12,6 +13,7 @@ import numpy as np
 from skincap.errors import (
     FormatError,
     MissingDependencyError,
+    SkincapWarning,
     UnitWarning,
     ValidationError,
 )
@@ -28,6 +30,7 @@ from skincap.io.c3d.content import (
     C3dGroup,
     HeaderEvents,
 )
+from skincap.io.c3d.repair import repaired_parameter_section
 from skincap.io.c3d.scan import (
     BONE_SUFFIXES,
     MODEL_OUTPUT_GROUPS,
@@ -209,9 +212,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     if up not in ("auto", "y", "z"):
         raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
     data = read_file_bytes(p)
-    check_before_ezc3d(p, data)
+    data, repaired = _checked_or_repaired(p, data)
     layout = scan_c3d(p, data)
-    c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout)
+    c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout, repaired)
     n = layout.n_points
 
     raw_labels = _labels(layout, "LABELS")
@@ -281,18 +284,50 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     )
 
 
+def _checked_or_repaired(p: Path, data: bytes) -> tuple[bytes, bool]:
+    """The file's bytes once they pass the checks before ezc3d, and whether its
+    parameter records had to be rewritten (:mod:`skincap.io.c3d.repair`, with a
+    warning naming what changed) to pass them; else the checks' FormatError."""
+    try:
+        check_before_ezc3d(p, data)
+        return data, False
+    except FormatError as exc:
+        fixed = repaired_parameter_section(data)
+        if fixed is None:
+            raise
+        try:
+            check_before_ezc3d(p, fixed[0])
+        except FormatError:
+            raise exc from None
+    changes = fixed[1]
+    more = f" and {len(changes) - 3} more" if len(changes) > 3 else ""
+    warnings.warn(
+        f"{p}: parameter records read by their pointers ({'; '.join(changes[:3])}{more})",
+        SkincapWarning,
+        stacklevel=3,
+    )
+    return fixed[0], True
+
+
 def _decode_with_ezc3d(
-    p: Path, data: bytes, layout: C3dLayout
+    p: Path, data: bytes, layout: C3dLayout, repaired: bool = False
 ) -> tuple[Any, np.ndarray, np.ndarray, int, float]:
     """ezc3d's reading of the file: (c3d object, points (4, N, T), residuals (1, N, T),
-    frame count T, header rate in Hz), held to the header's frame count.
+    frame count T, header rate in Hz), held to the header's frame count. A ``repaired``
+    file's bytes are handed to ezc3d through a temporary copy.
 
     FormatError when ezc3d fails, the file is shorter than its frames need, or the
     arrays are not of the scanned shape.
     """
     swig = _import_ezc3d()
     try:
-        c3d = swig.c3d(str(p), swig.Options(False, False))
+        if repaired:
+            with tempfile.TemporaryDirectory(prefix="skincap-c3d-") as tmp:
+                copy = Path(tmp) / "repaired.c3d"
+                copy.write_bytes(data)
+                c3d = swig.c3d(str(copy), swig.Options(False, False))
+        else:
+            c3d = swig.c3d(str(p), swig.Options(False, False))
         points = c3d.get_points()
         residuals = c3d.get_point_residuals()
         n_frames = int(c3d.header().nbFrames())
