@@ -266,3 +266,25 @@ def test_well_formed_files_need_no_repair(path):
     from skincap.io.c3d.repair import repaired_parameter_section
 
     assert repaired_parameter_section(path.read_bytes()) is None
+
+
+@pytest.mark.parametrize("kind", ["int", "real"])
+def test_mips_big_endian_files_read_as_their_intel_twins(tmp_path, kind):
+    """c3d.org sample02 holds one capture written by an SGI (MIPS, big-endian) and by a
+    PC: ezc3d reads only the PC's; the SGI file, byte-swapped to Intel (its last
+    parameter record's pointer runs into the data and is taken as the last), gives the
+    same markers, rate, labels and analog samples."""
+    sgi = _read(EXTERNAL / f"c3dorg_sample02_sgi_{kind}.c3d")
+    pc = _read(EXTERNAL / f"c3dorg_sample02_pc_{kind}.c3d")
+    assert (sgi.n_frames, sgi.n_markers, sgi.rate) == (89, 36, 50.0)
+    assert sgi.labels == pc.labels
+    np.testing.assert_array_equal(sgi.missing, pc.missing)
+    np.testing.assert_array_equal(sgi.positions, pc.positions)
+    a, b = sgi.meta["c3d"], pc.meta["c3d"]
+    assert a.analogs.shape == b.analogs.shape == (16, 356)
+    np.testing.assert_array_equal(a.analogs, b.analogs)
+    out = tmp_path / "sgi.c3d"
+    write_c3d(sgi, out)
+    c = ezc3d.c3d(str(out))
+    assert c["data"]["analogs"].shape == (1, 16, 356)
+    np.testing.assert_allclose(_read(out).positions, sgi.positions, atol=1e-6, equal_nan=True)

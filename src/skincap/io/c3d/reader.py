@@ -30,7 +30,7 @@ from skincap.io.c3d.content import (
     C3dGroup,
     HeaderEvents,
 )
-from skincap.io.c3d.repair import repaired_parameter_section
+from skincap.io.c3d.repair import intel_copy_of_mips, repaired_parameter_section
 from skincap.io.c3d.scan import (
     BONE_SUFFIXES,
     MODEL_OUTPUT_GROUPS,
@@ -288,9 +288,12 @@ def _checked_or_repaired(p: Path, data: bytes) -> tuple[bytes, bool]:
     """The file's bytes once they pass the checks before ezc3d, and whether its
     parameter records had to be rewritten (:mod:`skincap.io.c3d.repair`, with a
     warning naming what changed) to pass them; else the checks' FormatError."""
+    intel = intel_copy_of_mips(data)
+    if intel is not None:
+        data = intel
     try:
         check_before_ezc3d(p, data)
-        return data, False
+        return data, intel is not None
     except FormatError as exc:
         fixed = repaired_parameter_section(data)
         if fixed is None:
