@@ -164,8 +164,16 @@ def read_trc(path: str | os.PathLike[str], *, up: Literal["y", "z"] = "y") -> Ma
         )
     scale = UNIT_TO_METRES[units.lower()]
     labels = _trc_labels(p, lines, n_markers)
-    width = 2 + 3 * n_markers
-    rows, numbers = _trc_data_rows(p, lines, width, n_frames)
+    rows, numbers = _trc_data_rows(p, lines, 2 + 3 * len(labels), n_frames)
+    # Motion Analysis (Cortex, EVaRT) appends unnamed markers to a row after the named
+    # ones, as many as that frame saw: columns ``*k`` (k its number in the row, as X<k>)
+    width = max([2 + 3 * len(labels)] + [len(r) for r in rows])
+    width = 2 + 3 * -(-(width - 2) // 3)
+    labels = labels + [f"*{k}" for k in range(len(labels) + 1, (width - 2) // 3 + 1)]
+    n_markers = len(labels)
+    if len(rows) * width > 8 * sum(len(line) for line in lines) + 1_000_000:
+        raise FormatError(p, f"rows of up to {width} fields would need too many cells", line=5)
+    rows = [r + [""] * (width - len(r)) for r in rows]
     table = parse_float_rows(p, rows, numbers) if rows else np.zeros((0, width))
     if table.size and (np.isnan(table[:, :2]).any()):
         bad = int(np.nonzero(np.isnan(table[:, :2]).any(axis=1))[0][0])
@@ -235,22 +243,28 @@ def _trc_labels(p: Path, lines: list[str], n_markers: int) -> list[str]:
     if len(names) < 2 or names[0] != "Frame#" or names[1] != "Time":
         raise FormatError(p, "line 4 must start with 'Frame#' and 'Time'", line=4)
     labels = names[2:]
-    if len(labels) != n_markers:
+    xyz = [s.strip() for s in lines[4].split("\t") if s.strip()]
+
+    def listed(n: int) -> bool:
+        return xyz == [f"{a}{i}" for i in range(1, n + 1) for a in "XYZ"]
+
+    # Motion Analysis counts its unnamed markers in NumMarkers and names and lists
+    # only the named ones
+    if len(labels) != n_markers and not (len(labels) < n_markers and listed(len(labels))):
         raise FormatError(
             p, f"NumMarkers is {n_markers} but line 4 names {len(labels)} markers", line=4
         )
-    xyz = [s.strip() for s in lines[4].split("\t") if s.strip()]
-    expected_xyz = [f"{a}{i}" for i in range(1, n_markers + 1) for a in "XYZ"]
-    if xyz[: 3 * n_markers] != expected_xyz or len(xyz) != 3 * n_markers:
-        raise FormatError(p, f"line 5 must list X1 Y1 Z1 ... Z{n_markers}", line=5)
+    if not listed(len(labels)):
+        raise FormatError(p, f"line 5 must list X1 Y1 Z1 ... Z{len(labels)}", line=5)
     return labels
 
 
 def _trc_data_rows(
     p: Path, lines: list[str], width: int, n_frames: int
 ) -> tuple[list[list[str]], list[int]]:
-    """The data rows (``width`` text fields each, empty trailing fields cut) and their
-    1-based line numbers; FormatError when their count is not NumFrames."""
+    """The data rows (at least ``width`` text fields each: more where unnamed markers
+    follow, empty trailing fields cut) and their 1-based line numbers; FormatError when
+    a row is shorter or their count is not NumFrames."""
     rows: list[list[str]] = []
     numbers: list[int] = []
     for k in range(5, len(lines)):
@@ -258,7 +272,11 @@ def _trc_data_rows(
         if not line.strip():
             continue
         fields = [f.strip() for f in line.split("\t")]
-        rows.append(fields_of_width(p, fields, width, line=k + 1))
+        while len(fields) > width and not fields[-1]:
+            fields.pop()
+        rows.append(
+            fields if len(fields) > width else fields_of_width(p, fields, width, line=k + 1)
+        )
         numbers.append(k + 1)
     if len(rows) != n_frames:
         where = numbers[-1] if numbers else len(lines)

@@ -501,3 +501,28 @@ def test_retargeted_motion_writes_as_bvh(tmp_path, cmu_on_makehuman):
     back = read_bvh(path, units="m")
     order = [back.skeleton.names.index(n) for n in short.skeleton.names]
     np.testing.assert_allclose(joint_positions(back)[:, order], joint_positions(short), atol=1e-5)
+
+
+def test_mixamo_namespace_drives_makehuman(makehuman):
+    """A Mixamo BVH (``mixamorig:Hips``..., 20tab/bvh-python's test file) is recognised
+    past its namespace and its walk drives the MakeHuman rig: the feet lift in turn
+    as the source's do and the hands hang under the shoulders."""
+    walk = read_bvh(DATA / "external" / "bvhpython_mixamo_walk.bvh", units="cm")
+    bare = [n.split(":")[-1] for n in walk.skeleton.names]
+    assert detect_convention(bare) == "mixamo"
+    assert detect_convention(walk.skeleton.names) is None
+    m = joint_name_map(walk, makehuman)
+    assert m["mixamorig:Hips"] == ("root",)
+    assert m["mixamorig:LeftUpLeg"] == ("upperleg01.L",)
+    assert m["mixamorig:RightArm"] == ("upperarm01.R",)
+    assert m["mixamorig:LeftForeArm"] == ("lowerarm01.L",)
+    assert m["mixamorig:Spine2"] == ("spine01",)
+    assert m["mixamorig:RightToeBase"] == CONVENTIONS["makehuman"]["toe_r"]
+    out = retarget(walk, makehuman)
+    tn, sn = out.skeleton.names, walk.skeleton.names
+    tgt, src = joint_positions(out), joint_positions(walk)
+    t_lr = tgt[:, tn.index("foot.L"), 1] - tgt[:, tn.index("foot.R"), 1]
+    s_lr = src[:, sn.index("mixamorig:LeftFoot"), 1] - src[:, sn.index("mixamorig:RightFoot"), 1]
+    assert np.ptp(s_lr) > 0.05 and np.corrcoef(s_lr, t_lr)[0, 1] > 0.95
+    for hand, shoulder in (("wrist.L", "upperarm01.L"), ("wrist.R", "upperarm01.R")):
+        assert (tgt[:, tn.index(hand), 1] < tgt[:, tn.index(shoulder), 1] - 0.2).all()

@@ -19,6 +19,11 @@ Conventions built in, for the skeletons in skincap's test data and their familie
     The cgspeed (Bruce Hahne) BVH release of the CMU database (``LeftUpLeg``,
     ``LeftLeg``, ``LeftFoot``, ``LeftToeBase``, ``LowerBack``, ``Spine``, ``Spine1``,
     ``Neck1``, ``LeftArm``, ``LeftForeArm``, ``LeftHand``...).
+``mixamo``
+    Adobe Mixamo's rig (``Hips``, ``Spine``, ``Spine1``, ``Spine2``, ``Neck``, ``Head``,
+    ``LeftShoulder``, ``LeftArm``, ``LeftForeArm``, ``LeftHand``, ``LeftUpLeg``,
+    ``LeftLeg``, ``LeftFoot``, ``LeftToeBase``...), usually under a ``mixamorig:``
+    namespace, which retargeting looks past.
 ``biovision``
     The classic Biovision set (``Hips``, ``Chest``, ``Chest2``, ``LeftCollar``,
     ``LeftShoulder``, ``LeftElbow``, ``LeftWrist``, ``LeftHip``, ``LeftKnee``,
@@ -117,6 +122,27 @@ CONVENTIONS: dict[str, dict[str, str | tuple[str, ...]]] = {
         "upper_chest": "Spine1",
         "neck": "Neck",
         "neck_upper": "Neck1",
+        "head": "Head",
+        **_sided(
+            {
+                "clavicle": "LeftShoulder",
+                "upperarm": "LeftArm",
+                "forearm": "LeftForeArm",
+                "hand": "LeftHand",
+                "thigh": "LeftUpLeg",
+                "shin": "LeftLeg",
+                "foot": "LeftFoot",
+                "toe": "LeftToeBase",
+            },
+            {"Left": "Right"},
+        ),
+    },
+    "mixamo": {
+        "hips": "Hips",
+        "spine": "Spine",
+        "chest": "Spine1",
+        "upper_chest": "Spine2",
+        "neck": "Neck",
         "head": "Head",
         **_sided(
             {

@@ -207,6 +207,15 @@ def _consistent(
     return None
 
 
+def _bare_names(names: list[str]) -> dict[str, int]:
+    """Joint name without its namespace (the text after the last ``:``) -> index; a
+    bare name two joints share keeps the first."""
+    out: dict[str, int] = {}
+    for i, n in enumerate(names):
+        out.setdefault(n.rsplit(":", 1)[-1], i)
+    return out
+
+
 def _resolve_pairs(
     src: Skeleton, tgt: Skeleton, name_map: NameMapLike
 ) -> tuple[list[tuple[int, tuple[int, ...]]], dict[str, int], dict[str, Any]]:
@@ -244,8 +253,10 @@ def _resolve_pairs(
         )
     removed = {src_index[s] for s, ts in user.items() if ts is None}
 
-    src_conv = detect_convention(src.names)
-    tgt_conv = detect_convention(tgt.names)
+    # conventions are matched past a namespace ("mixamorig:Hips" is Mixamo's "Hips")
+    src_bare, tgt_bare = _bare_names(src.names), _bare_names(tgt.names)
+    src_conv = detect_convention(list(src_bare))
+    tgt_conv = detect_convention(list(tgt_bare))
     candidates: list[tuple[int, tuple[int, ...]]] = []
     if src_conv is not None and tgt_conv is not None:
         for key in LANDMARKS:
@@ -253,14 +264,12 @@ def _resolve_pairs(
             b = CONVENTIONS[tgt_conv].get(key)
             if a is None or b is None:
                 continue
-            a_names = [n for n in ((a,) if isinstance(a, str) else a) if n in src_index]
-            b_idx = tuple(
-                tgt_index[n] for n in ((b,) if isinstance(b, str) else b) if n in tgt_index
-            )
+            a_names = [n for n in ((a,) if isinstance(a, str) else a) if n in src_bare]
+            b_idx = tuple(tgt_bare[n] for n in ((b,) if isinstance(b, str) else b) if n in tgt_bare)
             if not a_names or not b_idx:
                 continue
             # a group on the source side drives through its middle member
-            candidates.append((src_index[a_names[len(a_names) // 2]], b_idx))
+            candidates.append((src_bare[a_names[len(a_names) // 2]], b_idx))
     candidates.extend((src_index[n], (tgt_index[n],)) for n in src.names if n in tgt_index)
     for s, ts in candidates:
         if s in used_s or s in removed or used_t.intersection(ts):
@@ -273,7 +282,8 @@ def _resolve_pairs(
     if not pairs:
         raise ValidationError(
             f"no joints to pair: the source ({src_conv or 'unknown naming'}) and the target "
-            f"({tgt_conv or 'unknown naming'}) share no landmarks or names; pass name_map"
+            f"({tgt_conv or 'unknown naming'}) share no landmarks or names; pass name_map "
+            "(skincap skin --map names.json)"
         )
     # landmarks of the pairs, recognised on the target side first
     keys: dict[str, int] = {}
@@ -284,7 +294,8 @@ def _resolve_pairs(
             first = (value,) if isinstance(value, str) else value
             for i, pair in enumerate(pairs):
                 members = pair[1] if side else (pair[0],)
-                if key not in keys and any(skel.names[m] in first for m in members):
+                bare = _bare_names([skel.names[m] for m in members])
+                if key not in keys and any(n in first for n in bare):
                     keys[key] = i
     report = {"source_convention": src_conv, "target_convention": tgt_conv}
     return pairs, keys, report
@@ -425,8 +436,8 @@ def _on_own_rig(source: Motion, rig: Skin | Skeleton, scale: str | float) -> Mot
     translations[:, ~inner] = s_val * trans[:, idx[~inner]]  # roots: the source's world path
     meta = _kept_meta(source)
     meta["retarget"] = {
-        "source_convention": detect_convention(src.names),
-        "target_convention": detect_convention(tgt.names),
+        "source_convention": detect_convention(list(_bare_names(src.names))),
+        "target_convention": detect_convention(list(_bare_names(tgt.names))),
         "name_map": {n: [n] for n in tgt.names},
         "scale": s_val,
         "same_rig": True,

@@ -148,7 +148,7 @@ class _Checker:
                 f"parameter section of {data[start + 2]} blocks from byte {start} does not fit in the file ({size} bytes)",
                 start + 2,
             )
-        return start, end
+        return start, _section_end(data, start, end)
 
     # ------------------------------------------------------------- parameters
     def records(self, start: int, end: int) -> None:
@@ -433,6 +433,20 @@ class _Checker:
                 f"rotation data of {n_frames} frames from byte {start} need {need} bytes, the file has {size}",
                 size,
             )
+
+
+def _section_end(data: bytes, start: int, declared_end: int) -> int:
+    """Where the parameter records may run to: the declared blocks' end, or the data
+    section's start when the header puts that later (within the file).
+
+    ezc3d walks the records by their pointers whatever the block count says, and some
+    writers (Peak Performance, c3d.org sample15) declare fewer blocks than their
+    parameters fill; the data section's start still bounds them.
+    """
+    data_start = (int.from_bytes(data[16:18], "little") - 1) * 512
+    if declared_end < data_start <= len(data):
+        return data_start
+    return declared_end
 
 
 def check_before_ezc3d(path: os.PathLike[str] | str, data: bytes) -> None:

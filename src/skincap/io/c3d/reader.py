@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 import warnings
 from pathlib import Path
 from typing import Any, Literal
@@ -12,6 +13,7 @@ import numpy as np
 from skincap.errors import (
     FormatError,
     MissingDependencyError,
+    SkincapWarning,
     UnitWarning,
     ValidationError,
 )
@@ -28,6 +30,7 @@ from skincap.io.c3d.content import (
     C3dGroup,
     HeaderEvents,
 )
+from skincap.io.c3d.repair import intel_copy_of_mips, repaired_parameter_section
 from skincap.io.c3d.scan import (
     BONE_SUFFIXES,
     MODEL_OUTPUT_GROUPS,
@@ -209,9 +212,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     if up not in ("auto", "y", "z"):
         raise ValidationError(f"up: expected 'auto', 'y' or 'z', got {up!r}")
     data = read_file_bytes(p)
-    check_before_ezc3d(p, data)
+    data, repaired = _checked_or_repaired(p, data)
     layout = scan_c3d(p, data)
-    c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout)
+    c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout, repaired)
     n = layout.n_points
 
     raw_labels = _labels(layout, "LABELS")
@@ -281,24 +284,64 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     )
 
 
+def _checked_or_repaired(p: Path, data: bytes) -> tuple[bytes, bool]:
+    """The file's bytes once they pass the checks before ezc3d, and whether its
+    parameter records had to be rewritten (:mod:`skincap.io.c3d.repair`, with a
+    warning naming what changed) to pass them; else the checks' FormatError."""
+    intel = intel_copy_of_mips(data)
+    if intel is not None:
+        data = intel
+    try:
+        check_before_ezc3d(p, data)
+        return data, intel is not None
+    except FormatError as exc:
+        fixed = repaired_parameter_section(data)
+        if fixed is None:
+            raise
+        try:
+            check_before_ezc3d(p, fixed[0])
+        except FormatError:
+            raise exc from None
+    changes = fixed[1]
+    more = f" and {len(changes) - 3} more" if len(changes) > 3 else ""
+    warnings.warn(
+        f"{p}: parameter records read by their pointers ({'; '.join(changes[:3])}{more})",
+        SkincapWarning,
+        stacklevel=3,
+    )
+    return fixed[0], True
+
+
 def _decode_with_ezc3d(
-    p: Path, data: bytes, layout: C3dLayout
+    p: Path, data: bytes, layout: C3dLayout, repaired: bool = False
 ) -> tuple[Any, np.ndarray, np.ndarray, int, float]:
     """ezc3d's reading of the file: (c3d object, points (4, N, T), residuals (1, N, T),
-    frame count T, header rate in Hz), held to the header's frame count.
+    frame count T, header rate in Hz), held to the header's frame count. A ``repaired``
+    file's bytes are handed to ezc3d through a temporary copy.
 
     FormatError when ezc3d fails, the file is shorter than its frames need, or the
     arrays are not of the scanned shape.
     """
     swig = _import_ezc3d()
     try:
-        c3d = swig.c3d(str(p), swig.Options(False, False))
+        if repaired:
+            with tempfile.TemporaryDirectory(prefix="skincap-c3d-") as tmp:
+                copy = Path(tmp) / "repaired.c3d"
+                copy.write_bytes(data)
+                c3d = swig.c3d(str(copy), swig.Options(False, False))
+        else:
+            c3d = swig.c3d(str(p), swig.Options(False, False))
         points = c3d.get_points()
         residuals = c3d.get_point_residuals()
         n_frames = int(c3d.header().nbFrames())
         rate_ez = float(c3d.header().frameRate())
     except (RuntimeError, OSError, ValueError, IndexError, MemoryError, TypeError) as exc:
         raise FormatError(p, f"ezc3d could not read the file: {exc}") from None
+    if int(c3d.header().nbAnalogsMeasurement()) != layout.n_analog_per_frame:
+        # ezc3d derives the analog samples per frame from ANALOG:RATE; a file without
+        # it (BTS: c3d.org sample28) still stores the header's count in every frame,
+        # and ezc3d would read the points at the wrong stride
+        points, residuals = _points_by_header(layout, data, n_frames)
     word = 4 if layout.scale < 0 else 2
     frame_bytes = (4 * layout.n_points + layout.n_analog_per_frame) * word
     # ezc3d stops quietly at the end of a truncated file: hold it to the header's count
@@ -316,6 +359,45 @@ def _decode_with_ezc3d(
             p, f"ezc3d returned points of shape {points.shape}, expected (4, {n}, {n_frames})"
         )
     return c3d, points, residuals, n_frames, rate_ez
+
+
+def _points_by_header(
+    layout: C3dLayout, data: bytes, n_frames: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The points as ezc3d decodes them, at the header's frame layout: points (4, N, T)
+    in file units (NaN where the residual word is negative, last row 1) and residuals
+    (1, N, T) (the residual word's high byte times the point scale, -1 where invalid).
+
+    Only the data section's bytes the header declares are read (the caller checks the
+    file holds them).
+    """
+    n = layout.n_points
+    words = 4 * n + layout.n_analog_per_frame
+    is_float = layout.scale < 0
+    size = 4 if is_float else 2
+    need = n_frames * words * size
+    block = data[layout.data_offset : layout.data_offset + need]
+    if len(block) < need:
+        block = block + bytes(need - len(block))  # the caller refuses a truncated file
+    if is_float:
+        with np.errstate(invalid="ignore", over="ignore"):
+            flat = decode_floats(block, layout.processor)
+    else:
+        ie = ">" if layout.processor == "mips" else "<"
+        flat = np.frombuffer(block, dtype=f"{ie}i2").astype(np.float64)
+    per_point = flat.reshape(n_frames, words)[:, : 4 * n].reshape(n_frames, n, 4)
+    xyz = per_point[..., :3].transpose(2, 1, 0)  # (3, N, T)
+    if not is_float:
+        xyz = xyz * abs(layout.scale)
+    fourth = per_point[..., 3].T  # (N, T)
+    with np.errstate(invalid="ignore"):
+        word4 = np.clip(np.where(np.isfinite(fourth), np.trunc(fourth), -1.0), -1, 0xFFFF)
+    word4 = word4.astype(np.int64)
+    invalid = word4 < 0
+    residuals = np.where(invalid, -1.0, ((word4 >> 8) & 0xFF) * abs(layout.scale))
+    points = np.ones((4, n, n_frames))
+    points[:3] = np.where(invalid[None], np.nan, xyz)
+    return points, residuals[None]
 
 
 def _model_output_columns(

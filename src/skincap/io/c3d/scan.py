@@ -7,6 +7,7 @@ camera mask of invented samples.
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -15,6 +16,7 @@ import numpy as np
 
 from skincap.errors import (
     FormatError,
+    SkincapWarning,
 )
 from skincap.io.c3d.content import (
     C3dParameter,
@@ -116,9 +118,49 @@ def scan_c3d(path: Path, data: bytes) -> C3dLayout:
         if scale_p is None or not len(scale_p) or scale_p[0] == 0:
             raise FormatError(path, f"point scale factor {scale} is zero or not finite", offset=12)
         scale = float(scale_p[0])
+    n_analog = _analog_words_per_frame(
+        params, len(data) - data_offset, n_points, n_analog, last - first + 1, scale, rate
+    )
     return C3dLayout(
         processor, n_points, n_analog, first, last, scale, data_offset, rate, params, records
     )
+
+
+def _analog_words_per_frame(
+    params: dict[tuple[str, str], Any],
+    data_bytes: int,
+    n_points: int,
+    n_analog_header: int,
+    n_frames: int,
+    scale: float,
+    header_rate: float,
+) -> int:
+    """Analog samples stored per frame: the header's word, unless ANALOG:USED x the
+    subframes ANALOG:RATE / POINT:RATE give another count and only that one fills the
+    ``data_bytes`` after the data start with ``n_frames`` frames (to the last block).
+
+    The MotionMonitor's header says 16 where its 16 channels at 980 Hz against 140 Hz
+    store 112 (c3d.org sample24); BTS writes the header's count and no ANALOG:RATE.
+    """
+
+    def first(key: tuple[str, str]) -> float:
+        v = params.get(key)
+        return float(v[0]) if isinstance(v, np.ndarray) and v.size else 0.0
+
+    used, analog_rate = first(("ANALOG", "USED")), first(("ANALOG", "RATE"))
+    point_rate = first(("POINT", "RATE")) or header_rate
+    if not (used > 0 and analog_rate > 0 and point_rate > 0 and n_frames > 0):
+        return n_analog_header
+    from_rates = int(used) * int(round(analog_rate / point_rate))
+    word = 4 if scale < 0 else 2
+
+    def fills(per_frame: int) -> bool:
+        need = n_frames * (4 * n_points + per_frame) * word
+        return need <= data_bytes < need + 512
+
+    if from_rates != n_analog_header and fills(from_rates) and not fills(n_analog_header):
+        return from_rates
+    return n_analog_header
 
 
 def _parameter_section(path: Path, data: bytes) -> tuple[int, int, str]:
@@ -156,6 +198,12 @@ def _parameter_section(path: Path, data: bytes) -> tuple[int, int, str]:
             f"parameter section of {nblocks} blocks from byte {start} does not fit in the file ({size} bytes)",
             offset=start + 2,
         )
+    # some writers declare fewer blocks than their records fill (Peak Performance);
+    # the records may run on to where the header says the data starts, as ezc3d reads
+    data_block = int.from_bytes(data[16:18], "big" if processor == "mips" else "little")
+    data_start = (data_block - 1) * 512
+    if end < data_start <= size:
+        end = data_start
     return start, end, processor
 
 
@@ -186,7 +234,8 @@ def _read_records(
         if name_end + 2 > end:
             raise FormatError(path, "parameter record runs past the parameter section", offset=pos)
         name_raw = data[pos + 2 : name_end]
-        if not all(32 < c < 127 for c in name_raw):
+        # printable ASCII; Vicon's PROCESSING group names hold spaces ("Pelvis Width")
+        if not all(32 <= c < 127 for c in name_raw):
             raise FormatError(
                 path, f"parameter name {name_raw!r} is not printable ASCII", offset=pos + 2
             )
@@ -300,19 +349,29 @@ def _index_parameters(
 ) -> tuple[dict[tuple[str, str], Any], dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]]]:
     """Values by (GROUP, NAME) and the records by group (C3dLayout.records), in file order.
 
-    FormatError for a parameter of an undefined group.
+    A parameter of an undefined group (Vicon's c3d.org sample10 has ``IS_STATIC`` in
+    group 7 and no group 7) has no group to be found or written in: it is left out with
+    a SkincapWarning naming it, as ezc3d leaves it in a nameless group.
     """
     params: dict[tuple[str, str], Any] = {}
     records: dict[str, tuple[str, bytes, bool, dict[str, C3dParameter]]] = {}
     for gid, gname in groups.items():  # file order; a name defined twice is one group
         records.setdefault(gname, (*group_meta[gid], {}))
-    for gid, name, value, where, record in raw_params:
+    orphans = [(gid, name, where) for gid, name, _, where, _ in raw_params if gid not in groups]
+    if orphans:
+        names = ", ".join(name for _, name, _ in orphans[:5]) + (
+            ", ..." if len(orphans) > 5 else ""
+        )
+        ids = sorted({gid for gid, _, _ in orphans})
+        warnings.warn(
+            f"{path}: byte {orphans[0][2]}: {len(orphans)} parameters of group id "
+            f"{', '.join(map(str, ids))}, which the file does not define, left out ({names})",
+            SkincapWarning,
+            stacklevel=4,
+        )
+    for gid, name, value, _where, record in raw_params:
         if gid not in groups:
-            raise FormatError(
-                path,
-                f"parameter {name!r} belongs to group id {gid}, which is not defined",
-                offset=where,
-            )
+            continue
         key = (groups[gid], name)
         # a group may appear twice under two ids (Vicon writes PROCESSING so): the
         # later definition of a parameter wins, as in ezc3d

@@ -118,7 +118,9 @@ def write_c3d(
 
     source_groups = list(content.groups) if content is not None else []
     point = _point_parameters(markers, points, pscale, units, up_key, content, target)
-    out_groups = _merged_groups(source_groups, point, points.groups, keep_analogs, target)
+    out_groups = _merged_groups(
+        source_groups, point, points.groups, keep_analogs, target, float(markers.rate) * ratio
+    )
     masks = _camera_masks(markers, len(points.labels), out_groups, target)
 
     frames = C3dFrames(
@@ -384,10 +386,13 @@ def _merged_groups(
     groups: dict[str, list[str]],
     keep_analogs: bool,
     target: Path,
+    analog_rate: float = 0.0,
 ) -> list[C3dGroup]:
     """The source's groups with ``point`` in POINT and the analogs dropped unless kept.
 
     ``groups`` are the model-output groups written (their POINT listings are replaced).
+    Kept analogs get ``ANALOG:RATE = analog_rate`` (Hz) when the source gave none or 0
+    (BTS), so a reader that sizes frames by it (ezc3d) finds the samples written.
     ROTATION is left out (with a SkincapWarning when it held data); POINT, ANALOG and
     FORCE_PLATFORM are added when the source had none.
     """
@@ -413,6 +418,9 @@ def _merged_groups(
             out_groups.append(replace(g, parameters=tuple(point) + kept))
         elif key == "ANALOG" and not keep_analogs:
             out_groups.append(replace(g, parameters=_no_analogs(num, text)))
+        elif key == "ANALOG" and not _positive_rate(g.get("RATE")):
+            kept = tuple(p for p in g.parameters if p.name.upper() != "RATE")
+            out_groups.append(replace(g, parameters=(*kept, num("RATE", analog_rate, "float"))))
         elif key == "FORCE_PLATFORM" and not keep_analogs:
             out_groups.append(replace(g, parameters=(num("USED", 0, "int"),)))
         elif key == "TRIAL" and not keep_analogs:
@@ -489,6 +497,14 @@ def _like_source(new: C3dParameter, old: C3dParameter | None) -> C3dParameter:
     if old.type == new.type and old.value_equals(new):
         return old
     return replace(new, description=old.description, locked=old.locked)
+
+
+def _positive_rate(p: C3dParameter | None) -> bool:
+    """A numeric rate parameter whose first value is positive."""
+    if p is None or p.type not in (1, 2, 4):
+        return False
+    v = np.asarray(p.value, dtype=np.float64).ravel()
+    return bool(v.size) and bool(v[0] > 0)
 
 
 def _no_analogs(num: Any, text: Any) -> tuple[C3dParameter, ...]:
