@@ -79,3 +79,21 @@ def test_unknown_skeleton_needs_named_chains() -> None:
         limb_chains(mesh.skin.skeleton, {"x": ("upper", "nope", "lower_end")})
     with pytest.raises(ValidationError, match="is not below"):
         limb_chains(mesh.skin.skeleton, {"x": ("lower", "upper", "lower_end")})
+
+
+def test_mixamo_limbs_are_found_past_the_namespace(data_dir) -> None:
+    import warnings
+
+    from skincap.errors import SkincapWarning
+    from skincap.io import read
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        skeleton = read(data_dir / "external" / "bvhpython_mixamo_walk.bvh").skeleton
+    chains = {c.name: [skeleton.names[j] for j in c.joints] for c in limb_chains(skeleton)}
+    assert chains == {
+        "arm_l": ["mixamorig:LeftArm", "mixamorig:LeftForeArm", "mixamorig:LeftHand"],
+        "arm_r": ["mixamorig:RightArm", "mixamorig:RightForeArm", "mixamorig:RightHand"],
+        "leg_l": ["mixamorig:LeftUpLeg", "mixamorig:LeftLeg", "mixamorig:LeftFoot"],
+        "leg_r": ["mixamorig:RightUpLeg", "mixamorig:RightLeg", "mixamorig:RightFoot"],
+    }

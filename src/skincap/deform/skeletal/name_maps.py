@@ -44,6 +44,7 @@ from collections.abc import Sequence
 __all__ = [
     "LANDMARKS",
     "CONVENTIONS",
+    "bare_names",
     "convention_joints",
     "detect_convention",
 ]
@@ -210,6 +211,15 @@ def convention_joints(convention: str) -> list[str]:
     out: list[str] = []
     for value in CONVENTIONS[convention].values():
         out.extend((value,) if isinstance(value, str) else value)
+    return out
+
+
+def bare_names(names: Sequence[str]) -> dict[str, int]:
+    """Joint name without its namespace (the text after the last ``:``, so Mixamo's
+    ``mixamorig:Hips`` is ``Hips``) -> index; a bare name two joints share keeps the first."""
+    out: dict[str, int] = {}
+    for i, name in enumerate(names):
+        out.setdefault(name.rsplit(":", 1)[-1], i)
     return out
 
 

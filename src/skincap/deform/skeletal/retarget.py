@@ -77,7 +77,7 @@ from typing import Any
 import numpy as np
 
 from skincap._arrays import check_positive
-from skincap.deform.skeletal.name_maps import CONVENTIONS, LANDMARKS, detect_convention
+from skincap.deform.skeletal.name_maps import CONVENTIONS, LANDMARKS, bare_names, detect_convention
 from skincap.deform.skeletal.rig import (
     ALL_CHANNELS,
     bind_local_transforms,
@@ -207,15 +207,6 @@ def _consistent(
     return None
 
 
-def _bare_names(names: list[str]) -> dict[str, int]:
-    """Joint name without its namespace (the text after the last ``:``) -> index; a
-    bare name two joints share keeps the first."""
-    out: dict[str, int] = {}
-    for i, n in enumerate(names):
-        out.setdefault(n.rsplit(":", 1)[-1], i)
-    return out
-
-
 def _resolve_pairs(
     src: Skeleton, tgt: Skeleton, name_map: NameMapLike
 ) -> tuple[list[tuple[int, tuple[int, ...]]], dict[str, int], dict[str, Any]]:
@@ -254,7 +245,7 @@ def _resolve_pairs(
     removed = {src_index[s] for s, ts in user.items() if ts is None}
 
     # conventions are matched past a namespace ("mixamorig:Hips" is Mixamo's "Hips")
-    src_bare, tgt_bare = _bare_names(src.names), _bare_names(tgt.names)
+    src_bare, tgt_bare = bare_names(src.names), bare_names(tgt.names)
     src_conv = detect_convention(list(src_bare))
     tgt_conv = detect_convention(list(tgt_bare))
     candidates: list[tuple[int, tuple[int, ...]]] = []
@@ -294,7 +285,7 @@ def _resolve_pairs(
             first = (value,) if isinstance(value, str) else value
             for i, pair in enumerate(pairs):
                 members = pair[1] if side else (pair[0],)
-                bare = _bare_names([skel.names[m] for m in members])
+                bare = bare_names([skel.names[m] for m in members])
                 if key not in keys and any(n in first for n in bare):
                     keys[key] = i
     report = {"source_convention": src_conv, "target_convention": tgt_conv}
@@ -436,8 +427,8 @@ def _on_own_rig(source: Motion, rig: Skin | Skeleton, scale: str | float) -> Mot
     translations[:, ~inner] = s_val * trans[:, idx[~inner]]  # roots: the source's world path
     meta = _kept_meta(source)
     meta["retarget"] = {
-        "source_convention": detect_convention(list(_bare_names(src.names))),
-        "target_convention": detect_convention(list(_bare_names(tgt.names))),
+        "source_convention": detect_convention(list(bare_names(src.names))),
+        "target_convention": detect_convention(list(bare_names(tgt.names))),
         "name_map": {n: [n] for n in tgt.names},
         "scale": s_val,
         "same_rig": True,

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from skincap.deform.skeletal.name_maps import CONVENTIONS, detect_convention
+from skincap.deform.skeletal.name_maps import CONVENTIONS, bare_names, detect_convention
 from skincap.errors import ValidationError
 from skincap.types import Skeleton
 
@@ -90,7 +90,8 @@ def limb_chains(
     chains : mapping of name -> joint names, optional
         Explicit chains (each at least 3 joints, each below the previous one).
         Default: both arms and both legs, by the joint-name convention the skeleton
-        follows (CMU, Biovision, MakeHuman; :func:`detect_convention`).
+        follows (CMU, Biovision, MakeHuman, Mixamo; :func:`detect_convention`, names
+        matched past a namespace such as ``mixamorig:``).
 
     Returns
     -------
@@ -108,18 +109,21 @@ def limb_chains(
         if not out:
             raise ValidationError("chains: expected at least one chain")
         return out
-    conv = detect_convention(skeleton.names)
+    bare = bare_names(skeleton.names)
+    conv = detect_convention(list(bare))
     if conv is None:
         raise ValidationError(
-            "skeleton: its joint names follow no known convention (CMU, Biovision, MakeHuman), "
+            "skeleton: its joint names follow no known convention (CMU, Biovision, MakeHuman, "
+            "Mixamo), "
             "so no arm or leg chain to sweep was found (the Python API takes chains=)"
         )
     table = CONVENTIONS[conv]
     out = []
     for name, marks in LIMB_LANDMARKS.items():
         joints = [table.get(m) for m in marks]
-        if all(isinstance(j, str) and j in skeleton.names for j in joints):
-            out.append(_chain(skeleton, name, joints))  # type: ignore[arg-type]
+        if all(isinstance(j, str) and j in bare for j in joints):
+            full = [skeleton.names[bare[j]] for j in joints]  # type: ignore[index]
+            out.append(_chain(skeleton, name, full))
     if not out:
         raise ValidationError(f"skeleton: no arm or leg of the {conv} convention is present")
     return out
