@@ -73,7 +73,7 @@ def off_body_samples(positions: np.ndarray, *, reach_m: float = OFF_BODY_REACH_M
     y = np.asarray(positions, dtype=np.float64)
     if y.ndim != 3 or y.shape[2] != 3:
         raise ValidationError(f"positions: expected (T, M, 3), got {y.shape}")
-    seen = np.isfinite(y).all(axis=2)  # (T, M)
+    seen = np.asarray(np.isfinite(y).all(axis=2))  # (T, M)
     judged = seen.sum(axis=1) >= MIN_MARKERS_FOR_CENTRE  # (T,)
     if not judged.any():
         return np.zeros(seen.shape, dtype=bool)
