@@ -46,12 +46,18 @@ def frame_grid(state, t, p):  # pragma: no cover - runs compiled
     )
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _ensure_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no cover
     """Bucket frame f into the state's grid buffers (``grid_info``, ``grid_starts``,
-    ``grid_order``) unless that was done already (:func:`frame_grid`)."""
-    if info[f, 0] >= 0.0:
-        return
+    ``grid_order``) unless that was done already (:func:`frame_grid`; the check is
+    inlined into the caller, the bucketing is not)."""
+    if info[f, 0] < 0.0:
+        _fill_frame_grid(points, offsets, info, starts, order, f, gamma)
+
+
+@numba.njit(**JIT)
+def _fill_frame_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no cover
+    """Bucket frame f into the state's grid buffers (:func:`_ensure_grid`)."""
     a, b = offsets[f], offsets[f + 1]
     axis, lo, inv, cells = fill_grid(
         points, a, b, gamma, starts[a + 2 * f : b + 2 * f + 2], order[a:b]
@@ -59,7 +65,7 @@ def _ensure_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no 
     info[f, 0], info[f, 1], info[f, 2], info[f, 3] = axis, lo, inv, cells
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _grid_run(points, offsets, info, starts, order, f, gamma, x, y, z, bound):  # pragma: no cover
     """``(k0, k1)``: ``order[k0:k1]`` (the state's ``grid_order``) are frame f's rows in
     the cells a search ``bound`` metres around (x, y, z) reaches, as
