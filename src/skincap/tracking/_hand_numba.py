@@ -33,7 +33,7 @@ __all__ = [
 _INF = np.inf
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def seat_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.seat_hand`."""
     if t < 1:
@@ -90,7 +90,7 @@ def _seat_row(state, f, row, e, p):  # pragma: no cover - runs compiled
             state.hand_vel[row, u, c] = state.velocity[e, c]
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def release_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.release_hand`."""
     m = state.known.size
@@ -100,7 +100,7 @@ def release_hand(state, t, p):  # pragma: no cover - runs compiled
                 state.hand_index[row, k] = -1
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def follow_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.follow_hand`."""
     for row in range(2):
@@ -108,7 +108,7 @@ def follow_hand(state, t, p):  # pragma: no cover - runs compiled
             _follow_row(state, t, row, p)
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _has_anchors(state, row):  # pragma: no cover - runs compiled
     """Row ``row`` of ``hand_index`` holds an anchor (most frames it holds none)."""
     for k in range(state.hand_index.shape[1]):
@@ -117,7 +117,7 @@ def _has_anchors(state, row):  # pragma: no cover - runs compiled
     return False
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _carries(state):  # pragma: no cover - runs compiled
     """An end hidden so far this frame has anchors: :func:`carry_with_hand` moves it."""
     m = state.known.size
@@ -262,11 +262,17 @@ def _carry_keeps_rope(state, last, t, e, moved, p):  # pragma: no cover - runs c
     return d2 <= lim * lim
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._hand_numpy.search_with_hand`."""
-    if not _carries(state):
-        return
+    """Twin of :func:`skincap.tracking._hand_numpy.search_with_hand` (the check inlined
+    into the caller: most frames no hidden end has a hand, and the call is the cost)."""
+    if _carries(state):
+        _search_with_hand(state, t, pred, p)
+
+
+@numba.njit(**JIT)
+def _search_with_hand(state, t, pred, p):  # pragma: no cover - runs compiled
+    """:func:`search_with_hand` once an end hidden so far has anchors."""
     carried = pred.copy()
     carry_with_hand(state, t, carried, p)
     a, b = state.offsets[t], state.offsets[t + 1]
@@ -341,7 +347,7 @@ def _may_take(state, t, e, q, d2, p):  # pragma: no cover - runs compiled
     return not rigid_with_body(state, t, -1, q, p)
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def place_with_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.place_with_hand`."""
     if _carries(state):

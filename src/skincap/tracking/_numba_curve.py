@@ -82,18 +82,17 @@ def _blend_sides(values, before, after, j, w_before, w_after, out):  # pragma: n
 
 
 @numba.njit(**JIT)
-def _slope(x0, x1, x2, s0, s1, s2, out):  # pragma: no cover - runs compiled
+def _slope(x0, x1, x2, s0, s1, s2):  # pragma: no cover - runs compiled
+    """One coordinate's three-point slope dx/ds at s1 (x0, x1, x2 scalars, metres)."""
     h0 = s1 - s0
     h1 = s2 - s1
-    for c in range(3):
-        d0 = (x1[c] - x0[c]) / (h0 if h0 > 0 else 1.0)
-        d1 = (x2[c] - x1[c]) / (h1 if h1 > 0 else 1.0)
-        if h0 > 0 and h1 > 0:
-            out[c] = (d0 * h1 + d1 * h0) / (h0 + h1)
-        elif h0 > 0:
-            out[c] = d0
-        else:
-            out[c] = d1
+    d0 = (x1 - x0) / (h0 if h0 > 0 else 1.0)
+    d1 = (x2 - x1) / (h1 if h1 > 0 else 1.0)
+    if h0 > 0 and h1 > 0:
+        return (d0 * h1 + d1 * h0) / (h0 + h1)
+    if h0 > 0:
+        return d0
+    return d1
 
 
 @numba.njit(**JIT)
@@ -110,10 +109,6 @@ def curve_at(x, known, s, j, a, b, before, after, out):  # pragma: no cover - ru
         nb = after[b] if not known[b + 1] else b + 1
         if nb >= m:
             nb = b
-    ta = np.empty(3)
-    tb = np.empty(3)
-    _slope(x[pa], x[a], x[b], s[pa], s[a], s[b], ta)
-    _slope(x[a], x[b], x[nb], s[a], s[b], s[nb], tb)
     h = s[b] - s[a]
     u = (s[j] - s[a]) / h
     u2 = u * u
@@ -122,8 +117,11 @@ def curve_at(x, known, s, j, a, b, before, after, out):  # pragma: no cover - ru
     h10 = u3 - 2 * u2 + u
     h01 = -2 * u3 + 3 * u2
     h11 = u3 - u2
+    # the tangents at a and b one coordinate at a time: no (3,) temporaries per call
     for c in range(3):
-        out[c] = h00 * x[a, c] + h10 * h * ta[c] + h01 * x[b, c] + h11 * h * tb[c]
+        ta = _slope(x[pa, c], x[a, c], x[b, c], s[pa], s[a], s[b])
+        tb = _slope(x[a, c], x[b, c], x[nb, c], s[a], s[b], s[nb])
+        out[c] = h00 * x[a, c] + h10 * h * ta + h01 * x[b, c] + h11 * h * tb
 
 
 @numba.njit(**JIT)

@@ -27,7 +27,7 @@ _INF = np.inf
 _PAD = 1.0 + 1e-9
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def frame_grid(state, t, p):  # pragma: no cover - runs compiled
     """Frame t's points bucketed in cells γ wide (a
     :mod:`~skincap.tracking._numba_grid` grid), built on the first call for the frame
@@ -46,12 +46,18 @@ def frame_grid(state, t, p):  # pragma: no cover - runs compiled
     )
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _ensure_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no cover
     """Bucket frame f into the state's grid buffers (``grid_info``, ``grid_starts``,
-    ``grid_order``) unless that was done already (:func:`frame_grid`)."""
-    if info[f, 0] >= 0.0:
-        return
+    ``grid_order``) unless that was done already (:func:`frame_grid`; the check is
+    inlined into the caller, the bucketing is not)."""
+    if info[f, 0] < 0.0:
+        _fill_frame_grid(points, offsets, info, starts, order, f, gamma)
+
+
+@numba.njit(**JIT)
+def _fill_frame_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no cover
+    """Bucket frame f into the state's grid buffers (:func:`_ensure_grid`)."""
     a, b = offsets[f], offsets[f + 1]
     axis, lo, inv, cells = fill_grid(
         points, a, b, gamma, starts[a + 2 * f : b + 2 * f + 2], order[a:b]
@@ -59,7 +65,7 @@ def _ensure_grid(points, offsets, info, starts, order, f, gamma):  # pragma: no 
     info[f, 0], info[f, 1], info[f, 2], info[f, 3] = axis, lo, inv, cells
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _grid_run(points, offsets, info, starts, order, f, gamma, x, y, z, bound):  # pragma: no cover
     """``(k0, k1)``: ``order[k0:k1]`` (the state's ``grid_order``) are frame f's rows in
     the cells a search ``bound`` metres around (x, y, z) reaches, as
@@ -357,23 +363,33 @@ def _link_limit(s, link_rest, ja, jb, gamma, p):  # pragma: no cover - runs comp
     return p.stretch * ds + gamma
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._refusals_numpy.reject_overstretched`."""
+    """Twin of :func:`skincap.tracking._refusals_numpy.reject_overstretched`.
+
+    The check that consecutive measured markers lie within their limits (most
+    frames: nothing to drop) is inlined into the caller and allocates nothing; the
+    chain is rebuilt in :func:`_keep_best_chain` only when one does not."""
+    cur, s, gamma, known = state.cur, state.arclength, p.gamma, state.known
+    a = -1
+    for b in range(known.size):
+        if not known[b]:
+            continue
+        if a >= 0:
+            chord = norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
+            if not chord <= _link_limit(s, state.link_rest, a, b, gamma, p):
+                _keep_best_chain(state, t, p)
+                return
+        a = b
+
+
+@numba.njit(**JIT)
+def _keep_best_chain(state, t, p):  # pragma: no cover - runs compiled
+    """:func:`reject_overstretched` once a chord between consecutive measured markers
+    is over its limit: keep the best chain, drop the rest."""
     cur, s, gamma = state.cur, state.arclength, p.gamma
     idx = _measured(state.known)
     n = idx.size
-    if n < 2:
-        return
-    ok = True
-    for q in range(n - 1):
-        a, b = idx[q], idx[q + 1]
-        chord = norm3(cur[b, 0] - cur[a, 0], cur[b, 1] - cur[a, 1], cur[b, 2] - cur[a, 2])
-        if not chord <= _link_limit(s, state.link_rest, a, b, gamma, p):
-            ok = False
-            break
-    if ok:
-        return
     w = np.ones(n)
     for q in range(n):
         if rigid_with_body(state, t, idx[q], state.taken[idx[q]], p):
@@ -413,27 +429,38 @@ def reject_overstretched(state, t, p):  # pragma: no cover - runs compiled
 
 
 @numba.njit(**JIT)
+def _odd_jump(cur, prev, j, c):  # pragma: no cover - runs compiled
+    """Coordinate c of marker j's jump minus the mean of its neighbours' (metres)."""
+    return (cur[j, c] - prev[j, c]) - 0.5 * (
+        (cur[j - 1, c] - prev[j - 1, c]) + (cur[j + 1, c] - prev[j + 1, c])
+    )
+
+
+@numba.njit(inline="always", **JIT)
 def reject_odd_motion(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._refusals_numpy.reject_odd_motion`."""
+    """Twin of :func:`skincap.tracking._refusals_numpy.reject_odd_motion` (inlined
+    into the caller, nothing allocated)."""
     cur, prev, known = state.cur, state.positions[t - 1], state.known
     m = known.size
-    odd = np.zeros(m, np.bool_)
+    # every marker is judged on the markers measured before any is dropped: marker
+    # j - 1 is dropped only once j (the last to read it) has been judged
+    pending = -1
     for j in range(1, m - 1):
-        if not (known[j] and known[j - 1] and known[j + 1]):
-            continue
-        if state.temp_count[j] != 0:
-            continue
-        e = np.empty(3)
-        for c in range(3):
-            e[c] = (cur[j, c] - prev[j, c]) - 0.5 * (
-                (cur[j - 1, c] - prev[j - 1, c]) + (cur[j + 1, c] - prev[j + 1, c])
-            )
-        if norm3(e[0], e[1], e[2]) > p.gamma:
-            odd[j] = True
-    for j in range(m):
-        if odd[j]:
-            known[j] = False
-            state.taken[j] = -1
+        odd = False
+        if known[j] and known[j - 1] and known[j + 1] and state.temp_count[j] == 0:
+            e0 = _odd_jump(cur, prev, j, 0)
+            e1 = _odd_jump(cur, prev, j, 1)
+            e2 = _odd_jump(cur, prev, j, 2)
+            odd = norm3(e0, e1, e2) > p.gamma
+        if pending >= 0:
+            known[pending] = False
+            state.taken[pending] = -1
+            pending = -1
+        if odd:
+            pending = j
+    if pending >= 0:
+        known[pending] = False
+        state.taken[pending] = -1
 
 
 # numba keys each cache on its own file only; these kernels compile callees and constants

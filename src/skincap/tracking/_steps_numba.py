@@ -22,7 +22,11 @@ The steps that run once a frame and only orchestrate others (:func:`track_frame`
 :func:`match_measured`, :func:`match_missing`) are inlined into their caller
 (``inline="always"``): numba links every callee's code into each compiled function,
 so each separately compiled layer of the call tree compiled the whole tracker again
-(a quarter of the compile time). ``track_rope(backend="auto")`` never waits for it:
+(a quarter of the compile time). So are the small helpers and the steps with one
+caller that take the state, and the checks that let a step return at once (most
+frames find every trace and hide no held end): a compiled call that passes the
+state costs more than such a check, since the callee takes a reference to each of
+the state's arrays on entry and drops it on return (about 0.2 µs a call). ``track_rope(backend="auto")`` never waits for it:
 it runs the NumPy steps while :func:`skincap.tracking.tracker.warm_up_kernel`
 compiles these in a background process (:mod:`skincap.backends`). The refusals and
 the re-acquisition are compiled in :mod:`skincap.tracking._refusals_numba` and
@@ -103,14 +107,14 @@ _WIDE = np.bool_(True)
 _NARROW = np.bool_(False)
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _steady(state):  # pragma: no cover - runs compiled
     """(M,) bool: traces measured in the previous frame (no temporary marker running)."""
     return state.temp_count == 0
 
 
 # ------------------------------------------------------------------ frame start and end
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def begin_frame(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.begin_frame`."""
     m = state.known.size
@@ -122,7 +126,7 @@ def begin_frame(state, t, p):  # pragma: no cover - runs compiled
     return state.positions[t - 1] + state.velocity
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def commit_frame(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.commit_frame`."""
     prev = state.positions[t - 1]
@@ -192,7 +196,7 @@ def _confirmed_returns(state, t, back, v_tilde, p):  # pragma: no cover - runs c
     return confirmed
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def learn_link_rest(state, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.learn_link_rest`."""
     known, cur = state.known, state.cur
@@ -207,7 +211,7 @@ def learn_link_rest(state, p):  # pragma: no cover - runs compiled
 
 
 # ------------------------------------------------------------------ body points
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def continue_body_chains(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.continue_body_chains`."""
     points, body, body_vel = state.points, state.body, state.body_vel
@@ -268,7 +272,7 @@ def _closer(points, i, x, y, z, bound):  # pragma: no cover - runs compiled
 
 
 # ------------------------------------------------------------------ matching
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _follows_other(state, t, row, candidate, pred, gamma, prev_grid):  # pragma: no cover
     """The candidate point lies within ``min(γ, D - γ)`` of a point of frame t - 1 the
     rope did not take, ``D`` how far trace ``row`` is predicted to move; ``prev_grid``
@@ -295,7 +299,7 @@ def _follows_other(state, t, row, candidate, pred, gamma, prev_grid):  # pragma:
     return False
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _continues_missed(state, t, candidate, dist, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy._continues_missed` for one
     candidate point at ``dist`` metres from the returning trace's prediction."""
@@ -314,7 +318,7 @@ def _continues_missed(state, t, candidate, dist, p):  # pragma: no cover - runs 
     return False
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compiled
     """(R, kk) distances (inf beyond the gate or taken) and global indices of the
     nearest free points of frame t to each row's prediction."""
@@ -338,7 +342,7 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
     return d, ii
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs compiled
     """Refuse (inf) candidates more than γ beyond their rest spacing from a measured
     neighbour, or beyond γ of the prediction and more than γ short of it, or beyond
@@ -442,7 +446,7 @@ def accelerated_prediction(state, t, v_pred, p):  # pragma: no cover - runs comp
     return out
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.gap_predictions`."""
     known, cur = state.known, state.cur
@@ -468,7 +472,7 @@ def gap_predictions(state, t, p):  # pragma: no cover - runs compiled
     return pred
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy._carry_hidden`."""
     m = state.known.size
@@ -508,7 +512,7 @@ def _carry_hidden(state, t, pred, rows_mask, p):  # pragma: no cover - runs comp
     return carry_last_seen(pred, state.cur, state.known, rows, then, then_measured, tolerance)
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _end_velocity(state, t, rows_mask):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy._end_velocity`."""
     out = state.velocity.copy()
@@ -526,7 +530,7 @@ def _end_velocity(state, t, rows_mask):  # pragma: no cover - runs compiled
     return out
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _free_end_runs(state, t):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy._free_end_runs`."""
     known = state.known
@@ -593,7 +597,7 @@ def zipper_predictions(state, p):  # pragma: no cover - runs compiled
 
 
 # ------------------------------------------------------------------ after matching
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.swap_onto_curve`."""
     a, b = state.offsets[t], state.offsets[t + 1]
@@ -618,13 +622,12 @@ def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
         if not (known[j] and before[j] >= 0 and after[j] < m):
             continue
         # the curve through every other measured marker, at s_j (marker j lies
-        # outside the markers that define it)
-        c = np.empty(3)
+        # outside the markers that define it), into the next free row: kept if odd
+        c = c_all[n_odd]
         curve_at(x, known, state.arclength, j, before[j], after[j], before, after, c)
         dev = norm3(cur[j, 0] - c[0], cur[j, 1] - c[1], cur[j, 2] - c[2])
         if dev > 2.0 * gamma:
             rows[n_odd] = j
-            c_all[n_odd] = c
             dev_all[n_odd] = dev
             n_odd += 1
     if n_odd == 0:
@@ -635,9 +638,9 @@ def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
     grid = frame_grid(state, t, p)
     for r in range(n_odd):
         grid_nearest(state.points, grid, b, c_all[r], kk, gamma, d[r], ii[r])
-        for c in range(kk):
-            if is_taken(ii[r, c], known, taken) or d[r, c] > dev_all[r] - gamma:
-                d[r, c] = _INF
+        for k in range(kk):
+            if is_taken(ii[r, k], known, taken) or d[r, k] > dev_all[r] - gamma:
+                d[r, k] = _INF
     hit_rows, pts = gated_assignment(d, ii, gamma)
     for h in range(hit_rows.size):
         row = rows[hit_rows[h]]
@@ -646,14 +649,21 @@ def swap_onto_curve(state, t, p):  # pragma: no cover - runs compiled
     return hit_rows.size > 0
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def unshift_chain(state, t, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.unshift_chain`."""
+    """Twin of :func:`skincap.tracking._steps_numpy.unshift_chain` (the check inlined
+    into the caller: most frames find every trace, and the call is the cost)."""
+    if state.offsets[t + 1] == state.offsets[t] or state.known.size < 3 or state.known.all():
+        return False
+    return _unshift_chain(state, t, p)
+
+
+@numba.njit(**JIT)
+def _unshift_chain(state, t, p):  # pragma: no cover - runs compiled
+    """:func:`unshift_chain` once frame t has points and a trace is still hidden."""
     a, b = state.offsets[t], state.offsets[t + 1]
     known, taken, cur, gamma = state.known, state.taken, state.cur, p.gamma
     m = known.size
-    if b == a or m < 3 or known.all():
-        return False
     for e in (0, m - 1):
         step = 1 if e == 0 else -1
         if not (known[e] and known[e + step]) or state.temp_count[e] != 0:
@@ -692,13 +702,19 @@ def unshift_chain(state, t, p):  # pragma: no cover - runs compiled
     return False
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compiled
-    """Twin of :func:`skincap.tracking._steps_numpy.place_invented`."""
+    """Twin of :func:`skincap.tracking._steps_numpy.place_invented` (the check inlined
+    into the caller: most frames find every trace, and the call is the cost)."""
+    if not state.known.all():
+        _place_invented(state, t, pred, refit, p)
+
+
+@numba.njit(**JIT)
+def _place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compiled
+    """:func:`place_invented` once a trace is still hidden."""
     known, cur = state.known, state.cur
     m = known.size
-    if known.all():
-        return
     if known.any() and refit:
         x = np.zeros((m, 3))
         for j in range(m):
@@ -728,18 +744,29 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
     match_traces(state, t, np.nonzero(steady)[0], v_pred, _NARROW, p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
-    tried = v_pred.copy()
+    tried = v_pred  # copied before its first change
+    copied = False
     half_gamma2 = (0.5 * p.gamma) ** 2
     for _ in range(p.retry_rounds):
-        found = state.known & steady
-        want = steady & ~state.known
-        if not (found.any() and want.any()):
+        # a steady trace found and one not (most frames find all): asked without
+        # allocating the masks
+        any_found, any_want = False, False
+        for j in range(steady.size):
+            if steady[j]:
+                if state.known[j]:
+                    any_found = True
+                else:
+                    any_want = True
+        if not (any_found and any_want):
             break
+        want = steady & ~state.known
         pred = residual_predictions(state, t, v_pred, p)
         for j in range(want.size):
             if want[j]:
-                e = pred[j] - tried[j]
-                if not (e[0] * e[0] + e[1] * e[1] + e[2] * e[2] > half_gamma2):
+                e0 = pred[j, 0] - tried[j, 0]
+                e1 = pred[j, 1] - tried[j, 1]
+                e2 = pred[j, 2] - tried[j, 2]
+                if not (e0 * e0 + e1 * e1 + e2 * e2 > half_gamma2):
                     want[j] = False
         if not want.any():
             break
@@ -747,12 +774,15 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
             break
         reject_overstretched(state, t, p)
         reject_odd_motion(state, t, p)
+        if not copied:
+            tried = v_pred.copy()
+            copied = True
         for j in range(want.size):
             if want[j]:
                 tried[j] = pred[j]
 
 
-@numba.njit(**JIT)
+@numba.njit(inline="always", **JIT)
 def _match_score(state, pred):  # pragma: no cover - runs compiled
     """Traces found this frame and their summed distance (metres) to ``pred``."""
     n, total = 0, 0.0
@@ -768,10 +798,28 @@ def _match_score(state, pred):  # pragma: no cover - runs compiled
 
 
 @numba.njit(inline="always", **JIT)
+def _is_blank(state):  # pragma: no cover - runs compiled
+    """Nothing found this frame yet: ``known`` all False, ``taken`` all -1, ``cur`` all 0."""
+    for j in range(state.known.size):
+        if state.known[j] or state.taken[j] != -1:
+            return False
+        for c in range(3):
+            if state.cur[j, c] != 0.0:
+                return False
+    return True
+
+
+@numba.njit(inline="always", **JIT)
 def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured_best`."""
     known, taken, cur = state.known, state.taken, state.cur
-    start_known, start_taken, start_cur = known.copy(), taken.copy(), cur.copy()
+    # the frame as begin_frame left it (nothing found, nothing taken, cur zero) is not
+    # copied: the second matching below resets to it instead (most frames never get there)
+    blank = _is_blank(state)
+    if blank:
+        start_known, start_taken, start_cur = known[:0], taken[:0], cur[:0]
+    else:
+        start_known, start_taken, start_cur = known.copy(), taken.copy(), cur.copy()
     match_measured(state, t, v_pred, p)
     gate2 = (p.swing_gate * p.gamma) ** 2
     explained = True  # V found every steady trace near it
@@ -797,9 +845,14 @@ def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compile
         return
     v_known, v_taken, v_cur = known.copy(), taken.copy(), cur.copy()
     n_v, d_v = _match_score(state, v_pred)
-    known[:] = start_known
-    taken[:] = start_taken
-    cur[:] = start_cur
+    if blank:
+        known[:] = False
+        taken[:] = -1
+        cur[:] = 0.0
+    else:
+        known[:] = start_known
+        taken[:] = start_taken
+        cur[:] = start_cur
     match_measured(state, t, v_acc, p)
     n_a, d_a = _match_score(state, v_acc)
     # traces both matchings found, on different points: the nearer ones win
