@@ -460,13 +460,35 @@ def test_link_rest_learns_the_longest_accepted_chord_up_to_the_stretch(steps) ->
     state, p = blank_state(_cloud(cur, cur), [0.1, 0.1, 0.1], gamma=0.03)
     state.cur[:] = cur
     state.known[:] = [True, True, True, False]
-    steps.learn_link_rest(state, p)
+    steps.learn_link_rest(state, 1, p)
     # a longer chord raises the link; one beyond the stretch (1.1) stops there; a link
     # with an unmeasured end learns nothing
     np.testing.assert_allclose(state.link_rest, [0.105, 0.11, 0.1])
     state.cur[1] = [0.09, 0, 0]  # a shorter chord never lowers it
-    steps.learn_link_rest(state, p)
+    steps.learn_link_rest(state, 1, p)
     np.testing.assert_allclose(state.link_rest, [0.105, 0.11, 0.1])
+
+
+@pytest.mark.parametrize("measured_before", [True, False])
+def test_a_link_started_slack_learns_up_to_the_stretch_of_the_tape_spacing(
+    steps, measured_before: bool
+) -> None:  # type: ignore[no-untyped-def]
+    """A link whose still-window chord was slack (8 cm on 10 cm tape spacing) learns the
+    chord the rope shows taut, up to ``stretch`` times the median spacing, not
+    ``stretch`` times its own slack start (8.8 cm), when both its markers were
+    measured in the frame before too; no link beyond that."""
+    cur = np.array([[0.0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [0.32, 0, 0], [0.42, 0, 0]])
+    state, p = blank_state(_cloud(cur, cur), [0.08, 0.1, 0.1, 0.1], gamma=0.03)
+    state.invented[0, 0] = not measured_before
+    state.cur[:] = cur
+    state.known[:] = True
+    steps.learn_link_rest(state, 1, p)
+    first = 0.1 if measured_before else 0.088
+    np.testing.assert_allclose(state.link_rest, [first, 0.1, 0.11, 0.1])
+    state.cur[0] = [-0.02, 0, 0]  # 12 cm: stops at 1.1 x the 10 cm median
+    steps.learn_link_rest(state, 1, p)
+    first = 0.11 if measured_before else 0.088
+    np.testing.assert_allclose(state.link_rest, [first, 0.1, 0.11, 0.1])
 
 
 def test_the_stretch_rule_uses_the_learnt_link_rest(steps) -> None:  # type: ignore[no-untyped-def]

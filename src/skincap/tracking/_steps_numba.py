@@ -168,7 +168,7 @@ def commit_frame(state, t, p):  # pragma: no cover - runs compiled
             if confirmed[j]:
                 for c in range(3):
                     state.velocity[j, c] = v_tilde[j, c]
-    learn_link_rest(state, p)
+    learn_link_rest(state, t, p)
 
 
 @numba.njit(**JIT)
@@ -197,7 +197,7 @@ def _confirmed_returns(state, t, back, v_tilde, p):  # pragma: no cover - runs c
 
 
 @numba.njit(inline="always", **JIT)
-def learn_link_rest(state, p):  # pragma: no cover - runs compiled
+def learn_link_rest(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.learn_link_rest`."""
     known, cur = state.known, state.cur
     for j in range(known.size - 1):
@@ -205,7 +205,10 @@ def learn_link_rest(state, p):  # pragma: no cover - runs compiled
             chord = norm3(
                 cur[j + 1, 0] - cur[j, 0], cur[j + 1, 1] - cur[j, 1], cur[j + 1, 2] - cur[j, 2]
             )
-            chord = min(chord, p.stretch * state.spacing[j])
+            rest = state.spacing[j]
+            if not (state.invented[t - 1, j] or state.invented[t - 1, j + 1]):
+                rest = max(rest, p.median_spacing)
+            chord = min(chord, p.stretch * rest)
             if chord > state.link_rest[j]:
                 state.link_rest[j] = chord
 

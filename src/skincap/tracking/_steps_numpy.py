@@ -183,7 +183,7 @@ def commit_frame(state: TrackState, t: int, p: StepParams) -> None:
     state.velocity[:] = state.cur - state.positions[t - 1]
     if confirmed.any():
         state.velocity[confirmed] = v_tilde[confirmed]
-    learn_link_rest(state, p)
+    learn_link_rest(state, t, p)
 
 
 def _confirmed_returns(
@@ -230,9 +230,11 @@ def _pinned(known: np.ndarray) -> np.ndarray:
     return np.asarray(window.any(axis=0), dtype=bool)
 
 
-def learn_link_rest(state: TrackState, p: StepParams) -> None:
-    """Raise ``link_rest`` to the chords of links measured at both ends this frame
-    (beyond the thesis), capped at ``stretch`` times the rest spacing, in place.
+def learn_link_rest(state: TrackState, t: int, p: StepParams) -> None:
+    """Raise ``link_rest`` to the chords of links measured at both ends in frame t
+    (beyond the thesis), capped at ``stretch`` times the rest spacing, or times the
+    larger of it and the median spacing for a link measured at both ends in frame
+    t - 1 too (a start made on a slack frame is short of the taut rope's), in place.
 
     The still window's chord is a slack rope's: shorter than the rope between the two
     markers (8.2 cm for 9.2 cm of rope on a 1.1 m whip), so a taut link would be
@@ -242,7 +244,12 @@ def learn_link_rest(state: TrackState, p: StepParams) -> None:
     both = state.known[:-1] & state.known[1:]
     e = state.cur[1:] - state.cur[:-1]
     chord = np.sqrt(e[:, 0] * e[:, 0] + e[:, 1] * e[:, 1] + e[:, 2] * e[:, 2])
-    cap = p.stretch * state.spacing
+    # a link's start may be a slack frame's chord, short of the tape spacing the rope
+    # shows taut: measured at both ends in frame t - 1 too, it may learn up to stretch
+    # times the larger of the two
+    then = state.invented[t - 1]
+    steady = ~(then[:-1] | then[1:])
+    cap = p.stretch * np.where(steady, np.maximum(state.spacing, p.median_spacing), state.spacing)
     state.link_rest[:] = np.where(
         both, np.maximum(state.link_rest, np.minimum(chord, cap)), state.link_rest
     )

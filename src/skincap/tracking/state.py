@@ -85,7 +85,9 @@ class TrackState(NamedTuple):
                                               between its two measured markers, at most
                                               ``stretch`` times ``spacing`` (the still
                                               window's chord is slack, shorter than the
-                                              rope between the markers)
+                                              rope between the markers), or times the
+                                              median spacing for a link measured at
+                                              both ends in two frames running
     """
 
     points: np.ndarray

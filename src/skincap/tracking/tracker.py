@@ -152,8 +152,9 @@ Beyond the thesis:
   from the previous frame's).
 * Each link's rest length (``link_rest``) is the longest chord accepted between its
   two measured markers, at most ``stretch`` times the spacing of the still window,
-  whose hanging rope is slack (8.2 cm chords for 9.2 cm of rope): the neighbour limit
-  of the stretch rule is measured from it.
+  whose hanging rope is slack (8.2 cm chords for 9.2 cm of rope), or times the median
+  spacing when the link was measured at both ends in the frame before too: the
+  neighbour limit of the stretch rule is measured from it.
 
 The steps are written twice, with the same names and signatures: in NumPy
 (:mod:`skincap.tracking._steps_numpy`, the reference) and compiled with numba
