@@ -93,6 +93,22 @@ def _sided(left: dict[str, str | tuple[str, ...]], mirror: dict[str, str]) -> di
 
 
 #: Landmark -> joint name (or tuple of joint names) per convention.
+#: The limbs of the rigs that name them LeftArm / LeftForeArm / LeftUpLeg (CMU's cgspeed
+#: conversions and Mixamo, whose spines differ).
+_LIMBS_LEFT_ARM_UP_LEG = _sided(
+    {
+        "clavicle": "LeftShoulder",
+        "upperarm": "LeftArm",
+        "forearm": "LeftForeArm",
+        "hand": "LeftHand",
+        "thigh": "LeftUpLeg",
+        "shin": "LeftLeg",
+        "foot": "LeftFoot",
+        "toe": "LeftToeBase",
+    },
+    {"Left": "Right"},
+)
+
 CONVENTIONS: dict[str, dict[str, str | tuple[str, ...]]] = {
     "cmu_bvh11": {
         "hips": "Hips",
@@ -124,19 +140,7 @@ CONVENTIONS: dict[str, dict[str, str | tuple[str, ...]]] = {
         "neck": "Neck",
         "neck_upper": "Neck1",
         "head": "Head",
-        **_sided(
-            {
-                "clavicle": "LeftShoulder",
-                "upperarm": "LeftArm",
-                "forearm": "LeftForeArm",
-                "hand": "LeftHand",
-                "thigh": "LeftUpLeg",
-                "shin": "LeftLeg",
-                "foot": "LeftFoot",
-                "toe": "LeftToeBase",
-            },
-            {"Left": "Right"},
-        ),
+        **_LIMBS_LEFT_ARM_UP_LEG,
     },
     "mixamo": {
         "hips": "Hips",
@@ -145,19 +149,7 @@ CONVENTIONS: dict[str, dict[str, str | tuple[str, ...]]] = {
         "upper_chest": "Spine2",
         "neck": "Neck",
         "head": "Head",
-        **_sided(
-            {
-                "clavicle": "LeftShoulder",
-                "upperarm": "LeftArm",
-                "forearm": "LeftForeArm",
-                "hand": "LeftHand",
-                "thigh": "LeftUpLeg",
-                "shin": "LeftLeg",
-                "foot": "LeftFoot",
-                "toe": "LeftToeBase",
-            },
-            {"Left": "Right"},
-        ),
+        **_LIMBS_LEFT_ARM_UP_LEG,
     },
     "biovision": {
         "hips": "Hips",
