@@ -98,18 +98,10 @@ def _plan_clean(out_dir: Path, name: str, options: Mapping[str, Any]) -> TakePla
 
 
 def _clean_figures(summary: Mapping[str, Any]) -> dict[str, Any]:
-    merge, guard = summary["merge"], summary["guard"]
-    return {
-        "frames": summary["frames"],
-        "trajectories_before": merge["trajectories_before"],
-        "trajectories_after": merge["trajectories_after"],
-        "filled_samples": guard["filled_samples"],
-        "unfilled_samples": guard["unfilled_samples"],
-        "outliers_replaced": guard["outliers_replaced"],
-        "relabelled_fragments": guard["relabelled_fragments"],
-        "largest_move_mm": guard["largest_move_mm"],
-        "hidden_markers_labelled": summary["hidden"]["new_markers"],
-    }
+    from skincap.workflows.clean_file import clean_summary
+
+    figures = clean_summary(dict(summary))
+    return {k: v for k, v in figures.items() if k not in ("input", "output")}
 
 
 def _check_clean(out_dir: Path, options: Mapping[str, Any]) -> None:

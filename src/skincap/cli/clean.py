@@ -22,6 +22,7 @@ from skincap.cli._app import (
 )
 from skincap.cli._options import BenchJsonOption, ForceOption, SurfaceOption
 from skincap.errors import FormatError
+from skincap.workflows.clean_file import clean_summary
 
 # -------------------------------------------------------------------------- clean
 #: ``--rigid-blend``, shared by ``clean`` and ``eval fill``.
@@ -136,29 +137,6 @@ def clean_workflow_options(
         "lam": lam,
         "iterations": iterations,
         "recover_hidden": not no_hidden,
-    }
-
-
-def clean_summary(report: dict[str, Any]) -> dict[str, Any]:
-    """The figures of ``clean``'s summary line, as a dict (what ``--json`` prints)."""
-    merge, guard = report["merge"], report["guard"]
-    return {
-        "input": report["input"],
-        "output": report["output"],
-        "frames": report["frames"],
-        "trajectories_before": merge["trajectories_before"],
-        "trajectories_after": merge["trajectories_after"],
-        "fragments_merged": merge["merged"],
-        "filled_samples": guard["filled_samples"],
-        "unfilled_samples": guard["unfilled_samples"],
-        "unfilled_warning": guard["unfilled_warning"],
-        "outlier_samples": guard["outlier_samples"],
-        "outliers_replaced": guard["outliers_replaced"],
-        "relabelled_fragments": guard["relabelled_fragments"],
-        "label_swaps_repaired": guard["label_swaps_repaired"],
-        "largest_move_mm": guard["largest_move_mm"],
-        "hidden_markers_labelled": report["hidden"]["new_markers"],
-        "wrongly_merged": merge["wrongly_merged"],
     }
 
 

@@ -20,7 +20,7 @@ if TYPE_CHECKING:
     from skincap.cleanup.surface import MarkerSurface
     from skincap.types import MarkerSet
 
-__all__ = ["check_clean_options", "clean_file", "read_marker_surface"]
+__all__ = ["check_clean_options", "clean_file", "clean_summary", "read_marker_surface"]
 
 #: Most smoothing iterations ``clean --iterations`` takes.
 MAX_SMOOTH_ITERATIONS = 1000
@@ -220,3 +220,26 @@ def clean_file(
         if report is not None:
             write_json(report, summary, force=force)
         return summary
+
+
+def clean_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """The figures of ``clean``'s summary line, as a dict (what ``--json`` prints)."""
+    merge, guard = report["merge"], report["guard"]
+    return {
+        "input": report["input"],
+        "output": report["output"],
+        "frames": report["frames"],
+        "trajectories_before": merge["trajectories_before"],
+        "trajectories_after": merge["trajectories_after"],
+        "fragments_merged": merge["merged"],
+        "filled_samples": guard["filled_samples"],
+        "unfilled_samples": guard["unfilled_samples"],
+        "unfilled_warning": guard["unfilled_warning"],
+        "outlier_samples": guard["outlier_samples"],
+        "outliers_replaced": guard["outliers_replaced"],
+        "relabelled_fragments": guard["relabelled_fragments"],
+        "label_swaps_repaired": guard["label_swaps_repaired"],
+        "largest_move_mm": guard["largest_move_mm"],
+        "hidden_markers_labelled": report["hidden"]["new_markers"],
+        "wrongly_merged": merge["wrongly_merged"],
+    }

@@ -59,6 +59,7 @@ __all__ = [
     "LinearBlendSkinning",
     "DualQuaternionSkinning",
     "SkinningDeformer",
+    "deformed_chunks",
     "make_deformer",
     "skin_motion",
     "numba_available",
@@ -735,23 +736,34 @@ def skin_motion(
         raise ValidationError("progress: expected a callable taking a fraction, or None")
     deformer = make_deformer(method, mesh, backend=backend)
     _check_same_skeleton(mesh, motion)
-    inverse_bind = mesh.skin.inverse_bind  # type: ignore[union-attr]  # make_deformer checked it
-    n_frames = motion.n_frames
-
-    def frames() -> Iterator[np.ndarray]:
-        for s in range(0, n_frames, chunk):
-            e = min(n_frames, s + chunk)
-            world = forward_kinematics_arrays(
-                motion.skeleton, motion.rotations[s:e], motion.translations[s:e]
-            )  # (t, J, 4, 4)
-            yield deformer.deform(np.matmul(world, inverse_bind))
-            if progress is not None:
-                progress(e / n_frames)
-
     return MeshAnimation(
         rest=mesh,
-        frames=frames(),
+        frames=deformed_chunks(deformer, mesh, motion, chunk, progress),
         rate=motion.rate,
-        n_frames=n_frames,
+        n_frames=motion.n_frames,
         meta={"skinning_method": cls.method, "skinning_backend": deformer.backend},
     )
+
+
+def deformed_chunks(
+    deformer: Any,
+    mesh: Mesh,
+    motion: Motion,
+    chunk: int,
+    progress: Callable[[float], None] | None = None,
+) -> Iterator[np.ndarray]:
+    """``motion``'s frames deformed ``chunk`` at a time: ``(t, V, 3)`` arrays, metres.
+
+    ``deformer.deform`` takes ``(t, J, 4, 4)`` skinning matrices (forward kinematics
+    times ``mesh.skin.inverse_bind``); ``progress`` gets the fraction done after each
+    chunk. The skeletons must already match (:func:`skin_motion` checks them)."""
+    inverse_bind = mesh.skin.inverse_bind  # type: ignore[union-attr]
+    n_frames = motion.n_frames
+    for s in range(0, n_frames, chunk):
+        e = min(n_frames, s + chunk)
+        world = forward_kinematics_arrays(
+            motion.skeleton, motion.rotations[s:e], motion.translations[s:e]
+        )  # (t, J, 4, 4)
+        yield deformer.deform(np.matmul(world, inverse_bind))
+        if progress is not None:
+            progress(e / n_frames)

@@ -34,6 +34,7 @@ from skincap.deform.skeletal.deformers import (
     Backend,
     _check_chunk,
     _check_same_skeleton,
+    deformed_chunks,
     make_deformer,
 )
 from skincap.deform.sweep.basis import align_hemispheres
@@ -42,7 +43,6 @@ from skincap.deform.sweep.chains import limb_chains
 from skincap.deform.sweep.fit import LimbSweep, fit_limb
 from skincap.deform.sweep.volume import LimbVolume
 from skincap.errors import ValidationError
-from skincap.geometry.kinematics import forward_kinematics_arrays
 from skincap.geometry.rotations import matrix_to_quat, quat_apply, quat_conjugate, quat_multiply
 from skincap.types import Mesh, MeshAnimation, Motion
 
@@ -286,18 +286,7 @@ def sweep_motion(
         mesh, chains=chains, n_between=n_between, skinning=skinning, volume=volume, backend=backend
     )
     _check_same_skeleton(mesh, motion)
-    inverse_bind = mesh.skin.inverse_bind  # type: ignore[union-attr]
-    n_frames = motion.n_frames
-
-    def frames() -> Iterator[np.ndarray]:
-        for s in range(0, n_frames, step):
-            e = min(n_frames, s + step)
-            world = forward_kinematics_arrays(
-                motion.skeleton, motion.rotations[s:e], motion.translations[s:e]
-            )
-            yield deformer.deform(np.matmul(world, inverse_bind))
-            if progress is not None:
-                progress(e / n_frames)
+    frames = deformed_chunks(deformer, mesh, motion, step, progress)
 
     meta: dict[str, Any] = {
         "skinning_method": "sweep",
@@ -306,4 +295,6 @@ def sweep_motion(
         "sweep_limbs": [limb.chain.name for limb in deformer.limbs],
         "sweep_volume": deformer.preserve_volume,
     }
-    return MeshAnimation(rest=mesh, frames=frames(), rate=motion.rate, n_frames=n_frames, meta=meta)
+    return MeshAnimation(
+        rest=mesh, frames=frames, rate=motion.rate, n_frames=motion.n_frames, meta=meta
+    )

@@ -75,6 +75,18 @@ def best_seconds(run: Callable[[], object], repeat: int) -> float:
     return best
 
 
+def best_cpu_seconds(run: Callable[[], object], repeat: int) -> float:
+    """One warm-up call, then the smallest CPU seconds of this process over ``repeat``
+    calls of ``run`` (single-threaded work: the figure a loaded machine distorts least)."""
+    run()
+    best = float("inf")
+    for _ in range(repeat):
+        c0 = time.process_time()
+        run()
+        best = min(best, time.process_time() - c0)
+    return best
+
+
 _CHILD = """
 import json, time
 t0, c0 = time.perf_counter(), time.process_time()

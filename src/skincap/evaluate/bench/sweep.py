@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from skincap.evaluate.bench.common import check_bench_count
+from skincap.evaluate.bench.common import best_cpu_seconds, check_bench_count
 from skincap.types import Mesh, Skin
 
 __all__ = ["run_sweep_benchmark", "subdivide_skinned"]
@@ -82,14 +82,8 @@ def subdivide_skinned(mesh: Mesh) -> Mesh:
 
 
 def _cpu_per_frame(run: Callable[[], object], repeat: int, n_frames: int) -> float:
-    """One warm-up call, then the smallest CPU seconds of ``repeat`` calls, per frame, in ms."""
-    run()
-    best = float("inf")
-    for _ in range(repeat):
-        c0 = time.process_time()
-        run()
-        best = min(best, time.process_time() - c0)
-    return 1e3 * best / n_frames
+    """The least CPU milliseconds per frame of ``repeat`` calls of ``run`` (after a warm-up)."""
+    return 1e3 * best_cpu_seconds(run, repeat) / n_frames
 
 
 def run_sweep_benchmark(
