@@ -215,6 +215,10 @@ def test_vertex_surface_strain_is_the_largest_edge_change_of_the_nearest_triangl
     assert strain[2] in (0.0, pytest.approx(0.5))  # either triangle, exactly its own value
     np.testing.assert_array_equal(stretch_split(strain[:2]), ["not stretched", "stretched"])
     assert stretch_split(strain[:2], threshold=0.6).tolist() == ["not stretched"] * 2
+    # a long take is read in blocks of frames: a stretch in a later block counts too
+    long = np.repeat(ref[None], 300, axis=0)
+    long[280, 3] = [0.1, 0.15, 0.0]
+    np.testing.assert_allclose(vertex_surface_strain(vertices[:2], ref, faces, long), [0, 0.5])
     with pytest.raises(ValidationError, match="positions"):
         vertex_surface_strain(vertices, ref, faces, pos[:, :3])
     with pytest.raises(ValidationError, match="no triangle"):

@@ -83,6 +83,9 @@ SYNTH_MARKER_HEIGHT_M = 0.0015
 #: :func:`stretch_split` calls the vertices on its triangles stretched.
 STRETCH_THRESHOLD = 0.3
 
+#: Frames per block of :func:`vertex_surface_strain`.
+_STRAIN_FRAMES = 256
+
 #: The targets of issue #16 (metres or fractions).
 TARGETS: dict[str, Any] = {
     "quadratic_rbf_same_body_rms_m": 0.003,
@@ -230,9 +233,13 @@ def vertex_surface_strain(
         raise ValidationError("surface_faces: no triangle with all three markers in the reference")
     a, b = f, np.roll(f, -1, axis=1)  # (F, 3) the three edges a -> b of every triangle
     rest = np.linalg.norm(ref[a] - ref[b], axis=-1)  # (F, 3)
-    length = np.linalg.norm(x[:, a] - x[:, b], axis=-1)  # (T, F, 3), NaN where unmeasured
-    ratio = np.divide(length, rest, out=np.full_like(length, np.nan), where=rest > 0)
-    strain = np.where(np.isfinite(ratio), np.abs(ratio - 1.0), 0.0).max(axis=(0, 2), initial=0.0)
+    strain = np.zeros(f.shape[0])
+    for t0 in range(0, x.shape[0], _STRAIN_FRAMES):  # blocks of frames bound the temporaries
+        block = x[t0 : t0 + _STRAIN_FRAMES]
+        length = np.linalg.norm(block[:, a] - block[:, b], axis=-1)  # (t, F, 3), NaN: unmeasured
+        ratio = np.divide(length, rest, out=np.full_like(length, np.nan), where=rest > 0)
+        change = np.where(np.isfinite(ratio), np.abs(ratio - 1.0), 0.0).max(axis=(0, 2))
+        np.maximum(strain, change, out=strain)
     _, face, _ = closest_points_on_mesh(np.where(usable[:, None], ref, 0.0), f, v)
     return strain[face]
 
