@@ -239,6 +239,19 @@ def test_cli_eval_animate_writes_json_and_png(folder, tmp_path) -> None:
     assert bad.exit_code == 2 and "truth/markers.c3d is missing" in bad.output
 
 
+def test_cli_eval_animate_prints_the_splits_and_the_worst_held_out_marker(folder, tmp_path) -> None:
+    pytest.importorskip("matplotlib")
+    res = CliRunner().invoke(
+        app, ["eval", "animate", str(folder), "-o", str(tmp_path / "ev"), "--parts", "2"]
+    )
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.split())
+    assert "never stretches the marker surface by more than 30% (" in text
+    assert "vertices at a seam between parts (" in text
+    worst = json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"]["worst"]
+    assert f"({worst['marker']} at frame {worst['frame']}," in text
+
+
 def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) -> None:
     capture = folder / "truth" / "markers.c3d"
     res = CliRunner().invoke(
