@@ -19,6 +19,8 @@ from skincap.evaluate.animate import (
     held_out_marker_errors,
     region_errors,
     seam_split,
+    stretch_split,
+    vertex_surface_strain,
 )
 from skincap.io.mesh import write_obj, write_ply
 from skincap.io.pc2 import write_pc2
@@ -111,6 +113,14 @@ def test_rows_are_present_and_the_dense_chain_beats_global_interpolation(folder)
     assert seams["all"]["rms_m"]["quadratic_rbf"] == pytest.approx(
         rows[("same_body", "quadratic_rbf")]["rms_m"], rel=1e-12
     )
+    # the split by the take's strain of the marker surface covers every vertex once
+    stretch = {g["region"]: g for g in result["stretch"]}
+    assert sum(g["vertices"] for k, g in stretch.items() if k != "all") == x.size
+    assert stretch["all"]["rms_m"]["rigid"] == pytest.approx(
+        rows[("same_body", "rigid")]["rms_m"], rel=1e-12
+    )
+    worst = result["held_out"]["worst"]
+    assert worst["marker"].startswith("M") and worst["max_m"] == result["held_out"]["max_m"]
 
 
 def per_vertex_split(result: dict, folder: Path) -> np.ndarray:
@@ -177,8 +187,42 @@ def test_held_out_markers_are_predicted_on_a_rigid_motion() -> None:
     marker_ref, surface = _tube(10, 6, 0.058)
     rot = Rotation.from_rotvec(np.linspace(0, 1, 12)[:, None] * [0.2, 1.0, 0.1]).as_matrix()
     pos = np.einsum("tab,nb->tna", rot, marker_ref) + [0.0, 1.0, 0.0]
-    res = held_out_marker_errors(pos, surface, n_parts=1, fraction=0.1, seed=3)
+    labels = [f"T{i}" for i in range(marker_ref.shape[0])]
+    res = held_out_marker_errors(pos, surface, n_parts=1, fraction=0.1, seed=3, labels=labels)
     assert res["held_out"] == 6 and res["max_m"] < 1e-9
+    worst = res["worst"]
+    assert worst["marker"] in labels and worst["max_m"] == res["max_m"]
+    assert 0 <= worst["mean_m"] <= worst["max_m"] and 0 <= worst["frame"] < 12
+    # its nearest kept neighbour on the tube is one ring or column step (~6 cm) away,
+    # and the kept surface (whose corners include it) is never farther than that
+    assert 0.01 < worst["nearest_kept_m"] < 0.1
+    assert 0 <= worst["to_kept_surface_m"] <= worst["nearest_kept_m"]
+
+
+def test_vertex_surface_strain_is_the_largest_edge_change_of_the_nearest_triangle() -> None:
+    # two triangles of a 10 cm square; marker 3 moves out by 5 cm along y at frame 1
+    # and is lost at frame 2; marker 4 is on no triangle and never seen
+    ref = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [np.nan] * 3]) * 0.1
+    faces = np.array([[0, 1, 2], [1, 3, 2]])
+    pos = np.repeat(ref[None], 3, axis=0)
+    pos[1, 3] = [0.1, 0.15, 0.0]
+    pos[2, 3] = np.nan
+    # vertices 1 cm above each triangle's centroid, and one above the shared edge's middle
+    vertices = np.array([[0.033, 0.033, 0.01], [0.067, 0.067, 0.01], [0.05, 0.05, 0.01]])
+    strain = vertex_surface_strain(vertices, ref, faces, pos)
+    assert strain[0] == pytest.approx(0.0, abs=1e-12)
+    assert strain[1] == pytest.approx(0.5)  # edge 1-3 grew from 10 to 15 cm
+    assert strain[2] in (0.0, pytest.approx(0.5))  # either triangle, exactly its own value
+    np.testing.assert_array_equal(stretch_split(strain[:2]), ["not stretched", "stretched"])
+    assert stretch_split(strain[:2], threshold=0.6).tolist() == ["not stretched"] * 2
+    # a long take is read in blocks of frames: a stretch in a later block counts too
+    long = np.repeat(ref[None], 300, axis=0)
+    long[280, 3] = [0.1, 0.15, 0.0]
+    np.testing.assert_allclose(vertex_surface_strain(vertices[:2], ref, faces, long), [0, 0.5])
+    with pytest.raises(ValidationError, match="positions"):
+        vertex_surface_strain(vertices, ref, faces, pos[:, :3])
+    with pytest.raises(ValidationError, match="no triangle"):
+        vertex_surface_strain(vertices, ref, np.array([[0, 1, 4]]), pos)
 
 
 def test_cli_eval_animate_writes_json_and_png(folder, tmp_path) -> None:
@@ -195,6 +239,19 @@ def test_cli_eval_animate_writes_json_and_png(folder, tmp_path) -> None:
     assert bad.exit_code == 2 and "truth/markers.c3d is missing" in bad.output
 
 
+def test_cli_eval_animate_prints_the_splits_and_the_worst_held_out_marker(folder, tmp_path) -> None:
+    pytest.importorskip("matplotlib")
+    res = CliRunner().invoke(
+        app, ["eval", "animate", str(folder), "-o", str(tmp_path / "ev"), "--parts", "2"]
+    )
+    assert res.exit_code == 0, res.output
+    text = " ".join(res.output.split())
+    assert "never stretches the marker surface by more than 30% (" in text
+    assert "vertices at a seam between parts (" in text
+    worst = json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"]["worst"]
+    assert f"({worst['marker']} at frame {worst['frame']}," in text
+
+
 def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) -> None:
     capture = folder / "truth" / "markers.c3d"
     res = CliRunner().invoke(
@@ -209,6 +266,7 @@ def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) 
     # wrong segmentation (Gaussian weights 4.4 mm, blend weights 6.2 mm); on the
     # synthetic jumprope the blend weights lower it (2.45 -> 2.03 mm).
     assert held["held_out"] == 6 and held["markers"] == 60 and held["mean_m"] < 7e-3
+    assert held["worst"]["marker"].startswith("M") and held["worst"]["max_m"] == held["max_m"]
     assert json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"] == held
 
 

@@ -348,6 +348,8 @@ def _tail_side(row: dict[str, Any]) -> str:
 
 def _print_eval_table(result: dict[str, Any]) -> None:
     """The rows, the registration, the held-out markers and the targets, one line each."""
+    from skincap.evaluate.animate import STRETCH_THRESHOLD
+
     for row in result["rows"]:
         if row.get("measured"):
             out.print(
@@ -365,6 +367,14 @@ def _print_eval_table(result: dict[str, Any]) -> None:
             out.print(
                 f"vertices at a seam between parts ({group['vertices']})" if group["region"] == "seam"
                 else f"vertices inside one part ({group['vertices']})",
+                f"RMS mm: {shown}", markup=False, soft_wrap=True,
+            )  # fmt: skip
+    for group in result.get("stretch") or []:
+        if group["region"] != "all":
+            shown = ", ".join(f"{m} {v * 1e3:.2f}" for m, v in group["rms_m"].items())
+            out.print(
+                f"vertices where the take {'stretches' if group['region'] == 'stretched' else 'never stretches'} "
+                f"the marker surface by more than {STRETCH_THRESHOLD:.0%} ({group['vertices']})",
                 f"RMS mm: {shown}", markup=False, soft_wrap=True,
             )  # fmt: skip
 
@@ -391,9 +401,9 @@ def _print_eval_table(result: dict[str, Any]) -> None:
     if held["mean_m"] is not None:
         out.print(
             f"held out {held['held_out']} of {held['markers']} markers: mean {held['mean_m'] * 1e3:.3f} mm, "
-            f"p95 {held['p95_m'] * 1e3:.3f} mm",
-            markup=False,
-        )
+            f"p95 {held['p95_m'] * 1e3:.3f} mm" + _worst_held_out_text(held),
+            markup=False, soft_wrap=True,
+        )  # fmt: skip
     seg = result.get("segmentation") or {}
     if seg.get("ari") is not None:
         out.print(
@@ -405,6 +415,17 @@ def _print_eval_table(result: dict[str, Any]) -> None:
         mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
         shown = "-" if t["value"] is None else f"{t['value']:.4g}"
         out.print(f"target {name}: {shown} (target {t['target']}): {mark}", markup=False)
+
+
+def _worst_held_out_text(held: dict[str, Any]) -> str:
+    """``, max … (marker …, … mm from the nearest kept marker)`` of a held-out result."""
+    worst = held.get("worst")
+    if not worst:
+        return ""
+    return (
+        f", max {worst['max_m'] * 1e3:.1f} mm ({worst['marker']} at frame {worst['frame']}, "
+        f"{worst['nearest_kept_m'] * 1e3:.0f} mm from the nearest kept marker)"
+    )
 
 
 def _eval_capture(
@@ -426,7 +447,7 @@ def _eval_capture(
     out.print(
         f"{capture.name}: held out {held['held_out']} of {held['markers']} markers "
         f"({held['n_parts']} parts): mean {held['mean_m'] * 1e3:.2f} mm, p95 "
-        f"{held['p95_m'] * 1e3:.2f} mm, max {held['max_m'] * 1e3:.1f} mm; wrote {json_path}",
+        f"{held['p95_m'] * 1e3:.2f} mm{_worst_held_out_text(held)}; wrote {json_path}",
         markup=False,
         soft_wrap=True,
     )

@@ -27,7 +27,14 @@ with each method's vertex RMS there (:func:`region_errors`); the ``seams`` table
 it by the rig instead (:func:`seam_split`): the vertices whose part weights β blend two
 or more parts (eq. 9: on the marker-surface triangles at a seam between parts) and
 those inside one part. The dense chain interpolates between markers, so the two tell
-an error of the blending at seams from one of a part's own fields.
+an error of the blending at seams from one of a part's own fields. The ``stretch``
+table splits it by how far the take stretches or compresses the skin between the
+markers around each vertex (:func:`vertex_surface_strain`: the largest relative length
+change an edge of the vertex's marker-surface triangle goes through): where the skin
+between two markers changes length by a third or more, no interpolation of those
+markers knows how the skin between them folds or spreads, and ``dqs`` (the synthetic
+skin is DQS plus soft tissue, so that row is the soft tissue alone) against ``lbs``
+says how much of the skeleton's own error lies there.
 
 With a *different template* (another body mesh), it is registered to the reference-pose
 markers (§5.1, :mod:`skincap.deform.dense.registration`), rigged and deformed like the
@@ -62,13 +69,22 @@ __all__ = [
     "plot_vertex_errors",
     "region_errors",
     "seam_split",
+    "stretch_split",
     "vertex_errors",
+    "vertex_surface_strain",
 ]
 
 #: Height of a synthetic marker's centre above the skin, metres: the ``radius`` of
 #: :func:`skincap.synth.markers.place_markers` (a test keeps the two equal). The
 #: registered-template row registers to markers that sit this far out by default.
 SYNTH_MARKER_HEIGHT_M = 0.0015
+
+#: Relative length change of a marker-surface edge (|L / L0 - 1|) beyond which
+#: :func:`stretch_split` calls the vertices on its triangles stretched.
+STRETCH_THRESHOLD = 0.3
+
+#: Frames per block of :func:`vertex_surface_strain`.
+_STRAIN_FRAMES = 256
 
 #: The targets of issue #16 (metres or fractions).
 TARGETS: dict[str, Any] = {
@@ -173,6 +189,83 @@ def seam_split(vertex_weights: np.ndarray) -> np.ndarray:
     return np.where((beta > 0).sum(axis=1) >= 2, "seam", "one part")
 
 
+def vertex_surface_strain(
+    vertices: np.ndarray,
+    reference: np.ndarray,
+    surface_faces: np.ndarray,
+    positions: np.ndarray,
+) -> np.ndarray:
+    """How far a take stretches the marker surface around every vertex.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres
+        The body in the reference pose.
+    reference : (N, 3) float, metres
+        The markers in the reference pose (NaN: a marker no triangle uses).
+    surface_faces : (F, 3) int
+        Marker-surface triangles.
+    positions : (T, N, 3) float, metres, NaN where missing
+
+    Returns
+    -------
+    (V,) float64
+        For the marker-surface triangle nearest each vertex in the reference pose (the
+        one its part weights β come from), the largest ``|L(t) / L0 - 1|`` of its three
+        edges over the frames where both ends are measured (0 where never measured):
+        0.5 means an edge grew to 1.5 times or shrank to half its reference length.
+    """
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    v = np.asarray(vertices, dtype=np.float64)
+    ref = np.asarray(reference, dtype=np.float64)
+    x = np.asarray(positions, dtype=np.float64)
+    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
+    if x.ndim != 3 or x.shape[1:] != ref.shape or ref.ndim != 2 or ref.shape[1] != 3:
+        raise ValidationError(
+            f"positions (T, N, 3) and reference (N, 3) expected; got {x.shape} and {ref.shape}"
+        )
+    if f.size and (f.min() < 0 or f.max() >= ref.shape[0]):
+        raise ValidationError(f"surface_faces: indices must be in 0..{ref.shape[0] - 1}")
+    usable = np.isfinite(ref).all(axis=1)
+    f = f[usable[f].all(axis=1)]
+    if f.shape[0] == 0:
+        raise ValidationError("surface_faces: no triangle with all three markers in the reference")
+    a, b = f, np.roll(f, -1, axis=1)  # (F, 3) the three edges a -> b of every triangle
+    rest = np.linalg.norm(ref[a] - ref[b], axis=-1)  # (F, 3)
+    strain = np.zeros(f.shape[0])
+    for t0 in range(0, x.shape[0], _STRAIN_FRAMES):  # blocks of frames bound the temporaries
+        block = x[t0 : t0 + _STRAIN_FRAMES]
+        length = np.linalg.norm(block[:, a] - block[:, b], axis=-1)  # (t, F, 3), NaN: unmeasured
+        ratio = np.divide(length, rest, out=np.full_like(length, np.nan), where=rest > 0)
+        change = np.where(np.isfinite(ratio), np.abs(ratio - 1.0), 0.0).max(axis=(0, 2))
+        np.maximum(strain, change, out=strain)
+    _, face, _ = closest_points_on_mesh(np.where(usable[:, None], ref, 0.0), f, v)
+    return strain[face]
+
+
+def stretch_split(strain: np.ndarray, threshold: float = STRETCH_THRESHOLD) -> np.ndarray:
+    """Vertices on stretched marker-surface triangles and the rest.
+
+    Parameters
+    ----------
+    strain : (V,) float
+        :func:`vertex_surface_strain`.
+    threshold : float
+        Default :data:`STRETCH_THRESHOLD`.
+
+    Returns
+    -------
+    (V,) str
+        ``"stretched"`` where ``strain > threshold``, ``"not stretched"`` elsewhere; the
+        regions of :func:`region_errors`.
+    """
+    e = np.asarray(strain, dtype=np.float64)
+    if e.ndim != 1:
+        raise ValidationError(f"strain must have shape (V,); got {e.shape}")
+    return np.where(e > float(threshold), "stretched", "not stretched")
+
+
 def global_rbf_frames(
     reference: np.ndarray, positions: np.ndarray, vertices: np.ndarray
 ) -> np.ndarray:
@@ -244,6 +337,7 @@ def held_out_marker_errors(
     n_parts: int = 17,
     method: str = "quadratic_rbf",
     seed: int = 0,
+    labels: Sequence[str] | None = None,
 ) -> dict[str, Any]:
     """Leave ``fraction`` of the markers out, deform, measure where the rest put them.
 
@@ -262,12 +356,18 @@ def held_out_marker_errors(
         least six kept markers a part).
     method : str
     seed : int
+    labels : sequence of N str, optional
+        Names the worst held-out marker (default: its column number).
 
     Returns
     -------
     dict
         ``held_out`` count, ``mean_m``, ``p95_m``, ``max_m`` over the measured samples
-        of the held-out markers, ``n_parts``.
+        of the held-out markers, ``n_parts``, and ``worst``: the held-out marker with the
+        largest error (``marker``, its ``max_m`` and ``mean_m``, the ``frame`` of the max,
+        ``nearest_kept_m`` the distance to the nearest kept marker and
+        ``to_kept_surface_m`` to the kept markers' surface in the reference frame: how far
+        the deformation had to reach for it), or None when no sample was measured.
     """
     from skincap.deform.dense.deformer import DenseDeformer, choose_quadratic_parts
     from skincap.deform.dense.parts import part_frames
@@ -305,7 +405,7 @@ def held_out_marker_errors(
         quadratic_parts=choose_quadratic_parts(rom, frames),
     )  # fmt: skip
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
-    d = np.linalg.norm(predicted - x[:, out], axis=-1)
+    d = np.linalg.norm(predicted - x[:, out], axis=-1)  # (T, held out)
     dd = d[np.isfinite(d)]
     return {
         "held_out": int(n_out),
@@ -315,6 +415,41 @@ def held_out_marker_errors(
         "mean_m": float(dd.mean()) if dd.size else None,
         "p95_m": float(np.percentile(dd, 95)) if dd.size else None,
         "max_m": float(dd.max()) if dd.size else None,
+        "worst": _worst_held_out(d, out, held_ref, ref, kept_faces, labels) if dd.size else None,
+    }
+
+
+def _worst_held_out(
+    d: np.ndarray,
+    out: np.ndarray,
+    held_ref: np.ndarray,
+    kept_ref: np.ndarray,
+    kept_faces: np.ndarray,
+    labels: Sequence[str] | None,
+) -> dict[str, Any]:
+    """The held-out marker of the largest error ``d`` (T, H) and how far it was from the
+    kept markers (``out`` (H,) its columns, ``held_ref`` (H, 3), ``kept_ref`` (K, 3) and
+    ``kept_faces`` the kept markers' surface, reference frame)."""
+    from scipy.spatial import cKDTree
+
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    finite = np.isfinite(d)
+    worst = np.where(finite, d, -np.inf)
+    frame, k = np.unravel_index(int(np.argmax(worst)), d.shape)
+    column = int(out[k])
+    to_surface = (
+        float(closest_points_on_mesh(kept_ref, kept_faces, held_ref[k : k + 1])[0][0])
+        if kept_faces.shape[0]
+        else None
+    )
+    return {
+        "marker": str(labels[column]) if labels is not None else str(column),
+        "max_m": float(d[frame, k]),
+        "mean_m": float(d[finite[:, k], k].mean()),
+        "frame": int(frame),
+        "nearest_kept_m": float(cKDTree(kept_ref).query(held_ref[k])[0]),
+        "to_kept_surface_m": to_surface,
     }
 
 
@@ -347,8 +482,9 @@ def held_out_on_capture(
     if surface.faces.shape[0] == 0:
         raise ValidationError("the capture's marker surface has no triangles")
     out = held_out_marker_errors(
-        x, surface.faces, reference_frame=frame, fraction=fraction, n_parts=n_parts, seed=seed
-    )
+        x, surface.faces, reference_frame=frame, fraction=fraction, n_parts=n_parts, seed=seed,
+        labels=[str(markers.labels[i]) for i in keep],
+    )  # fmt: skip
     return {**out, "reference_frame": int(frame), "surface_triangles": int(surface.faces.shape[0])}
 
 
@@ -412,7 +548,8 @@ def evaluate_animate(
         ``p95_m``, ``max_m``…), ``held_out``, ``segmentation``, ``regions``
         (:func:`region_errors` by the body's dominant skin joint; None without
         ``truth/body.glb``), ``seams`` (:func:`region_errors` by :func:`seam_split` of
-        the same-body rig), ``targets`` (value,
+        the same-body rig), ``stretch`` (:func:`region_errors` by :func:`stretch_split`
+        of the take's own strain of the marker surface), ``targets`` (value,
         target, met), ``per_vertex_rms_m`` (method -> (V,) array, for the colour maps;
         not JSON), ``vertices`` (V, 3) reference-pose vertices and ``faces``.
     """
@@ -458,7 +595,7 @@ def evaluate_animate(
     step(0.8, "held-out markers")
     held = held_out_marker_errors(
         x, surface_faces, range_of_motion=rom_x, fraction=held_out_fraction,
-        n_parts=n_parts, seed=seed,
+        n_parts=n_parts, seed=seed, labels=labels,
     )  # fmt: skip
     segmentation = _segmentation_figures(rig, root / "truth" / "marker_parts.csv", labels)
     step(1.0, "done")
@@ -474,6 +611,9 @@ def evaluate_animate(
         "registration": registration,
         "regions": None if regions is None else region_errors(per_vertex, regions),
         "seams": region_errors(per_vertex, seam_split(rig.vertex_weights)),
+        "stretch": region_errors(
+            per_vertex, stretch_split(vertex_surface_strain(vertices, x[0], surface_faces, x))
+        ),
         "targets": _targets(rows, held, segmentation),
         "per_vertex_rms_m": per_vertex,
         "vertices": vertices,
