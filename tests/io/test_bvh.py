@@ -140,6 +140,36 @@ def test_unit_guess_warns_and_records(path: Path, kwargs: dict, unit: str) -> No
     assert m.meta["source_units"] == unit and m.meta["units_guessed"] is True
 
 
+@pytest.mark.parametrize(
+    "path", [CMU, MOCAPBANK, MAKEHUMAN, DATA / "external" / "bvhpython_mixamo_walk.bvh"]
+)
+def test_unit_guess_states_the_height_info_reports(path: Path) -> None:
+    # the warning's height is the standing (Y-up) extent info reports, not a T-pose's
+    # arm span (the Mixamo rig: 1.94 m from fingertip to fingertip, 1.78 m tall)
+    from skincap.evaluate.summary import summarize_motion
+
+    with pytest.warns(UnitWarning) as record:
+        m = read_bvh(path)
+    message = next(str(w.message) for w in record if "units not given" in str(w.message))
+    metres = float(message.split("(")[1].split(" m)")[0])
+    assert "units tall" in message
+    assert metres == pytest.approx(summarize_motion(m)["height_m"], abs=0.006)
+
+
+def test_unit_guess_of_a_lying_skeleton_uses_its_largest_extent(tmp_path: Path) -> None:
+    # read with the wrong up axis a standing figure lies: its extent along "up" is its
+    # depth, so the guess falls back to the largest extent rather than a 10x unit
+    text = SMALL.replace("OFFSET 0 10 0", "OFFSET 0 0 10").replace("OFFSET 0 50 0", "OFFSET 0 0 50")
+    text = text.replace("OFFSET 0 -90 0", "OFFSET 0 0 -90").replace(
+        "OFFSET 10 -5 0", "OFFSET 1 0 -5"
+    )
+    path = tmp_path / "lying.bvh"
+    path.write_text(text)
+    with pytest.warns(UnitWarning, match=r"guessed 'cm' from a skeleton 155 units across"):
+        m = read_bvh(path, up="y")
+    assert m.meta["source_units"] == "cm"
+
+
 def test_guess_bvh_units_bands() -> None:
     assert guess_bvh_units(1.75) == "m"
     assert guess_bvh_units(17.5) == "dm"

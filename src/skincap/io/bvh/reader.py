@@ -31,9 +31,9 @@ from skincap.io.bvh.units import (
     _PLAUSIBLE_HEIGHT,
     BVH_UNITS,
     _rest_extent,
-    _skeleton_height,
     guess_bvh_units,
     guess_bvh_up,
+    standing_height,
 )
 from skincap.types import Motion, Skeleton
 
@@ -185,7 +185,7 @@ def _read(
     if units is not None and scale is not None:
         unit_name = units.strip().lower()
     else:
-        unit_name, scale = _guessed_units(p, parents, offsets)
+        unit_name, scale = _guessed_units(p, parents, offsets, up)
     offsets = to_y_up(offsets * scale, up)
     translations *= scale
     translations = to_y_up(translations, up)
@@ -238,11 +238,12 @@ def _channel_columns(
 
 
 def _guessed_units(
-    p: os.PathLike[str], parents: np.ndarray, offsets: np.ndarray
+    p: os.PathLike[str], parents: np.ndarray, offsets: np.ndarray, up: str
 ) -> tuple[str, float]:
     """The unit (and metres per unit) that makes the rest skeleton (offsets (J, 3) file
-    units) a plausible human height; warns (UnitWarning, at read_bvh's caller)."""
-    height = _skeleton_height(parents, offsets)
+    units, ``up`` its up axis) a plausible human height (:func:`standing_height`: the
+    height ``info`` reports); warns (UnitWarning, at read_bvh's caller)."""
+    height, standing = standing_height(_rest_extent(parents, offsets), up)
     unit_name = guess_bvh_units(height)
     scale = BVH_UNITS[unit_name]
     metres = height * scale
@@ -250,7 +251,8 @@ def _guessed_units(
     if not _PLAUSIBLE_HEIGHT[0] <= metres <= _PLAUSIBLE_HEIGHT[1]:
         note = "; no unit gives a plausible human height, pass units= to be sure"
     warnings.warn(
-        f"{os.fspath(p)}: units not given; guessed {unit_name!r} from a skeleton {height:.4g} units tall "
+        f"{os.fspath(p)}: units not given; guessed {unit_name!r} from a skeleton {height:.4g} units "
+        f"{'tall' if standing else 'across'} "
         f"({metres:.3g} m){note}",
         UnitWarning,
         stacklevel=4,
