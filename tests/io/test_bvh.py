@@ -170,6 +170,65 @@ def test_unit_guess_of_a_lying_skeleton_uses_its_largest_extent(tmp_path: Path) 
     assert m.meta["source_units"] == "cm"
 
 
+LOCAL_X_BONES = """HIERARCHY
+ROOT Root
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Hips
+  {
+    OFFSET 0 95 -450
+    CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+    JOINT Spine
+    {
+      OFFSET 45 0 0
+      CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+      End Site
+      {
+        OFFSET 35 0 0
+      }
+    }
+    JOINT UpperLeg_L
+    {
+      OFFSET -10 -8 0
+      CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+      JOINT LowerLeg_L
+      {
+        OFFSET -45 0 0
+        CHANNELS 3 Zrotation Xrotation Yrotation
+        End Site
+        {
+          OFFSET -40 0 0
+        }
+      }
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.0333333
+0 0 0 0 0 0 0 95 -5 90 0 0 45 0 0 0 0 0 -10 -8 0 0 0 0 0 0 0
+0 0 0 0 0 0 1 95 -5 90 0 0 45 0 0 10 0 0 -10 -8 0 0 0 0 0 0 0
+"""
+
+
+def test_unit_and_up_guess_read_the_first_frame_when_the_rest_pose_is_no_figure(
+    tmp_path: Path,
+) -> None:
+    # Bandai-Namco's layout: bones along their local x, every joint with position
+    # channels repeating its offset but the hips' (its rest offset 4.5 m from a root
+    # joint at the origin); the first frame stands the figure 1.75 m along y
+    path = tmp_path / "local_x.bvh"
+    path.write_text(LOCAL_X_BONES)
+    with pytest.warns(
+        UnitWarning, match=r"guessed 'cm' from the first frame's pose 175 units tall"
+    ):
+        m = read_bvh(path)
+    assert m.meta["up"] == "y" and m.meta["source_units"] == "cm"
+    posed = joint_positions(m)[0]
+    np.testing.assert_allclose(posed.max(axis=0) - posed.min(axis=0), [0.08, 1.75, 0.05], atol=1e-6)
+
+
 def test_guess_bvh_units_bands() -> None:
     assert guess_bvh_units(1.75) == "m"
     assert guess_bvh_units(17.5) == "dm"
