@@ -227,6 +227,11 @@ def test_unit_and_up_guess_read_the_first_frame_when_the_rest_pose_is_no_figure(
     assert m.meta["up"] == "y" and m.meta["source_units"] == "cm"
     posed = joint_positions(m)[0]
     np.testing.assert_allclose(posed.max(axis=0) - posed.min(axis=0), [0.08, 1.75, 0.05], atol=1e-6)
+    # info reports the height the warning states, not the rest pose's 0.95 m
+    from skincap.evaluate.summary import summarize_motion
+
+    assert m.meta["rest_pose_is_figure"] is False
+    assert summarize_motion(m)["height_m"] == pytest.approx(1.75, abs=1e-6)
 
 
 def test_guess_bvh_units_bands() -> None:

@@ -210,6 +210,8 @@ def _read(
             "frame_time": frame_time,
             "frame_time_text": time_tok,
             "first_frame": 0,
+            # False when the rest pose is no figure and the guesses read the first frame
+            "rest_pose_is_figure": not posed,
         },
     )
 
