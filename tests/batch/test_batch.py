@@ -186,6 +186,9 @@ def test_inputs_names_and_globs(tmp_path: Path) -> None:
     out.mkdir()
     shutil.copyfile(DATA / "cmu_85_02.c3d", out / "walk.c3d")
     assert len(collect_inputs([str(tmp_path / "**" / "*.c3d")], (".c3d",), exclude=out)) == 3
+    # an output folder that is the input folder leaves nothing, and the error says why
+    with pytest.raises(ValidationError, match=r"no takes to run: all 2 lie in the output folder"):
+        collect_inputs([tmp_path / "s1"], (".c3d",), exclude=tmp_path / "s1")
     with pytest.raises(FormatError, match="no such file"):
         collect_inputs([tmp_path / "missing.c3d"], (".c3d",))
     with pytest.raises(FormatError, match="no takes match"):

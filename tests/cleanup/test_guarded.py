@@ -7,6 +7,7 @@ label swaps and a rigid prop. Invariants: every real capture in tests/data.
 from __future__ import annotations
 
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -322,3 +323,24 @@ def test_tiny_and_static_takes_clean_without_error(frames: int) -> None:
     expected[:, 0] = 0.05
     np.testing.assert_allclose(out.positions[filled], expected, atol=1e-9)
     assert report.guard.largest_move_mm == 0.0
+
+
+def test_holes_at_the_takes_first_and_last_frames_are_filled(data_dir: Path) -> None:
+    """A hole touching frame 0 or the last frame is filled like an interior one (its
+    end sample judged by its neighbour's second difference, which includes it): CMU
+    85_02 is fully measured, so the measured samples are the truth."""
+    markers = _quiet(read, data_dir / "cmu_85_02.c3d")
+    assert np.isfinite(markers.positions).all()
+    last = markers.n_frames - 1
+    holes = [(slice(0, 1), 20), (slice(last - 4, last + 1), 5), (slice(0, 3), 30)]
+    pos = markers.positions.copy()
+    for frames, column in holes:
+        pos[frames, column] = np.nan
+    out, report = _quiet(clean_markers, replace(markers, positions=pos))
+    assert report.fill.unfilled_samples == 0 and np.isfinite(out.positions).all()
+    for frames, column in holes:
+        error = np.linalg.norm(
+            out.positions[frames, column] - markers.positions[frames, column], axis=-1
+        )
+        assert error.max() < 0.01  # metres
+        assert out.invented[frames, column].all()

@@ -140,6 +140,100 @@ def test_unit_guess_warns_and_records(path: Path, kwargs: dict, unit: str) -> No
     assert m.meta["source_units"] == unit and m.meta["units_guessed"] is True
 
 
+@pytest.mark.parametrize(
+    "path", [CMU, MOCAPBANK, MAKEHUMAN, DATA / "external" / "bvhpython_mixamo_walk.bvh"]
+)
+def test_unit_guess_states_the_height_info_reports(path: Path) -> None:
+    # the warning's height is the standing (Y-up) extent info reports, not a T-pose's
+    # arm span (the Mixamo rig: 1.94 m from fingertip to fingertip, 1.78 m tall)
+    from skincap.evaluate.summary import summarize_motion
+
+    with pytest.warns(UnitWarning) as record:
+        m = read_bvh(path)
+    message = next(str(w.message) for w in record if "units not given" in str(w.message))
+    metres = float(message.split("(")[1].split(" m)")[0])
+    assert "units tall" in message
+    assert metres == pytest.approx(summarize_motion(m)["height_m"], abs=0.006)
+
+
+def test_unit_guess_of_a_lying_skeleton_uses_its_largest_extent(tmp_path: Path) -> None:
+    # read with the wrong up axis a standing figure lies: its extent along "up" is its
+    # depth, so the guess falls back to the largest extent rather than a 10x unit
+    text = SMALL.replace("OFFSET 0 10 0", "OFFSET 0 0 10").replace("OFFSET 0 50 0", "OFFSET 0 0 50")
+    text = text.replace("OFFSET 0 -90 0", "OFFSET 0 0 -90").replace(
+        "OFFSET 10 -5 0", "OFFSET 1 0 -5"
+    )
+    path = tmp_path / "lying.bvh"
+    path.write_text(text)
+    with pytest.warns(UnitWarning, match=r"guessed 'cm' from a skeleton 155 units across"):
+        m = read_bvh(path, up="y")
+    assert m.meta["source_units"] == "cm"
+
+
+LOCAL_X_BONES = """HIERARCHY
+ROOT Root
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Hips
+  {
+    OFFSET 0 95 -450
+    CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+    JOINT Spine
+    {
+      OFFSET 45 0 0
+      CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+      End Site
+      {
+        OFFSET 35 0 0
+      }
+    }
+    JOINT UpperLeg_L
+    {
+      OFFSET -10 -8 0
+      CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+      JOINT LowerLeg_L
+      {
+        OFFSET -45 0 0
+        CHANNELS 3 Zrotation Xrotation Yrotation
+        End Site
+        {
+          OFFSET -40 0 0
+        }
+      }
+    }
+  }
+}
+MOTION
+Frames: 2
+Frame Time: 0.0333333
+0 0 0 0 0 0 0 95 -5 90 0 0 45 0 0 0 0 0 -10 -8 0 0 0 0 0 0 0
+0 0 0 0 0 0 1 95 -5 90 0 0 45 0 0 10 0 0 -10 -8 0 0 0 0 0 0 0
+"""
+
+
+def test_unit_and_up_guess_read_the_first_frame_when_the_rest_pose_is_no_figure(
+    tmp_path: Path,
+) -> None:
+    # Bandai-Namco's layout: bones along their local x, every joint with position
+    # channels repeating its offset but the hips' (its rest offset 4.5 m from a root
+    # joint at the origin); the first frame stands the figure 1.75 m along y
+    path = tmp_path / "local_x.bvh"
+    path.write_text(LOCAL_X_BONES)
+    with pytest.warns(
+        UnitWarning, match=r"guessed 'cm' from the first frame's pose 175 units tall"
+    ):
+        m = read_bvh(path)
+    assert m.meta["up"] == "y" and m.meta["source_units"] == "cm"
+    posed = joint_positions(m)[0]
+    np.testing.assert_allclose(posed.max(axis=0) - posed.min(axis=0), [0.08, 1.75, 0.05], atol=1e-6)
+    # info reports the height the warning states, not the rest pose's 0.95 m
+    from skincap.evaluate.summary import summarize_motion
+
+    assert m.meta["rest_pose_is_figure"] is False
+    assert summarize_motion(m)["height_m"] == pytest.approx(1.75, abs=1e-6)
+
+
 def test_guess_bvh_units_bands() -> None:
     assert guess_bvh_units(1.75) == "m"
     assert guess_bvh_units(17.5) == "dm"

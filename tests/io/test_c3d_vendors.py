@@ -136,6 +136,48 @@ def test_frames_without_analog_rate_are_read_at_the_headers_stride():
     assert height["r asis"] > height["r knee 1"] > height["r mall"] > height["r met"] > 0
 
 
+@pytest.mark.parametrize(
+    ("path", "feet"),
+    [
+        (BTS, ("r asis", "r knee 1", "r mall", "r met")),
+        (EXTERNAL / "c3dorg_sample24_motionmonitor.c3d", None),
+    ],
+)
+def test_files_without_y_screen_standing_along_y_read_y_up(path, feet):
+    """BTS and MotionMonitor stand the subject along the file's y and write no
+    POINT:Y_SCREEN: read Y up (guessed, with a warning), not lying on its back."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        with pytest.warns(SkincapWarning, match=rf"{path.name}: POINT:Y_SCREEN not given.*Y up"):
+            m = read_c3d(path)
+    assert m.meta["up"] == "y" and m.meta["up_guessed"]
+    y = m.positions[..., 1]
+    assert -0.1 < np.nanpercentile(y, 1) < 0.3  # on the floor
+    spans = np.nanmedian(np.nanmax(m.positions, axis=1) - np.nanmin(m.positions, axis=1), axis=0)
+    assert spans[1] > 2 * spans[2]  # standing, not lying along the depth
+    if feet is not None:  # a walk: hips above knees above ankles above toes
+        h = [np.nanmedian(y[:, m.labels.index(lab)]) for lab in feet]
+        assert h[0] > h[1] > h[2] > h[3] > 0
+
+
+@pytest.mark.parametrize(
+    "name",
+    [
+        "external/btk_optitrack_mocap36.c3d",
+        "external/c3dorg_sample15_peak_FP1.c3d",
+        "external/c3dorg_sample22_bkin.c3d",
+        "cmu_85_02.c3d",
+        "aml_PronetoRun01_labeled.c3d",
+        "aml_S09_KneeltoRun02_unlabeled.c3d",
+    ],
+)
+def test_files_without_y_screen_keep_z_up_unless_they_stand_along_y(name):
+    # Z-up takes without POINT:Y_SCREEN (a prone start lying along x, a planar robot
+    # with z = 0) stay Z up
+    m = _read(EXTERNAL.parent / name)
+    assert m.meta["up"] == "z" and m.meta["up_guessed"]
+
+
 def _read_y_up(path: Path):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)

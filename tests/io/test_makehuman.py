@@ -241,6 +241,27 @@ def test_default_file_names(tmp_path: Path) -> None:
         read_makehuman(tmp_path / "base.obj")
 
 
+def test_body_only_obj_written_beside_the_rig_reads_as_a_plain_mesh(tmp_path: Path) -> None:
+    """``skincap skin ... -o walk.pc2`` in a folder holding the MakeHuman rig writes the
+    body-only ``walk.obj`` (13,380 of the 19,158 vertices) beside it: it reads back as
+    the plain mesh it is, not as the rigged base mesh (whose rig names helper
+    vertices it does not have), so ``info``, ``view`` and ``render`` open it."""
+    from skincap.io import read_mesh, write
+    from skincap.io.makehuman import is_rigged_base_mesh
+
+    for src in (OBJ, SKEL, WEIGHTS):
+        shutil.copy(src, tmp_path / src.name)
+    base = tmp_path / OBJ.name
+    rigged = read_mesh(base)
+    assert rigged.skin is not None and is_rigged_base_mesh(base)
+    out = tmp_path / "walk.obj"
+    write(Mesh(vertices=rigged.vertices, faces=rigged.faces), out)
+    assert not is_rigged_base_mesh(out)
+    plain = read_mesh(out)
+    assert plain.skin is None and plain.n_vertices == rigged.n_vertices == 13380
+    np.testing.assert_allclose(plain.vertices, rigged.vertices, atol=1e-6)
+
+
 # ------------------------------------------------------------------------ synthetic rig
 TINY_OBJ = """\
 v 0 0 0

@@ -147,10 +147,13 @@ def collect_inputs(
     skip = None if exclude is None else Path(os.path.realpath(exclude))
     found: list[Path] = []
     seen: set[str] = set()
+    skipped = 0
 
     def keep(path: Path, explicit: bool) -> None:
+        nonlocal skipped
         real = os.path.realpath(path)
         if not explicit and skip is not None and Path(real).is_relative_to(skip):
+            skipped += 1
             return
         if real not in seen:
             seen.add(real)
@@ -181,7 +184,12 @@ def collect_inputs(
         else:
             raise FormatError(path, "no such file or folder")
     if not found:
-        raise ValidationError("inputs: no takes to run")
+        why = (
+            f": all {skipped} lie in the output folder {exclude}, whose files are never inputs"
+            if skipped
+            else ""
+        )
+        raise ValidationError(f"inputs: no takes to run{why}")
     return found
 
 

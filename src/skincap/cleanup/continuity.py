@@ -16,7 +16,8 @@ the measured data:
    size) with ``d`` held at zero on the measured samples around the run, so the run
    joins its ends in value and slope;
 3. the result ``h + smooth(d)`` is kept only if the largest second difference of
-   every filled sample (``x[t-1] - 2x[t] + x[t+1]``, with the measured ends) is within
+   every filled sample (``x[t-1] - 2x[t] + x[t+1]``, with the measured ends; a fill at
+   the take's first or last frame, which has none, by its neighbour's) is within
    ``limit``; otherwise a stronger low-pass is tried, then, for a short interior run,
    ``h`` alone; a run that still fails keeps only the part its measured ends reach
    before its first excess (less three frames); the rest is left unfilled (NaN)
@@ -162,6 +163,17 @@ def _within_from_ends(
     return keep
 
 
+def _judged_second_difference(positions: np.ndarray) -> np.ndarray:
+    """:func:`second_difference` with the take's first and last frames at 0 where present:
+    they have no second difference of their own, and a fill there is judged by its
+    neighbour's, which includes it (NaN would fail every run touching the take's ends)."""
+    d2 = second_difference(positions)
+    if d2.shape[0] >= 3:
+        for row in (0, -1):
+            d2[row] = np.where(np.isnan(positions[row, :, 0]), np.nan, 0.0)
+    return d2
+
+
 def _run_peak(d2: np.ndarray, fill: np.ndarray) -> np.ndarray:
     """(T, N) the largest second difference over each sample's fill run (NaN -> inf)."""
     peak = np.zeros(fill.shape)
@@ -230,7 +242,7 @@ def condition_fills(
             d[:, cols], lam=1.0 / 16.0, iterations=n_pass, mask=pending[:, cols]
         )
         out[pending] = h[pending] + sm[pending]
-        ok = _run_peak(second_difference(out), pending) <= limit
+        ok = _run_peak(_judged_second_difference(out), pending) <= limit
         pending &= ~ok
     if pending.any():
         col, start, end = _run_bounds(pending)
@@ -241,12 +253,12 @@ def condition_fills(
             if interior and e - s <= short_run:
                 short[s:e, c] = True
         out[short] = h[short]
-        ok = short & (_run_peak(second_difference(out), short) <= limit)
+        ok = short & (_run_peak(_judged_second_difference(out), short) <= limit)
         pending &= ~ok
     if pending.any():
         # keep what stays within the limit from each measured end (the last pass)
         out[pending] = h[pending] + sm[pending]
-        pending &= ~_within_from_ends(second_difference(out), pending, known, limit)
+        pending &= ~_within_from_ends(_judged_second_difference(out), pending, known, limit)
     dropped = (f & ~base) | pending
     out[dropped] = np.nan
     return out, dropped

@@ -199,6 +199,7 @@ def guarded_fill_smooth(
     neighbours: Any,
     settings: CleanSettings = CleanSettings(),
     *,
+    removed: np.ndarray | None = None,
     progress: Progress | None = None,
 ) -> GuardedFill:
     """Repair swaps, remove spikes, fill, smooth within the noise and keep fills continuous.
@@ -214,6 +215,10 @@ def guarded_fill_smooth(
         ``repair_swaps`` and ``remove_spikes`` (steps 1 and 2 of the module
         docstring), ``fill`` (:func:`skincap.cleanup.fill.fill_gaps`) and ``smooth``
         (:func:`skincap.cleanup.smooth.smooth_local`); the merge settings are not used.
+    removed : (T, N) bool, optional
+        Samples the caller already took out of ``body`` as outliers (NaN there, e.g.
+        :func:`skincap.cleanup.off_body.off_body_leaps`): counted and filled as the
+        spikes step 2 removes.
     progress : callable(fraction, label), optional
 
     Returns
@@ -248,10 +253,13 @@ def guarded_fill_smooth(
         # a swapped-in sample is measured data, not the column's own
         measured = ~np.isnan(pos[..., 0]) & ~prior & ~relabelled
     outliers = np.zeros((t, n), dtype=bool)
+    if removed is not None:
+        outliers |= np.asarray(removed, dtype=bool) & np.isnan(p0[..., 0])
     if settings.remove_spikes:
-        outliers = find_spikes(pos, neighbours, candidates=measured)
-        pos[outliers] = np.nan
-        measured &= ~outliers
+        spikes = find_spikes(pos, neighbours, candidates=measured)
+        pos[spikes] = np.nan
+        measured &= ~spikes
+        outliers |= spikes
     holes = int(np.isnan(pos[..., 0]).sum())
     work = MarkerSet(positions=pos, labels=list(body.labels), rate=body.rate, meta=body.meta)
     with warnings.catch_warnings():

@@ -19,6 +19,7 @@ from skincap._arrays import Progress, missing_runs
 from skincap.cleanup.guarded import MAX_MOVE, MAX_MOVE_NOISE, GuardedFill, guarded_fill_smooth
 from skincap.cleanup.hidden import find_hidden_markers
 from skincap.cleanup.merge import MergeReport, merge_fragments
+from skincap.cleanup.off_body import off_body_leaps
 from skincap.cleanup.report import (
     CleanReport,
     FillSummary,
@@ -215,6 +216,24 @@ def _add_hidden_markers(
     return out, anchors, fragment_truth, report
 
 
+def _without_off_body_leaps(
+    markers: MarkerSet, labelled: np.ndarray
+) -> tuple[MarkerSet, np.ndarray]:
+    """The capture with its labelled markers' off-body leaps
+    (:func:`~skincap.cleanup.off_body.off_body_leaps`) made missing, and those samples
+    (T, C) bool. Fragments are left as they are: the merge judges them."""
+    leaps = np.zeros(markers.positions.shape[:2], dtype=bool)
+    if labelled.size:
+        leaps[:, labelled] = off_body_leaps(markers.positions[:, labelled])
+    if not leaps.any():
+        return markers, leaps
+    pos = markers.positions.copy()
+    pos[leaps] = np.nan
+    res = None if markers.residuals is None else np.where(leaps, np.nan, markers.residuals)
+    inv = None if markers.invented is None else markers.invented & ~leaps
+    return replace(markers, positions=pos, residuals=res, invented=inv), leaps
+
+
 def markers_in_truth(fragment_truth: dict[str, str]) -> set[str]:
     """True marker labels named by a fragment truth: everything but ``ghost`` and ``rope_*``."""
     return {v for v in fragment_truth.values() if v != "ghost" and not v.startswith("rope_")}
@@ -386,6 +405,9 @@ def clean_markers(
         return lambda f, label: progress(base + span * f, label)
 
     source = markers
+    # samples leaping kilometres off the body go before anything averages over them
+    # (the surface's pair-distance spread, the merge); they are filled as outliers
+    markers, leaps = _without_off_body_leaps(markers, labelled)
     hidden = HiddenReport(enabled=False, new_markers=0, markers={})
     if surface is not None:
         if surface.n_markers != labelled.size:
@@ -415,8 +437,14 @@ def clean_markers(
     n = anchors.size
     if progress is not None:
         progress(0.3, "filling holes")
+    # the hidden markers' columns (appended after the input's) had no leap taken out
+    leaps = np.pad(leaps, ((0, 0), (0, markers.n_markers - leaps.shape[1])))
     guarded = guarded_fill_smooth(
-        merged.select(np.arange(n)), surface.neighbours, settings, progress=step(0.3, 0.5)
+        merged.select(np.arange(n)),
+        surface.neighbours,
+        settings,
+        removed=leaps[:, anchors],
+        progress=step(0.3, 0.5),
     )
     cleaned = _cleaned_capture(source, merged, n, guarded, settings.keep_fragments)
     if progress is not None:

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from skincap._arrays import interior_runs
+from skincap.geometry.kinematics import joint_positions_arrays
 from skincap.types import MarkerSet, Mesh, Motion, PointCloud, Skeleton
 
 __all__ = [
@@ -70,6 +71,18 @@ def _skeleton_height(skeleton: Skeleton) -> float:
     return float(np.ptp(world[:, 1]))
 
 
+def _motion_height(motion: Motion) -> float:
+    """The figure's vertical (Y) extent, metres: the rest pose's, or the first frame's
+    when the BVH reader found the rest pose to be no figure (``meta
+    ["rest_pose_is_figure"]``, the pose its unit guess read)."""
+    if motion.meta.get("rest_pose_is_figure", True) or motion.n_frames == 0:
+        return _skeleton_height(motion.skeleton)
+    posed = joint_positions_arrays(motion.skeleton, motion.rotations[:1], motion.translations[:1])[
+        0
+    ]  # (J, 3)
+    return float(np.ptp(posed[:, 1]))
+
+
 def summarize_motion(motion: Motion) -> dict[str, Any]:
     """Joints, frames, rate, units and channel orders of ``motion``."""
     sk = motion.skeleton
@@ -85,7 +98,7 @@ def summarize_motion(motion: Motion) -> dict[str, Any]:
         "frame_time": motion.frame_time,
         "duration": motion.duration,
         "source_units": motion.meta.get("source_units"),
-        "height_m": _skeleton_height(sk),
+        "height_m": _motion_height(motion),
         "root": sk.names[0],
         "rotation_orders": orders,
         "channels": int(sum(len(c) for c in channels)),

@@ -113,7 +113,9 @@ def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
 
     An ``.obj`` with a ``.mhskel`` in its folder is read with
     :func:`skincap.io.makehuman.read_makehuman` (skinned; decimetres unless ``units``
-    says otherwise); other files by their extension's reader.
+    says otherwise) when it has the vertices the rig names
+    (:func:`skincap.io.makehuman.is_rigged_base_mesh`; a body-only OBJ skincap wrote
+    beside the rig does not); other files by their extension's reader.
 
     Parameters
     ----------
@@ -133,10 +135,11 @@ def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:
     p = Path(path)
     ext = p.suffix.lower()
     if ext == ".obj" and any(p.parent.glob("*.mhskel")):
-        from skincap.io.makehuman import read_makehuman
+        from skincap.io.makehuman import is_rigged_base_mesh, read_makehuman
 
         with naming_file(p):
-            return read_makehuman(p, units=units or "dm")
+            if is_rigged_base_mesh(p):
+                return read_makehuman(p, units=units or "dm")
     if ext not in (".obj", ".ply", ".gltf", ".glb"):
         raise FormatError(
             p, f"expected a mesh (.obj, .ply, .gltf, .glb), got {ext or 'no extension'!r}"

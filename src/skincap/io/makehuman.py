@@ -23,6 +23,7 @@ the bind matrix of the joint.
 from __future__ import annotations
 
 import dataclasses
+import json
 import os
 import warnings
 from collections import deque
@@ -37,7 +38,7 @@ from skincap.io.json_file import parse_json
 from skincap.io.mesh import read_obj, triangulate_polygons
 from skincap.types import Mesh, Skeleton, Skin
 
-__all__ = ["read_makehuman", "bone_rest_frames", "read_mhskel", "read_mhw"]
+__all__ = ["read_makehuman", "bone_rest_frames", "is_rigged_base_mesh", "read_mhskel", "read_mhw"]
 
 #: Name of the group of the base mesh that is the body's skin.
 BODY_GROUP = "body"
@@ -519,6 +520,40 @@ def _bound_skin(
     skeleton = Skeleton(names=rig.bone_names, parents=rig.parents, offsets=offsets)
     skin = Skin(skeleton=skeleton, joint_indices=idx, joint_weights=w, inverse_bind=inverse_bind)
     return skin, sums
+
+
+def _obj_vertex_count(data: bytes) -> int:
+    """Number of ``v`` lines of an OBJ file's bytes."""
+    lines = data.replace(b"\r", b"\n")
+    return lines.count(b"\nv ") + lines.count(b"\nv\t") + int(lines[:2] in (b"v ", b"v\t"))
+
+
+def is_rigged_base_mesh(obj_path: str | os.PathLike[str]) -> bool:
+    """Whether an ``.obj`` is to be read as the base mesh of the MakeHuman rig beside it.
+
+    A rig (``.mhskel``) beside an OBJ names vertices of the full base mesh, helper
+    geometry included; an OBJ with fewer vertices than the largest index it names
+    cannot be that mesh (the body-only OBJ ``skincap skin`` or ``animate`` wrote into
+    the same folder, another mesh) and reads as a plain OBJ. When no single rig is
+    found beside it, or the rig cannot be read, True: :func:`read_makehuman` then says
+    what is wrong.
+
+    Parameters
+    ----------
+    obj_path : str or PathLike
+        An ``.obj`` with at least one ``*.mhskel`` in its folder.
+    """
+    obj = Path(obj_path)
+    skel = _find_beside(obj, ["default.mhskel", "makehuman_default.mhskel"], "*.mhskel")
+    if skel is None:
+        return True
+    try:
+        joints = json.loads(skel.read_bytes().decode("utf-8")).get("joints")
+        largest = max(int(i) for idx in joints.values() for i in idx)
+        count = _obj_vertex_count(obj.read_bytes())
+    except (OSError, ValueError, TypeError, AttributeError):
+        return True  # read_makehuman names the problem
+    return count > largest
 
 
 def _skeleton_file(obj: Path, skel_path: str | os.PathLike[str] | None) -> Path:

@@ -18,11 +18,12 @@ This module composes :mod:`skincap.deform.skeletal` with :mod:`skincap.io`.
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from skincap.errors import FormatError, OutputExistsError, ValidationError
+from skincap.errors import FormatError, OutputExistsError, UnitWarning, ValidationError
 from skincap.io.mesh_animation_files import animation_output_files, write_mesh_animation
 from skincap.workflows.progress import FrameProgress, frame_fractions
 
@@ -60,6 +61,30 @@ def skin_output_files(output: Path) -> list[Path]:
     """The files ``skin -o output`` writes, known before skinning (a folder's frames are
     checked once the frame count is known)."""
     return animation_output_files(output)
+
+
+#: Heights (metres) of a human body a bare OBJ/PLY read in metres may have unwarned.
+_PLAUSIBLE_BODY_M = (0.5, 2.5)
+
+
+def _warn_implausible_height(mesh_path: Path, height_m: float) -> None:
+    """Warn when a mesh read as metres (no ``--mesh-units``) is no human height, naming
+    the unit that would make it one (an OBJ in decimetres, MakeHuman's unit, is 17 m)."""
+    from skincap.io.bvh.units import BVH_UNITS, guess_bvh_units
+
+    if not height_m > 0 or _PLAUSIBLE_BODY_M[0] <= height_m <= _PLAUSIBLE_BODY_M[1]:
+        return
+    unit = guess_bvh_units(height_m)
+    hint = (
+        f"; with --mesh-units {unit} it would be {height_m * BVH_UNITS[unit]:.2f} m"
+        if unit not in ("m", "cmu")
+        else ""
+    )
+    warnings.warn(
+        f"{mesh_path}: the mesh is {height_m:.3g} m tall read as metres, no human height{hint}",
+        UnitWarning,
+        stacklevel=3,
+    )
 
 
 def skin_file(
@@ -132,6 +157,8 @@ def skin_file(
     ):
         check_skin_request(output, method=method, weights=weights, force=force)
         mesh = io.read_mesh(mesh_path, units=mesh_units)
+        if mesh_units is None and mesh_path.suffix.lower() in (".obj", ".ply"):
+            _warn_implausible_height(mesh_path, mesh_height(mesh))
         motion = read_bvh(motion_path, units=units)
         if motion.n_frames == 0:  # every output is an animation; none of them can be empty
             raise FormatError(motion_path, "no motion frames ('Frames: 0'); nothing to skin")

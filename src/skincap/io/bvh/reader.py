@@ -13,6 +13,7 @@ from typing import Literal
 import numpy as np
 
 from skincap.errors import FormatError, UnitWarning, ValidationError
+from skincap.geometry.kinematics import joint_positions_arrays
 from skincap.geometry.rotations import (
     euler_to_quat,
     matrix_to_quat,
@@ -31,9 +32,9 @@ from skincap.io.bvh.units import (
     _PLAUSIBLE_HEIGHT,
     BVH_UNITS,
     _rest_extent,
-    _skeleton_height,
     guess_bvh_units,
     guess_bvh_up,
+    standing_height,
 )
 from skincap.types import Motion, Skeleton
 
@@ -172,11 +173,13 @@ def _read(
         angles = data[:, np.asarray(group_cols)]  # (T, k, len(seq)) degrees
         rotations[:, ks] = euler_to_quat(angles, seq, degrees=True)
 
+    extent, posed = _figure_extent(parents, offsets, rotations, translations)
     if up == "auto":
-        up = guess_bvh_up(_rest_extent(parents, offsets))
+        up = guess_bvh_up(extent)
         if up == "z":
             warnings.warn(
-                f"{os.fspath(p)}: up axis not given; the rest pose stands along z, read as "
+                f"{os.fspath(p)}: up axis not given; "
+                f"{'the first frame' if posed else 'the rest pose'} stands along z, read as "
                 "Z-up (pass up='y' to override)",
                 UnitWarning,
                 stacklevel=3,
@@ -185,7 +188,7 @@ def _read(
     if units is not None and scale is not None:
         unit_name = units.strip().lower()
     else:
-        unit_name, scale = _guessed_units(p, parents, offsets)
+        unit_name, scale = _guessed_units(p, extent, up, posed)
     offsets = to_y_up(offsets * scale, up)
     translations *= scale
     translations = to_y_up(translations, up)
@@ -207,6 +210,8 @@ def _read(
             "frame_time": frame_time,
             "frame_time_text": time_tok,
             "first_frame": 0,
+            # False when the rest pose is no figure and the guesses read the first frame
+            "rest_pose_is_figure": not posed,
         },
     )
 
@@ -237,20 +242,56 @@ def _channel_columns(
     return pos_joint, pos_axis, pos_col, rot_groups
 
 
+def _plausible_extent(extent: np.ndarray) -> bool:
+    """Whether some unit makes a figure of this extent (3,) a plausible human height,
+    standing along y or z."""
+    for up in ("y", "z"):
+        height, _ = standing_height(extent, up)
+        metres = height * BVH_UNITS[guess_bvh_units(height)]
+        if _PLAUSIBLE_HEIGHT[0] <= metres <= _PLAUSIBLE_HEIGHT[1]:
+            return True
+    return False
+
+
+def _figure_extent(
+    parents: np.ndarray, offsets: np.ndarray, rotations: np.ndarray, translations: np.ndarray
+) -> tuple[np.ndarray, bool]:
+    """(3,) extent, file units and axes, of the figure the up and unit guesses read, and
+    whether it is the first frame's pose.
+
+    The rest pose's, the BVH norm; when no unit makes it a plausible human (its bones
+    laid along their local axes and the hips placed metres from a root joint at the
+    origin, as Bandai-Namco's files are) and the file has frames, the first frame's
+    posed joints (``rotations`` (T, J, 4), ``translations`` (T, J, 3) file units).
+    """
+    rest = _rest_extent(parents, offsets)
+    if _plausible_extent(rest) or rotations.shape[0] == 0:
+        return rest, False
+    posed = joint_positions_arrays(parents, rotations[0], translations[0])  # (J, 3)
+    if not np.isfinite(posed).all():
+        return rest, False
+    extent = posed.max(axis=0) - posed.min(axis=0)
+    return (extent, True) if _plausible_extent(extent) else (rest, False)
+
+
 def _guessed_units(
-    p: os.PathLike[str], parents: np.ndarray, offsets: np.ndarray
+    p: os.PathLike[str], extent: np.ndarray, up: str, posed: bool
 ) -> tuple[str, float]:
-    """The unit (and metres per unit) that makes the rest skeleton (offsets (J, 3) file
-    units) a plausible human height; warns (UnitWarning, at read_bvh's caller)."""
-    height = _skeleton_height(parents, offsets)
+    """The unit (and metres per unit) that makes the figure (its extent (3,) in file
+    units, ``up`` its up axis; ``posed``: the first frame's, else the rest pose's) a
+    plausible human height (:func:`standing_height`: the height ``info`` reports);
+    warns (UnitWarning, at read_bvh's caller)."""
+    height, standing = standing_height(extent, up)
     unit_name = guess_bvh_units(height)
     scale = BVH_UNITS[unit_name]
     metres = height * scale
     note = ""
     if not _PLAUSIBLE_HEIGHT[0] <= metres <= _PLAUSIBLE_HEIGHT[1]:
         note = "; no unit gives a plausible human height, pass units= to be sure"
+    figure = "the first frame's pose" if posed else "a skeleton"
     warnings.warn(
-        f"{os.fspath(p)}: units not given; guessed {unit_name!r} from a skeleton {height:.4g} units tall "
+        f"{os.fspath(p)}: units not given; guessed {unit_name!r} from {figure} {height:.4g} units "
+        f"{'tall' if standing else 'across'} "
         f"({metres:.3g} m){note}",
         UnitWarning,
         stacklevel=4,

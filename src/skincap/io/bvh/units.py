@@ -62,6 +62,37 @@ def _skeleton_height(parents: np.ndarray, offsets: np.ndarray) -> float:
     return float(_rest_extent(parents, offsets).max())
 
 
+def standing_height(extent: np.ndarray, up: str) -> tuple[float, bool]:
+    """The size a unit guess reads as a human height, from the rest pose's extent.
+
+    A standing rest pose's height is its extent along the up axis; its arm span in a
+    T-pose (fingertip end sites included) may be larger, so the largest extent would
+    overstate it. A figure shorter along the up axis than half its largest extent does
+    not stand that way (the wrong up axis given, a pair of arms): then the largest
+    extent.
+
+    Parameters
+    ----------
+    extent : (3,) float
+        Extent of the rest-pose joints along the file's x, y, z, in file units.
+    up : {"y", "z"}
+        The file's up axis.
+
+    Returns
+    -------
+    height : float
+        File units.
+    standing : bool
+        Whether ``height`` is the extent along ``up`` (else the largest extent).
+    """
+    ext = np.asarray(extent, dtype=np.float64)
+    along = float(ext["xyz".index(up)])
+    largest = float(ext.max()) if ext.size else 0.0
+    if along >= 0.5 * largest:
+        return along, True
+    return largest, False
+
+
 def guess_bvh_up(extent: np.ndarray) -> str:
     """ "y" or "z": the up axis of a BVH file from its rest pose's extent (3,) along x, y, z.
 

@@ -38,6 +38,7 @@ from skincap.io.c3d.scan import (
     decode_floats,
     scan_c3d,
 )
+from skincap.io.c3d.up_axis import guess_up_from_markers
 from skincap.types import MarkerSet
 
 __all__ = ["read_c3d"]
@@ -88,11 +89,22 @@ def _unique_labels(raw: list[str]) -> tuple[list[str], dict[str, str]]:
     return out, renamed
 
 
-def _up_from_screen(layout: C3dLayout, path: Path) -> tuple[str, bool]:
-    """Source up axis from POINT:Y_SCREEN; (axis, guessed)."""
+def _up_from_screen(
+    layout: C3dLayout, path: Path, m_xyz: np.ndarray, m_miss: np.ndarray, scale: float
+) -> tuple[str, bool]:
+    """Source up axis from POINT:Y_SCREEN, or (absent) from the markers'
+    (:func:`~skincap.io.c3d.up_axis.guess_up_from_markers`); (axis, guessed)."""
     ys = layout.params.get(("POINT", "Y_SCREEN"))
     if not isinstance(ys, list) or not ys or not ys[0].strip():
-        return "z", True
+        up = guess_up_from_markers(m_xyz, m_miss, scale)
+        if up == "y":
+            warnings.warn(
+                f"{path}: POINT:Y_SCREEN not given; the markers stand along the file's y, "
+                "read as Y up (pass up='z' to override)",
+                UnitWarning,
+                stacklevel=3,
+            )
+        return up, True
     val = ys[0].strip().upper().lstrip("+")
     if val in ("Z", "Y"):
         return val.lower(), False
@@ -182,7 +194,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         The ``.c3d`` file (Intel, DEC or MIPS; integer or float data).
     up : {"auto", "y", "z"}
         The file's up axis. ``"auto"`` reads ``POINT:Y_SCREEN`` (``"+Z"`` means Z up,
-        ``"+Y"`` Y up) and assumes Z up when it is absent (``meta["up_guessed"]``).
+        ``"+Y"`` Y up); when it is absent, Z up unless the markers clearly stand along
+        the file's y (:func:`~skincap.io.c3d.up_axis.guess_up_from_markers`, with a
+        warning), ``meta["up_guessed"]``.
 
     Returns
     -------
@@ -245,7 +259,9 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     units_str, units_guessed = _point_units(layout, m_xyz, p)
     scale = unit_scale(units_str)
 
-    up_src, up_guessed = _up_from_screen(layout, p) if up == "auto" else (up, False)
+    up_src, up_guessed = (
+        _up_from_screen(layout, p, m_xyz, m_miss, scale) if up == "auto" else (up, False)
+    )
     model_outputs, model_units = _model_outputs(
         layout, xyz, invalid_nt, output_cols, raw_labels, units_str
     )
