@@ -373,7 +373,7 @@ def _zip_with_hand(state, t, rows, pred, tight, p):  # pragma: no cover - runs c
     carry_with_hand(state, t, carried, p)
     for r in range(rows.size):
         e = rows[r]
-        if (e == 0 or e == m - 1) and not np.isnan(carried[e, 0]):
+        if (e == 0 or e == m - 1) and state.temp_count[e] > 0 and not np.isnan(carried[e, 0]):
             for c in range(3):
                 pred[e, c] = carried[e, c]
             tight[e] = True
