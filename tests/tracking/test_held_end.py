@@ -361,3 +361,50 @@ def test_no_rope_marker_in_the_cloud_goes_untracked_for_long_on_real_motion(data
         edges = np.flatnonzero(np.diff(missed))  # starts and ends of the missed runs
         longest[label] = int(np.max(edges[1::2] - edges[::2], initial=0))
     assert max(longest.values()) <= 8, longest
+
+
+def test_the_zipper_looks_for_a_hidden_held_end_at_its_hand_carry(steps) -> None:  # type: ignore[no-untyped-def]
+    # a rope bent 30 degrees at the hand: the zipper continues its measured links
+    # straight on, 5.2 cm from where the hand carries the end hidden since frame 1; a
+    # leg marker back from a dropout lies 0.5 cm from that straight-on prediction (kt
+    # jump frame 965: Knee_Marker4 taken, and the trace rode the knee for ~500 frames)
+    theta = np.radians(30.0)
+    end = np.array([-0.1 * np.cos(theta), 1.0 + 0.1 * np.sin(theta), 0.0])
+    rope0 = np.array([end, [0.0, 1.0, 0.0], [0.1, 1.0, 0.0], [0.2, 1.0, 0.0]])
+    hand0 = end + np.array([[0.05, 0, 0], [0, 0.06, 0], [0, 0, 0.07], [0.03, 0.03, 0.0]])
+    shift = np.array([0.0, 0.0, 0.01])  # rope and hand move 1 cm a frame together
+    leg = np.array([[-0.1, 0.995, 0.0]]) + 2 * shift
+    f0 = np.concatenate([rope0, hand0])
+    f1 = np.concatenate([rope0[1:], hand0]) + shift  # the end hidden from frame 1
+    f2 = np.concatenate([np.concatenate([rope0[1:], hand0]) + 2 * shift, leg])
+    counts = [f0.shape[0], f1.shape[0], f2.shape[0]]
+    cloud = PointCloud(
+        points=np.concatenate([f0, f1, f2]),
+        offsets=np.concatenate([[0], np.cumsum(counts)]),
+        rate=RATE,
+    )
+    state, p = blank_state(cloud, [0.1, 0.1, 0.1], gamma=0.03)
+    hand = _hand_module(steps)
+    state.positions[0] = rope0
+    state.point_index[0] = [0, 1, 2, 3]
+    state.known[:] = [False, True, True, True]
+    hand.seat_hand(state, 1, p)  # frame 1: the end goes missing and takes its hand
+    state.positions[1] = rope0 + shift
+    state.point_index[1] = [-1, 8, 9, 10]
+    state.invented[1, 0] = True
+    state.temp_count[0] = 1
+    hand.follow_hand(state, 2, p)
+    a = counts[0] + counts[1]
+    state.known[:] = [False, True, True, True]  # frame 2: the end still hidden
+    state.taken[1:] = [a, a + 1, a + 2]
+    state.cur[:] = rope0 + 2 * shift
+    pred = rope0 + 2 * shift + np.array([0.0, 0.1, 0.0])  # F, strayed 10 cm
+    steps.match_missing(state, 2, pred, p)
+    assert not state.known[0]  # the leg marker stays a body point
+    # the zipper's prediction moved to the hand's carry, where the end is, held to γ
+    rows, zpred = steps.zipper_predictions(state, p)
+    tight = hand.zip_with_hand(state, 2, rows, zpred, p)
+    assert tight.tolist() == [True, False, False, False]
+    np.testing.assert_allclose(zpred[0], end + 2 * shift, atol=1e-9)
+    state.temp_count[0] = 0  # an end that goes missing this frame keeps the zipper's
+    assert not hand.zip_with_hand(state, 2, rows, zpred, p).any()

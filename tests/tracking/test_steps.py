@@ -47,7 +47,11 @@ def test_a_point_that_continues_a_slow_object_is_refused(steps) -> None:  # type
         state.temp_count[row] = 0 if steady else 1
         pred = state.positions[0].copy()
         pred[row] = pred_row
-        return bool(steps.match_traces(state, 1, np.array([row]), pred, False, p))
+        return bool(
+            steps.match_traces(
+                state, 1, np.array([row]), pred, False, np.zeros(state.known.size, dtype=bool), p
+            )
+        )
 
     here = candidate[0] + [0.0, 0.01, 0.0]
     # an inner trace predicted to move 32 cm: the point continues the body marker
@@ -191,7 +195,11 @@ def test_a_slow_steady_trace_takes_no_point_beyond_gamma_in_the_wide_gate(steps)
         state.cur[[0, 2]] = prev[[0, 2]]
         state.known[:] = [True, False, True]
         state.taken[:] = [3, -1, 4]
-        return bool(steps.match_traces(state, 1, np.array([1]), pred, True, p))
+        return bool(
+            steps.match_traces(
+                state, 1, np.array([1]), pred, True, np.zeros(state.known.size, dtype=bool), p
+            )
+        )
 
     assert not run(prev.copy())  # predicted still: the body point 4.5 cm off is refused
     fast = prev.copy()
@@ -427,7 +435,11 @@ def test_traces_back_from_a_gap_refuse_rigid_body_points(steps) -> None:  # type
         pred[0] = target + 0.005
         state.positions[t - 1, 0] = pred[0]  # predicted still: the slow-object test is off
         state.temp_count[0] = 0 if steady else 3
-        return bool(steps.match_traces(state, t, np.array([0]), pred, True, p))
+        return bool(
+            steps.match_traces(
+                state, t, np.array([0]), pred, True, np.zeros(state.known.size, dtype=bool), p
+            )
+        )
 
     assert not run(False)  # back from a gap: refused
     assert run(False, rigid_partners=99)  # no point has 99 rigid partners: taken
@@ -663,7 +675,11 @@ def test_a_bent_link_is_taken_near_its_prediction_and_refused_beyond(steps) -> N
         state.taken[:] = [3, -1, 4]
         guess = prev.copy()
         guess[1] = pred
-        return bool(steps.match_traces(state, 1, np.array([1]), guess, True, p))
+        return bool(
+            steps.match_traces(
+                state, 1, np.array([1]), guess, True, np.zeros(state.known.size, dtype=bool), p
+            )
+        )
 
     assert taken(bent, np.add(bent, [0.0, 0.0, 0.02]))  # within γ of its prediction: taken
     assert not taken(bent, np.add(bent, [0.0, 0.0, 1.5 * gamma]))  # beyond γ: refused
@@ -890,7 +906,9 @@ def test_a_returning_trace_leaves_the_point_of_a_trace_missed_at_v(
         state.velocity[1] = [0.0, -0.035, 0.0]
     pred = np.zeros((4, 3))
     pred[2] = q + [0.02 if case == "nearer own" else 0.045, 0.0, 0.0]
-    steps.match_traces(state, 1, np.array([2]), pred, True, p)
+    steps.match_traces(
+        state, 1, np.array([2]), pred, True, np.zeros(state.known.size, dtype=bool), p
+    )
     assert bool(state.known[2]) == taken
     if taken:
         assert state.taken[2] == 5

@@ -28,6 +28,7 @@ __all__ = [
     "release_hand",
     "search_with_hand",
     "seat_hand",
+    "zip_with_hand",
 ]
 
 _INF = np.inf
@@ -352,6 +353,30 @@ def place_with_hand(state, t, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._hand_numpy.place_with_hand`."""
     if _carries(state):
         carry_with_hand(state, t, state.cur, p)
+
+
+@numba.njit(inline="always", **JIT)
+def zip_with_hand(state, t, rows, pred, p):  # pragma: no cover - runs compiled
+    """Twin of :func:`skincap.tracking._hand_numpy.zip_with_hand` (the check inlined
+    into the caller, as :func:`search_with_hand`'s)."""
+    tight = np.zeros(state.known.size, np.bool_)
+    if rows.size > 0 and _carries(state):
+        _zip_with_hand(state, t, rows, pred, tight, p)
+    return tight
+
+
+@numba.njit(**JIT)
+def _zip_with_hand(state, t, rows, pred, tight, p):  # pragma: no cover - runs compiled
+    """:func:`zip_with_hand` once an end hidden so far has anchors."""
+    m = state.known.size
+    carried = np.full((m, 3), np.nan)
+    carry_with_hand(state, t, carried, p)
+    for r in range(rows.size):
+        e = rows[r]
+        if (e == 0 or e == m - 1) and state.temp_count[e] > 0 and not np.isnan(carried[e, 0]):
+            for c in range(3):
+                pred[e, c] = carried[e, c]
+            tight[e] = True
 
 
 # numba keys each cache on its own file only; these kernels compile callees and constants

@@ -33,6 +33,7 @@ __all__ = [
     "release_hand",
     "search_with_hand",
     "seat_hand",
+    "zip_with_hand",
 ]
 
 
@@ -272,3 +273,38 @@ def place_with_hand(state: TrackState, t: int, p: StepParams) -> None:
     by their hands (:func:`carry_with_hand`)."""
     if _carries(state):
         carry_with_hand(state, t, state.cur, p)
+
+
+def zip_with_hand(
+    state: TrackState, t: int, rows: np.ndarray, pred: np.ndarray, p: StepParams
+) -> np.ndarray:
+    """Where the zipper looks for a hidden held end: its hand carry, within γ.
+
+    ``rows`` (R,) int and ``pred`` (M, 3) metres are the zipper's
+    (:func:`~skincap.tracking._steps_numpy.zipper_predictions`): each end among
+    ``rows`` that its hand carries (:func:`carry_with_hand`: anchors left and a carry
+    that keeps the rope) and that was hidden in frame t - 1 too is predicted at the
+    carry instead, in place. Returns ``tight`` (M,) bool, True for those ends: they
+    are searched within γ of the carry, in the same one-to-one assignment as the other
+    traces of the zipper. Call before ``temp_count`` counts frame t.
+
+    The zipper continues the rope's last measured links straight on; a rope bent at
+    the hand leaves the end several centimetres off that line, where a leg marker
+    beside the hand can lie within the wide gate while the carry, moving with the
+    hand, stays within a centimetre of the end. An end that goes missing this frame
+    keeps the zipper: its anchors were seated this frame and followed no further, and
+    :func:`search_with_hand` already looked for it at its carry and its own velocity
+    (the synthetic whip, ``eval track --all-gaps``: carried from the first hidden
+    frame on, its 60- and 120-frame single-marker gaps grew by 0.3 and 1.0 cm).
+    """
+    m = state.known.size
+    tight = np.zeros(m, dtype=bool)
+    if rows.size == 0 or not _carries(state):
+        return tight
+    carried = np.full((m, 3), np.nan)
+    carry_with_hand(state, t, carried, p)
+    for e in (0, m - 1):
+        if state.temp_count[e] > 0 and np.any(rows == e) and np.isfinite(carried[e, 0]):
+            pred[e] = carried[e]
+            tight[e] = True
+    return tight

@@ -47,6 +47,7 @@ from skincap.tracking._hand_numba import (
     release_hand,
     search_with_hand,
     seat_hand,
+    zip_with_hand,
 )
 from skincap.tracking._numba_curve import (
     carry_last_seen,
@@ -346,6 +347,12 @@ def _candidates(state, t, rows, pred, gate, p):  # pragma: no cover - runs compi
 
 
 @numba.njit(inline="always", **JIT)
+def _loose(state):  # pragma: no cover - runs compiled
+    """(M,) bool, all False: no trace held to γ in a wide search."""
+    return np.zeros(state.known.size, np.bool_)
+
+
+@numba.njit(inline="always", **JIT)
 def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs compiled
     """Refuse (inf) candidates more than γ beyond their rest spacing from a measured
     neighbour, or beyond γ of the prediction and more than γ short of it, or beyond
@@ -376,7 +383,7 @@ def _refuse_off_spacing(state, rows, d, ii, gamma):  # pragma: no cover - runs c
 
 
 @numba.njit(**JIT)
-def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs compiled
+def match_traces(state, t, rows, pred, wide, tight, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_traces`; the refusals of
     each candidate are asked cheapest first, and none once one refuses."""
     a, b = state.offsets[t], state.offsets[t + 1]
@@ -403,7 +410,7 @@ def match_traces(state, t, rows, pred, wide, p):  # pragma: no cover - runs comp
             i = ii[r, c]
             if (
                 (not steady and state.body[i])
-                or (slow and d[r, c] >= gamma)
+                or ((slow or tight[row]) and d[r, c] >= gamma)
                 or (judged and _follows_other(state, t, row, i, pred, gamma, prev_grid))
                 or (wide and not steady and rigid_with_body(state, t, np.int64(-1), i, p))
                 or (wide and not steady and _continues_missed(state, t, i, d[r, c], p))
@@ -744,7 +751,7 @@ def _place_invented(state, t, pred, refit, p):  # pragma: no cover - runs compil
 def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_measured`."""
     steady = _steady(state)
-    match_traces(state, t, np.nonzero(steady)[0], v_pred, _NARROW, p)
+    match_traces(state, t, np.nonzero(steady)[0], v_pred, _NARROW, _loose(state), p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     tried = v_pred  # copied before its first change
@@ -773,7 +780,7 @@ def match_measured(state, t, v_pred, p):  # pragma: no cover - runs compiled
                     want[j] = False
         if not want.any():
             break
-        if not match_traces(state, t, np.nonzero(want)[0], pred, _WIDE, p):
+        if not match_traces(state, t, np.nonzero(want)[0], pred, _WIDE, _loose(state), p):
             break
         reject_overstretched(state, t, p)
         reject_odd_motion(state, t, p)
@@ -880,12 +887,13 @@ def match_measured_best(state, t, v_pred, p):  # pragma: no cover - runs compile
 @numba.njit(inline="always", **JIT)
 def match_missing(state, t, pred, p):  # pragma: no cover - runs compiled
     """Twin of :func:`skincap.tracking._steps_numpy.match_missing`."""
-    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, _WIDE, p)
+    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, _WIDE, _loose(state), p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     for _ in range(p.zipper_rounds):
         rows, zpred = zipper_predictions(state, p)
-        if rows.size == 0 or not match_traces(state, t, rows, zpred, _WIDE, p):
+        tight = zip_with_hand(state, t, rows, zpred, p)
+        if rows.size == 0 or not match_traces(state, t, rows, zpred, _WIDE, tight, p):
             break
         found_more = True
         reject_overstretched(state, t, p)

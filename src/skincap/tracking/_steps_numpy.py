@@ -50,6 +50,7 @@ from skincap.tracking._hand_numpy import (
     release_hand,
     search_with_hand,
     seat_hand,
+    zip_with_hand,
 )
 from skincap.tracking._reacquire_numpy import reacquire_on_shell
 from skincap.tracking._refusals_numpy import (
@@ -294,11 +295,19 @@ def continue_body_chains(state: TrackState, t: int, v_pred: np.ndarray, p: StepP
 
 # ------------------------------------------------------------------ matching
 def match_traces(
-    state: TrackState, t: int, rows: np.ndarray, pred: np.ndarray, wide: bool, p: StepParams
+    state: TrackState,
+    t: int,
+    rows: np.ndarray,
+    pred: np.ndarray,
+    wide: bool,
+    tight: np.ndarray,
+    p: StepParams,
 ) -> bool:
     """Match traces ``rows`` (R,) int to free points of frame t near ``pred`` (M, 3), in place.
 
-    The gate is γ, or ``wide_gate γ`` with ``wide``. Refused: points taken this frame;
+    The gate is γ, or ``wide_gate γ`` with ``wide``, except for the traces marked in
+    ``tight`` (M,) bool, always searched within γ (a hidden held end at its hand carry,
+    :func:`~skincap.tracking._hand_numpy.zip_with_hand`). Refused: points taken this frame;
     body points, for traces that are not steady (``temp_count > 0``); points that
     continue something slower than the rope (:func:`_follows_other`). With ``wide``
     also: for a steady trace predicted to move at most γ, points beyond γ; for a
@@ -329,6 +338,7 @@ def match_traces(
         e = pred[rows] - state.positions[t - 1][rows]
         slow = steady[rows] & (np.einsum("ij,ij->i", e, e) <= gamma * gamma)
         d = np.where(slow[:, None] & (d >= gamma), np.inf, d)
+    d = np.where(tight[rows][:, None] & (d >= gamma), np.inf, d)
     d = np.where(_follows_other(state, t, rows, pred, i, d, gamma), np.inf, d)
     if wide:
         d = np.where(_continues_missed(state, t, rows, i, d, p), np.inf, d)
@@ -346,6 +356,11 @@ def match_traces(
     taken[hit] = pts
     state.cur[hit] = state.points[pts]
     return True
+
+
+def _loose(state: TrackState) -> np.ndarray:
+    """(M,) bool, all False: no trace held to γ in a wide search."""
+    return np.zeros(state.known.size, dtype=bool)
 
 
 def _refuse_off_spacing(
@@ -837,7 +852,7 @@ def match_measured(state: TrackState, t: int, v_pred: np.ndarray, p: StepParams)
     ``retry_rounds`` times at V corrected by the residuals of those found, in the
     wide gate; each match followed by the two refusals."""
     steady = state.temp_count == 0
-    match_traces(state, t, np.nonzero(steady)[0], v_pred, False, p)
+    match_traces(state, t, np.nonzero(steady)[0], v_pred, False, _loose(state), p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     tried = v_pred
@@ -850,7 +865,7 @@ def match_measured(state: TrackState, t: int, v_pred: np.ndarray, p: StepParams)
         want &= np.einsum("ij,ij->i", pred - tried, pred - tried) > (0.5 * p.gamma) ** 2
         if not want.any():
             break
-        if not match_traces(state, t, np.nonzero(want)[0], pred, True, p):
+        if not match_traces(state, t, np.nonzero(want)[0], pred, True, _loose(state), p):
             break
         reject_overstretched(state, t, p)
         reject_odd_motion(state, t, p)
@@ -916,12 +931,14 @@ def match_missing(state: TrackState, t: int, pred: np.ndarray, p: StepParams) ->
     """Pass 2: the traces still unknown at ``pred`` (M, 3) in the wide gate, then the
     zipper (up to ``zipper_rounds``); each match followed by the two refusals.
     True if any trace matched."""
-    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, True, p)
+    found_more = match_traces(state, t, np.nonzero(~state.known)[0], pred, True, _loose(state), p)
     reject_overstretched(state, t, p)
     reject_odd_motion(state, t, p)
     for _ in range(p.zipper_rounds):
         rows, zpred = zipper_predictions(state, p)
-        if rows.size == 0 or not match_traces(state, t, rows, zpred, True, p):
+        # a hidden held end continues its hand, not the rope's last links
+        tight = zip_with_hand(state, t, rows, zpred, p)
+        if rows.size == 0 or not match_traces(state, t, rows, zpred, True, tight, p):
             break
         found_more = True
         reject_overstretched(state, t, p)

@@ -86,7 +86,10 @@ Beyond the thesis:
   run's ends are also searched where the measured side continues: bent as it bends
   (quadratic extrapolation through three measured markers, else straight on as N),
   at the rest spacing, inward one marker per side and round
-  (``zipper_predictions``).
+  (``zipper_predictions``). A held end hidden since an earlier frame that its hand
+  carries is looked for at the carry instead, within γ, in the same one-to-one
+  assignment (``zip_with_hand``): a rope bent at the hand leaves the end off the
+  straight-on continuation, where a leg marker beside the hand lies within the wide gate.
 * Traces that break the rope's length (two measured markers farther apart than the
   rope between them, neighbours more than 0.4 γ beyond their rest spacing) are
   resolved by keeping the largest consistent chain (a trace that slipped onto its
