@@ -223,6 +223,8 @@ def test_too_few_seen_markers_is_an_error_even_with_enough_rows() -> None:
         {"fit_iterations": -1},
         {"marker_radius": np.nan},
         {"coarse_nodes": -1},
+        {"normal_patch_ratio": -0.5},
+        {"normal_patch_ratio": np.inf},
     ],
 )
 def test_bad_settings_are_refused(kwargs: dict) -> None:
