@@ -215,3 +215,52 @@ def test_local_closest_points_match_the_exact_search(sphere_markers) -> None:
     np.testing.assert_allclose(local, exact, atol=1e-12)
     point = np.einsum("kc,kcx->kx", bary, markers[faces[face]])
     np.testing.assert_allclose(np.linalg.norm(point - query, axis=1), local, atol=1e-12)
+
+
+def _ellipsoid_gap(points: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(N,) signed distance of points near an ellipsoid to it (first order: F / |∇F|)."""
+    value = ((points / axes) ** 2).sum(axis=1) - 1.0
+    return value / np.linalg.norm(2.0 * points / axes**2, axis=1)
+
+
+def test_template_patch_normals_lift_the_surface_onto_an_elongated_body() -> None:
+    """An elongated ellipsoid (a foot or a head: 12 x 5 x 4 cm) under 30 uneven markers:
+    Max's normals from the few far neighbours tilt, and the Phong lift misses the skin
+    by millimetres; the template's normals around each marker (here the true surface,
+    as a registered template passing through the markers) put the targets on it."""
+    rng = np.random.default_rng(21)
+    axes = np.array([0.05, 0.04, 0.12])
+    markers = _sphere_points(30, 1.0, seed=4) * axes
+    markers += 0.3 * rng.normal(size=markers.shape) * axes  # uneven spacing...
+    markers /= np.sqrt(((markers / axes) ** 2).sum(axis=1, keepdims=True))  # ...on the surface
+    faces = _hull_faces(markers)
+    template = _sphere_points(4000, 1.0, seed=5) * axes
+    gradient = template / axes**2
+    template_normals = gradient / np.linalg.norm(gradient, axis=1, keepdims=True)
+    misses = {}
+    for ratio in (0.0, 0.5):
+        targets, valid = marker_surface_targets(
+            template, template_normals, markers, faces,
+            marker_radius=0.0, max_distance=0.03, patch_ratio=ratio,
+        )  # fmt: skip
+        assert valid.mean() > 0.9
+        misses[ratio] = np.abs(_ellipsoid_gap(targets[valid], axes))
+    assert misses[0.0].mean() > 1e-3  # Max's normals: a millimetre off on average
+    assert misses[0.5].mean() < 0.6 * misses[0.0].mean()
+    assert np.percentile(misses[0.5], 95) < 0.6 * np.percentile(misses[0.0], 95)
+
+
+def test_template_patch_normals_fall_back_where_the_template_is_away() -> None:
+    """A marker with no template vertex in its patch keeps Max's normal; the patch of
+    the others is the template's normal there (a plane: exactly its normal)."""
+    from skincap.deform.dense.surface_targets import template_patch_normals
+
+    markers = np.array([[0.0, 0, 0], [0.04, 0, 0], [0, 0.04, 0], [0.04, 0.04, 0], [1, 1, 0]])
+    fallback = np.tile([0.0, 0.6, 0.8], (5, 1))
+    grid = np.stack(np.meshgrid(np.linspace(-0.05, 0.09, 30), np.linspace(-0.05, 0.09, 30)), -1)
+    plane = np.concatenate([grid.reshape(-1, 2), np.zeros((900, 1))], axis=1)
+    normals = template_patch_normals(
+        markers, np.arange(5), fallback, plane, np.tile([0.0, 0.0, 1.0], (900, 1)), 0.5
+    )
+    np.testing.assert_allclose(normals[:4], np.tile([0.0, 0.0, 1.0], (4, 1)), atol=1e-12)
+    np.testing.assert_array_equal(normals[4], fallback[4])

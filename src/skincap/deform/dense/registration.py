@@ -132,6 +132,13 @@ class RegistrationSettings:
     #: start lets the stiff stages place the template before the pull; measured on the
     #: MakeHuman/procedural pairs, pulling from the first stage registers closer.
     surface_first_stage: int = 0
+    #: The marker normals that shape the smoothed marker surface: 0 takes Max's, from
+    #: the marker triangles alone; > 0 the mean normal of the template (as it stands in
+    #: each closest-point iteration) within this many marker spacings of each marker
+    #: (:func:`skincap.deform.dense.surface_targets.template_patch_normals`): the
+    #: template passes through the markers, and its surface there tilts less than a
+    #: normal from a few neighbours 4-7 cm away across a limb, a foot or the head.
+    normal_patch_ratio: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("data_weight", "landmark_weight", "damping", "surface_weight"):
@@ -158,6 +165,11 @@ class RegistrationSettings:
             )
         if int(self.fit_iterations) < 0:
             raise ValidationError(f"fit_iterations: expected >= 0, got {self.fit_iterations!r}")
+        ratio = self.normal_patch_ratio
+        if not (np.isfinite(ratio) and ratio >= 0):
+            raise ValidationError(
+                f"normal_patch_ratio: expected a finite ratio >= 0, got {ratio!r}"
+            )
         for name in ("tolerance", "marker_radius", "surface_max_distance"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
@@ -564,6 +576,7 @@ def _surface_rows(
         surface.faces,
         marker_radius=settings.marker_radius,
         max_distance=settings.surface_max_distance,
+        patch_ratio=settings.normal_patch_ratio,
     )
     idx = np.nonzero(valid)[0]
     scale = np.sqrt(settings.surface_weight * n_markers / system.n_vertices)

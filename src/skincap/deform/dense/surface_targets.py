@@ -18,7 +18,12 @@ corners only to second order in the chord's angle (a flat chord misses it by
 leaves the target millimetres under the skin, so each point takes the α that puts
 it on the sphere (or cylinder) its corners' normals imply (:func:`phong_shape`). The
 marker normals are Max's (1999) weighted averages, exact where a marker and its
-neighbours lie on a sphere.
+neighbours lie on a sphere; given ``patch_ratio`` they are instead the mean outward
+normal of the template's vertices within a patch around each marker
+(:func:`template_patch_normals`): the lift is only as good as the corner normals, and a
+marker's few neighbours on the marker surface (4-7 cm away, across a curved limb or a
+foot) tilt Max's normal where the registered template, which passes through the
+marker, has the body's own surface there.
 
 Triangles with an edge over :data:`LONG_EDGE_RATIO` times the median edge bridge a gap
 (arm to torso, leg to leg) and are dropped. A vertex gets no target (weight 0) where
@@ -39,7 +44,13 @@ from scipy.spatial import cKDTree
 # the exact, vectorised point-triangle closest point (Ericson 5.1.5)
 from skincap.geometry.raycast import _closest_on_triangles
 
-__all__ = ["PHONG_SHAPE", "marker_surface_normals", "marker_surface_targets", "phong_shape"]
+__all__ = [
+    "PHONG_SHAPE",
+    "marker_surface_normals",
+    "marker_surface_targets",
+    "phong_shape",
+    "template_patch_normals",
+]
 
 #: Phong tessellation shape factor α: None (default) takes each point's α from its
 #: corners' normals so that it lands on the sphere they imply (:func:`phong_shape`);
@@ -63,6 +74,9 @@ LONG_EDGE_RATIO = float("inf")
 
 #: Nearest markers whose triangles are a point's candidates for its closest point.
 CANDIDATE_MARKERS = 4
+
+#: Markers whose distances set a marker's spacing for :func:`template_patch_normals`.
+PATCH_SPACING_NEIGHBOURS = 4
 
 #: Query points per block (bounds the candidate pairs' memory: ~25 per point).
 _QUERY_BLOCK = 20000
@@ -153,6 +167,54 @@ def marker_surface_normals(
     return np.divide(normals, length, out=np.zeros_like(normals), where=length > 0)
 
 
+def template_patch_normals(
+    markers: np.ndarray,
+    used: np.ndarray,
+    fallback: np.ndarray,
+    reference_points: np.ndarray,
+    reference_normals: np.ndarray,
+    patch_ratio: float,
+) -> np.ndarray:
+    """(M, 3) unit normals at the markers: the mean normal of the template around each.
+
+    Each used marker takes the normalised sum of the unit normals of the reference
+    points (the template's vertices, placed over the markers) within a ball of radius
+    ``patch_ratio`` times the marker's spacing (the median distance to its
+    :data:`PATCH_SPACING_NEIGHBOURS` nearest used markers), so the patch scales with the
+    layout's density; a marker with no reference point in its ball, or whose patch
+    normals cancel, keeps its ``fallback`` normal.
+
+    Parameters
+    ----------
+    markers : (M, 3) float, metres (rows not in ``used`` may be NaN)
+    used : (U,) int, the marker rows in the triangulation
+    fallback : (M, 3) float, unit normals (Max's, :func:`marker_surface_normals`)
+    reference_points : (V, 3) float, metres; reference_normals : (V, 3) unit outward normals
+    patch_ratio : float > 0, the patch radius in marker spacings
+
+    Returns
+    -------
+    (M, 3) float64; ``fallback`` at the rows not in ``used``.
+    """
+    out = np.array(fallback, dtype=np.float64, copy=True)
+    if used.size < 2 or reference_points.shape[0] == 0:
+        return out
+    centres = markers[used]
+    k = min(PATCH_SPACING_NEIGHBOURS + 1, used.size)
+    near = np.asarray(cKDTree(centres).query(centres, k=k)[0]).reshape(used.size, k)
+    radius = patch_ratio * np.median(near[:, 1:], axis=1)  # (U,)
+    pairs = cKDTree(centres).sparse_distance_matrix(
+        cKDTree(reference_points), float(radius.max()), output_type="coo_matrix"
+    )
+    inside = pairs.data <= radius[pairs.row]
+    total = np.zeros((used.size, 3))
+    np.add.at(total, pairs.row[inside], reference_normals[pairs.col[inside]])
+    length = np.linalg.norm(total, axis=1)
+    ok = length > 1e-9 * np.maximum(np.bincount(pairs.row[inside], minlength=used.size), 1)
+    out[used[ok]] = total[ok] / length[ok, None]
+    return out
+
+
 def _on_border(faces: np.ndarray, face: np.ndarray, bary: np.ndarray) -> np.ndarray:
     """(K,) bool: the closest point lies on a border edge or border corner of the surface."""
     e = np.sort(np.concatenate([faces[:, [1, 2]], faces[:, [2, 0]], faces[:, [0, 1]]]), axis=1)
@@ -221,6 +283,7 @@ def marker_surface_targets(
     *,
     marker_radius: float,
     max_distance: float,
+    patch_ratio: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each point's target on the smoothed marker surface, and whether it has one.
 
@@ -238,6 +301,11 @@ def marker_surface_targets(
         The skin lies this far inside the marker centres (along the surface normal).
     max_distance : float, metres
         Points farther than this from the marker surface get no target.
+    patch_ratio : float, default 0
+        0: the corner normals of the Phong lift are Max's, from the marker surface
+        alone. > 0: they are the mean normals of ``points`` (the template placed over
+        the markers) within this many marker spacings of each marker
+        (:func:`template_patch_normals`).
 
     Returns
     -------
@@ -260,6 +328,8 @@ def marker_surface_targets(
     edge = np.linalg.norm(m[f] - m[np.roll(f, 1, axis=1)], axis=2)  # (G, 3)
     f = f[edge.max(axis=1) <= LONG_EDGE_RATIO * np.median(edge)]
     normals = marker_surface_normals(m, f, p, point_normals)
+    if patch_ratio > 0:
+        normals = template_patch_normals(m, np.unique(f), normals, p, point_normals, patch_ratio)
     dist, face, bary = _closest_on_surface_near(np.where(np.isfinite(m), m, 0.0), f, p)
     corners, corner_normals = m[f[face]], normals[f[face]]  # (V, 3, 3)
     flat = np.einsum("vc,vcx->vx", bary, corners)
