@@ -63,28 +63,30 @@ def best_time(fn: Callable[[], Any], repeat: int) -> float:
     return best
 
 
-def best_seconds(run: Callable[[], object], repeat: int) -> float:
-    """One warm-up call (compilation, caches), then the smallest wall-clock seconds of
-    ``repeat`` calls of ``run``."""
+def _best_after_warm_up(
+    run: Callable[[], object], repeat: int, clock: Callable[[], float]
+) -> float:
+    """One warm-up call (compilation, caches), then the smallest ``clock`` difference
+    (seconds) over ``repeat`` calls of ``run``."""
     run()
     best = float("inf")
     for _ in range(repeat):
-        t0 = time.perf_counter()
+        t0 = clock()
         run()
-        best = min(best, time.perf_counter() - t0)
+        best = min(best, clock() - t0)
     return best
+
+
+def best_seconds(run: Callable[[], object], repeat: int) -> float:
+    """One warm-up call (compilation, caches), then the smallest wall-clock seconds of
+    ``repeat`` calls of ``run``."""
+    return _best_after_warm_up(run, repeat, time.perf_counter)
 
 
 def best_cpu_seconds(run: Callable[[], object], repeat: int) -> float:
     """One warm-up call, then the smallest CPU seconds of this process over ``repeat``
     calls of ``run`` (single-threaded work: the figure a loaded machine distorts least)."""
-    run()
-    best = float("inf")
-    for _ in range(repeat):
-        c0 = time.process_time()
-        run()
-        best = min(best, time.process_time() - c0)
-    return best
+    return _best_after_warm_up(run, repeat, time.process_time)
 
 
 _CHILD = """
