@@ -701,6 +701,13 @@ def _check_options(spec: BatchVerb, options: Mapping[str, Any]) -> None:
         )
 
 
+def _task_args(
+    spec: BatchVerb, take: Take, out: Path, options: Mapping[str, Any], force: bool
+) -> tuple[str, str, str, str, dict[str, Any], bool]:
+    """:func:`run_take`'s arguments for one take, as plain values a worker can unpickle."""
+    return (spec.name, str(take.input), take.name, str(out), dict(options), force)
+
+
 def _run_synchronous(
     spec: BatchVerb,
     takes: list[Take],
@@ -717,7 +724,7 @@ def _run_synchronous(
     except ImportError:  # the synchronous path needs no cluster: plain calls do the same
         dask = None
     for i in pending:
-        args = (spec.name, str(takes[i].input), takes[i].name, str(out), dict(options), force)
+        args = _task_args(spec, takes[i], out, options, force)
         if dask is None:
             row = run_take(*args)
         else:
@@ -741,12 +748,7 @@ def _run_distributed(
     for i in pending:
         future = client.submit(
             run_take,
-            spec.name,
-            str(takes[i].input),
-            takes[i].name,
-            str(out),
-            dict(options),
-            force,
+            *_task_args(spec, takes[i], out, options, force),
             key=f"skincap-{spec.name}-{i}-{os.getpid()}-{time.time_ns()}",
             pure=False,
         )
