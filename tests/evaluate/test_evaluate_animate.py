@@ -179,6 +179,10 @@ def test_a_registered_template_row_measures_distance_to_the_true_skin(folder) ->
         assert sum(r["vertices"] for r in regions) == template.vertices.shape[0]
         assert sum(r["tail_share"] for r in regions) == pytest.approx(1.0)
     assert result["targets"]["quadratic_rbf_registered_template_rms_m"]["value"] == row["rms_m"]
+    # the markers' own surface at the true tube: it covers most of it, closely
+    bound = result["registration"]["marker_surface_bound"]
+    assert bound["covered_area_fraction"] > 0.9
+    assert bound["target_mean_m"] < 1.5e-3
 
 
 def test_held_out_markers_are_predicted_on_a_rigid_motion() -> None:

@@ -7,7 +7,11 @@ import pytest
 
 from mesh_grids import grid_triangles
 from skincap.errors import ValidationError
-from skincap.evaluate.registration import region_breakdown, registration_errors
+from skincap.evaluate.registration import (
+    marker_surface_bound,
+    region_breakdown,
+    registration_errors,
+)
 
 
 def _grid(n: int = 11, size: float = 0.5, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
@@ -125,3 +129,60 @@ def test_the_tail_says_whether_it_sank_or_bulged() -> None:
         for r in registration_errors(reg_v, reg_f, true_v, true_f, regions=regions)["regions"]
     }
     assert rows["far"]["tail_inside_fraction"] == 1.0
+
+
+_BOUND = {"marker_radius": 0.0015, "max_distance": 0.03, "patch_ratio": 0.5}
+
+
+def _markers_on(radius: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Markers one marker radius above a sphere of ``radius``, and their triangles."""
+    m, f = _sphere(radius + _BOUND["marker_radius"], n=n)
+    return m, f
+
+
+def test_the_marker_surface_of_a_sphere_speaks_for_all_of_it_closely() -> None:
+    # 60 markers ~5 cm apart on a 10 cm head: the smoothed marker surface lands on the
+    # sphere (its Phong lift is exact there) where flat triangles cut 3-5 mm under it
+    skin_v, skin_f = _sphere(0.1, n=3000)
+    markers, marker_f = _markers_on(0.1, 60)
+    out = marker_surface_bound(skin_v, skin_f, markers, marker_f, **_BOUND)
+    assert out["covered_area_fraction"] == pytest.approx(1.0)
+    assert out["target_p95_m"] < 0.5e-3
+    assert out["target_over_8mm_area_fraction"] == 0.0
+
+
+def test_a_bump_between_markers_and_a_bare_half_show_in_their_regions() -> None:
+    skin_v, skin_f = _sphere(0.1, n=3000)
+    markers, marker_f = _markers_on(0.1, 60)
+    # a 10 mm bump on the skin at the middle of a marker triangle: no marker sees it
+    centre = markers[marker_f[0]].mean(axis=0)
+    centre /= np.linalg.norm(centre)
+    unit = skin_v / np.linalg.norm(skin_v, axis=1, keepdims=True)
+    angle = np.arccos(np.clip(unit @ centre, -1.0, 1.0))
+    height = 0.010 * np.clip(1.0 - angle / 0.25, 0.0, None) ** 2
+    bumped = skin_v + height[:, None] * unit
+    regions = np.where(angle < 0.1, "bump", "rest")
+    out = marker_surface_bound(bumped, skin_f, markers, marker_f, regions=regions, **_BOUND)
+    rows = {r["region"]: r for r in out["regions"]}
+    assert out["regions"][0]["region"] == "bump"
+    assert rows["bump"]["target_mean_m"] > 3e-3  # its 3.6-10 mm height, less its slope
+    assert rows["rest"]["target_mean_m"] < 0.5e-3
+    # markers on the upper half only: the lower half has no marker surface over it
+    upper = markers[:, 2] > 0.0
+    keep = upper[marker_f].all(axis=1)
+    half = marker_surface_bound(
+        skin_v, skin_f, np.where(upper[:, None], markers, np.nan), marker_f[keep], **_BOUND
+    )
+    assert 0.3 < half["covered_area_fraction"] < 0.6
+    assert half["target_p95_m"] < 1e-3
+
+
+def test_the_bound_refuses_a_broken_skin() -> None:
+    skin_v, skin_f = _sphere(0.1, n=200)
+    markers, marker_f = _markers_on(0.1, 60)
+    bad = skin_v.copy()
+    bad[0, 0] = np.nan
+    with pytest.raises(ValidationError, match="true_vertices"):
+        marker_surface_bound(bad, skin_f, markers, marker_f, **_BOUND)
+    with pytest.raises(ValidationError, match="regions"):
+        marker_surface_bound(skin_v, skin_f, markers, marker_f, regions=np.array(["a"]), **_BOUND)

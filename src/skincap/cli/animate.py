@@ -397,6 +397,14 @@ def _print_eval_table(result: dict[str, Any]) -> None:
                 ),
                 markup=False, soft_wrap=True,
             )  # fmt: skip
+        bound = reg.get("marker_surface_bound") or {}
+        if bound.get("target_mean_m") is not None:
+            out.print(
+                f"marker surface at the true skin: covers {bound['covered_area_fraction'] * 100:.0f} % "
+                f"of its area, {bound['target_mean_m'] * 1e3:.2f} mm mean, "
+                f"{bound['target_p95_m'] * 1e3:.2f} mm p95 from it there",
+                markup=False, soft_wrap=True,
+            )  # fmt: skip
     held = result["held_out"]
     if held["mean_m"] is not None:
         out.print(

@@ -767,12 +767,13 @@ def _registered_template_row(
     """
     from skincap.deform.dense.registration import RegistrationSettings, register_mesh
     from skincap.deform.dense.rig import build_dense_rig
-    from skincap.evaluate.registration import registration_errors
+    from skincap.evaluate.registration import marker_surface_bound, registration_errors
 
+    settings = RegistrationSettings(marker_radius=marker_radius)
     t0, cpu0 = time.perf_counter(), time.process_time()
     reg = register_mesh(
         template.vertices, template.faces, x[0], labels, landmarks=landmarks,
-        marker_faces=surface_faces, settings=RegistrationSettings(marker_radius=marker_radius),
+        marker_faces=surface_faces, settings=settings,
     )  # fmt: skip
     registration = {
         "template_vertices": int(template.vertices.shape[0]),
@@ -787,6 +788,17 @@ def _registered_template_row(
             skin_faces,
             np.abs(reg.marker_distance - marker_radius),
             regions,
+        ),
+        # what the markers can say at all: the reverse term's targets at the true skin
+        "marker_surface_bound": marker_surface_bound(
+            truth[0],
+            skin_faces,
+            x[0],
+            surface_faces,
+            marker_radius=marker_radius,
+            max_distance=settings.surface_max_distance,
+            patch_ratio=settings.normal_patch_ratio,
+            regions=regions,
         ),
     }
     rig = build_dense_rig(

@@ -12,8 +12,14 @@ Plus each marker's distance to the registered surface (how closely the data term
 met), and, given a region name per true-skin vertex (the dominant joint of its skin
 weights), the registered surface's distance per region with each region's share of
 the worst 5 % (where the p95 comes from) and on which side of the skin it lies (a
-surface sunk under the skin between sparse markers, or bulging out of it). Nothing
-here prints.
+surface sunk under the skin between sparse markers, or bulging out of it).
+
+And what the markers can say at all (:func:`marker_surface_bound`): the registration's
+reverse data term (:mod:`skincap.deform.dense.surface_targets`) evaluated on the true
+skin itself, as if the template were already exact -- how much of the skin the smoothed
+marker surface covers and how far its targets lie from the skin there, per region.
+Where it covers little (feet, head, hands) or misses by more than a target allows,
+only the template's own shape can do better. Nothing here prints.
 """
 
 from __future__ import annotations
@@ -22,11 +28,17 @@ from typing import Any
 
 import numpy as np
 
+from skincap.deform.dense.surface_targets import marker_surface_targets
 from skincap.errors import ValidationError
 from skincap.geometry.normals import area_weighted_vertex_normals
 from skincap.geometry.raycast import closest_points_on_mesh
 
-__all__ = ["REGISTRATION_TARGETS", "region_breakdown", "registration_errors"]
+__all__ = [
+    "REGISTRATION_TARGETS",
+    "marker_surface_bound",
+    "region_breakdown",
+    "registration_errors",
+]
 
 #: The targets of issue #16 for the registration, metres.
 REGISTRATION_TARGETS: dict[str, float] = {
@@ -232,4 +244,116 @@ def registration_errors(
         }
         for name, target in REGISTRATION_TARGETS.items()
     }
+    return out
+
+
+def _vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(V,) a third of the area of each vertex's triangles, square metres."""
+    p = vertices[faces]
+    area = 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    return np.bincount(faces.ravel(), np.repeat(area / 3.0, 3), minlength=vertices.shape[0])
+
+
+def _weighted_p95(d: np.ndarray, w: np.ndarray) -> float:
+    order = np.argsort(d)
+    cumulative = np.cumsum(w[order])
+    return float(d[order][min(np.searchsorted(cumulative, 0.95 * cumulative[-1]), d.size - 1)])
+
+
+def marker_surface_bound(
+    true_vertices: np.ndarray,
+    true_faces: np.ndarray,
+    markers: np.ndarray,
+    marker_faces: np.ndarray,
+    *,
+    marker_radius: float,
+    max_distance: float,
+    patch_ratio: float,
+    regions: np.ndarray | None = None,
+) -> dict[str, Any]:
+    """What the marker surface says about the true skin: coverage and error, area-weighted.
+
+    The registration's reverse term pulls each template vertex to its target on the
+    smoothed marker surface (:func:`skincap.deform.dense.surface_targets.marker_surface_targets`).
+    Here the "template" is the true skin itself (its own normals as the reference), so
+    the result is the best that term can do: the fraction of the skin's area it speaks
+    for, and how far its targets lie from the skin there. A registration following the
+    markers cannot beat it where it covers; where it does not, only the template's
+    shape places the surface.
+
+    Parameters
+    ----------
+    true_vertices : (V, 3) float, metres; true_faces : (F, 3) int
+        The true skin in the markers' pose.
+    markers : (M, 3) float, metres (NaN rows: unseen)
+    marker_faces : (G, 3) int
+        The marker surface's triangles over the marker rows.
+    marker_radius, max_distance, patch_ratio : float
+        As the registration uses them (:class:`skincap.deform.dense.registration.RegistrationSettings`).
+    regions : (V,) str, optional
+        A region name per true-skin vertex.
+
+    Returns
+    -------
+    dict
+        ``covered_area_fraction``, and over the covered area ``target_mean_m``,
+        ``target_p95_m`` and ``target_over_8mm_area_fraction`` (area-weighted: the
+        skin's measure, not its mesh's density); with ``regions`` also ``regions``,
+        one row per region: ``region``, ``covered_area_fraction``, ``target_mean_m``,
+        ``target_p95_m`` (None where nothing is covered), sorted by the covered
+        error's p95, worst first.
+
+    Raises
+    ------
+    ValidationError
+        A true skin of the wrong shape or with NaN vertices; regions of the wrong length.
+    """
+    true = np.asarray(true_vertices, dtype=np.float64)
+    if true.ndim != 2 or true.shape[1] != 3 or true.shape[0] == 0:
+        raise ValidationError(f"true_vertices: expected shape (V, 3), got {true.shape}")
+    if not np.isfinite(true).all():
+        raise ValidationError("true_vertices: vertices must be finite")
+    faces = np.asarray(true_faces, dtype=np.int64)
+    if regions is not None and np.asarray(regions).shape != (true.shape[0],):
+        raise ValidationError(
+            f"regions: expected one name per true-skin vertex ({true.shape[0]}), "
+            f"got shape {np.asarray(regions).shape}"
+        )
+    targets, covered = marker_surface_targets(
+        true,
+        area_weighted_vertex_normals(true, faces),
+        markers,
+        marker_faces,
+        marker_radius=marker_radius,
+        max_distance=max_distance,
+        patch_ratio=patch_ratio,
+    )
+    area = _vertex_areas(true, faces)
+    d = np.zeros(true.shape[0])
+    if covered.any():
+        d[covered] = _distances_to_surface(true, faces, targets[covered])
+
+    def summary(sel: np.ndarray) -> dict[str, Any]:
+        total = float(area[sel].sum())
+        s = sel & covered
+        w = area[s]
+        if not s.any() or w.sum() <= 0:
+            return {"covered_area_fraction": 0.0, "target_mean_m": None, "target_p95_m": None}
+        return {
+            "covered_area_fraction": float(w.sum() / total) if total > 0 else 0.0,
+            "target_mean_m": float((w * d[s]).sum() / w.sum()),
+            "target_p95_m": _weighted_p95(d[s], w),
+        }
+
+    every = np.ones(true.shape[0], dtype=bool)
+    out: dict[str, Any] = summary(every)
+    w = area[covered]
+    out["target_over_8mm_area_fraction"] = (
+        float(w[d[covered] > 0.008].sum() / w.sum()) if w.sum() > 0 else None
+    )
+    if regions is not None:
+        names = np.asarray(regions).astype(str)
+        rows = [{"region": str(key)} | summary(names == key) for key in np.unique(names)]
+        rows.sort(key=lambda r: (r["target_p95_m"] is None, -(r["target_p95_m"] or 0.0)))
+        out["regions"] = rows
     return out
