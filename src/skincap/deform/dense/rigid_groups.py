@@ -515,15 +515,18 @@ def dissolve_parts_to_count(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Dissolve parts, the cheapest to do without first, until ``target`` remain.
 
-    Each round, every part is priced as if its markers went, one by one, to the
-    adjacent part (through ``edges``) whose rigid motion predicts each best over the
-    take: the price is the error this adds at its worst frame, summed over the part's
+    Each round, every part is priced as if its markers went, one by one, to the part
+    among those adjacent to it (through ``edges``) whose rigid motion predicts each
+    best over the take (a marker inside the part as well as one on its seam, so a
+    thick part can be dissolved into its neighbours too): the price is the error this adds at its worst frame, summed over the part's
     markers, in units of the part's own jiggle (its mean squared error under its own
     motion per marker and frame) plus the take's floor (:func:`_jiggle_floor`'s
     scale times the median of that level over parts of ``_JIGGLE_GROUP_MIN`` markers
     or more). The cheapest part is dissolved, the parts are made connected
     (:func:`connect_parts`) and the seams refined again (:func:`refine_marker_parts`).
-    A part one of whose markers has no measured neighbouring part is never dissolved.
+    A part without a neighbour is never dissolved; when no part can be, the
+    cheapest adjacent pair is merged whole instead
+    (:func:`merge_groups_by_rigid_residual`, jiggle-scaled peak turn).
 
     Parameters
     ----------
@@ -532,7 +535,7 @@ def dissolve_parts_to_count(
     positions : (T, N, 3) float, metres, NaN where missing
     reference : (N, 3) float, metres
     target : int
-        Parts to keep; fewer dissolve when no part can be priced.
+        Parts to keep (more remain only when no two parts are adjacent).
     min_markers, rounds : int
         As :func:`refine_marker_parts`.
 
@@ -552,12 +555,25 @@ def dissolve_parts_to_count(
     while int(labels.max()) + 1 > int(target):
         price, dest = _dissolve_prices(x, r, sums, labels, e)
         part = int(np.argmin(price))
-        if not np.isfinite(price[part]):
-            break
-        inside = np.flatnonzero(labels == part)
-        new = labels.copy()
-        new[inside] = dest[inside]
-        new = compact_labels(new)
+        if np.isfinite(price[part]):
+            inside = np.flatnonzero(labels == part)
+            new = labels.copy()
+            new[inside] = dest[inside]
+            new = compact_labels(new)
+        else:  # no part can be priced (a measure missing): merge a pair whole
+            n_before = int(labels.max()) + 1
+            new = merge_groups_by_rigid_residual(
+                labels,
+                e,
+                positions,
+                reference,
+                n_before - 1,
+                min_markers=min_markers,
+                peak_turn_above=n_before - 1,
+                jiggle_scaled=True,
+            )
+            if int(new.max()) + 1 >= n_before:
+                break
         n_p = int(new.max()) + 1
         new_err = _marker_errors(x, r, sums, new, candidates_from_marker_parts(new, e, n_p))
         labels, err = refine_marker_parts(
@@ -575,15 +591,21 @@ def _dissolve_prices(
     x: np.ndarray, r: np.ndarray, marker_sums: np.ndarray, parts: np.ndarray, edges: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Price of dissolving each part, (P,) (inf: cannot), and every marker's destination
-    if its part is dissolved, (N,) int (-1 where none); see :func:`dissolve_parts_to_count`.
+    if its part is dissolved, (N,) int (-1 where none): the part, among those adjacent to
+    the marker's part, with the least mean squared error over the take; see
+    :func:`dissolve_parts_to_count`.
 
     ``x`` (T, N, 3) and ``r`` (N, 3) centred, ``marker_sums`` (N, T, 18).
     """
     n, n_p = parts.size, int(parts.max()) + 1
     on = parts >= 0
-    wanted = candidates_from_marker_parts(parts, edges, n_p)
+    # every marker of a part may go to any part adjacent to its part
+    touch = candidates_from_marker_parts(parts, edges, n_p)[on]  # (N_on, P)
+    member = sparse.csr_matrix((np.ones(on.sum()), (parts[on], np.flatnonzero(on))), shape=(n_p, n))
+    near = np.asarray(member[:, np.flatnonzero(on)] @ touch.astype(np.float64)) > 0  # (P, P)
+    wanted = np.zeros((n, n_p), dtype=bool)
+    wanted[on] = near[parts[on]]
     wanted[np.flatnonzero(on), parts[on]] = True
-    wanted &= on[:, None]
     rot, shift = _motions_of_sums(_group_sums(marker_sums, parts, n_p))
     marker_of, part_of = np.nonzero(wanted)
     pred = np.einsum("ktab,kb->tka", rot[part_of], r[marker_of]) + shift[part_of].swapaxes(0, 1)
