@@ -49,6 +49,23 @@ def test_a_fast_range_of_motion_segments_into_the_true_parts(rom_take) -> None:
 
 
 @pytest.mark.slow
+def test_every_true_part_gets_a_part_of_its_own(rom_take) -> None:
+    """Seed 0: each of the 17 true parts is the majority of exactly one part. Merging to
+    the count, a piece of hip-and-thigh flesh and one of upper chest survived as parts
+    while both hands went into their forearms; the last parts are now dissolved marker
+    by marker instead of merged whole."""
+    from skincap.deform.dense.segmentation import segment_marker_surface
+
+    positions, faces, truth = rom_take
+    seg = segment_marker_surface(positions, positions[0], faces)
+    majority = [
+        int(np.bincount(truth[seg.marker_parts == p], minlength=17).argmax())
+        for p in range(seg.n_parts)
+    ]
+    assert sorted(majority) == list(range(17)), majority
+
+
+@pytest.mark.slow
 def test_a_fast_range_of_motion_with_jiggle_segments_on_another_seed() -> None:
     """Seed 7 with its soft tissue on: the upper arms' and thighs' jiggle turned their
     slivers apart as far as a wrist turns, so the merge by peak turn alone split them

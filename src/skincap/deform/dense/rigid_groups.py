@@ -42,6 +42,8 @@ All residuals are mean squared distances per frame, m².
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy import sparse
 from scipy.sparse.csgraph import connected_components
@@ -51,6 +53,7 @@ from skincap.deform.dense.weights import candidates_from_marker_parts, part_moti
 __all__ = [
     "compact_labels",
     "connect_parts",
+    "dissolve_parts_to_count",
     "merge_groups_by_rigid_residual",
     "refine_marker_parts",
     "rigid_residuals",
@@ -498,6 +501,137 @@ def _turn_weighted_gain(
     own = parts >= 0
     gain[np.flatnonzero(own), parts[own]] = 0.0
     return gain
+
+
+def dissolve_parts_to_count(
+    parts: np.ndarray,
+    edges: np.ndarray,
+    positions: np.ndarray,
+    reference: np.ndarray,
+    target: int,
+    *,
+    min_markers: int = 3,
+    rounds: int = 8,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Dissolve parts, the cheapest to do without first, until ``target`` remain.
+
+    Each round, every part is priced as if its markers went, one by one, to the part
+    among those adjacent to it (through ``edges``) whose rigid motion predicts each
+    best over the take (a marker inside the part as well as one on its seam, so a
+    thick part can be dissolved into its neighbours too): the price is the error this adds at its worst frame, summed over the part's
+    markers, in units of the part's own jiggle (its mean squared error under its own
+    motion per marker and frame) plus the take's floor (:func:`_jiggle_floor`'s
+    scale times the median of that level over parts of ``_JIGGLE_GROUP_MIN`` markers
+    or more). The cheapest part is dissolved, the parts are made connected
+    (:func:`connect_parts`) and the seams refined again (:func:`refine_marker_parts`).
+    A part without a neighbour is never dissolved; when no part can be, the
+    cheapest adjacent pair is merged whole instead
+    (:func:`merge_groups_by_rigid_residual`, jiggle-scaled peak turn).
+
+    Parameters
+    ----------
+    parts : (N,) int, part of every marker (-1 = none: left alone)
+    edges : (E, 2) int, marker-surface edges
+    positions : (T, N, 3) float, metres, NaN where missing
+    reference : (N, 3) float, metres
+    target : int
+        Parts to keep (more remain only when no two parts are adjacent).
+    min_markers, rounds : int
+        As :func:`refine_marker_parts`.
+
+    Returns
+    -------
+    parts : (N,) int64
+        Connected parts numbered ``0 … P'-1`` (-1 kept).
+    errors : (N, P') float64, m²
+        As :func:`refine_marker_parts`.
+    """
+    labels, err = refine_marker_parts(
+        parts, edges, positions, reference, min_markers=min_markers, rounds=rounds
+    )
+    x, r = _centred_take(positions, reference)
+    e = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+    sums = _marker_sums(x, r)
+    while int(labels.max()) + 1 > int(target):
+        price, dest = _dissolve_prices(x, r, sums, labels, e)
+        part = int(np.argmin(price))
+        if np.isfinite(price[part]):
+            inside = np.flatnonzero(labels == part)
+            new = labels.copy()
+            new[inside] = dest[inside]
+            new = compact_labels(new)
+        else:  # no part can be priced (a measure missing): merge a pair whole
+            n_before = int(labels.max()) + 1
+            new = merge_groups_by_rigid_residual(
+                labels,
+                e,
+                positions,
+                reference,
+                n_before - 1,
+                min_markers=min_markers,
+                peak_turn_above=n_before - 1,
+                jiggle_scaled=True,
+            )
+            if int(new.max()) + 1 >= n_before:
+                break
+        n_p = int(new.max()) + 1
+        new_err = _marker_errors(x, r, sums, new, candidates_from_marker_parts(new, e, n_p))
+        labels, err = refine_marker_parts(
+            compact_labels(connect_parts(new, e, new_err)),
+            e,
+            positions,
+            reference,
+            min_markers=min_markers,
+            rounds=rounds,
+        )
+    return labels, err
+
+
+def _dissolve_prices(
+    x: np.ndarray, r: np.ndarray, marker_sums: np.ndarray, parts: np.ndarray, edges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Price of dissolving each part, (P,) (inf: cannot), and every marker's destination
+    if its part is dissolved, (N,) int (-1 where none): the part, among those adjacent to
+    the marker's part, with the least mean squared error over the take; see
+    :func:`dissolve_parts_to_count`.
+
+    ``x`` (T, N, 3) and ``r`` (N, 3) centred, ``marker_sums`` (N, T, 18).
+    """
+    n, n_p = parts.size, int(parts.max()) + 1
+    on = parts >= 0
+    # every marker of a part may go to any part adjacent to its part
+    touch = candidates_from_marker_parts(parts, edges, n_p)[on]  # (N_on, P)
+    member = sparse.csr_matrix((np.ones(on.sum()), (parts[on], np.flatnonzero(on))), shape=(n_p, n))
+    near = np.asarray(member[:, np.flatnonzero(on)] @ touch.astype(np.float64)) > 0  # (P, P)
+    wanted = np.zeros((n, n_p), dtype=bool)
+    wanted[on] = near[parts[on]]
+    wanted[np.flatnonzero(on), parts[on]] = True
+    rot, shift = _motions_of_sums(_group_sums(marker_sums, parts, n_p))
+    marker_of, part_of = np.nonzero(wanted)
+    pred = np.einsum("ktab,kb->tka", rot[part_of], r[marker_of]) + shift[part_of].swapaxes(0, 1)
+    per_frame = np.full((x.shape[0], n, n_p), np.nan)  # (T, N, P) m², NaN off wanted
+    per_frame[:, marker_of, part_of] = ((pred - x[:, marker_of]) ** 2).sum(-1)
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns: unmeasured
+        mean = np.nanmean(per_frame, axis=0)  # (N, P)
+        own_t = np.where(on[None, :], per_frame[:, np.arange(n), np.maximum(parts, 0)], np.nan)
+        size = np.bincount(parts[on], minlength=n_p)
+        level = np.array(
+            [np.nanmean(own_t[:, parts == p]) if size[p] else np.nan for p in range(n_p)]
+        )  # (P,) m² per marker and frame; a loop over parts (tens)
+        big = size >= _JIGGLE_GROUP_MIN
+        floor = _JIGGLE_FLOOR_SCALE * float(np.nanmedian(level[big])) if big.any() else 0.0
+    other = np.where(np.isfinite(mean), mean, np.inf)
+    other[np.flatnonzero(on), parts[on]] = np.inf
+    dest = np.where(on & np.isfinite(other).any(axis=1), np.argmin(other, axis=1), -1)
+    price = np.full(n_p, np.inf)
+    for p in range(n_p):  # a loop over parts (tens)
+        inside = np.flatnonzero(parts == p)
+        if not inside.size or (dest[inside] < 0).any():
+            continue
+        added = np.nansum(per_frame[:, inside, dest[inside]] - own_t[:, inside], axis=1)  # (T,)
+        price[p] = float(np.nanmax(added)) / (level[p] + floor)
+    return price, dest
 
 
 def _absorb_small_parts(

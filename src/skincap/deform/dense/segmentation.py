@@ -48,6 +48,15 @@
    or absorbing parts that are all seam and merging again did no better on the seven
    takes.
 
+5. **Dissolving** (:func:`.rigid_groups.dissolve_parts_to_count`): the merge stops
+   :data:`DISSOLVED_PARTS` groups above ``n_parts`` and, after the seams are refined,
+   the part cheapest to do without is dissolved, each of its markers going to the
+   adjacent part whose rigid motion follows it best, until ``n_parts`` remain (seams
+   refined after each). Mean shift cuts some pieces across a seam of jiggling flesh
+   (half hip, half thigh); merged whole, such a piece fits neither side, so it
+   survived as a part while a true part with few markers (the pelvis, a hand) went
+   into its neighbour. Dissolved, its markers go to both sides.
+
 Each triangle takes the part of most of its corners (three parts: the one whose motion
 follows its corners best); a marker on triangles of several parts is a boundary marker
 (see :mod:`.weights`).
@@ -64,14 +73,17 @@ from scipy.sparse.csgraph import connected_components
 
 from skincap.deform.dense.rigid_groups import (
     compact_labels,
+    dissolve_parts_to_count,
     merge_groups_by_rigid_residual,
-    refine_marker_parts,
     surface_edges,
     triangle_parts_from_markers,
 )
 from skincap.errors import ValidationError
 
-__all__ = ["Segmentation", "segment_marker_surface", "triangle_rotations"]
+__all__ = ["DISSOLVED_PARTS", "Segmentation", "segment_marker_surface", "triangle_rotations"]
+
+#: The merge stops this many groups above ``n_parts``; the last ones are dissolved.
+DISSOLVED_PARTS = 3
 
 
 @dataclass(eq=False)
@@ -280,13 +292,14 @@ def segment_marker_surface(
         edges,
         x_used,
         ref,
-        int(n_parts),
+        int(n_parts) + DISSOLVED_PARTS,
         min_markers=int(min_markers),
         peak_turn_above=int(n_parts),
         jiggle_scaled=True,
     )
-    marker_parts, errors = refine_marker_parts(
-        groups, edges, x_used, ref, min_markers=int(min_markers)
+    # the last few are dissolved marker by marker, not merged whole (step 5)
+    marker_parts, errors = dissolve_parts_to_count(
+        groups, edges, x_used, ref, int(n_parts), min_markers=int(min_markers)
     )
     if progress:
         progress(1.0)
