@@ -57,7 +57,16 @@ _Rom = Annotated[
     typer.Option(help="Range-of-motion take the parts are learnt from (default: the take)."),
 ]
 _Method = Annotated[
-    str, typer.Option(help="quadratic_rbf (the paper's), quadratic, rigid_rbf or rigid.")
+    str,
+    typer.Option(
+        help="quadratic_rbf (the paper's), quadratic, rigid_rbf or rigid; or skeleton_rbf: "
+        "a skeleton solved from the markers (calibrated on --rom), skinned, plus the "
+        "markers' residuals (no --rig/--save-rig)."
+    ),
+]
+_SkeletonTemplate = Annotated[
+    str,
+    typer.Option(help="With --method skeleton_rbf: solve template (auto, a built-in or JSON)."),
 ]
 _Parts = Annotated[int, typer.Option(help="Near-rigid parts to segment.")]
 _Surface = Annotated[
@@ -102,6 +111,7 @@ def animate(
     rig: _Rig = None,
     report: _Report = None,
     mesh_units: MeshUnitsOption = None,
+    skeleton_template: _SkeletonTemplate = "auto",
     force: ForceOption = False,
     json_output: _Json = False,
 ) -> None:
@@ -114,6 +124,8 @@ def animate(
     Example: skincap animate body.obj take.c3d --reference-frame 0 --save-rig subj.npz -o take.pc2
 
     Example: skincap animate --rig subj.npz take2.c3d -o take2.usd
+
+    Example: skincap animate body.obj take.c3d --rom rom.c3d --method skeleton_rbf -o take.pc2
     """
     from skincap.workflows.animate_file import animate_file
 
@@ -145,6 +157,7 @@ def animate(
                     marker_radius,
                     rig,
                     mesh_units,
+                    skeleton_template,
                 ),  # fmt: skip
             )
     if json_output:
@@ -154,7 +167,12 @@ def animate(
     out.print(
         f"{markers_path.name} -> {', '.join(summary['outputs'])}: {summary['frames']} frames, "
         f"{summary['vertices']} vertices, {summary['markers']} markers, "
-        f"{summary['parts']['count']} parts, {summary['method']}"
+        + (
+            f"{summary['parts']['count']} parts, "
+            if summary["parts"] is not None
+            else f"{summary['rig']['skeleton']['joints']} joints, "
+        )
+        + f"{summary['method']}"
         + (f", {ms:.3g} ms/frame" if ms is not None else ""),
         markup=False,
         soft_wrap=True,
@@ -172,6 +190,7 @@ def animate_workflow_options(
     marker_radius: float,
     rig: Path | None,
     mesh_units: str | None,
+    skeleton_template: str = "auto",
 ) -> dict[str, Any]:
     """``animate``'s options as :func:`animate_file`'s keywords (shared with ``batch animate``)."""
     return {
@@ -185,6 +204,7 @@ def animate_workflow_options(
         "marker_radius_mm": marker_radius,
         "rig": rig,
         "mesh_units": mesh_units,
+        "skeleton_template": skeleton_template,
     }
 
 

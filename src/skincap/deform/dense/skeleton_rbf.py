@@ -306,6 +306,8 @@ class SkeletonRBFDeformer:
         patterns, which = np.unique(seen, axis=0, return_inverse=True)
         for k, pattern in enumerate(patterns):  # one solve per set of markers seen
             frames = np.flatnonzero(np.ravel(which) == k)
+            if not pattern.any():
+                continue  # no marker seen: the skinning alone
             vals = local[frames][:, pattern].transpose(1, 0, 2).reshape(int(pattern.sum()), -1)
             coef[:, frames] = self._coefficients(pattern, vals).reshape(n + 4, frames.size, 3)
         if points is None:
