@@ -73,7 +73,7 @@ def skeleton_rbf_frames(
     motion: Any,
     *,
     reference_frame: int = 0,
-    kernel: str = "linear",
+    kernel: str = "thin_plate",
 ) -> np.ndarray:
     """(T, V, 3) deformed vertices of the mesh (in the pose of ``reference_frame``)."""
     from skincap.deform.dense.skeleton_rbf import build_skeleton_rbf
@@ -96,7 +96,7 @@ def held_out_skeleton_rbf(
     fraction: float = 0.1,
     seed: int = 0,
     template: Any = "auto",
-    kernel: str = "linear",
+    kernel: str = "thin_plate",
 ) -> dict[str, Any]:
     """Leave ``fraction`` of the markers out of the solve and the residual fit, predict them.
 
@@ -170,3 +170,36 @@ def held_out_skeleton_rbf(
         "max_m": float(dd.max()) if dd.size else None,
         "skeleton": figures,
     }
+
+
+def held_out_skeleton_rbf_on_capture(
+    markers: Any, *, fraction: float = 0.1, seed: int = 0, template: Any = "auto"
+) -> dict[str, Any]:
+    """:func:`held_out_skeleton_rbf` on any labelled capture (real ones included).
+
+    Like :func:`skincap.evaluate.animate.held_out_on_capture`: the labelled columns,
+    the marker surface built from the take, the frame with the most markers as the
+    reference, the take as its own calibration.
+
+    Returns
+    -------
+    dict
+        :func:`held_out_skeleton_rbf`'s figures plus ``reference_frame``; or ``mean_m``
+        None and a ``note`` when the kept markers calibrate no skeleton on ``template``.
+    """
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+
+    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    x = markers.positions[:, keep]
+    frame = choose_reference_frame(x)
+    surface = build_marker_surface(x, reference_frame=frame)
+    if surface.faces.shape[0] == 0:
+        raise ValidationError("the capture's marker surface has no triangles")
+    try:
+        out = held_out_skeleton_rbf(
+            x, surface.faces, [str(markers.labels[i]) for i in keep], float(markers.rate),
+            reference_frame=frame, fraction=fraction, seed=seed, template=template,
+        )  # fmt: skip
+    except ValidationError as exc:  # the kept markers do not calibrate a skeleton
+        return {"method": "skeleton_rbf", "mean_m": None, "note": f"not measured: {exc}"}
+    return {**out, "reference_frame": int(frame)}

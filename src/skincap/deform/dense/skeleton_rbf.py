@@ -179,7 +179,7 @@ class SkeletonRBFDeformer:
     marker_joint_indices, marker_joint_weights : (N, K') the markers' skin
         (:func:`surface_point_weights`)
     bind_world : (J, 4, 4) float, the skeleton's world transforms in the reference pose
-    kernel : one of :data:`KERNELS`, default ``"linear"``
+    kernel : one of :data:`KERNELS`, default ``"thin_plate"``
     """
 
     vertices: np.ndarray
@@ -189,7 +189,7 @@ class SkeletonRBFDeformer:
     marker_joint_indices: np.ndarray
     marker_joint_weights: np.ndarray
     bind_world: np.ndarray
-    kernel: str = "linear"
+    kernel: str = "thin_plate"
 
     def __post_init__(self) -> None:
         v = np.asarray(self.vertices, dtype=np.float64)
@@ -372,7 +372,7 @@ def build_skeleton_rbf(
     motion: Motion,
     reference_frame: int,
     *,
-    kernel: str = "linear",
+    kernel: str = "thin_plate",
     max_influences: int = 4,
 ) -> SkeletonRBFDeformer:
     """Bind the mesh to a solved skeleton in the reference frame's pose, skin the markers.
