@@ -27,11 +27,13 @@ the frame is the skinning alone. Vertices are never NaN.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
+import scipy.linalg
 import scipy.sparse
 
 from skincap._arrays import Progress
@@ -55,6 +57,8 @@ Kernel = Literal["linear", "thin_plate", "cubic", "bspline"]
 #: with a linear polynomial), and the paper's compact cubic B-spline (σ = 2 × the largest
 #: nearest-marker distance, no polynomial: the residual decays to 0 away from markers).
 KERNELS: tuple[str, ...] = ("linear", "thin_plate", "cubic", "bspline")
+#: Factored interpolation systems kept (one per set of markers seen).
+_MAX_FACTORS = 64
 
 
 def residual_kernel(r: np.ndarray, kernel: str, sigma: float) -> np.ndarray:
@@ -230,10 +234,41 @@ class SkeletonRBFDeformer:
         )
         self._poly_v = np.hstack([np.ones((v.shape[0], 1)), v])
         self._poly_c = np.hstack([np.ones((c.shape[0], 1)), c])
+        self._factors: dict[bytes, tuple[Any, bool]] = {}
 
     @property
     def n_markers(self) -> int:
         return int(self.marker_reference.shape[0])
+
+    def _factor(self, seen: np.ndarray) -> tuple[Any, bool]:
+        """The interpolation system of the seen markers, factored once per set of markers
+        (cached: a take with few gaps reuses one factorisation for all its frames);
+        ``(lu, True)``, or ``(pseudo-inverse, False)`` where it is singular (too few or
+        coplanar markers seen)."""
+        key = seen.tobytes()
+        if key in self._factors:
+            return self._factors[key]
+        idx = np.flatnonzero(seen)
+        phi = self._phi_cc[np.ix_(idx, idx)]
+        if self._polynomial:
+            p = self._poly_c[idx]
+            system = np.block([[phi, p], [p.T, np.zeros((4, 4))]])
+        else:
+            system = phi
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", scipy.linalg.LinAlgWarning)
+            try:
+                lu = scipy.linalg.lu_factor(system)
+                pivots = np.abs(np.diag(lu[0]))
+                if not pivots.min() > 1e-12 * pivots.max():
+                    raise np.linalg.LinAlgError
+                factor: tuple[Any, bool] = (lu, True)
+            except (scipy.linalg.LinAlgWarning, ValueError, np.linalg.LinAlgError):
+                factor = (np.linalg.pinv(system), False)
+        if len(self._factors) >= _MAX_FACTORS:
+            self._factors.pop(next(iter(self._factors)))
+        self._factors[key] = factor
+        return factor
 
     def _coefficients(self, seen: np.ndarray, values: np.ndarray) -> np.ndarray:
         """Kernel (N, m) and polynomial (4, m) coefficients interpolating ``values``
@@ -243,19 +278,11 @@ class SkeletonRBFDeformer:
         idx = np.flatnonzero(seen)
         if idx.size == 0:
             return out
-        phi = self._phi_cc[np.ix_(idx, idx)]
+        rhs = values
         if self._polynomial:
-            p = self._poly_c[idx]
-            system = np.block([[phi, p], [p.T, np.zeros((4, 4))]])
             rhs = np.vstack([values, np.zeros((4, values.shape[1]))])
-        else:
-            system, rhs = phi, values
-        try:
-            sol = np.linalg.solve(system, rhs)
-            if not np.isfinite(sol).all():
-                raise np.linalg.LinAlgError
-        except np.linalg.LinAlgError:  # too few or coplanar markers seen: least norm
-            sol = np.linalg.lstsq(system, rhs, rcond=None)[0]
+        factor, is_lu = self._factor(seen)
+        sol = scipy.linalg.lu_solve(factor, rhs) if is_lu else factor @ rhs
         out[idx] = sol[: idx.size]
         if self._polynomial:
             out[n:] = sol[idx.size :]
