@@ -453,7 +453,14 @@ def _print_eval_table(result: dict[str, Any]) -> None:
 
 def _print_skeleton_held_out(held: dict[str, Any] | None) -> None:
     """The skeleton_rbf held-out line (None: not run)."""
-    if held is None or held.get("mean_m") is None:
+    if held is None:
+        return
+    if held.get("mean_m") is None:
+        out.print(
+            f"skeleton_rbf held-out markers: {held.get('note', 'not measured')}",
+            markup=False,
+            soft_wrap=True,
+        )
         return
     sk = held["skeleton"]
     out.print(
