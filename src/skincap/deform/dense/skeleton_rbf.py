@@ -341,11 +341,13 @@ class SkeletonRBFDeformer:
             phi, poly = self._phi_vc, self._poly_v
             base, idx, jw = self.vertices, self.joint_indices, self.joint_weights
         else:
+            if point_joint_indices is None or point_joint_weights is None:
+                raise ValidationError("points need point_joint_indices and point_joint_weights")
             base = np.asarray(points, dtype=np.float64)
             d = np.linalg.norm(base[:, None] - self.marker_reference[None], axis=-1)
             phi = residual_kernel(d, self.kernel, self.sigma)
             poly = np.hstack([np.ones((base.shape[0], 1)), base])
-            idx, jw = point_joint_indices, point_joint_weights
+            idx, jw = np.asarray(point_joint_indices), np.asarray(point_joint_weights)
         flat = coef.reshape(n + 4, 3 * n_t)
         disp = phi @ flat[:n]  # (V, 3t)
         if self._polynomial:
