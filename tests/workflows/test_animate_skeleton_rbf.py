@@ -46,6 +46,20 @@ def test_skeleton_rbf_follows_the_true_skin_of_the_arm(arm, tmp_path) -> None:
     report = json.loads((tmp_path / "r.json").read_text())
     assert report["rig"]["skeleton"]["joints"] >= 2
     assert len(report["deformation_ms_per_frame"]["frames"]) == truth.shape[0]
+    # calibrated on a range-of-motion take (here a copy of the take, markers reversed):
+    # the model's markers are matched by label, so the skeleton and the skin are the same
+    from skincap import io
+    from skincap.types import MarkerSet
+
+    take = io.read(take_path)
+    rom = tmp_path / "rom.c3d"
+    order = np.arange(take.n_markers)[::-1]
+    io.write(MarkerSet(positions=take.positions[:, order], labels=[take.labels[i] for i in order],
+                       rate=take.rate), rom)  # fmt: skip
+    animate_file(mesh_path, take_path, tmp_path / "rom.pc2", method="skeleton_rbf",
+                 reference_frame=0, rom=rom)  # fmt: skip
+    again = np.asarray(read_pc2(tmp_path / "rom.pc2").frames)
+    assert np.abs(again - got).max() < 1e-6
 
 
 def test_cli_skeleton_rbf_says_one_line_and_refuses_a_rig(arm, tmp_path) -> None:
