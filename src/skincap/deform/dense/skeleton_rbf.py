@@ -30,7 +30,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -52,7 +52,6 @@ __all__ = [
     "surface_point_weights",
 ]
 
-Kernel = Literal["linear", "thin_plate", "cubic", "bspline"]
 #: Residual interpolants: polyharmonic ``r`` (3-D biharmonic), ``r² log r``, ``r³`` (each
 #: with a linear polynomial), and the paper's compact cubic B-spline (σ = 2 × the largest
 #: nearest-marker distance, no polynomial: the residual decays to 0 away from markers).
