@@ -121,6 +121,15 @@ def test_rows_are_present_and_the_dense_chain_beats_global_interpolation(folder)
     )
     worst = result["held_out"]["worst"]
     assert worst["marker"].startswith("M") and worst["max_m"] == result["held_out"]["max_m"]
+    # skeleton_rbf: a skeleton solved from the markers (auto), skinned, plus residuals
+    skel = rows[("same_body", "skeleton_rbf")]
+    assert skel["measured"] and skel["nan_fraction"] == 0.0
+    assert per_vertex["skeleton_rbf"][np.abs(x - ELBOW) > 0.15].max() < 1e-3
+    assert result["skeleton"]["joints"] >= 2 and result["skeleton_template"] == "auto"
+    held = result["held_out_skeleton_rbf"]
+    assert held["held_out"] == 6 and held["mean_m"] < 5e-3
+    reduction = result["targets"]["skeleton_rbf_vs_lbs_reduction"]
+    assert reduction["value"] is None and reduction["met"] is None  # no LBS row here
 
 
 def per_vertex_split(result: dict, folder: Path) -> np.ndarray:

@@ -57,7 +57,16 @@ _Rom = Annotated[
     typer.Option(help="Range-of-motion take the parts are learnt from (default: the take)."),
 ]
 _Method = Annotated[
-    str, typer.Option(help="quadratic_rbf (the paper's), quadratic, rigid_rbf or rigid.")
+    str,
+    typer.Option(
+        help="quadratic_rbf (the paper's), quadratic, rigid_rbf or rigid; or skeleton_rbf: "
+        "a skeleton solved from the markers (calibrated on --rom), skinned, plus the "
+        "markers' residuals (no --rig/--save-rig)."
+    ),
+]
+_SkeletonTemplate = Annotated[
+    str,
+    typer.Option(help="With --method skeleton_rbf: solve template (auto, a built-in or JSON)."),
 ]
 _Parts = Annotated[int, typer.Option(help="Near-rigid parts to segment.")]
 _Surface = Annotated[
@@ -102,6 +111,7 @@ def animate(
     rig: _Rig = None,
     report: _Report = None,
     mesh_units: MeshUnitsOption = None,
+    skeleton_template: _SkeletonTemplate = "auto",
     force: ForceOption = False,
     json_output: _Json = False,
 ) -> None:
@@ -114,6 +124,8 @@ def animate(
     Example: skincap animate body.obj take.c3d --reference-frame 0 --save-rig subj.npz -o take.pc2
 
     Example: skincap animate --rig subj.npz take2.c3d -o take2.usd
+
+    Example: skincap animate body.obj take.c3d --rom rom.c3d --method skeleton_rbf -o take.pc2
     """
     from skincap.workflows.animate_file import animate_file
 
@@ -145,6 +157,7 @@ def animate(
                     marker_radius,
                     rig,
                     mesh_units,
+                    skeleton_template,
                 ),  # fmt: skip
             )
     if json_output:
@@ -154,7 +167,12 @@ def animate(
     out.print(
         f"{markers_path.name} -> {', '.join(summary['outputs'])}: {summary['frames']} frames, "
         f"{summary['vertices']} vertices, {summary['markers']} markers, "
-        f"{summary['parts']['count']} parts, {summary['method']}"
+        + (
+            f"{summary['parts']['count']} parts, "
+            if summary["parts"] is not None
+            else f"{summary['rig']['skeleton']['joints']} joints, "
+        )
+        + f"{summary['method']}"
         + (f", {ms:.3g} ms/frame" if ms is not None else ""),
         markup=False,
         soft_wrap=True,
@@ -172,6 +190,7 @@ def animate_workflow_options(
     marker_radius: float,
     rig: Path | None,
     mesh_units: str | None,
+    skeleton_template: str = "auto",
 ) -> dict[str, Any]:
     """``animate``'s options as :func:`animate_file`'s keywords (shared with ``batch animate``)."""
     return {
@@ -185,6 +204,7 @@ def animate_workflow_options(
         "marker_radius_mm": marker_radius,
         "rig": rig,
         "mesh_units": mesh_units,
+        "skeleton_template": skeleton_template,
     }
 
 
@@ -229,6 +249,13 @@ _EvalSeed = Annotated[
     int, typer.Option(help="Seed of the held-out markers (and of a --synth take).")
 ]
 _EvalForce = Annotated[bool, typer.Option("--force", help="Replace outputs of an earlier run.")]
+_EvalSkeleton = Annotated[
+    str,
+    typer.Option(
+        help="Solve template of the skeleton_rbf rows (auto, a built-in or JSON; "
+        "'none' leaves them out). Calibrated on the take itself."
+    ),
+]
 
 
 @eval_app.command("animate")
@@ -245,12 +272,14 @@ def eval_animate(
     seed: _EvalSeed = 0,
     json_output: EvalJsonOption = False,
     force: _EvalForce = False,
+    skeleton_template: _EvalSkeleton = "auto",
 ) -> None:
     """Measure the dense chain against the true skin (Park & Hodgins Fig. 7 and 8 as numbers).
 
     Rows: the four dense variants on the capture's own body, LBS and DQS driven by the
-    true skeleton, one global RBF interpolation of the marker displacements, and 10 %
-    of the markers held out. Writes OUTPUT/animate_eval.json and the per-vertex error
+    true skeleton, one global RBF interpolation of the marker displacements,
+    skeleton_rbf (a skeleton solved from the markers, skinned, plus the markers'
+    residuals), and 10 % of the markers held out. Writes OUTPUT/animate_eval.json and the per-vertex error
     colour maps OUTPUT/animate_errors.png; prints the table and the issue's targets.
 
     With --template, another body is registered to the take's reference pose and
@@ -276,11 +305,14 @@ def eval_animate(
                 input_dir = _synth_take(output, synth, frames, vertices, seed, force, progress)
             assert input_dir is not None  # one of the two was checked above
             if input_dir.is_file():
-                _eval_capture(input_dir, paths[0], parts, seed, force, json_output)
+                _eval_capture(
+                    input_dir, paths[0], parts, seed, force, json_output, skeleton_template
+                )
                 return
             result = _evaluate_folder(
-                input_dir, rom, template, marker_radius, parts, seed, progress
-            )
+                input_dir, rom, template, marker_radius, parts, seed, progress,
+                None if skeleton_template == "none" else skeleton_template,
+            )  # fmt: skip
         per_vertex = result.pop("per_vertex_rms_m")
         reference_body = result.pop("vertices")
         result.pop("faces")
@@ -322,6 +354,7 @@ def _evaluate_folder(
     parts: int,
     seed: int,
     progress: Any,
+    skeleton_template: str | None = "auto",
 ) -> dict[str, Any]:
     """:func:`skincap.evaluate.animate.evaluate_animate` with ``--template`` read."""
     from skincap.evaluate.animate import evaluate_animate
@@ -336,7 +369,7 @@ def _evaluate_folder(
         )
     return evaluate_animate(
         folder, rom=rom, template=body, marker_radius=marker_radius_mm / 1000.0,
-        n_parts=parts, seed=seed, progress=progress,
+        n_parts=parts, seed=seed, progress=progress, skeleton_template=skeleton_template,
     )  # fmt: skip
 
 
@@ -412,6 +445,7 @@ def _print_eval_table(result: dict[str, Any]) -> None:
             f"p95 {held['p95_m'] * 1e3:.3f} mm" + _worst_held_out_text(held),
             markup=False, soft_wrap=True,
         )  # fmt: skip
+    _print_skeleton_held_out(result.get("held_out_skeleton_rbf"))
     seg = result.get("segmentation") or {}
     if seg.get("ari") is not None:
         out.print(
@@ -423,6 +457,26 @@ def _print_eval_table(result: dict[str, Any]) -> None:
         mark = {True: "met", False: "NOT met", None: "not evaluated"}[t["met"]]
         shown = "-" if t["value"] is None else f"{t['value']:.4g}"
         out.print(f"target {name}: {shown} (target {t['target']}): {mark}", markup=False)
+
+
+def _print_skeleton_held_out(held: dict[str, Any] | None) -> None:
+    """The skeleton_rbf held-out line (None: not run)."""
+    if held is None:
+        return
+    if held.get("mean_m") is None:
+        out.print(
+            f"skeleton_rbf held-out markers: {held.get('note', 'not measured')}",
+            markup=False,
+            soft_wrap=True,
+        )
+        return
+    sk = held["skeleton"]
+    out.print(
+        f"skeleton_rbf: held out {held['held_out']} of {held['markers']} markers: mean "
+        f"{held['mean_m'] * 1e3:.3f} mm, p95 {held['p95_m'] * 1e3:.3f} mm (skeleton solved from "
+        f"the kept markers: {sk['joints']} joints, residual {sk['residual_rms_m'] * 1e3:.1f} mm RMS)",
+        markup=False, soft_wrap=True,
+    )  # fmt: skip
 
 
 def _worst_held_out_text(held: dict[str, Any]) -> str:
@@ -437,7 +491,13 @@ def _worst_held_out_text(held: dict[str, Any]) -> str:
 
 
 def _eval_capture(
-    capture: Path, json_path: Path, parts: int, seed: int, force: bool, json_output: bool
+    capture: Path,
+    json_path: Path,
+    parts: int,
+    seed: int,
+    force: bool,
+    json_output: bool,
+    skeleton_template: str = "auto",
 ) -> None:
     """``eval animate CAPTURE``: the held-out test on a real (or any labelled) capture."""
 
@@ -445,8 +505,15 @@ def _eval_capture(
     from skincap.evaluate.animate import held_out_on_capture
     from skincap.io.json_file import write_json
 
-    held = held_out_on_capture(io.read(capture), n_parts=parts, seed=seed)
-    result = {"capture": str(capture), "held_out": held}
+    markers = io.read(capture)
+    held = held_out_on_capture(markers, n_parts=parts, seed=seed)
+    result: dict[str, Any] = {"capture": str(capture), "held_out": held}
+    if skeleton_template != "none":
+        from skincap.evaluate.skeleton_rbf import held_out_skeleton_rbf_on_capture
+
+        result["held_out_skeleton_rbf"] = held_out_skeleton_rbf_on_capture(
+            markers, seed=seed, template=skeleton_template
+        )
     json_path.parent.mkdir(parents=True, exist_ok=True)
     write_json(json_path, result, force=force, indent=2, allow_nan=False)
     if json_output:
@@ -459,3 +526,4 @@ def _eval_capture(
         markup=False,
         soft_wrap=True,
     )
+    _print_skeleton_held_out(result.get("held_out_skeleton_rbf"))

@@ -92,6 +92,8 @@ TARGETS: dict[str, Any] = {
     "quadratic_rbf_registered_template_rms_m": 0.005,
     "quadratic_rbf_vs_rigid_reduction": 0.5,
     "quadratic_rbf_vs_lbs_reduction": 0.4,
+    # beyond the paper: the same row for the solved skeleton's DQS + the markers' residuals
+    "skeleton_rbf_vs_lbs_reduction": 0.4,
     "held_out_mean_m": 0.004,
     "segmentation_ari": 0.85,
 }
@@ -512,6 +514,7 @@ def evaluate_animate(
     n_parts: int = 17,
     held_out_fraction: float = 0.1,
     seed: int = 0,
+    skeleton_template: str | None = "auto",
     progress: Progress | None = None,
 ) -> dict[str, Any]:
     """Every row of the dense chain's evaluation on one synthetic take folder.
@@ -539,11 +542,18 @@ def evaluate_animate(
     held_out_fraction : float
     seed : int
         Of the held-out choice.
+    skeleton_template : str or None
+        The solve template of the ``skeleton_rbf`` rows (beyond the paper: a skeleton
+        solved from the take's markers and calibrated on the take itself, skinned, plus
+        the markers' residuals; :mod:`skincap.evaluate.skeleton_rbf`); None leaves them
+        out.
     progress : callable(fraction, label), optional
 
     Returns
     -------
     dict
+        ``skeleton`` (the solved skeleton's figures) and ``held_out_skeleton_rbf`` (its
+        held-out test, the same markers held out) with ``skeleton_template``;
         ``rows`` (one per case and method: ``case``, ``method``, ``rms_m``, ``mean_m``,
         ``p95_m``, ``max_m``…), ``held_out``, ``segmentation``, ``regions``
         (:func:`region_errors` by the body's dominant skin joint; None without
@@ -573,6 +583,16 @@ def evaluate_animate(
     _add_row(
         rows, per_vertex, "same_body", "global_rbf", global_rbf_frames(x[0], x, vertices), truth
     )
+    motion = skeleton = None
+    if skeleton_template is not None:
+        from skincap.evaluate.skeleton_rbf import skeleton_rbf_frames, solved_skeleton
+
+        step(0.76, "skeleton_rbf")
+        # calibrated on the take itself: --template auto on the 354-marker ROM took over
+        # ten CPU minutes (its loose-marker search), on the take ~15 s
+        motion, skeleton = solved_skeleton(x, labels, take["rate"], template=skeleton_template)
+        frames = skeleton_rbf_frames(vertices, take["faces"], x, motion)
+        _add_row(rows, per_vertex, "same_body", "skeleton_rbf", frames, truth)
     registration: dict[str, Any] | None = None
     regions = _vertex_regions(root / "truth" / "body.glb", vertices.shape[0])
     if template is None:
@@ -586,17 +606,25 @@ def evaluate_animate(
         )
     else:
         step(0.77, "registering the template")
-        row, registration = _registered_template_row(
+        template_rows, registration = _registered_template_row(
             template, take["faces"], labels, x, rom_x, surface_faces, truth,
             n_parts=n_parts, marker_radius=marker_radius, landmarks=template_landmarks,
-            regions=regions,
+            regions=regions, motion=motion,
         )  # fmt: skip
-        rows.append(row)
+        rows += template_rows
     step(0.8, "held-out markers")
     held = held_out_marker_errors(
         x, surface_faces, range_of_motion=rom_x, fraction=held_out_fraction,
         n_parts=n_parts, seed=seed, labels=labels,
     )  # fmt: skip
+    held_skeleton = None
+    if skeleton_template is not None:
+        from skincap.evaluate.skeleton_rbf import held_out_skeleton_rbf
+
+        held_skeleton = held_out_skeleton_rbf(
+            x, surface_faces, labels, take["rate"], fraction=held_out_fraction, seed=seed,
+            template=skeleton_template,
+        )  # fmt: skip
     segmentation = _segmentation_figures(rig, root / "truth" / "marker_parts.csv", labels)
     step(1.0, "done")
     return {
@@ -607,6 +635,9 @@ def evaluate_animate(
         "markers": len(labels),
         "rows": rows,
         "held_out": held,
+        "held_out_skeleton_rbf": held_skeleton,
+        "skeleton_template": skeleton_template,
+        "skeleton": skeleton,
         "segmentation": segmentation,
         "registration": registration,
         "regions": None if regions is None else region_errors(per_vertex, regions),
@@ -652,6 +683,7 @@ def _read_synthetic_take(root: Path) -> dict[str, Any]:
         "truth": truth[:n_t],
         "faces": io.read(truth_dir / "mesh.obj").faces,
         "surface_faces": surface.faces,
+        "rate": float(markers.rate),
     }
 
 
@@ -759,11 +791,14 @@ def _registered_template_row(
     marker_radius: float,
     landmarks: dict[str, int] | None,
     regions: np.ndarray | None = None,
-) -> tuple[dict[str, Any], dict[str, Any]]:
+    motion: Any = None,
+) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     """Register another body to the markers, deform it, measure it against the true skin.
 
     ``regions`` (V,) names each true-skin vertex's region (its dominant skin joint): the
-    registration's figures then break down by region (where its p95 comes from).
+    registration's figures then break down by region (where its p95 comes from). With
+    ``motion`` (the skeleton solved from the markers) a ``skeleton_rbf`` row follows the
+    ``quadratic_rbf`` one.
     """
     from skincap.deform.dense.registration import RegistrationSettings, register_mesh
     from skincap.deform.dense.rig import build_dense_rig
@@ -804,21 +839,33 @@ def _registered_template_row(
     rig = build_dense_rig(
         reg.vertices, template.faces, labels, x[0], surface_faces, rom_x, n_parts=n_parts
     )
-    frames = np.concatenate(list(rig.deformer().deform(x, "quadratic_rbf")))
     picks = np.unique(np.linspace(0, x.shape[0] - 1, 8).round().astype(int))
-    d = _surface_distances(frames, truth, skin_faces, picks).ravel()
-    row = {
-        "case": "registered_template",
-        "method": "quadratic_rbf",
-        "measured": True,
-        "metric": "deformed template vertex to the true skin surface, 8 frames",
-        "rms_m": float(np.sqrt(np.mean(d**2))),
-        "mean_m": float(d.mean()),
-        "p95_m": float(np.percentile(d, 95)),
-        "max_m": float(d.max()),
-        "nan_fraction": 0.0,
+    methods = {
+        "quadratic_rbf": lambda: np.concatenate(list(rig.deformer().deform(x, "quadratic_rbf")))
     }
-    return row, registration
+    if motion is not None:
+        from skincap.evaluate.skeleton_rbf import skeleton_rbf_frames
+
+        methods["skeleton_rbf"] = lambda: skeleton_rbf_frames(
+            reg.vertices, template.faces, x, motion
+        )
+    rows = []
+    for method, deform in methods.items():
+        d = _surface_distances(deform(), truth, skin_faces, picks).ravel()
+        rows.append(
+            {
+                "case": "registered_template",
+                "method": method,
+                "measured": True,
+                "metric": "deformed template vertex to the true skin surface, 8 frames",
+                "rms_m": float(np.sqrt(np.mean(d**2))),
+                "mean_m": float(d.mean()),
+                "p95_m": float(np.percentile(d, 95)),
+                "max_m": float(d.max()),
+                "nan_fraction": 0.0,
+            }
+        )
+    return rows, registration
 
 
 def _skeletal_rows(
@@ -856,18 +903,24 @@ def _targets(
         if r.get("measured") and r["case"] != "registered_template"
     }
     registered = [
-        r["rms_m"] for r in rows if r["case"] == "registered_template" and r.get("measured")
+        r["rms_m"]
+        for r in rows
+        if r["case"] == "registered_template"
+        and r.get("measured")
+        and r["method"] == "quadratic_rbf"
     ]
     q = rms.get("quadratic_rbf")
 
-    def reduction(base: str) -> float | None:
-        return None if q is None or base not in rms else 1.0 - q / rms[base]
+    def reduction(base: str, method: str = "quadratic_rbf") -> float | None:
+        ours = rms.get(method)
+        return None if ours is None or base not in rms else 1.0 - ours / rms[base]
 
     values: dict[str, float | None] = {
         "quadratic_rbf_same_body_rms_m": q,
         "quadratic_rbf_registered_template_rms_m": registered[0] if registered else None,
         "quadratic_rbf_vs_rigid_reduction": reduction("rigid"),
         "quadratic_rbf_vs_lbs_reduction": reduction("lbs"),
+        "skeleton_rbf_vs_lbs_reduction": reduction("lbs", "skeleton_rbf"),
         "held_out_mean_m": held.get("mean_m"),
         "segmentation_ari": segmentation.get("ari"),
     }

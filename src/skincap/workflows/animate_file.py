@@ -62,6 +62,8 @@ ANIMATE_OUTPUTS = (".pc2", ".usd", ".usda", ".usdc")
 MIN_MARKERS = 30
 #: Frames per streamed deformation chunk.
 CHUNK_FRAMES = 32
+#: The method beyond the paper: a solved skeleton's DQS plus the markers' residuals.
+SKELETON_METHOD = "skeleton_rbf"
 
 
 def labelled_markers(markers: MarkerSet, path: Path) -> MarkerSet:
@@ -144,6 +146,7 @@ def animate_file(
     rig: str | os.PathLike[str] | None = None,
     report: str | os.PathLike[str] | None = None,
     mesh_units: str | None = None,
+    skeleton_template: str = "auto",
     force: bool = False,
     progress: Progress | None = None,
 ) -> dict[str, Any]:
@@ -160,7 +163,11 @@ def animate_file(
     rom : path-like, optional
         Range-of-motion take the parts are learnt from (default the take itself); it
         must carry every marker of the take.
-    method : {"quadratic_rbf", "quadratic", "rigid_rbf", "rigid"}
+    method : {"quadratic_rbf", "quadratic", "rigid_rbf", "rigid", "skeleton_rbf"}
+        ``skeleton_rbf`` (beyond the paper): a skeleton solved from the markers
+        (calibrated on ``rom``), skinned to the mesh with automatic weights, plus one
+        interpolation of the markers' residuals (:mod:`skincap.deform.dense.skeleton_rbf`);
+        it has no part rig, so ``rig``/``save_rig`` are refused.
     n_parts : int
         Near-rigid parts (the paper's 17).
     surface : path-like, optional
@@ -181,6 +188,8 @@ def animate_file(
         JSON report: parts, registration distances, per-frame timing, method.
     mesh_units : str, optional
         Length unit of an OBJ/PLY mesh.
+    skeleton_template : str
+        With ``skeleton_rbf``: the solve template (``"auto"``, a built-in name or JSON).
     force : bool
         Replace existing outputs.
     progress : callable(fraction, stage), optional
@@ -195,6 +204,11 @@ def animate_file(
     from skincap.workflows.skin_file import mesh_input_files
 
     check_animate_options(method, n_parts, marker_radius_mm)
+    if method == SKELETON_METHOD and (rig is not None or save_rig is not None):
+        raise ValidationError(
+            "--method skeleton_rbf: --rig/--save-rig hold a part rig; skeleton_rbf solves "
+            "its skeleton from each take and keeps no rig (leave them out)"
+        )
     markers_path, output = Path(markers_path), Path(output)
     given = {"mesh": mesh_path, "rom": rom, "surface": surface, "landmarks": landmarks,
              "rig": rig, "save_rig": save_rig, "report": report}  # fmt: skip
@@ -226,7 +240,7 @@ def animate_file(
             paths, markers_path, output,
             method=method, n_parts=n_parts, reference_frame=reference_frame,
             register=register, marker_radius_mm=marker_radius_mm, mesh_units=mesh_units,
-            force=force, progress=progress,
+            skeleton_template=skeleton_template, force=force, progress=progress,
         )  # fmt: skip
 
 
@@ -234,8 +248,10 @@ def check_animate_options(method: str, n_parts: int, marker_radius_mm: float) ->
     """Refuse a bad option before any file is touched, naming the option (not the output)."""
     from skincap.deform.dense.deformer import METHODS
 
-    if method not in METHODS:
-        raise ValidationError(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
+    if method not in (*METHODS, SKELETON_METHOD):
+        raise ValidationError(
+            f"--method: expected one of {', '.join((*METHODS, SKELETON_METHOD))}, got {method!r}"
+        )
     if not 0.0 <= marker_radius_mm <= 50.0:  # NaN fails too
         raise ValidationError(f"--marker-radius: expected 0-50 mm, got {marker_radius_mm}")
     if not 1 <= n_parts <= 200:
@@ -253,6 +269,7 @@ def _animate(
     register: bool,
     marker_radius_mm: float,
     mesh_units: str | None,
+    skeleton_template: str,
     force: bool,
     progress: Progress | None,
 ) -> dict[str, Any]:
@@ -262,6 +279,13 @@ def _animate(
     take = labelled_markers(io.read(markers_path), markers_path)
     positions, filled = _filled(take, markers_path)
     labels = [str(s) for s in take.labels]
+    if method == SKELETON_METHOD:
+        return _animate_skeleton_rbf(
+            paths, markers_path, output, take, positions, filled,
+            reference_frame=reference_frame, register=register,
+            marker_radius_mm=marker_radius_mm, mesh_units=mesh_units,
+            skeleton_template=skeleton_template, force=force, progress=progress,
+        )  # fmt: skip
     if paths["rig"] is not None:
         from skincap.io.dense_rig import read_dense_rig
 
@@ -365,25 +389,13 @@ def _build_rig(
     marker_radius_mm: float,
     progress: Progress | None,
 ) -> tuple[DenseRig, dict[str, Any]]:
-    from skincap import io
-    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.cleanup.surface import build_marker_surface
     from skincap.deform.dense.rig import build_dense_rig
     from skincap.workflows.clean_file import read_marker_surface
 
     labels = [str(s) for s in take.labels]
-    frame = choose_reference_frame(positions) if reference_frame is None else reference_frame
-    if not 0 <= frame < take.n_frames:
-        raise FormatError(
-            markers_path,
-            f"--reference-frame {frame} is outside 0..{take.n_frames - 1}",
-        )
+    frame = _reference_frame(positions, reference_frame, markers_path)
     reference = positions[frame]
-    if not np.isfinite(reference).all():
-        raise FormatError(
-            markers_path,
-            f"{int((~np.isfinite(reference).all(1)).sum())} markers are missing in reference "
-            f"frame {frame} even after filling; choose another --reference-frame",
-        )
     filled_take = dataclasses.replace(take, positions=positions)
     if paths["surface"] is not None:
         surf = read_marker_surface(paths["surface"], filled_take, frame)
@@ -411,24 +423,147 @@ def _build_rig(
         )
     rom_positions = positions
     if paths["rom"] is not None:
-        rom_take = io.read(paths["rom"])
-        rom_take = labelled_markers(rom_take, paths["rom"])
-        where = {str(lab): i for i, lab in enumerate(rom_take.labels)}
-        missing = [lab for lab in labels if lab not in where]
-        if missing:
-            raise FormatError(
-                paths["rom"],
-                f"the range-of-motion take lacks {len(missing)} of the take's {len(labels)} "
-                f"markers ({', '.join(missing[:5])}{' …' if len(missing) > 5 else ''})",
-            )
-        rom_take = rom_take.select([where[lab] for lab in labels])
-        rom_positions, _ = _filled(rom_take, paths["rom"])
+        rom_positions = _read_rom(paths["rom"], labels).positions
         build["rom"] = str(paths["rom"])
     subject = build_dense_rig(
         vertices, mesh.faces, labels, reference, surf.faces, rom_positions,
         n_parts=n_parts, settings=dict(build), progress=_stage(progress, "segmentation"),
     )  # fmt: skip
     return subject, build
+
+
+def _read_rom(path: Path, labels: list[str]) -> MarkerSet:
+    """The range-of-motion take in the take's marker order, gaps filled (``labels``: the
+    take's; a ROM lacking one is refused, naming the file)."""
+    from skincap import io
+
+    rom_take = labelled_markers(io.read(path), path)
+    where = {str(lab): i for i, lab in enumerate(rom_take.labels)}
+    missing = [lab for lab in labels if lab not in where]
+    if missing:
+        raise FormatError(
+            path,
+            f"the range-of-motion take lacks {len(missing)} of the take's {len(labels)} "
+            f"markers ({', '.join(missing[:5])}{' …' if len(missing) > 5 else ''})",
+        )
+    rom_take = rom_take.select([where[lab] for lab in labels])
+    filled, _ = _filled(rom_take, path)
+    return dataclasses.replace(rom_take, positions=filled)
+
+
+def _reference_frame(positions: np.ndarray, reference_frame: int | None, path: Path) -> int:
+    """The frame the mesh matches (default the one with the most markers), checked."""
+    from skincap.cleanup.surface import choose_reference_frame
+
+    frame = choose_reference_frame(positions) if reference_frame is None else reference_frame
+    if not 0 <= frame < positions.shape[0]:
+        raise FormatError(path, f"--reference-frame {frame} is outside 0..{positions.shape[0] - 1}")
+    if not np.isfinite(positions[frame]).all():
+        raise FormatError(
+            path,
+            f"{int((~np.isfinite(positions[frame]).all(1)).sum())} markers are missing in reference "
+            f"frame {frame} even after filling; choose another --reference-frame",
+        )
+    return int(frame)
+
+
+def _animate_skeleton_rbf(
+    paths: dict[str, Path | None],
+    markers_path: Path,
+    output: Path,
+    take: MarkerSet,
+    positions: np.ndarray,
+    filled: int,
+    *,
+    reference_frame: int | None,
+    register: bool,
+    marker_radius_mm: float,
+    mesh_units: str | None,
+    skeleton_template: str,
+    force: bool,
+    progress: Progress | None,
+) -> dict[str, Any]:
+    """``--method skeleton_rbf``: solve the take's skeleton (calibrated on ``--rom``), bind
+    the mesh to it in the reference frame, deform by DQS + the markers' residuals."""
+    from skincap import io
+    from skincap.cleanup.surface import build_marker_surface
+    from skincap.deform.dense.skeleton_rbf import build_skeleton_rbf
+    from skincap.solve.with_rom import solve_with_range_of_motion
+
+    assert paths["mesh"] is not None  # animate_file checked it
+    mesh = io.read_mesh(paths["mesh"], units=mesh_units)
+    if mesh.n_faces == 0:
+        raise FormatError(paths["mesh"], "the mesh has no faces (triangles are needed)")
+    labels = [str(s) for s in take.labels]
+    frame = _reference_frame(positions, reference_frame, markers_path)
+    reference = positions[frame]
+    build: dict[str, Any] = {"reference_frame": frame, "skeleton_template": skeleton_template}
+    vertices = mesh.vertices
+    if register:
+        surf = build_marker_surface(positions, reference_frame=frame)
+        vertices, build["registration"] = _register(
+            mesh, reference, labels, paths, marker_radius_mm, progress, surf.faces
+        )
+    build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
+    filled_take = dataclasses.replace(take, positions=positions)
+    rom = None
+    if paths["rom"] is not None:
+        rom = _read_rom(paths["rom"], labels)
+        build["rom"] = str(paths["rom"])
+    try:
+        solved = solve_with_range_of_motion(
+            filled_take, rom, template=skeleton_template, progress=_stage(progress, "skeleton")
+        )
+        deformer = build_skeleton_rbf(vertices, mesh.faces, reference, solved.motion, frame)
+    except ValidationError as exc:
+        raise FormatError(paths["rom"] or markers_path, str(exc)) from None
+    build["skeleton"] = {
+        "joints": int(solved.motion.skeleton.n_joints),
+        "markers_used": len(solved.model.marker_labels),
+        "residual_rms_m": float(np.sqrt(np.nanmean(solved.residuals**2))),
+    }
+    timing: list[tuple[float, int]] = []
+    blocks = deformer.deform(positions, solved.motion, progress=_stage(progress, "deformation"))
+    frames = _timed(blocks, timing)
+    rest = dataclasses.replace(mesh, vertices=vertices, skin=None)
+    written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
+    per_frame = (
+        np.repeat([t / n for t, n in timing], [n for _, n in timing]) if timing else np.zeros(0)
+    )
+    summary: dict[str, Any] = {
+        "markers_file": str(markers_path),
+        "mesh": str(paths["mesh"]),
+        "outputs": [str(p) for p in written],
+        "method": SKELETON_METHOD,
+        "frames": int(take.n_frames),
+        "rate": float(take.rate),
+        "vertices": int(vertices.shape[0]),
+        "markers": len(labels),
+        "filled_samples": filled,
+        "parts": None,
+        "rig": build,
+        "deformation_ms_per_frame": {
+            "mean": float(per_frame.mean() * 1e3) if per_frame.size else None,
+            "frames": [round(float(x) * 1e3, 4) for x in per_frame],
+        },
+    }
+    if paths["report"] is not None:
+        from skincap.io.json_file import write_json
+
+        write_json(paths["report"], summary, force=force, allow_nan=False)
+    return summary
+
+
+def _timed(blocks: Iterator[np.ndarray], timing: list[tuple[float, int]]) -> Iterator[np.ndarray]:
+    """The blocks, each one's wall time and frame count appended to ``timing``."""
+    while True:
+        start = time.perf_counter()
+        try:
+            block = next(blocks)
+        except StopIteration:
+            return
+        timing.append((time.perf_counter() - start, int(block.shape[0])))
+        yield block
 
 
 def _marker_to_mesh(
@@ -491,14 +626,7 @@ def _timed_frames(
         chunk=CHUNK_FRAMES,
         progress=_stage(progress, "deformation"),
     )
-    while True:
-        start = time.perf_counter()
-        try:
-            block = next(blocks)
-        except StopIteration:
-            return
-        timing.append((time.perf_counter() - start, int(block.shape[0])))
-        yield block
+    return _timed(blocks, timing)
 
 
 def _write_animation(

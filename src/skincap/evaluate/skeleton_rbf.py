@@ -1,0 +1,205 @@
+"""``skeleton_rbf`` measured: the skeleton solved from the markers, skinned, plus the
+markers' residuals (:mod:`skincap.deform.dense.skeleton_rbf`), against the true skin and
+on held-out markers.
+
+The skeleton is solved here (evaluation sits above both ``solve`` and ``deform``):
+calibrated on the range-of-motion take when one is given (``--template auto`` by
+default: no truth is read), then posed on the take by inverse kinematics.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from skincap.errors import ValidationError
+
+__all__ = ["held_out_skeleton_rbf", "skeleton_rbf_frames", "solved_skeleton"]
+
+
+def solved_skeleton(
+    positions: np.ndarray,
+    labels: Sequence[str],
+    rate: float,
+    *,
+    range_of_motion: np.ndarray | None = None,
+    template: Any = "auto",
+) -> tuple[Any, dict[str, Any]]:
+    """The take's skeleton motion solved from its own markers.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    labels : N str
+    rate : float, Hz
+    range_of_motion : (T', N, 3) float, optional
+        The calibration take, same markers (default the take).
+    template : str
+        ``"auto"``, a built-in template name or a JSON file.
+
+    Returns
+    -------
+    motion : Motion (T frames, metres)
+    figures : dict
+        ``joints``, ``markers_used``, ``residual_rms_m``, ``cpu_seconds``.
+    """
+    import time
+
+    from skincap.solve.with_rom import solve_with_range_of_motion
+    from skincap.types import MarkerSet
+
+    cpu0 = time.process_time()
+    take = MarkerSet(positions=np.asarray(positions, float), labels=list(labels), rate=rate)
+    rom = None
+    if range_of_motion is not None:
+        rom = MarkerSet(
+            positions=np.asarray(range_of_motion, float), labels=list(labels), rate=rate
+        )
+    solved = solve_with_range_of_motion(take, rom, template=template)
+    return solved.motion, {
+        "joints": int(solved.motion.skeleton.n_joints),
+        "markers_used": len(solved.model.marker_labels),
+        "residual_rms_m": float(np.sqrt(np.nanmean(solved.residuals**2))),
+        "cpu_seconds": time.process_time() - cpu0,
+    }
+
+
+def skeleton_rbf_frames(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    positions: np.ndarray,
+    motion: Any,
+    *,
+    reference_frame: int = 0,
+    kernel: str = "thin_plate",
+) -> np.ndarray:
+    """(T, V, 3) deformed vertices of the mesh (in the pose of ``reference_frame``)."""
+    from skincap.deform.dense.skeleton_rbf import build_skeleton_rbf
+
+    x = np.asarray(positions, dtype=np.float64)
+    deformer = build_skeleton_rbf(
+        vertices, faces, x[reference_frame], motion, reference_frame, kernel=kernel
+    )
+    return np.concatenate(list(deformer.deform(x, motion)))
+
+
+def held_out_skeleton_rbf(
+    positions: np.ndarray,
+    surface_faces: np.ndarray,
+    labels: Sequence[str],
+    rate: float,
+    *,
+    range_of_motion: np.ndarray | None = None,
+    reference_frame: int = 0,
+    fraction: float = 0.1,
+    seed: int = 0,
+    template: Any = "auto",
+    kernel: str = "thin_plate",
+) -> dict[str, Any]:
+    """Leave ``fraction`` of the markers out of the solve and the residual fit, predict them.
+
+    The held-out markers are points of the body: their skin weights come from bone heat on
+    the marker surface (all markers as its vertices, bound to the skeleton solved from the
+    kept markers in the reference frame), so no truth and no mesh is needed, and they take
+    no part in the solve or the residual interpolation. The same seeded choice as
+    :func:`skincap.evaluate.animate.held_out_marker_errors`.
+
+    Parameters
+    ----------
+    positions : (T, N, 3) float, metres, NaN where missing
+    surface_faces : (F, 3) int, marker-surface triangles
+    labels : N str; rate : float, Hz
+    range_of_motion : (T', N, 3), optional
+    reference_frame, fraction, seed, template, kernel
+
+    Returns
+    -------
+    dict
+        ``held_out``, ``markers``, ``mean_m``, ``p95_m``, ``max_m`` over the measured
+        samples, ``skeleton`` (:func:`solved_skeleton`'s figures).
+    """
+    from skincap.deform.dense.skeleton_rbf import SkeletonRBFDeformer
+    from skincap.deform.skeletal.bind import bind_mesh
+    from skincap.geometry.kinematics import forward_kinematics
+    from skincap.types import Mesh
+
+    x = np.asarray(positions, dtype=np.float64)
+    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
+    present = np.flatnonzero(np.isfinite(x[reference_frame]).all(axis=1))
+    if present.size < 10:
+        raise ValidationError(f"{present.size} markers in the reference frame; 10 needed")
+    rng = np.random.default_rng(seed)
+    n_out = max(1, int(round(fraction * present.size)))
+    out = np.sort(rng.choice(present, size=n_out, replace=False))
+    keep = np.setdiff1d(present, out)
+    rom = None if range_of_motion is None else np.asarray(range_of_motion, float)[:, keep]
+    motion, figures = solved_skeleton(
+        x[:, keep], [labels[i] for i in keep], rate, range_of_motion=rom, template=template
+    )
+    # the marker surface over the reference frame's markers (missing ones: no triangle)
+    ref = x[reference_frame]
+    usable = f[np.isin(f, present).all(axis=1)]
+    index = np.full(x.shape[1], -1)
+    index[present] = np.arange(present.size)
+    world = forward_kinematics(motion)
+    surface = bind_mesh(
+        Mesh(vertices=ref[present], faces=index[usable]), motion.skeleton,
+        rest_world=world[reference_frame],
+    )  # fmt: skip
+    assert surface.skin is not None  # bind_mesh always gives one
+    idx, w = surface.skin.joint_indices, surface.skin.joint_weights
+    kept_rows, out_rows = index[keep], index[out]
+    deformer = SkeletonRBFDeformer(
+        ref[keep], idx[kept_rows], w[kept_rows], ref[keep], idx[kept_rows], w[kept_rows],
+        world[reference_frame], kernel=kernel,
+    )  # fmt: skip
+    predicted = deformer.deform_frames(
+        x[:, keep], world, points=ref[out],
+        point_joint_indices=idx[out_rows], point_joint_weights=w[out_rows],
+    )  # fmt: skip
+    d = np.linalg.norm(predicted - x[:, out], axis=-1)
+    dd = d[np.isfinite(d)]
+    return {
+        "method": "skeleton_rbf",
+        "held_out": int(n_out),
+        "markers": int(present.size),
+        "mean_m": float(dd.mean()) if dd.size else None,
+        "p95_m": float(np.percentile(dd, 95)) if dd.size else None,
+        "max_m": float(dd.max()) if dd.size else None,
+        "skeleton": figures,
+    }
+
+
+def held_out_skeleton_rbf_on_capture(
+    markers: Any, *, fraction: float = 0.1, seed: int = 0, template: Any = "auto"
+) -> dict[str, Any]:
+    """:func:`held_out_skeleton_rbf` on any labelled capture (real ones included).
+
+    Like :func:`skincap.evaluate.animate.held_out_on_capture`: the labelled columns,
+    the marker surface built from the take, the frame with the most markers as the
+    reference, the take as its own calibration.
+
+    Returns
+    -------
+    dict
+        :func:`held_out_skeleton_rbf`'s figures plus ``reference_frame``; or ``mean_m``
+        None and a ``note`` when the kept markers calibrate no skeleton on ``template``.
+    """
+    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+
+    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
+    x = markers.positions[:, keep]
+    frame = choose_reference_frame(x)
+    surface = build_marker_surface(x, reference_frame=frame)
+    if surface.faces.shape[0] == 0:
+        raise ValidationError("the capture's marker surface has no triangles")
+    try:
+        out = held_out_skeleton_rbf(
+            x, surface.faces, [str(markers.labels[i]) for i in keep], float(markers.rate),
+            reference_frame=frame, fraction=fraction, seed=seed, template=template,
+        )  # fmt: skip
+    except ValidationError as exc:  # the kept markers do not calibrate a skeleton
+        return {"method": "skeleton_rbf", "mean_m": None, "note": f"not measured: {exc}"}
+    return {**out, "reference_frame": int(frame)}
