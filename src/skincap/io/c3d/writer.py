@@ -57,8 +57,9 @@ def write_c3d(
         to ``meta["point_scale"]`` (the source file's, when the residuals fit in its
         255 steps) or else to the smallest power of ten (file units) whose 255 steps
         hold the largest residual.
-        ``invented`` samples get camera mask 0b1111111, declared in
-        ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
+        ``camera_masks`` are written back on the measured samples; ``invented``
+        samples get camera mask 0b1111111 (or, when a measured sample has that mask,
+        one no measured sample has), declared in ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
         written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
         Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``…, and
         ``meta["descriptions"]`` to ``DESCRIPTIONS``, ``DESCRIPTIONS2``…; text is
@@ -455,16 +456,40 @@ def _merged_groups(
 def _camera_masks(
     markers: MarkerSet, total: int, out_groups: list[C3dGroup], target: Path
 ) -> np.ndarray:
-    """Camera masks (T, P) int: INVENTED_MASK on invented samples, declared in SKINCAP.
+    """Camera masks (T, P) int: the markers' measured ``camera_masks``, and a mask marking
+    invented samples, declared in ``SKINCAP:INVENTED_CAMERA_MASK``.
 
-    Adds ``SKINCAP:INVENTED_CAMERA_MASK`` to ``out_groups`` (in place) when the markers
-    carry ``invented``.
+    The invented mark is INVENTED_MASK (all seven bits) unless a measured sample has
+    that mask; then the highest mask no measured sample has, so a measured sample never
+    reads back as invented. Adds the parameter to ``out_groups`` (in place) when the
+    markers carry ``invented``.
     """
+    n = markers.n_markers
     masks = np.zeros((markers.n_frames, total), dtype=np.int64)
+    present = ~markers.missing
+    if markers.camera_masks is not None:
+        masks[:, :n] = np.where(present, markers.camera_masks, 0)
     if markers.invented is not None:
-        n = markers.n_markers
-        masks[:, :n] = np.where(markers.invented & ~markers.missing, INVENTED_MASK, 0)
-        mask_param = _number(target)("INVENTED_CAMERA_MASK", INVENTED_MASK, "int")
+        invented = markers.invented & present
+        measured = masks[:, :n][~invented]
+        mark = INVENTED_MASK
+        used = np.zeros(INVENTED_MASK + 1, dtype=bool)
+        used[np.unique(measured)] = True
+        if used[mark]:
+            free = np.flatnonzero(~used[1:]) + 1
+            if free.size:
+                mark = int(free[-1])
+            else:  # every mask in use: the invented mark wins, the cameras of those are lost
+                warnings.warn(
+                    f"{target}: every camera mask is in use by measured samples; those with "
+                    f"mask {mark} are written without their cameras to keep them apart from "
+                    "invented ones",
+                    SkincapWarning,
+                    stacklevel=3,
+                )
+                masks[:, :n][masks[:, :n] == mark] = 0
+        masks[:, :n] = np.where(invented, mark, masks[:, :n])
+        mask_param = _number(target)("INVENTED_CAMERA_MASK", mark, "int")
         for k, g in enumerate(out_groups):
             if g.name.upper() == "SKINCAP":
                 out_groups[k] = replace(g, parameters=g.parameters + (mask_param,))
