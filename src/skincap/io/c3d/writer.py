@@ -118,17 +118,20 @@ def write_c3d(
         analogs, ratio = np.zeros((0, 0)), 0
 
     source_groups = list(content.groups) if content is not None else []
-    point = _point_parameters(markers, points, pscale, units, up_key, content, target)
+    # the source's points go out in its column order (model outputs between markers)
+    order = _source_order(points.labels, content)
+    point = _point_parameters(markers, points, pscale, units, up_key, content, target, order)
     out_groups = _merged_groups(
         source_groups, point, points.groups, keep_analogs, target, float(markers.rate) * ratio
     )
     masks = _camera_masks(markers, len(points.labels), out_groups, target)
+    cols = slice(None) if order is None else order
 
     frames = C3dFrames(
-        xyz=points.xyz,
-        invalid=points.invalid,
-        residual_steps=steps,
-        camera_masks=masks,
+        xyz=points.xyz[:, cols],
+        invalid=points.invalid[:, cols],
+        residual_steps=steps[:, cols],
+        camera_masks=masks[:, cols],
         analogs=analogs,
         ratio=ratio,
     )
@@ -321,8 +324,11 @@ def _point_parameters(
     up_key: str,
     content: C3dContent | None,
     target: Path,
+    order: np.ndarray | None = None,
 ) -> list[C3dParameter]:
     """The POINT parameters that describe ``points``, in the source's records where equal.
+
+    ``order`` (P,) int, optional: the column order the points are written in.
 
     Drops ``points.groups["BONES"]`` when the source's POINT did not list it (the reader
     recognises segment axes by their labels again).
@@ -340,13 +346,18 @@ def _point_parameters(
         num("RATE", float(markers.rate), "float"),
         text("UNITS", units),
     ]
-    point += _chunked("LABELS", labels, target)
     descriptions = meta.get("descriptions")
+    by_label = _source_descriptions(content) if content is not None else {}
     if not (isinstance(descriptions, list) and len(descriptions) == n):
         # columns added, removed or reordered: the source's descriptions by label
-        by_label = _source_descriptions(content) if content is not None else {}
         descriptions = [by_label.get(lab, "") for lab in markers.labels]
-    point += _chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n), target)
+    # the model outputs keep theirs by label (Plug-in Gait names each angle and moment)
+    descriptions = list(descriptions) + [by_label.get(lab, "") for lab in labels[n:total]]
+    descriptions = [str(d) for d in descriptions]
+    if order is not None:
+        labels, descriptions = [labels[i] for i in order], [descriptions[i] for i in order]
+    point += _chunked("LABELS", labels, target)
+    point += _chunked("DESCRIPTIONS", descriptions, target)
     screen = meta.get("screen_axes")
     if not (
         isinstance(screen, tuple | list)
@@ -405,8 +416,9 @@ def _merged_groups(
         name = name.upper()
         if name in written or name in ("LONG_FRAMES", "TYPE_GROUPS"):
             return True
+        # a group's *_UNITS is replaced only where written (in ``written``): the source's
+        # ANGLE_UNITS, SCALAR_UNITS… stay when no such output goes out
         listing = {"LABELS", "DESCRIPTIONS", *MODEL_OUTPUT_GROUPS, *groups}
-        listing |= {g.rstrip("S") + "_UNITS" for g in groups} | set(MODEL_OUTPUT_GROUPS.values())
         return name.rstrip("0123456789") in listing
 
     out_groups: list[C3dGroup] = []
@@ -499,20 +511,37 @@ def _camera_masks(
     return masks
 
 
+def _source_listing(content: C3dContent, name: str) -> list[str]:
+    """The source file's POINT ``name``, ``name2``, ``name3``… strings, in order."""
+    out: list[str] = []
+    k = 1
+    while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
+        if p.type != -1:
+            break
+        out.extend(p.value)
+        k += 1
+    return out
+
+
 def _source_descriptions(content: C3dContent) -> dict[str, str]:
     """The source file's POINT descriptions by label."""
+    pairs = zip(
+        _source_listing(content, "LABELS"), _source_listing(content, "DESCRIPTIONS"), strict=False
+    )
+    return {lab: d for lab, d in pairs if lab}
 
-    def listed(name: str) -> list[str]:
-        out: list[str] = []
-        k = 1
-        while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
-            if p.type != -1:
-                break
-            out.extend(p.value)
-            k += 1
-        return out
 
-    return {lab: d for lab, d in zip(listed("LABELS"), listed("DESCRIPTIONS"), strict=False) if lab}
+def _source_order(labels: list[str], content: C3dContent | None) -> np.ndarray | None:
+    """(P,) int: the column order that puts ``labels`` (markers, then model outputs) in
+    the source's POINT order; None when they are not the source's points."""
+    if content is None:
+        return None
+    source = [str(s).strip() for s in _source_listing(content, "LABELS")][: len(labels)]
+    index = {lab: i for i, lab in enumerate(labels)}
+    if len(source) != len(labels) or len(index) != len(labels) or set(source) != set(index):
+        return None
+    order = np.array([index[lab] for lab in source], dtype=np.int64)
+    return None if np.array_equal(order, np.arange(len(labels))) else order
 
 
 def _like_source(new: C3dParameter, old: C3dParameter | None) -> C3dParameter:
