@@ -19,7 +19,7 @@ from skincap.types import MarkerSet
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MASKED_FILES = [
-    DATA / "c3dorg_sample01_Eb015pr.c3d",  # Vicon integer file: 52 distinct masks
+    DATA / "c3dorg_sample01_Eb015pr.c3d",  # c3d.org sample01, PC float: 52 distinct masks
     DATA / "external" / "c3dorg_sample02_pc_int.c3d",  # integer file, mask 127 on invalid samples
 ]
 
