@@ -147,6 +147,10 @@ class MarkerSet(MarkerTrajectories):
         From a C3D, ``c3d``: what the file carries besides the points (analogs,
         events, every parameter), immutable, written back by the C3D writer while
         the frame count is unchanged; pass ``meta`` along to keep it.
+    camera_masks : (T, N) uint8, optional
+        Per-sample C3D camera mask: bit k set when camera k + 1 of the seven the
+        format records contributed to the sample. Measured data, written back by
+        the C3D writer; 0 where missing or unknown.
     """
 
     positions: np.ndarray
@@ -155,6 +159,7 @@ class MarkerSet(MarkerTrajectories):
     residuals: np.ndarray | None = None
     invented: np.ndarray | None = None
     meta: dict[str, Any] = field(default_factory=dict)
+    camera_masks: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.positions = _float_array("positions", self.positions, (None, None, 3))
@@ -182,6 +187,14 @@ class MarkerSet(MarkerTrajectories):
             inv = np.asarray(self.invented)
             _check_shape("invented", inv, (t, n))
             self.invented = inv.astype(bool)
+        if self.camera_masks is not None:
+            cm = np.asarray(self.camera_masks)
+            _check_shape("camera_masks", cm, (t, n))
+            if cm.dtype.kind not in "iub" or (cm.size and (cm.min() < 0 or cm.max() > 127)):
+                raise ValidationError(
+                    "camera_masks: expected integers in 0..127 (seven camera bits)"
+                )
+            self.camera_masks = cm.astype(np.uint8)
         self.meta = dict(self.meta)
 
     @property
@@ -204,6 +217,7 @@ class MarkerSet(MarkerTrajectories):
             residuals=None if self.residuals is None else self.residuals[:, idx].copy(),
             invented=None if self.invented is None else self.invented[:, idx].copy(),
             meta=dict(self.meta),
+            camera_masks=None if self.camera_masks is None else self.camera_masks[:, idx].copy(),
         )
 
 

@@ -259,18 +259,15 @@ def _body_points(n: int = 400, seed: int = 0) -> list[list[float]]:
     return rng.uniform([-0.25, 0.0, -0.12], [0.25, 1.75, 0.12], size=(n, 3)).tolist()
 
 
-def test_skin_mesh_with_vertices_and_no_faces_gives_nearest_bone_weights(tmp_path: Path) -> None:
+def test_skin_mesh_with_vertices_and_no_faces_is_refused(tmp_path: Path) -> None:
+    """A point cloud is no skin: bone heat needs a surface (it used to bind each vertex
+    to its nearest bone and write the cloud as a skin); one line, nothing written."""
     mesh = tmp_path / "cloud.obj"
     mesh.write_text("".join(f"v {x!r} {y!r} {z!r}\n" for x, y, z in _body_points()))
     out = tmp_path / "o.pc2"
-    result = skincap("skin", mesh, BVH, "--units", "cmu", "-o", out)
-    assert result.returncode == 0, result.stderr[-2000:]
-    assert "Traceback" not in result.stderr
-    from skincap.io.pc2 import read_pc2
-
-    cache = read_pc2(out)
-    assert cache.frames.shape[1] == 400 and np.isfinite(cache.frames).all()
-    assert cache.frames.shape[0] > 100
+    line = one_error_line(skincap("skin", mesh, BVH, "--units", "cmu", "-o", out), mesh)
+    assert "no faces" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["cloud.obj"]
 
 
 def test_skin_ply_with_a_vertex_at_minus_4e307_is_refused(tmp_path: Path) -> None:

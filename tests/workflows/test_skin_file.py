@@ -76,3 +76,15 @@ def test_a_bare_mesh_in_another_unit_is_a_warning_naming_the_unit(tmp_path):
         assert out["height_m"] == pytest.approx(1.7)
         mesh.write_text(_box(1.7))  # a body in metres: no warning
         skin_file(mesh, motion, tmp_path / "c.pc2", units="cm", force=True)
+
+
+def test_a_mesh_without_faces_is_refused_before_anything_is_written(tmp_path):
+    """Bone heat on vertices alone used to bind each to its nearest bone and write a
+    "skinned" point cloud; now one line names the mesh."""
+    points = tmp_path / "points.obj"
+    points.write_text("".join(line + "\n" for line in _box(1.7).splitlines() if line[0] == "v"))
+    motion = tmp_path / "one.bvh"
+    motion.write_text(ONE_JOINT)
+    with pytest.raises(FormatError, match=r"points\.obj.*no faces"):
+        skin_file(points, motion, tmp_path / "out.pc2", units="cm")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["one.bvh", "points.obj"]

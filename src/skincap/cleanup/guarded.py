@@ -105,6 +105,8 @@ class GuardedFill:
         samples, and what the input already flagged.
     residuals : (T, N) float64 or None
         The input's residuals, following swapped samples.
+    camera_masks : (T, N) uint8 or None
+        The input's camera masks, following swapped samples.
     labels : N str
     holes : int
         Missing samples before filling (spikes included).
@@ -124,6 +126,7 @@ class GuardedFill:
     positions: np.ndarray
     invented: np.ndarray
     residuals: np.ndarray | None
+    camera_masks: np.ndarray | None
     labels: list[str]
     holes: int
     filled: np.ndarray
@@ -237,6 +240,7 @@ def guarded_fill_smooth(
     measured = present0 & ~prior
     pos = p0.copy()
     res = None if body.residuals is None else np.array(body.residuals, dtype=np.float64)
+    cam = None if body.camera_masks is None else np.array(body.camera_masks)
     relabelled = np.zeros((t, n), dtype=bool)
     swaps = []
     if settings.repair_swaps and n >= 2:
@@ -247,6 +251,11 @@ def guarded_fill_smooth(
                 res[frames, i], res[frames, j] = (
                     body.residuals[frames, j],
                     body.residuals[frames, i],
+                )
+            if cam is not None and body.camera_masks is not None:
+                cam[frames, i], cam[frames, j] = (
+                    body.camera_masks[frames, j],
+                    body.camera_masks[frames, i],
                 )
             relabelled[frames, i] = ~np.isnan(pos[frames, i, 0])
             relabelled[frames, j] = ~np.isnan(pos[frames, j, 0])
@@ -289,6 +298,7 @@ def guarded_fill_smooth(
         positions=final,
         invented=invented,
         residuals=res,
+        camera_masks=cam,
         labels=[str(lab) for lab in body.labels],
         holes=holes,
         filled=filled,

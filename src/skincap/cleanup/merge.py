@@ -452,13 +452,14 @@ def _clear_winners(
 @dataclass
 class _MergeState:
     """What the passes build: the anchors' samples so far ``cur`` (T, N, 3), their
-    residuals and invented flags (T, N) (None when the input has none), and the anchor
-    index each run joined, ``target`` (F,) int, -1 while open."""
+    residuals, invented flags and camera masks (T, N) (None when the input has none),
+    and the anchor index each run joined, ``target`` (F,) int, -1 while open."""
 
     cur: np.ndarray
     res: np.ndarray | None
     inv: np.ndarray | None
     target: np.ndarray
+    cam: np.ndarray | None = None
 
 
 def _join_chains(
@@ -487,6 +488,8 @@ def _join_chains(
             state.res[frames, i] = markers.residuals[frames, col]
         if state.inv is not None and markers.invented is not None:
             state.inv[frames, i] = markers.invented[frames, col]
+        if state.cam is not None and markers.camera_masks is not None:
+            state.cam[frames, i] = markers.camera_masks[frames, col]
         merged_now += 1
     return merged_now
 
@@ -516,6 +519,13 @@ def _assemble(
         if state.inv is None or markers.invented is None
         else np.concatenate([state.inv, markers.invented[:, left] & ~removed[:, left]], axis=1)
     )
+    out_cam = (
+        None
+        if state.cam is None or markers.camera_masks is None
+        else np.concatenate(
+            [state.cam, np.where(removed[:, left], 0, markers.camera_masks[:, left])], axis=1
+        )
+    )
     labels = list(markers.labels)
     out = MarkerSet(
         positions=np.concatenate([state.cur, rest], axis=1),
@@ -524,6 +534,7 @@ def _assemble(
         meta=dict(markers.meta),
         residuals=out_res,
         invented=out_inv,
+        camera_masks=out_cam,
     )
     return out, keep_cols
 
@@ -669,6 +680,7 @@ def merge_fragments(
         res=None if markers.residuals is None else markers.residuals[:, anchors].copy(),
         inv=None if markers.invented is None else markers.invented[:, anchors].copy(),
         target=np.full(runs.column.size, -1, dtype=np.int64),
+        cam=None if markers.camera_masks is None else markers.camera_masks[:, anchors].copy(),
     )
     spacing = neighbour_spacing(surface, robust=settings.robust_spacing)
     eps1 = settings.alpha1 * spacing  # ε¹, eq. 3 (NaN without neighbours: never matched)

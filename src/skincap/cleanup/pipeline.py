@@ -125,10 +125,12 @@ def _hidden_columns(
     pos = markers.positions.copy()
     res = None if markers.residuals is None else markers.residuals.copy()
     inv = None if markers.invented is None else markers.invented.copy()
+    cam = None if markers.camera_masks is None else markers.camera_masks.copy()
     t_count = pos.shape[0]
     new_pos = np.full((t_count, len(groups), 3), np.nan)
     new_res = None if res is None else np.full((t_count, len(groups)), np.nan)
     new_inv = None if inv is None else np.zeros((t_count, len(groups)), dtype=bool)
+    new_cam = None if cam is None else np.zeros((t_count, len(groups)), dtype=np.uint8)
     new_markers: dict[str, list[str]] = {}
     taken = set(labels)
     for g, members in enumerate(groups):
@@ -150,6 +152,9 @@ def _hidden_columns(
             if inv is not None and new_inv is not None:
                 new_inv[rows, g] = inv[rows, col]
                 inv[rows, col] = False
+            if cam is not None and new_cam is not None:
+                new_cam[rows, g] = cam[rows, col]
+                cam[rows, col] = 0
     out = MarkerSet(
         positions=np.concatenate([pos, new_pos], axis=1),
         labels=labels + list(new_markers),
@@ -157,6 +162,7 @@ def _hidden_columns(
         meta=dict(markers.meta),
         residuals=None if res is None else np.concatenate([res, new_res], axis=1),
         invented=None if inv is None else np.concatenate([inv, new_inv], axis=1),
+        camera_masks=None if cam is None else np.concatenate([cam, new_cam], axis=1),
     )
     return out, new_markers
 
@@ -243,7 +249,8 @@ def _cleaned_capture(
     markers: MarkerSet, merged: MarkerSet, n: int, guarded: GuardedFill, keep_fragments: bool
 ) -> MarkerSet:
     """The marker columns as filled and smoothed, then (``keep_fragments``) the leftover
-    fragments as the merge left them; residuals NaN on invented and unfilled samples."""
+    fragments as the merge left them; residuals NaN and camera masks 0 on invented and
+    unfilled samples."""
     filled, invented = guarded.positions, guarded.invented
     out_pos = filled
     out_labels = list(merged.labels[:n])
@@ -252,6 +259,12 @@ def _cleaned_capture(
         None
         if guarded.residuals is None
         else np.where(invented | guarded.unfilled, np.nan, guarded.residuals)
+    )
+    # the cameras that saw a measured sample; an invented one has none
+    out_cam = (
+        None
+        if guarded.camera_masks is None
+        else np.where(invented | guarded.unfilled, 0, guarded.camera_masks)
     )
     if keep_fragments and merged.n_markers > n:
         rest = merged.select(np.arange(n, merged.n_markers))
@@ -267,6 +280,10 @@ def _cleaned_capture(
             out_res = np.concatenate([out_res, rest.residuals], axis=1)
         else:
             out_res = None
+        if out_cam is not None and rest.camera_masks is not None:
+            out_cam = np.concatenate([out_cam, rest.camera_masks], axis=1)
+        else:
+            out_cam = None
     return MarkerSet(
         positions=out_pos,
         labels=out_labels,
@@ -274,6 +291,7 @@ def _cleaned_capture(
         meta=dict(markers.meta),
         residuals=out_res,
         invented=out_inv,
+        camera_masks=out_cam,
     )
 
 

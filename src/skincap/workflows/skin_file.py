@@ -159,6 +159,13 @@ def skin_file(
         mesh = io.read_mesh(mesh_path, units=mesh_units)
         if mesh_units is None and mesh_path.suffix.lower() in (".obj", ".ply"):
             _warn_implausible_height(mesh_path, mesh_height(mesh))
+        if mesh.n_faces == 0 and (weights == "auto" or mesh.skin is None):
+            # bone heat diffuses over the surface: without one every vertex would just
+            # follow its nearest bone, a point cloud posing as a skin
+            raise FormatError(
+                mesh_path,
+                "the mesh has no faces; automatic (bone-heat) weights need a triangle surface",
+            )
         motion = read_bvh(motion_path, units=units)
         if motion.n_frames == 0:  # every output is an animation; none of them can be empty
             raise FormatError(motion_path, "no motion frames ('Frames: 0'); nothing to skin")

@@ -21,9 +21,11 @@ What the reader keeps
   ``POINT:TYPE_GROUPS``, plus Plug-in Gait segment axes: four labels ``XO XA XL XP``
   sharing a prefix, group ``"bones"``) go to ``meta["model_outputs"]`` in their own
   units, neither scaled nor rotated.
+* Camera masks (which of seven cameras saw each sample) of the measured marker
+  samples: ``MarkerSet.camera_masks`` (None when no sample has a camera bit).
 * Invented samples: files written by skincap mark them with camera mask 0b1111111
-  and declare it in ``SKINCAP:INVENTED_CAMERA_MASK``; without that parameter
-  ``invented`` is None.
+  (another one when a measured sample has that mask) and declare it in
+  ``SKINCAP:INVENTED_CAMERA_MASK``; without that parameter ``invented`` is None.
 * Everything else, for the writer (``meta["c3d"]``, a
   :class:`~skincap.io.c3d.content.C3dContent`): every parameter group and parameter
   (type, dimensions, values, description, name as written), the analog samples as
@@ -33,7 +35,8 @@ What the reader keeps
 What the writer writes
 ----------------------
 The points from the MarkerSet (POINT's labels, descriptions, units, scale, rate and
-frame count rewritten from it, its other parameters kept), and ``meta["c3d"]`` as it
+frame count rewritten from it, its other parameters kept; residuals and camera masks
+per sample), and ``meta["c3d"]`` as it
 came: analog samples with ``ANALOG`` unchanged (so ``SCALE``, ``OFFSET`` and
 ``GEN_SCALE`` give the same values), ``FORCE_PLATFORM``, ``EVENT``,
 ``EVENT_CONTEXT``, header events, vendor groups. Columns added on the same frames

@@ -267,7 +267,11 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     )
     mpos, mres = _markers_in_metres(m_xyz, m_res, m_miss, up_src, scale)
     labels, renamed = _unique_labels([raw_labels[i] for i in marker_cols])
-    invented = _invented_samples(c3d, layout, marker_cols, m_miss.T, p)
+    camera_bits = _camera_bits(c3d, layout, p)
+    if camera_bits is not None:
+        camera_bits = camera_bits[:, marker_cols]  # (T, N') int
+    invented = _invented_samples(camera_bits, layout, m_miss.T)
+    camera_masks = _measured_camera_masks(camera_bits, m_miss.T, invented)
     rate = _frame_rate(layout, rate_ez, p)
 
     xs = layout.params.get(("POINT", "X_SCREEN"))
@@ -297,6 +301,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
         residuals=mres,
         invented=invented,
         meta=meta,
+        camera_masks=camera_masks,
     )
 
 
@@ -527,20 +532,40 @@ def _markers_in_metres(
     return mpos, mres
 
 
-def _invented_samples(
-    c3d: Any, layout: C3dLayout, marker_cols: np.ndarray, mmiss: np.ndarray, p: Path
-) -> np.ndarray | None:
-    """(T, N') bool: present samples whose camera mask is ``SKINCAP:INVENTED_CAMERA_MASK``;
-    None when the file does not declare it."""
-    sk = layout.params.get(("SKINCAP", "INVENTED_CAMERA_MASK"))
-    if sk is None or len(sk) < 1:
-        return None
+def _camera_bits(c3d: Any, layout: C3dLayout, p: Path) -> np.ndarray | None:
+    """(T, N) int64: every POINT column's seven camera bits, as stored; None when ezc3d
+    cannot give them (a FormatError instead when the file declares invented samples,
+    which are recognised by them)."""
     try:
         masks = c3d.get_point_camera_masks()  # (7, N, T) bool
     except (RuntimeError, ValueError) as exc:
-        raise FormatError(p, f"ezc3d could not read the camera masks: {exc}") from None
-    bits = (masks.astype(np.int64) << np.arange(7)[:, None, None]).sum(axis=0).T  # (T, N)
-    return (bits[:, marker_cols] == int(round(float(sk[0])))) & ~mmiss
+        if ("SKINCAP", "INVENTED_CAMERA_MASK") in layout.params:
+            raise FormatError(p, f"ezc3d could not read the camera masks: {exc}") from None
+        return None
+    return (np.asarray(masks, dtype=np.int64) << np.arange(7)[:, None, None]).sum(axis=0).T
+
+
+def _invented_samples(
+    bits: np.ndarray | None, layout: C3dLayout, mmiss: np.ndarray
+) -> np.ndarray | None:
+    """(T, N') bool: present samples whose camera mask ``bits`` (T, N') is
+    ``SKINCAP:INVENTED_CAMERA_MASK``; None when the file does not declare it."""
+    sk = layout.params.get(("SKINCAP", "INVENTED_CAMERA_MASK"))
+    if sk is None or len(sk) < 1 or bits is None:
+        return None
+    return (bits == int(round(float(sk[0])))) & ~mmiss
+
+
+def _measured_camera_masks(
+    bits: np.ndarray | None, mmiss: np.ndarray, invented: np.ndarray | None
+) -> np.ndarray | None:
+    """(T, N') uint8 camera masks of the measured samples (0 where missing or invented);
+    None when no sample has a camera bit."""
+    if bits is None:
+        return None
+    keep = ~mmiss if invented is None else ~mmiss & ~invented
+    out = np.where(keep, bits, 0).astype(np.uint8)
+    return out if out.any() else None
 
 
 def _frame_rate(layout: C3dLayout, rate_ez: float, p: Path) -> float:

@@ -57,8 +57,9 @@ def write_c3d(
         to ``meta["point_scale"]`` (the source file's, when the residuals fit in its
         255 steps) or else to the smallest power of ten (file units) whose 255 steps
         hold the largest residual.
-        ``invented`` samples get camera mask 0b1111111, declared in
-        ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
+        ``camera_masks`` are written back on the measured samples; ``invented``
+        samples get camera mask 0b1111111 (or, when a measured sample has that mask,
+        one no measured sample has), declared in ``SKINCAP:INVENTED_CAMERA_MASK``. ``meta["model_outputs"]`` groups are
         written as extra POINTs listed in ``POINT:<GROUP>`` and ``POINT:TYPE_GROUPS``.
         Labels beyond 255 go to ``POINT:LABELS2``, ``LABELS3``…, and
         ``meta["descriptions"]`` to ``DESCRIPTIONS``, ``DESCRIPTIONS2``…; text is
@@ -117,17 +118,20 @@ def write_c3d(
         analogs, ratio = np.zeros((0, 0)), 0
 
     source_groups = list(content.groups) if content is not None else []
-    point = _point_parameters(markers, points, pscale, units, up_key, content, target)
+    # the source's points go out in its column order (model outputs between markers)
+    order = _source_order(points.labels, content)
+    point = _point_parameters(markers, points, pscale, units, up_key, content, target, order)
     out_groups = _merged_groups(
         source_groups, point, points.groups, keep_analogs, target, float(markers.rate) * ratio
     )
     masks = _camera_masks(markers, len(points.labels), out_groups, target)
+    cols = slice(None) if order is None else order
 
     frames = C3dFrames(
-        xyz=points.xyz,
-        invalid=points.invalid,
-        residual_steps=steps,
-        camera_masks=masks,
+        xyz=points.xyz[:, cols],
+        invalid=points.invalid[:, cols],
+        residual_steps=steps[:, cols],
+        camera_masks=masks[:, cols],
         analogs=analogs,
         ratio=ratio,
     )
@@ -320,8 +324,11 @@ def _point_parameters(
     up_key: str,
     content: C3dContent | None,
     target: Path,
+    order: np.ndarray | None = None,
 ) -> list[C3dParameter]:
     """The POINT parameters that describe ``points``, in the source's records where equal.
+
+    ``order`` (P,) int, optional: the column order the points are written in.
 
     Drops ``points.groups["BONES"]`` when the source's POINT did not list it (the reader
     recognises segment axes by their labels again).
@@ -339,13 +346,18 @@ def _point_parameters(
         num("RATE", float(markers.rate), "float"),
         text("UNITS", units),
     ]
-    point += _chunked("LABELS", labels, target)
     descriptions = meta.get("descriptions")
+    by_label = _source_descriptions(content) if content is not None else {}
     if not (isinstance(descriptions, list) and len(descriptions) == n):
         # columns added, removed or reordered: the source's descriptions by label
-        by_label = _source_descriptions(content) if content is not None else {}
         descriptions = [by_label.get(lab, "") for lab in markers.labels]
-    point += _chunked("DESCRIPTIONS", [str(d) for d in descriptions] + [""] * (total - n), target)
+    # the model outputs keep theirs by label (Plug-in Gait names each angle and moment)
+    descriptions = list(descriptions) + [by_label.get(lab, "") for lab in labels[n:total]]
+    descriptions = [str(d) for d in descriptions]
+    if order is not None:
+        labels, descriptions = [labels[i] for i in order], [descriptions[i] for i in order]
+    point += _chunked("LABELS", labels, target)
+    point += _chunked("DESCRIPTIONS", descriptions, target)
     screen = meta.get("screen_axes")
     if not (
         isinstance(screen, tuple | list)
@@ -404,8 +416,9 @@ def _merged_groups(
         name = name.upper()
         if name in written or name in ("LONG_FRAMES", "TYPE_GROUPS"):
             return True
+        # a group's *_UNITS is replaced only where written (in ``written``): the source's
+        # ANGLE_UNITS, SCALAR_UNITS… stay when no such output goes out
         listing = {"LABELS", "DESCRIPTIONS", *MODEL_OUTPUT_GROUPS, *groups}
-        listing |= {g.rstrip("S") + "_UNITS" for g in groups} | set(MODEL_OUTPUT_GROUPS.values())
         return name.rstrip("0123456789") in listing
 
     out_groups: list[C3dGroup] = []
@@ -455,16 +468,40 @@ def _merged_groups(
 def _camera_masks(
     markers: MarkerSet, total: int, out_groups: list[C3dGroup], target: Path
 ) -> np.ndarray:
-    """Camera masks (T, P) int: INVENTED_MASK on invented samples, declared in SKINCAP.
+    """Camera masks (T, P) int: the markers' measured ``camera_masks``, and a mask marking
+    invented samples, declared in ``SKINCAP:INVENTED_CAMERA_MASK``.
 
-    Adds ``SKINCAP:INVENTED_CAMERA_MASK`` to ``out_groups`` (in place) when the markers
-    carry ``invented``.
+    The invented mark is INVENTED_MASK (all seven bits) unless a measured sample has
+    that mask; then the highest mask no measured sample has, so a measured sample never
+    reads back as invented. Adds the parameter to ``out_groups`` (in place) when the
+    markers carry ``invented``.
     """
+    n = markers.n_markers
     masks = np.zeros((markers.n_frames, total), dtype=np.int64)
+    present = ~markers.missing
+    if markers.camera_masks is not None:
+        masks[:, :n] = np.where(present, markers.camera_masks, 0)
     if markers.invented is not None:
-        n = markers.n_markers
-        masks[:, :n] = np.where(markers.invented & ~markers.missing, INVENTED_MASK, 0)
-        mask_param = _number(target)("INVENTED_CAMERA_MASK", INVENTED_MASK, "int")
+        invented = markers.invented & present
+        measured = masks[:, :n][~invented]
+        mark = INVENTED_MASK
+        used = np.zeros(INVENTED_MASK + 1, dtype=bool)
+        used[np.unique(measured)] = True
+        if used[mark]:
+            free = np.flatnonzero(~used[1:]) + 1
+            if free.size:
+                mark = int(free[-1])
+            else:  # every mask in use: the invented mark wins, the cameras of those are lost
+                warnings.warn(
+                    f"{target}: every camera mask is in use by measured samples; those with "
+                    f"mask {mark} are written without their cameras to keep them apart from "
+                    "invented ones",
+                    SkincapWarning,
+                    stacklevel=3,
+                )
+                masks[:, :n][masks[:, :n] == mark] = 0
+        masks[:, :n] = np.where(invented, mark, masks[:, :n])
+        mask_param = _number(target)("INVENTED_CAMERA_MASK", mark, "int")
         for k, g in enumerate(out_groups):
             if g.name.upper() == "SKINCAP":
                 out_groups[k] = replace(g, parameters=g.parameters + (mask_param,))
@@ -474,20 +511,37 @@ def _camera_masks(
     return masks
 
 
+def _source_listing(content: C3dContent, name: str) -> list[str]:
+    """The source file's POINT ``name``, ``name2``, ``name3``… strings, in order."""
+    out: list[str] = []
+    k = 1
+    while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
+        if p.type != -1:
+            break
+        out.extend(p.value)
+        k += 1
+    return out
+
+
 def _source_descriptions(content: C3dContent) -> dict[str, str]:
     """The source file's POINT descriptions by label."""
+    pairs = zip(
+        _source_listing(content, "LABELS"), _source_listing(content, "DESCRIPTIONS"), strict=False
+    )
+    return {lab: d for lab, d in pairs if lab}
 
-    def listed(name: str) -> list[str]:
-        out: list[str] = []
-        k = 1
-        while (p := content.parameter("POINT", name + (str(k) if k > 1 else ""))) is not None:
-            if p.type != -1:
-                break
-            out.extend(p.value)
-            k += 1
-        return out
 
-    return {lab: d for lab, d in zip(listed("LABELS"), listed("DESCRIPTIONS"), strict=False) if lab}
+def _source_order(labels: list[str], content: C3dContent | None) -> np.ndarray | None:
+    """(P,) int: the column order that puts ``labels`` (markers, then model outputs) in
+    the source's POINT order; None when they are not the source's points."""
+    if content is None:
+        return None
+    source = [str(s).strip() for s in _source_listing(content, "LABELS")][: len(labels)]
+    index = {lab: i for i, lab in enumerate(labels)}
+    if len(source) != len(labels) or len(index) != len(labels) or set(source) != set(index):
+        return None
+    order = np.array([index[lab] for lab in source], dtype=np.int64)
+    return None if np.array_equal(order, np.arange(len(labels))) else order
 
 
 def _like_source(new: C3dParameter, old: C3dParameter | None) -> C3dParameter:
