@@ -16,8 +16,9 @@ frames and vertices:
 The held-out test works on any labelled capture, real ones included: 10 % of the
 markers (seeded) are left out of the rig, the rest drive it, and each held-out marker
 is moved as a point of the body (its part weights from the nearest marker-surface
-triangle); the row is the distance between where the deformation puts it and where it
-was measured. Segmentation is scored against ``truth/marker_parts.csv`` (``label,part``)
+triangle, or, far from the kept markers' surface, from its nearest kept markers:
+:func:`skincap.deform.dense.weights.surface_interpolation`); the row is the distance
+between where the deformation puts it and where it was measured. Segmentation is scored against ``truth/marker_parts.csv`` (``label,part``)
 by the adjusted Rand index when that file exists.
 
 Where the error sits: the ``regions`` table splits every vertex row by region, the

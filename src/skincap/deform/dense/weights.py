@@ -26,7 +26,13 @@ seam can still blend. On the synthetic jumprope take (240 frames, ROM of 240 fra
 
 Vertex weights β (V, P): each vertex of the detailed mesh takes the weights of the
 three markers of the nearest marker-surface triangle, interpolated at the barycentric
-coordinates of its projection.
+coordinates of its projection. That triangle speaks for a point only near it: on a
+sparse capture (a few dozen markers, a marker surface over the trunk and legs only) a
+point of the forearm, or a held-out wrist marker, lies far from every triangle, and its
+nearest one belongs to another part. Beyond the triangle's reach (one local marker
+spacing, and no farther than the nearest marker) a point therefore fades, by twice that
+distance, to the inverse-distance blend of its nearest markers' weights
+(:func:`surface_interpolation`); a point within reach keeps the paper's weights exactly.
 """
 
 from __future__ import annotations
@@ -48,11 +54,15 @@ __all__ = [
     "part_motion_errors",
     "seam_vertex_weights",
     "spread_candidates",
+    "surface_interpolation",
     "vertex_part_weights",
 ]
 
 #: Likelihood above which a boundary marker joins a part (Park & Hodgins: 0.2).
 WEIGHT_THRESHOLD = 0.2
+
+#: Markers a point beyond its nearest triangle's reach takes its weights from.
+NEAREST_MARKERS = 3
 
 
 def candidates_from_triangle_parts(
@@ -378,6 +388,98 @@ def marker_part_weights(
     return alpha
 
 
+def surface_interpolation(
+    points: np.ndarray,
+    surface_vertices: np.ndarray,
+    surface_faces: np.ndarray,
+    *,
+    n_nearest: int = NEAREST_MARKERS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """How each point interpolates per-marker values: markers and their weights.
+
+    A point near the marker surface takes the barycentric coordinates of its projection
+    on the nearest triangle (Park & Hodgins §5.2). That triangle's reach is
+    ``r = min(h, d_nn)``: ``h`` the local marker spacing (the mean edge length of that
+    triangle) and ``d_nn`` the distance to the nearest marker (a marker on no triangle,
+    such as a forearm marker of a sparse set, may be nearer than the surface). A point
+    within ``r`` of the triangle keeps its barycentric coordinates exactly; farther, it
+    blends towards the inverse-distance weights of its ``n_nearest`` markers, smoothly
+    (a smoothstep of ``(d - r) / r``), wholly from ``2 r`` on, so the weights of a mesh
+    stay continuous. Without triangles, every point takes its nearest markers.
+
+    Parameters
+    ----------
+    points : (V, 3) float, metres
+    surface_vertices : (N, 3) float, metres
+        The markers in the reference pose; NaN rows (missing markers) are not used.
+    surface_faces : (F, 3) int
+    n_nearest : int
+        Markers of the inverse-distance blend.
+
+    Returns
+    -------
+    markers : (V, 3 + k) int64
+        Marker indices: the nearest triangle's three, then the ``k`` nearest markers
+        (``k = min(n_nearest, usable markers)``; without triangles only those ``k``).
+    weights : (V, 3 + k) float64
+        Rows sum to 1; a value per marker ``values (N, ...)`` interpolates as
+        ``einsum("vk,vk...->v...", weights, values[markers])``.
+
+    Raises
+    ------
+    ValidationError
+        No usable marker.
+    """
+    v = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    sv = np.asarray(surface_vertices, dtype=np.float64)
+    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
+    usable = np.isfinite(sv).all(axis=1)
+    idx = np.flatnonzero(usable)
+    if idx.size == 0:
+        raise ValidationError("surface_vertices: no marker is present")
+    k = int(min(max(1, int(n_nearest)), idx.size))
+    inverse, near, d_nn = _nearest_marker_weights(v, sv[idx], k)
+    near = idx[near]  # (V, k)
+    f = f[usable[f].all(axis=1)]
+    if f.shape[0] == 0:
+        return near, inverse
+    d_tri, face, bary = closest_points_on_mesh(np.where(usable[:, None], sv, 0.0), f, v)
+    corners = f[face]  # (V, 3)
+    p = sv[corners]  # (V, 3, 3)
+    spacing = np.linalg.norm(p - np.roll(p, 1, axis=1), axis=-1).mean(axis=1)  # h, (V,)
+    reach = np.minimum(spacing, d_nn)  # r
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = np.clip((d_tri - reach) / reach, 0.0, 1.0)
+    u = np.where(reach > 0, u, (d_tri > 0).astype(np.float64))  # on a marker off the surface
+    far = u * u * (3.0 - 2.0 * u)  # smoothstep: 0 within reach, 1 from twice it
+    weights = np.concatenate([bary * (1.0 - far)[:, None], inverse * far[:, None]], axis=1)
+    return np.concatenate([corners, near], axis=1), weights
+
+
+def _nearest_marker_weights(
+    points: np.ndarray, markers: np.ndarray, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Inverse-distance weights (V, k) over each point's ``k`` nearest markers, their
+    indices (V, k) and the nearest distance (V,), metres.
+
+    The weights are ``1/d_i - 1/d_(k+1)`` (``d_(k+1)`` the next marker's distance), not
+    ``1/d_i``: a marker leaves a point's k nearest with weight 0, so the weights change
+    continuously over space (plain k-nearest inverse distance jumps where the set of
+    nearest markers changes, a tear in a mesh's weights).
+    """
+    n = markers.shape[0]
+    q = min(k + 1, n)
+    d, nn = cKDTree(markers).query(points, k=q)
+    d = d.reshape(points.shape[0], q)
+    nn = nn.reshape(points.shape[0], q)
+    inverse = 1.0 / np.maximum(d, 1e-9)
+    if q > k:
+        inverse = inverse[:, :k] - inverse[:, k:]
+    tied = inverse.sum(axis=1) <= 0  # the k + 1 nearest all equally far: share equally
+    inverse[tied] = 1.0
+    return inverse / inverse.sum(axis=1, keepdims=True), nn[:, :k], d[:, 0]
+
+
 def vertex_part_weights(
     vertices: np.ndarray,
     surface_vertices: np.ndarray,
@@ -385,6 +487,9 @@ def vertex_part_weights(
     marker_weights: np.ndarray,
 ) -> np.ndarray:
     """Vertex weights β: the marker weights interpolated on the nearest surface triangle.
+
+    A vertex beyond that triangle's reach takes its nearest markers' weights instead
+    (:func:`surface_interpolation`).
 
     Parameters
     ----------
@@ -405,24 +510,13 @@ def vertex_part_weights(
     """
     v = np.asarray(vertices, dtype=np.float64)
     sv = np.asarray(surface_vertices, dtype=np.float64)
-    f = np.asarray(surface_faces, dtype=np.int64).reshape(-1, 3)
     alpha = np.asarray(marker_weights, dtype=np.float64)
     if alpha.shape[0] != sv.shape[0]:
         raise ValidationError(
             f"marker_weights has {alpha.shape[0]} rows for {sv.shape[0]} surface vertices"
         )
-    usable = np.isfinite(sv).all(axis=1)
-    f = f[usable[f].all(axis=1)]
-    if f.shape[0]:
-        _, face, bary = closest_points_on_mesh(np.where(usable[:, None], sv, 0.0), f, v)
-        beta = np.einsum("vk,vkp->vp", bary, alpha[f[face]])
-    else:
-        idx = np.flatnonzero(usable)
-        d, nn = cKDTree(sv[idx]).query(v, k=min(3, idx.size))
-        d = d.reshape(v.shape[0], -1)
-        nn = nn.reshape(v.shape[0], -1)
-        w = 1.0 / np.maximum(d, 1e-9)
-        beta = np.einsum("vk,vkp->vp", w, alpha[idx[nn]])
+    markers, w = surface_interpolation(v, sv, surface_faces)
+    beta = np.einsum("vk,vkp->vp", w, alpha[markers])
     beta = np.clip(beta, 0.0, None)
     return beta / beta.sum(axis=1, keepdims=True)
 
@@ -441,8 +535,9 @@ def seam_vertex_weights(
     skin exactly. So a marker at a seam of part ``p`` (a seam centre of ``p``, or a
     member of ``p`` with one as a neighbour) weighs 1, any other 0, and every vertex
     takes these values interpolated at the barycentric coordinates of its projection
-    on the nearest marker-surface triangle, as β is (:func:`vertex_part_weights`):
-    1 on the triangles of a seam, 0 inside a part, continuous across every edge.
+    on the nearest marker-surface triangle, as β is (:func:`vertex_part_weights`, also
+    beyond the triangle's reach): 1 on the triangles of a seam, 0 inside a part,
+    continuous across every edge.
 
     Parameters
     ----------
@@ -473,6 +568,6 @@ def seam_vertex_weights(
     beyond &= ~mem
     at_seam = beyond.copy()  # and the members next to one
     np.logical_or.at(at_seam, edges[:, 0], beyond[edges[:, 1]] & mem[edges[:, 0]])
-    _, face, bary = closest_points_on_mesh(np.where(usable[:, None], sv, 0.0), f, v)
-    weights = np.einsum("vk,vkp->vp", bary, at_seam[f[face]].astype(np.float64))
+    markers, w = surface_interpolation(v, sv, f)
+    weights = np.einsum("vk,vkp->vp", w, at_seam[markers].astype(np.float64))
     return np.clip(weights, 0.0, 1.0)
