@@ -91,3 +91,32 @@ def test_too_few_markers():
     take = MarkerSet(np.zeros((20, 2, 3)), ["a", "b"], 100.0)
     with pytest.raises(ValidationError, match="at least three"):
         auto_template(take)
+
+
+def test_auto_on_cmu_85_02_finds_the_tree_it_found_before(data_dir):
+    """The breakdance's tree as session 17's code found it (loose finger markers and a
+    far chest pair included): the member-change rules of session 18 leave it unchanged."""
+    from dataclasses import replace
+
+    from skincap.solve.outliers import off_body_samples
+
+    take = read(data_dir / "cmu_85_02.c3d")
+    off = off_body_samples(take.positions)
+    take = replace(take, positions=np.where(off[..., None], np.nan, take.positions))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        found = auto_template(take)
+    assert found.groups == [
+        ["LFWT", "RFWT", "LBWT", "RBWT"], ["LTHI", "LKNE"], ["CLAV", "C7"],
+        ["LFHD", "RFHD", "LBHD", "RBHD"], ["STRN", "T10", "LSHO"], ["LUPA", "LELB"],
+        ["RBAC", "RSHO"], ["LFRM", "LWRA", "LWRB"], ["RELB", "RFRM", "RWRA", "RWRB"],
+        ["RKNE", "RSHN"], ["RANK", "RHEE", "RMT5", "RTOE"], ["LANK", "LHEE", "LMT5", "LTOE"],
+        ["RFIN"], ["LSHN"], ["LFIN"], ["RUPA"], ["RTHI"],
+    ]  # fmt: skip
+    assert found.parents.tolist() == [-1, 0, 0, 2, 2, 4, 4, 5, 6, 0, 9, 1, 8, 11, 7, 6, 9]
+    np.testing.assert_allclose(
+        found.fit_residual_m,
+        [0.0, 0.00957, 0.01131, 0.00674, 0.00802, 0.00336, 0.00686, 0.00796, 0.03857,
+         0.02086, 0.01898, 0.03246, 0.00214, 0.00219, 0.00224, 0.0028, 0.0066],
+        atol=1e-5,
+    )  # fmt: skip

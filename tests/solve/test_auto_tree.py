@@ -296,3 +296,61 @@ def test_a_model_calibrated_on_another_take_is_refused():
         solve_markers(renamed, model)
     with pytest.raises(ValidationError, match="other labels"):
         solve_markers(take.select(list(range(5))), model)
+
+
+def _far_joint_take(n: int = 200):
+    """A still three-marker parent and a rigid four-marker group turning about a point
+    1 m beyond its markers: their joint costs nothing, but lies out of reach."""
+    t = np.arange(n) / 100.0
+    parent = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.05]])
+    centre = np.array([0.0, 1.2, 0.0])
+    local = np.array([[0.0, -1.0, 0.0], [0.08, -1.0, 0.0], [0.0, -1.05, 0.07], [0.05, -0.95, 0.04]])
+    rot = Rotation.from_rotvec(
+        np.radians(20.0) * np.sin(np.outer(t, [1.3, 2.1, 1.7]) + [0.0, 1.0, 2.0])
+    ).as_matrix()
+    group = centre + np.einsum("tij,kj->tki", rot, local)
+    return np.concatenate([np.broadcast_to(parent, (n, 3, 3)), group], axis=1)
+
+
+def test_a_far_joint_does_not_make_a_variant_look_better():
+    """The change of members is scored as grow_tree ranks edges: a joint beyond
+    MAX_JOINT_REACH_M counts only when the group's own cheapest joint is far too (it made
+    the dense ROM take drop marker after marker and then swap two for ever)."""
+    from skincap.solve.auto_tree import _better_members, _reach
+
+    pos = _far_joint_take()
+    parent = cluster_frames(pos[:, :3])[1:]
+    group = np.arange(3, 7)
+    whole, centre, _ = joint_cost(*parent, pos[:, group], cluster_frames(pos[:, group])[1:])
+    assert whole < 1e-6 and _reach(*parent, centre, pos[:, group]) > 0.9
+    # the group's cheapest near joint costs 4 cm: no variant beats it through a far one
+    assert _better_members([parent], pos, group, [], 0.04) is None
+    assert _better_members([parent], pos, group, [], 0.04, far_ok=True) is not None
+
+
+def test_member_changes_that_come_back_to_groups_tried_stop(monkeypatch):
+    """A change that would return the groups to a state already tried joins the group
+    as it is (before: grow_tree swapped the same two markers for ever)."""
+    import skincap.solve.auto_tree as auto_tree
+
+    take, _, _ = _leg_take(n=200)
+    pos = take.positions
+    calls = []
+
+    def swap(carriers, positions, group, singles, cost, **kwargs):
+        # trade the group's last marker for the first loose one, again and again
+        calls.append(group.copy())
+        assert len(calls) < 20, "member changes loop"
+        if not singles:
+            return None
+        return np.append(group[:-1], singles[0]), group[-1:], 0
+
+    monkeypatch.setattr(auto_tree, "_better_members", swap)
+    pelvis = np.arange(5)
+    groups = [pelvis, np.array([5]), np.array([6, 7]), np.array([8, 9]), np.arange(10, 13)]
+    found = auto_tree.grow_tree(pos, groups, 0)
+    # the foot takes the loose pelvis marker once; trading it back would restore the
+    # groups it started from, so the foot joins as it then is
+    assert len(calls) == 2
+    assert sorted(found.groups[4].tolist()) == [5, 10, 11]
+    assert found.groups[1].tolist() == [12] and found.parents[4] >= 0

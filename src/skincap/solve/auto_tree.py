@@ -205,6 +205,20 @@ def _regroup(
     return moved
 
 
+def _groups_state(
+    groups: list[np.ndarray],
+    b: int | None = None,
+    better: tuple[np.ndarray, np.ndarray, int | None] | None = None,
+    singles: list[int] | None = None,
+) -> tuple[tuple[int, ...], ...]:
+    """The marker groups as a hashable value, after :func:`_regroup` when ``better`` is given."""
+    trial = list(groups)
+    if better is not None:
+        assert b is not None and singles is not None
+        _regroup(trial, b, better, singles)
+    return tuple(tuple(int(m) for m in g) for g in trial)
+
+
 def _frame_pair_at_joint(
     pair: np.ndarray,
     parent_frame: tuple[np.ndarray, np.ndarray],
@@ -274,6 +288,7 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
                 add_edge(a, b)
 
     add_edges_from(root)
+    tried: set[tuple[tuple[int, ...], ...]] = {_groups_state(groups)}
     # groups that can carry children (two or more markers) first, then the single markers
     for least in (2, 1):
         while True:
@@ -291,10 +306,20 @@ def grow_tree(positions: np.ndarray, groups: list[np.ndarray], root: int) -> Aut
             ]  # fmt: skip
             singles = [k for k, g in enumerate(groups) if g.size == 1 and k not in parents]
             better = (
-                _better_members(carriers, positions, groups[b], [groups[k] for k in singles], c)
+                _better_members(
+                    carriers, positions, groups[b], [groups[k] for k in singles], c,
+                    far_ok=(a, b) in far,
+                )
                 if b in own
                 else None
-            )
+            )  # fmt: skip
+            if better is not None:
+                # a change back to groups already tried would loop for ever
+                state = _groups_state(groups, b, better, singles)
+                if state in tried:
+                    better = None
+                else:
+                    tried.add(state)
             if better is not None:
                 # the group's frame turns with a marker that does not ride it (a hand
                 # marker near the wrist): it leaves as a group of its own, or changes
@@ -365,6 +390,8 @@ def _better_members(
     group: np.ndarray,
     singles: list[np.ndarray],
     cost: float,
+    *,
+    far_ok: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, int | None] | None:
     """A change of a framed group's markers that makes its joint far cheaper.
 
@@ -374,7 +401,12 @@ def _better_members(
     cheapest joint with any of the ``carriers`` (frames of the groups in the tree:
     the whole group's frame may have drawn it to the wrong one); the best is taken
     when under :data:`LOOSE_MARKER_GAIN` times ``cost`` (the cheapest joint with the
-    group as it is) and :data:`LOOSE_MARKER_MIN_DROP_M` below it.
+    group as it is) and :data:`LOOSE_MARKER_MIN_DROP_M` below it. Unless ``far_ok``
+    (the group's cheapest joint is itself a far one), a joint whose centre lies beyond
+    :data:`MAX_JOINT_REACH_M` of the variant's markers does not count, as
+    :func:`grow_tree` ranks such edges after all others: a far joint that is cheap
+    whatever the markers (a pair of distances kept about a distant point) would
+    otherwise make every variant look better than the group, whose edge it never takes.
 
     Returns
     -------
@@ -403,9 +435,13 @@ def _better_members(
             _, rot, trans = cluster_frames(positions[:, members], iterations=1)
         except ValidationError:
             continue
-        c = min(joint_cost(*parent, positions[:, members], (rot, trans))[0] for parent in carriers)
-        if c < best_cost:
-            best, best_cost = (members, out, taken), c
+        child = positions[:, members]
+        for parent in carriers:
+            c, centre, _ = joint_cost(*parent, child, (rot, trans))
+            if c >= best_cost or centre is None:
+                continue
+            if far_ok or _reach(*parent, centre, child) <= MAX_JOINT_REACH_M:
+                best, best_cost = (members, out, taken), c
     return best
 
 
