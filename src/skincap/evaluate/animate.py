@@ -476,19 +476,14 @@ def held_out_on_capture(
         :func:`held_out_marker_errors`'s figures plus ``reference_frame`` and
         ``surface_triangles``.
     """
-    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.evaluate.capture_surface import labelled_capture_surface
 
-    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
-    x = markers.positions[:, keep]
-    frame = choose_reference_frame(x)
-    surface = build_marker_surface(x, reference_frame=frame)
-    if surface.faces.shape[0] == 0:
-        raise ValidationError("the capture's marker surface has no triangles")
+    x, labels, frame, faces = labelled_capture_surface(markers)
     out = held_out_marker_errors(
-        x, surface.faces, reference_frame=frame, fraction=fraction, n_parts=n_parts, seed=seed,
-        labels=[str(markers.labels[i]) for i in keep],
+        x, faces, reference_frame=frame, fraction=fraction, n_parts=n_parts, seed=seed,
+        labels=labels,
     )  # fmt: skip
-    return {**out, "reference_frame": int(frame), "surface_triangles": int(surface.faces.shape[0])}
+    return {**out, "reference_frame": frame, "surface_triangles": int(faces.shape[0])}
 
 
 def _read_marker_parts(path: Path, labels: Sequence[str]) -> np.ndarray | None:

@@ -187,19 +187,14 @@ def held_out_skeleton_rbf_on_capture(
         :func:`held_out_skeleton_rbf`'s figures plus ``reference_frame``; or ``mean_m``
         None and a ``note`` when the kept markers calibrate no skeleton on ``template``.
     """
-    from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
+    from skincap.evaluate.capture_surface import labelled_capture_surface
 
-    keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
-    x = markers.positions[:, keep]
-    frame = choose_reference_frame(x)
-    surface = build_marker_surface(x, reference_frame=frame)
-    if surface.faces.shape[0] == 0:
-        raise ValidationError("the capture's marker surface has no triangles")
+    x, labels, frame, faces = labelled_capture_surface(markers)
     try:
         out = held_out_skeleton_rbf(
-            x, surface.faces, [str(markers.labels[i]) for i in keep], float(markers.rate),
+            x, faces, labels, float(markers.rate),
             reference_frame=frame, fraction=fraction, seed=seed, template=template,
         )  # fmt: skip
     except ValidationError as exc:  # the kept markers do not calibrate a skeleton
         return {"method": "skeleton_rbf", "mean_m": None, "note": f"not measured: {exc}"}
-    return {**out, "reference_frame": int(frame)}
+    return {**out, "reference_frame": frame}

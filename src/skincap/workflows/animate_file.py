@@ -319,6 +319,24 @@ def _animate(
     timing: list[tuple[float, int]] = []
     frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
+    return _summary(
+        markers_path, paths, written, take, timing, force=force, method=method,
+        vertices=int(subject.vertices.shape[0]), markers=subject.n_markers,
+        filled_samples=filled, parts=_parts_report(subject), rig=build,
+    )  # fmt: skip
+
+
+def _summary(
+    markers_path: str | os.PathLike[str],
+    paths: dict[str, Path | None],
+    written: list[Path],
+    take: MarkerSet,
+    timing: list[tuple[float, int]],
+    *,
+    force: bool,
+    **rows: Any,
+) -> dict[str, Any]:
+    """The run's summary (``rows`` in the middle), written to ``--report`` when given."""
     per_frame = (
         np.repeat([t / n for t, n in timing], [n for _, n in timing]) if timing else np.zeros(0)
     )
@@ -326,14 +344,10 @@ def _animate(
         "markers_file": str(markers_path),
         "mesh": None if paths["mesh"] is None else str(paths["mesh"]),
         "outputs": [str(p) for p in written],
-        "method": method,
+        "method": rows.pop("method"),
         "frames": int(take.n_frames),
         "rate": float(take.rate),
-        "vertices": int(subject.vertices.shape[0]),
-        "markers": subject.n_markers,
-        "filled_samples": filled,
-        "parts": _parts_report(subject),
-        "rig": build,
+        **rows,
         "deformation_ms_per_frame": {
             "mean": float(per_frame.mean() * 1e3) if per_frame.size else None,
             "frames": [round(float(x) * 1e3, 4) for x in per_frame],
@@ -527,31 +541,11 @@ def _animate_skeleton_rbf(
     frames = _timed(blocks, timing)
     rest = dataclasses.replace(mesh, vertices=vertices, skin=None)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
-    per_frame = (
-        np.repeat([t / n for t, n in timing], [n for _, n in timing]) if timing else np.zeros(0)
-    )
-    summary: dict[str, Any] = {
-        "markers_file": str(markers_path),
-        "mesh": str(paths["mesh"]),
-        "outputs": [str(p) for p in written],
-        "method": SKELETON_METHOD,
-        "frames": int(take.n_frames),
-        "rate": float(take.rate),
-        "vertices": int(vertices.shape[0]),
-        "markers": len(labels),
-        "filled_samples": filled,
-        "parts": None,
-        "rig": build,
-        "deformation_ms_per_frame": {
-            "mean": float(per_frame.mean() * 1e3) if per_frame.size else None,
-            "frames": [round(float(x) * 1e3, 4) for x in per_frame],
-        },
-    }
-    if paths["report"] is not None:
-        from skincap.io.json_file import write_json
-
-        write_json(paths["report"], summary, force=force, allow_nan=False)
-    return summary
+    return _summary(
+        markers_path, paths, written, take, timing, force=force, method=SKELETON_METHOD,
+        vertices=int(vertices.shape[0]), markers=len(labels), filled_samples=filled,
+        parts=None, rig=build,
+    )  # fmt: skip
 
 
 def _timed(blocks: Iterator[np.ndarray], timing: list[tuple[float, int]]) -> Iterator[np.ndarray]:
