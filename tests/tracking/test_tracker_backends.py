@@ -146,9 +146,18 @@ def _assert_same_value(name: str, got, want) -> None:  # type: ignore[no-untyped
         for g, w in zip(got, want, strict=True):
             _assert_same_value(name, g, w)
     elif isinstance(want, np.ndarray) and want.dtype.kind == "f":
-        np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-9, err_msg=name)
+        # a cheap check first: this runs ~10^4 times, and assert_allclose's own
+        # bookkeeping dominated the test; it still reports any difference
+        if not (
+            isinstance(got, np.ndarray)
+            and got.shape == want.shape
+            and np.array_equal(np.isnan(got), np.isnan(want))
+            and np.all(np.abs(np.nan_to_num(got - want, nan=0.0)) <= 1e-9)
+        ):
+            np.testing.assert_allclose(got, want, rtol=0.0, atol=1e-9, err_msg=name)
     elif isinstance(want, np.ndarray):
-        np.testing.assert_array_equal(got, want, err_msg=name)
+        if not (isinstance(got, np.ndarray) and np.array_equal(got, want)):
+            np.testing.assert_array_equal(got, want, err_msg=name)
     else:
         assert (want is None and got is None) or bool(got) == bool(want), name
 
