@@ -482,7 +482,7 @@ def marker_normal_errors(
     }
     if regions is not None:
         names = np.asarray(regions).astype(str)[faces[face, np.argmax(bary, axis=1)]]
-        rows = [
+        rows: list[dict[str, Any]] = [
             {
                 "region": str(key),
                 "markers": int((names == key).sum()),

@@ -299,9 +299,7 @@ def _lift_normals(
     normals = marker_surface_normals(markers, faces, points, point_normals)
     if patch_ratio > 0:
         used = np.unique(faces)
-        normals = template_patch_normals(
-            markers, used, normals, points, point_normals, patch_ratio
-        )
+        normals = template_patch_normals(markers, used, normals, points, point_normals, patch_ratio)
     return normals
 
 
