@@ -192,6 +192,11 @@ def test_a_registered_template_row_measures_distance_to_the_true_skin(folder) ->
     bound = result["registration"]["marker_surface_bound"]
     assert bound["covered_area_fraction"] > 0.9
     assert bound["target_mean_m"] < 1.5e-3
+    assert bound["exact_normals"]["target_mean_m"] < 1.5e-3
+    # the registered tube's normals at the markers, against the true tube's
+    normals = result["registration"]["marker_normals"]
+    assert normals["markers"] == markers.positions.shape[1]
+    assert normals["error_mean_deg"] < 5.0
 
 
 def test_held_out_markers_are_predicted_on_a_rigid_motion() -> None:

@@ -8,9 +8,11 @@ import pytest
 from mesh_grids import grid_triangles
 from skincap.errors import ValidationError
 from skincap.evaluate.registration import (
+    marker_normal_errors,
     marker_surface_bound,
     region_breakdown,
     registration_errors,
+    true_marker_normals,
 )
 
 
@@ -186,3 +188,70 @@ def test_the_bound_refuses_a_broken_skin() -> None:
         marker_surface_bound(bad, skin_f, markers, marker_f, **_BOUND)
     with pytest.raises(ValidationError, match="regions"):
         marker_surface_bound(skin_v, skin_f, markers, marker_f, regions=np.array(["a"]), **_BOUND)
+
+
+def test_normal_errors_are_the_tilt_of_a_shifted_template() -> None:
+    """A registered sphere shifted 1 cm off the true one: its normals around each marker
+    (the patch meets it in a cap about the line from its centre through the marker)
+    are off the true radial normals by the angle between the two lines; Max's normals,
+    from the markers alone, are exact on the sphere whatever the template."""
+    skin_v, skin_f = _sphere(0.1, n=3000)
+    markers, marker_f = _markers_on(0.1, 60)
+    shift = np.array([0.0, 0.0, 0.01])
+    reg_v, reg_f = _sphere(0.1, n=4000)
+    truth = true_marker_normals(skin_v, skin_f, markers)
+    np.testing.assert_allclose(
+        truth, markers / np.linalg.norm(markers, axis=1, keepdims=True), atol=1e-2
+    )
+    regions = np.where(np.abs(skin_v[:, 2]) < 0.05, "equator", "poles")
+    same = marker_normal_errors(reg_v, reg_f, skin_v, skin_f, markers, marker_f, patch_ratio=0.5)
+    assert same["markers"] == 60 and same["error_mean_deg"] < 0.5
+    moved = marker_normal_errors(
+        reg_v + shift, reg_f, skin_v, skin_f, markers, marker_f, patch_ratio=0.5, regions=regions
+    )
+    away = markers - shift
+    expected = np.degrees(
+        np.arccos(np.einsum("kx,kx->k", away / np.linalg.norm(away, axis=1, keepdims=True), truth))
+    )
+    assert expected.mean() > 3.0
+    assert moved["error_mean_deg"] == pytest.approx(expected.mean(), abs=0.3)
+    assert moved["error_p95_deg"] == pytest.approx(np.percentile(expected, 95), abs=0.5)
+    assert moved["regions"][0]["region"] == "equator"  # tilted most where the shift is sideways
+    own = marker_normal_errors(
+        reg_v + shift, reg_f, skin_v, skin_f, markers, marker_f, patch_ratio=0.0
+    )
+    assert own["error_mean_deg"] < 0.5
+    with pytest.raises(ValidationError, match="regions"):
+        marker_normal_errors(
+            reg_v, reg_f, skin_v, skin_f, markers, marker_f, patch_ratio=0.5,
+            regions=np.array(["a"]),
+        )  # fmt: skip
+
+
+def test_the_bound_with_the_true_normals_beats_the_patch_on_an_elongated_head() -> None:
+    """An elongated ellipsoid skin (12 x 5 x 4 cm) under 30 uneven markers: the true
+    normals at the markers lift the marker surface closer to the skin than the skin's
+    own patch means do, and on a sphere both are exact."""
+    axes = np.array([0.05, 0.04, 0.12])
+    unit_v, skin_f = _sphere(1.0, n=3000)
+    skin_v = unit_v * axes
+    rng = np.random.default_rng(4)
+    unit_m, marker_f = _sphere(1.0, n=30)
+    on = unit_m + 0.25 * rng.normal(size=unit_m.shape)
+    on /= np.linalg.norm(on, axis=1, keepdims=True)
+    surface = on * axes
+    gradient = surface / axes**2
+    markers = surface + _BOUND["marker_radius"] * gradient / np.linalg.norm(
+        gradient, axis=1, keepdims=True
+    )
+    from scipy.spatial import ConvexHull
+
+    marker_f = ConvexHull(on).simplices
+    out = marker_surface_bound(skin_v, skin_f, markers, marker_f, **_BOUND)
+    exact = out["exact_normals"]
+    assert exact["covered_area_fraction"] > 0.8
+    assert exact["target_mean_m"] < 0.9 * out["target_mean_m"]  # 0.66 vs 0.77 mm
+    sphere_v, sphere_f = _sphere(0.1, n=3000)
+    ball, ball_f = _markers_on(0.1, 60)
+    on_ball = marker_surface_bound(sphere_v, sphere_f, ball, ball_f, **_BOUND)["exact_normals"]
+    assert on_ball["target_p95_m"] < 0.5e-3

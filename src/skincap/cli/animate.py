@@ -438,6 +438,16 @@ def _print_eval_table(result: dict[str, Any]) -> None:
                 f"{bound['target_p95_m'] * 1e3:.2f} mm p95 from it there",
                 markup=False, soft_wrap=True,
             )  # fmt: skip
+        exact = bound.get("exact_normals") or {}
+        normals = reg.get("marker_normals") or {}
+        if normals.get("error_mean_deg") is not None and exact.get("target_mean_m") is not None:
+            out.print(
+                f"registration's normals at the markers: {normals['error_mean_deg']:.1f} deg mean, "
+                f"{normals['error_p95_deg']:.1f} deg p95 off the true skin's; with the true ones "
+                f"the marker surface is {exact['target_mean_m'] * 1e3:.2f} mm mean, "
+                f"{exact['target_p95_m'] * 1e3:.2f} mm p95 from it",
+                markup=False, soft_wrap=True,
+            )  # fmt: skip
     held = result["held_out"]
     if held["mean_m"] is not None:
         out.print(

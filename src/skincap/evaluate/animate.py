@@ -798,7 +798,11 @@ def _registered_template_row(
     """
     from skincap.deform.dense.registration import RegistrationSettings, register_mesh
     from skincap.deform.dense.rig import build_dense_rig
-    from skincap.evaluate.registration import marker_surface_bound, registration_errors
+    from skincap.evaluate.registration import (
+        marker_normal_errors,
+        marker_surface_bound,
+        registration_errors,
+    )
 
     settings = RegistrationSettings(marker_radius=marker_radius)
     t0, cpu0 = time.perf_counter(), time.process_time()
@@ -828,6 +832,17 @@ def _registered_template_row(
             surface_faces,
             marker_radius=marker_radius,
             max_distance=settings.surface_max_distance,
+            patch_ratio=settings.normal_patch_ratio,
+            regions=regions,
+        ),
+        # the normals the registration lifted the marker surface with, against the truth
+        "marker_normals": marker_normal_errors(
+            reg.vertices,
+            template.faces,
+            truth[0],
+            skin_faces,
+            x[0],
+            surface_faces,
             patch_ratio=settings.normal_patch_ratio,
             regions=regions,
         ),

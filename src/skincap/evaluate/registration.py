@@ -19,7 +19,12 @@ reverse data term (:mod:`skincap.deform.dense.surface_targets`) evaluated on the
 skin itself, as if the template were already exact -- how much of the skin the smoothed
 marker surface covers and how far its targets lie from the skin there, per region.
 Where it covers little (feet, head, hands) or misses by more than a target allows,
-only the template's own shape can do better. Nothing here prints.
+only the template's own shape can do better. The Phong lift is only as good as the
+normals at the markers, so :func:`marker_normal_errors` measures the registration's own
+(the registered template's, as its last iteration takes them) against the true skin's at
+each marker, in degrees, and the bound is also given with the true skin's normals at the
+markers (``exact_normals``): what any better estimate of them could gain at most.
+Nothing here prints.
 """
 
 from __future__ import annotations
@@ -28,15 +33,17 @@ from typing import Any
 
 import numpy as np
 
-from skincap.deform.dense.surface_targets import marker_surface_targets
+from skincap.deform.dense.surface_targets import lift_normals, marker_surface_targets
 from skincap.errors import ValidationError
 from skincap.geometry.normals import area_weighted_vertex_normals
 from skincap.geometry.raycast import closest_points_on_mesh
 
 __all__ = [
     "REGISTRATION_TARGETS",
+    "marker_normal_errors",
     "marker_surface_bound",
     "region_breakdown",
+    "true_marker_normals",
     "registration_errors",
 ]
 
@@ -298,7 +305,9 @@ def marker_surface_bound(
     dict
         ``covered_area_fraction``, and over the covered area ``target_mean_m``,
         ``target_p95_m`` and ``target_over_8mm_area_fraction`` (area-weighted: the
-        skin's measure, not its mesh's density); with ``regions`` also ``regions``,
+        skin's measure, not its mesh's density); ``exact_normals``, the same
+        ``covered_area_fraction``, ``target_mean_m`` and ``target_p95_m`` with the true
+        skin's normals at the markers (:func:`true_marker_normals`) as the lift's; with ``regions`` also ``regions``,
         one row per region: ``region``, ``covered_area_fraction``, ``target_mean_m``,
         ``target_p95_m`` (None where nothing is covered), sorted by the covered
         error's p95, worst first.
@@ -351,9 +360,136 @@ def marker_surface_bound(
     out["target_over_8mm_area_fraction"] = (
         float(w[d[covered] > 0.008].sum() / w.sum()) if w.sum() > 0 else None
     )
+    # the same with the true skin's normals at the markers: the ceiling of the normals
+    exact, exact_covered = marker_surface_targets(
+        true,
+        area_weighted_vertex_normals(true, faces),
+        markers,
+        marker_faces,
+        marker_radius=marker_radius,
+        max_distance=max_distance,
+        patch_ratio=patch_ratio,
+        marker_normals=true_marker_normals(true, faces, markers),
+    )
+    we = area[exact_covered]
+    de = _distances_to_surface(true, faces, exact[exact_covered])
+    out["exact_normals"] = {
+        "covered_area_fraction": float(we.sum() / area.sum()) if area.sum() > 0 else 0.0,
+        "target_mean_m": float((we * de).sum() / we.sum()) if we.sum() > 0 else None,
+        "target_p95_m": _weighted_p95(de, we) if we.sum() > 0 else None,
+    }
     if regions is not None:
         names = np.asarray(regions).astype(str)
         rows = [{"region": str(key)} | summary(names == key) for key in np.unique(names)]
         rows.sort(key=lambda r: (r["target_p95_m"] is None, -(r["target_p95_m"] or 0.0)))
+        out["regions"] = rows
+    return out
+
+
+def true_marker_normals(
+    true_vertices: np.ndarray, true_faces: np.ndarray, markers: np.ndarray
+) -> np.ndarray:
+    """(M, 3) the true skin's unit normal under each marker; zero for an unseen marker.
+
+    The area-weighted vertex normals interpolated at each marker's closest point on the
+    skin (as ``skincap synth`` lifts a marker off it by its radius).
+
+    Parameters
+    ----------
+    true_vertices : (V, 3) float, metres; true_faces : (F, 3) int
+    markers : (M, 3) float, metres (NaN rows: unseen)
+    """
+    true = np.asarray(true_vertices, dtype=np.float64)
+    faces = np.asarray(true_faces, dtype=np.int64)
+    m = np.asarray(markers, dtype=np.float64)
+    out = np.zeros_like(m)
+    seen = np.isfinite(m).all(axis=1)
+    if not seen.any():
+        return out
+    _, face, bary = _closest_on_surface(true, faces, m[seen])
+    normals = area_weighted_vertex_normals(true, faces)
+    n = np.einsum("kc,kcx->kx", bary, normals[faces[face]])
+    out[seen] = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return out
+
+
+def marker_normal_errors(
+    registered_vertices: np.ndarray,
+    registered_faces: np.ndarray,
+    true_vertices: np.ndarray,
+    true_faces: np.ndarray,
+    markers: np.ndarray,
+    marker_faces: np.ndarray,
+    *,
+    patch_ratio: float,
+    regions: np.ndarray | None = None,
+) -> dict[str, Any]:
+    """The registration's normals at the markers against the true skin's, in degrees.
+
+    The normals are those the registration's last iteration lifts the marker surface
+    with (:func:`skincap.deform.dense.surface_targets.lift_normals` over the registered
+    mesh), the truth :func:`true_marker_normals`; only the markers the lift uses count.
+
+    Parameters
+    ----------
+    registered_vertices : (V, 3) float, metres; registered_faces : (F, 3) int
+    true_vertices : (W, 3) float, metres; true_faces : (G, 3) int
+        The true skin in the markers' pose.
+    markers : (M, 3) float, metres (NaN rows: unseen)
+    marker_faces : (S, 3) int, the marker surface's triangles over the marker rows
+    patch_ratio : float, as the registration uses it
+    regions : (W,) str, optional
+        A region name per true-skin vertex; a marker takes the region of its closest
+        true-skin point's nearest corner.
+
+    Returns
+    -------
+    dict
+        ``markers`` (how many count), ``error_mean_deg``, ``error_p95_deg`` (None
+        when no marker counts); with ``regions`` also ``regions``, one row per region
+        (``region``, ``markers``, ``error_mean_deg``), the worst mean first.
+
+    Raises
+    ------
+    ValidationError
+        Regions of the wrong length.
+    """
+    reg = np.asarray(registered_vertices, dtype=np.float64)
+    reg_faces = np.asarray(registered_faces, dtype=np.int64)
+    true = np.asarray(true_vertices, dtype=np.float64)
+    faces = np.asarray(true_faces, dtype=np.int64)
+    if regions is not None and np.asarray(regions).shape != (true.shape[0],):
+        raise ValidationError(
+            f"regions: expected one name per true-skin vertex ({true.shape[0]}), "
+            f"got shape {np.asarray(regions).shape}"
+        )
+    estimate = lift_normals(
+        reg, area_weighted_vertex_normals(reg, reg_faces), markers, marker_faces,
+        patch_ratio=patch_ratio,
+    )  # fmt: skip
+    used = np.nonzero(np.linalg.norm(estimate, axis=1) > 0.5)[0]
+    if used.size == 0:
+        return {"markers": 0, "error_mean_deg": None, "error_p95_deg": None}
+    m = np.asarray(markers, dtype=np.float64)[used]
+    _, face, bary = _closest_on_surface(true, faces, m)
+    truth = true_marker_normals(true, faces, m)
+    cosine = np.clip(np.einsum("kx,kx->k", estimate[used], truth), -1.0, 1.0)
+    angle = np.degrees(np.arccos(cosine))
+    out: dict[str, Any] = {
+        "markers": int(used.size),
+        "error_mean_deg": float(angle.mean()),
+        "error_p95_deg": float(np.percentile(angle, 95)),
+    }
+    if regions is not None:
+        names = np.asarray(regions).astype(str)[faces[face, np.argmax(bary, axis=1)]]
+        rows: list[dict[str, Any]] = [
+            {
+                "region": str(key),
+                "markers": int((names == key).sum()),
+                "error_mean_deg": float(angle[names == key].mean()),
+            }
+            for key in np.unique(names)
+        ]
+        rows.sort(key=lambda r: -r["error_mean_deg"])
         out["regions"] = rows
     return out

@@ -9,6 +9,7 @@ from scipy.spatial import ConvexHull
 import skincap.deform.dense.surface_targets as surface_targets
 from skincap.deform.dense.surface_targets import (
     _closest_on_surface_near,
+    lift_normals,
     marker_surface_normals,
     marker_surface_targets,
     phong_shape,
@@ -264,3 +265,48 @@ def test_template_patch_normals_fall_back_where_the_template_is_away() -> None:
     )
     np.testing.assert_allclose(normals[:4], np.tile([0.0, 0.0, 1.0], (4, 1)), atol=1e-12)
     np.testing.assert_array_equal(normals[4], fallback[4])
+
+
+def test_given_marker_normals_replace_the_lift_normals() -> None:
+    """``lift_normals`` are the normals the lift uses (given back, nothing changes; a
+    zero row keeps its marker's; a marker in no triangle gets none), and the true
+    normals at the markers of an elongated ellipsoid put the targets closer to it than
+    Max's from the markers do."""
+    rng = np.random.default_rng(21)
+    axes = np.array([0.05, 0.04, 0.12])
+    markers = _sphere_points(30, 1.0, seed=4) * axes
+    markers += 0.3 * rng.normal(size=markers.shape) * axes
+    markers /= np.sqrt(((markers / axes) ** 2).sum(axis=1, keepdims=True))
+    faces = _hull_faces(markers)
+    template = _sphere_points(4000, 1.0, seed=5) * axes
+    gradient = template / axes**2
+    template_normals = gradient / np.linalg.norm(gradient, axis=1, keepdims=True)
+    kw = {"marker_radius": 0.0, "max_distance": 0.03}
+    for ratio in (0.0, 0.5):
+        own = lift_normals(template, template_normals, markers, faces, patch_ratio=ratio)
+        plain = marker_surface_targets(
+            template, template_normals, markers, faces, patch_ratio=ratio, **kw
+        )
+        for given in (own, np.zeros_like(own)):
+            again = marker_surface_targets(
+                template, template_normals, markers, faces, patch_ratio=ratio,
+                marker_normals=given, **kw,
+            )  # fmt: skip
+            np.testing.assert_array_equal(again[0], plain[0])
+            np.testing.assert_array_equal(again[1], plain[1])
+    exact = markers / axes**2
+    exact /= np.linalg.norm(exact, axis=1, keepdims=True)
+    misses = {}
+    for name, given in (("max", None), ("exact", exact)):
+        t, ok = marker_surface_targets(
+            template, template_normals, markers, faces, marker_normals=given, **kw
+        )
+        misses[name] = np.abs(_ellipsoid_gap(t[ok], axes))
+    assert misses["max"].mean() > 1e-3
+    assert misses["exact"].mean() < 0.5 * misses["max"].mean()
+    # a marker in no triangle (unseen, its triangles dropped) gets no normal
+    unseen = markers.copy()
+    unseen[0] = np.nan
+    out = lift_normals(template, template_normals, unseen, faces)
+    assert not out[0].any()
+    np.testing.assert_allclose(np.linalg.norm(out[1:], axis=1), 1.0)

@@ -46,6 +46,7 @@ from skincap.geometry.raycast import _closest_on_triangles
 
 __all__ = [
     "PHONG_SHAPE",
+    "lift_normals",
     "marker_surface_normals",
     "marker_surface_targets",
     "phong_shape",
@@ -275,6 +276,69 @@ def _closest_on_surface_near(
     return dist, face, bary
 
 
+def _usable_faces(markers: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(G', 3) the marker triangles the lift uses: all corners seen, no gap-bridging edge."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    f = f[np.isfinite(markers[f]).all(axis=(1, 2))]
+    if f.shape[0] == 0:
+        return f
+    # a triangle much longer than its neighbours bridges a gap (arm to torso, leg to
+    # leg) rather than covering skin: it is dropped, leaving a hole (a border)
+    edge = np.linalg.norm(markers[f] - markers[np.roll(f, 1, axis=1)], axis=2)  # (G, 3)
+    return f[edge.max(axis=1) <= LONG_EDGE_RATIO * np.median(edge)]
+
+
+def _lift_normals(
+    points: np.ndarray,
+    point_normals: np.ndarray,
+    markers: np.ndarray,
+    faces: np.ndarray,
+    patch_ratio: float,
+) -> np.ndarray:
+    """(M, 3) corner normals over usable ``faces``: Max's, or the template's patch mean."""
+    normals = marker_surface_normals(markers, faces, points, point_normals)
+    if patch_ratio > 0:
+        used = np.unique(faces)
+        normals = template_patch_normals(markers, used, normals, points, point_normals, patch_ratio)
+    return normals
+
+
+def lift_normals(
+    points: np.ndarray,
+    point_normals: np.ndarray,
+    markers: np.ndarray,
+    faces: np.ndarray,
+    *,
+    patch_ratio: float = 0.0,
+) -> np.ndarray:
+    """(M, 3) the normals at the markers that :func:`marker_surface_targets` lifts with.
+
+    The same triangles (seen corners, no gap-bridging edge) and the same rule (Max's
+    normals, or with ``patch_ratio`` > 0 the template's mean normal around each marker),
+    so a measurement of these is a measurement of the registration's own.
+
+    Parameters
+    ----------
+    points : (V, 3) float, metres; point_normals : (V, 3) unit outward normals
+        The template where it is now (the registered mesh, after the registration).
+    markers : (M, 3) float, metres (NaN rows: unseen)
+    faces : (F, 3) int, marker-surface triangles over the marker rows
+    patch_ratio : float, as :func:`marker_surface_targets`
+
+    Returns
+    -------
+    (M, 3) float64 unit normals; zero for a marker in no usable triangle.
+    """
+    m = np.asarray(markers, dtype=np.float64)
+    f = _usable_faces(m, faces)
+    if f.shape[0] == 0:
+        return np.zeros_like(m)
+    p = np.asarray(points, dtype=np.float64)
+    out = _lift_normals(p, np.asarray(point_normals, dtype=np.float64), m, f, patch_ratio)
+    out[np.setdiff1d(np.arange(m.shape[0]), np.unique(f))] = 0.0
+    return out
+
+
 def marker_surface_targets(
     points: np.ndarray,
     point_normals: np.ndarray,
@@ -284,6 +348,7 @@ def marker_surface_targets(
     marker_radius: float,
     max_distance: float,
     patch_ratio: float = 0.0,
+    marker_normals: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Each point's target on the smoothed marker surface, and whether it has one.
 
@@ -306,6 +371,10 @@ def marker_surface_targets(
         alone. > 0: they are the mean normals of ``points`` (the template placed over
         the markers) within this many marker spacings of each marker
         (:func:`template_patch_normals`).
+    marker_normals : (M, 3) float, optional
+        Unit outward normals at the markers that replace those above as the corner
+        normals (a zero row keeps its marker's); for measuring what the normals cost
+        (:func:`skincap.evaluate.registration.marker_surface_bound`).
 
     Returns
     -------
@@ -319,17 +388,14 @@ def marker_surface_targets(
     targets = p.copy()
     valid = np.zeros(p.shape[0], dtype=bool)
     m = np.asarray(markers, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    f = f[np.isfinite(m[f]).all(axis=(1, 2))]
+    f = _usable_faces(m, faces)
     if f.shape[0] == 0 or p.shape[0] == 0:
         return targets, valid
-    # a triangle much longer than its neighbours bridges a gap (arm to torso, leg to
-    # leg) rather than covering skin: it is dropped, leaving a hole (a border)
-    edge = np.linalg.norm(m[f] - m[np.roll(f, 1, axis=1)], axis=2)  # (G, 3)
-    f = f[edge.max(axis=1) <= LONG_EDGE_RATIO * np.median(edge)]
-    normals = marker_surface_normals(m, f, p, point_normals)
-    if patch_ratio > 0:
-        normals = template_patch_normals(m, np.unique(f), normals, p, point_normals, patch_ratio)
+    normals = _lift_normals(p, point_normals, m, f, patch_ratio)
+    if marker_normals is not None:
+        given = np.asarray(marker_normals, dtype=np.float64)
+        keep = np.linalg.norm(given, axis=1) > 0.5  # a zero row keeps the normal above
+        normals[keep] = given[keep]
     dist, face, bary = _closest_on_surface_near(np.where(np.isfinite(m), m, 0.0), f, p)
     corners, corner_normals = m[f[face]], normals[f[face]]  # (V, 3, 3)
     flat = np.einsum("vc,vcx->vx", bary, corners)
