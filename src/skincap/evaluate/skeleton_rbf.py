@@ -197,7 +197,12 @@ def held_out_skeleton_rbf(
 
 
 def held_out_skeleton_rbf_on_capture(
-    markers: Any, *, fraction: float = 0.1, seed: int = 0, template: Any = "auto"
+    markers: Any,
+    *,
+    fraction: float = 0.1,
+    seed: int = 0,
+    template: Any = "auto",
+    skin_weights: str = "fitted",
 ) -> dict[str, Any]:
     """:func:`held_out_skeleton_rbf` on any labelled capture (real ones included).
 
@@ -218,6 +223,7 @@ def held_out_skeleton_rbf_on_capture(
         out = held_out_skeleton_rbf(
             x, faces, labels, float(markers.rate),
             reference_frame=frame, fraction=fraction, seed=seed, template=template,
+            skin_weights=skin_weights,
         )  # fmt: skip
     except ValidationError as exc:  # the kept markers do not calibrate a skeleton
         return {"method": "skeleton_rbf", "mean_m": None, "note": f"not measured: {exc}"}
