@@ -10,13 +10,15 @@ so each marker's weights are one small least-squares problem over the take's fra
 with ``w >= 0`` and ``sum w = 1`` (the constraints of a skin), and a pull toward the
 prior weights (bone heat) that decides what the motion cannot: a marker whose candidate
 joints hardly move against each other keeps its prior. :func:`fit_point_skin_weights`
-solves all markers together (a batched active-set solve of the small constrained
-systems). :func:`carry_weight_corrections` brings the fitted weights to every vertex as
+solves all markers together (each small constrained system exactly, by trying every
+support). :func:`carry_weight_corrections` brings the fitted weights to every vertex as
 a *correction* of the vertex's own prior weights, interpolated from the markers near it
 over the reference-pose surface, so that away from markers the prior stays.
 """
 
 from __future__ import annotations
+
+import itertools
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -89,38 +91,48 @@ def lbs_points(reference: np.ndarray, skinning: np.ndarray, weights: np.ndarray)
     return np.einsum("tpja,pj->tpa", moved, weights)
 
 
-def _solve_simplex_qp(
-    gram: np.ndarray, rhs: np.ndarray, valid: np.ndarray, max_rounds: int | None = None
-) -> np.ndarray:
-    """min w^T G w - 2 h^T w over ``w >= 0``, ``sum w = 1``, for many small systems.
+def _solve_simplex_qp(gram: np.ndarray, rhs: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """``argmin w^T G w - 2 h^T w`` over ``w >= 0``, ``sum w = 1``, for many small systems.
 
-    An active-set solve: the equality-constrained optimum over the free joints, then the
-    most negative weight of each system dropped and the rest re-solved, until none is
-    negative. ``gram`` (P, k, k) positive definite, ``rhs`` (P, k), ``valid`` (P, k);
-    returns (P, k) with 0 in the invalid slots.
+    Exact: every subset ``S`` of a system's valid entries is tried as its support (the
+    equality-constrained optimum there is ``w = G_S^-1 (h_S + nu 1)`` with ``nu`` making
+    it sum to 1); the best non-negative one wins (the convex problem's KKT point is one of
+    them). 2^k - 1 batched solves for k candidates.
+
+    Parameters
+    ----------
+    gram : (P, k, k) float, symmetric positive definite
+    rhs : (P, k) float
+    valid : (P, k) bool, at least one True per row
+
+    Returns
+    -------
+    (P, k) float64, rows on the simplex, 0 where not valid.
     """
     n_p, k = rhs.shape
-    free = valid.copy()
-    eye = np.eye(k)
-    w = np.zeros((n_p, k))
-    for _ in range(k if max_rounds is None else max_rounds):
-        pair = free[:, :, None] & free[:, None, :]
-        system = np.zeros((n_p, k + 1, k + 1))
-        system[:, :k, :k] = np.where(pair, gram, eye * ~free[:, :, None])
-        system[:, :k, k] = system[:, k, :k] = free
-        b = np.zeros((n_p, k + 1))
-        b[:, :k] = np.where(free, rhs, 0.0)
-        b[:, k] = 1.0
-        w = np.linalg.solve(system, b[..., None])[..., 0][:, :k]
-        w = np.where(free, w, 0.0)
-        negative = free & (w < -1e-12)
-        if not negative.any():
-            break
-        rows = np.flatnonzero(negative.any(axis=1))
-        worst = np.argmin(np.where(negative, w, np.inf)[rows], axis=1)
-        free[rows, worst] = False
-    w = np.maximum(w, 0.0)
-    return w / w.sum(axis=1, keepdims=True)
+    best = np.full(n_p, np.inf)
+    out = np.zeros((n_p, k))
+    for size in range(1, k + 1):
+        for subset in itertools.combinations(range(k), size):
+            s = list(subset)
+            rows = np.flatnonzero(valid[:, s].all(axis=1))
+            if rows.size == 0:
+                continue
+            g = gram[rows][:, s][:, :, s]
+            both = np.linalg.solve(g, np.stack([rhs[rows][:, s], np.ones((rows.size, size))], -1))
+            gh, g1 = both[..., 0], both[..., 1]  # G_S^-1 h_S, G_S^-1 1
+            nu = (1.0 - gh.sum(axis=1)) / g1.sum(axis=1)
+            w = gh + nu[:, None] * g1
+            value = np.einsum("pk,pkl,pl->p", w, g, w) - 2.0 * np.einsum(
+                "pk,pk->p", w, rhs[rows][:, s]
+            )
+            better = (w >= -1e-12).all(axis=1) & (value < best[rows])
+            take = rows[better]
+            best[take] = value[better]
+            out[take] = 0.0
+            out[np.ix_(take, s)] = w[better]
+    out = np.maximum(out, 0.0)
+    return out / out.sum(axis=1, keepdims=True)
 
 
 def fit_point_skin_weights(
