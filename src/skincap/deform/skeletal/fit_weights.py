@@ -188,7 +188,7 @@ def fit_point_skin_weights(
     if prior_scale <= 0:
         raise ValidationError(f"prior_scale must be > 0, got {prior_scale}")
     cand, valid = candidate_joints(w0, parents, max_candidates)
-    seen: np.ndarray = np.isfinite(x).all(axis=-1)  # (T, P)
+    seen = np.asarray(np.isfinite(x).all(axis=-1))  # (T, P)
     k = cand.shape[1]
     gram, rhs = np.zeros((n_p, k, k)), np.zeros((n_p, k))
     for t0 in range(0, n_t, int(chunk)):  # normal equations summed over frame blocks
