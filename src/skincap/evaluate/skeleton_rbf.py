@@ -74,14 +74,17 @@ def skeleton_rbf_frames(
     *,
     reference_frame: int = 0,
     kernel: str = "thin_plate",
+    skin_weights: str = "fitted",
 ) -> np.ndarray:
-    """(T, V, 3) deformed vertices of the mesh (in the pose of ``reference_frame``)."""
+    """(T, V, 3) deformed vertices of the mesh (in the pose of ``reference_frame``); the
+    skin weights fitted to the take's markers unless ``skin_weights="bone_heat"``."""
     from skincap.deform.dense.skeleton_rbf import build_skeleton_rbf
 
     x = np.asarray(positions, dtype=np.float64)
     deformer = build_skeleton_rbf(
-        vertices, faces, x[reference_frame], motion, reference_frame, kernel=kernel
-    )
+        vertices, faces, x[reference_frame], motion, reference_frame, positions=x,
+        skin_weights=skin_weights, kernel=kernel,
+    )  # fmt: skip
     return np.concatenate(list(deformer.deform(x, motion)))
 
 
@@ -97,13 +100,17 @@ def held_out_skeleton_rbf(
     seed: int = 0,
     template: Any = "auto",
     kernel: str = "thin_plate",
+    skin_weights: str = "fitted",
 ) -> dict[str, Any]:
     """Leave ``fraction`` of the markers out of the solve and the residual fit, predict them.
 
     The held-out markers are points of the body: their skin weights come from bone heat on
     the marker surface (all markers as its vertices, bound to the skeleton solved from the
     kept markers in the reference frame), so no truth and no mesh is needed, and they take
-    no part in the solve or the residual interpolation. The same seeded choice as
+    no part in the solve or the residual interpolation. With ``skin_weights="fitted"``
+    the kept markers' weights are fitted to their trajectories and the corrections
+    carried to every marker-surface vertex (kept and held out) as they are to a mesh's
+    vertices; the held-out markers' own motion is not used. The same seeded choice as
     :func:`skincap.evaluate.animate.held_out_marker_errors`.
 
     Parameters
@@ -151,6 +158,23 @@ def held_out_skeleton_rbf(
     assert surface.skin is not None  # bind_mesh always gives one
     idx, w = surface.skin.joint_indices, surface.skin.joint_weights
     kept_rows, out_rows = index[keep], index[out]
+    if skin_weights == "fitted":
+        from skincap.deform.skeletal.fit_weights import (
+            carry_weight_corrections,
+            dense_weights,
+            fit_point_skin_weights,
+        )
+
+        n_j = motion.skeleton.n_joints
+        prior = dense_weights(idx, w, n_j)  # (present, J)
+        skinning = np.einsum("tjab,jbc->tjac", world, np.linalg.inv(world[reference_frame]))
+        fitted = fit_point_skin_weights(
+            ref[keep], x[:, keep], skinning, prior[kept_rows], motion.skeleton.parents
+        )
+        idx, w = carry_weight_corrections(
+            ref[present], prior, ref[keep], prior[kept_rows], fitted,
+            max_influences=idx.shape[1],
+        )  # fmt: skip
     deformer = SkeletonRBFDeformer(
         ref[keep], idx[kept_rows], w[kept_rows], ref[keep], idx[kept_rows], w[kept_rows],
         world[reference_frame], kernel=kernel,
@@ -173,7 +197,12 @@ def held_out_skeleton_rbf(
 
 
 def held_out_skeleton_rbf_on_capture(
-    markers: Any, *, fraction: float = 0.1, seed: int = 0, template: Any = "auto"
+    markers: Any,
+    *,
+    fraction: float = 0.1,
+    seed: int = 0,
+    template: Any = "auto",
+    skin_weights: str = "fitted",
 ) -> dict[str, Any]:
     """:func:`held_out_skeleton_rbf` on any labelled capture (real ones included).
 
@@ -194,6 +223,7 @@ def held_out_skeleton_rbf_on_capture(
         out = held_out_skeleton_rbf(
             x, faces, labels, float(markers.rate),
             reference_frame=frame, fraction=fraction, seed=seed, template=template,
+            skin_weights=skin_weights,
         )  # fmt: skip
     except ValidationError as exc:  # the kept markers do not calibrate a skeleton
         return {"method": "skeleton_rbf", "mean_m": None, "note": f"not measured: {exc}"}

@@ -528,7 +528,10 @@ def _animate_skeleton_rbf(
         solved = solve_with_range_of_motion(
             filled_take, rom, template=skeleton_template, progress=_stage(progress, "skeleton")
         )
-        deformer = build_skeleton_rbf(vertices, mesh.faces, reference, solved.motion, frame)
+        # skin weights: bone heat corrected by the take's own marker motion
+        deformer = build_skeleton_rbf(
+            vertices, mesh.faces, reference, solved.motion, frame, positions=positions
+        )
     except ValidationError as exc:
         raise FormatError(paths["rom"] or markers_path, str(exc)) from None
     build["skeleton"] = {

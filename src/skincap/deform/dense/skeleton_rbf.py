@@ -8,8 +8,10 @@ only have to carry what the skeleton misses (soft tissue, the skinning's own err
 1. **Base.** A skeleton solved from the take's own markers (the caller solves it: this
    layer does not import :mod:`skincap.solve`) is bound to the mesh in the reference
    frame's pose (bind transforms = the solved pose there, since the mesh stands in it),
-   with automatic skin weights (:func:`~skincap.deform.skeletal.bind.bind_mesh`); every
-   frame is dual-quaternion skinned.
+   with automatic skin weights (:func:`~skincap.deform.skeletal.bind.bind_mesh`),
+   corrected by the markers' own motion when their trajectories are given (each
+   marker's weights fitted to its trajectory, the corrections carried to the vertices
+   near it: :func:`fitted_skin_weights`); every frame is dual-quaternion skinned.
 2. **Markers on the body.** Each marker takes the skin weights of the surface point
    under it in the reference frame (the nearest point's barycentric blend of its
    triangle's vertex weights), so it is skinned like the skin it sits on.
@@ -46,9 +48,11 @@ from skincap.types import Mesh, Motion
 
 __all__ = [
     "KERNELS",
+    "SKIN_WEIGHTS",
     "SkeletonRBFDeformer",
     "blend_dual_quaternions",
     "build_skeleton_rbf",
+    "fitted_skin_weights",
     "residual_kernel",
     "surface_point_weights",
 ]
@@ -57,6 +61,9 @@ __all__ = [
 #: with a linear polynomial), and the paper's compact cubic B-spline (σ = 2 × the largest
 #: nearest-marker distance, no polynomial: the residual decays to 0 away from markers).
 KERNELS: tuple[str, ...] = ("linear", "thin_plate", "cubic", "bspline")
+#: Where the skin weights come from: bone heat corrected by the markers' motion, or bone
+#: heat alone.
+SKIN_WEIGHTS: tuple[str, ...] = ("fitted", "bone_heat")
 #: Factored interpolation systems kept (one per set of markers seen).
 _MAX_FACTORS = 64
 
@@ -400,10 +407,22 @@ def build_skeleton_rbf(
     motion: Motion,
     reference_frame: int,
     *,
+    positions: np.ndarray | None = None,
+    skin_weights: str = "fitted",
     kernel: str = "thin_plate",
     max_influences: int = 4,
 ) -> SkeletonRBFDeformer:
     """Bind the mesh to a solved skeleton in the reference frame's pose, skin the markers.
+
+    With ``skin_weights="fitted"`` and the markers' trajectories (``positions``) the
+    bone-heat weights are corrected by the markers' own motion: each marker's weights
+    over the joints near it that best explain its trajectory under the solved skeleton
+    (:func:`~skincap.deform.skeletal.fit_weights.fit_point_skin_weights`, a pull toward
+    its bone-heat weights where the motion does not decide), carried to the vertices as
+    corrections of their bone-heat weights
+    (:func:`~skincap.deform.skeletal.fit_weights.carry_weight_corrections`). The markers
+    then take the weights of the surface under them, as with bone heat (the residual is
+    measured in the frame the vertices there are skinned in).
 
     Parameters
     ----------
@@ -414,6 +433,10 @@ def build_skeleton_rbf(
         The skeleton solved from the take (metres).
     reference_frame : int
         The frame of ``motion`` the mesh stands in: its pose is the bind pose.
+    positions : (T, N, 3) float, metres, optional
+        The markers over ``motion``'s frames (NaN where missing): what the weights are
+        fitted to. Without it the weights are bone heat.
+    skin_weights : {"fitted", "bone_heat"}
     kernel : one of :data:`KERNELS`
     max_influences : int
         Joints per vertex and per marker.
@@ -428,8 +451,13 @@ def build_skeleton_rbf(
         raise ValidationError(
             f"reference_frame {reference_frame} is outside 0..{motion.n_frames - 1}"
         )
+    if skin_weights not in SKIN_WEIGHTS:
+        raise ValidationError(
+            f"skin_weights: expected one of {', '.join(SKIN_WEIGHTS)}, got {skin_weights!r}"
+        )
     f = np.asarray(faces, dtype=np.int64)
-    bind_world = forward_kinematics(motion)[reference_frame]  # (J, 4, 4)
+    world = forward_kinematics(motion)  # (T, J, 4, 4)
+    bind_world = world[reference_frame]
     mesh = bind_mesh(
         Mesh(vertices=np.asarray(vertices, dtype=np.float64), faces=f),
         motion.skeleton,
@@ -438,10 +466,72 @@ def build_skeleton_rbf(
     )
     assert mesh.skin is not None  # bind_mesh always gives one
     idx, w = mesh.skin.joint_indices, mesh.skin.joint_weights
+    if skin_weights == "fitted" and positions is not None:
+        idx, w = fitted_skin_weights(
+            mesh.vertices, f, idx, w, marker_reference, positions, world, bind_world,
+            motion.skeleton.parents, max_influences=max_influences,
+        )  # fmt: skip
     m_idx, m_w = surface_point_weights(
         marker_reference, mesh.vertices, f, idx, w, motion.skeleton.n_joints,
         max_influences=max_influences,
     )  # fmt: skip
     return SkeletonRBFDeformer(
         mesh.vertices, idx, w, marker_reference, m_idx, m_w, bind_world, kernel=kernel
+    )
+
+
+def fitted_skin_weights(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    joint_indices: np.ndarray,
+    joint_weights: np.ndarray,
+    marker_reference: np.ndarray,
+    positions: np.ndarray,
+    world: np.ndarray,
+    bind_world: np.ndarray,
+    parents: np.ndarray,
+    *,
+    max_influences: int = 4,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices' bone-heat weights corrected by the markers' motion.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float, metres, bind pose; faces : (F, 3) int
+    joint_indices, joint_weights : (V, K) the vertices' bone-heat skin
+    marker_reference : (N, 3) float, metres, the markers in the bind pose
+    positions : (T, N, 3) float, metres, the markers over the take, NaN where missing
+    world : (T, J, 4, 4) float, the skeleton's world transforms over the same frames
+    bind_world : (J, 4, 4) float
+    parents : (J,) int
+    max_influences : int
+
+    Returns
+    -------
+    indices, weights : (V, max_influences) int64 / float64, rows summing to 1.
+    """
+    from skincap.deform.skeletal.fit_weights import (
+        carry_weight_corrections,
+        dense_weights,
+        fit_point_skin_weights,
+    )
+
+    x = np.asarray(positions, dtype=np.float64)
+    wr = np.asarray(world, dtype=np.float64)
+    c = np.asarray(marker_reference, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1:] != c.shape or wr.shape[0] != x.shape[0]:
+        raise ValidationError(
+            f"positions: expected ({wr.shape[0]}, {c.shape[0]}, 3) (the motion's frames), "
+            f"got {x.shape}"
+        )
+    n_j = wr.shape[1]
+    skinning = np.einsum("tjab,jbc->tjac", wr, np.linalg.inv(bind_world))
+    prior_v = dense_weights(joint_indices, joint_weights, n_j)
+    m_idx, m_w = surface_point_weights(
+        c, vertices, faces, joint_indices, joint_weights, n_j, max_influences=max_influences
+    )
+    prior_m = dense_weights(m_idx, m_w, n_j)
+    fitted = fit_point_skin_weights(c, x, skinning, prior_m, parents)
+    return carry_weight_corrections(
+        vertices, prior_v, c, prior_m, fitted, max_influences=max_influences
     )
