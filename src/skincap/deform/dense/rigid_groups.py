@@ -21,7 +21,10 @@ do is move rigidly, so the groups are judged by that, on their markers:
   weighed by the evidence that a pair moves apart beyond its flesh's jiggle
   (``jiggle_scaled``): the residual the union adds at its worst frame over its
   markers' own residual level, so that two slivers of a jiggling limb, whose fitted
-  rotations the jiggle turns apart, join before a hand leaves its forearm.
+  rotations the jiggle turns apart, join before a hand leaves its forearm. That cost
+  is discounted by the share of the pair's relative motion that no ball joint
+  between them explains (:func:`_unjointed_share`): parts meet at joints, slivers of
+  one mass are moved apart by the flesh's offset.
 * **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
   markers and each marker moves to the neighbouring part whose motion predicts its
   trajectory better than its own part's does (a k-means step with rigid motions as the
@@ -196,7 +199,9 @@ def merge_groups_by_rigid_residual(
         With ``peak_turn_above``: weigh each pair's peak turn with the evidence that
         the two move apart beyond their flesh's jiggle (:func:`_jiggle_scaled_costs`):
         two slivers of a jiggling thigh or upper arm "turn apart" by their poorly
-        fitted rotations, a hand and its forearm by a joint.
+        fitted rotations, a hand and its forearm by a joint; discounted by
+        ``(1 - share)^PIVOT_POWER`` with ``share`` the part of the pair's relative
+        motion no joint explains (:func:`_unjointed_share`).
 
     Returns
     -------
@@ -322,7 +327,9 @@ def _jiggle_scaled_costs(
     together alike (a small ``jump``, whatever their fitted rotations do); a hand fits
     its three or four markers exactly and a joint's turn adds many markers' worth.
     Both measures have to agree that a pair is apart: the turn keeps the pelvis from a
-    jiggling belly, the jump a hand from its forearm.
+    jiggling belly, the jump a hand from its forearm. The product is then multiplied
+    by ``(1 - share)^PIVOT_POWER``, ``share`` the part of the pair's relative motion no
+    joint explains (:func:`_unjointed_share`): what is left is the evidence of a joint.
     """
     if not pairs.shape[0]:
         return np.zeros(0)
