@@ -79,7 +79,7 @@ def test_a_seed_whose_mean_shift_leaves_few_pieces_segments_into_the_true_parts(
     """Seed 8: mean shift at its first bandwidth left 35 marker groups, two a part, and
     some spanned two true parts (upper chest with chest, abdomen with pelvis), so no
     merge could do better than 0.74; it now narrows until three a part (0.735 before,
-    0.855 after, with the merge that weighs only the relative motion a joint explains)."""
+    0.860 with that alone, 0.855 with the merge's joint discount as well)."""
     _assert_segments_into_true_parts(*_rom_take(8, soft_tissue=True))
 
 
