@@ -253,3 +253,40 @@ def test_a_brief_turn_outweighs_slivers_of_jiggling_flesh_beyond_their_jiggle() 
         pieces, edges, x, ref, 3, peak_turn_above=3, jiggle_scaled=True
     )
     assert right(got)
+
+
+def test_a_joint_explains_a_turn_and_no_joint_explains_a_jiggle() -> None:
+    """The unjointed share of a pair's relative motion: a tip turning 40° about a hinge
+    is all joint (share ~0, whatever the hinge's place); a sliver whose flesh swings
+    2 cm on a spring beside a still one (an offset that turns it a few degrees too)
+    has no fixed point the two carry alike (about half of it unexplained)."""
+    from skincap.deform.dense.rigid_groups import (
+        _centred_take,
+        _group_sums,
+        _marker_sums,
+        _unjointed_share,
+    )
+
+    ref, _ = _strip()
+    t = np.arange(200) / 120.0
+    col = np.round(ref[:, 0] / 0.04).astype(int)
+    x = np.repeat(ref[None], t.size, axis=0)
+    tip = col >= 6
+    pulse = np.sin(np.pi * t / t[-1]) ** 2
+    turn = Rotation.from_rotvec(np.radians(40.0) * pulse[:, None] * [0, 0, 1.0]).as_matrix()
+    hinge = np.array([0.22, 0.05, 0.0])
+    x[:, tip] = np.einsum("tab,nb->tna", turn, ref[tip] - hinge) + hinge
+    jiggle = np.repeat(ref[None], t.size, axis=0)
+    swing = 0.02 * np.stack([np.sin(2 * np.pi * 6.0 * t), np.cos(2 * np.pi * 4.0 * t)], 1)
+    flesh = col >= 6
+    weight = np.where(flesh, 0.5 + 0.5 * ref[:, 1] / ref[:, 1].max(), 0.0)  # uneven: it turns
+    jiggle[:, :, 1:3] += weight[None, :, None] * swing[:, None, :]
+    groups = tip.astype(np.int64)
+    pairs = np.array([[0, 1]])
+    shares = []
+    for take in (x, jiggle):
+        xc, rc = _centred_take(take, ref)
+        sums = _group_sums(_marker_sums(xc, rc), groups, 2)
+        shares.append(float(_unjointed_share(sums, pairs)[0]))
+    assert shares[0] < 0.01, shares
+    assert shares[1] > 0.3, shares

@@ -21,7 +21,10 @@ do is move rigidly, so the groups are judged by that, on their markers:
   weighed by the evidence that a pair moves apart beyond its flesh's jiggle
   (``jiggle_scaled``): the residual the union adds at its worst frame over its
   markers' own residual level, so that two slivers of a jiggling limb, whose fitted
-  rotations the jiggle turns apart, join before a hand leaves its forearm.
+  rotations the jiggle turns apart, join before a hand leaves its forearm. That cost
+  is discounted by the share of the pair's relative motion that no ball joint
+  between them explains (:func:`_unjointed_share`): parts meet at joints, slivers of
+  one mass are moved apart by the flesh's offset.
 * **Seams** (:func:`refine_marker_parts`): every part's rigid motion is fitted to its
   markers and each marker moves to the neighbouring part whose motion predicts its
   trajectory better than its own part's does (a k-means step with rigid motions as the
@@ -196,7 +199,9 @@ def merge_groups_by_rigid_residual(
         With ``peak_turn_above``: weigh each pair's peak turn with the evidence that
         the two move apart beyond their flesh's jiggle (:func:`_jiggle_scaled_costs`):
         two slivers of a jiggling thigh or upper arm "turn apart" by their poorly
-        fitted rotations, a hand and its forearm by a joint.
+        fitted rotations, a hand and its forearm by a joint; discounted by
+        ``(1 - share)^PIVOT_POWER`` with ``share`` the part of the pair's relative
+        motion no joint explains (:func:`_unjointed_share`).
 
     Returns
     -------
@@ -322,7 +327,9 @@ def _jiggle_scaled_costs(
     together alike (a small ``jump``, whatever their fitted rotations do); a hand fits
     its three or four markers exactly and a joint's turn adds many markers' worth.
     Both measures have to agree that a pair is apart: the turn keeps the pelvis from a
-    jiggling belly, the jump a hand from its forearm.
+    jiggling belly, the jump a hand from its forearm. The product is then multiplied
+    by ``(1 - share)^PIVOT_POWER``, ``share`` the part of the pair's relative motion no
+    joint explains (:func:`_unjointed_share`): what is left is the evidence of a joint.
     """
     if not pairs.shape[0]:
         return np.zeros(0)
@@ -331,7 +338,53 @@ def _jiggle_scaled_costs(
     sigma2 = (own_t[pairs].sum(1).mean(-1) + floor * (na + nb)) / (na + nb)  # m² per marker
     jump = added.max(axis=-1) / np.maximum(sigma2, 1e-300)
     turn = _peak_turn_costs(sums, size, pairs)
-    return np.sqrt(np.maximum(turn, 0.0) * np.maximum(jump, 0.0))
+    cost = np.sqrt(np.maximum(turn, 0.0) * np.maximum(jump, 0.0))
+    return cost * (1.0 - _unjointed_share(sums, pairs)) ** PIVOT_POWER
+
+
+#: Power of the share of a pair's relative motion that no joint explains in the merge
+#: cost (:func:`_unjointed_share`); 0 leaves the cost as it was.
+PIVOT_POWER = 2.0
+
+
+def _unjointed_share(sums: np.ndarray, pairs: np.ndarray) -> np.ndarray:
+    """Share of each pair's relative motion that no ball joint between them explains, (pairs,).
+
+    Two parts meeting at a joint move apart by turning about a point ``c`` (reference
+    coordinates) that both carry alike at every frame: ``(R_a(t) - R_b(t)) c + d_a(t) -
+    d_b(t) = 0``. Two slivers of one jiggling mass move apart by the flesh's offset,
+    which no fixed point absorbs. With ``c`` the least-squares pivot over the take, the
+    share is ``max_t |M c + v|² / max_t m(t)`` (``M = R_a - R_b``, ``v = d_a - d_b``,
+    ``m`` the mean squared relative displacement of the pair's markers, directions
+    averaged about their reference centroid), clipped to [0, 1]: ~0 for a hand at its
+    wrist, up to ~1 for a thigh split across its jiggle. Frames where either group has
+    fewer than three markers are left out.
+    """
+    if not pairs.shape[0]:
+        return np.zeros(0)
+    sa, sb = sums[pairs[:, 0]], sums[pairs[:, 1]]
+    rot_a, shift_a = _motions_of_sums(sa)
+    rot_b, shift_b = _motions_of_sums(sb)
+    m = rot_a - rot_b  # (K, T, 3, 3)
+    v = shift_a - shift_b  # (K, T, 3)
+    ok = np.isfinite(m).all(axis=(-1, -2)) & np.isfinite(v).all(axis=-1)  # (K, T)
+    m = np.where(ok[..., None, None], m, 0.0)
+    v = np.where(ok[..., None], v, 0.0)
+    normal = np.einsum("ktji,ktjl->kil", m, m)  # (K, 3, 3) Σ_t MᵀM
+    scale = np.maximum(np.trace(normal, axis1=-2, axis2=-1), 1e-300)
+    normal = normal + 1e-9 * scale[:, None, None] * np.eye(3)  # a pair that never turns
+    pivot = np.linalg.solve(normal, -np.einsum("ktji,ktj->ki", m, v)[..., None])[..., 0]
+    miss = (np.einsum("ktij,kj->kti", m, pivot) + v) ** 2  # (K, T, 3)
+    both = sa + sb
+    count = np.maximum(both[..., 0], 1.0)
+    centre = both[..., 4:7] / count[..., None]  # (K, T, 3) reference centroid of the seen markers
+    spread = np.maximum(both[..., 8] / count - (centre**2).sum(-1), 0.0)  # (K, T) m²
+    moved = ((np.einsum("ktij,ktj->kti", m, centre) + v) ** 2).sum(-1)
+    moved = moved + (m**2).sum(axis=(-1, -2)) * spread / 3.0
+    peak = np.where(ok, moved, 0.0).max(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.where(peak > 0, np.where(ok, miss.sum(-1), 0.0).max(axis=-1) / peak, 0.0)
+    return np.clip(share, 0.0, 1.0)
 
 
 def compact_labels(labels: np.ndarray) -> np.ndarray:

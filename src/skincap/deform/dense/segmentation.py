@@ -12,8 +12,9 @@
    seen) join the adjacent piece whose rotations they follow best. Each marker takes
    the piece most of its triangles belong to, and the marker groups are split again
    into pieces connected through the surface's edges. The bandwidth is halved while
-   there are fewer than twice ``n_parts`` of them: the merge below needs an
-   over-segmentation to choose from.
+   there are fewer than :data:`PIECES_PER_PART` times ``n_parts`` of them: the merge
+   below needs an over-segmentation to choose from, and at two a part some pieces
+   still spanned two true parts (upper chest with chest, abdomen with pelvis).
 4. **Merging and seams** (:mod:`.rigid_groups`): adjacent marker groups are merged,
    the pair with the least evidence of moving apart first, until ``n_parts`` remain:
    the geometric mean of how far the pair turns apart at its peak frame (the
@@ -23,7 +24,10 @@
    union adds at its worst frame in units of their markers' own jiggle (two slivers
    of a jiggling upper arm fit poorly apart and together alike, whatever their
    fitted rotations do; a hand fits exactly and its wrist's turn costs many markers'
-   worth). A group with fewer than ``min_markers`` markers, too few for a rigid fit,
+   worth), discounted by the share of the pair's relative motion that no joint
+   between them explains (two slivers of one jiggling mass move apart by the flesh's
+   offset, which no fixed pivot absorbs; a hand turns about its wrist). A group with
+   fewer than ``min_markers`` markers, too few for a rigid fit,
    merges first by the residual its union adds, whatever the count; then every seam
    marker moves to the adjacent part whose rigid motion
    predicts its trajectory best, judged on the frames where the two parts turn apart
@@ -80,10 +84,18 @@ from skincap.deform.dense.rigid_groups import (
 )
 from skincap.errors import ValidationError
 
-__all__ = ["DISSOLVED_PARTS", "Segmentation", "segment_marker_surface", "triangle_rotations"]
+__all__ = [
+    "DISSOLVED_PARTS",
+    "PIECES_PER_PART",
+    "Segmentation",
+    "segment_marker_surface",
+    "triangle_rotations",
+]
 
 #: The merge stops this many groups above ``n_parts``; the last ones are dissolved.
 DISSOLVED_PARTS = 3
+#: Mean shift narrows until it leaves this many marker groups per wanted part.
+PIECES_PER_PART = 3
 
 
 @dataclass(eq=False)
@@ -229,7 +241,7 @@ def segment_marker_surface(
     bandwidth : float
         Mean-shift bandwidth in rotation-matrix distance (``||R_a - R_b||_F``, RMS over
         frames; 0.05 is about 2°). Halved (up to four times) while mean shift leaves
-        fewer than ``2 * n_parts`` marker groups to merge.
+        fewer than ``PIECES_PER_PART * n_parts`` marker groups to merge.
     min_markers : int
         Fewest markers a part may hold; smaller groups join the neighbour whose rigid
         motion they follow best.
@@ -279,7 +291,7 @@ def segment_marker_surface(
         n_groups = int(labels.max()) + 1
         tri_pieces = _surface_pieces(labels, adj, feat)
         groups = _marker_pieces(_marker_majority(f, tri_pieces, n_markers), edges)
-        if int(groups.max()) + 1 >= 2 * int(n_parts):
+        if int(groups.max()) + 1 >= PIECES_PER_PART * int(n_parts):
             break
         width *= 0.5
     if progress:
