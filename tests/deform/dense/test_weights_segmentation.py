@@ -210,7 +210,7 @@ def test_blend_weights_keep_a_missing_sample_out_and_a_single_candidate_whole() 
 def test_simplex_least_squares_is_the_constrained_minimum() -> None:
     from scipy.optimize import minimize
 
-    from skincap.deform.dense.weights import _simplex_least_squares
+    from skincap.geometry.simplex import simplex_least_squares as _simplex_least_squares
 
     rng = np.random.default_rng(3)
     a = rng.normal(size=(40, 4, 3))  # rank 3: some Gram matrices are singular on 4
@@ -296,7 +296,7 @@ def test_simplex_least_squares_ignores_the_entries_a_row_cannot_use() -> None:
     # row 0 may use entries 0 and 1; its entry 2 (a part it is no candidate of) is
     # empty, so every subset with it is singular. Row 1 may use all three. No warning
     # escapes, and row 0's answer is the one of its own 2x2 problem.
-    from skincap.deform.dense.weights import _simplex_least_squares
+    from skincap.geometry.simplex import simplex_least_squares as _simplex_least_squares
 
     gram = np.array(
         [

@@ -157,7 +157,7 @@ def test_candidates_and_bad_input(arm) -> None:
 def test_simplex_solver_meets_the_optimality_conditions() -> None:
     """Random small problems: the gradient 2(Gw - h) is equal on the support and no
     smaller off it (the KKT conditions of the convex problem on the simplex)."""
-    from skincap.deform.skeletal.fit_weights import _solve_simplex_qp
+    from skincap.geometry.simplex import simplex_least_squares
 
     rng = np.random.default_rng(0)
     a = rng.normal(size=(200, 12, 5))
@@ -165,11 +165,12 @@ def test_simplex_solver_meets_the_optimality_conditions() -> None:
     rhs = rng.normal(size=(200, 5))
     valid = np.ones((200, 5), dtype=bool)
     valid[::3, 4] = False
-    w = _solve_simplex_qp(gram, rhs, valid)
+    w = simplex_least_squares(gram, valid, rhs)
     assert np.allclose(w.sum(axis=1), 1.0) and w.min() >= 0.0 and (w[~valid] == 0).all()
     grad = 2.0 * (np.einsum("pkl,pl->pk", gram, w) - rhs)
     on = w > 1e-9
     level = np.where(on, grad, -np.inf).max(axis=1)
-    assert np.abs(np.where(on, grad - level[:, None], 0.0)).max() < 1e-8
-    assert (np.where(valid & ~on, grad - level[:, None], 0.0) > -1e-8).all()
+    # to 1e-7: the solver's tie-breaking ridge (1e-9 of the mean diagonal, ~12 here)
+    assert np.abs(np.where(on, grad - level[:, None], 0.0)).max() < 1e-7
+    assert (np.where(valid & ~on, grad - level[:, None], 0.0) > -1e-7).all()
     assert (on.sum(axis=1) < valid.sum(axis=1)).any()  # some constraints are active

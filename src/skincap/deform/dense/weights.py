@@ -37,14 +37,13 @@ distance, to the inverse-distance blend of its nearest markers' weights
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
 from skincap.geometry.raycast import closest_points_on_mesh
 from skincap.geometry.rigid import fit_rigid
+from skincap.geometry.simplex import simplex_least_squares
 
 __all__ = [
     "candidates_from_marker_parts",
@@ -153,49 +152,6 @@ def _fit_part_motions(
     return fit_rigid(ref[None, None], x[:, None], members.T[None])
 
 
-def _simplex_least_squares(gram: np.ndarray, usable: np.ndarray) -> np.ndarray:
-    """``argmin wᵀ G w`` over ``w ≥ 0, Σ w = 1`` on the usable entries, exactly.
-
-    Every subset of the (few) usable entries is tried as the active set: the
-    equality-constrained minimum is ``G_S⁻¹ 1 / 1ᵀ G_S⁻¹ 1``; the best non-negative one
-    wins (the KKT point of the convex problem is one of them).
-
-    Parameters
-    ----------
-    gram : (N, K, K) float, symmetric positive semi-definite
-    usable : (N, K) bool, at least one True per row
-
-    Returns
-    -------
-    (N, K) float64, rows on the simplex, 0 where not usable
-    """
-    n, k = usable.shape
-    scale = np.einsum("nkk->n", gram) / k
-    ridge = 1e-9 * np.maximum(scale, 1e-300)[:, None, None] * np.eye(k)  # singular G: ties
-    g = gram + ridge
-    best = np.full(n, np.inf)
-    weights = np.zeros((n, k))
-    for size in range(1, k + 1):
-        for subset in itertools.combinations(range(k), size):
-            s = list(subset)
-            rows = np.flatnonzero(usable[:, s].all(axis=1))  # only rows whose entries exist
-            if rows.size == 0:
-                continue
-            g_s = g[rows][:, s][:, :, s]
-            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                # a singular G_S gives inf/NaN here; such a row fails isfinite below
-                sol = np.linalg.solve(g_s, np.ones((rows.size, size, 1)))[..., 0]
-                total = sol.sum(axis=1, keepdims=True)
-                w = sol / np.where(np.abs(total) > 0, total, 1.0)
-                value = np.einsum("nk,nkl,nl->n", w, g_s, w)
-            better = (w >= 0).all(axis=1) & np.isfinite(value) & (value < best[rows])
-            take = rows[better]
-            best[take] = value[better]
-            weights[take] = 0.0
-            weights[np.ix_(take, s)] = w[better]
-    return weights
-
-
 def marker_blend_weights(
     positions: np.ndarray,
     reference: np.ndarray,
@@ -210,7 +166,7 @@ def marker_blend_weights(
     Every part's rigid motion (reference -> frame t) is fitted to its ``members``; a
     marker with one candidate weighs 1 for it; any other takes the convex weights
     ``w`` over its candidates that minimise ``Σ_t ||x(t) - Σ_p w_p (R_p(t) x⁰ + d_p(t))||²``
-    over the frames it is measured in (exactly, :func:`_simplex_least_squares`). A
+    over the frames it is measured in (exactly, :func:`skincap.geometry.simplex.simplex_least_squares`). A
     marker rigidly on one part gets that part alone; one moving halfway between two
     parts gets one half each.
 
@@ -268,7 +224,7 @@ def marker_blend_weights(
     seen = np.isfinite(resid).all(axis=(-1, -2))  # (T, N)
     resid = np.where(seen[..., None, None], resid, 0.0)
     gram = np.einsum("tnka,tnla->nkl", resid, resid) / np.maximum(seen.sum(0), 1)[:, None, None]
-    w = _simplex_least_squares(gram, usable)
+    w = simplex_least_squares(gram, usable)
     alpha = np.zeros((n, n_p))
     np.put_along_axis(alpha, order, np.where(usable, w, 0.0), axis=1)
     alpha = np.where(alpha >= float(min_weight), alpha, 0.0)

@@ -18,12 +18,11 @@ over the reference-pose surface, so that away from markers the prior stays.
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 from scipy.spatial import cKDTree
 
 from skincap.errors import ValidationError
+from skincap.geometry.simplex import simplex_least_squares
 
 __all__ = [
     "candidate_joints",
@@ -89,50 +88,6 @@ def lbs_points(reference: np.ndarray, skinning: np.ndarray, weights: np.ndarray)
     moved = np.einsum("tjab,pb->tpja", skinning[:, :, :3, :3], reference)
     moved += skinning[:, None, :, :3, 3]
     return np.einsum("tpja,pj->tpa", moved, weights)
-
-
-def _solve_simplex_qp(gram: np.ndarray, rhs: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """``argmin w^T G w - 2 h^T w`` over ``w >= 0``, ``sum w = 1``, for many small systems.
-
-    Exact: every subset ``S`` of a system's valid entries is tried as its support (the
-    equality-constrained optimum there is ``w = G_S^-1 (h_S + nu 1)`` with ``nu`` making
-    it sum to 1); the best non-negative one wins (the convex problem's KKT point is one of
-    them). 2^k - 1 batched solves for k candidates.
-
-    Parameters
-    ----------
-    gram : (P, k, k) float, symmetric positive definite
-    rhs : (P, k) float
-    valid : (P, k) bool, at least one True per row
-
-    Returns
-    -------
-    (P, k) float64, rows on the simplex, 0 where not valid.
-    """
-    n_p, k = rhs.shape
-    best = np.full(n_p, np.inf)
-    out = np.zeros((n_p, k))
-    for size in range(1, k + 1):
-        for subset in itertools.combinations(range(k), size):
-            s = list(subset)
-            rows = np.flatnonzero(valid[:, s].all(axis=1))
-            if rows.size == 0:
-                continue
-            g = gram[rows][:, s][:, :, s]
-            both = np.linalg.solve(g, np.stack([rhs[rows][:, s], np.ones((rows.size, size))], -1))
-            gh, g1 = both[..., 0], both[..., 1]  # G_S^-1 h_S, G_S^-1 1
-            nu = (1.0 - gh.sum(axis=1)) / g1.sum(axis=1)
-            w = gh + nu[:, None] * g1
-            value = np.einsum("pk,pkl,pl->p", w, g, w) - 2.0 * np.einsum(
-                "pk,pk->p", w, rhs[rows][:, s]
-            )
-            better = (w >= -1e-12).all(axis=1) & (value < best[rows])
-            take = rows[better]
-            best[take] = value[better]
-            out[take] = 0.0
-            out[np.ix_(take, s)] = w[better]
-    out = np.maximum(out, 0.0)
-    return out / out.sum(axis=1, keepdims=True)
 
 
 def fit_point_skin_weights(
@@ -206,7 +161,7 @@ def fit_point_skin_weights(
     lam = np.where(lam > 0, lam, 1.0)
     gram = gram + lam[:, None, None] * np.eye(k)
     rhs = rhs + lam[:, None] * w0c
-    wc = _solve_simplex_qp(gram, rhs, valid)
+    wc = simplex_least_squares(gram, valid, rhs)
     out = np.zeros_like(w0)
     np.add.at(out, (np.repeat(np.arange(n_p), cand.shape[1]), cand.ravel()), (wc * valid).ravel())
     never = ~seen.any(axis=0)
