@@ -280,7 +280,9 @@ def test_writer_without_c3d_suffix(tmp_path):
 def test_writer_refuses_a_take_without_frames_or_markers(tmp_path, n_frames, n_markers):
     # a 0-marker take used to be written and read back with 0 frames: its length was lost
     m = MarkerSet(np.zeros((n_frames, n_markers, 3)), [f"m{i}" for i in range(n_markers)], 100.0)
-    with pytest.raises(ValidationError, match=r"a C3D needs at least one (frame|marker), got 0"):
+    with pytest.raises(
+        ValidationError, match=r"a C3D needs at least one (frame|marker)\b.*, got 0"
+    ):
         write_c3d(m, tmp_path / "empty.c3d")
     assert list(tmp_path.iterdir()) == []
 
