@@ -11,7 +11,10 @@ Layout (little-endian)::
     float32   points[numSamples][numPoints][3]
 
 PC2 knows frames, not seconds: the frame rate in Hz is not stored (``sampleRate`` is a
-step in frames, as 3ds Max's UI and Blender's own PC2 exporter use it).
+step in frames, as 3ds Max's UI and Blender's own PC2 exporter use it). So
+``skin``/``animate`` write it as a comment in the rest OBJ beside the cache
+(:func:`pc2_rate_comment`), where the viewer and renderer read it back
+(:func:`recorded_pc2_rate`); OBJ readers skip comments.
 
 Coordinates. By default the cache holds skincap's own coordinates: metres, Y up.
 That is what Blender needs for an OBJ of the rest mesh imported with Blender's default
@@ -55,9 +58,48 @@ from skincap.io._common import (
 from skincap.io.narrowing import check_float32, frame_vertex_axis
 from skincap.types import MeshAnimation
 
-__all__ = ["write_pc2", "read_pc2", "PC2Cache", "PC2_SIGNATURE"]
+__all__ = [
+    "write_pc2",
+    "read_pc2",
+    "PC2Cache",
+    "PC2_SIGNATURE",
+    "pc2_rate_comment",
+    "recorded_pc2_rate",
+]
 
 PC2_SIGNATURE = b"POINTCACHE2\0"
+_RATE_NOTE = "skincap PC2 rate "
+#: Lines of the rest OBJ searched for the rate comment (it follows the header line).
+_RATE_NOTE_LINES = 4
+
+
+def pc2_rate_comment(cache: str | os.PathLike[str], rate: float) -> str:
+    """The rest OBJ's comment line recording ``cache``'s frame rate ``rate`` (Hz)."""
+    return f"{_RATE_NOTE}{float(rate)!r} Hz: {Path(cache).name} plays at this rate"
+
+
+def recorded_pc2_rate(rest_obj: str | os.PathLike[str]) -> float | None:
+    """The frame rate (Hz) :func:`pc2_rate_comment` recorded in ``rest_obj``, or None.
+
+    Only the first few lines are read; a missing, unreadable or malformed note
+    (not a positive finite number) is None, so the caller falls back as for a cache
+    from another program.
+    """
+    try:
+        with open(rest_obj, "rb") as fh:
+            head = [fh.readline(256) for _ in range(_RATE_NOTE_LINES)]
+    except OSError:
+        return None
+    for raw in head:
+        line = raw.decode("utf-8", "replace").strip()
+        if line.startswith("# " + _RATE_NOTE):
+            word = line[2 + len(_RATE_NOTE) :].split(" ", 1)[0]
+            try:
+                rate = float(word)
+            except ValueError:
+                return None
+            return rate if np.isfinite(rate) and 0 < rate <= 1e6 else None
+    return None
 _HEADER = struct.Struct("<12siiffi")  # 32 bytes
 
 

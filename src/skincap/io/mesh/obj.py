@@ -432,6 +432,7 @@ def write_obj(
     force: bool = False,
     units: str | None = None,
     up: str | None = None,
+    comments: tuple[str, ...] = (),
 ) -> None:
     """Write a mesh as Wavefront OBJ text.
 
@@ -451,7 +452,12 @@ def write_obj(
         Unit and up axis of the file; default ``meta["source_units"]`` and
         ``meta["up"]`` (metres and Y when absent). Coordinates are written exactly
         (shortest round-trip text) in metres, to 15 significant digits otherwise.
+    comments : tuple of str
+        Lines written as ``# <line>`` after the header comment (OBJ readers skip
+        them; :func:`skincap.io.pc2.recorded_pc2_rate` reads one).
     """
+    if any("\n" in c or "\r" in c for c in comments):
+        raise ValidationError("comments: one line each, without line breaks")
     verts, units_name, up_key = restore_units(mesh, units, up)
     poly_idx, poly_off = polygons_of(mesh)
     n_poly = poly_off.size - 1
@@ -479,6 +485,7 @@ def write_obj(
 
     exact = unit_scale(units_name) == 1.0
     out: list[str] = [f"# skincap OBJ, units {units_name}, up {up_key}"]
+    out += [f"# {c}" for c in comments]
     out += ["mtllib " + " ".join(str(m) for m in meta["mtllib"])] if meta.get("mtllib") else []
     flat = format_floats(verts.reshape(-1), exact)
     out += ["v " + " ".join(flat[3 * i : 3 * i + 3]) for i in range(verts.shape[0])]
