@@ -100,6 +100,8 @@ def recorded_pc2_rate(rest_obj: str | os.PathLike[str]) -> float | None:
                 return None
             return rate if np.isfinite(rate) and 0 < rate <= 1e6 else None
     return None
+
+
 _HEADER = struct.Struct("<12siiffi")  # 32 bytes
 
 
