@@ -499,7 +499,10 @@ def _point_units(layout: C3dLayout, m_xyz: np.ndarray, p: Path) -> tuple[str, bo
     if units_guessed:
         guess = _guess_units(m_xyz)
         what = "empty" if not units_str else f"{units_str!r}, not a known length unit"
-        warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=3)
+        if layout.n_points:  # a file with no POINT (EMG alone) has no length to guess
+            warnings.warn(
+                f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=3
+            )
         units_str = guess
     return units_str, units_guessed
 
