@@ -388,3 +388,33 @@ def test_float_analog_offsets_and_an_extra_declared_frame_are_read(tmp_path):
     np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)
     np.testing.assert_array_equal(back.meta["c3d"].analogs, m.meta["c3d"].analogs)
     assert ezc3d.c3d(str(out))["data"]["analogs"].shape == (1, 8, 514)
+
+
+PHASESPACE = EXTERNAL / "c3dorg_sample20_phasespace.c3d"
+
+
+def test_header_only_file_reads_its_points_from_the_header(tmp_path):
+    """PhaseSpace (c3d.org sample20) writes an empty parameter section: 0 blocks, no
+    record (refused before: 'parameter section of 0 blocks'). The points per frame,
+    scale, rate and frames are the header's; the columns are named by number."""
+    with pytest.warns(SkincapWarning) as record:
+        m = read_c3d(PHASESPACE)
+    said = " ".join(str(w.message) for w in record)
+    assert "no parameters: POINT from the header (40 points, 30 Hz, frames 1-701)" in said
+    assert (m.n_frames, m.n_markers, m.rate) == (701, 40, 30.0)
+    assert m.labels[:2] == ["point_1", "point_2"]
+    raw = _raw_float_frames(PHASESPACE, 701, 40 * 4).reshape(701, 40, 4).astype(np.float64)
+    measured = (raw[..., 3] >= 0) & ~(raw[..., :3] == 0).all(axis=2)
+    assert 0.9 < measured.mean() < 1.0
+    np.testing.assert_array_equal(~m.missing, measured)
+    expect = to_y_up(raw[..., :3] * 0.001, m.meta["up"])
+    np.testing.assert_allclose(m.positions[measured], expect[measured], atol=1e-9)
+    standing = m.positions[..., 1]  # the subject stands on the floor along the file's Z
+    assert -0.05 < np.nanmin(standing) and 1.5 < np.nanmax(standing) < 2.0
+    out = tmp_path / "ps.c3d"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        write_c3d(m, out)
+    back = _read(out)
+    np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)
+    assert back.labels == m.labels and back.rate == m.rate

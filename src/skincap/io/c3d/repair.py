@@ -10,7 +10,9 @@ each record's own pointer to the next still says where it ends:
 * Motion Analysis (c3d.org sample06) writes no ``ANALOG:OFFSET`` and c3d.org sample13
   stores it as FLOAT, where ezc3d needs one INT per channel (:func:`_analog_offsets`);
   sample13 also declares one ``POINT:FRAMES`` more than the file holds
-  (:func:`_point_frames`).
+  (:func:`_point_frames`);
+* PhaseSpace (c3d.org sample20) writes no parameter at all, only the header
+  (:func:`_point_group_from_header`).
 
 :func:`repaired_parameter_section` walks the records by their pointers, as the C3D
 format defines them, and writes each back canonically (an empty description where the
@@ -106,6 +108,8 @@ def repaired_parameter_section(data: bytes) -> tuple[bytes, list[str]] | None:
         if nxt == 0:
             break
         pos = rec_end
+    if not records:
+        records = _point_group_from_header(data, data_start, changes)
     records = _analog_offsets(records, changes)
     records = _point_frames(records, data, data_start, changes)
     if not changes:
@@ -173,6 +177,48 @@ def _analog_offsets(records: list[_Record], changes: list[str]) -> list[_Record]
     out.insert(own["USED"] + 1, (head, "OFFSET", gid, body))
     changes.append(f"ANALOG:OFFSET missing: 0 for each of {used} channels")
     return out
+
+
+def _point_group_from_header(data: bytes, data_start: int, changes: list[str]) -> list[_Record]:
+    """A POINT group built from the header, for a file with no parameter record at all.
+
+    PhaseSpace (c3d.org sample20) writes an empty parameter section (0 blocks, no
+    record) and puts everything in the header: points per frame, scale, rate, first
+    and last frame, data block. ``POINT:USED``, ``SCALE``, ``RATE``, ``DATA_START``
+    and ``FRAMES`` are written from it (labels and units absent: the reader names the
+    columns by number and guesses the unit, with a warning). Only files without
+    analog samples; anything else is left to the checks.
+    """
+    words = np.frombuffer(data[:20], dtype="<u2").astype(np.int64)
+    n3d, n_meas, first, last, block = (int(w) for w in (*words[1:5], words[8]))
+    scale, rate = (float(x) for x in np.frombuffer(data[12:16] + data[20:24], dtype="<f4"))
+    frames = last - first + 1
+    ok = 0 < n3d <= 32767 and n_meas == 0 and 1 <= first <= last and frames <= 32767
+    if not ok or not (np.isfinite(scale) and scale != 0 and np.isfinite(rate) and rate > 0):
+        return []
+    if (block - 1) * 512 != data_start:
+        return []
+
+    def record(name: bytes, body: bytes) -> _Record:
+        return (bytes([len(name), 1]) + name, name.decode(), 1, body + b"\x00")
+
+    def integer(v: int) -> bytes:
+        return bytes([2, 0]) + int(v).to_bytes(2, "little", signed=True)
+
+    def real(v: float) -> bytes:
+        return bytes([4, 0]) + np.float32(v).astype("<f4").tobytes()
+
+    changes.append(
+        f"no parameters: POINT from the header ({n3d} points, {rate:g} Hz, frames {first}-{last})"
+    )
+    return [
+        (bytes([5, 0xFF]) + b"POINT", "POINT", -1, b"\x00"),
+        record(b"USED", integer(n3d)),
+        record(b"SCALE", real(scale)),
+        record(b"RATE", real(rate)),
+        record(b"DATA_START", integer(block)),
+        record(b"FRAMES", integer(frames)),
+    ]
 
 
 def _point_frames(
