@@ -189,3 +189,22 @@ def test_point_cache_plays_at_the_rate_its_writer_noted(tmp_path):
         )
         with pytest.warns(SkincapWarning, match="30 Hz"):
             assert load_scene([out]).layers[0].rate == 30.0
+
+
+def test_obj_sequence_plays_at_the_rate_its_writer_noted(tmp_path):
+    # a skin/animate OBJ-sequence folder played at 30 Hz, or at another motion's rate
+    from skincap.io.mesh_animation_files import write_mesh_animation
+
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    mesh = Mesh(vertices=verts, faces=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]))
+    frames = verts[None] + np.linspace(0, 1, 5)[:, None, None] * np.array([0, 0.5, 0])
+    seq = tmp_path / "seq"
+    write_mesh_animation(MeshAnimation(rest=mesh, frames=frames, rate=59.94), seq, force=False)
+    assert read_obj(seq / "frame_0000.obj").n_vertices == 4
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkincapWarning)
+        bvh = DATA / "cmu_131_01_bvh11.bvh"  # a 120 Hz motion beside it does not decide
+        layers = load_scene([seq, bvh], units="cmu").layers
+    (layer,) = [lay for lay in layers if lay.name == "seq"]
+    assert layer.rate == 59.94 and layer.n_frames == 5
+    assert load_scene([seq], rate=24.0).layers[0].rate == 24.0

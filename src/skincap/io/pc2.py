@@ -68,38 +68,21 @@ __all__ = [
 ]
 
 PC2_SIGNATURE = b"POINTCACHE2\0"
-_RATE_NOTE = "skincap PC2 rate "
-#: Lines of the rest OBJ searched for the rate comment (it follows the header line).
-_RATE_NOTE_LINES = 4
 
 
 def pc2_rate_comment(cache: str | os.PathLike[str], rate: float) -> str:
     """The rest OBJ's comment line recording ``cache``'s frame rate ``rate`` (Hz)."""
-    return f"{_RATE_NOTE}{float(rate)!r} Hz: {Path(cache).name} plays at this rate"
+    from skincap.io.mesh.obj import rate_comment
+
+    return rate_comment("PC2", rate, Path(cache).name)
 
 
 def recorded_pc2_rate(rest_obj: str | os.PathLike[str]) -> float | None:
-    """The frame rate (Hz) :func:`pc2_rate_comment` recorded in ``rest_obj``, or None.
+    """The frame rate (Hz) :func:`pc2_rate_comment` recorded in ``rest_obj``, or None
+    (missing, unreadable or not a positive number: the caller falls back)."""
+    from skincap.io.mesh.obj import recorded_rate
 
-    Only the first few lines are read; a missing, unreadable or malformed note
-    (not a positive finite number) is None, so the caller falls back as for a cache
-    from another program.
-    """
-    try:
-        with open(rest_obj, "rb") as fh:
-            head = [fh.readline(256) for _ in range(_RATE_NOTE_LINES)]
-    except OSError:
-        return None
-    for raw in head:
-        line = raw.decode("utf-8", "replace").strip()
-        if line.startswith("# " + _RATE_NOTE):
-            word = line[2 + len(_RATE_NOTE) :].split(" ", 1)[0]
-            try:
-                rate = float(word)
-            except ValueError:
-                return None
-            return rate if np.isfinite(rate) and 0 < rate <= 1e6 else None
-    return None
+    return recorded_rate(rest_obj, "PC2")
 
 
 _HEADER = struct.Struct("<12siiffi")  # 32 bytes

@@ -354,7 +354,7 @@ def load_scene(
     motions = [lay.rate for lay in layers if lay.kind in ("skeleton", "mesh") and lay.n_frames > 1]
     pc2_rate = rate if rate is not None else (motions[0] if motions else None)
     for folder in sequences:
-        layers.append(_load_obj_sequence(folder, rate if rate is not None else pc2_rate, units))
+        layers.append(_load_obj_sequence(folder, rate, units, pc2_rate))
     from skincap.io.pc2 import recorded_pc2_rate
 
     # a cache skincap wrote has its rate noted in the OBJ beside it; --rate overrides
@@ -550,7 +550,11 @@ def _obj_sequence(folder: Path) -> list[Path]:
     return sorted(objs, key=lambda f: int(_OBJ_FRAME.match(f.name).group("index")))  # type: ignore[union-attr]
 
 
-def _load_obj_sequence(folder: Path, rate: float | None, units: str | None) -> MeshLayer:
+def _load_obj_sequence(
+    folder: Path, rate: float | None, units: str | None, borrowed: float | None = None
+) -> MeshLayer:
+    """An OBJ-sequence folder at ``rate`` (--rate), else the rate skin/animate noted in
+    its frames, else ``borrowed`` (a motion's in the scene), else 30 Hz with a warning."""
     frames = _obj_sequence(folder)
     meshes = [_read_static_mesh(f, units) for f in frames]  # one file per frame
     first = meshes[0]
@@ -559,6 +563,12 @@ def _load_obj_sequence(folder: Path, rate: float | None, units: str | None) -> M
             raise FormatError(
                 f, f"has {m.n_vertices} vertices, {frames[0].name} has {first.n_vertices}"
             )
+    if rate is None:
+        from skincap.io.mesh.obj import recorded_rate
+
+        rate = recorded_rate(frames[0], "OBJ sequence")  # skin/animate note theirs
+    if rate is None:
+        rate = borrowed
     if rate is None:
         warnings.warn(
             f"{folder}: an OBJ sequence stores no frame rate; playing it at {DEFAULT_PC2_RATE:g} Hz",
