@@ -76,3 +76,19 @@ def test_broadcast_leading_gives_the_common_shape_or_the_callers_message():
     with pytest.raises(ValidationError, match=r"^a \(2,\) and b \(3,\): no broadcast$") as info:
         broadcast_leading((2,), (3,), error="a (2,) and b (3,): no broadcast")
     assert info.value.__cause__ is None  # the house message alone, not numpy's
+
+
+def test_marker_summary_names_what_a_c3d_carries_besides_points(data_dir):
+    # `info` on an EMG or force-plate take said nothing of its analog channels
+    import ezc3d
+
+    from skincap import io
+
+    path = data_dir / "external" / "c3dorg_sample02_pc_int.c3d"
+    c = ezc3d.c3d(str(path))
+    s = summarize(io.read(path))
+    assert s["analog_channels"] == c["header"]["analogs"]["size"] == 16
+    assert s["analog_rate"] == c["header"]["analogs"]["frame_rate"] == 200.0
+    assert s["force_plates"] == 2 and s["events"] == 9
+    trc = summarize(io.read(data_dir / "external" / "btk_motionanalysis_gait.trc"))
+    assert "analog_channels" not in trc  # only a C3D carries them

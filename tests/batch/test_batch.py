@@ -124,6 +124,14 @@ def test_resume_skips_done_takes_and_force_redoes_them(tmp_path: Path) -> None:
             scheduler="synchronous",
             options={"method": "rigid"},
         )
+    # a damaged summary cannot vouch for the outputs' options (it was taken as none)
+    summary = tmp_path / "out" / "batch.json"
+    kept = summary.read_bytes()
+    for damaged in (kept[:300], b"[]", b'{"verb": "clean", "rows": 5}'):
+        summary.write_bytes(damaged)
+        with pytest.raises(FormatError, match="not a batch summary skincap can read"):
+            run_batch("clean", [tmp_path / "in"], tmp_path / "out", scheduler="synchronous")
+        assert (out.stat().st_mtime_ns, out.stat().st_ino) == stamp
     forced = run_batch(
         "clean", [tmp_path / "in"], tmp_path / "out", scheduler="synchronous", force=True
     )

@@ -108,6 +108,8 @@ def test_skin_plays_the_solved_bvh_with_no_options(tmp_path):
             "segment pelvis has none of its template markers (LASI, RASI, LPSI, RPSI)",
         ),
         (["--template", "nosuch"], "is neither a file nor one of"),
+        # a missing template file is named, not the take (the line blamed cmu_85_02.c3d)
+        (["--template", "missing/walk.json"], "missing/walk.json: template: no such file"),
         (["--smooth-hz", "70"], "--smooth-hz: expected between 0 and 60 Hz"),
         (["--loss", "l1"], "--loss: expected one of squared, huber, cauchy, got 'l1'"),
         (["--loss", "huber", "--loss-scale-cm", "0"], "--loss-scale-cm: expected a positive"),

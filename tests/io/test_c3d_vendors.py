@@ -330,3 +330,91 @@ def test_mips_big_endian_files_read_as_their_intel_twins(tmp_path, kind):
     c = ezc3d.c3d(str(out))
     assert c["data"]["analogs"].shape == (1, 16, 356)
     np.testing.assert_allclose(_read(out).positions, sgi.positions, atol=1e-6, equal_nan=True)
+
+
+MAC = EXTERNAL / "c3dorg_sample06_motionanalysis_mips.c3d"
+GOLF = EXTERNAL / "c3dorg_sample13_golfswing.c3d"
+
+
+def test_motion_analysis_file_without_analog_offsets_is_read():
+    """Motion Analysis on an SGI (c3d.org sample06) writes no ANALOG:OFFSET, which
+    ezc3d needs one per channel (refused before): 0 per channel, the format's meaning.
+    Its POINT:SCALE is not its header's: the coordinates follow the parameter, and a
+    warning says by how much the header's would change them."""
+    with pytest.warns(SkincapWarning) as record:
+        m = read_c3d(MAC)
+    said = " ".join(str(w.message) for w in record)
+    assert "ANALOG:OFFSET missing: 0 for each of 16 channels" in said
+    assert "POINT:SCALE 0.0215412 and the header's point scale 0.0551136 disagree" in said
+    assert (m.n_frames, m.n_markers, m.rate) == (180, 33, 60.0)
+    assert m.meta["c3d"].analogs.shape == (16, 180 * 17)
+    # the data section by hand: big-endian int16, 33 points of 4 words then 272 analog words
+    data = MAC.read_bytes()
+    start = (int.from_bytes(data[16:18], "big") - 1) * 512
+    words = np.frombuffer(data[start : start + 180 * 404 * 2], dtype=">i2").reshape(180, 404)
+    pts = words[:, :132].reshape(180, 33, 4).astype(np.float64)
+    measured = (pts[..., 3] >= 0) & ~(pts[..., :3] == 0).all(axis=2)
+    np.testing.assert_array_equal(~m.missing, measured)
+    expect = to_y_up(pts[..., :3] * np.float32(0.021541154) / 1000.0, m.meta["up"])
+    np.testing.assert_allclose(m.positions[measured], expect[measured], atol=1e-9)
+    np.testing.assert_array_equal(
+        m.meta["c3d"].analogs,
+        words[:, 132:].reshape(180, 17, 16).transpose(2, 0, 1).reshape(16, -1),
+    )
+
+
+def test_float_analog_offsets_and_an_extra_declared_frame_are_read(tmp_path):
+    """c3d.org sample13 stores ANALOG:OFFSET as FLOAT and POINT:FRAMES one more than its
+    header and data hold (ezc3d: 'OFFSET parameter is not an INT'; refused before):
+    the whole-number offsets are read as INT and the frames are the header's."""
+    with pytest.warns(SkincapWarning) as record:
+        m = read_c3d(GOLF)
+    said = " ".join(str(w.message) for w in record)
+    assert "ANALOG:OFFSET: whole FLOAT values read as INT" in said
+    assert "POINT:FRAMES 515 beyond the 514 frames the file holds: 514" in said
+    assert (m.n_frames, m.n_markers) == (514, 29)
+    raw = _raw_float_frames(GOLF, 514, 29 * 4 + 8)
+    pts = raw[:, : 29 * 4].reshape(514, 29, 4).astype(np.float64)
+    measured = (pts[..., 3] >= 0) & ~(pts[..., :3] == 0).all(axis=2)
+    np.testing.assert_array_equal(~m.missing, measured)
+    expect = to_y_up(pts[..., :3] * 0.001, m.meta["up"])
+    np.testing.assert_allclose(m.positions[measured], expect[measured], atol=1e-9)
+    np.testing.assert_array_equal(m.meta["c3d"].analogs, raw[:, 29 * 4 :].T)
+    out = tmp_path / "golf.c3d"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        write_c3d(m, out)
+    back = _read(out)
+    np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)
+    np.testing.assert_array_equal(back.meta["c3d"].analogs, m.meta["c3d"].analogs)
+    assert ezc3d.c3d(str(out))["data"]["analogs"].shape == (1, 8, 514)
+
+
+PHASESPACE = EXTERNAL / "c3dorg_sample20_phasespace.c3d"
+
+
+def test_header_only_file_reads_its_points_from_the_header(tmp_path):
+    """PhaseSpace (c3d.org sample20) writes an empty parameter section: 0 blocks, no
+    record (refused before: 'parameter section of 0 blocks'). The points per frame,
+    scale, rate and frames are the header's; the columns are named by number."""
+    with pytest.warns(SkincapWarning) as record:
+        m = read_c3d(PHASESPACE)
+    said = " ".join(str(w.message) for w in record)
+    assert "no parameters: POINT from the header (40 points, 30 Hz, frames 1-701)" in said
+    assert (m.n_frames, m.n_markers, m.rate) == (701, 40, 30.0)
+    assert m.labels[:2] == ["point_1", "point_2"]
+    raw = _raw_float_frames(PHASESPACE, 701, 40 * 4).reshape(701, 40, 4).astype(np.float64)
+    measured = (raw[..., 3] >= 0) & ~(raw[..., :3] == 0).all(axis=2)
+    assert 0.9 < measured.mean() < 1.0
+    np.testing.assert_array_equal(~m.missing, measured)
+    expect = to_y_up(raw[..., :3] * 0.001, m.meta["up"])
+    np.testing.assert_allclose(m.positions[measured], expect[measured], atol=1e-9)
+    standing = m.positions[..., 1]  # the subject stands on the floor along the file's Z
+    assert -0.05 < np.nanmin(standing) and 1.5 < np.nanmax(standing) < 2.0
+    out = tmp_path / "ps.c3d"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", SkincapWarning)
+        write_c3d(m, out)
+    back = _read(out)
+    np.testing.assert_allclose(back.positions, m.positions, atol=1e-6, equal_nan=True)
+    assert back.labels == m.labels and back.rate == m.rate

@@ -12,7 +12,7 @@ from skincap.errors import FormatError, SkincapWarning
 from skincap.io.bvh import read_bvh
 from skincap.io.c3d import read_c3d
 from skincap.io.csv import write_points_csv
-from skincap.io.mesh import write_obj
+from skincap.io.mesh import read_obj, write_obj
 from skincap.io.pc2 import write_pc2
 from skincap.types import Mesh, MeshAnimation, PointCloud
 from skincap.viz.scene import MarkerLayer, load_scene, scene_from_objects
@@ -161,3 +161,50 @@ def test_usd_stage_points_play_back(tmp_path):
     assert layer.rate == 24.0 and layer.frames.shape == (6, 4, 3)
     np.testing.assert_allclose(layer.frames, frames, atol=1e-6)
     np.testing.assert_array_equal(np.sort(layer.faces, axis=1), np.sort(mesh.faces, axis=1))
+
+
+def test_point_cache_plays_at_the_rate_its_writer_noted(tmp_path):
+    # skin/animate outputs played at 30 Hz whatever the take's rate (a 120 Hz walk 4x slow)
+    from skincap.io.mesh_animation_files import write_mesh_animation
+    from skincap.io.pc2 import recorded_pc2_rate
+
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    mesh = Mesh(vertices=verts, faces=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]))
+    frames = verts[None] + np.linspace(0, 1, 12)[:, None, None] * np.array([0, 0.5, 0])
+    out = tmp_path / "walk.pc2"
+    write_mesh_animation(MeshAnimation(rest=mesh, frames=frames, rate=119.88), out, force=False)
+    assert recorded_pc2_rate(tmp_path / "walk.obj") == 119.88
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkincapWarning)
+        (layer,) = load_scene([out]).layers
+        (again,) = load_scene([tmp_path / "walk.obj"]).layers  # the OBJ finds its cache
+    assert layer.rate == again.rate == 119.88 and layer.n_frames == 12
+    assert load_scene([out], rate=24.0).layers[0].rate == 24.0  # --rate still decides
+    obj_text = (tmp_path / "walk.obj").read_text()
+    assert read_obj(tmp_path / "walk.obj").n_vertices == 4  # the comment is skipped
+    # a note that is not a positive number is ignored: the 30 Hz fallback, with a warning
+    for bad in ("nan", "-5", "0", "1e400", "fast"):
+        (tmp_path / "walk.obj").write_text(
+            obj_text.replace("rate 119.88 Hz", f"rate {bad} Hz"), encoding="utf-8"
+        )
+        with pytest.warns(SkincapWarning, match="30 Hz"):
+            assert load_scene([out]).layers[0].rate == 30.0
+
+
+def test_obj_sequence_plays_at_the_rate_its_writer_noted(tmp_path):
+    # a skin/animate OBJ-sequence folder played at 30 Hz, or at another motion's rate
+    from skincap.io.mesh_animation_files import write_mesh_animation
+
+    verts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    mesh = Mesh(vertices=verts, faces=np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [1, 3, 2]]))
+    frames = verts[None] + np.linspace(0, 1, 5)[:, None, None] * np.array([0, 0.5, 0])
+    seq = tmp_path / "seq"
+    write_mesh_animation(MeshAnimation(rest=mesh, frames=frames, rate=59.94), seq, force=False)
+    assert read_obj(seq / "frame_0000.obj").n_vertices == 4
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkincapWarning)
+        bvh = DATA / "cmu_131_01_bvh11.bvh"  # a 120 Hz motion beside it does not decide
+        layers = load_scene([seq, bvh], units="cmu").layers
+    (layer,) = [lay for lay in layers if lay.name == "seq"]
+    assert layer.rate == 59.94 and layer.n_frames == 5
+    assert load_scene([seq], rate=24.0).layers[0].rate == 24.0

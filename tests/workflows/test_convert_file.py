@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -65,8 +67,8 @@ def _c3d_without_markers(path):
     "make, fragment",
     [
         (lambda d: _trc(d / "no_frames.trc", 0, ["a", "b"], 0), "at least one frame, got 0"),
-        (lambda d: _trc(d / "no_markers.trc", 3, [], 3), "at least one marker, got 0"),
-        (lambda d: _c3d_without_markers(d / "no_markers.c3d"), "at least one marker, got 0"),
+        (lambda d: _trc(d / "no_markers.trc", 3, [], 3), "at least one marker or analog"),
+        (lambda d: _c3d_without_markers(d / "no_markers.c3d"), "at least one marker or analog"),
     ],
 )
 def test_empty_capture_to_c3d_names_the_input(tmp_path, make, fragment):
@@ -79,3 +81,83 @@ def test_empty_capture_to_c3d_names_the_input(tmp_path, make, fragment):
     assert info.value.path is not None and str(info.value.path) == str(src)
     assert not dst.exists() and list(dst.parent.iterdir()) == []
     assert src.read_bytes() == before
+
+
+def _analog_only(src, path):
+    """``src`` with its POINT block emptied by ezc3d: the same analogs, no markers."""
+    import ezc3d
+
+    c3d = ezc3d.c3d(str(src))
+    t = c3d["data"]["points"].shape[2]
+    c3d["data"]["points"] = np.zeros((4, 0, t))
+    c3d["data"]["meta_points"]["residuals"] = np.zeros((1, 0, t))
+    c3d["data"]["meta_points"]["camera_masks"] = np.zeros((7, 0, t), dtype=bool)
+    for name in ("LABELS", "DESCRIPTIONS"):
+        c3d["parameters"]["POINT"][name]["value"] = []
+    c3d["parameters"]["POINT"]["UNITS"]["value"] = [""]  # no points, no length unit
+    c3d.write(str(path))
+    return path
+
+
+def test_analog_only_c3d_round_trips(tmp_path, data_dir):
+    # an EMG or force-plate-only take was refused ("at least one marker") by convert
+    import ezc3d
+
+    src = _analog_only(data_dir / "pyomeca_markers_analogs.c3d", tmp_path / "emg.c3d")
+    before = src.read_bytes()
+    a = ezc3d.c3d(str(src))
+    assert a["header"]["points"]["size"] == 0 and a["data"]["analogs"].shape[1] > 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no POINT: no unit to guess, nothing to warn about
+        counts = convert_file(src, tmp_path / "copy.c3d")
+    b = ezc3d.c3d(str(tmp_path / "copy.c3d"))
+    assert counts == {"frames": a["header"]["points"]["last_frame"] + 1}
+    np.testing.assert_array_equal(b["data"]["analogs"], a["data"]["analogs"])
+    for key in ("first_frame", "last_frame", "frame_rate"):
+        assert b["header"]["points"][key] == a["header"]["points"][key]
+        assert b["header"]["analogs"][key] == a["header"]["analogs"][key]
+    for name in ("LABELS", "RATE", "SCALE", "OFFSET", "UNITS"):
+        va, vb = a["parameters"]["ANALOG"][name]["value"], b["parameters"]["ANALOG"][name]["value"]
+        assert list(np.ravel(vb)) == list(np.ravel(va)), name
+    assert src.read_bytes() == before
+
+
+def _camera_bits(path):
+    from skincap.io.c3d import read_c3d
+
+    return int(np.count_nonzero(read_c3d(path).camera_masks))
+
+
+@pytest.mark.parametrize(
+    "out, points, fmt",
+    [
+        ("x.trc", False, "a TRC"),
+        ("x.csv", False, "a Vicon trajectories CSV"),
+        ("x.csv", True, "a point CSV"),
+    ],
+)
+def test_marker_outputs_say_they_drop_camera_masks_once(tmp_path, data_dir, out, points, fmt):
+    # TRC and CSV have no column for which cameras saw a sample: they were dropped silently
+    from typer.testing import CliRunner
+
+    from skincap.cli import app
+
+    src = data_dir / "external" / "c3dorg_sample02_pc_int.c3d"
+    seen = _camera_bits(src)
+    assert seen > 0
+    args = ["convert", str(src), str(tmp_path / out)] + (["--points"] if points else [])
+    result = CliRunner().invoke(app, args)
+    assert result.exit_code == 0, result.output
+    lines = [ln for ln in result.stderr.splitlines() if "camera masks" in ln]
+    assert len(lines) == 1, result.stderr
+    assert f"{fmt} holds marker trajectories only" in lines[0]
+    assert f"camera masks of {seen:,} samples; residuals; 16 analog channels" in lines[0]
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
+
+
+def test_marker_outputs_of_a_trc_warn_nothing(tmp_path, data_dir):
+    src = data_dir / "external" / "btk_motionanalysis_gait.trc"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", SkincapWarning)
+        convert_file(src, tmp_path / "x.trc")
+        convert_file(src, tmp_path / "x.csv")

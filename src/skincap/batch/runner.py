@@ -434,12 +434,16 @@ def _json_safe(value: Any) -> Any:
 
 
 def _previous_summary(out_dir: Path) -> dict[str, Any] | None:
+    """The earlier run's ``batch.json``: None when there is none, ``{}`` when it is
+    there but unreadable or not a run's summary (its options cannot be told)."""
     path = out_dir / SUMMARY_NAMES[0]
+    if not path.exists():
+        return None
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) else None
+        return {}
+    return data if isinstance(data, dict) and "verb" in data and "options" in data else {}
 
 
 def _write_summary(
@@ -580,6 +584,12 @@ def run_batch(
     pending = [i for i, t in enumerate(takes) if force or not t.done()]
     if not force and previous is not None and len(pending) < len(takes):
         same = previous.get("verb") == verb and previous.get("options") == _json_safe(options)
+        if not previous:  # a damaged summary: the outputs' options cannot be checked
+            raise FormatError(
+                out / SUMMARY_NAMES[0],
+                "not a batch summary skincap can read, so the options that made the outputs "
+                "beside it are unknown; pass --force to redo every take, or use another folder",
+            )
         if not same:
             raise FormatError(
                 out / SUMMARY_NAMES[0],

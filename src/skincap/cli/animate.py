@@ -495,7 +495,7 @@ def _worst_held_out_text(held: dict[str, Any]) -> str:
     if not worst:
         return ""
     return (
-        f", max {worst['max_m'] * 1e3:.1f} mm ({worst['marker']} at frame {worst['frame']}, "
+        f", max {worst['max_m'] * 1e3:.2f} mm ({worst['marker']} at frame {worst['frame']}, "
         f"{worst['nearest_kept_m'] * 1e3:.0f} mm from the nearest kept marker)"
     )
 

@@ -72,7 +72,7 @@ def info(
     """Summarise capture, motion and mesh files.
 
     Markers: frames, rate, duration, labelled/unlabelled counts, missing fraction,
-    interior gaps and the longest. BVH: joints, frames, rate, units, channel orders.
+    interior gaps and the longest; a C3D's analog channels, force plates and events. BVH: joints, frames, rate, units, channel orders.
     Mesh: vertices, faces, bounds, skin joints.
 
     Example: skincap info walk.c3d run.bvh --json

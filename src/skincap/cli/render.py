@@ -105,7 +105,11 @@ def render(
         str | None, typer.Option(help="Length unit for files that do not say (BVH, OBJ…).")
     ] = None,
     rate: Annotated[
-        float | None, typer.Option(help="Frame rate of PC2 caches (PC2 stores none), Hz.")
+        float | None,
+        typer.Option(
+            help="Frame rate of PC2 caches, Hz (default: the rate skin/animate noted in the OBJ "
+            "beside the cache, else a motion's in the scene, else 30 with a warning).",
+        ),
     ] = None,
     force: ForceOption = False,
 ) -> None:

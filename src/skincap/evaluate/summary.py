@@ -44,6 +44,24 @@ def summarize_markers(markers: MarkerSet) -> dict[str, Any]:
         "up": markers.meta.get("up"),
         "first_frame": markers.meta.get("first_frame", 0),
         "model_outputs": {k: len(v) for k, v in model_outputs.items()},
+        **_c3d_content_summary(markers),
+    }
+
+
+def _c3d_content_summary(markers: MarkerSet) -> dict[str, Any]:
+    """What a C3D source carries besides its points: analog channels (with their
+    rate, Hz), force plates and events; empty for other sources."""
+    from skincap.io.c3d.content import C3dContent
+
+    content = markers.meta.get("c3d")
+    if not isinstance(content, C3dContent):
+        return {}
+    events = content.n_parameter_events() + (content.events.count if content.events else 0)
+    return {
+        "analog_channels": content.n_analog_channels,
+        "analog_rate": float(markers.rate) * content.analog_ratio if content.analog_ratio else 0.0,
+        "force_plates": content.n_force_plates(),
+        "events": events,
     }
 
 

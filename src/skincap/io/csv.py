@@ -254,7 +254,14 @@ def write_vicon_csv(
     coords = format_float_fields(pos.reshape(t, 3 * n))
     for f, row in zip(frames.tolist(), coords.tolist(), strict=True):
         lines.append(f + ",0," + ",".join(row) if n else f + ",0")
-    warn_dropped_c3d_content(markers.meta, "a point CSV", path, stacklevel=2)
+    warn_dropped_c3d_content(
+        markers.meta,
+        "a Vicon trajectories CSV",
+        path,
+        stacklevel=2,
+        camera_masks=markers.camera_masks,
+        residuals=markers.residuals,
+    )
     with atomic_output(path, force=force) as tmp:
         tmp.write_text("\r\n".join(lines) + "\r\n", encoding="utf-8", newline="")
 
@@ -730,6 +737,7 @@ def write_points_csv(
         cols.append(cloud.ids.tolist())
         head, row = head + ",id", row + ",%d"
     lines = [f"# rate={float(cloud.rate)!r}", f"# frames={cloud.n_frames}", head]
+    warn_dropped_c3d_content(cloud.meta, "a point CSV", path, stacklevel=2)
     if frames.size:
         lines.extend(row % r for r in zip(*cols, strict=True))
     with atomic_output(path, force=force) as tmp:

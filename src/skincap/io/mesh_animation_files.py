@@ -1,7 +1,8 @@
 """A :class:`~skincap.types.MeshAnimation` to the file (or folder) its path names.
 
 ``.pc2`` writes the point cache and, beside it, the rest mesh as an OBJ of the same
-name (metres, Y up: the mesh Blender's Mesh Cache modifier plays the cache on);
+name (metres, Y up: the mesh Blender's Mesh Cache modifier plays the cache on; a
+comment in it records the frame rate PC2 cannot hold);
 ``.usd``/``.usda``/``.usdc`` a USD stage with time-sampled points; any other path a
 folder of OBJ frames. Shared by ``skin`` and ``animate``.
 """
@@ -29,7 +30,7 @@ def write_mesh_animation(animation: MeshAnimation, output: Path, *, force: bool)
     ext = output.suffix.lower()
     if ext == ".pc2":
         from skincap.io.mesh import write_obj
-        from skincap.io.pc2 import write_pc2
+        from skincap.io.pc2 import pc2_rate_comment, write_pc2
 
         rest_obj = output.with_suffix(".obj")
         # The cache first: its frames are computed while it streams, so it is the write
@@ -37,7 +38,14 @@ def write_mesh_animation(animation: MeshAnimation, output: Path, *, force: bool)
         # with it, so a failure never leaves one file of the pair.
         write_pc2(animation, output, force=force)
         try:
-            write_obj(animation.rest, rest_obj, force=force, units="m", up="y")
+            write_obj(
+                animation.rest,
+                rest_obj,
+                force=force,
+                units="m",
+                up="y",
+                comments=(pc2_rate_comment(output, animation.rate),),
+            )
         except BaseException:
             output.unlink(missing_ok=True)
             raise

@@ -25,6 +25,7 @@ import numpy as np
 from skincap.errors import FormatError, OutputExistsError, ValidationError
 from skincap.io._common import atomic_output, finite_frame_chunks, from_y_up, unit_scale
 from skincap.io.mesh import write_obj
+from skincap.io.mesh.obj import rate_comment
 from skincap.io.output_safety import is_protected_input
 from skincap.types import Mesh, MeshAnimation
 
@@ -33,13 +34,15 @@ __all__ = ["write_obj_sequence", "obj_sequence_paths", "estimate_obj_sequence_by
 _STEM = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]*$")
 
 
-def _topology_text(rest: Mesh, units: str, up: str) -> tuple[str, str]:
+def _topology_text(
+    rest: Mesh, units: str, up: str, comments: tuple[str, ...] = ()
+) -> tuple[str, str]:
     """(head, tail): the rest mesh's OBJ text before and after its ``v`` lines."""
     meta = {k: v for k, v in rest.meta.items() if k not in ("normal_table", "corner_normal")}
     bare = replace(rest, meta=meta, skin=None)
     with tempfile.TemporaryDirectory(prefix="skincap_obj_") as tmp:
         path = Path(tmp) / "rest.obj"
-        write_obj(bare, path, units=units, up=up)
+        write_obj(bare, path, units=units, up=up, comments=comments)
         lines = path.read_text(encoding="utf-8").split("\n")
     first = next(i for i, line in enumerate(lines) if line.startswith("v "))
     n = rest.n_vertices
@@ -92,7 +95,10 @@ def estimate_obj_sequence_bytes(
     """
     units_name = units if units is not None else str(rest.meta.get("source_units", "m"))
     up_key = up if up is not None else str(rest.meta.get("up", "y"))
-    head, tail = _topology_text(rest, units_name, up_key)
+    # the rate comment at its longest float text (sign, 17 digits, exponent)
+    head, tail = _topology_text(
+        rest, units_name, up_key, (rate_comment("OBJ sequence", -1.2345678901234567e-100, ""),)
+    )
     coords = from_y_up(rest.vertices, up_key) / unit_scale(units_name)
     coords = coords * (1.0 + np.sqrt(2.0) * 1e-8)  # every significant digit shows
     vertices = (_vertex_line(digits) * rest.n_vertices) % tuple(coords.reshape(-1).tolist())
@@ -185,7 +191,9 @@ def write_obj_sequence(
 
     n_frames = int(animation.n_frames or 0)
     width = _frame_digits(n_frames)
-    head, tail = _topology_text(rest, units_name, up_key)
+    # every frame notes the take's rate (an OBJ has none) for view and render
+    note = rate_comment("OBJ sequence", animation.rate, "this folder")
+    head, tail = _topology_text(rest, units_name, up_key, (note,))
     n = rest.n_vertices
     vertex_format = _vertex_line(digits) * n
     written: list[Path] = []

@@ -11,7 +11,10 @@ Layout (little-endian)::
     float32   points[numSamples][numPoints][3]
 
 PC2 knows frames, not seconds: the frame rate in Hz is not stored (``sampleRate`` is a
-step in frames, as 3ds Max's UI and Blender's own PC2 exporter use it).
+step in frames, as 3ds Max's UI and Blender's own PC2 exporter use it). So
+``skin``/``animate`` write it as a comment in the rest OBJ beside the cache
+(:func:`pc2_rate_comment`), where the viewer and renderer read it back
+(:func:`recorded_pc2_rate`); OBJ readers skip comments.
 
 Coordinates. By default the cache holds skincap's own coordinates: metres, Y up.
 That is what Blender needs for an OBJ of the rest mesh imported with Blender's default
@@ -55,9 +58,33 @@ from skincap.io._common import (
 from skincap.io.narrowing import check_float32, frame_vertex_axis
 from skincap.types import MeshAnimation
 
-__all__ = ["write_pc2", "read_pc2", "PC2Cache", "PC2_SIGNATURE"]
+__all__ = [
+    "write_pc2",
+    "read_pc2",
+    "PC2Cache",
+    "PC2_SIGNATURE",
+    "pc2_rate_comment",
+    "recorded_pc2_rate",
+]
 
 PC2_SIGNATURE = b"POINTCACHE2\0"
+
+
+def pc2_rate_comment(cache: str | os.PathLike[str], rate: float) -> str:
+    """The rest OBJ's comment line recording ``cache``'s frame rate ``rate`` (Hz)."""
+    from skincap.io.mesh.obj import rate_comment
+
+    return rate_comment("PC2", rate, Path(cache).name)
+
+
+def recorded_pc2_rate(rest_obj: str | os.PathLike[str]) -> float | None:
+    """The frame rate (Hz) :func:`pc2_rate_comment` recorded in ``rest_obj``, or None
+    (missing, unreadable or not a positive number: the caller falls back)."""
+    from skincap.io.mesh.obj import recorded_rate
+
+    return recorded_rate(rest_obj, "PC2")
+
+
 _HEADER = struct.Struct("<12siiffi")  # 32 bytes
 
 

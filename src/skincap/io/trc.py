@@ -370,6 +370,13 @@ def write_trc(
     )
     body = "\n".join("\t".join(row) + "\t" for row in table.tolist())
     text = "\n".join(header) + "\n" + body + ("\n" if t else "")
-    warn_dropped_c3d_content(markers.meta, "a TRC", path, stacklevel=2)
+    warn_dropped_c3d_content(
+        markers.meta,
+        "a TRC",
+        path,
+        stacklevel=2,
+        camera_masks=markers.camera_masks,
+        residuals=markers.residuals,
+    )
     with atomic_output(path, force=force) as tmp:
         tmp.write_text(text, encoding="utf-8", newline="\n")

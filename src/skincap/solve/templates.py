@@ -437,9 +437,12 @@ def load_template(template: str | os.PathLike[str]) -> Template:
     else:
         path = Path(key)
         if not path.is_file():
-            raise ValidationError(
-                f"template: {key!r} is neither a file nor one of {', '.join(BUILTIN_TEMPLATES)} or auto"
-            )
+            names = f"{', '.join(BUILTIN_TEMPLATES)} or auto"
+            if path.suffix.lower() == ".json" or len(path.parts) > 1 or path.exists():
+                # a path: the error names the template file, not the take
+                what = "is a folder" if path.is_dir() else "no such file"
+                raise FormatError(path, f"template: {what} (a template is a JSON file or {names})")
+            raise ValidationError(f"template: {key!r} is neither a file nor one of {names}")
         source = key
         data = read_json(path, what="template JSON")
     return _parse(data, source)

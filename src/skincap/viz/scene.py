@@ -298,8 +298,9 @@ def load_scene(
         Length unit passed to readers that take one (BVH, OBJ/PLY, CSV without a
         unit). Default: each reader's own default or guess.
     rate : float, optional, Hz
-        Rate for PC2 caches (PC2 stores none). Default: the rate of the first
-        animated skeleton or mesh of the scene, else 30 Hz with a warning.
+        Rate for PC2 caches (PC2 stores none). Default: the rate ``skin``/``animate``
+        recorded in the cache's OBJ, else the rate of the first animated skeleton or
+        mesh of the scene, else 30 Hz with a warning.
 
     Returns
     -------
@@ -353,17 +354,22 @@ def load_scene(
     motions = [lay.rate for lay in layers if lay.kind in ("skeleton", "mesh") and lay.n_frames > 1]
     pc2_rate = rate if rate is not None else (motions[0] if motions else None)
     for folder in sequences:
-        layers.append(_load_obj_sequence(folder, rate if rate is not None else pc2_rate, units))
-    if pc2_rate is None and pc2_pending:
+        layers.append(_load_obj_sequence(folder, rate, units, pc2_rate))
+    from skincap.io.pc2 import recorded_pc2_rate
+
+    # a cache skincap wrote has its rate noted in the OBJ beside it; --rate overrides
+    cache_rates = [rate if rate is not None else recorded_pc2_rate(obj) for _, obj in pc2_pending]
+    unknown = [cache for (cache, _), r in zip(pc2_pending, cache_rates, strict=True) if r is None]
+    if pc2_rate is None and unknown:
         warnings.warn(
-            f"{pc2_pending[0][0]}: PC2 stores no frame rate; playing it at {DEFAULT_PC2_RATE:g} Hz "
-            "(pass rate= / --rate to choose)",
+            f"{unknown[0]}: PC2 stores no frame rate and its OBJ records none; playing it at "
+            f"{DEFAULT_PC2_RATE:g} Hz (pass rate= / --rate to choose)",
             SkincapWarning,
             stacklevel=2,
         )
         pc2_rate = DEFAULT_PC2_RATE
-    for cache, obj in pc2_pending:
-        layers.append(_load_pc2(cache, obj, float(pc2_rate), units))
+    for (cache, obj), own in zip(pc2_pending, cache_rates, strict=True):
+        layers.append(_load_pc2(cache, obj, float(own if own is not None else pc2_rate), units))
     if not layers:
         raise FormatError(Path(paths[0]), "nothing in it that skincap can show")
     for lay in layers:  # a frame-less take (Frames: 0, an empty cache) has no pose to draw
@@ -544,7 +550,11 @@ def _obj_sequence(folder: Path) -> list[Path]:
     return sorted(objs, key=lambda f: int(_OBJ_FRAME.match(f.name).group("index")))  # type: ignore[union-attr]
 
 
-def _load_obj_sequence(folder: Path, rate: float | None, units: str | None) -> MeshLayer:
+def _load_obj_sequence(
+    folder: Path, rate: float | None, units: str | None, borrowed: float | None = None
+) -> MeshLayer:
+    """An OBJ-sequence folder at ``rate`` (--rate), else the rate skin/animate noted in
+    its frames, else ``borrowed`` (a motion's in the scene), else 30 Hz with a warning."""
     frames = _obj_sequence(folder)
     meshes = [_read_static_mesh(f, units) for f in frames]  # one file per frame
     first = meshes[0]
@@ -553,6 +563,12 @@ def _load_obj_sequence(folder: Path, rate: float | None, units: str | None) -> M
             raise FormatError(
                 f, f"has {m.n_vertices} vertices, {frames[0].name} has {first.n_vertices}"
             )
+    if rate is None:
+        from skincap.io.mesh.obj import recorded_rate
+
+        rate = recorded_rate(frames[0], "OBJ sequence")  # skin/animate note theirs
+    if rate is None:
+        rate = borrowed
     if rate is None:
         warnings.warn(
             f"{folder}: an OBJ sequence stores no frame rate; playing it at {DEFAULT_PC2_RATE:g} Hz",

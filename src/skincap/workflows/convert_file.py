@@ -86,7 +86,20 @@ def _convert_checked(
                 raise FormatError(
                     dst, "--points writes the long point CSV format: give a .csv output"
                 )
+            from skincap.io.c3d.content import warn_dropped_c3d_content
+
+            # said here, where the MarkerSet still has them; the cloud then carries no
+            # C3D content, so the writer does not say it again
+            warn_dropped_c3d_content(
+                obj.meta,
+                "a point CSV",
+                dst,
+                stacklevel=1,
+                camera_masks=obj.camera_masks,
+                residuals=obj.residuals,
+            )
             obj = PointCloud.from_markerset(obj)
+            obj.meta.pop("c3d", None)
         elif isinstance(obj, PointCloud) and out_ext != ".csv":
             obj = obj.to_markerset()
         if out_ext == ".c3d" and isinstance(obj, MarkerSet):

@@ -45,6 +45,10 @@ source's, the analog samples cannot be realigned (which frames went is unknown):
 and the force plates are left out with a :class:`SkincapWarning`, never written
 misaligned; events (in seconds) and the other groups stay. Refusing would block the
 markers, the product asked for, with no way around; the warning names what is lost.
+A take with no POINT at all is written only when it carries the source's analogs
+(an EMG or force-plate take: the header and the analog samples keep its frame count).
+The TRC and CSV writers warn once with what of this a C3D source loses there (camera
+masks, residuals, analogs, force plates, events, vendor groups).
 """
 
 from skincap.io.c3d.reader import read_c3d

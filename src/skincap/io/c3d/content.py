@@ -251,15 +251,38 @@ def _unused(group: C3dGroup) -> bool:
     return p is not None and p.type in (1, 2) and len(p.raw) > 0 and p.value.ravel()[0] == 0  # type: ignore[union-attr]
 
 
-def warn_dropped_c3d_content(meta: dict[str, Any], fmt: str, path: Any, stacklevel: int) -> None:
-    """A SkincapWarning naming what a C3D source carried that ``fmt`` cannot hold."""
+def warn_dropped_c3d_content(
+    meta: dict[str, Any],
+    fmt: str,
+    path: Any,
+    stacklevel: int,
+    *,
+    camera_masks: np.ndarray | None = None,
+    residuals: np.ndarray | None = None,
+) -> None:
+    """A SkincapWarning naming what a C3D source carried that ``fmt`` cannot hold.
+
+    ``camera_masks`` (T, N) and ``residuals`` (T, N) metres are the MarkerSet's:
+    the samples with a camera bit are counted, and a C3D source's residuals are
+    named when any is above 0 (a TRC or CSV source has none to lose).
+    """
     content = meta.get("c3d") if isinstance(meta, dict) else None
-    if not isinstance(content, C3dContent):
-        return
-    what = content.describe()
-    if what:
+    parts = []
+    if camera_masks is not None:
+        seen = int(np.count_nonzero(np.asarray(camera_masks)))
+        if seen:
+            parts.append(f"camera masks of {seen:,} samples")
+    if isinstance(content, C3dContent) and residuals is not None:
+        r = np.asarray(residuals, dtype=np.float64)
+        if bool(np.any(r[np.isfinite(r)] > 0)):
+            parts.append("residuals")
+    if isinstance(content, C3dContent):
+        what = content.describe()
+        if what:
+            parts.append(what)
+    if parts:
         warnings.warn(
-            f"{path}: {fmt} holds marker trajectories only; not written: {what} "
+            f"{path}: {fmt} holds marker trajectories only; not written: {'; '.join(parts)} "
             "(write a .c3d to keep them)",
             SkincapWarning,
             stacklevel=stacklevel + 1,

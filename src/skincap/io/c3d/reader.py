@@ -228,6 +228,7 @@ def read_c3d(path: str | os.PathLike[str], *, up: Literal["auto", "y", "z"] = "a
     data = read_file_bytes(p)
     data, repaired = _checked_or_repaired(p, data)
     layout = scan_c3d(p, data)
+    _warn_scale_disagreement(p, layout)
     c3d, points, residuals, n_frames, rate_ez = _decode_with_ezc3d(p, data, layout, repaired)
     n = layout.n_points
 
@@ -331,6 +332,27 @@ def _checked_or_repaired(p: Path, data: bytes) -> tuple[bytes, bool]:
         stacklevel=3,
     )
     return fixed[0], True
+
+
+def _warn_scale_disagreement(p: Path, layout: C3dLayout) -> None:
+    """Warn when an integer file's ``POINT:SCALE`` and its header's scale disagree.
+
+    The coordinates follow ``POINT:SCALE`` (as ezc3d and the format have it); c3d.org
+    sample06 (Motion Analysis, ``MACsample.c3d``) stores 0.0215 there and 0.0551 in
+    its header, so its body reads 2.6 times smaller than with the header's.
+    """
+    value = layout.params.get(("POINT", "SCALE"))
+    if value is None or layout.scale <= 0 or isinstance(value, list) or np.size(value) == 0:
+        return
+    param = float(np.ravel(value)[0])
+    if param > 0 and not np.isclose(param, layout.scale, rtol=1e-4):
+        warnings.warn(
+            f"{p}: POINT:SCALE {param:.6g} and the header's point scale {layout.scale:.6g} "
+            f"disagree; coordinates use POINT:SCALE (the header's would make them "
+            f"{layout.scale / param:.3g} times as large)",
+            UnitWarning,
+            stacklevel=3,
+        )
 
 
 def _decode_with_ezc3d(
@@ -477,7 +499,10 @@ def _point_units(layout: C3dLayout, m_xyz: np.ndarray, p: Path) -> tuple[str, bo
     if units_guessed:
         guess = _guess_units(m_xyz)
         what = "empty" if not units_str else f"{units_str!r}, not a known length unit"
-        warnings.warn(f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=3)
+        if layout.n_points:  # a file with no POINT (EMG alone) has no length to guess
+            warnings.warn(
+                f"{p}: POINT:UNITS is {what}; guessing {guess!r}", UnitWarning, stacklevel=3
+            )
         units_str = guess
     return units_str, units_guessed
 

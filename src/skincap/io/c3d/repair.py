@@ -6,7 +6,13 @@ each record's own pointer to the next still says where it ends:
 * OptiTrack (BTKData ``others/mocap36.c3d``) leaves out the description-length byte
   of ``POINT:LABELS``: the values run to the pointer;
 * BKIN Technologies' Dexterit-E (c3d.org sample22) writes descriptions of 128-255
-  bytes, whose length byte ezc3d reads as a negative number (and then asks for 4 GiB).
+  bytes, whose length byte ezc3d reads as a negative number (and then asks for 4 GiB);
+* Motion Analysis (c3d.org sample06) writes no ``ANALOG:OFFSET`` and c3d.org sample13
+  stores it as FLOAT, where ezc3d needs one INT per channel (:func:`_analog_offsets`);
+  sample13 also declares one ``POINT:FRAMES`` more than the file holds
+  (:func:`_point_frames`);
+* PhaseSpace (c3d.org sample20) writes no parameter at all, only the header
+  (:func:`_point_group_from_header`).
 
 :func:`repaired_parameter_section` walks the records by their pointers, as the C3D
 format defines them, and writes each back canonically (an empty description where the
@@ -55,6 +61,7 @@ def repaired_parameter_section(data: bytes) -> tuple[bytes, list[str]] | None:
     limit = data_start if start < data_start <= len(data) else len(data)
     out = bytearray()
     changes: list[str] = []
+    records: list[_Record] = []
     pos = start + 4
     while True:
         if pos + 2 > limit:
@@ -97,12 +104,18 @@ def repaired_parameter_section(data: bytes) -> tuple[bytes, list[str]] | None:
             if fixed is None:
                 return None
             new_body = bytes(data[body:vend]) + fixed
-        out += bytes(data[pos:name_end]) + (len(new_body) + 2).to_bytes(2, "little") + new_body
+        records.append((bytes(data[pos:name_end]), label.upper(), gid, new_body))
         if nxt == 0:
             break
         pos = rec_end
+    if not records:
+        records = _point_group_from_header(data, data_start, changes)
+    records = _analog_offsets(records, changes)
+    records = _point_frames(records, data, data_start, changes)
     if not changes:
         return None
+    for head, _, _, new_body in records:
+        out += head + (len(new_body) + 2).to_bytes(2, "little") + new_body
     out += b"\x00\x00"
     nblocks = -(-(len(out) + 4) // 512)
     room = limit - start
@@ -111,6 +124,138 @@ def repaired_parameter_section(data: bytes) -> tuple[bytes, list[str]] | None:
     section = bytes([data[start], data[start + 1], nblocks, data[start + 3]]) + bytes(out)
     section += bytes(room - len(section))
     return bytes(data[:start]) + section + bytes(data[limit:]), changes
+
+
+#: One walked record: its bytes up to the pointer (name length, group id, name), the
+#: upper-case name, the group id and its canonical body (everything after the pointer).
+_Record = tuple[bytes, str, int, bytes]
+
+
+def _analog_offsets(records: list[_Record], changes: list[str]) -> list[_Record]:
+    """``ANALOG:OFFSET`` as ezc3d reads it: INT, one value per channel.
+
+    Motion Analysis (c3d.org sample06, ``MACsample.c3d``) writes no OFFSET at all: a
+    zero offset for each of ``ANALOG:USED`` channels is added (the format's meaning of
+    an absent offset). c3d.org sample13 (``Dance.c3d``, ``golfswing.c3d``) stores it
+    as FLOAT: whole numbers within int16 are written back as INT. Other values are
+    left alone (the checks then refuse the file as before). Notes each change.
+    """
+    analog = [-gid for _, name, gid, _ in records if gid < 0 and name == "ANALOG"]
+    if not analog:
+        return records
+    gid = analog[0]
+    own = {name: i for i, (_, name, g, _) in enumerate(records) if g == gid}
+    out = list(records)
+    if "OFFSET" in own:
+        i = own["OFFSET"]
+        head, name, g, body = records[i]
+        kind, ndims = _s8(body[0]), body[1]
+        if kind == 4:
+            dims = list(body[2 : 2 + ndims])
+            n = math.prod(dims) if ndims else 1
+            vstart = 2 + ndims
+            values = np.frombuffer(body[vstart : vstart + 4 * n], dtype="<f4").astype(np.float64)
+            if np.all(np.isfinite(values)) and np.all(values == np.round(values)):
+                if np.all(np.abs(values) <= 32767):
+                    ints = values.astype("<i2").tobytes()
+                    desc = body[vstart + 4 * n :]
+                    out[i] = (head, name, g, bytes([2, ndims]) + body[2:vstart] + ints + desc)
+                    changes.append("ANALOG:OFFSET: whole FLOAT values read as INT")
+        return out
+    if "USED" not in own:
+        return records
+    _, _, _, used_body = records[own["USED"]]
+    kind, ndims = _s8(used_body[0]), used_body[1]
+    if kind not in (1, 2) or ndims > 1 or (ndims and used_body[2] < 1):
+        return records
+    vstart = 2 + ndims
+    used = int.from_bytes(used_body[vstart : vstart + _SIZES[kind]], "little", signed=True)
+    if not 0 < used <= 255:
+        return records
+    head = bytes([len(b"OFFSET"), gid]) + b"OFFSET"
+    body = bytes([2, 1, used]) + bytes(2 * used) + b"\x00"
+    out.insert(own["USED"] + 1, (head, "OFFSET", gid, body))
+    changes.append(f"ANALOG:OFFSET missing: 0 for each of {used} channels")
+    return out
+
+
+def _point_group_from_header(data: bytes, data_start: int, changes: list[str]) -> list[_Record]:
+    """A POINT group built from the header, for a file with no parameter record at all.
+
+    PhaseSpace (c3d.org sample20) writes an empty parameter section (0 blocks, no
+    record) and puts everything in the header: points per frame, scale, rate, first
+    and last frame, data block. ``POINT:USED``, ``SCALE``, ``RATE``, ``DATA_START``
+    and ``FRAMES`` are written from it (labels and units absent: the reader names the
+    columns by number and guesses the unit, with a warning). Only files without
+    analog samples; anything else is left to the checks.
+    """
+    words = np.frombuffer(data[:20], dtype="<u2").astype(np.int64)
+    n3d, n_meas, first, last, block = (int(w) for w in (*words[1:5], words[8]))
+    scale, rate = (float(x) for x in np.frombuffer(data[12:16] + data[20:24], dtype="<f4"))
+    frames = last - first + 1
+    ok = 0 < n3d <= 32767 and n_meas == 0 and 1 <= first <= last and frames <= 32767
+    if not ok or not (np.isfinite(scale) and scale != 0 and np.isfinite(rate) and rate > 0):
+        return []
+    if (block - 1) * 512 != data_start:
+        return []
+
+    def record(name: bytes, body: bytes) -> _Record:
+        return (bytes([len(name), 1]) + name, name.decode(), 1, body + b"\x00")
+
+    def integer(v: int) -> bytes:
+        return bytes([2, 0]) + int(v).to_bytes(2, "little", signed=True)
+
+    def real(v: float) -> bytes:
+        return bytes([4, 0]) + np.float32(v).astype("<f4").tobytes()
+
+    changes.append(
+        f"no parameters: POINT from the header ({n3d} points, {rate:g} Hz, frames {first}-{last})"
+    )
+    return [
+        (bytes([5, 0xFF]) + b"POINT", "POINT", -1, b"\x00"),
+        record(b"USED", integer(n3d)),
+        record(b"SCALE", real(scale)),
+        record(b"RATE", real(rate)),
+        record(b"DATA_START", integer(block)),
+        record(b"FRAMES", integer(frames)),
+    ]
+
+
+def _point_frames(
+    records: list[_Record], data: bytes, data_start: int, changes: list[str]
+) -> list[_Record]:
+    """``POINT:FRAMES`` held to the frames the file holds when it claims more.
+
+    ezc3d reads ``POINT:FRAMES`` frames when it differs from the header's count; c3d.org
+    sample13 (``Dance.c3d``, ``golfswing.c3d``) declares one frame more than its header
+    and its data section hold. When the header's count fits the file and the
+    parameter's does not, the parameter takes the header's count (an INT scalar only;
+    anything else is left to the checks).
+    """
+    words = np.frombuffer(data[:20], dtype="<u2").astype(np.int64)
+    n3d, n_meas, first, last = (int(w) for w in words[1:5])
+    scale = float(np.frombuffer(data[12:16], dtype="<f4")[0])
+    frame_bytes = (4 * n3d + n_meas) * (4 if scale < 0 else 2)
+    header_frames = last - first + 1 if first else last
+    if frame_bytes <= 0 or header_frames < 1 or data_start < 512:
+        return records
+    held = (len(data) - data_start) // frame_bytes
+    point = [-gid for _, name, gid, _ in records if gid < 0 and name == "POINT"]
+    if not point or header_frames > held:
+        return records
+    for i, (head, name, gid, body) in enumerate(records):
+        if gid != point[0] or name != "FRAMES" or _s8(body[0]) != 2 or body[1] != 0:
+            continue
+        declared = int.from_bytes(body[2:4], "little", signed=True)
+        if declared > held and header_frames <= 32767:
+            out = list(records)
+            out[i] = (head, name, gid, body[:2] + header_frames.to_bytes(2, "little") + body[4:])
+            changes.append(
+                f"POINT:FRAMES {declared} beyond the {held} frames the file holds: "
+                f"{header_frames}, the header's"
+            )
+            return out
+    return records
 
 
 def _content_end(data: bytes, body: int, gid: int, limit: int) -> int | None:

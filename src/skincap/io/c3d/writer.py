@@ -169,15 +169,25 @@ class _Points:
 def c3d_emptiness(markers: MarkerSet) -> str | None:
     """Why ``markers`` cannot be a C3D because it is empty, or None if it is not.
 
-    A C3D needs at least one frame and at least one POINT: a marker or a
-    ``meta["model_outputs"]`` series. A 0-point file would read back with 0 frames,
-    so it is refused rather than written with the frame count lost.
+    A C3D needs at least one frame, and at least one POINT (a marker or a
+    ``meta["model_outputs"]`` series) or the source's analog channels: an
+    analog-only file (EMG, force plates alone) keeps its frame count in its
+    header and analog samples, while a file with neither would read back with 0
+    frames, so it is refused rather than written with the frame count lost.
     """
     if markers.n_frames == 0:
         return "a C3D needs at least one frame, got 0 frames"
     model_outputs = markers.meta.get("model_outputs") or {}
     if markers.n_markers == 0 and not any(model_outputs.values()):
-        return "a C3D needs at least one marker, got 0 markers"
+        content = markers.meta.get("c3d")
+        if (
+            isinstance(content, C3dContent)
+            and content.n_analog_channels
+            and content.analog_ratio
+            and content.n_frames == markers.n_frames
+        ):
+            return None
+        return "a C3D needs at least one marker or analog channel, got 0 markers"
     return None
 
 

@@ -39,7 +39,7 @@ from skincap.io.mesh.common import (
 )
 from skincap.types import Mesh
 
-__all__ = ["read_obj", "write_obj"]
+__all__ = ["read_obj", "write_obj", "rate_comment", "recorded_rate"]
 
 
 _MISSING = -(2**62)  # marks an absent vt / vn field of a face corner
@@ -432,6 +432,7 @@ def write_obj(
     force: bool = False,
     units: str | None = None,
     up: str | None = None,
+    comments: tuple[str, ...] = (),
 ) -> None:
     """Write a mesh as Wavefront OBJ text.
 
@@ -451,7 +452,12 @@ def write_obj(
         Unit and up axis of the file; default ``meta["source_units"]`` and
         ``meta["up"]`` (metres and Y when absent). Coordinates are written exactly
         (shortest round-trip text) in metres, to 15 significant digits otherwise.
+    comments : tuple of str
+        Lines written as ``# <line>`` after the header comment (OBJ readers skip
+        them; :func:`skincap.io.pc2.recorded_pc2_rate` reads one).
     """
+    if any("\n" in c or "\r" in c for c in comments):
+        raise ValidationError("comments: one line each, without line breaks")
     verts, units_name, up_key = restore_units(mesh, units, up)
     poly_idx, poly_off = polygons_of(mesh)
     n_poly = poly_off.size - 1
@@ -479,6 +485,7 @@ def write_obj(
 
     exact = unit_scale(units_name) == 1.0
     out: list[str] = [f"# skincap OBJ, units {units_name}, up {up_key}"]
+    out += [f"# {c}" for c in comments]
     out += ["mtllib " + " ".join(str(m) for m in meta["mtllib"])] if meta.get("mtllib") else []
     flat = format_floats(verts.reshape(-1), exact)
     out += ["v " + " ".join(flat[3 * i : 3 * i + 3]) for i in range(verts.shape[0])]
@@ -508,3 +515,38 @@ def write_obj(
     text = "\n".join(out) + "\n"
     with atomic_output(path, force=force) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+#: Lines at the top of an OBJ searched for a rate comment (it follows the header line).
+_RATE_NOTE_LINES = 4
+
+
+def rate_comment(what: str, rate: float, plays: str) -> str:
+    """A comment line recording the frame rate (Hz) of ``what`` (``"PC2"``,
+    ``"OBJ sequence"``): ``skincap <what> rate <Hz> Hz: <plays> plays at this rate``.
+    Pass it to :func:`write_obj` ``comments``; :func:`recorded_rate` reads it back."""
+    return f"skincap {what} rate {float(rate)!r} Hz: {plays} plays at this rate"
+
+
+def recorded_rate(path: str | os.PathLike[str], what: str) -> float | None:
+    """The frame rate :func:`rate_comment` recorded for ``what`` in the OBJ ``path``.
+
+    Only the first few lines are read; a missing, unreadable or malformed note (not
+    a positive finite number up to 1 MHz) is None, so the caller falls back as for a
+    file from another program.
+    """
+    prefix = f"# skincap {what} rate "
+    try:
+        with open(path, "rb") as fh:
+            head = [fh.readline(256) for _ in range(_RATE_NOTE_LINES)]
+    except OSError:
+        return None
+    for raw in head:
+        line = raw.decode("utf-8", "replace").strip()
+        if line.startswith(prefix):
+            try:
+                rate = float(line[len(prefix) :].split(" ", 1)[0])
+            except ValueError:
+                return None
+            return rate if np.isfinite(rate) and 0 < rate <= 1e6 else None
+    return None
