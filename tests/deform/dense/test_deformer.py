@@ -491,6 +491,46 @@ def test_the_model_choice_keeps_a_bend_quadratic_and_a_small_noisy_part_rigid() 
         choose_quadratic_parts(markers[:, :30], parts)
 
 
+def test_a_large_part_is_tested_in_interleaved_groups_each_member_left_out_once() -> None:
+    """A part of more members than MODEL_CHOICE_MAX_FOLDS (a still take's few big parts)
+    leaves them out in that many groups spread along its long axis, plus the six ends;
+    a smaller part still leaves each member out alone."""
+    from skincap.deform.dense.deformer import MODEL_CHOICE_MAX_FOLDS, _held_out_folds
+
+    rng = np.random.default_rng(3)
+    ref = rng.uniform(-1.0, 1.0, size=(150, 3)) * [0.2, 0.05, 0.02]
+    folds = _held_out_folds(ref, 0.2)
+    assert folds.shape == (MODEL_CHOICE_MAX_FOLDS + 6, 150)
+    groups = folds[:MODEL_CHOICE_MAX_FOLDS]
+    np.testing.assert_array_equal(groups.sum(axis=0), np.ones(150))  # each member once
+    assert set(groups.sum(axis=1).tolist()) <= {4, 5}  # 150 / 32, evenly
+    # spread along the long axis: every group spans most of it
+    span = [np.ptp(ref[g, 0]) for g in groups]
+    assert min(span) > 0.5 * np.ptp(ref[:, 0])
+    small = _held_out_folds(ref[:20], 0.2)
+    np.testing.assert_array_equal(small[:20], np.eye(20, dtype=bool))
+
+
+def test_the_model_choice_on_large_parts_keeps_a_bend_quadratic_and_a_noisy_block_rigid() -> None:
+    rng = np.random.default_rng(5)
+    n = 120
+    bar = np.column_stack(
+        [rng.uniform(-0.2, 0.2, n), rng.uniform(-0.04, 0.04, n), rng.uniform(-0.04, 0.04, n)]
+    )
+    block = np.array([0.8, 0.0, 0.0]) + rng.uniform(-0.1, 0.1, (n, 3))
+    ref = np.concatenate([bar, block])
+    alpha = np.zeros((2 * n, 2))
+    alpha[:n, 0] = alpha[n:, 1] = 1.0
+    frames = 8
+    moved = np.repeat(ref[None], frames, axis=0)
+    moved[:, :n, 1] += np.linspace(0.0, 2.0, frames)[:, None] * ref[None, :n, 0] ** 2 / 2.0
+    moved[:, n:] += 0.001 * rng.normal(size=(frames, n, 3))
+    rot, trans = _rigid(rng, frames)
+    markers = np.einsum("tab,tnb->tna", rot, moved) + trans[:, None]
+    parts = part_frames(ref, alpha)
+    np.testing.assert_array_equal(choose_quadratic_parts(markers, parts), [True, False])
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_quadratic_rbf_with_no_quadratic_part_is_rigid_rbf(backend: str) -> None:
     rng = np.random.default_rng(12)

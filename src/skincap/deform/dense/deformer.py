@@ -127,6 +127,11 @@ MODEL_CHOICE_FRAMES = 24
 #: Share of a part's members at either end of each part axis that
 #: :func:`choose_quadratic_parts` also leaves out together.
 MODEL_CHOICE_END_SHARE = 0.2
+#: Most single-member folds :func:`choose_quadratic_parts` tries per part: a larger part
+#: leaves its members out in this many interleaved groups instead of one at a time (the
+#: test costs folds x K³ per frame; a still take segments into a few parts of 100-350
+#: markers, where leaving each out alone took minutes).
+MODEL_CHOICE_MAX_FOLDS = 32
 #: The RBF fit's ridge ρ (:func:`skincap.geometry.rbf.fit_rbf_ridge`): a number (0: exact
 #: interpolation), a (2, P) array (row 0: the field through all of a part's centres, row
 #: 1: its members' field) or "gcv" to choose it per part by cross-validation.
@@ -529,8 +534,13 @@ def choose_quadratic_parts(
     return chosen
 
 
-def _held_out_folds(reference: np.ndarray, end_share: float) -> np.ndarray:
+def _held_out_folds(
+    reference: np.ndarray, end_share: float, max_folds: int = MODEL_CHOICE_MAX_FOLDS
+) -> np.ndarray:
     """(L, K) bool: the member sets left out in turn, each member alone, then the ends.
+
+    A part of more than ``max_folds`` members leaves them out in ``max_folds``
+    interleaved groups instead of one at a time.
 
     The ends are the ``end_share`` of the members lowest and highest along each axis of
     the part frame (``reference`` is in it): a part's vertices reach beyond its markers
@@ -544,7 +554,13 @@ def _held_out_folds(reference: np.ndarray, end_share: float) -> np.ndarray:
     for axis in range(3):
         ends[2 * axis, order[:n_end, axis]] = True
         ends[2 * axis + 1, order[k - n_end :, axis]] = True
-    return np.concatenate([np.eye(k, dtype=bool), ends])
+    if k <= max_folds:
+        singles = np.eye(k, dtype=bool)
+    else:  # interleaved along the part's long axis, so a group is spread over the part
+        group = np.empty(k, dtype=np.int64)
+        group[order[:, 0]] = np.arange(k) % max_folds
+        singles = group[None, :] == np.arange(max_folds)[:, None]
+    return np.concatenate([singles, ends])
 
 
 def _held_out_member_errors(
