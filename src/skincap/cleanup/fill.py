@@ -221,8 +221,8 @@ def _fill_by_method(
         return fill_pchip(p, target)
     if method == "spline":
         return fill_spline(p, target)
-    if method == "rigid":
-        return fill_rigid(p, target, csr)
+    if method == "rigid":  # the Vicon-style baseline: each frame's fit alone
+        return fill_rigid(p, target, csr, frame_prior=None)
     if method == "rigid_weighted":
         return fill_rigid(p, target, csr, weighted=True, frame_donors=True)
     if method == "pca":
