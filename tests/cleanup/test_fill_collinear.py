@@ -75,8 +75,7 @@ def test_fill_from_nearly_collinear_neighbours_follows_the_truth():
     for method, out in alone.items():
         before = _gap_error(out, truth, s, e)
         assert errors[method] < 0.25 * before, (method, errors[method], before)
-    for method, err in errors.items():
-        assert err < 8 * NOISE, errors
+    assert max(errors.values()) < 8 * NOISE, errors
 
 
 def test_prior_leaves_well_spread_fits_unchanged():
