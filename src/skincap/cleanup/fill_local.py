@@ -19,7 +19,13 @@ from typing import NamedTuple
 import numpy as np
 
 from skincap._arrays import Progress, missing_runs
-from skincap.cleanup.frame_continuity import fit_rigid_with_prior, line_axis, twist_prior
+from skincap.cleanup.frame_continuity import (
+    WELL_SPREAD,
+    fit_rigid_with_prior,
+    line_axis,
+    take_noise,
+    twist_prior,
+)
 from skincap.cleanup.neighbours import CSR
 from skincap.geometry.rigid import apply_rigid, fit_rigid
 
@@ -107,6 +113,7 @@ def _group_estimates(
     query_member: np.ndarray | None = None,
     member_weights: np.ndarray | None = None,
     frame_prior: float | None = None,
+    noise: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Estimates of the missing members of one group.
 
@@ -114,8 +121,9 @@ def _group_estimates(
     ``query_member`` (Q,) int: measured samples to estimate as if that member alone
     were missing in that frame (the anchors at a gap's ends). ``member_weights`` (m,)
     float >= 0, optional: the members' weights in the local-frame fits (default 1).
-    ``frame_prior``: the strength of the local frame's pull towards temporal
-    continuity (:func:`_continuity_prior`); None fits each row's frame alone.
+    ``frame_prior``: the twist (radians) the local frame's temporal-continuity prior
+    may be off by (:func:`_continuity_prior`), for members of measurement noise
+    ``noise`` (metres); None fits each row's frame alone.
 
     Returns (rows (F + Q,), estimates (F + Q, m, 3) NaN where not estimated, variance
     (F + Q, m), centre observed (F + Q,) bool, local-frame rotations (F + Q, 3, 3)),
@@ -166,7 +174,7 @@ def _group_estimates(
     fit_mask = obs.copy()
     est = cur.copy()
     prior = None
-    if frame_prior is not None:
+    if frame_prior is not None and noise > 0:
         rot0, _ = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
         prior = _continuity_prior(ref, pos, present, rows, obs * mw, rot0, mw)
     for _ in range(refits + 1):
@@ -174,7 +182,9 @@ def _group_estimates(
             rot, tr = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
         else:
             src = np.broadcast_to(ref, fit_pts.shape)
-            rot, tr = fit_rigid_with_prior(src, fit_pts, fit_mask * mw, prior, frame_prior)
+            rot, tr = fit_rigid_with_prior(
+                src, fit_pts, fit_mask * mw, prior, noise=noise, twist_sd=frame_prior
+            )
         yl = np.einsum("fji,fkj->fki", rot, cur - tr[:, None, :]).reshape(len(rows), d)
         o = np.repeat(obs, 3, axis=1)
         coef, ainv = _pca_solve(basis, evals, noise, yl - mu, o)
@@ -200,30 +210,34 @@ def _continuity_prior(
 ) -> np.ndarray:
     """Prior local-frame rotations (F, 3, 3) for a group's estimation ``rows`` (F,).
 
-    The frame is well determined where the whole group is seen: its rotations at the
-    last such frame at or before each row and the first at or after it (the fit of
-    the reference shape ``ref`` (m, 3) to ``pos`` (T, m, 3) with member weights ``mw``
-    (m,)) give the prior through :func:`~skincap.cleanup.frame_continuity.twist_prior`,
-    about the principal axis of the members fitted in the row (``fit_weights`` (F, m),
-    ``rot_fit`` (F, 3, 3) their plain fit). NaN rows: no complete frame on either side.
+    The frame is well determined in the frames whose present members are spread off
+    a line (:func:`~skincap.cleanup.frame_continuity.line_axis` conditioning at least
+    :data:`~skincap.cleanup.frame_continuity.WELL_SPREAD`, where the prior fades out):
+    its rotations at the last such
+    frame at or before each row and the first at or after it (the fit of the
+    reference shape ``ref`` (m, 3) to ``pos`` (T, m, 3), present (T, m), member
+    weights ``mw`` (m,)) give the prior through
+    :func:`~skincap.cleanup.frame_continuity.twist_prior`, about the principal axis of
+    the members fitted in the row (``fit_weights`` (F, m), ``rot_fit`` (F, 3, 3) their
+    plain fit). NaN rows: no such frame on either side.
     """
-    t = pos.shape[0]
-    complete = present.all(axis=1)
+    t, m = present.shape
+    w_all = present * mw  # (T, m)
+    _, cond = line_axis(np.broadcast_to(ref, (t, m, 3)), w_all)
+    good = (present.sum(axis=1) >= 3) & (np.nan_to_num(cond) >= WELL_SPREAD)
     frames = np.arange(t)
-    prev_c = np.maximum.accumulate(np.where(complete, frames, -1))
-    next_c = np.minimum.accumulate(np.where(complete, frames, t)[::-1])[::-1]
+    prev_c = np.maximum.accumulate(np.where(good, frames, -1))
+    next_c = np.minimum.accumulate(np.where(good, frames, t)[::-1])[::-1]
     a, b = prev_c[rows], next_c[rows]
     need = np.unique(np.concatenate([a[a >= 0], b[b < t]]))
     rot_at = np.full((t, 3, 3), np.nan)
     if need.size:
-        rot_at[need] = fit_rigid(
-            ref[None], pos[need], weights=np.broadcast_to(mw, (need.size, mw.size))
-        )[0]
+        rot_at[need] = fit_rigid(ref[None], pos[need], weights=w_all[need])[0]
     r_start = np.where((a >= 0)[:, None, None], rot_at[np.maximum(a, 0)], np.nan)
     r_end = np.where((b < t)[:, None, None], rot_at[np.minimum(b, t - 1)], np.nan)
     span = np.where(b > a, b - a, 1)
     u = (rows - a) / span
-    axis, _ = line_axis(np.broadcast_to(ref, (rows.size, *ref.shape)), fit_weights)
+    axis, _ = line_axis(np.broadcast_to(ref, (rows.size, m, 3)), fit_weights)
     return twist_prior(rot_fit, axis, r_start, r_end, u)
 
 
@@ -261,7 +275,7 @@ def fill_local_pca(
     anchor_ends: bool = True,
     anchor_window: int = 1,
     rigid_frame: float | None = None,
-    frame_prior: float | None = 0.1,
+    frame_prior: float | None = 0.05,
     spread: np.ndarray | None = None,
     progress: Progress | None = None,
 ) -> np.ndarray:
@@ -317,11 +331,13 @@ def fill_local_pca(
         local frame's twist about the line is left to their small spread off it and
         measurement noise turns it (and the missing members with it). Each
         estimation row's frame is then pulled towards temporal continuity: the
-        frames fitted at the nearest frames before and after where the whole group
-        is seen, swung onto the row's line, their twist interpolated in time
-        (:mod:`~skincap.cleanup.frame_continuity`). The value is the spread off the
-        line, as a fraction of the members' spread, below which the prior decides
-        the twist. None: each row's frame from its own members alone (the paper).
+        frames fitted at the nearest frames before and after whose present members
+        are well spread, swung onto the row's line, their twist interpolated in time
+        (:mod:`~skincap.cleanup.frame_continuity`), as far as the take's
+        measurement noise (:func:`~skincap.cleanup.frame_continuity.take_noise`)
+        leaves the twist less certain than the prior. The value is the prior's
+        twist uncertainty, radians. None: each row's frame from its own members
+        alone (the paper).
     spread : (T, N) float array, optional
         With ``anchor_ends``, written in place on the samples of a gap anchored at
         both ends: the distance (metres) between the two end offsets, i.e. between
@@ -338,6 +354,7 @@ def fill_local_pca(
     p = np.array(positions, dtype=np.float64)
     present = ~np.isnan(p[..., 0])
     gaps, queries = _anchor_queries(present, target, anchor_ends, anchor_window)
+    noise = take_noise(p) if frame_prior is not None else 0.0
     sums = _sum_group_estimates(
         p,
         present,
@@ -348,6 +365,7 @@ def fill_local_pca(
         missing_data=missing_data,
         rigid_frame=rigid_frame,
         frame_prior=frame_prior,
+        noise=noise,
         centre_weight=estimated_centre_weight if weighted else None,
         progress=progress,
     )
@@ -384,6 +402,7 @@ def _sum_group_estimates(
     missing_data: bool,
     rigid_frame: float | None,
     frame_prior: float | None,
+    noise: float,
     centre_weight: float | None,
     progress: Progress | None,
 ) -> _Sums:
@@ -411,6 +430,7 @@ def _sum_group_estimates(
                 else _member_rigidity(p[:: max(1, t // 400), members], rigid_frame)
             ),
             frame_prior=frame_prior,
+            noise=noise,
         )
         if progress is not None:
             progress((gi + 1) / len(groups), "local PCA")
@@ -597,7 +617,7 @@ def fill_local_window(
     variance: float = 0.99,
     rigid_frame: bool = True,
     rigidity_floor: float = 0.1,
-    frame_prior: float | None = 0.1,
+    frame_prior: float | None = 0.05,
     spread: np.ndarray | None = None,
 ) -> np.ndarray:
     """Own-group local PCA trained around each gap (the ``local_pca_window`` method).
@@ -636,7 +656,8 @@ def fill_local_window(
         aml_PronetoRun01 a little and costs cmu_85_02 and kt_optitrack_walking).
     frame_prior : float, optional
         As :func:`fill_local_pca`: the local frame's twist about a near-line of
-        present members falls back on temporal continuity. None: no prior.
+        present members falls back on temporal continuity; the prior's twist
+        uncertainty, radians. None: no prior.
     spread : (T, N) float array, optional
         Written in place on the filled samples of runs anchored at both ends: the
         distance (metres) between the two end offsets, how far the model strays
@@ -653,6 +674,7 @@ def fill_local_window(
     offsets, indices = neighbours
     marker, start, length = missing_runs(~present)
     keep = target[start, marker] if marker.size else np.zeros(0, dtype=bool)
+    noise = take_noise(p) if frame_prior is not None and keep.any() else 0.0
     for i, s, ln in zip(marker[keep], start[keep], length[keep], strict=True):
         members = np.concatenate([[i], indices[offsets[i] : offsets[i + 1]]])
         if members.size < 4:
@@ -675,6 +697,7 @@ def fill_local_window(
                 _member_rigidity(p[lo:hi, members], rigidity_floor) if rigid_frame else None
             ),
             frame_prior=frame_prior,
+            noise=noise,
         )
         if res is None:
             continue

@@ -13,7 +13,12 @@ from __future__ import annotations
 import numpy as np
 
 from skincap._arrays import missing_runs
-from skincap.cleanup.frame_continuity import fit_rigid_with_prior, line_axis, twist_prior
+from skincap.cleanup.frame_continuity import (
+    fit_rigid_with_prior,
+    line_axis,
+    take_noise,
+    twist_prior,
+)
 from skincap.cleanup.neighbours import CSR, mean_neighbour_distance
 from skincap.geometry.rigid import apply_rigid, fit_rigid
 
@@ -30,7 +35,7 @@ def fill_rigid(
     weighted: bool = False,
     noise_floor: float = 0.001,
     frame_donors: bool = False,
-    frame_prior: float | None = 0.1,
+    frame_prior: float | None = 0.05,
 ) -> np.ndarray:
     """Vicon-style rigid-body fill from >= 3 donor markers.
 
@@ -78,9 +83,10 @@ def fill_rigid(
         towards temporal continuity (:mod:`~skincap.cleanup.frame_continuity`):
         no motion at its own reference end, the motion across the gap (donors and
         the marker itself, fitted between the two ends) at the other, swung onto
-        the donors' present line, the twist interpolated in time. The value is the
-        donors' spread off the line, as a fraction of their spread, below which
-        the prior decides the twist. None: each frame's fit alone (Vicon-style).
+        the donors' present line, the twist interpolated in time, as far as the
+        take's measurement noise leaves the twist less certain than the prior. The
+        value is the prior's twist uncertainty, radians. None: each frame's fit
+        alone (Vicon-style).
 
     Returns
     -------
@@ -120,7 +126,8 @@ def fill_rigid(
     span = (end - start + 1).astype(np.float64)
     w_before = (end[rep] - frame) / span[rep]  # 1 next to the frame before, ->0 at the end
     across = None
-    if frame_prior is not None:
+    noise = take_noise(p) if frame_prior is not None else 0.0
+    if noise > 0:
         across = _motion_across(p, gaps, cand, donor, donor_w)[rep]  # (S, 3, 3)
     eye = np.broadcast_to(np.eye(3), (rep.size, 3, 3))
     for before_side, ref_frame, ok, w in (
@@ -140,7 +147,9 @@ def fill_rigid(
             r0, r1 = (eye, far) if before_side else (far, eye)
             axis, _ = line_axis(ref, wts)
             prior = twist_prior(rot, axis, r0, r1, 1.0 - w_before)
-            rot, tr = fit_rigid_with_prior(ref, cur, wts, prior, frame_prior)
+            rot, tr = fit_rigid_with_prior(
+                ref, cur, wts, prior, noise=noise, twist_sd=float(frame_prior or 0.0)
+            )
         moved = apply_rigid(rot, tr, p[rf, marker[rep]][:, None, :])[:, 0]
         sides.append((ok, np.where(ok, w, 0.0), moved))
     est, good = _blend_sides(sides, spread, frame, marker[rep])

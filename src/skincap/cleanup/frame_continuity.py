@@ -11,14 +11,17 @@ direction (the line's direction itself is well determined by the points), their 
 about the line interpolated in time. The fit then minimises
 
     Σ_k w_k ||R s_k + t - d_k||² + μ ||R - Q||²_F,
-    μ = prior² Σ_k w_k |s_k - c_s|² · max(0, 1 - c / (2 prior)²)
+    μ = w̄ σ² / (2 θ0²) · max(0, 1 - c / c0)
 
-with ``c`` the points' conditioning (:func:`line_axis`: about ``f²`` for points
-spread ``f`` of their length off a line). The prior decides the twist where the
-points' spread off their line is below ``prior`` of their length, fades out by twice
-that, and leaves the fits of well-spread points exactly as they were.
-The extra term adds ``μ Q^T`` to the Kabsch cross-covariance; it is entered as six
-virtual correspondences ``c_s ± h e_j -> c_d ± h Q e_j`` (symmetric about the
+the maximum a posteriori rotation for points of noise ``σ`` (per axis, metres; ``w̄``
+the points' mean weight) and a prior whose twist is off by ``θ0`` radians
+(``||R - Q||²_F ≈ 2 θ²`` for a rotation ``θ`` away): the points decide the twist
+where their spread off the line fixes it better than ``θ0``, the prior where noise
+would turn it further. ``c`` is the points' conditioning (:func:`line_axis`: about
+``f²`` for points spread ``f`` of their length off a line); the prior fades out by
+``c0`` (:data:`WELL_SPREAD`), leaving the fits of well-spread points exactly as they
+were. The extra term adds ``μ Q^T`` to the Kabsch cross-covariance; it is entered as
+six virtual correspondences ``c_s ± h e_j -> c_d ± h Q e_j`` (symmetric about the
 centroids, so the translation is unchanged) and solved by
 :func:`skincap.geometry.rigid.fit_rigid`.
 """
@@ -28,9 +31,24 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from skincap.cleanup.outliers import measurement_noise
 from skincap.geometry.rigid import fit_rigid
 
-__all__ = ["line_axis", "twist_prior", "fit_rigid_with_prior"]
+__all__ = ["WELL_SPREAD", "line_axis", "take_noise", "twist_prior", "fit_rigid_with_prior"]
+
+#: Conditioning (:func:`line_axis`) from which a point set fixes its own rotation and
+#: takes no prior: points spread a fifth of their length off their line.
+WELL_SPREAD = 0.2**2
+
+
+def take_noise(positions: np.ndarray) -> float:
+    """The take's typical measurement noise σ per axis (metres): the median over its
+    markers of :func:`~skincap.cleanup.outliers.measurement_noise`; 0 when unknown.
+
+    positions (T, N, 3) metres, NaN where missing.
+    """
+    sigma = measurement_noise(positions)
+    return float(np.nanmedian(sigma)) if np.isfinite(sigma).any() else 0.0
 
 
 def _weighted_centred(
@@ -135,7 +153,9 @@ def fit_rigid_with_prior(
     dst: np.ndarray,
     weights: np.ndarray,
     prior: np.ndarray,
-    strength: float,
+    *,
+    noise: float,
+    twist_sd: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rigid fits ``dst ≈ R src + t`` pulled towards prior rotations (module docstring).
 
@@ -146,9 +166,10 @@ def fit_rigid_with_prior(
     weights : (S, K) float >= 0
     prior : (S, 3, 3) float
         Prior rotations; a NaN row is fitted without a prior.
-    strength : float > 0
-        ``prior`` in ``μ`` (module docstring): the points' spread off their line, as
-        a fraction of their length, below which the prior decides the twist.
+    noise : float >= 0, metres
+        The points' measurement noise σ per axis (0: no prior).
+    twist_sd : float > 0, radians
+        ``θ0``: how far the prior's twist may be off.
 
     Returns
     -------
@@ -161,14 +182,15 @@ def fit_rigid_with_prior(
     w = np.where(both, np.asarray(weights, dtype=np.float64), 0.0)
     w, cs, cen = _weighted_centred(src, w)
     _, cd, _ = _weighted_centred(dst, w)
+    count = (w > 0).sum(axis=-1)
     wsum = w.sum(axis=-1)
-    h2 = np.einsum("sk,skc,skc->s", w, cen, cen) / np.maximum(wsum, 1e-300)  # mean |s - c|²
-    h = np.sqrt(h2)
+    h = np.sqrt(np.einsum("sk,skc,skc->s", w, cen, cen) / np.maximum(wsum, 1e-300))
     _, cond = line_axis(src, w)
-    fade = np.clip(1.0 - np.nan_to_num(cond, nan=1.0) / max(2.0 * strength, 1e-300) ** 2, 0.0, 1.0)
-    use = np.isfinite(prior).all(axis=(1, 2)) & (h > 0) & ((w > 0).sum(axis=-1) >= 3) & (fade > 0)
+    fade = np.clip(1.0 - np.nan_to_num(cond, nan=1.0) / WELL_SPREAD, 0.0, 1.0)
+    mu = wsum / np.maximum(count, 1) * noise**2 / (2.0 * twist_sd**2) * fade
+    use = np.isfinite(prior).all(axis=(1, 2)) & (h > 0) & (count >= 3) & (mu > 0)
     # six virtual pairs of weight wv each add 2 wv h² Q^T = μ Q^T to the cross-covariance
-    wv = np.where(use, 0.5 * strength**2 * wsum * fade, 0.0)
+    wv = np.where(use, mu / (2.0 * np.where(h > 0, h, 1.0) ** 2), 0.0)
     e = np.concatenate([np.eye(3), -np.eye(3)])  # (6, 3)
     q = np.where(use[:, None, None], prior, np.eye(3))
     vs = cs[:, None, :] + h[:, None, None] * e[None]  # (S, 6, 3)
@@ -177,7 +199,7 @@ def fit_rigid_with_prior(
     dst_all = np.concatenate([np.where(w[..., None] > 0, dst, 0.0), vd], axis=1)
     w_all = np.concatenate([w, np.repeat(wv[:, None], 6, axis=1)], axis=1)
     rot, tr = fit_rigid(src_all, dst_all, weights=w_all)
-    few = (w > 0).sum(axis=-1) < 3
+    few = count < 3
     rot[few] = np.nan
     tr[few] = np.nan
     return rot, tr
