@@ -175,8 +175,10 @@ def _group_estimates(
     est = cur.copy()
     prior = None
     if frame_prior is not None and noise > 0:
-        rot0, _ = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
-        prior = _continuity_prior(ref, pos, present, rows, obs * mw, rot0, mw)
+        _, row_cond = line_axis(np.broadcast_to(ref, (rows.size, m, 3)), obs * mw)
+        if (np.nan_to_num(row_cond) < WELL_SPREAD).any():  # else no row takes a prior
+            rot0, _ = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
+            prior = _continuity_prior(ref, pos, present, rows, obs * mw, rot0, mw)
     for _ in range(refits + 1):
         if prior is None:
             rot, tr = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
