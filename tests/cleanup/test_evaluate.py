@@ -156,3 +156,14 @@ def test_rigid_blend_setting_is_passed_and_reported(take):
     )
     with pytest.raises(ValidationError):
         evaluate_fill(markers, rigid_blend=-0.1, **kw)
+
+
+def test_scored_against_truth_also_scores_the_same_fills_against_the_measured(take):
+    markers, truth = take
+    kw = dict(methods=["local_pca", "linear"], gap_lengths=(10,), gaps=2, seed=3)
+    both = evaluate_fill(markers, truth=truth, **kw)
+    measured = evaluate_fill(markers, **kw)
+    assert both["scored_against"] == "truth" and "results_measured" not in measured
+    # the same gaps and fills: the measured-reference scores are those of a run without truth
+    assert both["results_measured"] == measured["results"]
+    assert both["results"] != measured["results"]

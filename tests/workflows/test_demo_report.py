@@ -83,3 +83,33 @@ def test_fill_section_says_how_the_gaps_were_punched():
     assert _fill_rounds({}) == ""  # an older evaluation: nothing claimed
     text = _fill_rounds({"lengths_together": True, "rounds": 2})
     assert "punched together, 2 rounds" in text and "fills each round once" in text
+
+
+def _fill_eval(scored_against, measured):  # type: ignore[no-untyped-def]
+    def per(mean, mx):  # type: ignore[no-untyped-def]
+        stats = {"normalised": {"mean": mean, "max": mx}, "mm": {"mean": mean * 100}}
+        return {"10": stats, "all": stats}
+
+    ev = {
+        "gap_lengths": [10],
+        "gaps_per_length": 3,
+        "mean_neighbour_distance_mm": 80.0,
+        "scored_against": scored_against,
+        "results": {"local_pca": per(0.0123, 0.04)},
+    }
+    if measured:
+        ev["results_measured"] = {"local_pca": per(0.0234, 0.05)}
+    return ev
+
+
+def test_fill_section_names_its_reference_and_shows_the_measured_one_beside_the_truth(tmp_path):
+    from skincap.workflows.demo_report import _fill_section
+
+    png = tmp_path / "f.png"
+    png.write_bytes(b"")
+    truth = " ".join(_fill_section(_fill_eval("truth", True), png).render().split())
+    assert "noise-free truth" in truth and "average vs measured" in truth
+    assert "0.0234" in truth  # the measured-reference score beside the truth's
+    assert '<span class="met">0.0123</span>' in truth  # the marks are the truth's
+    measured = " ".join(_fill_section(_fill_eval("measured", False), png).render().split())
+    assert "noise-free truth" not in measured and "vs measured" not in measured

@@ -54,6 +54,16 @@ Methods
     Whole-body PCA fill (Gløersen & Federolf 2016): PCA of all markers' normalised
     coordinates over the take, missing values reconstructed iteratively.
 
+Nearly collinear neighbours (beyond the paper): where the members or donors seen in a
+frame lie nearly on a line, the rotation about that line is left to noise and the
+marker off it swings with it. The local frames of the local methods and the fits of
+``rigid_weighted`` and of the rigid fill they blend with (not the Vicon-style
+``rigid`` method) then take that twist from
+temporal continuity: the well-determined fits at the nearest frames where the whole
+group (or the marker with its donors) is seen, interpolated in time
+(:mod:`~skincap.cleanup.frame_continuity`; ``frame_prior`` of :func:`fill_local_pca`
+and :func:`fill_rigid`).
+
 The local methods fall back to the ``rigid_weighted`` fill (``rigid`` with
 ``FillSettings(rigid_weighted=False)``) for samples no group could estimate
 (fewer than three present members); samples no method can reach stay NaN.
@@ -221,8 +231,8 @@ def _fill_by_method(
         return fill_pchip(p, target)
     if method == "spline":
         return fill_spline(p, target)
-    if method == "rigid":
-        return fill_rigid(p, target, csr)
+    if method == "rigid":  # the Vicon-style baseline: each frame's fit alone
+        return fill_rigid(p, target, csr, frame_prior=None)
     if method == "rigid_weighted":
         return fill_rigid(p, target, csr, weighted=True, frame_donors=True)
     if method == "pca":

@@ -19,6 +19,13 @@ from typing import NamedTuple
 import numpy as np
 
 from skincap._arrays import Progress, missing_runs
+from skincap.cleanup.frame_continuity import (
+    WELL_SPREAD,
+    fit_rigid_with_prior,
+    line_axis,
+    take_noise,
+    twist_prior,
+)
 from skincap.cleanup.neighbours import CSR
 from skincap.geometry.rigid import apply_rigid, fit_rigid
 
@@ -105,6 +112,8 @@ def _group_estimates(
     query_frame: np.ndarray | None = None,
     query_member: np.ndarray | None = None,
     member_weights: np.ndarray | None = None,
+    frame_prior: float | None = None,
+    noise: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
     """Estimates of the missing members of one group.
 
@@ -112,6 +121,9 @@ def _group_estimates(
     ``query_member`` (Q,) int: measured samples to estimate as if that member alone
     were missing in that frame (the anchors at a gap's ends). ``member_weights`` (m,)
     float >= 0, optional: the members' weights in the local-frame fits (default 1).
+    ``frame_prior``: the twist (radians) the local frame's temporal-continuity prior
+    may be off by (:func:`_continuity_prior`), for members of measurement noise
+    ``noise`` (metres); None fits each row's frame alone.
 
     Returns (rows (F + Q,), estimates (F + Q, m, 3) NaN where not estimated, variance
     (F + Q, m), centre observed (F + Q,) bool, local-frame rotations (F + Q, 3, 3)),
@@ -161,8 +173,20 @@ def _group_estimates(
     fit_pts = cur.copy()
     fit_mask = obs.copy()
     est = cur.copy()
+    prior = None
+    if frame_prior is not None and noise > 0:
+        _, row_cond = line_axis(np.broadcast_to(ref, (rows.size, m, 3)), obs * mw)
+        if (np.nan_to_num(row_cond) < WELL_SPREAD).any():  # else no row takes a prior
+            rot0, _ = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
+            prior = _continuity_prior(ref, pos, present, rows, obs * mw, rot0, mw)
     for _ in range(refits + 1):
-        rot, tr = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
+        if prior is None:
+            rot, tr = fit_rigid(ref[None], fit_pts, weights=fit_mask * mw)
+        else:
+            src = np.broadcast_to(ref, fit_pts.shape)
+            rot, tr = fit_rigid_with_prior(
+                src, fit_pts, fit_mask * mw, prior, noise=noise, twist_sd=frame_prior
+            )
         yl = np.einsum("fji,fkj->fki", rot, cur - tr[:, None, :]).reshape(len(rows), d)
         o = np.repeat(obs, 3, axis=1)
         coef, ainv = _pca_solve(basis, evals, noise, yl - mu, o)
@@ -175,6 +199,48 @@ def _group_estimates(
     var = noise * (3.0 + np.einsum("jcq,fqr,jcr->fj", bj, ainv, bj))
     est = np.where(obs[..., None], np.nan, est)
     return rows, est, var, obs[:, 0], rot
+
+
+def _continuity_prior(
+    ref: np.ndarray,
+    pos: np.ndarray,
+    present: np.ndarray,
+    rows: np.ndarray,
+    fit_weights: np.ndarray,
+    rot_fit: np.ndarray,
+    mw: np.ndarray,
+) -> np.ndarray:
+    """Prior local-frame rotations (F, 3, 3) for a group's estimation ``rows`` (F,).
+
+    The frame is well determined in the frames whose present members are spread off
+    a line (:func:`~skincap.cleanup.frame_continuity.line_axis` conditioning at least
+    :data:`~skincap.cleanup.frame_continuity.WELL_SPREAD`, where the prior fades out):
+    its rotations at the last such
+    frame at or before each row and the first at or after it (the fit of the
+    reference shape ``ref`` (m, 3) to ``pos`` (T, m, 3), present (T, m), member
+    weights ``mw`` (m,)) give the prior through
+    :func:`~skincap.cleanup.frame_continuity.twist_prior`, about the principal axis of
+    the members fitted in the row (``fit_weights`` (F, m), ``rot_fit`` (F, 3, 3) their
+    plain fit). NaN rows: no such frame on either side.
+    """
+    t, m = present.shape
+    w_all = present * mw  # (T, m)
+    _, cond = line_axis(np.broadcast_to(ref, (t, m, 3)), w_all)
+    good = (present.sum(axis=1) >= 3) & (np.nan_to_num(cond) >= WELL_SPREAD)
+    frames = np.arange(t)
+    prev_c = np.maximum.accumulate(np.where(good, frames, -1))
+    next_c = np.minimum.accumulate(np.where(good, frames, t)[::-1])[::-1]
+    a, b = prev_c[rows], next_c[rows]
+    need = np.unique(np.concatenate([a[a >= 0], b[b < t]]))
+    rot_at = np.full((t, 3, 3), np.nan)
+    if need.size:
+        rot_at[need] = fit_rigid(ref[None], pos[need], weights=w_all[need])[0]
+    r_start = np.where((a >= 0)[:, None, None], rot_at[np.maximum(a, 0)], np.nan)
+    r_end = np.where((b < t)[:, None, None], rot_at[np.minimum(b, t - 1)], np.nan)
+    span = np.where(b > a, b - a, 1)
+    u = (rows - a) / span
+    axis, _ = line_axis(np.broadcast_to(ref, (rows.size, m, 3)), fit_weights)
+    return twist_prior(rot_fit, axis, r_start, r_end, u)
 
 
 def _em_pca_impute(y: np.ndarray, obs: np.ndarray, variance: float, iterations: int) -> np.ndarray:
@@ -211,6 +277,7 @@ def fill_local_pca(
     anchor_ends: bool = True,
     anchor_window: int = 1,
     rigid_frame: float | None = None,
+    frame_prior: float | None = 0.05,
     spread: np.ndarray | None = None,
     progress: Progress | None = None,
 ) -> np.ndarray:
@@ -261,6 +328,18 @@ def fill_local_pca(
         evenly), ``d`` the group's mean member distance; a member sliding over the
         body then hardly moves the frame. None (default): equal weights, the paper's
         frame.
+    frame_prior : float, optional
+        Beyond the paper: where a group's present members lie nearly on a line, its
+        local frame's twist about the line is left to their small spread off it and
+        measurement noise turns it (and the missing members with it). Each
+        estimation row's frame is then pulled towards temporal continuity: the
+        frames fitted at the nearest frames before and after whose present members
+        are well spread, swung onto the row's line, their twist interpolated in time
+        (:mod:`~skincap.cleanup.frame_continuity`), as far as the take's
+        measurement noise (:func:`~skincap.cleanup.frame_continuity.take_noise`)
+        leaves the twist less certain than the prior. The value is the prior's
+        twist uncertainty, radians. None: each row's frame from its own members
+        alone (the paper).
     spread : (T, N) float array, optional
         With ``anchor_ends``, written in place on the samples of a gap anchored at
         both ends: the distance (metres) between the two end offsets, i.e. between
@@ -277,6 +356,7 @@ def fill_local_pca(
     p = np.array(positions, dtype=np.float64)
     present = ~np.isnan(p[..., 0])
     gaps, queries = _anchor_queries(present, target, anchor_ends, anchor_window)
+    noise = take_noise(p) if frame_prior is not None else 0.0
     sums = _sum_group_estimates(
         p,
         present,
@@ -286,6 +366,8 @@ def fill_local_pca(
         variance=variance,
         missing_data=missing_data,
         rigid_frame=rigid_frame,
+        frame_prior=frame_prior,
+        noise=noise,
         centre_weight=estimated_centre_weight if weighted else None,
         progress=progress,
     )
@@ -321,6 +403,8 @@ def _sum_group_estimates(
     variance: float,
     missing_data: bool,
     rigid_frame: float | None,
+    frame_prior: float | None,
+    noise: float,
     centre_weight: float | None,
     progress: Progress | None,
 ) -> _Sums:
@@ -347,6 +431,8 @@ def _sum_group_estimates(
                 if rigid_frame is None
                 else _member_rigidity(p[:: max(1, t // 400), members], rigid_frame)
             ),
+            frame_prior=frame_prior,
+            noise=noise,
         )
         if progress is not None:
             progress((gi + 1) / len(groups), "local PCA")
@@ -533,6 +619,7 @@ def fill_local_window(
     variance: float = 0.99,
     rigid_frame: bool = True,
     rigidity_floor: float = 0.1,
+    frame_prior: float | None = 0.05,
     spread: np.ndarray | None = None,
 ) -> np.ndarray:
     """Own-group local PCA trained around each gap (the ``local_pca_window`` method).
@@ -569,6 +656,10 @@ def fill_local_window(
         distance, below which members count as equally rigid. 0.1 measured best
         over 0.001-0.4 on the three real takes' punched gaps (smaller helps
         aml_PronetoRun01 a little and costs cmu_85_02 and kt_optitrack_walking).
+    frame_prior : float, optional
+        As :func:`fill_local_pca`: the local frame's twist about a near-line of
+        present members falls back on temporal continuity; the prior's twist
+        uncertainty, radians. None: no prior.
     spread : (T, N) float array, optional
         Written in place on the filled samples of runs anchored at both ends: the
         distance (metres) between the two end offsets, how far the model strays
@@ -585,6 +676,7 @@ def fill_local_window(
     offsets, indices = neighbours
     marker, start, length = missing_runs(~present)
     keep = target[start, marker] if marker.size else np.zeros(0, dtype=bool)
+    noise = take_noise(p) if frame_prior is not None and keep.any() else 0.0
     for i, s, ln in zip(marker[keep], start[keep], length[keep], strict=True):
         members = np.concatenate([[i], indices[offsets[i] : offsets[i + 1]]])
         if members.size < 4:
@@ -606,6 +698,8 @@ def fill_local_window(
             member_weights=(
                 _member_rigidity(p[lo:hi, members], rigidity_floor) if rigid_frame else None
             ),
+            frame_prior=frame_prior,
+            noise=noise,
         )
         if res is None:
             continue

@@ -13,6 +13,12 @@ from __future__ import annotations
 import numpy as np
 
 from skincap._arrays import missing_runs
+from skincap.cleanup.frame_continuity import (
+    fit_rigid_with_prior,
+    line_axis,
+    take_noise,
+    twist_prior,
+)
 from skincap.cleanup.neighbours import CSR, mean_neighbour_distance
 from skincap.geometry.rigid import apply_rigid, fit_rigid
 
@@ -29,6 +35,7 @@ def fill_rigid(
     weighted: bool = False,
     noise_floor: float = 0.001,
     frame_donors: bool = False,
+    frame_prior: float | None = 0.05,
 ) -> np.ndarray:
     """Vicon-style rigid-body fill from >= 3 donor markers.
 
@@ -70,6 +77,16 @@ def fill_rigid(
         missing for part of the gap still serves in the frames it is seen, and each
         frame uses the first ``max_donors`` it sees. False (default): the
         Vicon-style fixed donor set.
+    frame_prior : float, optional
+        Donors nearly on a line leave their rotation about it to noise, and the
+        marker off the line swings with it. Each gap frame's fit is then pulled
+        towards temporal continuity (:mod:`~skincap.cleanup.frame_continuity`):
+        no motion at its own reference end, the motion across the gap (donors and
+        the marker itself, fitted between the two ends) at the other, swung onto
+        the donors' present line, the twist interpolated in time, as far as the
+        take's measurement noise leaves the twist less certain than the prior. The
+        value is the prior's twist uncertainty, radians. None: each frame's fit
+        alone (Vicon-style).
 
     Returns
     -------
@@ -108,15 +125,31 @@ def fill_rigid(
     sides = []
     span = (end - start + 1).astype(np.float64)
     w_before = (end[rep] - frame) / span[rep]  # 1 next to the frame before, ->0 at the end
-    for ref_frame, ok, w in ((start - 1, before_ok, w_before), (end, after_ok, 1.0 - w_before)):
+    across = None
+    noise = take_noise(p) if frame_prior is not None else 0.0
+    if noise > 0:
+        across = _motion_across(p, gaps, cand, donor, donor_w)[rep]  # (S, 3, 3)
+    eye = np.broadcast_to(np.eye(3), (rep.size, 3, 3))
+    for before_side, ref_frame, ok, w in (
+        (True, start - 1, before_ok, w_before),
+        (False, end, after_ok, 1.0 - w_before),
+    ):
         if not ok.any():
             continue
         rf = np.clip(ref_frame[rep], 0, t - 1)
         ref = p[rf[:, None], donors]  # (S, K, 3)
-        if donor_w is not None:
-            rot, tr = fit_rigid(ref, cur, weights=np.where(dmask & ok[:, None], donor_w[rep], 0.0))
-        else:
-            rot, tr = fit_rigid(ref, cur, mask=dmask & ok[:, None])
+        wts = np.where(dmask & ok[:, None], 1.0 if donor_w is None else donor_w[rep], 0.0)
+        rot, tr = fit_rigid(ref, cur, weights=wts)
+        if across is not None:
+            # the motion from this side's reference frame: none there, the donors' and
+            # the marker's motion across the gap at the other end
+            far = across if before_side else np.swapaxes(across, 1, 2)
+            r0, r1 = (eye, far) if before_side else (far, eye)
+            axis, _ = line_axis(ref, wts)
+            prior = twist_prior(rot, axis, r0, r1, 1.0 - w_before)
+            rot, tr = fit_rigid_with_prior(
+                ref, cur, wts, prior, noise=noise, twist_sd=float(frame_prior or 0.0)
+            )
         moved = apply_rigid(rot, tr, p[rf, marker[rep]][:, None, :])[:, 0]
         sides.append((ok, np.where(ok, w, 0.0), moved))
     est, good = _blend_sides(sides, spread, frame, marker[rep])
@@ -166,6 +199,28 @@ def _gap_donors(
     donor_w = 1.0 / (var + (noise_floor * _mean_edge(p, neighbours)[marker])[:, None] ** 2)
     donor &= donor_w > 0
     return cand, donor, np.where(donor, donor_w, 0.0)
+
+
+def _motion_across(
+    p: np.ndarray,
+    gaps: tuple[np.ndarray, np.ndarray, np.ndarray],
+    cand: np.ndarray,
+    donor: np.ndarray,
+    donor_w: np.ndarray | None,
+) -> np.ndarray:
+    """(G, 3, 3) each gap's rigid motion from its frame before to its frame after,
+    fitted to its donors seen at both ends and the marker itself (weighted as the
+    mean donor); NaN for a gap at the take's start or end or with too few points."""
+    t = p.shape[0]
+    marker, start, end = gaps
+    a, b = np.maximum(start - 1, 0), np.minimum(end, t - 1)
+    pts = np.concatenate([cand, marker[:, None]], axis=1)  # (G, K + 1)
+    w = np.where(donor, 1.0 if donor_w is None else donor_w, 0.0)
+    mean_w = w.sum(axis=1) / np.maximum((w > 0).sum(axis=1), 1)
+    w = np.concatenate([w, mean_w[:, None]], axis=1)
+    w = np.where(((start > 0) & (end < t))[:, None], w, 0.0)
+    rot, _ = fit_rigid(p[a[:, None], pts], p[b[:, None], pts], weights=w)
+    return rot
 
 
 def _blend_sides(

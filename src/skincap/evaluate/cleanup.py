@@ -280,7 +280,9 @@ def evaluate_fill(
         None: :func:`~skincap.cleanup.neighbours.motion_neighbours`.
     truth : (T, N, 3) float, metres, optional
         What punched samples are scored against (a synthetic take's noise-free truth);
-        default: the measured samples themselves.
+        default: the measured samples themselves. With a truth, the same fills are
+        also scored against the measured samples they replace
+        (``results_measured``), as a real take's are.
     min_neighbours : int
         Present, unpunched neighbours each punched marker keeps.
     rigid_blend : float in [0, 1], optional
@@ -307,7 +309,9 @@ def evaluate_fill(
         ``results[method][str(length) | "all"]`` holds ``mm`` and ``normalised``
         statistics (mean, p95, max, rmse), ``samples`` and ``unfilled`` (punched
         samples the method left NaN, excluded from the statistics); plus the
-        settings, ``mean_neighbour_distance_mm`` and ``paper_table2``.
+        settings, ``mean_neighbour_distance_mm`` and ``paper_table2``. With
+        ``truth``, ``results_measured`` holds the same statistics of the same fills
+        against the measured samples (``results`` is against the truth).
     """
     methods, lengths = _checked_fill_options(
         markers, methods, gap_lengths, gaps, simultaneous, rigid_blend
@@ -323,11 +327,17 @@ def evaluate_fill(
     rounds = _plan_rounds(
         present, csr, lengths, gaps, simultaneous, min_neighbours, seed, lengths_together
     )
-    errors = _fill_punched(
-        markers, lengths, rounds, methods, csr, mnd, ref, rigid_blend, fill_own_gaps, progress
+    refs = [ref] if truth is None else [ref, p]
+    errs, unfilled, punched_gaps = _fill_punched(
+        markers, lengths, rounds, methods, csr, mnd, refs, rigid_blend, fill_own_gaps, progress
     )
-    results = _fill_results(methods, lengths, *errors)
+    results = _fill_results(methods, lengths, *errs[0], unfilled, punched_gaps)
     best = _best(results, methods)
+    extra: dict[str, Any] = {}
+    if truth is not None:
+        extra["results_measured"] = _fill_results(
+            methods, lengths, *errs[1], unfilled, punched_gaps
+        )
     return {
         "frames": t,
         "markers": n,
@@ -346,6 +356,7 @@ def evaluate_fill(
         if np.isfinite(mnd).any()
         else None,
         "results": results,
+        **extra,
         "comparison": best,
         "paper_table2": PAPER_TABLE2,
     }
@@ -431,23 +442,29 @@ def _fill_punched(
     methods: list[str],
     csr: Any,
     mnd: np.ndarray,
-    ref: np.ndarray,
+    refs: list[np.ndarray],
     rigid_blend: float | None,
     fill_own_gaps: bool,
     progress: Progress | None,
-) -> tuple[_Errors, _Errors, dict[str, dict[int, int]], dict[int, int]]:
+) -> tuple[list[tuple[_Errors, _Errors]], dict[str, dict[int, int]], dict[int, int]]:
     """Punch each planned round of gaps, fill it with every method, measure the errors.
 
-    ``rounds`` holds (G_r, 3) rows ``(marker, start, length)``. Returns, per method and
-    gap length, the errors of the punched samples (metres) and the same divided by
-    the marker's mean neighbour distance ``mnd`` (N,), the samples left unfilled, and
-    the gaps punched per length.
+    ``rounds`` holds (G_r, 3) rows ``(marker, start, length)``; ``refs`` the (T, N, 3)
+    positions the fills are scored against (each gives its own errors). Returns, per
+    reference, per method and gap length, the errors of the punched samples (metres)
+    and the same divided by the marker's mean neighbour distance ``mnd`` (N,); the
+    samples left unfilled, and the gaps punched per length.
     """
     p = markers.positions
     t, n, _ = p.shape
     n_fills = len(rounds) * len(methods)
-    errs: dict[str, dict[int, list[np.ndarray]]] = {m: {L: [] for L in lengths} for m in methods}
-    nerrs: dict[str, dict[int, list[np.ndarray]]] = {m: {L: [] for L in lengths} for m in methods}
+    scores: list[tuple[_Errors, _Errors]] = [
+        (
+            {m: {L: [] for L in lengths} for m in methods},
+            {m: {L: [] for L in lengths} for m in methods},
+        )
+        for _ in refs
+    ]
     unfilled = {m: dict.fromkeys(lengths, 0) for m in methods}
     punched_gaps = dict.fromkeys(lengths, 0)
     done = 0
@@ -473,18 +490,20 @@ def _fill_punched(
                     neighbours=csr,
                     only=None if fill_own_gaps else mask,
                 )
-            e_all = np.linalg.norm(filled[tt, nn] - ref[tt, nn], axis=-1)
-            for L, sel in of_length.items():
-                e, marker = e_all[sel], nn[sel]
-                ok = np.isfinite(e)
-                unfilled[method][L] += int((~ok).sum())
-                errs[method][L].append(e[ok])
-                nerrs[method][L].append(e[ok] / mnd[marker[ok]])
+            for r, (ref, (errs, nerrs)) in enumerate(zip(refs, scores, strict=True)):
+                e_all = np.linalg.norm(filled[tt, nn] - ref[tt, nn], axis=-1)
+                for L, sel in of_length.items():
+                    e, marker = e_all[sel], nn[sel]
+                    ok = np.isfinite(e)
+                    if r == 0:
+                        unfilled[method][L] += int((~ok).sum())
+                    errs[method][L].append(e[ok])
+                    nerrs[method][L].append(e[ok] / mnd[marker[ok]])
             done += 1
             if progress is not None:
                 what = f"{round_lengths[0]} frames" if len(round_lengths) == 1 else f"round {k + 1}"
                 progress(done / max(n_fills, 1), f"{method}, {what}")
-    return errs, nerrs, unfilled, punched_gaps
+    return scores, unfilled, punched_gaps
 
 
 def _fill_results(
