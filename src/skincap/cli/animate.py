@@ -96,8 +96,8 @@ _Json = Annotated[bool, typer.Option("--json", help="Print the report as JSON.")
 
 @app.command()
 def animate(
-    mesh_path: _MeshArg,
     output: _AnimOutput,
+    mesh_path: _MeshArg = None,
     markers_path: _MarkersArg = None,
     rom: _Rom = None,
     method: _Method = "quadratic_rbf",
