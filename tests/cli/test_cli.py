@@ -333,3 +333,40 @@ def test_every_verb_has_help_with_an_example():
         result = run(*verb, "--help")
         assert result.exit_code == 0, verb
         assert "Example: skincap" in result.stdout, verb
+
+
+def test_help_paragraphs_wrap_at_the_terminal_width_not_the_source_width():
+    """A docstring wrapped at 88 columns broke into orphan words on an 80-column terminal
+    (typer keeps single line breaks); the help is now reflowed paragraph by paragraph."""
+    import inspect
+
+    from skincap.cli._app import _reflowed
+
+    doc = """First line.
+
+    A paragraph wrapped
+    in the source.
+
+    - a list item
+    - another
+
+    Example: skincap x"""
+    assert _reflowed(doc).split("\n\n") == [
+        "First line.",
+        "A paragraph wrapped in the source.",
+        "- a list item\n- another",
+        "Example: skincap x",
+    ]
+    for verb in _all_verbs():
+        result = CliRunner().invoke(app, [*verb, "--help"], env={"COLUMNS": "80"})
+        text = result.stdout.split("╭")[0]  # the prose above the option panels
+        lines = [line.strip() for line in text.splitlines()]
+        for line, after in zip(lines, lines[1:], strict=False):
+            # an orphan: a lone word inside a paragraph, the sentence going on below it
+            lone = len(line.split()) == 1 and not line.startswith(("-", "*", "|"))
+            assert not (lone and after[:1].islower() or lone and after[:1] == "("), (
+                verb,
+                line,
+                after,
+            )
+    assert inspect.cleandoc(_reflowed("a\nb")) == "a b"

@@ -23,6 +23,8 @@ from skincap.cli import (  # noqa: F401, I001  (registers the verbs in --help or
     view,
     batch,
 )
-from skincap.cli._app import app, main
+from skincap.cli._app import app, main, reflow_help
+
+reflow_help(app)
 
 __all__ = ["app", "main"]

@@ -8,6 +8,7 @@ Errors the user can fix (bad input, an existing output) print one line,
 from __future__ import annotations
 
 import contextlib
+import inspect
 import json
 import os
 import re
@@ -333,6 +334,38 @@ def install_termination_handlers() -> None:
     for name in ("SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
             signal.signal(getattr(signal, name), _raise_terminated)
+
+
+def _reflowed(doc: str) -> str:
+    """``doc`` with each paragraph's lines joined into one.
+
+    typer keeps a docstring's single line breaks, so text wrapped at 88 columns in the
+    source broke into orphan words on an 80-column terminal. A paragraph whose later
+    lines start with a space, ``-``, ``*`` or ``|`` (a list, a table, an example block)
+    keeps its breaks; so does anything after a ``\\f`` line (click's cut mark).
+    """
+    text, cut, rest = inspect.cleandoc(doc).partition("\f")
+    paragraphs = []
+    for paragraph in text.split("\n\n"):
+        lines = paragraph.split("\n")
+        if paragraph.startswith("\b") or any(
+            line.startswith((" ", "-", "*", "|")) for line in lines[1:]
+        ):
+            paragraphs.append(paragraph)
+        else:
+            paragraphs.append(" ".join(line.strip() for line in lines if line.strip()))
+    return "\n\n".join(paragraphs) + cut + rest
+
+
+def reflow_help(application: typer.Typer) -> None:
+    """Reflow every verb's help paragraphs (:func:`_reflowed`), sub-apps included."""
+    for command in application.registered_commands:
+        doc = command.help or (command.callback.__doc__ if command.callback else None)
+        if doc:
+            command.help = _reflowed(doc)
+    for group in application.registered_groups:
+        if group.typer_instance is not None:
+            reflow_help(group.typer_instance)
 
 
 def main() -> None:
