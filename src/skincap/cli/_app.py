@@ -341,7 +341,7 @@ def _reflowed(doc: str) -> str:
 
     typer keeps a docstring's single line breaks, so text wrapped at 88 columns in the
     source broke into orphan words on an 80-column terminal. A paragraph whose later
-    lines start with a space, ``-``, ``*`` or ``|`` (a list, a table, an example block)
+    lines start with a space, ``- ``, ``* `` or ``| `` (a list, a table, an example block)
     keeps its breaks; so does anything after a ``\\f`` line (click's cut mark).
     """
     text, cut, rest = inspect.cleandoc(doc).partition("\f")
@@ -349,7 +349,7 @@ def _reflowed(doc: str) -> str:
     for paragraph in text.split("\n\n"):
         lines = paragraph.split("\n")
         if paragraph.startswith("\b") or any(
-            line.startswith((" ", "-", "*", "|")) for line in lines[1:]
+            line.startswith((" ", "- ", "* ", "| ")) for line in lines[1:]
         ):
             paragraphs.append(paragraph)
         else:
