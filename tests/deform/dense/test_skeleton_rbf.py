@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from mesh_grids import tube
 from skincap.deform.dense.skeleton_rbf import (
     KERNELS,
     blend_dual_quaternions,
@@ -18,18 +19,6 @@ from skincap.deform.skeletal.deformers import DualQuaternionSkinning
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
 from skincap.types import Motion, Skeleton
-
-
-def _tube(n_along: int, n_around: int, radius: float) -> tuple[np.ndarray, np.ndarray]:
-    """A closed-ring tube along x in [0, 0.6] (metres) and its outward triangles."""
-    x = np.linspace(0.0, 0.6, n_along)
-    a = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
-    xx, aa = np.meshgrid(x, a, indexing="ij")
-    pts = np.stack([xx.ravel(), radius * np.cos(aa).ravel(), radius * np.sin(aa).ravel()], 1)
-    idx = np.arange(n_along * n_around).reshape(n_along, n_around)
-    nxt = np.roll(idx, -1, axis=1)
-    a0, b0, c0, d0 = idx[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel(), nxt[:-1].ravel()
-    return pts, np.concatenate([np.stack([a0, c0, b0], 1), np.stack([a0, d0, c0], 1)])
 
 
 def _arm_motion(n_frames: int = 12) -> Motion:
@@ -55,10 +44,10 @@ def scene():
     under them (pure skeletal motion), and the deformer bound to the solved-like motion."""
     motion = _arm_motion()
     world = forward_kinematics(motion)
-    vertices, faces = _tube(25, 12, 0.05)
+    vertices, faces = tube(25, 12, 0.05)
     # the mesh stands in frame 0's pose: move the x-axis tube onto the posed bones
     vertices = vertices @ world[0, 0, :3, :3].T + world[0, 0, :3, 3]
-    marker_rest, _ = _tube(8, 6, 0.056)
+    marker_rest, _ = tube(8, 6, 0.056)
     marker_rest[:, 0] += 0.013
     markers0 = marker_rest @ world[0, 0, :3, :3].T + world[0, 0, :3, 3]
     deformer = build_skeleton_rbf(vertices, faces, markers0, motion, 0, kernel="linear")

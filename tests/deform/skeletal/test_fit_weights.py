@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from mesh_grids import tube
 from skincap.deform.dense.skeleton_rbf import build_skeleton_rbf, surface_point_weights
 from skincap.deform.skeletal.deformers import DualQuaternionSkinning, LinearBlendSkinning
 from skincap.deform.skeletal.fit_weights import (
@@ -22,18 +23,6 @@ from skincap.deform.skeletal.weights import bone_heat_weights
 from skincap.errors import ValidationError
 from skincap.geometry.kinematics import forward_kinematics
 from skincap.types import Motion, Skeleton
-
-
-def _tube(n_along: int, n_around: int, radius: float, length: float = 0.6):
-    """A closed-ring tube along x in [0, length] (metres) and its outward triangles."""
-    x = np.linspace(0.0, length, n_along)
-    a = np.linspace(0.0, 2 * np.pi, n_around, endpoint=False)
-    xx, aa = np.meshgrid(x, a, indexing="ij")
-    pts = np.stack([xx.ravel(), radius * np.cos(aa).ravel(), radius * np.sin(aa).ravel()], 1)
-    idx = np.arange(n_along * n_around).reshape(n_along, n_around)
-    nxt = np.roll(idx, -1, axis=1)
-    a0, b0, c0, d0 = idx[:-1].ravel(), idx[1:].ravel(), nxt[1:].ravel(), nxt[:-1].ravel()
-    return pts, np.concatenate([np.stack([a0, c0, b0], 1), np.stack([a0, d0, c0], 1)])
 
 
 def _arm_motion(n_frames: int = 40) -> Motion:
@@ -63,12 +52,12 @@ def arm():
     vertices and 48 markers (6 mm off the skin) moved by them."""
     motion = _arm_motion()
     world = forward_kinematics(motion)
-    rest, faces = _tube(31, 12, 0.05)
+    rest, faces = tube(31, 12, 0.05)
     vertices = rest @ world[0, 0, :3, :3].T + world[0, 0, :3, 3]
     elbow = 1.0 / (1.0 + np.exp(-(rest[:, 0] - 0.35) / 0.01))  # the forearm's weight
     true_v = np.zeros((len(rest), 3))
     true_v[:, 0], true_v[:, 1] = 1.0 - elbow, elbow
-    m_rest, _ = _tube(12, 6, 0.056, length=0.56)
+    m_rest, _ = tube(12, 6, 0.056, length=0.56)
     m_rest[:, 0] += 0.02
     markers0 = m_rest @ world[0, 0, :3, :3].T + world[0, 0, :3, 3]
     idx_v = np.broadcast_to(np.arange(3), true_v.shape)
