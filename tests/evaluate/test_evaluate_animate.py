@@ -17,6 +17,7 @@ from skincap.evaluate.animate import (
     evaluate_animate,
     global_rbf_frames,
     held_out_marker_errors,
+    plot_vertex_errors,
     region_errors,
     seam_split,
     stretch_split,
@@ -326,3 +327,30 @@ def test_held_out_wrist_of_a_sparse_real_capture_follows_its_arm() -> None:
     res = held_out_on_capture(markers, seed=0)
     assert res["held_out"] == 4 and res["mean_m"] < 0.12  # 0.084 measured, 0.164 before
     assert res["worst"]["marker"] != "Male:LWRB"  # it was the worst, by far
+
+
+def test_error_maps_put_at_most_four_bodies_a_row(tmp_path) -> None:
+    """Eight rows of eval animate used to be drawn in one strip 7x wider than tall, each
+    body ~100 px high; now two rows of four, each body about half the image's height."""
+    plt = pytest.importorskip("matplotlib.pyplot")
+    rng = np.random.default_rng(0)
+    body = np.column_stack(
+        [rng.uniform(-0.8, 0.8, 3000), rng.uniform(0, 1.8, 3000), 0 * rng.random(3000)]
+    )
+    methods = [
+        "rigid",
+        "quadratic",
+        "rigid_rbf",
+        "quadratic_rbf",
+        "lbs",
+        "dqs",
+        "global_rbf",
+        "skeleton_rbf",
+    ]
+    errors = {m: np.abs(body[:, 0]) * 0.01 * (i + 1) for i, m in enumerate(methods)}
+    png = plot_vertex_errors(body, errors, tmp_path / "e.png", title="t")
+    height, width = plt.imread(png).shape[:2]
+    assert width / height < 2.5
+    five = plot_vertex_errors(body, dict(list(errors.items())[:5]), tmp_path / "f.png")
+    height, width = plt.imread(five).shape[:2]
+    assert width / height < 2.0  # three and two

@@ -973,19 +973,38 @@ def plot_vertex_errors(
     names = list(per_vertex_rms)
     top = max(float(np.percentile(per_vertex_rms[m], 99)) for m in names) * 1e3
     order = np.argsort(v[:, 2])  # far vertices drawn first
-    fig, axes = plt.subplots(1, len(names), figsize=(2.6 * len(names), 3.0), dpi=110)
-    axes = np.atleast_1d(axes)
+    # at most four panels a row, rows filled evenly, each big enough to see an upper arm
+    n_rows = -(-len(names) // 4)
+    n_cols = -(-len(names) // n_rows)
+    fig, axes = plt.subplots(
+        n_rows,
+        n_cols,
+        figsize=(3.3 * n_cols + 0.9, 3.3 * n_rows + 0.4),
+        dpi=110,
+        squeeze=False,
+        layout="constrained",
+    )
+    # dots (area, points²) about one vertex spacing across, whatever the mesh's resolution
+    dot = float(np.clip(7.0 * 5000.0 / max(len(v), 1), 0.3, 12.0))
+    lo, hi = v[:, :2].min(axis=0), v[:, :2].max(axis=0)
+    pad = 0.03 * float((hi - lo).max())
     try:
-        for ax, name in zip(axes, names, strict=True):
+        for ax in axes.ravel()[len(names) :]:
+            ax.axis("off")
+        for ax, name in zip(axes.ravel(), names, strict=False):
             err = per_vertex_rms[name][order] * 1e3
-            sc = ax.scatter(v[order, 0], v[order, 1], c=err, s=0.6, cmap="magma", vmin=0, vmax=top)
+            sc = ax.scatter(
+                v[order, 0], v[order, 1], c=err, s=dot, cmap="magma", vmin=0, vmax=top, lw=0
+            )
             rms = float(np.sqrt(np.mean(per_vertex_rms[name] ** 2)) * 1e3)
-            ax.set_title(f"{name}\n{rms:.2f} mm RMS", fontsize=8)
+            ax.set_title(f"{name}\n{rms:.2f} mm RMS", fontsize=9)
+            ax.set_xlim(lo[0] - pad, hi[0] + pad)
+            ax.set_ylim(lo[1] - pad, hi[1] + pad)
             ax.set_aspect("equal")
             ax.axis("off")
-        fig.colorbar(sc, ax=list(axes), shrink=0.7, label="vertex RMS error (mm)")
+        fig.colorbar(sc, ax=axes.ravel().tolist(), shrink=0.7, label="vertex RMS error (mm)")
         if title:
-            fig.suptitle(title, fontsize=9)
+            fig.suptitle(title, fontsize=10)
         with atomic_output(path, force=force) as tmp:
             fig.savefig(tmp, format="png")
     finally:
