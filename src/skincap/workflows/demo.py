@@ -388,21 +388,27 @@ def _track(
 def _dense(
     folder: Path, steps: _Steps, take: Any, force: bool, outputs: list[Path], figures: dict
 ) -> None:
-    from skincap.workflows.demo_dense import dense_comparison
+    from skincap.synth.inputs import build_body
+    from skincap.workflows.demo_dense import dense_comparison, rom_markers
 
     with steps.step(0.68, "dense skin (Park & Hodgins §5)"):
         body = _body_columns(list(take.truth.labels))
+        labels = [str(take.truth.labels[i]) for i in body]
         (folder / "figures").mkdir(exist_ok=True)
         png = folder / "figures" / "dense_errors.png"
+        # the take's body again (deterministic), through its range of motion
+        rom = rom_markers(build_body("procedural", n_vertices=DEMO_BODY_VERTICES), labels)
         figures["dense"] = dense_comparison(
             take.truth.positions[:, body],
-            [str(take.truth.labels[i]) for i in body],
+            labels,
             take.marker_surface.faces,
             np.asarray(take.skin.frames),
             take.skin.rest.faces,
             png,
             force=force,
+            rom=rom,
         )
+        figures["dense"]["rom_frames"] = int(rom.shape[0])
     outputs.append(png)
 
 

@@ -356,7 +356,14 @@ def _dense_section(dn: dict[str, Any]) -> Section:
         .text(
             f"The take's {dn['markers']} clean body markers drive the body it was made on "
             f"({dn['vertices']} vertices) through {dn['parts']} near-rigid parts found "
-            f"automatically on the take; {dn['frames']} frames spread over the take are "
+            "automatically on "
+            + (
+                f"a {dn['rom_frames']}-frame range-of-motion take of the same body, as the "
+                "paper learnt them"
+                if dn.get("rom_frames")
+                else "the take"
+            )
+            + f"; {dn['frames']} frames spread over the take are "
             "compared with the true skin (soft tissue included). rigid: each part's rigid "
             "fit; quadratic: plus the 3x9 quadratic field (eq. 6); *_rbf: plus the per-part "
             "RBF of the residual (eq. 7); global_rbf: one RBF interpolation of all marker "
