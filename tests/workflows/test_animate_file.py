@@ -9,7 +9,6 @@ so every variant must reproduce it there; the rig is built on the take itself.
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -214,26 +213,67 @@ def test_an_existing_output_needs_force(arm, tmp_path):
     assert out.read_bytes() == b"keep"
 
 
-def test_a_mesh_far_from_the_markers_is_warned_about(arm, tmp_path):
+@pytest.mark.parametrize("shift_m", [0.09, 0.5])
+def test_a_mesh_off_the_markers_is_warned_about_and_one_far_off_refused(arm, tmp_path, shift_m):
+    """An unregistered mesh a few cm off: a warning. Half a metre off (a T-pose body
+    under a real take that starts lying down, aml_PronetoRun01: 49.5 cm): the fields
+    extrapolated out there exploded (a 5 m body at 1,430 m/s); now one line, exit 2."""
+    from skincap import io
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    mesh_path, take_path, _, _ = arm
+    mesh, take = io.read_mesh(mesh_path), io.read(take_path)
+    vertices = mesh.vertices + [0.0, shift_m, 0.0]
+    mean = closest_points_on_mesh(vertices, mesh.faces, take.positions[0])[0].mean()
+    moved = tmp_path / "moved.obj"
+    write_obj(Mesh(vertices=vertices, faces=mesh.faces), moved, units="m", up="y")
+    args = ("animate", moved, take_path, "-o", tmp_path / "m.pc2", "--parts", "2",
+            "--reference-frame", "0", "--surface", take_path.with_name("arm_surface.ply"))  # fmt: skip
+    res = run(*args)
+    if shift_m < 0.15:
+        assert 0.05 < mean < 0.15, mean  # the warning's band
+        assert res.exit_code == 0, res.output
+        assert "reference pose?" in res.output and "reference frame 0" in res.output
+        return
+    assert mean > 0.15, mean
+    lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert "moved.obj" in lines[0] and "--register" in lines[0], res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["moved.obj"]
+    assert run(*args, "--register").exit_code == 0  # the way out it names works
+
+
+def test_landmarks_without_register_and_a_one_frame_range_of_motion_are_refused(arm, tmp_path):
+    """--landmarks were ignored unchecked without --register (an unknown label passed);
+    a one-frame take or --rom segmented 'parts' out of no motion at all."""
     from skincap import io
 
     mesh_path, take_path, _, _ = arm
-    mesh = io.read_mesh(mesh_path)
-    moved = tmp_path / "moved.obj"
-    write_obj(
-        Mesh(vertices=mesh.vertices + [0.0, 0.5, 0.0], faces=mesh.faces), moved, units="m", up="y"
-    )
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        animate_file(
-            moved,
-            take_path,
-            tmp_path / "m.pc2",
-            n_parts=2,
-            reference_frame=0,
-            surface=take_path.with_name("arm_surface.ply"),
-        )
-    assert any("reference pose" in str(w.message) for w in caught)
+    take = io.read(take_path)
+    one = tmp_path / "one.c3d"
+    io.write(MarkerSet(positions=take.positions[:1], labels=take.labels, rate=100.0), one)
+    marks = tmp_path / "marks.json"
+    marks.write_text(json.dumps({"NOPE": 3}))
+    surface = ("--surface", take_path.with_name("arm_surface.ply"), "--parts", "2")
+    cases = [
+        (("animate", mesh_path, take_path, "--landmarks", marks, *surface), "marks.json", "add --register"),
+        (("animate", mesh_path, one, *surface), "one.c3d", "1 frame; the near-rigid parts"),
+        (("animate", mesh_path, take_path, "--rom", one, *surface), "one.c3d", "at least 2 frames"),
+    ]  # fmt: skip
+    for args, name, what in cases:
+        before = set(tmp_path.iterdir())
+        res = run(*args, "-o", tmp_path / "o.pc2")
+        lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+        assert res.exit_code == 2 and len(lines) == 1, (args, res.output)
+        assert name in lines[0] and what in lines[0], res.output
+        assert _nothing_written(tmp_path, before), args
+    # a one-frame take animates with a rig learnt elsewhere
+    rig = tmp_path / "r.npz"
+    assert run("animate", mesh_path, take_path, *surface, "--reference-frame", "0",
+               "--save-rig", rig, "-o", tmp_path / "a.pc2").exit_code == 0  # fmt: skip
+    res = run("animate", "--rig", rig, one, "-o", tmp_path / "one.pc2")
+    assert res.exit_code == 0, res.output
+    assert np.isfinite(read_pc2(tmp_path / "one.pc2").frames).all()
 
 
 def test_register_fits_a_displaced_mesh_with_landmarks_and_marker_radius(arm, tmp_path):

@@ -20,7 +20,9 @@ a folder
     One OBJ per frame.
 
 Bad input (a mesh with no triangles, fewer than :data:`MIN_MARKERS` labelled markers,
-a rig or a ROM take of another marker set) raises a :class:`FormatError` naming the
+a rig or a ROM take of another marker set, a range of motion of one frame, an
+unregistered mesh farther than :data:`MESH_REFUSE_DISTANCE_M` from the markers,
+``--landmarks`` without ``--register``) raises a :class:`FormatError` naming the
 file before anything is written; every output goes through a temporary file.
 """
 
@@ -47,10 +49,14 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ANIMATE_OUTPUTS",
+    "MESH_REFUSE_DISTANCE_M",
+    "MESH_WARN_DISTANCE_M",
     "MIN_MARKERS",
+    "MIN_ROM_FRAMES",
     "animate_file",
     "animate_markers",
     "check_animate_options",
+    "check_parts",
     "labelled_markers",
     "read_landmarks",
 ]
@@ -60,6 +66,15 @@ ANIMATE_OUTPUTS = (".pc2", ".usd", ".usda", ".usdc")
 #: Fewest labelled markers a dense take needs (17 parts of three markers is 51; below
 #: ~30 there is not one well-spread part per limb segment).
 MIN_MARKERS = 30
+#: Fewest frames of the range of motion the parts are segmented on (one frame shows no
+#: motion: every grouping of the markers is as rigid as any other).
+MIN_ROM_FRAMES = 2
+#: Mean marker-to-mesh distance (m) in the reference frame above which an unregistered
+#: mesh is warned about ...
+MESH_WARN_DISTANCE_M = 0.05
+#: ... and above which it is refused: farther than a limb's girth, no marker can be on
+#: the mesh's skin, and the fields extrapolated out there explode.
+MESH_REFUSE_DISTANCE_M = 0.15
 #: Frames per streamed deformation chunk.
 CHUNK_FRAMES = 32
 #: The method beyond the paper: a solved skeleton's DQS plus the markers' residuals.
@@ -173,12 +188,15 @@ def animate_file(
     surface : path-like, optional
         Marker surface (PLY/OBJ over the markers or an edge CSV); default built from the take.
     landmarks : path-like, optional
-        JSON ``{marker label: vertex index}`` for the registration.
+        JSON ``{marker label: vertex index}`` for the registration (only with
+        ``register``; refused without it rather than ignored).
     reference_frame : int, optional
         The take's frame the mesh matches (default the frame with the most markers).
     register : bool
         Fit the mesh to the reference-pose markers first (§5.1). Without it the mesh
-        must already be in the markers' reference pose.
+        must already be in the markers' reference pose: a warning above
+        :data:`MESH_WARN_DISTANCE_M` mean marker-to-mesh distance, refused above
+        :data:`MESH_REFUSE_DISTANCE_M`.
     marker_radius_mm : float
         With ``register``: how far outside the skin the marker centres sit (ball
         radius plus base), millimetres; the surface is fitted that far inside them.
@@ -215,6 +233,11 @@ def animate_file(
     paths = {name: None if value is None else Path(value) for name, value in given.items()}
     if rig is not None and save_rig is not None:
         raise FormatError(Path(rig), "give --rig or --save-rig, not both")
+    if landmarks is not None and not register:
+        # only the registration reads them: without it they would be ignored unchecked
+        raise FormatError(
+            Path(landmarks), "--landmarks guide --register; add --register or leave them out"
+        )
     if rig is None and paths["mesh"] is None:
         raise FormatError(markers_path, "a MESH is needed unless --rig gives the subject's rig")
     ext = output.suffix.lower()
@@ -254,7 +277,12 @@ def check_animate_options(method: str, n_parts: int, marker_radius_mm: float) ->
         )
     if not 0.0 <= marker_radius_mm <= 50.0:  # NaN fails too
         raise ValidationError(f"--marker-radius: expected 0-50 mm, got {marker_radius_mm}")
-    if not 1 <= n_parts <= 200:
+    check_parts(n_parts)
+
+
+def check_parts(n_parts: int) -> None:
+    """``--parts`` of ``animate`` and ``eval animate``: 1..200, or a ValidationError."""
+    if isinstance(n_parts, bool) or not 1 <= n_parts <= 200:
         raise ValidationError(f"--parts: expected 1..200, got {n_parts}")
 
 
@@ -427,23 +455,52 @@ def _build_rig(
             mesh, reference, labels, paths, marker_radius_mm, progress, surf.faces
         )
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
-    if build["marker_to_mesh_m"]["mean"] > 0.05 and not register:
-        warnings.warn(
-            f"{paths['mesh']}: the markers are {build['marker_to_mesh_m']['mean'] * 100:.1f} cm "
-            "from the mesh on average in the reference frame; is the mesh in the markers' "
-            "reference pose? (--register fits it)",
-            SkincapWarning,
-            stacklevel=4,
-        )
+    if not register:
+        _check_mesh_in_pose(build["marker_to_mesh_m"]["mean"], paths["mesh"], frame)
     rom_positions = positions
     if paths["rom"] is not None:
         rom_positions = _read_rom(paths["rom"], labels).positions
         build["rom"] = str(paths["rom"])
+    if rom_positions.shape[0] < MIN_ROM_FRAMES:
+        raise FormatError(
+            paths["rom"] or markers_path,
+            f"{rom_positions.shape[0]} frame{'' if rom_positions.shape[0] == 1 else 's'}; the near-rigid parts are learnt from how the "
+            f"markers move, which needs a range of motion of at least {MIN_ROM_FRAMES} frames "
+            "(give a longer --rom, or a saved --rig)",
+        )
     subject = build_dense_rig(
         vertices, mesh.faces, labels, reference, surf.faces, rom_positions,
         n_parts=n_parts, settings=dict(build), progress=_stage(progress, "segmentation"),
     )  # fmt: skip
     return subject, build
+
+
+def _check_mesh_in_pose(mean_m: float, mesh_path: Path | None, frame: int) -> None:
+    """Warn when the unregistered mesh lies off the reference-pose markers; refuse when
+    it lies so far off that the markers cannot be on its skin.
+
+    Every vertex is carried by the fields of the markers near it in the reference
+    pose; a mesh standing elsewhere (a T-pose body under a take that starts crouched or
+    lying, a mesh in other units) puts its vertices tens of centimetres outside every
+    part, where the quadratic and RBF fields extrapolate: the output explodes (a body
+    3-5 m tall moving at hundreds of m/s on real captures) rather than fail.
+    """
+    if mean_m > MESH_REFUSE_DISTANCE_M:
+        raise FormatError(
+            mesh_path or Path("MESH"),
+            f"the markers are {mean_m * 100:.1f} cm from the mesh on average in reference "
+            f"frame {frame} (more than {MESH_REFUSE_DISTANCE_M * 100:.0f} cm: the mesh is not "
+            "in the markers' reference pose); add --register to fit it, or choose the "
+            "--reference-frame where the subject stands as the mesh does",
+        )
+    if mean_m > MESH_WARN_DISTANCE_M:
+        warnings.warn(
+            f"{mesh_path}: the markers are {mean_m * 100:.1f} cm from the mesh on average in "
+            f"reference frame {frame}; is the mesh in the markers' reference pose? "
+            "(--register fits it)",
+            SkincapWarning,
+            stacklevel=5,
+        )
 
 
 def _read_rom(path: Path, labels: list[str]) -> MarkerSet:
@@ -519,6 +576,8 @@ def _animate_skeleton_rbf(
             mesh, reference, labels, paths, marker_radius_mm, progress, surf.faces
         )
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
+    if not register:
+        _check_mesh_in_pose(build["marker_to_mesh_m"]["mean"], paths["mesh"], frame)
     filled_take = dataclasses.replace(take, positions=positions)
     rom = None
     if paths["rom"] is not None:
