@@ -321,6 +321,24 @@ def test_a_landmark_file_naming_an_unknown_marker_is_refused(arm, tmp_path):
     assert not (tmp_path / "o.pc2").exists()
 
 
+def test_info_reads_the_pc2_animate_wrote(arm, tmp_path):
+    """``skincap info OUT.pc2`` said "unknown file type '.pc2'" on animate's own output;
+    it now gives the frames, the take's rate (noted in OUT.obj) and the fastest vertex."""
+    mesh_path, take_path, _, _ = arm
+    out = tmp_path / "a.pc2"
+    assert run("animate", mesh_path, take_path, "-o", out, "--parts", "2", "--reference-frame", "0",
+               "--surface", take_path.with_name("arm_surface.ply")).exit_code == 0  # fmt: skip
+    res = run("info", out, "--json")
+    assert res.exit_code == 0, res.output
+    seen = json.loads(res.stdout)
+    frames = np.asarray(read_pc2(out).frames)
+    assert seen["kind"] == "point_cache" and seen["frames"] == frames.shape[0] == 24
+    assert seen["points"] == frames.shape[1] and seen["rate"] == 100.0
+    speed = np.linalg.norm(np.diff(frames, axis=0), axis=-1).max() * 100.0
+    assert seen["max_point_speed"] == pytest.approx(speed) and seen["max_point_speed_unit"] == "m/s"
+    assert seen["bounds_max"] == pytest.approx(frames.max(axis=(0, 1)).tolist())
+
+
 def test_view_plays_the_result_beside_the_markers(arm, tmp_path):
     from skincap.viz.scene import load_scene
 
