@@ -339,6 +339,87 @@ def test_info_reads_the_pc2_animate_wrote(arm, tmp_path):
     assert seen["bounds_max"] == pytest.approx(frames.max(axis=(0, 1)).tolist())
 
 
+def test_the_report_gives_the_fastest_vertex_and_a_mesh_outrunning_its_markers_is_warned(
+    arm, tmp_path
+):
+    """The arm on its own skin moves no faster than its markers; a triangle 3 m beyond
+    the forearm (as a registration folded onto a lying subject leaves legs far from
+    their markers: aml_PronetoRun01, 316 m/s under 18.6 m/s markers) is swung by the
+    forearm's fields many times faster: a warning names the output and the frame."""
+    from skincap import io
+
+    mesh_path, take_path, _, _ = arm
+    mesh, take = io.read_mesh(mesh_path), io.read(take_path)
+    common = (
+        "--parts",
+        "2",
+        "--reference-frame",
+        "0",
+        "--surface",
+        take_path.with_name("arm_surface.ply"),
+    )
+    res = run(
+        "animate",
+        mesh_path,
+        take_path,
+        "-o",
+        tmp_path / "a.pc2",
+        "--report",
+        tmp_path / "a.json",
+        *common,
+    )
+    assert res.exit_code == 0 and "mesh moves up to" not in res.output, res.output
+    speed = json.loads((tmp_path / "a.json").read_text())["speed"]
+    frames = np.asarray(read_pc2(tmp_path / "a.pc2").frames)
+    steps = np.linalg.norm(np.diff(frames, axis=0), axis=-1).max(axis=1)  # (T-1,)
+    assert speed["max_vertex_speed_m_s"] == pytest.approx(steps.max() * 100.0)
+    assert speed["max_vertex_speed_frame"] == int(np.argmax(steps)) + 1
+    measured = np.linalg.norm(np.diff(take.positions, axis=0), axis=-1).max() * 100.0
+    assert speed["max_marker_speed_m_s"] == pytest.approx(measured)
+    assert speed["max_vertex_speed_m_s"] < 1.5 * measured  # skin rides with its markers
+
+    tip = mesh.vertices[np.argmax(mesh.vertices[:, 0])]
+    far = tip + np.array([[3.0, 0.0, 0.0], [3.0, 0.05, 0.0], [3.0, 0.0, 0.05]])
+    n = mesh.n_vertices
+    flung = Mesh(
+        vertices=np.vstack([mesh.vertices, far]), faces=np.vstack([mesh.faces, [[n, n + 1, n + 2]]])
+    )
+    write_obj(flung, tmp_path / "flung.obj", units="m", up="y")
+    res = run(
+        "animate",
+        tmp_path / "flung.obj",
+        take_path,
+        "-o",
+        tmp_path / "f.pc2",
+        "--report",
+        tmp_path / "f.json",
+        *common,
+    )
+    assert res.exit_code == 0, res.output
+    fast = json.loads((tmp_path / "f.json").read_text())["speed"]
+    assert fast["max_vertex_speed_m_s"] > 4.0 * max(measured, 1.0), fast
+    assert "f.pc2: the mesh moves up to" in res.output and "times the fastest marker" in res.output
+
+
+def test_the_fastest_step_counts_the_step_across_streamed_blocks() -> None:
+    """The deformer streams 32-frame blocks: a jump from a block's last frame to the
+    next block's first is found, with the later frame's number; NaN vertices skipped."""
+    from skincap.workflows.animate_file import _fastest_step
+
+    frames = np.zeros((70, 5, 3))
+    frames[:, :, 0] = np.arange(70)[:, None] * 0.01  # 1 cm a frame
+    frames[32:, 2, 1] += 0.2  # vertex 2 jumps 20 cm between frames 31 and 32
+    frames[40:45, 4] = np.nan  # an unseen part
+    fastest: list[tuple[float, int]] = []
+    blocks = [frames[i : i + 32] for i in range(0, 70, 32)]
+    out = list(_fastest_step(iter(blocks), fastest))
+    assert all(a is b for a, b in zip(out, blocks, strict=True))
+    assert fastest == [(pytest.approx(np.hypot(0.01, 0.2)), 32)]
+    one: list[tuple[float, int]] = []
+    list(_fastest_step(iter([frames[:1]]), one))
+    assert one == []  # one frame: no step
+
+
 def test_view_plays_the_result_beside_the_markers(arm, tmp_path):
     from skincap.viz.scene import load_scene
 

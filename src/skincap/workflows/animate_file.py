@@ -75,6 +75,12 @@ MESH_WARN_DISTANCE_M = 0.05
 #: ... and above which it is refused: farther than a limb's girth, no marker can be on
 #: the mesh's skin, and the fields extrapolated out there explode.
 MESH_REFUSE_DISTANCE_M = 0.15
+#: Fastest vertex over fastest marker above which the output is warned about (the
+#: markers' speed counted as at least :data:`SPEED_FLOOR_M_S`).
+SPEED_WARN_RATIO = 4.0
+#: Slowest marker speed (m/s) the vertices are compared with (a walking pace), so a
+#: still take's noise is no reason to warn.
+SPEED_FLOOR_M_S = 1.0
 #: Frames per streamed deformation chunk.
 CHUNK_FRAMES = 32
 #: The method beyond the paper: a solved skeleton's DQS plus the markers' residuals.
@@ -345,12 +351,15 @@ def _animate(
                 subject.settings, force=force,
             )  # fmt: skip
     timing: list[tuple[float, int]] = []
+    fastest: list[tuple[float, int]] = []
     frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
+    frames = _fastest_step(frames, fastest)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
     return _summary(
         markers_path, paths, written, take, timing, force=force, method=method,
         vertices=int(subject.vertices.shape[0]), markers=subject.n_markers,
         filled_samples=filled, parts=_parts_report(subject), rig=build,
+        speed=_speed_check(fastest, take.positions, take.rate, output),
     )  # fmt: skip
 
 
@@ -600,13 +609,14 @@ def _animate_skeleton_rbf(
     }
     timing: list[tuple[float, int]] = []
     blocks = deformer.deform(positions, solved.motion, progress=_stage(progress, "deformation"))
-    frames = _timed(blocks, timing)
+    fastest: list[tuple[float, int]] = []
+    frames = _fastest_step(_timed(blocks, timing), fastest)
     rest = dataclasses.replace(mesh, vertices=vertices, skin=None)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
     return _summary(
         markers_path, paths, written, take, timing, force=force, method=SKELETON_METHOD,
         vertices=int(vertices.shape[0]), markers=len(labels), filled_samples=filled,
-        parts=None, rig=build,
+        parts=None, rig=build, speed=_speed_check(fastest, take.positions, take.rate, output, 5),
     )  # fmt: skip
 
 
@@ -620,6 +630,77 @@ def _timed(blocks: Iterator[np.ndarray], timing: list[tuple[float, int]]) -> Ite
             return
         timing.append((time.perf_counter() - start, int(block.shape[0])))
         yield block
+
+
+def _fastest_step(
+    blocks: Iterator[np.ndarray], fastest: list[tuple[float, int]]
+) -> Iterator[np.ndarray]:
+    """The blocks ``(t, V, 3)`` unchanged; ``fastest`` ends as ``[(step, frame)]``: the
+    largest distance a vertex moves between two frames (metres) and the later frame's
+    number (``[]`` for fewer than two frames). Steps across block boundaries count."""
+    last: np.ndarray | None = None
+    offset = 0  # frame number of the block's first frame
+    best = (-1.0, -1)  # a still mesh's 0.0 counts
+    for block in blocks:
+        # the previous block's last frame in front, so the step across the boundary counts
+        joined = block if last is None else np.concatenate([last[None], block])
+        first = offset if last is None else offset - 1  # frame number of joined[0]
+        if joined.shape[0] > 1:
+            d = np.linalg.norm(np.diff(joined, axis=0), axis=-1)  # (t, V); NaN: unseen part
+            step = np.where(np.isfinite(d), d, -np.inf).max(axis=1)  # (t,)
+            k = int(np.argmax(step))
+            if step[k] > best[0]:
+                best = (float(step[k]), first + k + 1)
+        offset += block.shape[0]
+        if block.shape[0]:
+            last = block[-1]
+        yield block
+    if best[1] >= 0:
+        fastest.append(best)
+
+
+def _speed_check(
+    fastest: list[tuple[float, int]],
+    positions: np.ndarray,
+    rate: float,
+    output: Path,
+    stacklevel: int = 4,
+) -> dict[str, Any]:
+    """The fastest vertex and measured marker (m/s; ``positions`` (T, N, 3) metres, the
+    take before gap filling, NaN where missing) and a warning when the mesh outruns its
+    markers.
+
+    Skin between markers moves with them; a vertex far faster than every marker is one
+    a part's fields carry far outside its markers (a mesh not fitted to the reference
+    pose, a registration folded onto a lying subject): aml_PronetoRun01 registered on
+    its prone first frame moved vertices at 105-316 m/s under markers of 18.6 m/s, while
+    takes with a standing reference stay within 1.1-1.7x of their markers.
+    """
+    marker_step = np.linalg.norm(np.diff(positions, axis=0), axis=-1)  # (T-1, N), NaN gaps
+    finite = np.isfinite(marker_step)
+    marker_speed = float(marker_step[finite].max()) * rate if finite.any() else None
+    if not fastest:
+        return {"max_vertex_speed_m_s": None, "max_marker_speed_m_s": marker_speed}
+    step, frame = fastest[0]
+    vertex_speed = step * rate
+    figures = {
+        "max_vertex_speed_m_s": vertex_speed,
+        "max_vertex_speed_frame": frame,
+        "max_marker_speed_m_s": marker_speed,
+    }
+    # a still take's markers barely move: compare against at least a walking pace
+    floor = max(marker_speed or 0.0, SPEED_FLOOR_M_S)
+    if vertex_speed > SPEED_WARN_RATIO * floor:
+        warnings.warn(
+            f"{output}: the mesh moves up to {vertex_speed:.3g} m/s (frame {frame}), "
+            f"{vertex_speed / floor:.0f} times the fastest marker ({marker_speed or 0.0:.3g} "
+            "m/s): parts of it lie far from the markers that drive them; check the mesh's "
+            "fit in the reference frame (the report's marker_to_mesh_m, or a "
+            "--reference-frame where the subject stands as the mesh does)",
+            SkincapWarning,
+            stacklevel=stacklevel,  # at animate_file's caller
+        )
+    return figures
 
 
 def _marker_to_mesh(
