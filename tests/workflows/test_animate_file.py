@@ -420,6 +420,23 @@ def test_the_fastest_step_counts_the_step_across_streamed_blocks() -> None:
     assert one == []  # one frame: no step
 
 
+def test_a_run_stopped_while_deforming_leaves_no_saved_rig(arm, tmp_path, monkeypatch):
+    """--save-rig was written before the deformation: Ctrl-C (or a failed write) there
+    left R.npz + R.json beside no animation. Now nothing is written."""
+    import skincap.workflows.animate_file as workflow
+
+    mesh_path, take_path, _, _ = arm
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(workflow, "_write_animation", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        animate_file(mesh_path, take_path, tmp_path / "a.pc2", n_parts=2, reference_frame=0,
+                     surface=take_path.with_name("arm_surface.ply"), save_rig=tmp_path / "r.npz")  # fmt: skip
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_view_plays_the_result_beside_the_markers(arm, tmp_path):
     from skincap.viz.scene import load_scene
 

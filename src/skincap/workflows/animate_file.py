@@ -343,18 +343,20 @@ def _animate(
         )  # fmt: skip
         columns = np.arange(len(labels))
         rest = _rest_mesh(subject, mesh)
-        if paths["save_rig"] is not None:
-            from skincap.io.dense_rig import write_dense_rig
-
-            write_dense_rig(
-                paths["save_rig"], subject.to_arrays(), list(subject.labels),
-                subject.settings, force=force,
-            )  # fmt: skip
     timing: list[tuple[float, int]] = []
     fastest: list[tuple[float, int]] = []
     frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
     frames = _fastest_step(frames, fastest)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
+    if paths["save_rig"] is not None:
+        # after the animation, the long and interruptible part: a run stopped there
+        # (Ctrl-C, a failed write) left R.npz + R.json and no animation
+        from skincap.io.dense_rig import write_dense_rig
+
+        write_dense_rig(
+            paths["save_rig"], subject.to_arrays(), list(subject.labels),
+            subject.settings, force=force,
+        )  # fmt: skip
     return _summary(
         markers_path, paths, written, take, timing, force=force, method=method,
         vertices=int(subject.vertices.shape[0]), markers=subject.n_markers,
