@@ -267,6 +267,14 @@ def test_landmarks_without_register_and_a_one_frame_range_of_motion_are_refused(
         assert res.exit_code == 2 and len(lines) == 1, (args, res.output)
         assert name in lines[0] and what in lines[0], res.output
         assert _nothing_written(tmp_path, before), args
+    # the range of motion is judged before the mesh: a one-frame take under a mesh far
+    # off is refused for its frames (fixing the mesh first would not have helped)
+    mesh = io.read_mesh(mesh_path)
+    write_obj(Mesh(vertices=mesh.vertices + [0.0, 0.5, 0.0], faces=mesh.faces), tmp_path / "far.obj",
+              units="m", up="y")  # fmt: skip
+    res = run("animate", tmp_path / "far.obj", one, *surface, "-o", tmp_path / "o.pc2")
+    assert res.exit_code == 2 and "one.c3d: 1 frame" in res.output, res.output
+    (tmp_path / "far.obj").unlink()
     # a one-frame take animates with a rig learnt elsewhere
     rig = tmp_path / "r.npz"
     assert run("animate", mesh_path, take_path, *surface, "--reference-frame", "0",

@@ -449,6 +449,19 @@ def _build_rig(
     labels = [str(s) for s in take.labels]
     frame = _reference_frame(positions, reference_frame, markers_path)
     reference = positions[frame]
+    # the range of motion is checked first: a take that cannot be segmented is refused
+    # before the registration's seconds (and before the mesh is blamed for its pose)
+    rom_positions = positions
+    if paths["rom"] is not None:
+        rom_positions = _read_rom(paths["rom"], labels).positions
+    if rom_positions.shape[0] < MIN_ROM_FRAMES:
+        n_rom = rom_positions.shape[0]
+        raise FormatError(
+            paths["rom"] or markers_path,
+            f"{n_rom} frame{'' if n_rom == 1 else 's'}; the near-rigid parts are learnt from "
+            f"how the markers move, which needs a range of motion of at least {MIN_ROM_FRAMES} "
+            "frames (give a longer --rom, or a saved --rig)",
+        )
     filled_take = dataclasses.replace(take, positions=positions)
     if paths["surface"] is not None:
         surf = read_marker_surface(paths["surface"], filled_take, frame)
@@ -468,17 +481,8 @@ def _build_rig(
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
     if not register:
         _check_mesh_in_pose(build["marker_to_mesh_m"]["mean"], paths["mesh"], frame)
-    rom_positions = positions
     if paths["rom"] is not None:
-        rom_positions = _read_rom(paths["rom"], labels).positions
         build["rom"] = str(paths["rom"])
-    if rom_positions.shape[0] < MIN_ROM_FRAMES:
-        raise FormatError(
-            paths["rom"] or markers_path,
-            f"{rom_positions.shape[0]} frame{'' if rom_positions.shape[0] == 1 else 's'}; the near-rigid parts are learnt from how the "
-            f"markers move, which needs a range of motion of at least {MIN_ROM_FRAMES} frames "
-            "(give a longer --rom, or a saved --rig)",
-        )
     subject = build_dense_rig(
         vertices, mesh.faces, labels, reference, surf.faces, rom_positions,
         n_parts=n_parts, settings=dict(build), progress=_stage(progress, "segmentation"),
