@@ -171,6 +171,48 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(arm, tmp_path):
         assert _nothing_written(tmp_path, before), args
 
 
+def test_a_saved_rig_animates_a_take_that_lost_a_marker(arm, tmp_path):
+    """A marker lost for a whole take (fallen off: absent, or a column never seen) made
+    the subject's rig refuse the take as "built for another marker set". Now its parts
+    move by their other markers, with a warning; a take that leaves a part fewer than
+    three markers is refused, naming the take; one lacking most markers still is."""
+    from skincap import io
+
+    mesh_path, take_path, truth, _ = arm
+    take = io.read(take_path)
+    rig = tmp_path / "r.npz"
+    assert run("animate", mesh_path, take_path, "-o", tmp_path / "full.pc2", "--parts", "2",
+               "--surface", take_path.with_name("arm_surface.ply"), "--reference-frame", "0",
+               "--save-rig", rig).exit_code == 0  # fmt: skip
+    full = np.asarray(read_pc2(tmp_path / "full.pc2").frames)
+    lost = tmp_path / "lost.c3d"  # M00, on the upper arm's end ring, absent
+    io.write(take.select(list(range(1, take.n_markers))), lost)
+    unseen = tmp_path / "unseen.c3d"  # M00 present but never seen
+    gone = take.positions.copy()
+    gone[:, 0] = np.nan
+    io.write(MarkerSet(positions=gone, labels=take.labels, rate=100.0), unseen)
+    for name, path in (("lost", lost), ("unseen", unseen)):
+        res = run("animate", "--rig", rig, path, "-o", tmp_path / f"{name}.pc2")
+        assert res.exit_code == 0, res.output
+        assert f"{path.name}: lacks 1 of the rig's 60 markers (M00)" in res.output
+        got = np.asarray(read_pc2(tmp_path / f"{name}.pc2").frames)
+        assert np.isfinite(got).all()
+        # the upper arm keeps 29 of its 30 markers: the skin moves as with all of them
+        assert np.linalg.norm(got - full, axis=-1).max() < 2e-3
+        assert np.linalg.norm(got - truth, axis=-1).mean() < 2e-3
+    # the forearm (x > 0.3 at rest) keeps 2 of its 30 markers: refused
+    forearm = np.flatnonzero(take.positions[0, :, 0] > 0.3)
+    bare = tmp_path / "bare.c3d"
+    io.write(take.select(np.setdiff1d(np.arange(take.n_markers), forearm[2:])), bare)
+    before = set(tmp_path.iterdir())
+    res = run("animate", "--rig", rig, bare, "-o", tmp_path / "o.pc2")
+    lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert "bare.c3d: lacks 28 of the rig's 60 markers" in lines[0]
+    assert "1 of its parts keep fewer than 3" in lines[0]
+    assert _nothing_written(tmp_path, before)
+
+
 def test_a_saved_rig_with_bad_weights_is_blamed_not_the_take(arm, tmp_path):
     """NaN, negative or all-zero weights in R.npz: the rig file is named (was the take)."""
     mesh_path, take_path, _, _ = arm

@@ -326,10 +326,11 @@ def _animate(
         arrays, rig_labels, settings = read_dense_rig(paths["rig"])
         try:
             subject = DenseRig.from_arrays(arrays, rig_labels, settings)
-            subject.deformer()  # the weights' checks: a bad one is the rig's fault, not the take's
-            columns = subject.columns_of(labels)
+            deformer = subject.deformer()  # its checks: a bad weight is the rig's fault
+            columns = _rig_columns(subject, labels)
         except ValidationError as exc:
             raise FormatError(paths["rig"], str(exc)) from None
+        _check_rig_parts_seen(subject, columns, deformer.parts, markers_path)
         rest = _rest_mesh(subject, None)
         build: dict[str, Any] = {"rig": str(paths["rig"])}
     else:
@@ -345,7 +346,7 @@ def _animate(
         rest = _rest_mesh(subject, mesh)
     timing: list[tuple[float, int]] = []
     fastest: list[tuple[float, int]] = []
-    frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
+    frames = _timed_frames(subject, _in_rig_order(positions, columns), method, timing, progress)
     frames = _fastest_step(frames, fastest)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
     if paths["save_rig"] is not None:
@@ -363,6 +364,59 @@ def _animate(
         filled_samples=filled, parts=_parts_report(subject), rig=build,
         speed=_speed_check(fastest, take.positions, take.rate, output),
     )  # fmt: skip
+
+
+def _rig_columns(subject: DenseRig, labels: list[str]) -> np.ndarray:
+    """Column of each of the rig's markers in the take (N,) int64, -1 where the take
+    lacks it (never labelled, or never seen: :func:`labelled_markers` dropped it).
+
+    A marker lost for a whole take (fallen off) is missing data the deformer already
+    handles frame by frame: that rig's other takes were refused as "another marker
+    set". A take lacking most of the rig's markers still is (ValidationError).
+    """
+    where = {lab: i for i, lab in enumerate(labels)}
+    columns = np.array([where.get(str(lab), -1) for lab in subject.labels], dtype=np.int64)
+    if 2 * int((columns < 0).sum()) > columns.size:
+        subject.columns_of(labels)  # raises, naming the markers
+    return columns
+
+
+def _check_rig_parts_seen(
+    subject: DenseRig, columns: np.ndarray, parts: Any, markers_path: Path
+) -> None:
+    """Refuse a take lacking so many of a part's markers that the part cannot be fitted
+    in any frame (its vertices would be NaN); warn about the markers it lacks."""
+    from skincap.deform.dense.deformer import MIN_PART_MARKERS
+
+    absent = [str(lab) for lab, c in zip(subject.labels, columns, strict=True) if c < 0]
+    if not absent:
+        return
+    shown = ", ".join(absent[:5]) + (" …" if len(absent) > 5 else "")
+    # (P, K) members the take has, padding and seam centres out
+    have = (columns[parts.members] >= 0) & parts.fitted
+    short = np.flatnonzero(have.sum(axis=1) < MIN_PART_MARKERS)
+    if short.size:
+        raise FormatError(
+            markers_path,
+            f"lacks {len(absent)} of the rig's {subject.n_markers} markers ({shown}); "
+            f"{short.size} of its parts keep fewer than {MIN_PART_MARKERS} of theirs "
+            "and could not move",
+        )
+    warnings.warn(
+        f"{markers_path}: lacks {len(absent)} of the rig's {subject.n_markers} markers "
+        f"({shown}); their parts move by the others",
+        SkincapWarning,
+        stacklevel=4,  # at animate_file's caller
+    )
+
+
+def _in_rig_order(positions: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """(T, N, 3) the take's positions in the rig's marker order, NaN where ``columns``
+    is -1 (a rig marker the take lacks)."""
+    out = np.full((positions.shape[0], columns.size, 3), np.nan)
+    has = columns >= 0
+    out[:, has] = positions[:, columns[has]]
+    return out
 
 
 def _summary(
