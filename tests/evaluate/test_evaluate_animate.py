@@ -289,6 +289,33 @@ def test_cli_eval_animate_on_a_capture_runs_the_held_out_test(folder, tmp_path) 
     assert json.loads((tmp_path / "ev" / "animate_eval.json").read_text())["held_out"] == held
 
 
+def test_cli_eval_animate_refuses_a_capture_it_cannot_test(folder, tmp_path) -> None:
+    """An unlabelled capture (said "marker surface has no triangles"), a one-frame one
+    (held out 0.00 mm: the reference frame alone) and --parts 0 (ran, reported 3 parts):
+    one line naming the file and the reason, exit 2, no output folder."""
+    from skincap import io
+
+    take = io.read(folder / "truth" / "markers.c3d")
+    unlabelled = tmp_path / "unlabelled.c3d"
+    stars = [f"*{i}" for i in range(take.n_markers)]
+    io.write(MarkerSet(positions=take.positions, labels=stars, rate=100.0), unlabelled)
+    one = tmp_path / "one.c3d"
+    io.write(MarkerSet(positions=take.positions[:1], labels=take.labels, rate=100.0), one)
+    cases = [
+        ((unlabelled,), "unlabelled.c3d", "0 labelled markers (of 60 columns"),
+        ((one,), "one.c3d", "1 frame with markers"),
+        ((folder / "truth" / "markers.c3d", "--parts", "0"), "markers.c3d", "--parts: expected 1..200, got 0"),
+    ]  # fmt: skip
+    for args, name, what in cases:
+        res = CliRunner().invoke(
+            app, ["eval", "animate", *map(str, args), "-o", str(tmp_path / "ev")]
+        )
+        lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+        assert res.exit_code == 2 and len(lines) == 1, (args, res.output)
+        assert name in lines[0] and what in lines[0], res.output
+        assert not (tmp_path / "ev").exists()
+
+
 def test_the_default_marker_height_is_where_synth_puts_its_markers() -> None:
     import inspect
 

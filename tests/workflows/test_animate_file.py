@@ -9,7 +9,6 @@ so every variant must reproduce it there; the rig is built on the take itself.
 from __future__ import annotations
 
 import json
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -172,6 +171,48 @@ def test_bad_inputs_exit_2_with_one_line_and_write_nothing(arm, tmp_path):
         assert _nothing_written(tmp_path, before), args
 
 
+def test_a_saved_rig_animates_a_take_that_lost_a_marker(arm, tmp_path):
+    """A marker lost for a whole take (fallen off: absent, or a column never seen) made
+    the subject's rig refuse the take as "built for another marker set". Now its parts
+    move by their other markers, with a warning; a take that leaves a part fewer than
+    three markers is refused, naming the take; one lacking most markers still is."""
+    from skincap import io
+
+    mesh_path, take_path, truth, _ = arm
+    take = io.read(take_path)
+    rig = tmp_path / "r.npz"
+    assert run("animate", mesh_path, take_path, "-o", tmp_path / "full.pc2", "--parts", "2",
+               "--surface", take_path.with_name("arm_surface.ply"), "--reference-frame", "0",
+               "--save-rig", rig).exit_code == 0  # fmt: skip
+    full = np.asarray(read_pc2(tmp_path / "full.pc2").frames)
+    lost = tmp_path / "lost.c3d"  # M00, on the upper arm's end ring, absent
+    io.write(take.select(list(range(1, take.n_markers))), lost)
+    unseen = tmp_path / "unseen.c3d"  # M00 present but never seen
+    gone = take.positions.copy()
+    gone[:, 0] = np.nan
+    io.write(MarkerSet(positions=gone, labels=take.labels, rate=100.0), unseen)
+    for name, path in (("lost", lost), ("unseen", unseen)):
+        res = run("animate", "--rig", rig, path, "-o", tmp_path / f"{name}.pc2")
+        assert res.exit_code == 0, res.output
+        assert f"{path.name}: lacks 1 of the rig's 60 markers (M00)" in res.output
+        got = np.asarray(read_pc2(tmp_path / f"{name}.pc2").frames)
+        assert np.isfinite(got).all()
+        # the upper arm keeps 29 of its 30 markers: the skin moves as with all of them
+        assert np.linalg.norm(got - full, axis=-1).max() < 2e-3
+        assert np.linalg.norm(got - truth, axis=-1).mean() < 2e-3
+    # the forearm (x > 0.3 at rest) keeps 2 of its 30 markers: refused
+    forearm = np.flatnonzero(take.positions[0, :, 0] > 0.3)
+    bare = tmp_path / "bare.c3d"
+    io.write(take.select(np.setdiff1d(np.arange(take.n_markers), forearm[2:])), bare)
+    before = set(tmp_path.iterdir())
+    res = run("animate", "--rig", rig, bare, "-o", tmp_path / "o.pc2")
+    lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert "bare.c3d: lacks 28 of the rig's 60 markers" in lines[0]
+    assert "1 of its parts keep fewer than 3" in lines[0]
+    assert _nothing_written(tmp_path, before)
+
+
 def test_a_saved_rig_with_bad_weights_is_blamed_not_the_take(arm, tmp_path):
     """NaN, negative or all-zero weights in R.npz: the rig file is named (was the take)."""
     mesh_path, take_path, _, _ = arm
@@ -214,26 +255,75 @@ def test_an_existing_output_needs_force(arm, tmp_path):
     assert out.read_bytes() == b"keep"
 
 
-def test_a_mesh_far_from_the_markers_is_warned_about(arm, tmp_path):
+@pytest.mark.parametrize("shift_m", [0.09, 0.5])
+def test_a_mesh_off_the_markers_is_warned_about_and_one_far_off_refused(arm, tmp_path, shift_m):
+    """An unregistered mesh a few cm off: a warning. Half a metre off (a T-pose body
+    under a real take that starts lying down, aml_PronetoRun01: 49.5 cm): the fields
+    extrapolated out there exploded (a 5 m body at 1,430 m/s); now one line, exit 2."""
+    from skincap import io
+    from skincap.geometry.raycast import closest_points_on_mesh
+
+    mesh_path, take_path, _, _ = arm
+    mesh, take = io.read_mesh(mesh_path), io.read(take_path)
+    vertices = mesh.vertices + [0.0, shift_m, 0.0]
+    mean = closest_points_on_mesh(vertices, mesh.faces, take.positions[0])[0].mean()
+    moved = tmp_path / "moved.obj"
+    write_obj(Mesh(vertices=vertices, faces=mesh.faces), moved, units="m", up="y")
+    args = ("animate", moved, take_path, "-o", tmp_path / "m.pc2", "--parts", "2",
+            "--reference-frame", "0", "--surface", take_path.with_name("arm_surface.ply"))  # fmt: skip
+    res = run(*args)
+    if shift_m < 0.15:
+        assert 0.05 < mean < 0.15, mean  # the warning's band
+        assert res.exit_code == 0, res.output
+        assert "reference pose?" in res.output and "reference frame 0" in res.output
+        return
+    assert mean > 0.15, mean
+    lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+    assert res.exit_code == 2 and len(lines) == 1, res.output
+    assert "moved.obj" in lines[0] and "--register" in lines[0], res.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["moved.obj"]
+    assert run(*args, "--register").exit_code == 0  # the way out it names works
+
+
+def test_landmarks_without_register_and_a_one_frame_range_of_motion_are_refused(arm, tmp_path):
+    """--landmarks were ignored unchecked without --register (an unknown label passed);
+    a one-frame take or --rom segmented 'parts' out of no motion at all."""
     from skincap import io
 
     mesh_path, take_path, _, _ = arm
+    take = io.read(take_path)
+    one = tmp_path / "one.c3d"
+    io.write(MarkerSet(positions=take.positions[:1], labels=take.labels, rate=100.0), one)
+    marks = tmp_path / "marks.json"
+    marks.write_text(json.dumps({"NOPE": 3}))
+    surface = ("--surface", take_path.with_name("arm_surface.ply"), "--parts", "2")
+    cases = [
+        (("animate", mesh_path, take_path, "--landmarks", marks, *surface), "marks.json", "add --register"),
+        (("animate", mesh_path, one, *surface), "one.c3d", "1 frame; the near-rigid parts"),
+        (("animate", mesh_path, take_path, "--rom", one, *surface), "one.c3d", "at least 2 frames"),
+    ]  # fmt: skip
+    for args, name, what in cases:
+        before = set(tmp_path.iterdir())
+        res = run(*args, "-o", tmp_path / "o.pc2")
+        lines = [s for s in res.output.splitlines() if s.startswith("skincap: error:")]
+        assert res.exit_code == 2 and len(lines) == 1, (args, res.output)
+        assert name in lines[0] and what in lines[0], res.output
+        assert _nothing_written(tmp_path, before), args
+    # the range of motion is judged before the mesh: a one-frame take under a mesh far
+    # off is refused for its frames (fixing the mesh first would not have helped)
     mesh = io.read_mesh(mesh_path)
-    moved = tmp_path / "moved.obj"
-    write_obj(
-        Mesh(vertices=mesh.vertices + [0.0, 0.5, 0.0], faces=mesh.faces), moved, units="m", up="y"
-    )
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        animate_file(
-            moved,
-            take_path,
-            tmp_path / "m.pc2",
-            n_parts=2,
-            reference_frame=0,
-            surface=take_path.with_name("arm_surface.ply"),
-        )
-    assert any("reference pose" in str(w.message) for w in caught)
+    write_obj(Mesh(vertices=mesh.vertices + [0.0, 0.5, 0.0], faces=mesh.faces), tmp_path / "far.obj",
+              units="m", up="y")  # fmt: skip
+    res = run("animate", tmp_path / "far.obj", one, *surface, "-o", tmp_path / "o.pc2")
+    assert res.exit_code == 2 and "one.c3d: 1 frame" in res.output, res.output
+    (tmp_path / "far.obj").unlink()
+    # a one-frame take animates with a rig learnt elsewhere
+    rig = tmp_path / "r.npz"
+    assert run("animate", mesh_path, take_path, *surface, "--reference-frame", "0",
+               "--save-rig", rig, "-o", tmp_path / "a.pc2").exit_code == 0  # fmt: skip
+    res = run("animate", "--rig", rig, one, "-o", tmp_path / "one.pc2")
+    assert res.exit_code == 0, res.output
+    assert np.isfinite(read_pc2(tmp_path / "one.pc2").frames).all()
 
 
 def test_register_fits_a_displaced_mesh_with_landmarks_and_marker_radius(arm, tmp_path):
@@ -279,6 +369,122 @@ def test_a_landmark_file_naming_an_unknown_marker_is_refused(arm, tmp_path):
               "-o", tmp_path / "o.pc2")  # fmt: skip
     assert res.exit_code == 2 and "marks.json" in res.output and "NOPE" in res.output
     assert not (tmp_path / "o.pc2").exists()
+
+
+def test_info_reads_the_pc2_animate_wrote(arm, tmp_path):
+    """``skincap info OUT.pc2`` said "unknown file type '.pc2'" on animate's own output;
+    it now gives the frames, the take's rate (noted in OUT.obj) and the fastest vertex."""
+    mesh_path, take_path, _, _ = arm
+    out = tmp_path / "a.pc2"
+    assert run("animate", mesh_path, take_path, "-o", out, "--parts", "2", "--reference-frame", "0",
+               "--surface", take_path.with_name("arm_surface.ply")).exit_code == 0  # fmt: skip
+    res = run("info", out, "--json")
+    assert res.exit_code == 0, res.output
+    seen = json.loads(res.stdout)
+    frames = np.asarray(read_pc2(out).frames)
+    assert seen["kind"] == "point_cache" and seen["frames"] == frames.shape[0] == 24
+    assert seen["points"] == frames.shape[1] and seen["rate"] == 100.0
+    speed = np.linalg.norm(np.diff(frames, axis=0), axis=-1).max() * 100.0
+    assert seen["max_point_speed"] == pytest.approx(speed) and seen["max_point_speed_unit"] == "m/s"
+    assert seen["bounds_max"] == pytest.approx(frames.max(axis=(0, 1)).tolist())
+
+
+def test_the_report_gives_the_fastest_vertex_and_a_mesh_outrunning_its_markers_is_warned(
+    arm, tmp_path
+):
+    """The arm on its own skin moves no faster than its markers; a triangle 3 m beyond
+    the forearm (as a registration folded onto a lying subject leaves legs far from
+    their markers: aml_PronetoRun01, 316 m/s under 18.6 m/s markers) is swung by the
+    forearm's fields many times faster: a warning names the output and the frame."""
+    from skincap import io
+
+    mesh_path, take_path, _, _ = arm
+    mesh, take = io.read_mesh(mesh_path), io.read(take_path)
+    common = (
+        "--parts",
+        "2",
+        "--reference-frame",
+        "0",
+        "--surface",
+        take_path.with_name("arm_surface.ply"),
+    )
+    res = run(
+        "animate",
+        mesh_path,
+        take_path,
+        "-o",
+        tmp_path / "a.pc2",
+        "--report",
+        tmp_path / "a.json",
+        *common,
+    )
+    assert res.exit_code == 0 and "mesh moves up to" not in res.output, res.output
+    speed = json.loads((tmp_path / "a.json").read_text())["speed"]
+    frames = np.asarray(read_pc2(tmp_path / "a.pc2").frames)
+    steps = np.linalg.norm(np.diff(frames, axis=0), axis=-1).max(axis=1)  # (T-1,)
+    assert speed["max_vertex_speed_m_s"] == pytest.approx(steps.max() * 100.0)
+    assert speed["max_vertex_speed_frame"] == int(np.argmax(steps)) + 1
+    measured = np.linalg.norm(np.diff(take.positions, axis=0), axis=-1).max() * 100.0
+    assert speed["max_marker_speed_m_s"] == pytest.approx(measured)
+    assert speed["max_vertex_speed_m_s"] < 1.5 * measured  # skin rides with its markers
+
+    tip = mesh.vertices[np.argmax(mesh.vertices[:, 0])]
+    far = tip + np.array([[3.0, 0.0, 0.0], [3.0, 0.05, 0.0], [3.0, 0.0, 0.05]])
+    n = mesh.n_vertices
+    flung = Mesh(
+        vertices=np.vstack([mesh.vertices, far]), faces=np.vstack([mesh.faces, [[n, n + 1, n + 2]]])
+    )
+    write_obj(flung, tmp_path / "flung.obj", units="m", up="y")
+    res = run(
+        "animate",
+        tmp_path / "flung.obj",
+        take_path,
+        "-o",
+        tmp_path / "f.pc2",
+        "--report",
+        tmp_path / "f.json",
+        *common,
+    )
+    assert res.exit_code == 0, res.output
+    fast = json.loads((tmp_path / "f.json").read_text())["speed"]
+    assert fast["max_vertex_speed_m_s"] > 4.0 * max(measured, 1.0), fast
+    assert "f.pc2: the mesh moves up to" in res.output and "times the fastest marker" in res.output
+
+
+def test_the_fastest_step_counts_the_step_across_streamed_blocks() -> None:
+    """The deformer streams 32-frame blocks: a jump from a block's last frame to the
+    next block's first is found, with the later frame's number; NaN vertices skipped."""
+    from skincap.workflows.animate_file import _fastest_step
+
+    frames = np.zeros((70, 5, 3))
+    frames[:, :, 0] = np.arange(70)[:, None] * 0.01  # 1 cm a frame
+    frames[32:, 2, 1] += 0.2  # vertex 2 jumps 20 cm between frames 31 and 32
+    frames[40:45, 4] = np.nan  # an unseen part
+    fastest: list[tuple[float, int]] = []
+    blocks = [frames[i : i + 32] for i in range(0, 70, 32)]
+    out = list(_fastest_step(iter(blocks), fastest))
+    assert all(a is b for a, b in zip(out, blocks, strict=True))
+    assert fastest == [(pytest.approx(np.hypot(0.01, 0.2)), 32)]
+    one: list[tuple[float, int]] = []
+    list(_fastest_step(iter([frames[:1]]), one))
+    assert one == []  # one frame: no step
+
+
+def test_a_run_stopped_while_deforming_leaves_no_saved_rig(arm, tmp_path, monkeypatch):
+    """--save-rig was written before the deformation: Ctrl-C (or a failed write) there
+    left R.npz + R.json beside no animation. Now nothing is written."""
+    import skincap.workflows.animate_file as workflow
+
+    mesh_path, take_path, _, _ = arm
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(workflow, "_write_animation", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        animate_file(mesh_path, take_path, tmp_path / "a.pc2", n_parts=2, reference_frame=0,
+                     surface=take_path.with_name("arm_surface.ply"), save_rig=tmp_path / "r.npz")  # fmt: skip
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_view_plays_the_result_beside_the_markers(arm, tmp_path):

@@ -292,6 +292,7 @@ def eval_animate(
     from skincap.evaluate.animate import plot_vertex_errors
     from skincap.io.json_file import write_json
     from skincap.io.output_safety import guard_outputs
+    from skincap.workflows.animate_file import check_parts
 
     paths = [output / name for name in _EVAL_OUTPUTS]
     with _user_errors(), guard_outputs([input_dir], paths, folders=[output], force=force):
@@ -300,6 +301,7 @@ def eval_animate(
                 "give a folder made by skincap synth or --synth CLIP (one of them)"
             )
         check_seed(seed)
+        check_parts(parts)  # the same range as animate's (0 ran and reported 3 parts)
         with stage_progress("evaluating") as progress:
             if synth is not None:
                 input_dir = _synth_take(output, synth, frames, vertices, seed, force, progress)

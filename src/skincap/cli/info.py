@@ -43,6 +43,17 @@ def _read_for_info(path: Path, units: str | None) -> Any:
     ext = path.suffix.lower()
     if ext in (".obj", ".ply", ".gltf", ".glb"):
         return io.read_mesh(path, units=units)
+    if ext == ".pc2":  # skin's and animate's output; the OBJ beside it notes its rate
+        from skincap.evaluate.summary import summarize_point_cache
+        from skincap.io.pc2 import read_pc2, recorded_pc2_rate
+
+        cache = read_pc2(path, units=units or "m")
+        return summarize_point_cache(
+            cache.frames,
+            start_frame=cache.start_frame,
+            frame_step=cache.sample_rate,
+            rate=recorded_pc2_rate(path.with_suffix(".obj")),
+        )
     return _read(path, **({"units": units} if units is not None and ext == ".bvh" else {}))
 
 
@@ -59,7 +70,7 @@ def _summary_of(obj: Any) -> dict[str, Any]:
 def info(
     files: Annotated[
         list[Path],
-        typer.Argument(help="C3D, TRC, CSV, BVH, OBJ, PLY, glTF/GLB or MakeHuman rig files."),
+        typer.Argument(help="C3D, TRC, CSV, BVH, OBJ, PLY, glTF/GLB, PC2 or MakeHuman rig files."),
     ],
     json_output: Annotated[
         bool, typer.Option("--json", help="Print JSON (one object, or a list for several files).")
@@ -73,7 +84,8 @@ def info(
 
     Markers: frames, rate, duration, labelled/unlabelled counts, missing fraction,
     interior gaps and the longest; a C3D's analog channels, force plates and events. BVH: joints, frames, rate, units, channel orders.
-    Mesh: vertices, faces, bounds, skin joints.
+    Mesh: vertices, faces, bounds, skin joints. PC2 point cache (skin's and animate's
+    output): frames, points, rate (noted in the OBJ beside it), bounds, fastest point.
 
     Example: skincap info walk.c3d run.bvh --json
     """

@@ -29,12 +29,28 @@ def labelled_capture_surface(markers: Any) -> tuple[np.ndarray, list[str], int, 
     Raises
     ------
     ValidationError
-        When the surface has no triangles.
+        Fewer than 3 labelled markers ever seen, markers in fewer than 2 frames, or a
+        surface without triangles.
     """
     from skincap.cleanup.surface import build_marker_surface, choose_reference_frame
 
     keep = [i for i, lab in enumerate(markers.labels) if not str(lab).startswith("*")]
     x = markers.positions[:, keep]
+    seen = int(np.isfinite(x[..., 0]).any(axis=0).sum())
+    if seen < 3:
+        # say why there is no surface: an unlabelled or empty capture, not a geometry fault
+        raise ValidationError(
+            f"{seen} labelled markers (of {markers.n_markers} columns; *N fragments are left "
+            "out); the held-out test needs a marker surface over at least 3 (label the "
+            "capture first)"
+        )
+    moving = int(np.isfinite(x[..., 0]).any(axis=1).sum())
+    if moving < 2:
+        # the reference frame alone: every held-out marker sits where it was, error 0
+        raise ValidationError(
+            f"{moving} frame with markers; the held-out test needs frames besides the "
+            "reference frame"
+        )
     frame = choose_reference_frame(x)
     surface = build_marker_surface(x, reference_frame=frame)
     if surface.faces.shape[0] == 0:

@@ -19,6 +19,7 @@ __all__ = [
     "summarize_points",
     "summarize_motion",
     "summarize_mesh",
+    "summarize_point_cache",
     "mesh_height",
 ]
 
@@ -153,6 +154,66 @@ def summarize_mesh(mesh: Mesh) -> dict[str, Any]:
     }
     if mesh.skin is not None:
         out["max_influences"] = int(mesh.skin.joint_weights.shape[1])
+    return out
+
+
+#: Frames of a point cache differenced at once for its speed (bounds the memory).
+_SPEED_CHUNK_FRAMES = 64
+
+
+def summarize_point_cache(
+    frames: np.ndarray, *, start_frame: float, frame_step: float, rate: float | None
+) -> dict[str, Any]:
+    """Samples, points, bounds and fastest point of a point cache (PC2: what ``skin``
+    and ``animate`` write).
+
+    Parameters
+    ----------
+    frames : (T, V, 3) float, metres, finite (:func:`skincap.io.pc2.read_pc2` refuses NaN)
+    start_frame, frame_step : float
+        The header's first frame number and frames between two samples.
+    rate : float or None
+        Frame rate, Hz, when known (``skin``/``animate`` note it in the OBJ beside the
+        cache); None leaves the duration and the speed in metres per frame.
+
+    Returns
+    -------
+    dict
+        ``kind`` ``"point_cache"``, ``frames``, ``points``, ``start_frame``,
+        ``frame_step``, ``rate`` (or None), ``duration_s``, ``bounds_min``/``bounds_max``
+        over every sample (m), ``size_m`` their difference, ``largest_frame_size_m`` the
+        longest side of one sample's bounding box, and ``max_point_speed`` (m/s, or
+        m/frame without a rate): a body a few metres tall moving at hundreds of m/s is
+        an exploded deformation, not a take.
+    """
+    x = np.asarray(frames, dtype=np.float64)
+    n_t, n_v = int(x.shape[0]), int(x.shape[1])
+    out: dict[str, Any] = {
+        "kind": "point_cache",
+        "frames": n_t,
+        "points": n_v,
+        "start_frame": float(start_frame),
+        "frame_step": float(frame_step),
+        "rate": rate,
+        "duration_s": None if rate is None else n_t * float(frame_step) / rate,
+    }
+    if n_t == 0 or n_v == 0:
+        return out
+    lo, hi = x.min(axis=(0, 1)), x.max(axis=(0, 1))
+    frame_size = (x.max(axis=1) - x.min(axis=1)).max(axis=1)  # (T,)
+    step = 0.0
+    for t0 in range(0, n_t - 1, _SPEED_CHUNK_FRAMES):  # chunks of frames, not vertices
+        block = x[t0 : t0 + _SPEED_CHUNK_FRAMES + 1]
+        step = max(step, float(np.linalg.norm(np.diff(block, axis=0), axis=-1).max()))
+    per_second = 1.0 if rate is None else rate / float(frame_step)
+    out.update(
+        bounds_min=lo.tolist(),
+        bounds_max=hi.tolist(),
+        size_m=(hi - lo).tolist(),
+        largest_frame_size_m=float(frame_size.max()),
+        max_point_speed=step * per_second,
+        max_point_speed_unit="m/s" if rate is not None else "m/frame",
+    )
     return out
 
 

@@ -20,7 +20,9 @@ a folder
     One OBJ per frame.
 
 Bad input (a mesh with no triangles, fewer than :data:`MIN_MARKERS` labelled markers,
-a rig or a ROM take of another marker set) raises a :class:`FormatError` naming the
+a rig or a ROM take of another marker set, a range of motion of one frame, an
+unregistered mesh farther than :data:`MESH_REFUSE_DISTANCE_M` from the markers,
+``--landmarks`` without ``--register``) raises a :class:`FormatError` naming the
 file before anything is written; every output goes through a temporary file.
 """
 
@@ -47,10 +49,14 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ANIMATE_OUTPUTS",
+    "MESH_REFUSE_DISTANCE_M",
+    "MESH_WARN_DISTANCE_M",
     "MIN_MARKERS",
+    "MIN_ROM_FRAMES",
     "animate_file",
     "animate_markers",
     "check_animate_options",
+    "check_parts",
     "labelled_markers",
     "read_landmarks",
 ]
@@ -60,6 +66,21 @@ ANIMATE_OUTPUTS = (".pc2", ".usd", ".usda", ".usdc")
 #: Fewest labelled markers a dense take needs (17 parts of three markers is 51; below
 #: ~30 there is not one well-spread part per limb segment).
 MIN_MARKERS = 30
+#: Fewest frames of the range of motion the parts are segmented on (one frame shows no
+#: motion: every grouping of the markers is as rigid as any other).
+MIN_ROM_FRAMES = 2
+#: Mean marker-to-mesh distance (m) in the reference frame above which an unregistered
+#: mesh is warned about ...
+MESH_WARN_DISTANCE_M = 0.05
+#: ... and above which it is refused: farther than a limb's girth, no marker can be on
+#: the mesh's skin, and the fields extrapolated out there explode.
+MESH_REFUSE_DISTANCE_M = 0.15
+#: Fastest vertex over fastest marker above which the output is warned about (the
+#: markers' speed counted as at least :data:`SPEED_FLOOR_M_S`).
+SPEED_WARN_RATIO = 4.0
+#: Slowest marker speed (m/s) the vertices are compared with (a walking pace), so a
+#: still take's noise is no reason to warn.
+SPEED_FLOOR_M_S = 1.0
 #: Frames per streamed deformation chunk.
 CHUNK_FRAMES = 32
 #: The method beyond the paper: a solved skeleton's DQS plus the markers' residuals.
@@ -173,12 +194,15 @@ def animate_file(
     surface : path-like, optional
         Marker surface (PLY/OBJ over the markers or an edge CSV); default built from the take.
     landmarks : path-like, optional
-        JSON ``{marker label: vertex index}`` for the registration.
+        JSON ``{marker label: vertex index}`` for the registration (only with
+        ``register``; refused without it rather than ignored).
     reference_frame : int, optional
         The take's frame the mesh matches (default the frame with the most markers).
     register : bool
         Fit the mesh to the reference-pose markers first (§5.1). Without it the mesh
-        must already be in the markers' reference pose.
+        must already be in the markers' reference pose: a warning above
+        :data:`MESH_WARN_DISTANCE_M` mean marker-to-mesh distance, refused above
+        :data:`MESH_REFUSE_DISTANCE_M`.
     marker_radius_mm : float
         With ``register``: how far outside the skin the marker centres sit (ball
         radius plus base), millimetres; the surface is fitted that far inside them.
@@ -215,6 +239,11 @@ def animate_file(
     paths = {name: None if value is None else Path(value) for name, value in given.items()}
     if rig is not None and save_rig is not None:
         raise FormatError(Path(rig), "give --rig or --save-rig, not both")
+    if landmarks is not None and not register:
+        # only the registration reads them: without it they would be ignored unchecked
+        raise FormatError(
+            Path(landmarks), "--landmarks guide --register; add --register or leave them out"
+        )
     if rig is None and paths["mesh"] is None:
         raise FormatError(markers_path, "a MESH is needed unless --rig gives the subject's rig")
     ext = output.suffix.lower()
@@ -254,7 +283,12 @@ def check_animate_options(method: str, n_parts: int, marker_radius_mm: float) ->
         )
     if not 0.0 <= marker_radius_mm <= 50.0:  # NaN fails too
         raise ValidationError(f"--marker-radius: expected 0-50 mm, got {marker_radius_mm}")
-    if not 1 <= n_parts <= 200:
+    check_parts(n_parts)
+
+
+def check_parts(n_parts: int) -> None:
+    """``--parts`` of ``animate`` and ``eval animate``: 1..200, or a ValidationError."""
+    if isinstance(n_parts, bool) or not 1 <= n_parts <= 200:
         raise ValidationError(f"--parts: expected 1..200, got {n_parts}")
 
 
@@ -292,10 +326,11 @@ def _animate(
         arrays, rig_labels, settings = read_dense_rig(paths["rig"])
         try:
             subject = DenseRig.from_arrays(arrays, rig_labels, settings)
-            subject.deformer()  # the weights' checks: a bad one is the rig's fault, not the take's
-            columns = subject.columns_of(labels)
+            deformer = subject.deformer()  # its checks: a bad weight is the rig's fault
+            columns = _rig_columns(subject, labels)
         except ValidationError as exc:
             raise FormatError(paths["rig"], str(exc)) from None
+        _check_rig_parts_seen(subject, columns, deformer.parts, markers_path)
         rest = _rest_mesh(subject, None)
         build: dict[str, Any] = {"rig": str(paths["rig"])}
     else:
@@ -309,21 +344,79 @@ def _animate(
         )  # fmt: skip
         columns = np.arange(len(labels))
         rest = _rest_mesh(subject, mesh)
-        if paths["save_rig"] is not None:
-            from skincap.io.dense_rig import write_dense_rig
-
-            write_dense_rig(
-                paths["save_rig"], subject.to_arrays(), list(subject.labels),
-                subject.settings, force=force,
-            )  # fmt: skip
     timing: list[tuple[float, int]] = []
-    frames = _timed_frames(subject, positions[:, columns], method, timing, progress)
+    fastest: list[tuple[float, int]] = []
+    frames = _timed_frames(subject, _in_rig_order(positions, columns), method, timing, progress)
+    frames = _fastest_step(frames, fastest)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
+    if paths["save_rig"] is not None:
+        # after the animation, the long and interruptible part: a run stopped there
+        # (Ctrl-C, a failed write) left R.npz + R.json and no animation
+        from skincap.io.dense_rig import write_dense_rig
+
+        write_dense_rig(
+            paths["save_rig"], subject.to_arrays(), list(subject.labels),
+            subject.settings, force=force,
+        )  # fmt: skip
     return _summary(
         markers_path, paths, written, take, timing, force=force, method=method,
         vertices=int(subject.vertices.shape[0]), markers=subject.n_markers,
         filled_samples=filled, parts=_parts_report(subject), rig=build,
+        speed=_speed_check(fastest, take.positions, take.rate, output),
     )  # fmt: skip
+
+
+def _rig_columns(subject: DenseRig, labels: list[str]) -> np.ndarray:
+    """Column of each of the rig's markers in the take (N,) int64, -1 where the take
+    lacks it (never labelled, or never seen: :func:`labelled_markers` dropped it).
+
+    A marker lost for a whole take (fallen off) is missing data the deformer already
+    handles frame by frame: that rig's other takes were refused as "another marker
+    set". A take lacking most of the rig's markers still is (ValidationError).
+    """
+    where = {lab: i for i, lab in enumerate(labels)}
+    columns = np.array([where.get(str(lab), -1) for lab in subject.labels], dtype=np.int64)
+    if 2 * int((columns < 0).sum()) > columns.size:
+        subject.columns_of(labels)  # raises, naming the markers
+    return columns
+
+
+def _check_rig_parts_seen(
+    subject: DenseRig, columns: np.ndarray, parts: Any, markers_path: Path
+) -> None:
+    """Refuse a take lacking so many of a part's markers that the part cannot be fitted
+    in any frame (its vertices would be NaN); warn about the markers it lacks."""
+    from skincap.deform.dense.deformer import MIN_PART_MARKERS
+
+    absent = [str(lab) for lab, c in zip(subject.labels, columns, strict=True) if c < 0]
+    if not absent:
+        return
+    shown = ", ".join(absent[:5]) + (" …" if len(absent) > 5 else "")
+    # (P, K) members the take has, padding and seam centres out
+    have = (columns[parts.members] >= 0) & parts.fitted
+    short = np.flatnonzero(have.sum(axis=1) < MIN_PART_MARKERS)
+    if short.size:
+        raise FormatError(
+            markers_path,
+            f"lacks {len(absent)} of the rig's {subject.n_markers} markers ({shown}); "
+            f"{short.size} of its parts keep fewer than {MIN_PART_MARKERS} of theirs "
+            "and could not move",
+        )
+    warnings.warn(
+        f"{markers_path}: lacks {len(absent)} of the rig's {subject.n_markers} markers "
+        f"({shown}); their parts move by the others",
+        SkincapWarning,
+        stacklevel=4,  # at animate_file's caller
+    )
+
+
+def _in_rig_order(positions: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """(T, N, 3) the take's positions in the rig's marker order, NaN where ``columns``
+    is -1 (a rig marker the take lacks)."""
+    out = np.full((positions.shape[0], columns.size, 3), np.nan)
+    has = columns >= 0
+    out[:, has] = positions[:, columns[has]]
+    return out
 
 
 def _summary(
@@ -410,6 +503,19 @@ def _build_rig(
     labels = [str(s) for s in take.labels]
     frame = _reference_frame(positions, reference_frame, markers_path)
     reference = positions[frame]
+    # the range of motion is checked first: a take that cannot be segmented is refused
+    # before the registration's seconds (and before the mesh is blamed for its pose)
+    rom_positions = positions
+    if paths["rom"] is not None:
+        rom_positions = _read_rom(paths["rom"], labels).positions
+    if rom_positions.shape[0] < MIN_ROM_FRAMES:
+        n_rom = rom_positions.shape[0]
+        raise FormatError(
+            paths["rom"] or markers_path,
+            f"{n_rom} frame{'' if n_rom == 1 else 's'}; the near-rigid parts are learnt from "
+            f"how the markers move, which needs a range of motion of at least {MIN_ROM_FRAMES} "
+            "frames (give a longer --rom, or a saved --rig)",
+        )
     filled_take = dataclasses.replace(take, positions=positions)
     if paths["surface"] is not None:
         surf = read_marker_surface(paths["surface"], filled_take, frame)
@@ -427,23 +533,43 @@ def _build_rig(
             mesh, reference, labels, paths, marker_radius_mm, progress, surf.faces
         )
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
-    if build["marker_to_mesh_m"]["mean"] > 0.05 and not register:
-        warnings.warn(
-            f"{paths['mesh']}: the markers are {build['marker_to_mesh_m']['mean'] * 100:.1f} cm "
-            "from the mesh on average in the reference frame; is the mesh in the markers' "
-            "reference pose? (--register fits it)",
-            SkincapWarning,
-            stacklevel=4,
-        )
-    rom_positions = positions
+    if not register:
+        _check_mesh_in_pose(build["marker_to_mesh_m"]["mean"], paths["mesh"], frame)
     if paths["rom"] is not None:
-        rom_positions = _read_rom(paths["rom"], labels).positions
         build["rom"] = str(paths["rom"])
     subject = build_dense_rig(
         vertices, mesh.faces, labels, reference, surf.faces, rom_positions,
         n_parts=n_parts, settings=dict(build), progress=_stage(progress, "segmentation"),
     )  # fmt: skip
     return subject, build
+
+
+def _check_mesh_in_pose(mean_m: float, mesh_path: Path | None, frame: int) -> None:
+    """Warn when the unregistered mesh lies off the reference-pose markers; refuse when
+    it lies so far off that the markers cannot be on its skin.
+
+    Every vertex is carried by the fields of the markers near it in the reference
+    pose; a mesh standing elsewhere (a T-pose body under a take that starts crouched or
+    lying, a mesh in other units) puts its vertices tens of centimetres outside every
+    part, where the quadratic and RBF fields extrapolate: the output explodes (a body
+    3-5 m tall moving at hundreds of m/s on real captures) rather than fail.
+    """
+    if mean_m > MESH_REFUSE_DISTANCE_M:
+        raise FormatError(
+            mesh_path or Path("MESH"),
+            f"the markers are {mean_m * 100:.1f} cm from the mesh on average in reference "
+            f"frame {frame} (more than {MESH_REFUSE_DISTANCE_M * 100:.0f} cm: the mesh is not "
+            "in the markers' reference pose); add --register to fit it, or choose the "
+            "--reference-frame where the subject stands as the mesh does",
+        )
+    if mean_m > MESH_WARN_DISTANCE_M:
+        warnings.warn(
+            f"{mesh_path}: the markers are {mean_m * 100:.1f} cm from the mesh on average in "
+            f"reference frame {frame}; is the mesh in the markers' reference pose? "
+            "(--register fits it)",
+            SkincapWarning,
+            stacklevel=5,
+        )
 
 
 def _read_rom(path: Path, labels: list[str]) -> MarkerSet:
@@ -519,6 +645,8 @@ def _animate_skeleton_rbf(
             mesh, reference, labels, paths, marker_radius_mm, progress, surf.faces
         )
     build["marker_to_mesh_m"] = _marker_to_mesh(vertices, mesh.faces, reference)
+    if not register:
+        _check_mesh_in_pose(build["marker_to_mesh_m"]["mean"], paths["mesh"], frame)
     filled_take = dataclasses.replace(take, positions=positions)
     rom = None
     if paths["rom"] is not None:
@@ -541,13 +669,14 @@ def _animate_skeleton_rbf(
     }
     timing: list[tuple[float, int]] = []
     blocks = deformer.deform(positions, solved.motion, progress=_stage(progress, "deformation"))
-    frames = _timed(blocks, timing)
+    fastest: list[tuple[float, int]] = []
+    frames = _fastest_step(_timed(blocks, timing), fastest)
     rest = dataclasses.replace(mesh, vertices=vertices, skin=None)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
     return _summary(
         markers_path, paths, written, take, timing, force=force, method=SKELETON_METHOD,
         vertices=int(vertices.shape[0]), markers=len(labels), filled_samples=filled,
-        parts=None, rig=build,
+        parts=None, rig=build, speed=_speed_check(fastest, take.positions, take.rate, output, 5),
     )  # fmt: skip
 
 
@@ -561,6 +690,77 @@ def _timed(blocks: Iterator[np.ndarray], timing: list[tuple[float, int]]) -> Ite
             return
         timing.append((time.perf_counter() - start, int(block.shape[0])))
         yield block
+
+
+def _fastest_step(
+    blocks: Iterator[np.ndarray], fastest: list[tuple[float, int]]
+) -> Iterator[np.ndarray]:
+    """The blocks ``(t, V, 3)`` unchanged; ``fastest`` ends as ``[(step, frame)]``: the
+    largest distance a vertex moves between two frames (metres) and the later frame's
+    number (``[]`` for fewer than two frames). Steps across block boundaries count."""
+    last: np.ndarray | None = None
+    offset = 0  # frame number of the block's first frame
+    best = (-1.0, -1)  # a still mesh's 0.0 counts
+    for block in blocks:
+        # the previous block's last frame in front, so the step across the boundary counts
+        joined = block if last is None else np.concatenate([last[None], block])
+        first = offset if last is None else offset - 1  # frame number of joined[0]
+        if joined.shape[0] > 1:
+            d = np.linalg.norm(np.diff(joined, axis=0), axis=-1)  # (t, V); NaN: unseen part
+            step = np.where(np.isfinite(d), d, -np.inf).max(axis=1)  # (t,)
+            k = int(np.argmax(step))
+            if step[k] > best[0]:
+                best = (float(step[k]), first + k + 1)
+        offset += block.shape[0]
+        if block.shape[0]:
+            last = block[-1]
+        yield block
+    if best[1] >= 0:
+        fastest.append(best)
+
+
+def _speed_check(
+    fastest: list[tuple[float, int]],
+    positions: np.ndarray,
+    rate: float,
+    output: Path,
+    stacklevel: int = 4,
+) -> dict[str, Any]:
+    """The fastest vertex and measured marker (m/s; ``positions`` (T, N, 3) metres, the
+    take before gap filling, NaN where missing) and a warning when the mesh outruns its
+    markers.
+
+    Skin between markers moves with them; a vertex far faster than every marker is one
+    a part's fields carry far outside its markers (a mesh not fitted to the reference
+    pose, a registration folded onto a lying subject): aml_PronetoRun01 registered on
+    its prone first frame moved vertices at 105-316 m/s under markers of 18.6 m/s, while
+    takes with a standing reference stay within 1.1-1.7x of their markers.
+    """
+    marker_step = np.linalg.norm(np.diff(positions, axis=0), axis=-1)  # (T-1, N), NaN gaps
+    finite = np.isfinite(marker_step)
+    marker_speed = float(marker_step[finite].max()) * rate if finite.any() else None
+    if not fastest:
+        return {"max_vertex_speed_m_s": None, "max_marker_speed_m_s": marker_speed}
+    step, frame = fastest[0]
+    vertex_speed = step * rate
+    figures = {
+        "max_vertex_speed_m_s": vertex_speed,
+        "max_vertex_speed_frame": frame,
+        "max_marker_speed_m_s": marker_speed,
+    }
+    # a still take's markers barely move: compare against at least a walking pace
+    floor = max(marker_speed or 0.0, SPEED_FLOOR_M_S)
+    if vertex_speed > SPEED_WARN_RATIO * floor:
+        warnings.warn(
+            f"{output}: the mesh moves up to {vertex_speed:.3g} m/s (frame {frame}), "
+            f"{vertex_speed / floor:.0f} times the fastest marker ({marker_speed or 0.0:.3g} "
+            "m/s): parts of it lie far from the markers that drive them; check the mesh's "
+            "fit in the reference frame (the report's marker_to_mesh_m, or a "
+            "--reference-frame where the subject stands as the mesh does)",
+            SkincapWarning,
+            stacklevel=stacklevel,  # at animate_file's caller
+        )
+    return figures
 
 
 def _marker_to_mesh(

@@ -146,6 +146,27 @@ def test_a_take_that_does_not_move_warns_that_it_cannot_be_segmented() -> None:
         )
 
 
+def test_more_parts_than_asked_from_a_surface_in_pieces_are_warned_about() -> None:
+    """Two strips 1 m apart, each its own piece of the marker surface: --parts 1 gives
+    two parts (a part is connected on the surface), and now says why."""
+    from skincap.deform.dense.rig import build_dense_rig
+    from skincap.errors import SkincapWarning
+
+    ref, faces = _strip()
+    two = np.concatenate([ref, ref + [0.0, 1.0, 0.0]])
+    two_faces = np.concatenate([faces, faces + ref.shape[0]])
+    take = np.concatenate([_three_segments(ref), _three_segments(ref) + [0.0, 1.0, 0.0]], axis=1)
+    labels = [f"m{i}" for i in range(two.shape[0])]
+    with pytest.warns(
+        SkincapWarning, match="2 near-rigid parts of the 1 asked: the marker surface"
+    ):
+        rig = build_dense_rig(two, two_faces, labels, two, two_faces, take, n_parts=1)
+    assert rig.n_parts == 2
+    pieces = rig.marker_weights.argmax(axis=1)
+    assert len(set(pieces[: ref.shape[0]])) == 1 and len(set(pieces[ref.shape[0] :])) == 1
+    assert pieces[0] != pieces[-1]
+
+
 def test_refinement_never_leaves_a_part_under_three_markers() -> None:
     ref, faces = _strip()
     x = _three_segments(ref)

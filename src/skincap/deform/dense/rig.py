@@ -254,7 +254,8 @@ def build_dense_rig(
     -----
     SkincapWarning
         Fewer parts than ``n_parts`` came out: the take moves too little to segment, or
-        the marker surface is in fewer pieces than that and they move alike.
+        the marker surface is in fewer pieces than that and they move alike; or more:
+        the surface is in more separate pieces than ``n_parts``, each a part.
     """
     ref = np.asarray(reference, dtype=np.float64)
     rom = np.asarray(range_of_motion, dtype=np.float64)
@@ -269,6 +270,16 @@ def build_dense_rig(
             f"(mean shift: {seg.mean_shift_groups} group(s)); either the take moves too little "
             "to tell the parts apart or its marker surface has fewer connected pieces; "
             "a range-of-motion take that moves every joint (--rom) segments the body",
+            SkincapWarning,
+            stacklevel=2,
+        )
+    elif seg.n_parts > int(n_parts):
+        # a part is connected on the marker surface, so every separate piece of the
+        # surface is a part at least (cmu_85_02's 41 markers make 3 pieces: --parts 1
+        # gave 3 parts and said nothing)
+        warnings.warn(
+            f"range of motion: {seg.n_parts} near-rigid parts of the {int(n_parts)} asked: "
+            "the marker surface falls in separate pieces and each is a part of its own",
             SkincapWarning,
             stacklevel=2,
         )
