@@ -497,3 +497,23 @@ def test_view_plays_the_result_beside_the_markers(arm, tmp_path):
     scene = load_scene([take_path, out])
     kinds = sorted(type(layer).__name__ for layer in scene.layers)
     assert any("Marker" in k for k in kinds) and any("Mesh" in k for k in kinds)
+
+
+def test_gaps_are_filled_only_where_the_fill_moves_like_the_take() -> None:
+    """A take with gaps is filled before animating, through clean's continuity guard:
+    unguarded, local PCA filled aml_PronetoRun01's last frames at up to 71 m/s (its
+    measured markers never pass 19 m/s) and the body leapt with them."""
+    from skincap.io import read
+    from skincap.workflows.animate_file import _filled
+
+    data = Path(__file__).resolve().parents[1] / "data" / "aml_PronetoRun01_labeled.c3d"
+    with pytest.warns(Warning):
+        take = read(data)
+    measured = ~np.isnan(take.positions[..., 0])
+    with pytest.warns(SkincapWarning, match="filled by local PCA"):
+        filled, count = _filled(take, data)
+    assert count > 1000  # most gaps are filled
+    np.testing.assert_array_equal(filled[measured], take.positions[measured])
+    speed = np.linalg.norm(np.diff(filled, axis=0), axis=-1) * take.rate
+    measured_speed = np.linalg.norm(np.diff(take.positions, axis=0), axis=-1) * take.rate
+    assert np.nanmax(speed) < 1.5 * np.nanmax(measured_speed)  # 24.8 vs 18.6 m/s

@@ -111,8 +111,16 @@ def labelled_markers(markers: MarkerSet, path: Path) -> MarkerSet:
 
 
 def _filled(markers: MarkerSet, path: Path) -> tuple[np.ndarray, int]:
-    """Positions with the gaps filled by clean's default filler; the count filled."""
+    """Positions with the gaps filled by clean's default filler and kept only where
+    clean's continuity guard keeps them; the count filled.
+
+    Unguarded, local PCA filled aml_PronetoRun01's trailing gaps at 30-71 m/s (its
+    measured markers never pass 19 m/s), and the body leapt with them; a fill the guard
+    cannot make move like the take stays missing, and its part is held.
+    """
+    from skincap.cleanup.continuity import condition_fills, measured_acceleration_limit
     from skincap.cleanup.fill import fill_gaps
+    from skincap.cleanup.guarded import ACCELERATION_FACTOR
 
     pos = markers.positions
     if not np.isnan(pos).any():
@@ -120,6 +128,11 @@ def _filled(markers: MarkerSet, path: Path) -> tuple[np.ndarray, int]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SkincapWarning)  # one warning below says it all
         filled, invented = fill_gaps(markers)
+    measured = ~np.isnan(pos[..., 0])
+    # at least 1 um/frame^2, as clean: a take that never moves still lets a fill hold still
+    limit = max(measured_acceleration_limit(filled, measured, factor=ACCELERATION_FACTOR), 1e-6)
+    filled, dropped = condition_fills(filled, invented, limit=limit)
+    invented = invented & ~dropped
     left = int(np.isnan(filled[..., 0]).sum())
     warnings.warn(
         f"{path}: the take has gaps; {int(invented.sum())} samples filled by local PCA "
