@@ -218,6 +218,26 @@ def test_held_out_markers_are_predicted_on_a_rigid_motion() -> None:
     assert 0 <= worst["to_kept_surface_m"] <= worst["nearest_kept_m"]
 
 
+def test_held_out_errors_leave_the_reference_frame_out() -> None:
+    """Every marker sits exactly where it is measured in the reference frame (the rig is
+    built there), so counting that frame only diluted the figures: a take of the
+    reference and one bulged frame scores as the same take with the bulged frame twice."""
+    from scipy.spatial.transform import Rotation
+
+    marker_ref, surface = _tube(10, 6, 0.058)
+    rot = Rotation.from_rotvec(np.linspace(0, 1, 8)[:, None] * [0.2, 1.0, 0.1]).as_matrix()
+    pos = np.einsum("tab,nb->tna", rot, marker_ref) + [0.0, 1.0, 0.0]
+    # a bulge no part's fit can follow exactly, growing over the take
+    radial = marker_ref * [0.0, 1.0, 1.0]
+    pos = pos + np.linspace(0, 1, 8)[:, None, None] * 0.3 * np.sin(9 * marker_ref[:, :1]) * radial
+    once = held_out_marker_errors(pos, surface, n_parts=1, fraction=0.1, seed=3)
+    twice = held_out_marker_errors(
+        np.concatenate([pos, pos[1:]]), surface, n_parts=1, fraction=0.1, seed=3
+    )
+    assert once["mean_m"] > 1e-4  # the bulge is not followed exactly
+    assert once["mean_m"] == pytest.approx(twice["mean_m"], rel=1e-6)
+
+
 def test_vertex_surface_strain_is_the_largest_edge_change_of_the_nearest_triangle() -> None:
     # two triangles of a 10 cm square; marker 3 moves out by 5 cm along y at frame 1
     # and is lost at frame 2; marker 4 is on no triangle and never seen

@@ -366,7 +366,8 @@ def held_out_marker_errors(
     -------
     dict
         ``held_out`` count, ``mean_m``, ``p95_m``, ``max_m`` over the measured samples
-        of the held-out markers, ``n_parts``, and ``worst``: the held-out marker with the
+        of the held-out markers outside the reference frame (where every marker sits
+        exactly, so it would only dilute them), ``n_parts``, and ``worst``: the held-out marker with the
         largest error (``marker``, its ``max_m`` and ``mean_m``, the ``frame`` of the max,
         ``nearest_kept_m`` the distance to the nearest kept marker and
         ``to_kept_surface_m`` to the kept markers' surface in the reference frame: how far
@@ -409,6 +410,8 @@ def held_out_marker_errors(
     )  # fmt: skip
     predicted = np.concatenate(list(deformer.deform(x[:, keep], method)))  # type: ignore[arg-type]
     d = np.linalg.norm(predicted - x[:, out], axis=-1)  # (T, held out)
+    # the reference frame is where the rig was built: every marker sits there exactly
+    d[reference_frame] = np.nan
     dd = d[np.isfinite(d)]
     return {
         "held_out": int(n_out),

@@ -125,7 +125,7 @@ def held_out_skeleton_rbf(
     -------
     dict
         ``held_out``, ``markers``, ``mean_m``, ``p95_m``, ``max_m`` over the measured
-        samples, ``skeleton`` (:func:`solved_skeleton`'s figures).
+        samples outside the reference frame, ``skeleton`` (:func:`solved_skeleton`'s figures).
     """
     from skincap.deform.dense.skeleton_rbf import SkeletonRBFDeformer
     from skincap.deform.skeletal.bind import bind_mesh
@@ -184,6 +184,7 @@ def held_out_skeleton_rbf(
         point_joint_indices=idx[out_rows], point_joint_weights=w[out_rows],
     )  # fmt: skip
     d = np.linalg.norm(predicted - x[:, out], axis=-1)
+    d[reference_frame] = np.nan  # as held_out_marker_errors: exact there by construction
     dd = d[np.isfinite(d)]
     return {
         "method": "skeleton_rbf",
