@@ -1,0 +1,177 @@
+"""Session 20's hostile-input sweep: each problem it found, through the real CLI.
+
+Every hostile file is made here from a valid fixture (or from nothing) and run in a
+forked child with the harness's memory and time limits (:func:`cli_fuzz_harness.run_cli`);
+the contract is the one of ``test_cli_fuzz.py``: exit 0 with a readable output, or exit
+2 with one line naming the file and nothing written.
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from cli_fuzz_cases import c3d_records  # noqa: E402
+from cli_fuzz_harness import judge, run_cli  # noqa: E402
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def _one_error_line(outcome, path: Path) -> str:
+    verdict = judge(outcome, inputs=[path])
+    assert verdict.violations == [] and verdict.outcome == "refused", (verdict, outcome.stderr)
+    (line,) = outcome.stderr_lines
+    assert line.startswith(f"skincap: error: {path}: ")
+    return line
+
+
+# ------------------------------------------------------------------ C3D labels with NUL
+def _c3d_with_first_label(tmp_path: Path, label: bytes) -> Path:
+    data = bytearray((DATA / "external" / "c3dorg_sample02_pc_int.c3d").read_bytes())
+    (rec,) = [
+        r for r in c3d_records(bytes(data)) if r["group"] == "POINT" and r["name"] == "LABELS"
+    ]
+    width = rec["dims"][0]
+    at = rec["values_at"]
+    assert len(label) <= width
+    data[at : at + width] = label.ljust(width, b" ")
+    p = tmp_path / "nul_label.c3d"
+    p.write_bytes(bytes(data))
+    return p
+
+
+@pytest.mark.parametrize(
+    "label, expected",
+    [(b"\0\0\0" + b"1", "point_1"), (b"LA\0\xcd", "LA"), (b"A\0B", "A")],
+)
+def test_c3d_label_is_cut_at_its_first_nul(tmp_path, label, expected):
+    """A NUL inside a C3D label reached the TRC writer; 'skincap info' then refused the
+    TRC that 'skincap convert' had written as binary data (exit 0, unreadable output)."""
+    from skincap.io.c3d import read_c3d
+
+    p = _c3d_with_first_label(tmp_path, label)
+    assert read_c3d(p).labels[0] == expected
+    for suffix in (".trc", ".csv"):
+        out = tmp_path / f"out{suffix}"
+        outcome = run_cli(["convert", str(p), str(out)])
+        verdict = judge(outcome, inputs=[p], output=out)  # reads the output back
+        assert verdict.violations == [] and verdict.outcome == "ok", verdict
+        assert "\0" not in out.read_text()
+
+
+@pytest.mark.parametrize("fmt", ["trc", "csv"])
+def test_text_writers_refuse_a_label_with_nul(tmp_path, fmt):
+    from skincap import io as skio
+    from skincap.errors import ValidationError
+    from skincap.types import MarkerSet
+
+    m = MarkerSet(positions=np.zeros((2, 2, 3)), labels=["A\0B", "C"], rate=100.0)
+    out = tmp_path / f"m.{fmt}"
+    with pytest.raises(ValidationError, match="NUL"):
+        skio.write(m, out)
+    assert not out.exists()
+
+
+# ------------------------------------------------------------------ glTF amplification
+def _glb(doc: dict, blob: bytes) -> bytes:
+    js = json.dumps(doc).encode()
+    js += b" " * (-len(js) % 4)
+    blob += b"\0" * (-len(blob) % 4)
+    body = struct.pack("<I4s", len(js), b"JSON") + js + struct.pack("<I4s", len(blob), b"BIN\0")
+    body += blob
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def _instanced(n_vertices: int, nodes: int, primitives: int) -> bytes:
+    """A GLB of one mesh of ``n_vertices`` (unindexed), its primitive repeated
+    ``primitives`` times, the mesh on ``nodes`` nodes."""
+    pos = np.random.default_rng(0).random((n_vertices, 3)).astype("<f4")
+    doc = {
+        "asset": {"version": "2.0"},
+        "scene": 0,
+        "scenes": [{"nodes": list(range(nodes))}],
+        "nodes": [{"mesh": 0}] * nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}] * primitives}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": n_vertices,
+                       "type": "VEC3", "min": [0, 0, 0], "max": [1, 1, 1]}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": pos.nbytes}],
+        "buffers": [{"byteLength": pos.nbytes}],
+    }  # fmt: skip
+    return _glb(doc, pos.tobytes())
+
+
+@pytest.mark.parametrize("nodes, primitives", [(3000, 1), (1, 3000)])
+def test_gltf_instancing_one_mesh_is_refused_before_decoding(tmp_path, nodes, primitives):
+    """A 1.8 MB GLB instancing a 9,999-vertex mesh 100,000 times (by nodes or by
+    primitives) asked for 24 GB; here 3,000 instances of 9,999 vertices (30 M)."""
+    p = tmp_path / "instanced.glb"
+    p.write_bytes(_instanced(9999, nodes, primitives))
+    line = _one_error_line(run_cli(["info", str(p)], memory_bytes=512 << 20, timeout_s=10), p)
+    assert "add up to 29997000 vertices" in line and "at most 16777216" in line
+
+
+def test_gltf_few_instances_still_read(tmp_path):
+    p = tmp_path / "few.glb"
+    p.write_bytes(_instanced(999, 3, 2))
+    outcome = run_cli(["info", "--json", str(p)])
+    assert judge(outcome, inputs=[p]).outcome == "ok", outcome.stderr
+    assert json.loads(outcome.stdout)["vertices"] == 999 * 6
+
+
+def test_gltf_accessor_of_zeros_with_a_huge_count_is_refused(tmp_path):
+    """An accessor without a bufferView is zeros the file does not hold: 170 bytes
+    declaring 6e7 VEC3 positions took 4.9 GB and 40 s (the scene's vertex count refuses
+    that one now); 2**25 indices are within the scene's limit but still all zeros."""
+    doc = {
+        "asset": {"version": "2.0"},
+        "nodes": [{"mesh": 0}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "accessors": [
+            {"componentType": 5126, "count": 3, "type": "VEC3"},
+            {"componentType": 5125, "count": 2**25, "type": "SCALAR"},
+        ],
+    }
+    p = tmp_path / "zeros.gltf"
+    p.write_text(json.dumps(doc))
+    line = _one_error_line(run_cli(["info", str(p)], memory_bytes=512 << 20, timeout_s=10), p)
+    assert "accessors[1] (indices): 33554432 elements with no bufferView" in line
+    doc["accessors"][0]["count"] = 60_000_000
+    p.write_text(json.dumps(doc))
+    line = _one_error_line(run_cli(["info", str(p)], memory_bytes=512 << 20, timeout_s=10), p)
+    assert "add up to 60000000 vertices" in line
+
+
+def test_gltf_many_nodes_read_in_one_batch(tmp_path):
+    """Each node's rotation was one scipy call (0.1 ms): 100,000 nodes took 17 s before
+    any check; 20,000 transformed nodes now take well under the 10 s limit."""
+    import time
+
+    from skincap.io.gltf.reader import read_gltf
+
+    pos = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4")
+    n = 20_000
+    nodes = [{"mesh": 0, "translation": [0, 0, 0], "rotation": [0, 0, 0.6, 0.8]}]
+    nodes += [{"translation": [1, 2, 3], "rotation": [0, 0.6, 0, 0.8]}] * (n - 1)
+    doc = {
+        "asset": {"version": "2.0"},
+        "nodes": nodes,
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}],
+        "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+                       "min": [0, 0, 0], "max": [1, 1, 0]}],
+        "bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": pos.nbytes}],
+        "buffers": [{"byteLength": pos.nbytes}],
+    }  # fmt: skip
+    p = tmp_path / "nodes.glb"
+    p.write_bytes(_glb(doc, pos.tobytes()))
+    t0 = time.process_time()
+    mesh = read_gltf(p)
+    assert time.process_time() - t0 < 1.5
+    # node 0 turned 73.74 degrees about z: (1, 0, 0) -> (0.28, 0.96, 0)
+    np.testing.assert_allclose(mesh.vertices[1], [0.28, 0.96, 0.0], atol=1e-6)
