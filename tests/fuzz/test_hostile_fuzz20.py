@@ -214,3 +214,46 @@ def test_bvh_end_site_names_stay_unique_beside_a_joint_of_that_name(tmp_path):
     names = read_bvh(p, units="m").skeleton.names
     assert len(set(names)) == len(names)
     assert names == ["r", "r_end", "r_end_3", "r_end_4", "r_end_2", "r_end_2_end"]
+
+
+# ------------------------------------------------------------------ skin: many joints
+def _grid_obj(n: int) -> str:
+    """An n x n vertex sheet, 1.6 m tall, as OBJ text."""
+    u, v = np.meshgrid(np.linspace(-0.3, 0.3, n), np.linspace(0.0, 1.6, n))
+    verts = "".join(f"v {a:.4f} {b:.4f} 0\n" for a, b in zip(u.ravel(), v.ravel(), strict=True))
+    k = np.arange(n * n).reshape(n, n)[:-1, :-1].ravel() + 1
+    quads = np.stack([k, k + 1, k + n + 1, k + n], axis=1)
+    return verts + "".join("f {} {} {} {}\n".format(*q) for q in quads)
+
+
+def test_skin_with_a_skeleton_too_wide_for_bone_heat_is_refused_before_allocating(tmp_path):
+    """The 200,000 channel-less joints of an 8 MB BVH on a 600-vertex mesh asked bone
+    heat for (600, 200000, 3) float64 (2.7 GB) and died of MemoryError; here 2,025
+    vertices x 20,001 joints (4.1e7 dense entries) are refused in one line."""
+    mesh = tmp_path / "sheet.obj"
+    mesh.write_text(_grid_obj(45))
+    bvh = tmp_path / "wide.bvh"
+    bvh.write_text(_bvh_end_sites(20_000).replace("OFFSET 0 1 0", "OFFSET 0 1.6 0"))
+    out = tmp_path / "out" / "wide.pc2"
+    out.parent.mkdir()
+    outcome = run_cli(
+        ["skin", str(mesh), str(bvh), "-o", str(out), "--units", "m"],
+        memory_bytes=1 << 30,
+        timeout_s=30,
+    )
+    verdict = judge(outcome, inputs=[mesh, bvh], output=out, out_dir=out.parent, files_before=set())
+    assert verdict.violations == [] and verdict.outcome == "refused", (verdict, outcome.stderr)
+    assert "2025 vertices x 20001 joints" in outcome.stderr_lines[-1]
+
+
+def test_point_segment_distances_blocks_do_not_change_the_result():
+    """Many segments shrink the block of points (its (n, B, 3) temporaries); the
+    distances are those of one point at a time."""
+    from skincap.deform.skeletal.weights import point_segment_distances
+
+    rng = np.random.default_rng(3)
+    p, a, b = rng.normal(size=(700, 3)), rng.normal(size=(9000, 3)), rng.normal(size=(9000, 3))
+    d, s = point_segment_distances(p, a, b)
+    d1, s1 = point_segment_distances(p[::97], a, b, chunk=1)
+    np.testing.assert_array_equal(d[::97], d1)
+    np.testing.assert_array_equal(s[::97], s1)
