@@ -128,20 +128,27 @@ def test_gltf_few_instances_still_read(tmp_path):
 def test_gltf_accessor_of_zeros_with_a_huge_count_is_refused(tmp_path):
     """An accessor without a bufferView is zeros the file does not hold: 170 bytes
     declaring 6e7 VEC3 positions took 4.9 GB and 40 s (the scene's vertex count refuses
-    that one now); 2**25 indices are within the scene's limit but still all zeros."""
+    that one now); texture coordinates and inverse binds are not in that count."""
     doc = {
         "asset": {"version": "2.0"},
         "nodes": [{"mesh": 0}],
-        "meshes": [{"primitives": [{"attributes": {"POSITION": 0}, "indices": 1}]}],
+        "meshes": [{"primitives": [{"attributes": {"POSITION": 0, "TEXCOORD_0": 1}}]}],
         "accessors": [
             {"componentType": 5126, "count": 3, "type": "VEC3"},
-            {"componentType": 5125, "count": 2**25, "type": "SCALAR"},
+            {"componentType": 5126, "count": 2**25, "type": "VEC2"},
         ],
     }
     p = tmp_path / "zeros.gltf"
     p.write_text(json.dumps(doc))
     line = _one_error_line(run_cli(["info", str(p)], memory_bytes=512 << 20, timeout_s=10), p)
-    assert "accessors[1] (indices): 33554432 elements with no bufferView" in line
+    assert "accessors[1] (TEXCOORD_0): 33554432 VEC2 elements with no bufferView" in line
+    # 2**22 MAT4 inverse binds of zeros would be 2 GB as float64
+    from skincap.errors import FormatError
+    from skincap.io.gltf.document import GltfDocument
+
+    doc["accessors"].append({"componentType": 5126, "count": 2**22, "type": "MAT4"})
+    with pytest.raises(FormatError, match="4194304 MAT4 elements with no bufferView"):
+        GltfDocument(p, doc, None).accessor(2, what="inverseBindMatrices")
     doc["accessors"][0]["count"] = 60_000_000
     p.write_text(json.dumps(doc))
     line = _one_error_line(run_cli(["info", str(p)], memory_bytes=512 << 20, timeout_s=10), p)

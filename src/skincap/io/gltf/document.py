@@ -48,11 +48,12 @@ _NORMALIZE = {
     "u2": lambda c: c / 65535.0,
     "u4": lambda c: c / 4294967295.0,
 }
-#: Elements an accessor without a bufferView may declare. Its values are zeros (but for
-#: its few 'sparse' ones) that take no bytes of the file, so nothing else bounds its
-#: count: a 170-byte file declaring 6e7 VEC3 took 4.9 GB and 40 s. 2**24 elements is
-#: above any mesh skincap animates (a dense scanned body has ~10**6 vertices).
-MAX_ZERO_FILLED_COUNT = 2**24
+#: Values (elements x components) an accessor without a bufferView may declare. They
+#: are zeros (but for its few 'sparse' ones) that take no bytes of the file, so nothing
+#: else bounds them: a 170-byte file declaring 6e7 VEC3 took 4.9 GB and 40 s. 2**24
+#: VEC3 (400 MB as float64) is above any mesh skincap animates (a dense scanned body has
+#: ~10**6 vertices).
+MAX_ZERO_FILLED_VALUES = 3 * 2**24
 
 #: Tolerance on skin weight row sums before a "not normalised" warning (quantised
 #: 8-bit weights are off by up to 4 * 0.5 / 255).
@@ -208,10 +209,10 @@ class GltfDocument:
             raise self.fail(f"{where}: float components cannot be 'normalized'")
         if "bufferView" in acc:
             out = self._read_dense(acc, where, dt, atype, ncomp, count)
-        elif count > MAX_ZERO_FILLED_COUNT:
+        elif count * ncomp > MAX_ZERO_FILLED_VALUES:
             raise self.fail(
-                f"{where}: {count} elements with no bufferView (zeros the file does not "
-                f"hold); skincap reads at most {MAX_ZERO_FILLED_COUNT}"
+                f"{where}: {count} {atype} elements with no bufferView (zeros the file does "
+                f"not hold); skincap reads at most {MAX_ZERO_FILLED_VALUES} values"
             )
         else:
             out = np.zeros((count, ncomp), dtype=dt)
