@@ -264,3 +264,62 @@ def test_point_segment_distances_blocks_do_not_change_the_result():
     d1, s1 = point_segment_distances(p[::97], a, b, chunk=1)
     np.testing.assert_array_equal(d[::97], d1)
     np.testing.assert_array_equal(s[::97], s1)
+
+
+# ------------------------------------------------------------------ far samples
+def _trc_with_cell(tmp_path: Path, value: str) -> Path:
+    """A 30-frame, 4-marker TRC (mm) with one coordinate replaced by ``value``."""
+    from skincap import io as skio
+    from skincap.types import MarkerSet
+
+    t = np.arange(30) / 100.0
+    pos = np.stack(
+        [np.stack([0.1 * k + 0.01 * np.sin(t), 1.0 + 0.1 * k + 0 * t, 0.2 * np.cos(t)], axis=1)
+         for k in range(4)], axis=1,
+    )  # fmt: skip
+    p = tmp_path / "far.trc"
+    skio.write(MarkerSet(positions=pos, labels=["A", "B", "C", "D"], rate=100.0), p)
+    lines = p.read_text().split("\n")
+    row = next(i for i, ln in enumerate(lines) if ln.startswith("3\t"))
+    cells = lines[row].split("\t")
+    cells[3] = value
+    lines[row] = "\t".join(cells)
+    p.write_text("\n".join(lines))
+    return p
+
+
+@pytest.mark.parametrize("verb", ["info", "clean", "render"])
+def test_a_marker_beyond_reach_is_refused_on_reading(tmp_path, verb):
+    """One TRC cell of 1e300 mm: 'clean' died in an SVD that did not converge and
+    'render' asked for a floor grid beyond NumPy's largest array (tracebacks)."""
+    p = _trc_with_cell(tmp_path, "1e300")
+    out = tmp_path / "out" / ("o.png" if verb == "render" else "o.c3d")
+    out.parent.mkdir()
+    argv = ["info", str(p)] if verb == "info" else [verb, str(p), "-o", str(out)]
+    line = _one_error_line(run_cli(argv, timeout_s=20), p)
+    assert "marker 'A' in frame 2 lies at" in line and "beyond the +-1e+09 m" in line
+    assert not any(out.parent.iterdir())
+
+
+def test_render_floor_grid_stays_small_for_a_far_outlier():
+    """A sample 1e9 m out (within reach) made a 0.5 m floor grid of 6e9 points (44 GB)."""
+    from skincap.viz.render import MAX_FLOOR_LINES, _floor_lines
+
+    eye, rows = np.array([0.0, 1.0, -10.0]), np.eye(3)  # looking along +z
+    far = _floor_lines(np.array([[-1.0, 0.0, -1.0], [9.9e8, 2.0, 1.0]]), eye, rows, 500.0)
+    assert len(far) <= 2 * (MAX_FLOOR_LINES + 3)
+    near = _floor_lines(np.array([[-1.0, 0.0, -1.0], [1.0, 2.0, 1.0]]), eye, rows, 500.0)
+    assert len(near) == 2 * 7  # 0.5 m lines from -1.5 to 1.5 on both axes, all in view
+    assert len(_floor_lines(np.array([[0.0] * 3, [np.inf] * 3]), eye, rows, 500.0)) == 0
+
+
+def test_render_refuses_a_mesh_beyond_float32(tmp_path):
+    """An OBJ vertex at 1e308 m (finite, read) became inf in the float32 scene: exit 0
+    with a stray 'RuntimeWarning: overflow encountered in cast' and a blank picture."""
+    p = tmp_path / "far.obj"
+    p.write_text("v 0 0 0\nv 1 0 0\nv 0 1e308 0\nf 1 2 3\n")
+    out = tmp_path / "out" / "far.png"
+    out.parent.mkdir()
+    line = _one_error_line(run_cli(["render", str(p), "-o", str(out)], timeout_s=20), p)
+    assert "1e+308 m is beyond float32" in line
+    assert not out.exists()
