@@ -297,7 +297,7 @@ def test_a_marker_beyond_reach_is_refused_on_reading(tmp_path, verb):
     out.parent.mkdir()
     argv = ["info", str(p)] if verb == "info" else [verb, str(p), "-o", str(out)]
     line = _one_error_line(run_cli(argv, timeout_s=20), p)
-    assert "marker 'A' in frame 2 lies at" in line and "beyond the +-1e+09 m" in line
+    assert "marker 'A' in frame 2 lies at" in line and "beyond the ±1e+09 m" in line
     assert not any(out.parent.iterdir())
 
 

@@ -136,7 +136,7 @@ def _check_capture_reach(path: str | os.PathLike[str], data: MarkerSet | PointCl
         where, at = f"a point of frame {t}", xyz[k]
     raise FormatError(
         path,
-        f"{where} lies at {[float(x) for x in at]} m, beyond the +-{MAX_CAPTURE_COORDINATE_M:g} "
+        f"{where} lies at {[float(x) for x in at]} m, beyond the ±{MAX_CAPTURE_COORDINATE_M:g} "
         "m a capture may reach (a corrupt sample or a wrong unit?)",
     )
 
