@@ -323,3 +323,21 @@ def test_render_refuses_a_mesh_beyond_float32(tmp_path):
     line = _one_error_line(run_cli(["render", str(p), "-o", str(out)], timeout_s=20), p)
     assert "1e+308 m is beyond float32" in line
     assert not out.exists()
+
+
+# ------------------------------------------------------------------ BVH frame time
+def test_solve_of_a_take_slower_than_a_bvh_holds_writes_nothing(tmp_path):
+    """A C3D at 1e-4 Hz (its reader takes any rate up to 1e7 Hz): 'solve' wrote
+    'Frame Time: 10000.0', a BVH its own reader refuses (outside 1e-7..3600 s)."""
+    from skincap import io as skio
+    from skincap.types import MarkerSet
+
+    take = skio.read(DATA / "cmu_85_02.c3d")
+    src = tmp_path / "slow.c3d"
+    skio.write(MarkerSet(positions=take.positions[:60], labels=list(take.labels), rate=1e-4), src)
+    out = tmp_path / "out" / "slow.bvh"
+    out.parent.mkdir()
+    outcome = run_cli(["solve", str(src), "-o", str(out)], timeout_s=60)
+    verdict = judge(outcome, inputs=[src], output=out, out_dir=out.parent, files_before=set())
+    assert verdict.violations == [] and verdict.outcome == "refused", (verdict, outcome.stderr)
+    assert "Frame Time of 10000 s, outside the 1e-07..3600 s" in outcome.stderr_lines[-1]
