@@ -30,6 +30,8 @@ import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from skincap.errors import FormatError, naming_file
 from skincap.types import MarkerSet, Mesh, Motion, PointCloud
 
@@ -105,7 +107,38 @@ def _read_by_extension(path: str | os.PathLike[str], **options: Any) -> Any:
     kind_of_extension(path)  # an unknown extension fails here, naming the known ones
     _, module, function = _READERS[Path(path).suffix.lower()]
     reader = getattr(importlib.import_module(module), function)
-    return reader(path, **options)
+    data = reader(path, **options)
+    if isinstance(data, (MarkerSet, PointCloud)):
+        _check_capture_reach(path, data)
+    return data
+
+
+#: Farthest a marker or point may lie from the origin, metres (as the BVH reader's
+#: bound on offsets and channels). A file's float32 or text may hold 1e38 mm: one such
+#: sample made 'clean' die in an SVD that did not converge and 'render' draw a floor
+#: grid of 6e9 points, where a sample within the bound is an outlier they handle.
+MAX_CAPTURE_COORDINATE_M = 1e9
+
+
+def _check_capture_reach(path: str | os.PathLike[str], data: MarkerSet | PointCloud) -> None:
+    """FormatError naming the first sample of ``data`` (markers (T, N, 3) or points
+    (M, 3), metres) beyond :data:`MAX_CAPTURE_COORDINATE_M`; NaN (missing) passes."""
+    xyz = data.positions if isinstance(data, MarkerSet) else data.points
+    far = np.abs(xyz) > MAX_CAPTURE_COORDINATE_M  # NaN compares False
+    if not far.any():
+        return
+    if isinstance(data, MarkerSet):
+        t, n, _ = (int(i[0]) for i in np.nonzero(far))
+        where, at = f"marker {data.labels[n]!r} in frame {t}", xyz[t, n]
+    else:
+        k = int(np.nonzero(far)[0][0])
+        t = int(np.searchsorted(data.offsets, k, side="right")) - 1
+        where, at = f"a point of frame {t}", xyz[k]
+    raise FormatError(
+        path,
+        f"{where} lies at {[float(x) for x in at]} m, beyond the ±{MAX_CAPTURE_COORDINATE_M:g} "
+        "m a capture may reach (a corrupt sample or a wrong unit?)",
+    )
 
 
 def read_mesh(path: str | os.PathLike[str], *, units: str | None = None) -> Any:

@@ -224,10 +224,12 @@ def write_vicon_csv(
     """
     if not isinstance(markers, MarkerSet):
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
-    bad = [s for s in markers.labels if not s or any(c in s for c in ',"\r\n') or s != s.strip()]
+    bad = [
+        s for s in markers.labels if not s or any(c in s for c in ',"\r\n\x00') or s != s.strip()
+    ]
     if bad:
         raise ValidationError(
-            f"markers.labels: CSV labels cannot be empty or hold commas, quotes or line breaks: {bad[:5]}"
+            f"markers.labels: CSV labels cannot be empty or hold commas, quotes, line breaks or NULs: {bad[:5]}"
         )
     # a Nexus CSV carries no axis information: write Z up (Nexus' world frame) unless
     # the markers were read from a Vicon CSV with another up axis, which is restored

@@ -341,11 +341,11 @@ def write_trc(
     if up not in ("y", "z"):
         raise ValidationError(f"up: expected 'y' or 'z', got {up!r}")
     bad = [
-        s for s in markers.labels if not s or "\t" in s or "\n" in s or "\r" in s or s != s.strip()
+        s for s in markers.labels if not s or any(c in s for c in "\t\r\n\x00") or s != s.strip()
     ]
     if bad:
         raise ValidationError(
-            f"markers.labels: TRC names cannot be empty or hold tabs, line breaks or edge blanks: {bad[:5]}"
+            f"markers.labels: TRC names cannot be empty or hold tabs, line breaks, NULs or edge blanks: {bad[:5]}"
         )
     t, n = markers.n_frames, markers.n_markers
     first_frame = int(markers.meta.get("first_frame", 1))

@@ -231,10 +231,20 @@ def _frame_primitives(
     return prims
 
 
+#: Most floor grid lines along one axis of a picture.
+MAX_FLOOR_LINES = 200
+
+
 def _floor_lines(bounds: np.ndarray, eye: np.ndarray, rows: np.ndarray, f: float) -> np.ndarray:
-    """(L, 2, 2) image segments of a 0.5 m floor grid spanning ``bounds`` (2, 3) at its lowest y."""
+    """(L, 2, 2) image segments of a floor grid spanning ``bounds`` (2, 3) metres at its
+    lowest y: lines 0.5 m apart, or a power of two times that so that an axis has at most
+    :data:`MAX_FLOOR_LINES` (none when the bounds are not finite)."""
     lo, hi = bounds
-    step = 0.5
+    span = float(max(hi[0] - lo[0], hi[2] - lo[2], 0.0))
+    if not np.isfinite(span):
+        return np.zeros((0, 2, 2))
+    # a fixed 0.5 m step turned one sample 1e9 m out into a grid of 6e9 points (44 GB)
+    step = 0.5 * 2.0 ** max(0.0, np.ceil(np.log2(max(span, 1e-300) / (0.5 * MAX_FLOOR_LINES))))
     x0, x1 = np.floor(lo[0] / step) * step - step, np.ceil(hi[0] / step) * step + step
     z0, z1 = np.floor(lo[2] / step) * step - step, np.ceil(hi[2] / step) * step + step
     y = lo[1]

@@ -401,7 +401,7 @@ def scene_from_objects(objects: Sequence[tuple[str, object]]) -> Scene:
         elif isinstance(obj, Mesh):
             layers.append(_static_mesh_layer(name, obj, None))
         elif isinstance(obj, MeshAnimation):
-            frames = np.asarray(obj.frames, dtype=np.float32)
+            frames = _float32_frames(np.asarray(obj.frames), None, name)
             layers.append(MeshLayer(name, obj.rate, None, faces=obj.rest.faces, frames=frames))
         else:
             raise ValidationError(f"scene_from_objects: cannot show a {type(obj).__name__}")
@@ -475,9 +475,36 @@ def _skeleton_layer(name: str, motion: Motion, source: Path | None) -> SkeletonL
     )
 
 
+def _float32_frames(frames: np.ndarray, source: Path | None, name: str) -> np.ndarray:
+    """Vertex positions (T, V, 3) metres as the float32 a layer stores.
+
+    Raises FormatError naming ``source`` (ValidationError naming ``name`` without one)
+    when a finite coordinate lies beyond float32's range: an OBJ vertex at 1e308 m
+    became inf in the scene, with a stray NumPy overflow warning and a blank picture.
+    """
+    arr = np.asarray(frames)
+    if arr.dtype == np.float32:
+        return arr
+    limit = float(np.finfo(np.float32).max)
+    beyond = np.abs(arr) > limit  # NaN (a missing sample) compares False
+    if beyond.any():
+        what = (
+            f"a vertex coordinate of {float(arr[beyond][0]):g} m is beyond float32's "
+            f"+-{limit:.3g}, which the viewer and renderer draw in"
+        )
+        if source is not None:
+            raise FormatError(source, what)
+        raise ValidationError(f"{name}: {what}")
+    return arr.astype(np.float32)
+
+
 def _static_mesh_layer(name: str, mesh: Mesh, source: Path | None) -> MeshLayer:
     return MeshLayer(
-        name, 30.0, source, faces=mesh.faces, frames=mesh.vertices[None].astype(np.float32)
+        name,
+        30.0,
+        source,
+        faces=mesh.faces,
+        frames=_float32_frames(mesh.vertices[None], source, name),
     )
 
 
@@ -500,7 +527,7 @@ def _gltf_layers(path: Path) -> list[Layer]:
     nodes = np.asarray(mesh.meta["joint_nodes"], dtype=np.int64)
     joint_world = anim.node_world[:, nodes]  # (T, J, 4, 4)
     skinning = joint_world @ mesh.skin.inverse_bind[None]
-    frames = make_deformer("lbs", mesh).deform(skinning).astype(np.float32)
+    frames = _float32_frames(make_deformer("lbs", mesh).deform(skinning), path, path.name)
     skeleton = mesh.skin.skeleton
     return [
         MeshLayer(f"{path.name}:mesh", anim.rate, path, faces=mesh.faces, frames=frames),
@@ -576,7 +603,7 @@ def _load_obj_sequence(
             stacklevel=3,
         )
         rate = DEFAULT_PC2_RATE
-    stack = np.stack([m.vertices for m in meshes]).astype(np.float32)
+    stack = _float32_frames(np.stack([m.vertices for m in meshes]), folder, folder.name)
     return MeshLayer(folder.name, float(rate), folder, faces=first.faces, frames=stack)
 
 
@@ -610,7 +637,7 @@ def _usd_layers(path: Path) -> list[Layer]:
         layers.append(
             MeshLayer(
                 f"{path.name}:{prim.GetName()}", rate, path, faces=faces,
-                frames=frames.astype(np.float32),
+                frames=_float32_frames(frames, path, path.name),
             )
         )  # fmt: skip
     if not layers:

@@ -64,6 +64,11 @@ __all__ = [
 
 #: Relative distance tolerance under which two bones are equally near (Blender's).
 TIE_TOLERANCE = 1e-4
+#: Entries (vertices x joints, or bone segments) of the dense (V, J) tables bone heat
+#: builds (distances, segment parameters, the weights): 2**25 float64 are 256 MB each.
+#: A MakeHuman body is 13,380 x 163 = 2.2e6; a 600-vertex mesh with the 200,000 joints
+#: of a hostile 8 MB BVH asked for 2.7 GB at once.
+MAX_DENSE_ENTRIES = 2**25
 
 
 # -------------------------------------------------------------------------- bones
@@ -148,13 +153,16 @@ def point_segment_distances(
     safe = np.where(len2 > 0, len2, 1.0)
     dist = np.zeros((p.shape[0], a.shape[0]))
     param = np.zeros((p.shape[0], a.shape[0]))
-    for s in range(0, p.shape[0], max(int(chunk), 1)):
-        ap = p[s : s + chunk, None, :] - a[None]  # (n, B, 3)
+    # points per block: at most `chunk`, and fewer for many segments so that a block's
+    # (n, B, 3) temporaries stay near 2**22 entries (32 MB) each
+    step = max(1, min(int(chunk), (1 << 22) // max(a.shape[0], 1)))
+    for s in range(0, p.shape[0], step):
+        ap = p[s : s + step, None, :] - a[None]  # (n, B, 3)
         u = np.clip(np.einsum("nbx,bx->nb", ap, ab) / safe, 0.0, 1.0)
         u[:, len2 == 0] = 0.0
         diff = ap - u[..., None] * ab[None]
-        dist[s : s + chunk] = np.sqrt(np.einsum("nbx,nbx->nb", diff, diff))
-        param[s : s + chunk] = u
+        dist[s : s + step] = np.sqrt(np.einsum("nbx,nbx->nb", diff, diff))
+        param[s : s + step] = u
     return dist, param
 
 
@@ -275,6 +283,13 @@ def bone_heat_weight_matrix(
     n_v = v.shape[0]
     if n_v == 0:
         return np.zeros((0, n_j))
+    width = max(n_j, heads.shape[0])
+    if n_v * width > MAX_DENSE_ENTRIES:
+        raise ValidationError(
+            f"bone heat: {n_v} vertices x {width} joints is {n_v * width} weights in dense "
+            f"(V, J) tables, more than the {MAX_DENSE_ENTRIES} it holds; give weights "
+            "from a file or a skeleton with fewer joints"
+        )
 
     cand, dist, share, nearest = _nearest_visible(
         v, f, heads, tails, visibility=bool(visibility), candidates=int(visibility_candidates)

@@ -26,7 +26,7 @@ from skincap.io._common import (
     unit_scale,
     up_rotation,
 )
-from skincap.io.bvh.parse import _AXIS, _BAD_NAME_RE
+from skincap.io.bvh.parse import _AXIS, _BAD_NAME_RE, MAX_FRAME_TIME_S, MIN_FRAME_TIME_S
 from skincap.io.bvh.units import _skeleton_height
 from skincap.types import Motion, Skeleton
 
@@ -105,6 +105,13 @@ def write_bvh(
     """
     if not isinstance(motion, Motion):
         raise ValidationError(f"motion: expected a Motion, got {type(motion).__name__}")
+    # the reader's bounds: 'solve' of a C3D at 1e-4 Hz wrote 'Frame Time: 10000.0', a
+    # BVH that 'skincap info' then refused
+    if not MIN_FRAME_TIME_S <= 1.0 / motion.rate <= MAX_FRAME_TIME_S:
+        raise ValidationError(
+            f"motion.rate: {motion.rate:g} Hz is a Frame Time of {1.0 / motion.rate:g} s, "
+            f"outside the {MIN_FRAME_TIME_S:g}..{MAX_FRAME_TIME_S:g} s a BVH holds"
+        )
     scale, up_key, mode = _write_options(motion, units, up, position_channels, precision)
     sk = motion.skeleton
     names = sk.names

@@ -43,8 +43,12 @@ _INTEL_DTYPES = {1: "<i1", 2: "<i2", 4: "<f4"}
 
 
 def decode_text(raw: bytes) -> str:
-    """C3D text -> str: UTF-8 when valid, else Latin-1; trailing blanks and NULs removed."""
-    raw = raw.rstrip(b" \x00")
+    """C3D text -> str: UTF-8 when valid, else Latin-1; cut at the first NUL, trailing
+    blanks removed."""
+    # writers in C end a fixed-width string with a NUL and may leave whatever was in
+    # memory after it; those bytes are not text (kept, a NUL reached the TRC and CSV
+    # writers, whose own readers then refused the file as binary)
+    raw = raw.split(b"\x00", 1)[0].rstrip(b" ")
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:
