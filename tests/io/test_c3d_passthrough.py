@@ -209,7 +209,10 @@ def test_cli_convert_and_clean_keep_analogs(tmp_path):
 
 
 def test_cli_refuses_a_trc_value_a_c3d_cannot_hold(tmp_path):
-    """Issue #13 item 6: 1e39 in a TRC used to become a C3D that skincap could not read."""
+    """Issue #13 item 6: 1e39 in a TRC used to become a C3D that skincap could not read.
+
+    The reader now refuses it first (a coordinate beyond 1e9 m is a corrupt sample);
+    the C3D writer's own float32 check is held by test_values_beyond_float32_are_refused."""
     pos = np.ones((3, 2, 3))
     pos[1, 0, 2] = 1e36  # metres: the TRC (mm) holds 1e39
     trc = tmp_path / "big.trc"
@@ -218,7 +221,8 @@ def test_cli_refuses_a_trc_value_a_c3d_cannot_hold(tmp_path):
     r = CliRunner().invoke(app, ["convert", str(trc), str(out)])
     assert r.exit_code == 2, r.output
     lines = [s for s in r.output.splitlines() if s.strip()]
-    assert len(lines) == 1 and "point 'a', frame 1" in lines[0] and "1e+39 mm" in lines[0], r.output
+    assert len(lines) == 1 and "big.trc" in lines[0], r.output
+    assert "marker 'a' in frame 1" in lines[0] and "1e+36" in lines[0], r.output
     assert not out.exists()
 
 
