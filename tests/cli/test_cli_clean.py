@@ -237,3 +237,16 @@ def test_clean_two_markers_and_a_motive_csv_exit_cleanly(tmp_path: Path) -> None
         )
     else:
         assert _read(tmp_path / "take.c3d").n_frames == 4
+
+
+def test_clean_refuses_a_capture_of_model_outputs_only(data_dir: Path, tmp_path: Path) -> None:
+    """A Vicon analysis C3D holds angles, forces and analogs but no marker trajectory:
+    clean died in measurement_noise with a reshape traceback; now one line, exit 2."""
+    src = data_dir / "external" / "btk_vicon_analysis_model_outputs.c3d"
+    out = tmp_path / "out.c3d"
+    result = run("clean", src, "-o", out)
+    assert result.exit_code == 2, result.output
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert len(lines) == 1 and src.name in lines[0], result.output
+    assert "no marker trajectories" in lines[0] and "10 angles" in lines[0]
+    assert not out.exists()

@@ -415,6 +415,8 @@ def clean_markers(
         raise ValidationError(f"markers: expected a MarkerSet, got {type(markers).__name__}")
     if markers.n_frames == 0:
         raise ValidationError("markers has no frames")
+    if markers.n_markers == 0:
+        raise ValidationError("markers has no marker columns to clean")
     labelled = np.flatnonzero([not str(lab).startswith("*") for lab in markers.labels])
 
     def step(base: float, span: float) -> Progress | None:

@@ -130,6 +130,15 @@ def check_clean_options(
         )
 
 
+def _no_markers_reason(markers: MarkerSet) -> str:
+    """Why a capture with no marker columns cannot be cleaned, naming what it holds."""
+    groups = markers.meta.get("model_outputs") or {}  # {group: {label: (T, 3)}}
+    held = ", ".join(f"{len(series)} {group}" for group, series in dict(groups).items() if series)
+    return "holds no marker trajectories to clean" + (
+        f" (only model outputs: {held})" if held else ""
+    )
+
+
 def clean_file(
     src: str | os.PathLike[str],
     output: str | os.PathLike[str],
@@ -196,6 +205,9 @@ def clean_file(
             raise FormatError(src, "not a marker capture (labelled trajectories)")
         if markers.n_frames == 0:
             raise FormatError(src, "no frames")
+        if markers.n_markers == 0:
+            # e.g. a Vicon analysis file: model outputs (angles, forces) and analogs only
+            raise FormatError(src, _no_markers_reason(markers))
         if reference_frame is not None and not 0 <= reference_frame < markers.n_frames:
             raise FormatError(
                 src, f"--reference-frame {reference_frame} is outside 0..{markers.n_frames - 1}"
