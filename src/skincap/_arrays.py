@@ -8,7 +8,7 @@ progress the same way, with the house error messages.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any
 
 import numpy as np
@@ -27,6 +27,7 @@ __all__ = [
     "check_nonnegative",
     "check_finite",
     "check_count",
+    "track_largest_step",
 ]
 
 #: A progress callback: ``progress(fraction in [0, 1], message)``. ``None`` where taken
@@ -185,3 +186,34 @@ def check_count(name: str, value: Any, *, minimum: int) -> int:
     if value < minimum:
         raise ValidationError(f"{name}: expected an integer >= {minimum}, got {value!r}")
     return int(value)
+
+
+def track_largest_step(
+    blocks: Iterable[np.ndarray], fastest: list[tuple[float, int]]
+) -> Iterator[np.ndarray]:
+    """Yield the frame blocks ``(t, V, 3)`` unchanged while finding the largest step.
+
+    ``fastest`` ends as ``[(step, frame)]``: the largest distance a point moves between
+    two consecutive frames (the blocks' unit) and the later frame's number, steps across
+    block boundaries included; ``[]`` for fewer than two frames. NaN (an unseen point)
+    never counts. Memory: one block and one frame, so a long take can stream through.
+    """
+    last: np.ndarray | None = None
+    offset = 0  # frame number of the block's first frame
+    best = (-1.0, -1)  # a still mesh's 0.0 counts
+    for block in blocks:
+        # the previous block's last frame in front, so the step across the boundary counts
+        joined = block if last is None else np.concatenate([last[None], block])
+        first = offset if last is None else offset - 1  # frame number of joined[0]
+        if joined.shape[0] > 1:
+            d = np.linalg.norm(np.diff(joined, axis=0), axis=-1)  # (t, V)
+            step = np.where(np.isfinite(d), d, -np.inf).max(axis=1)  # (t,)
+            k = int(np.argmax(step))
+            if step[k] > best[0]:
+                best = (float(step[k]), first + k + 1)
+        offset += block.shape[0]
+        if block.shape[0]:
+            last = block[-1]
+        yield block
+    if best[1] >= 0:
+        fastest.append(best)

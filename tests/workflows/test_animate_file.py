@@ -454,7 +454,7 @@ def test_the_report_gives_the_fastest_vertex_and_a_mesh_outrunning_its_markers_i
 def test_the_fastest_step_counts_the_step_across_streamed_blocks() -> None:
     """The deformer streams 32-frame blocks: a jump from a block's last frame to the
     next block's first is found, with the later frame's number; NaN vertices skipped."""
-    from skincap.workflows.animate_file import _fastest_step
+    from skincap._arrays import track_largest_step
 
     frames = np.zeros((70, 5, 3))
     frames[:, :, 0] = np.arange(70)[:, None] * 0.01  # 1 cm a frame
@@ -462,11 +462,11 @@ def test_the_fastest_step_counts_the_step_across_streamed_blocks() -> None:
     frames[40:45, 4] = np.nan  # an unseen part
     fastest: list[tuple[float, int]] = []
     blocks = [frames[i : i + 32] for i in range(0, 70, 32)]
-    out = list(_fastest_step(iter(blocks), fastest))
+    out = list(track_largest_step(iter(blocks), fastest))
     assert all(a is b for a, b in zip(out, blocks, strict=True))
     assert fastest == [(pytest.approx(np.hypot(0.01, 0.2)), 32)]
     one: list[tuple[float, int]] = []
-    list(_fastest_step(iter([frames[:1]]), one))
+    list(track_largest_step(iter([frames[:1]]), one))
     assert one == []  # one frame: no step
 
 

@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from skincap._arrays import interior_runs
+from skincap._arrays import interior_runs, track_largest_step
 from skincap.geometry.kinematics import joint_positions_arrays
 from skincap.types import MarkerSet, Mesh, Motion, PointCloud, Skeleton
 
@@ -201,10 +201,11 @@ def summarize_point_cache(
         return out
     lo, hi = x.min(axis=(0, 1)), x.max(axis=(0, 1))
     frame_size = (x.max(axis=1) - x.min(axis=1)).max(axis=1)  # (T,)
-    step = 0.0
-    for t0 in range(0, n_t - 1, _SPEED_CHUNK_FRAMES):  # chunks of frames, not vertices
-        block = x[t0 : t0 + _SPEED_CHUNK_FRAMES + 1]
-        step = max(step, float(np.linalg.norm(np.diff(block, axis=0), axis=-1).max()))
+    fastest: list[tuple[float, int]] = []
+    chunks = (x[t0 : t0 + _SPEED_CHUNK_FRAMES] for t0 in range(0, n_t, _SPEED_CHUNK_FRAMES))
+    for _ in track_largest_step(chunks, fastest):  # chunks of frames, not vertices
+        pass
+    step = fastest[0][0] if fastest else 0.0
     per_second = 1.0 if rate is None else rate / float(frame_step)
     out.update(
         bounds_min=lo.tolist(),

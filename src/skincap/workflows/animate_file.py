@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
-from skincap._arrays import Progress
+from skincap._arrays import Progress, track_largest_step
 from skincap.errors import FormatError, OutputExistsError, SkincapWarning, ValidationError
 from skincap.io.mesh_animation_files import animation_output_files, write_mesh_animation
 
@@ -360,7 +360,7 @@ def _animate(
     timing: list[tuple[float, int]] = []
     fastest: list[tuple[float, int]] = []
     frames = _timed_frames(subject, _in_rig_order(positions, columns), method, timing, progress)
-    frames = _fastest_step(frames, fastest)
+    frames = track_largest_step(frames, fastest)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
     if paths["save_rig"] is not None:
         # after the animation, the long and interruptible part: a run stopped there
@@ -683,7 +683,7 @@ def _animate_skeleton_rbf(
     timing: list[tuple[float, int]] = []
     blocks = deformer.deform(positions, solved.motion, progress=_stage(progress, "deformation"))
     fastest: list[tuple[float, int]] = []
-    frames = _fastest_step(_timed(blocks, timing), fastest)
+    frames = track_largest_step(_timed(blocks, timing), fastest)
     rest = dataclasses.replace(mesh, vertices=vertices, skin=None)
     written = _write_animation(rest, frames, take.n_frames, take.rate, output, force=force)
     return _summary(
@@ -703,33 +703,6 @@ def _timed(blocks: Iterator[np.ndarray], timing: list[tuple[float, int]]) -> Ite
             return
         timing.append((time.perf_counter() - start, int(block.shape[0])))
         yield block
-
-
-def _fastest_step(
-    blocks: Iterator[np.ndarray], fastest: list[tuple[float, int]]
-) -> Iterator[np.ndarray]:
-    """The blocks ``(t, V, 3)`` unchanged; ``fastest`` ends as ``[(step, frame)]``: the
-    largest distance a vertex moves between two frames (metres) and the later frame's
-    number (``[]`` for fewer than two frames). Steps across block boundaries count."""
-    last: np.ndarray | None = None
-    offset = 0  # frame number of the block's first frame
-    best = (-1.0, -1)  # a still mesh's 0.0 counts
-    for block in blocks:
-        # the previous block's last frame in front, so the step across the boundary counts
-        joined = block if last is None else np.concatenate([last[None], block])
-        first = offset if last is None else offset - 1  # frame number of joined[0]
-        if joined.shape[0] > 1:
-            d = np.linalg.norm(np.diff(joined, axis=0), axis=-1)  # (t, V); NaN: unseen part
-            step = np.where(np.isfinite(d), d, -np.inf).max(axis=1)  # (t,)
-            k = int(np.argmax(step))
-            if step[k] > best[0]:
-                best = (float(step[k]), first + k + 1)
-        offset += block.shape[0]
-        if block.shape[0]:
-            last = block[-1]
-        yield block
-    if best[1] >= 0:
-        fastest.append(best)
 
 
 def _speed_check(
