@@ -328,21 +328,22 @@ def marker_surface_bound(
             f"regions: expected one name per true-skin vertex ({true.shape[0]}), "
             f"got shape {np.asarray(regions).shape}"
         )
-    targets, covered = marker_surface_targets(
-        true,
-        area_weighted_vertex_normals(true, faces),
-        markers,
-        marker_faces,
-        marker_radius=marker_radius,
-        max_distance=max_distance,
-        patch_ratio=patch_ratio,
-    )
+    skin_normals = area_weighted_vertex_normals(true, faces)
     area = _vertex_areas(true, faces)
-    d = np.zeros(true.shape[0])
-    if covered.any():
-        d[covered] = _distances_to_surface(true, faces, targets[covered])
 
-    def summary(sel: np.ndarray) -> dict[str, Any]:
+    def distances(marker_normals: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """(V,) distance of each covered skin vertex's target to the skin (0 elsewhere),
+        (V,) covered; the lift's normals at the markers estimated, or ``marker_normals``."""
+        targets, covered = marker_surface_targets(
+            true, skin_normals, markers, marker_faces, marker_radius=marker_radius,
+            max_distance=max_distance, patch_ratio=patch_ratio, marker_normals=marker_normals,
+        )  # fmt: skip
+        d = np.zeros(true.shape[0])
+        if covered.any():
+            d[covered] = _distances_to_surface(true, faces, targets[covered])
+        return d, covered
+
+    def summary(sel: np.ndarray, d: np.ndarray, covered: np.ndarray) -> dict[str, Any]:
         total = float(area[sel].sum())
         s = sel & covered
         w = area[s]
@@ -354,33 +355,20 @@ def marker_surface_bound(
             "target_p95_m": _weighted_p95(d[s], w),
         }
 
+    d, covered = distances(None)
     every = np.ones(true.shape[0], dtype=bool)
-    out: dict[str, Any] = summary(every)
+    out: dict[str, Any] = summary(every, d, covered)
     w = area[covered]
     out["target_over_8mm_area_fraction"] = (
         float(w[d[covered] > 0.008].sum() / w.sum()) if w.sum() > 0 else None
     )
     # the same with the true skin's normals at the markers: the ceiling of the normals
-    exact, exact_covered = marker_surface_targets(
-        true,
-        area_weighted_vertex_normals(true, faces),
-        markers,
-        marker_faces,
-        marker_radius=marker_radius,
-        max_distance=max_distance,
-        patch_ratio=patch_ratio,
-        marker_normals=true_marker_normals(true, faces, markers),
-    )
-    we = area[exact_covered]
-    de = _distances_to_surface(true, faces, exact[exact_covered])
-    out["exact_normals"] = {
-        "covered_area_fraction": float(we.sum() / area.sum()) if area.sum() > 0 else 0.0,
-        "target_mean_m": float((we * de).sum() / we.sum()) if we.sum() > 0 else None,
-        "target_p95_m": _weighted_p95(de, we) if we.sum() > 0 else None,
-    }
+    out["exact_normals"] = summary(every, *distances(true_marker_normals(true, faces, markers)))
     if regions is not None:
         names = np.asarray(regions).astype(str)
-        rows = [{"region": str(key)} | summary(names == key) for key in np.unique(names)]
+        rows = [
+            {"region": str(key)} | summary(names == key, d, covered) for key in np.unique(names)
+        ]
         rows.sort(key=lambda r: (r["target_p95_m"] is None, -(r["target_p95_m"] or 0.0)))
         out["regions"] = rows
     return out
